@@ -1,0 +1,43 @@
+"""Option parsers shared by the commands."""
+
+from __future__ import annotations
+
+import click
+
+from lfring.optics.device import RingDevice, load_device
+
+
+def parse_range(text: str, *, with_count: bool) -> tuple[float, ...]:
+    """'a:b' or 'a:b:n' -> floats (n an int >= 2); raises click.BadParameter on bad text."""
+    parts = text.split(":")
+    want = 3 if with_count else 2
+    if len(parts) != want:
+        form = "START:STOP:COUNT" if with_count else "START:STOP"
+        raise click.BadParameter(f"expected {form}, got {text!r}")
+    try:
+        start, stop = float(parts[0]), float(parts[1])
+    except ValueError:
+        raise click.BadParameter(f"START and STOP must be numbers in metres, got {text!r}") from None
+    if with_count:
+        try:
+            count = int(parts[2])
+        except ValueError:
+            raise click.BadParameter(f"COUNT must be an integer, got {parts[2]!r}") from None
+        if count < 2:
+            raise click.BadParameter(f"COUNT must be >= 2, got {count}")
+        return start, stop, count
+    return start, stop
+
+
+device_option = click.option(
+    "--device",
+    "device_name",
+    default="prototype",
+    show_default=True,
+    metavar="NAME|FILE",
+    help="Built-in device name or a .toml/.json device file (lengths in metres).",
+)
+
+
+def get_device(name: str) -> RingDevice:
+    return load_device(name)

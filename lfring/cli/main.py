@@ -1,0 +1,81 @@
+"""The ``lfring`` command-line app: one small module per command, each a thin shell."""
+
+from __future__ import annotations
+
+import importlib
+import logging
+import sys
+
+import click
+
+from lfring import __version__
+from lfring.errors import LfringError
+
+# command name -> module in lfring.cli defining a click command called ``command``.
+COMMANDS = {
+    "design": "design",
+    "raytrace": "raytrace",
+    "synth": "synth",
+}
+
+
+class _LfringGroup(click.Group):
+    """Loads command modules lazily and turns lfring errors into one line on stderr."""
+
+    def list_commands(self, ctx):
+        return sorted(COMMANDS)
+
+    def get_command(self, ctx, name):
+        module = COMMANDS.get(name)
+        if module is None:
+            return None
+        return importlib.import_module(f"lfring.cli.{module}").command
+
+    def invoke(self, ctx):
+        try:
+            return super().invoke(ctx)
+        except LfringError as exc:
+            raise CliError(str(exc)) from None
+        except (FileNotFoundError, PermissionError, IsADirectoryError) as exc:
+            raise CliError(f"{exc.strerror or exc}: {exc.filename}") from None
+
+
+class CliError(click.ClickException):
+    """A bad input or a failed step: one line on stderr, exit code 2."""
+
+    exit_code = 2
+
+    def show(self, file=None):
+        click.echo(f"lfring: error: {self.format_message()}", err=True)
+
+
+@click.group(cls=_LfringGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="lfring")
+@click.option("-v", "--verbose", count=True, help="More log output (-vv for debug).")
+@click.option("-q", "--quiet", is_flag=True, help="Only warnings and errors.")
+def cli(verbose: int, quiet: bool) -> None:
+    """lfring: light fields from a four mini-lens ring camera.
+
+    All lengths are in metres unless an option says otherwise.
+    """
+    level = logging.WARNING if quiet else (logging.INFO if verbose < 2 else logging.DEBUG)
+    logging.basicConfig(level=level, format="lfring: %(levelname)s: %(message)s", stream=sys.stderr, force=True)
+
+
+def main(argv=None) -> int:
+    """Entry point of the ``lfring`` script; returns the exit code."""
+    try:
+        cli.main(args=argv, prog_name="lfring", standalone_mode=False)
+    except click.exceptions.Exit as exc:
+        return exc.exit_code
+    except click.Abort:
+        click.echo("lfring: aborted", err=True)
+        return 130
+    except click.ClickException as exc:
+        exc.show()
+        return exc.exit_code
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,46 @@
+"""Exceptions raised by lfring.
+
+Every error lfring raises on purpose is an :class:`LfringError`. Each subclass also inherits the
+builtin exception a caller would naturally catch (``ValueError`` for bad values, ``OSError`` for
+files), so ``except ValueError`` keeps working in code that does not know about lfring.
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    "LfringError",
+    "InvalidInputError",
+    "DeviceError",
+    "DesignError",
+    "FileFormatError",
+    "LfringFileNotFoundError",
+    "EstimationError",
+]
+
+
+class LfringError(Exception):
+    """Base class of every error lfring raises on purpose."""
+
+
+class InvalidInputError(LfringError, ValueError):
+    """An argument has the wrong value, shape, dtype or unit."""
+
+
+class DeviceError(InvalidInputError):
+    """A device description is incomplete, malformed or physically impossible."""
+
+
+class DesignError(LfringError, ValueError):
+    """The requested design cannot be built (for example the object cannot fit the sensor)."""
+
+
+class FileFormatError(LfringError, OSError):
+    """A file exists but cannot be read as what it claims to be (truncated, corrupt, wrong kind)."""
+
+
+class LfringFileNotFoundError(LfringError, FileNotFoundError):
+    """A file that lfring was asked to read does not exist."""
+
+
+class EstimationError(LfringError, RuntimeError):
+    """An estimator could not produce a trustworthy result from valid input."""
