@@ -58,8 +58,10 @@ def cli(verbose: int, quiet: bool) -> None:
 
     All lengths are in metres unless an option says otherwise.
     """
+    # Third-party loggers stay at WARNING; lfring's own at INFO (DEBUG with -vv).
+    logging.basicConfig(level=logging.WARNING, format="lfring: %(levelname)s: %(message)s", stream=sys.stderr, force=True)
     level = logging.WARNING if quiet else (logging.INFO if verbose < 2 else logging.DEBUG)
-    logging.basicConfig(level=level, format="lfring: %(levelname)s: %(message)s", stream=sys.stderr, force=True)
+    logging.getLogger("lfring").setLevel(level)
 
 
 def main(argv=None) -> int:

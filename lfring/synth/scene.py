@@ -1,0 +1,197 @@
+"""Scenes for the synthetic twin: textured planes (fronto-parallel or slanted, rectangles or
+discs) and height-field parts with bumps and dents of known height.
+
+World coordinates: X right, Y down, Z forward, metres from the main lens.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from lfring.errors import InvalidInputError
+from lfring.synth.textures import Texture
+
+__all__ = ["Plane", "Bump", "HeightField", "Scene", "SHAPES", "BUMP_SHAPES"]
+
+SHAPES = ("rect", "disk")
+BUMP_SHAPES = ("dome", "box", "gaussian")
+
+
+def _pair(value, name: str, *, positive: bool) -> tuple[float, float]:
+    try:
+        a, b = (float(v) for v in value)
+    except (TypeError, ValueError):
+        raise InvalidInputError(f"{name} must be a pair of numbers, got {value!r}") from None
+    if not (np.isfinite(a) and np.isfinite(b)) or (positive and not (a > 0 and b > 0)):
+        raise InvalidInputError(f"{name} must be {'positive ' if positive else ''}finite numbers, got {value!r}")
+    return a, b
+
+
+def _positive(value, name: str) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise InvalidInputError(f"{name} must be a number, got {value!r}") from None
+    if not (np.isfinite(v) and v > 0):
+        raise InvalidInputError(f"{name} must be a positive number of metres, got {value!r}")
+    return v
+
+
+@dataclass(frozen=True)
+class Plane:
+    """A textured planar patch.
+
+    depth_m : Z of the patch centre. size_m : (width, height) along the patch's own axes.
+    center_m : (X, Y) of the centre. tilt_deg : (about X, about Y); a positive tilt about X
+    pushes the top edge (smaller Y) farther away, like a table seen from above its edge.
+    shape : 'rect' or 'disk' (an ellipse inscribed in the rectangle).
+    """
+
+    depth_m: float
+    size_m: tuple[float, float]
+    texture: Texture = field(default_factory=Texture)
+    center_m: tuple[float, float] = (0.0, 0.0)
+    tilt_deg: tuple[float, float] = (0.0, 0.0)
+    shape: str = "rect"
+    name: str = ""
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "depth_m", _positive(self.depth_m, "plane depth_m"))
+        object.__setattr__(self, "size_m", _pair(self.size_m, "plane size_m", positive=True))
+        object.__setattr__(self, "center_m", _pair(self.center_m, "plane center_m", positive=False))
+        tilt = _pair(self.tilt_deg, "plane tilt_deg", positive=False)
+        if max(abs(tilt[0]), abs(tilt[1])) >= 80:
+            raise InvalidInputError(f"plane tilt must stay within +-80 degrees, got {tilt}")
+        object.__setattr__(self, "tilt_deg", tilt)
+        if self.shape not in SHAPES:
+            raise InvalidInputError(f"plane shape must be one of {', '.join(SHAPES)}, got {self.shape!r}")
+        if not isinstance(self.texture, Texture):
+            raise InvalidInputError("plane texture must be a lfring.synth.Texture")
+
+    def axes(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Centre P0 (3,), unit axes u (right), v (down) and normal n (towards +Z)."""
+        ax, ay = np.radians(self.tilt_deg)
+        rx = np.array([[1, 0, 0], [0, np.cos(ax), -np.sin(ax)], [0, np.sin(ax), np.cos(ax)]])
+        ry = np.array([[np.cos(ay), 0, np.sin(ay)], [0, 1, 0], [-np.sin(ay), 0, np.cos(ay)]])
+        r = ry @ rx
+        p0 = np.array([self.center_m[0], self.center_m[1], self.depth_m])
+        return p0, r[:, 0], r[:, 1], r[:, 2]
+
+    def corners_m(self) -> np.ndarray:
+        p0, u, v, _ = self.axes()
+        w, h = self.size_m
+        return np.array([p0 + su * w / 2 * u + sv * h / 2 * v for su in (-1, 1) for sv in (-1, 1)])
+
+    @property
+    def fronto_parallel(self) -> bool:
+        return self.tilt_deg == (0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class Bump:
+    """A bump (height > 0, towards the camera) or dent (height < 0) on a part.
+
+    center_m : (x, y) from the part's top-left corner. size_m : (width, height) of its footprint.
+    shape : 'dome' (smooth cap), 'box' (flat top, short ramps) or 'gaussian' (sigma = size / 4).
+    """
+
+    center_m: tuple[float, float]
+    size_m: tuple[float, float]
+    height_m: float
+    shape: str = "dome"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "center_m", _pair(self.center_m, "bump center_m", positive=False))
+        object.__setattr__(self, "size_m", _pair(self.size_m, "bump size_m", positive=True))
+        h = float(self.height_m)
+        if not np.isfinite(h) or h == 0:
+            raise InvalidInputError(f"bump height_m must be a non-zero finite number of metres, got {self.height_m!r}")
+        object.__setattr__(self, "height_m", h)
+        if self.shape not in BUMP_SHAPES:
+            raise InvalidInputError(f"bump shape must be one of {', '.join(BUMP_SHAPES)}, got {self.shape!r}")
+
+
+@dataclass(frozen=True)
+class HeightField:
+    """A part: a fronto-parallel base at ``depth_m`` with bumps and dents.
+
+    The surface is at Z = depth_m - height(x, y): positive heights come towards the camera.
+    """
+
+    depth_m: float
+    size_m: tuple[float, float]
+    texture: Texture = field(default_factory=Texture)
+    center_m: tuple[float, float] = (0.0, 0.0)
+    bumps: tuple[Bump, ...] = ()
+    shading: bool = True
+    name: str = ""
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "depth_m", _positive(self.depth_m, "part depth_m"))
+        object.__setattr__(self, "size_m", _pair(self.size_m, "part size_m", positive=True))
+        object.__setattr__(self, "center_m", _pair(self.center_m, "part center_m", positive=False))
+        object.__setattr__(self, "bumps", tuple(self.bumps))
+        for b in self.bumps:
+            if not isinstance(b, Bump):
+                raise InvalidInputError("part bumps must be lfring.synth.Bump records")
+            if abs(b.height_m) >= 0.5 * self.depth_m:
+                raise InvalidInputError(f"bump height {b.height_m} m is not small against the part distance")
+
+    def height_map(self, texel_m: float, shape: tuple[int, int]) -> np.ndarray:
+        """(rows, cols) float32 heights in metres at texel centres."""
+        rows, cols = shape
+        x = (np.arange(cols) + 0.5) * texel_m
+        y = (np.arange(rows) + 0.5) * texel_m
+        out = np.zeros((rows, cols), dtype=np.float64)
+        for b in self.bumps:
+            dx = (x[None, :] - b.center_m[0]) / (b.size_m[0] / 2)
+            dy = (y[:, None] - b.center_m[1]) / (b.size_m[1] / 2)
+            if b.shape == "dome":
+                r2 = dx * dx + dy * dy
+                prof = np.where(r2 < 1, np.cos(np.sqrt(np.minimum(r2, 1)) * np.pi / 2) ** 2, 0.0)
+            elif b.shape == "gaussian":
+                prof = np.exp(-0.5 * (dx * dx + dy * dy) * 4)
+            else:
+                ramp = 0.1
+                fx = np.clip((1 - np.abs(dx)) / ramp, 0, 1)
+                fy = np.clip((1 - np.abs(dy)) / ramp, 0, 1)
+                prof = fx * fy
+            out += b.height_m * prof
+        return out.astype(np.float32)
+
+    def shading_map(self, heights: np.ndarray, texel_m: float) -> np.ndarray:
+        """Lambertian shading in (0, 1] of the height field lit from the upper left."""
+        gy, gx = np.gradient(heights.astype(np.float64), texel_m)
+        # Surface z grows away from the camera as heights fall: normal ~ (gx, gy, -1) towards camera.
+        n = np.stack([gx, gy, -np.ones_like(gx)], axis=-1)
+        n /= np.linalg.norm(n, axis=-1, keepdims=True)
+        light = np.array([-0.4, -0.5, -0.77])
+        light /= np.linalg.norm(light)
+        lam = np.clip(n @ light, 0, 1)
+        flat = float(light[2] * -1)
+        return (0.6 + 0.4 * lam / flat).astype(np.float32)
+
+
+@dataclass(frozen=True)
+class Scene:
+    """Surfaces in front of the camera; ``background`` is the RGB radiance where none is hit."""
+
+    surfaces: tuple
+    background: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    name: str = ""
+
+    def __post_init__(self) -> None:
+        surfaces = tuple(self.surfaces)
+        if not surfaces:
+            raise InvalidInputError("a scene needs at least one surface")
+        for s in surfaces:
+            if not isinstance(s, (Plane, HeightField)):
+                raise InvalidInputError(f"scene surfaces must be Plane or HeightField records, got {type(s).__name__}")
+        object.__setattr__(self, "surfaces", surfaces)
+        bg = np.asarray(self.background, dtype=np.float64)
+        if bg.shape != (3,) or np.any(bg < 0) or np.any(bg > 1):
+            raise InvalidInputError(f"scene background must be an RGB triple in [0, 1], got {self.background!r}")
+        object.__setattr__(self, "background", tuple(float(v) for v in bg))
+

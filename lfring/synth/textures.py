@@ -1,0 +1,111 @@
+"""Textures for synthetic scenes: scikit-image's bundled photographs and procedural patterns.
+
+Nothing is downloaded. A texture is rasterised for a given physical size and texel size, so a
+procedural pattern is as sharp as the view needs and a photograph is resampled to the same
+grid. Values are linear radiance in [0, 1] (photographs are converted from sRGB).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from lfring.errors import InvalidInputError
+
+__all__ = ["Texture", "IMAGES", "KINDS", "rasterize"]
+
+# scikit-image images shipped inside its wheel (no download).
+IMAGES = (
+    "astronaut", "coffee", "chelsea", "camera", "text", "page", "brick", "grass", "gravel",
+    "rocket", "colorwheel", "immunohistochemistry", "retina", "hubble_deep_field",
+)
+KINDS = ("image", "checker", "speckle", "constant")
+
+
+@dataclass(frozen=True)
+class Texture:
+    """What a surface looks like.
+
+    kind : 'image' (``name`` from :data:`IMAGES`, stretched over the surface), 'checker'
+        (squares of ``square_m``), 'speckle' (random blobs of about ``feature_m``, like a
+        printed calibration target; ``seed``), or 'constant'.
+    colors : two RGB triples in [0, 1] (dark, light) for checker and speckle, one for constant.
+    """
+
+    kind: str = "speckle"
+    name: str = "astronaut"
+    square_m: float = 0.01
+    feature_m: float = 0.001
+    seed: int = 0
+    colors: tuple = ((0.05, 0.05, 0.05), (0.9, 0.9, 0.9))
+
+    def __post_init__(self) -> None:
+        if self.kind not in KINDS:
+            raise InvalidInputError(f"texture kind must be one of {', '.join(KINDS)}, got {self.kind!r}")
+        if self.kind == "image" and self.name not in IMAGES:
+            raise InvalidInputError(f"texture image must be one of {', '.join(IMAGES)}, got {self.name!r}")
+        if not (self.square_m > 0 and self.feature_m > 0):
+            raise InvalidInputError("texture square_m and feature_m must be > 0 m")
+        cols = np.asarray(self.colors, dtype=np.float64)
+        if cols.ndim != 2 or cols.shape[1] != 3 or np.any(cols < 0) or np.any(cols > 1):
+            raise InvalidInputError(f"texture colors must be RGB triples in [0, 1], got {self.colors!r}")
+        object.__setattr__(self, "colors", tuple(tuple(float(v) for v in c) for c in cols))
+
+
+def _srgb_to_linear(x: np.ndarray) -> np.ndarray:
+    return np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4).astype(np.float32)
+
+
+def _image(name: str) -> np.ndarray:
+    import skimage.data
+
+    img = getattr(skimage.data, name)()
+    if img.ndim == 2:
+        img = np.repeat(img[..., None], 3, axis=2)
+    img = img[..., :3].astype(np.float32) / 255.0
+    return _srgb_to_linear(img)
+
+
+def rasterize(texture: Texture, size_m: tuple[float, float], texel_m: float) -> np.ndarray:
+    """(rows, cols, 3) float32 raster of ``texture`` over a surface of ``size_m`` = (width,
+    height) metres with square texels of ``texel_m``; texel (0, 0) is the top-left corner."""
+    w_m, h_m = size_m
+    if not (w_m > 0 and h_m > 0 and texel_m > 0):
+        raise InvalidInputError("texture size and texel size must be > 0 m")
+    cols = max(2, int(np.ceil(w_m / texel_m)))
+    rows = max(2, int(np.ceil(h_m / texel_m)))
+    if rows * cols > 64e6:
+        raise InvalidInputError(f"texture raster of {cols} x {rows} texels is too large; use a larger texel size")
+    lo, hi = (np.array(c, dtype=np.float32) for c in (texture.colors + texture.colors)[:2])
+    if texture.kind == "constant":
+        return np.broadcast_to(lo, (rows, cols, 3)).copy()
+    if texture.kind == "image":
+        img = _image(texture.name)
+        interp = cv2.INTER_AREA if img.shape[0] > rows else cv2.INTER_CUBIC
+        return np.clip(cv2.resize(img, (cols, rows), interpolation=interp), 0.0, 1.0)
+    if texture.kind == "checker":
+        # Area-weighted squares: each texel gets the fraction of its area that is light.
+        def frac(n, pitch):
+            edges = np.arange(n + 1) * texel_m / pitch
+            # Integral of the square wave sq(t) = floor(t) mod 2 == 0 over [a, b].
+            def prim(t):
+                k = np.floor(t)
+                return np.ceil(k / 2.0) + np.where(k % 2 == 0, t - k, 0.0)
+
+            return (prim(edges[1:]) - prim(edges[:-1])) / (edges[1:] - edges[:-1])
+
+        fx, fy = frac(cols, texture.square_m), frac(rows, texture.square_m)
+        light = fy[:, None] * fx[None, :] + (1 - fy[:, None]) * (1 - fx[None, :])
+        return (lo + (hi - lo) * light[..., None].astype(np.float32)).astype(np.float32)
+    # speckle: band-limited noise pushed towards two levels, like a printed random-dot target.
+    rng = np.random.default_rng(texture.seed)
+    coarse = max(1.0, texture.feature_m / texel_m / 2.0)
+    gh, gw = int(np.ceil(rows / coarse)) + 3, int(np.ceil(cols / coarse)) + 3
+    noise = rng.standard_normal((gh, gw)).astype(np.float32)
+    noise = cv2.GaussianBlur(noise, (0, 0), 0.8)
+    field = cv2.resize(noise, (int(gw * coarse), int(gh * coarse)), interpolation=cv2.INTER_CUBIC)[:rows, :cols]
+    field /= field.std() + 1e-12
+    t = 0.5 + 0.5 * np.tanh(1.5 * field)
+    return (lo + (hi - lo) * t[..., None]).astype(np.float32)
