@@ -30,7 +30,7 @@ _ROWS = (
 
 
 def _save_figure(fig, path: str, overwrite: bool) -> None:
-    from lfring.optics.figures_io import save_figure
+    from lfring.optics.figures import save_figure
 
     save_figure(fig, path, overwrite=overwrite)
     log.info("wrote %s", path)
@@ -64,7 +64,7 @@ def command(object_size, distance, sweep_spec, range_spec, device_name, method, 
         d = design(device, object_size_m=object_size, distance_m=distance, method=method)
         _report_design(d, device.name, as_json)
         if plot:
-            from lfring.optics.design_plots import sweep_figure
+            from lfring.optics.figures import sweep_figure
 
             dev = device.with_positions(d.ring_distance_m, d.sensor_distance_m)
             lo = max(distance / 3.0, device.main_focal_length_m * 1.5)
@@ -78,7 +78,7 @@ def command(object_size, distance, sweep_spec, range_spec, device_name, method, 
         sw = sweep(device, object_size_m=object_size, distances_m=np.linspace(start, stop, count), method=method)
         _report_sweep(sw, as_json, {"method": method, "device": device.name, "object_size_m": object_size})
         if plot:
-            from lfring.optics.design_plots import sweep_figure
+            from lfring.optics.figures import sweep_figure
 
             _save_figure(sweep_figure(sw, title=f"'{method}' design for a {object_size} m object"), plot, overwrite)
     else:
@@ -103,7 +103,7 @@ def command(object_size, distance, sweep_spec, range_spec, device_name, method, 
             click.echo(f"  sharpest at Z      {wr.focus_distance_m:9.3f} m")
         _report_sweep(wr.sweep, as_json, head)
         if plot:
-            from lfring.optics.design_plots import sweep_figure
+            from lfring.optics.figures import sweep_figure
 
             fig = sweep_figure(wr.sweep, title=f"working range {near:g}-{far:g} m: b = {wr.ring_distance_m * 1e3:.2f} mm, "
                                                 f"c = {wr.sensor_distance_m * 1e3:.3f} mm")

@@ -11,18 +11,22 @@ from lfring.optics.design import (
     sweep,
 )
 from lfring.optics.device import RingDevice, builtin_devices, load_device, save_device
+from lfring.optics.raytrace import RayTrace, bundle_stats, trace
 
 __all__ = [
     "METHODS",
     "Design",
+    "RayTrace",
     "RingDevice",
     "Sweep",
     "WorkingRange",
     "builtin_devices",
+    "bundle_stats",
     "design",
     "design_working_range",
     "evaluate",
     "load_device",
     "save_device",
     "sweep",
+    "trace",
 ]

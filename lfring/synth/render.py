@@ -171,6 +171,29 @@ class _Layer:
     rgba: np.ndarray  # (h, w, 4) premultiplied colour and coverage
     depth: np.ndarray  # (h, w) Z in metres, inf where not covered
     zmin: float
+    name: str
+
+
+def _check_order(layers: list[_Layer]) -> None:
+    """Layers are composited in order of their nearest point. Refuse scenes where that order
+    is wrong somewhere (a later layer in front of an earlier one on the same pixel), since the
+    colours there would be wrong; the depth ground truth alone would still be right."""
+    for i, a in enumerate(layers):
+        for b in layers[i + 1 :]:
+            x0, y0 = max(a.x0, b.x0), max(a.y0, b.y0)
+            x1 = min(a.x0 + a.depth.shape[1], b.x0 + b.depth.shape[1])
+            y1 = min(a.y0 + a.depth.shape[0], b.y0 + b.depth.shape[0])
+            if x1 <= x0 or y1 <= y0:
+                continue
+            da = a.depth[y0 - a.y0 : y1 - a.y0, x0 - a.x0 : x1 - a.x0]
+            db = b.depth[y0 - b.y0 : y1 - b.y0, x0 - b.x0 : x1 - b.x0]
+            both = np.isfinite(da) & np.isfinite(db)
+            if np.any(db[both] < da[both] - 1e-9):
+                raise InvalidInputError(
+                    f"surfaces '{a.name}' and '{b.name}' interleave in depth where they overlap in the "
+                    "image; the renderer composites surfaces in order of their nearest point, so move "
+                    "one so that it is entirely in front of the other where they overlap"
+                )
 
 
 class _Renderer:
@@ -184,6 +207,17 @@ class _Renderer:
         b, c = device.require_positions()
         self.c = c
         self.b = b
+        s = self.cams.depth_origin_m
+        for idx, surf in enumerate(scene.surfaces):
+            if isinstance(surf, Plane):
+                znear = float(surf.corners_m()[:, 2].min())
+            else:
+                znear = surf.depth_m - max([bp.height_m for bp in surf.bumps if bp.height_m > 0], default=0.0)
+            if znear <= s * 1.05:
+                raise InvalidInputError(
+                    f"surface {surf.name or idx} reaches Z = {znear:.4g} m, not beyond the views' "
+                    f"entrance pupil at {s:.4g} m: move it farther away"
+                )
 
     # -- geometry helpers --------------------------------------------------------------------
     def blur_px(self, z: np.ndarray) -> np.ndarray:
@@ -243,15 +277,15 @@ class _Renderer:
             while ratio > 1.5 and min(levels[-1].shape[:2]) > 8:
                 levels.append(cv2.pyrDown(levels[-1]))
                 ratio /= 2
-            self._textures[idx] = (texel, levels)
+            # Texels tile the plane exactly at every level: (width / cols, height / rows).
+            steps = [(plane.size_m[0] / lv.shape[1], plane.size_m[1] / lv.shape[0]) for lv in levels]
+            self._textures[idx] = (texel, levels, steps)
         return self._textures[idx]
 
     def plane_layer(self, idx: int, plane: Plane, view: int, region) -> _Layer | None:
-        texel, levels = self._plane_texture(idx, plane)
+        texel, levels, steps = self._plane_texture(idx, plane)
         corners = plane.corners_m()
         zs = corners[:, 2]
-        if zs.min() <= self.cams.depth_origin_m * 1.01:
-            raise InvalidInputError(f"surface {plane.name or idx} comes closer than the views' entrance pupil")
         margin = 2 + (np.ceil(self.blur_px(zs).max() / 2) if self.settings.defocus else 0)
         box = self._bbox(view, corners, region, margin)
         if box is None:
@@ -272,9 +306,8 @@ class _Renderer:
         denom = n[0] * dx + n[1] * dy + n[2]
         depth = (self.cams.depth_origin_m + float(n @ (p0 - cam)) / denom).astype(np.float32)
         warped = []
-        for lvl, tex in enumerate(levels):
-            t = texel * 2**lvl
-            a = np.column_stack([t * u, t * v, tl + 0.5 * t * (u + v) - cam])
+        for tex, (tx, ty) in zip(levels, steps):
+            a = np.column_stack([tx * u, ty * v, tl + 0.5 * (tx * u + ty * v) - cam])
             hmat = pix_from_sensor @ k @ a
             warped.append(cv2.warpPerspective(tex, hmat, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT))
         if len(warped) == 1:
@@ -290,7 +323,7 @@ class _Renderer:
             yy, xx = np.indices(lod.shape)
             acc = stack[lo, yy, xx] * (1 - fr) + stack[hi, yy, xx] * fr
         depth = np.where(acc[..., 3] > 1e-4, depth, np.inf).astype(np.float32)
-        return _Layer(x0, y0, acc, depth, float(zs.min()))
+        return _Layer(x0, y0, acc, depth, float(zs.min()), plane.name or f"surface {idx}")
 
     def heightfield_layer(self, idx: int, part: HeightField, view: int, region) -> _Layer | None:
         wm, hm = part.size_m
@@ -298,12 +331,13 @@ class _Renderer:
             hmax = max([b.height_m for b in part.bumps if b.height_m > 0], default=0.0)
             texel = self._texel(part.depth_m - hmax)
             rgb = rasterize(part.texture, part.size_m, texel)
-            heights = part.height_map(texel, rgb.shape[:2])
+            heights = part.height_map((wm / rgb.shape[1], hm / rgb.shape[0]), rgb.shape[:2])
             if part.shading:
-                rgb = rgb * part.shading_map(heights, texel)[..., None]
+                rgb = rgb * part.shading_map(heights, (wm / rgb.shape[1], hm / rgb.shape[0]))[..., None]
             rgba = np.dstack([rgb, np.ones(rgb.shape[:2], np.float32)]).astype(np.float32)
-            self._textures[idx] = (texel, rgba, heights)
-        texel, rgba, heights = self._textures[idx]
+            steps = (wm / rgba.shape[1], hm / rgba.shape[0])
+            self._textures[idx] = (steps, rgba, heights)
+        (tx, ty), rgba, heights = self._textures[idx]
         zlo = part.depth_m - max(float(heights.max()), 0.0)
         zhi = part.depth_m - min(float(heights.min()), 0.0)
         cx, cy = part.center_m
@@ -319,13 +353,13 @@ class _Renderer:
         left, top = cx - wm / 2, cy - hm / 2
         z = np.full((h, w), part.depth_m, np.float64)
         for _ in range(12):
-            mx = ((ox + (z - s) * dx - left) / texel - 0.5).astype(np.float32)
-            my = ((oy + (z - s) * dy - top) / texel - 0.5).astype(np.float32)
+            mx = ((ox + (z - s) * dx - left) / tx - 0.5).astype(np.float32)
+            my = ((oy + (z - s) * dy - top) / ty - 0.5).astype(np.float32)
             hz = cv2.remap(heights, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
             z = part.depth_m - hz.astype(np.float64)
         acc = cv2.remap(rgba, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
         depth = np.where(acc[..., 3] > 1e-4, z, np.inf).astype(np.float32)
-        return _Layer(x0, y0, acc, depth, zlo)
+        return _Layer(x0, y0, acc, depth, zlo, part.name or f"surface {idx}")
 
     # -- one view ----------------------------------------------------------------------------
     def view(self, view: int):
@@ -338,6 +372,7 @@ class _Renderer:
             if lay is not None:
                 layers.append(lay)
         layers.sort(key=lambda la: la.zmin)
+        _check_order(layers)
         bg = np.array(self.scene.background, np.float32)
         blurred = np.zeros((rh, rw, 4), np.float32)
         sharp = np.zeros((rh, rw, 4), np.float32)
