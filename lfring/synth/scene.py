@@ -139,11 +139,12 @@ class HeightField:
             if abs(b.height_m) >= 0.5 * self.depth_m:
                 raise InvalidInputError(f"bump height {b.height_m} m is not small against the part distance")
 
-    def height_map(self, texel_m: float, shape: tuple[int, int]) -> np.ndarray:
-        """(rows, cols) float32 heights in metres at texel centres."""
+    def height_map(self, texel_m: tuple[float, float], shape: tuple[int, int]) -> np.ndarray:
+        """(rows, cols) float32 heights in metres at the centres of texels of (width, height)
+        ``texel_m``."""
         rows, cols = shape
-        x = (np.arange(cols) + 0.5) * texel_m
-        y = (np.arange(rows) + 0.5) * texel_m
+        x = (np.arange(cols) + 0.5) * texel_m[0]
+        y = (np.arange(rows) + 0.5) * texel_m[1]
         out = np.zeros((rows, cols), dtype=np.float64)
         for b in self.bumps:
             dx = (x[None, :] - b.center_m[0]) / (b.size_m[0] / 2)
@@ -161,9 +162,9 @@ class HeightField:
             out += b.height_m * prof
         return out.astype(np.float32)
 
-    def shading_map(self, heights: np.ndarray, texel_m: float) -> np.ndarray:
+    def shading_map(self, heights: np.ndarray, texel_m: tuple[float, float]) -> np.ndarray:
         """Lambertian shading in (0, 1] of the height field lit from the upper left."""
-        gy, gx = np.gradient(heights.astype(np.float64), texel_m)
+        gy, gx = np.gradient(heights.astype(np.float64), texel_m[1], texel_m[0])
         # Surface z grows away from the camera as heights fall: normal ~ (gx, gy, -1) towards camera.
         n = np.stack([gx, gy, -np.ones_like(gx)], axis=-1)
         n /= np.linalg.norm(n, axis=-1, keepdims=True)

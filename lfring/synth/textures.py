@@ -14,7 +14,7 @@ import numpy as np
 
 from lfring.errors import InvalidInputError
 
-__all__ = ["Texture", "IMAGES", "KINDS", "rasterize"]
+__all__ = ["Texture", "IMAGES", "KINDS", "rasterize", "raster_shape"]
 
 # scikit-image images shipped inside its wheel (no download).
 IMAGES = (
@@ -68,14 +68,21 @@ def _image(name: str) -> np.ndarray:
     return _srgb_to_linear(img)
 
 
-def rasterize(texture: Texture, size_m: tuple[float, float], texel_m: float) -> np.ndarray:
-    """(rows, cols, 3) float32 raster of ``texture`` over a surface of ``size_m`` = (width,
-    height) metres with square texels of ``texel_m``; texel (0, 0) is the top-left corner."""
+def raster_shape(size_m: tuple[float, float], texel_m: float) -> tuple[int, int]:
+    """(rows, cols) of the raster :func:`rasterize` makes: texels no larger than ``texel_m``
+    that tile the surface exactly (texel width = width / cols, height = height / rows)."""
     w_m, h_m = size_m
     if not (w_m > 0 and h_m > 0 and texel_m > 0):
         raise InvalidInputError("texture size and texel size must be > 0 m")
-    cols = max(2, int(np.ceil(w_m / texel_m)))
-    rows = max(2, int(np.ceil(h_m / texel_m)))
+    return max(2, int(np.ceil(h_m / texel_m))), max(2, int(np.ceil(w_m / texel_m)))
+
+
+def rasterize(texture: Texture, size_m: tuple[float, float], texel_m: float) -> np.ndarray:
+    """(rows, cols, 3) float32 raster of ``texture`` over a surface of ``size_m`` = (width,
+    height) metres, shape from :func:`raster_shape`; texel (0, 0) is the top-left corner."""
+    w_m, h_m = size_m
+    rows, cols = raster_shape(size_m, texel_m)
+    tx, ty = w_m / cols, h_m / rows
     if rows * cols > 64e6:
         raise InvalidInputError(f"texture raster of {cols} x {rows} texels is too large; use a larger texel size")
     lo, hi = (np.array(c, dtype=np.float32) for c in (texture.colors + texture.colors)[:2])
@@ -87,8 +94,8 @@ def rasterize(texture: Texture, size_m: tuple[float, float], texel_m: float) -> 
         return np.clip(cv2.resize(img, (cols, rows), interpolation=interp), 0.0, 1.0)
     if texture.kind == "checker":
         # Area-weighted squares: each texel gets the fraction of its area that is light.
-        def frac(n, pitch):
-            edges = np.arange(n + 1) * texel_m / pitch
+        def frac(n, step, pitch):
+            edges = np.arange(n + 1) * step / pitch
             # Integral of the square wave sq(t) = floor(t) mod 2 == 0 over [a, b].
             def prim(t):
                 k = np.floor(t)
@@ -96,12 +103,12 @@ def rasterize(texture: Texture, size_m: tuple[float, float], texel_m: float) -> 
 
             return (prim(edges[1:]) - prim(edges[:-1])) / (edges[1:] - edges[:-1])
 
-        fx, fy = frac(cols, texture.square_m), frac(rows, texture.square_m)
+        fx, fy = frac(cols, tx, texture.square_m), frac(rows, ty, texture.square_m)
         light = fy[:, None] * fx[None, :] + (1 - fy[:, None]) * (1 - fx[None, :])
         return (lo + (hi - lo) * light[..., None].astype(np.float32)).astype(np.float32)
     # speckle: band-limited noise pushed towards two levels, like a printed random-dot target.
     rng = np.random.default_rng(texture.seed)
-    coarse = max(1.0, texture.feature_m / texel_m / 2.0)
+    coarse = max(1.0, texture.feature_m / min(tx, ty) / 2.0)
     gh, gw = int(np.ceil(rows / coarse)) + 3, int(np.ceil(cols / coarse)) + 3
     noise = rng.standard_normal((gh, gw)).astype(np.float32)
     noise = cv2.GaussianBlur(noise, (0, 0), 0.8)
