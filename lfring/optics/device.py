@@ -12,12 +12,12 @@ import json
 import math
 import sys
 from dataclasses import dataclass, fields
-from importlib import resources
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from lfring._resources import calib_dir
 from lfring.errors import DeviceError, LfringFileNotFoundError
 
 if sys.version_info >= (3, 11):
@@ -259,7 +259,7 @@ def _check_positive(key: str, value: Any) -> None:
 
 def builtin_devices() -> list[str]:
     """Names of the device files shipped with lfring (usable with :func:`load_device`)."""
-    root = resources.files("lfring._calib")
+    root = calib_dir()
     return sorted(p.name[: -len(".toml")] for p in root.iterdir() if p.name.endswith(".toml"))
 
 
@@ -286,7 +286,7 @@ def load_device(name_or_path: str | Path) -> RingDevice:
     text_name = str(name_or_path)
     path = Path(text_name)
     if path.suffix.lower() not in (".toml", ".json") and path.parent == Path("."):
-        resource = resources.files("lfring._calib") / f"{text_name}.toml"
+        resource = calib_dir() / f"{text_name}.toml"
         if not resource.is_file():
             raise LfringFileNotFoundError(
                 f"no built-in device named {text_name!r}; built-in devices: "

@@ -23,7 +23,17 @@ from lfring.optics.device import RingDevice
 from lfring.optics.paraxial import sensor_to_pixel
 from lfring.views import Layout
 
-__all__ = ["ViewCameras", "view_cameras", "optical_layout", "optical_homographies", "vignetting", "vignetting_region", "lit_region", "quadrant_rects"]
+__all__ = [
+    "ViewCameras",
+    "lit_region",
+    "optical_homographies",
+    "optical_homography_model",
+    "optical_layout",
+    "quadrant_rects",
+    "view_cameras",
+    "vignetting",
+    "vignetting_region",
+]
 
 
 @dataclass(frozen=True, eq=False)
@@ -160,6 +170,27 @@ def optical_homographies(device: RingDevice, layout: Layout, depth_m, *, referen
     h[..., 0, 0] = h[..., 1, 1] = h[..., 2, 2] = 1.0
     h[..., :2, 2] = t
     return to_reference(h, reference)
+
+
+def optical_homography_model(device: RingDevice, layout: Layout, *, reference="center"):
+    """The variable-homography model of SPEC 4 that the optics predicts, exactly:
+    ``H_ref_from_view(Z) = A + B / (Z - z0)`` with z0 = s, the views' entrance pupil.
+
+    Returns
+    -------
+    A, B : ndarray, (V, 3, 3)
+        For the ring both are translations (B has a zero [2, 2] entry).
+    z0 : float
+        The depth origin s in metres.
+    """
+    s = view_cameras(device).depth_origin_m
+    z1, z2 = s + 0.25, s + 2.0
+    h1 = optical_homographies(device, layout, z1, reference=reference)
+    h2 = optical_homographies(device, layout, z2, reference=reference)
+    inv1, inv2 = 1.0 / (z1 - s), 1.0 / (z2 - s)
+    b = (h1 - h2) / (inv1 - inv2)
+    a = h1 - b * inv1
+    return a, b, s
 
 
 def vignetting(device: RingDevice, layout: Layout | None = None) -> np.ndarray:

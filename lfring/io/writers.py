@@ -1,0 +1,68 @@
+"""Writers for images, float maps and JSON, all atomic (a killed run leaves no partial file)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import tifffile
+
+from lfring.errors import FileFormatError, InvalidInputError
+from lfring.io.atomic import atomic_path, atomic_write_text
+
+__all__ = ["write_image", "write_float_tiff", "write_json", "check_writable", "IMAGE_SUFFIXES"]
+
+IMAGE_SUFFIXES = (".png", ".tif", ".tiff")
+
+
+def check_writable(paths, *, overwrite: bool) -> None:
+    """Refuse, before anything is written, to replace existing files unless ``overwrite``."""
+    existing = [str(p) for p in paths if Path(p).exists()]
+    if existing and not overwrite:
+        more = f" (and {len(existing) - 1} more)" if len(existing) > 1 else ""
+        raise InvalidInputError(f"{existing[0]}{more} exists; pass --overwrite (overwrite=True) to replace")
+
+
+def write_image(path: str | Path, image: np.ndarray) -> Path:
+    """Write a uint8/uint16 image, (H, W) or (H, W, 3) RGB, as PNG or TIFF by suffix."""
+    path = Path(path)
+    arr = np.asarray(image)
+    if arr.dtype not in (np.uint8, np.uint16):
+        raise InvalidInputError(f"write_image takes uint8 or uint16 images, got {arr.dtype}")
+    if not (arr.ndim == 2 or (arr.ndim == 3 and arr.shape[2] == 3)):
+        raise InvalidInputError(f"write_image takes (H, W) or (H, W, 3) images, got shape {arr.shape}")
+    suffix = path.suffix.lower()
+    if suffix not in IMAGE_SUFFIXES:
+        raise InvalidInputError(f"image files end in {', '.join(IMAGE_SUFFIXES)}, got {path.name!r}")
+    with atomic_path(path) as tmp:
+        if suffix == ".png":
+            out = arr if arr.ndim == 2 else cv2.cvtColor(arr, cv2.COLOR_RGB2BGR)
+            if not cv2.imwrite(str(tmp), out):
+                raise FileFormatError(f"could not write PNG {path}")
+        else:
+            tifffile.imwrite(tmp, arr, photometric="rgb" if arr.ndim == 3 else "minisblack")
+    return path
+
+
+def write_float_tiff(path: str | Path, data: np.ndarray) -> Path:
+    """Write a float32 map (metres, confidence...) as a single-page TIFF."""
+    with atomic_path(path) as tmp:
+        tifffile.imwrite(tmp, np.asarray(data, dtype=np.float32), photometric="minisblack", compression="zlib")
+    return Path(path)
+
+
+def _default(o):
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, (np.floating, np.integer, np.bool_)):
+        return o.item()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"cannot write {type(o).__name__} to JSON")
+
+
+def write_json(path: str | Path, obj) -> Path:
+    """Write ``obj`` as indented JSON (NumPy arrays and scalars converted)."""
+    return atomic_write_text(path, json.dumps(obj, indent=2, default=_default, allow_nan=True) + "\n")

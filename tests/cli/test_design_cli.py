@@ -1,0 +1,61 @@
+import json
+
+import pytest
+
+from lfring.cli.main import main
+
+KEYS = {"ring_distance_m", "sensor_distance_m", "magnification", "image_height_m", "disparity_px",
+        "overlap", "mount_distance_m", "entrance_pupil_m"}
+
+
+def test_design_json(capsys):
+    assert main(["design", "--object-size", "0.1", "--distance", "0.3", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert KEYS <= set(out)
+    assert out["ring_distance_m"] == pytest.approx(37.369e-3, abs=1e-6)
+    assert out["disparity_px"] == pytest.approx(383.07, abs=0.01)
+
+
+def test_design_table_sweep_range_and_plots(tmp_path, capsys):
+    assert main(["design", "--object-size", "0.1", "--distance", "0.3"]) == 0
+    assert "37.369 mm" in capsys.readouterr().out
+    png = tmp_path / "sweep.png"
+    assert main(["design", "--object-size", "0.1", "--sweep", "0.1:2.0:12", "--plot", str(png)]) == 0
+    out = capsys.readouterr()
+    assert png.stat().st_size > 20_000 and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "no overlap" in out.out  # invalid points are shown, not hidden
+    assert main(["design", "--object-size", "0.1", "--range", "0.3:1.0", "--json"]) == 0
+    rng = json.loads(capsys.readouterr().out)
+    assert 0.3 < rng["focus_distance_m"] < 1.0 and len(rng["points"]) == 50
+    assert main(["design", "--object-size", "0.1", "--sweep", "0.1:2.0:12", "--plot", str(png)]) == 2
+    assert "exists" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "args, text",
+    [
+        (["--object-size", "-0.1", "--distance", "0.3"], "object size"),
+        (["--object-size", "0.1", "--distance", "0.01"], "focal length"),
+        (["--object-size", "0.1", "--distance", "0.3", "--device", "missing.toml"], "not found"),
+        (["--object-size", "0.1", "--sweep", "0.1:2.0"], "START:STOP:COUNT"),
+        (["--object-size", "0.1"], "exactly one of"),
+        (["--object-size", "0.1", "--range", "1.0:0.3"], "far distance"),
+    ],
+)
+def test_design_errors_are_one_clear_line(capsys, args, text):
+    assert main(["design", *args]) == 2
+    err = capsys.readouterr().err
+    assert text in err and "Traceback" not in err
+
+
+def test_malformed_device_file(tmp_path, capsys):
+    bad = tmp_path / "dev.toml"
+    bad.write_text("name = 'x'\nmain_focal_length_m = 0.016\n")
+    assert main(["design", "--object-size", "0.1", "--distance", "0.3", "--device", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "missing key" in err
+
+
+def test_version(capsys):
+    assert main(["--version"]) == 0
+    assert "lfring, version" in capsys.readouterr().out

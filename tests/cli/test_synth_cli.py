@@ -1,0 +1,98 @@
+import json
+
+import numpy as np
+import pytest
+import tifffile
+
+from lfring.cli.main import main
+from lfring.io.raw import load_raw
+from lfring.optics import load_device
+from lfring.optics.views import optical_homographies
+from lfring.views import Layout
+
+
+def test_synth_target_writes_raw_sidecar_and_truth(tmp_path, capsys):
+    args = ["synth", "target", "--depth", "0.5", "--binning", "8", "-o", str(tmp_path), "--seed", "3"]
+    assert main(args) == 0
+    raw = tmp_path / "target_0.5m.png"
+    frame = load_raw(raw)  # pattern and levels come from the sidecar
+    assert frame.pattern == "RGGB" and frame.black_level == 64 and frame.white_level == 4095
+    assert frame.mosaic.shape == (460, 614)
+    truth = json.loads((tmp_path / "target_0.5m_truth" / "truth.json").read_text())
+    assert truth["ring_distance_m"] == pytest.approx(37.369e-3, abs=1e-6)
+    assert truth["sensor_distance_m"] == pytest.approx(6.616e-3, abs=1e-6)
+    depth = tifffile.imread(tmp_path / "target_0.5m_truth" / "depth_view2.tiff")
+    assert depth.dtype == np.float32 and np.nanmax(np.abs(depth - 0.5)) < 1e-6
+    # The stored model A + B / (Z - z0) gives the exact homographies at any depth.
+    model = truth["homography_model"]["references"]["center"]
+    a, b, z0 = np.array(model["A"]), np.array(model["B"]), model["depth_origin_m"]
+    dev = load_device("prototype").binned(8)
+    lay = Layout.from_dict(truth["layout"])
+    for z in (0.31, 0.77, 3.0):
+        np.testing.assert_allclose(a + b / (z - z0), optical_homographies(dev, lay, z), atol=1e-9)
+    # A second run refuses to overwrite, names the file, and leaves it alone.
+    before = raw.read_bytes()
+    assert main(args) == 2
+    assert "exists" in capsys.readouterr().err
+    assert raw.read_bytes() == before
+    assert main([*args, "--overwrite", "--seed", "4"]) == 0
+    assert raw.read_bytes() != before
+
+
+def test_synth_part_and_scene_file(tmp_path, capsys):
+    assert main(["synth", "part", "--binning", "8", "--defects", "none", "-o", str(tmp_path)]) == 0
+    truth = json.loads((tmp_path / "part_good_truth" / "truth.json").read_text())
+    part = [s for s in truth["scene"]["surfaces"] if s["type"] == "HeightField"][0]
+    assert part["bumps"] == []
+    assert main(["synth", "part", "--binning", "8", "--defects", "0.02,-0.01", "-o", str(tmp_path)]) == 0
+    truth = json.loads((tmp_path / "part_defects_truth" / "truth.json").read_text())
+    part = [s for s in truth["scene"]["surfaces"] if s["type"] == "HeightField"][0]
+    assert sorted(b["height_m"] for b in part["bumps"]) == [-0.01, 0.02]
+
+    scene = tmp_path / "two.toml"
+    scene.write_text(
+        'name = "two"\n[[plane]]\ndepth_m = 0.4\nsize_m = [0.3, 0.3]\ntexture = { kind = "image", name = "astronaut" }\n'
+        '[[part]]\ndepth_m = 0.35\nsize_m = [0.02, 0.02]\ntexture = { kind = "checker", square_m = 0.005 }\n'
+        '[[part.bump]]\ncenter_m = [0.01, 0.01]\nsize_m = [0.01, 0.01]\nheight_m = 0.003\n'
+    )
+    assert main(["synth", "file", "--scene", str(scene), "--binning", "8", "--pattern", "none", "-o", str(tmp_path)]) == 0
+    frame = load_raw(tmp_path / "two.png")
+    assert frame.image is not None and frame.image.shape == (460, 614, 3)
+    depth = tifffile.imread(tmp_path / "two_truth" / "depth_view0.tiff")
+    assert np.nanmin(depth) == pytest.approx(0.347, abs=1e-4)  # the bump top at 0.35 - 0.003
+
+
+@pytest.mark.parametrize(
+    "text, match",
+    [
+        ("[[plane]]\ndepth_m = 0.4\nsize_m = [0.3, 0.3]\ncolour = 1\n", "unknown key.*'colour'"),
+        ("[[plane]]\ndepth_m = -0.4\nsize_m = [0.3, 0.3]\n", "depth_m"),
+        ("[[plane]]\ndepth_m = 0.4\n", "size_m"),
+        ("[[plane]\n", "not a valid TOML"),
+        ("[[plane]]\ndepth_m = 0.4\nsize_m = [0.3, 0.3]\ntexture = { kind = 'image', name = 'lena' }\n", "lena"),
+    ],
+)
+def test_bad_scene_files(tmp_path, capsys, text, match):
+    scene = tmp_path / "bad.toml"
+    scene.write_text(text)
+    assert main(["synth", "file", "--scene", str(scene), "--binning", "8", "-o", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    import re
+
+    assert re.search(match, err), err
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["target", "--binning", "8"],
+        ["scene", "--depth", "0.5"],
+        ["part", "--defects", "abc"],
+        ["file"],
+        ["scene", "--binning", "0"],
+    ],
+)
+def test_synth_usage_errors(tmp_path, capsys, args):
+    assert main(["synth", *args, "-o", str(tmp_path)]) == 2
+    assert "Traceback" not in capsys.readouterr().err
