@@ -12,11 +12,12 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 
-from lfring.errors import FileFormatError, InvalidInputError, LfringFileNotFoundError
+from lfring.errors import EstimationError, FileFormatError, InvalidInputError, LfringFileNotFoundError
 
-__all__ = ["Layout", "split_views"]
+__all__ = ["Layout", "split_views", "layout_from_circles", "detect_layout", "DETECT_KINDS"]
 
 LAYOUT_VERSION = 1
 
@@ -177,3 +178,279 @@ def split_views(image: np.ndarray, layout: Layout) -> np.ndarray:
     for k, (x, y, _, _) in enumerate(layout.rects):
         out[k] = arr[y : y + h, x : x + w]
     return out
+
+
+def layout_from_circles(
+    circles_px, raw_width_px: int, raw_height_px: int, *, grid: tuple[int, int] = (2, 2), rotate180: bool = False
+) -> Layout:
+    """The layout around one valid disc per view.
+
+    Parameters
+    ----------
+    circles_px : (V, 3) array_like
+        (cx, cy, r) of each view's disc in raw pixels of the (rotated) frame, in view order
+        (row-major over ``grid``).
+    raw_width_px, raw_height_px : int
+    grid : (rows, cols)
+        How the views tile the frame; each view must stay inside its cell of an even split.
+
+    Returns
+    -------
+    Layout
+        Squares of one common side, the largest that is at most the smallest disc's diameter
+        and keeps every square, centred on its disc, inside its cell.
+    """
+    circ = np.asarray(circles_px, dtype=np.float64)
+    rows, cols = grid
+    if circ.ndim != 2 or circ.shape[1] != 3 or circ.shape[0] != rows * cols:
+        raise InvalidInputError(f"expected {rows * cols} circles (cx, cy, r), got shape {circ.shape}")
+    xs = [int(round(j * raw_width_px / cols)) for j in range(cols + 1)]
+    ys = [int(round(i * raw_height_px / rows)) for i in range(rows + 1)]
+    side = int(np.floor(2 * circ[:, 2].min()))
+    for k, (cx, cy, _) in enumerate(circ):
+        i, j = divmod(k, cols)
+        half = min(cx - xs[j] + 0.5, xs[j + 1] - 0.5 - cx, cy - ys[i] + 0.5, ys[i + 1] - 0.5 - cy)
+        side = min(side, int(np.floor(2 * half)))
+    if side < 8:
+        raise InvalidInputError(f"the views would be smaller than 8 px ({side} px): discs {circ.round(1).tolist()}")
+    rects, circles = [], []
+    for cx, cy, r in circ:
+        x0 = int(np.round(cx - (side - 1) / 2.0))
+        y0 = int(np.round(cy - (side - 1) / 2.0))
+        rects.append((x0, y0, side, side))
+        circles.append((cx - x0, cy - y0, r))
+    return Layout(raw_width_px, raw_height_px, tuple(rects), rotate180, tuple(circles))
+
+
+DETECT_KINDS = ("auto", "flat", "scene")
+
+
+def detect_layout(
+    image: np.ndarray, *, kind: str = "auto", rotate180: bool = False, grid: tuple[int, int] = (2, 2)
+) -> Layout:
+    """Find the views on a raw frame: each mini-lens lights a disc (the image of the main-lens
+    iris), dark around it.
+
+    Parameters
+    ----------
+    image : ndarray, (H, W) or (H, W, C)
+        A flat (white) frame, or an ordinary frame when no flat exists; raw counts or
+        demosaiced values. A Bayer mosaic can be given as it is: the detector smooths well
+        beyond the 2 x 2 pattern.
+    kind : {'auto', 'flat', 'scene'}
+        'flat' works on the smoothed brightness; 'scene' on its envelope (a morphological
+        closing), so that the scene's own dark parts do not look like the disc's edge; 'auto'
+        picks 'flat' when the discs are nearly uniform.
+    rotate180 : bool
+        The camera outputs the frame rotated; detection runs on the frame rotated back, and the
+        layout records it.
+    grid : (rows, cols)
+        How the views tile the frame (2 x 2 for the ring).
+
+    Returns
+    -------
+    Layout
+        With the fitted disc of each view as its valid region.
+
+    Notes
+    -----
+    Rough discs come from thresholding the smoothed frame. Each disc is then refined along 360
+    rays from its rough centre: the brightness profile's interior (0.3 to 0.75 of the radius)
+    is fitted by ``a + b r^2`` (the cos^4 fall-off), the edge is where the profile drops below
+    half that fit extrapolated, and a circle is fitted to the edge points by least squares with
+    outlier rejection. On a flat frame of the twin this finds the half-light disc within 0.2 px.
+    An ordinary frame is smoothed first (its local mean) and the four discs are fitted jointly
+    (one radius, symmetric centres); the scene's content near the edges still biases the
+    result, by about 2 px on textured targets and up to about 20 px on scenes with large
+    uniform areas at the edges. Use a flat frame, or the optics' layout, when it matters.
+    """
+    if kind not in DETECT_KINDS:
+        raise InvalidInputError(f"kind must be one of {', '.join(DETECT_KINDS)}, got {kind!r}")
+    arr = np.asarray(image)
+    if arr.ndim == 3:
+        arr = arr.mean(axis=2)
+    if arr.ndim != 2 or min(arr.shape) < 16:
+        raise InvalidInputError(f"detect_layout expects an (H, W) or (H, W, C) image of at least 16 px, got shape {np.shape(image)}")
+    lum = arr.astype(np.float32)
+    if not np.all(np.isfinite(lum)):
+        raise InvalidInputError("detect_layout: the image contains NaN or infinite values")
+    if rotate180:
+        lum = lum[::-1, ::-1]
+    h, w = lum.shape
+    lo, hi = np.percentile(lum, [1.0, 99.5])
+    if not hi > lo:
+        raise EstimationError("detect_layout: the frame is uniform (all black or constant); no views to find")
+    lum = (lum - lo) / (hi - lo)
+    fine = cv2.GaussianBlur(lum, (0, 0), 2.0)  # kills the Bayer pattern and pixel noise
+    sigma = max(4.0, min(h, w) / 200.0)
+    if kind != "flat":
+        envelope = _envelope(fine)
+    blobs = _rough_discs(cv2.GaussianBlur(fine if kind == "flat" else envelope, (0, 0), sigma), grid)
+    if kind == "auto":
+        kind = "flat" if _uniform_inside(fine, blobs) else "scene"
+    base = fine if kind == "flat" else envelope
+    circles = [_refine_disc(base, cx, cy, r) for cx, cy, r in blobs]
+    if kind == "scene" and grid == (2, 2):
+        # Content near the edge biases single discs; the ring's four discs share one radius and
+        # sit symmetrically, so fit them jointly (5 parameters instead of 12).
+        points = [_edge_points(base, cx, cy, r) for cx, cy, r in circles]
+        circles = _fit_ring(points, circles)
+    _check_discs(circles, w, h, grid)
+    return layout_from_circles(circles, w, h, grid=grid, rotate180=rotate180)
+
+
+def _check_discs(circles, w: int, h: int, grid: tuple[int, int]) -> None:
+    """Refuse detections that do not look like one disc per cell of similar size."""
+    rows, cols = grid
+    radii = np.array([c[2] for c in circles])
+    problems = []
+    for k, (cx, cy, r) in enumerate(circles):
+        i, j = divmod(k, cols)
+        if not (j * w / cols <= cx < (j + 1) * w / cols and i * h / rows <= cy < (i + 1) * h / rows):
+            problems.append(f"view {k}'s centre ({cx:.0f}, {cy:.0f}) is outside its cell of the frame")
+        if not r >= 8:
+            problems.append(f"view {k}'s disc is only {r:.1f} px in radius")
+    if radii.min() < 0.8 * radii.max():
+        problems.append(f"the discs' radii differ too much ({radii.min():.0f} to {radii.max():.0f} px)")
+    if problems:
+        raise EstimationError("detect_layout: the bright regions do not look like the ring's views: " + "; ".join(problems))
+
+
+_ENVELOPE_FRACTION = 80
+
+
+def _envelope(fine: np.ndarray) -> np.ndarray:
+    """Local mean brightness of a scene frame (Gaussian, sigma = 1/_ENVELOPE_FRACTION of the
+    frame's short side, on a 4x decimated copy for speed). The disc's soft edge is nearly
+    antisymmetric about its half-light point, so smoothing keeps that point where it is, while
+    the scene's texture averages out; a closing (local maximum) would instead follow the
+    nearest bright details and pull the edge inwards."""
+    h, w = fine.shape
+    small = cv2.resize(fine, (w // 4, h // 4), interpolation=cv2.INTER_AREA)
+    small = cv2.GaussianBlur(small, (0, 0), min(h, w) / (4.0 * _ENVELOPE_FRACTION))
+    return cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR)
+
+
+def _rough_discs(coarse: np.ndarray, grid: tuple[int, int]) -> list[tuple[float, float, float]]:
+    n = grid[0] * grid[1]
+    u8 = np.clip(coarse * 255, 0, 255).astype(np.uint8)
+    thr, mask = cv2.threshold(u8, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
+    k = max(3, int(min(coarse.shape) / 100) | 1)
+    mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k)))
+    count, labels, stats, cents = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    order = np.argsort(stats[1:, cv2.CC_STAT_AREA])[::-1] + 1
+    min_area = coarse.size / (n * 40.0)
+    found = [i for i in order[:n] if stats[i, cv2.CC_STAT_AREA] >= min_area]
+    if len(found) < n:
+        raise EstimationError(
+            f"detect_layout: found {len(found)} bright region(s) where {n} views were expected; is this a "
+            "frame of the ring camera (a flat frame shows one bright disc per view on a dark surround)?"
+        )
+    blobs = []
+    for i in found:
+        comp = (labels == i).astype(np.uint8)
+        # Fill holes (dark scene content inside a view) with the component's convex hull.
+        contours, _ = cv2.findContours(comp, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+        hull = cv2.convexHull(np.vstack(contours))
+        area = cv2.contourArea(hull)
+        m = cv2.moments(hull)
+        blobs.append((m["m10"] / m["m00"], m["m01"] / m["m00"], float(np.sqrt(area / np.pi))))
+    rows, cols = grid
+    blobs.sort(key=lambda b: b[1])
+    ordered = []
+    for r in range(rows):
+        ordered.extend(sorted(blobs[r * cols : (r + 1) * cols], key=lambda b: b[0]))
+    return ordered
+
+
+def _uniform_inside(fine: np.ndarray, blobs) -> bool:
+    """True when the inner half of every disc is smooth, as in a flat frame."""
+    for cx, cy, r in blobs:
+        y0, y1 = int(cy - r / 2), int(cy + r / 2)
+        x0, x1 = int(cx - r / 2), int(cx + r / 2)
+        patch = fine[max(0, y0) : y1, max(0, x0) : x1]
+        if patch.size == 0 or patch.std() > 0.08 * max(float(patch.mean()), 1e-6):
+            return False
+    return True
+
+
+def _edge_points(fine: np.ndarray, cx: float, cy: float, r0: float) -> np.ndarray:
+    """(N, 2) points where the brightness along 360 rays from (cx, cy) falls to half its
+    interior level, fitted as a + b r^2 over 0.3..0.75 r0 (the cos^4 fall-off) and extrapolated."""
+    angles = np.linspace(0, 2 * np.pi, 360, endpoint=False)
+    radii = np.arange(0.2 * r0, 1.5 * r0, 0.25, dtype=np.float64)
+    mx = (cx + np.cos(angles)[:, None] * radii[None, :]).astype(np.float32)
+    my = (cy + np.sin(angles)[:, None] * radii[None, :]).astype(np.float32)
+    prof = cv2.remap(fine, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    inner = (radii >= 0.3 * r0) & (radii <= 0.75 * r0)
+    x = radii[inner] ** 2
+    design = np.stack([np.ones_like(x), x], axis=1)
+    coef, *_ = np.linalg.lstsq(design, prof[:, inner].T, rcond=None)
+    lev = coef[0][:, None] + coef[1][:, None] * radii[None, :] ** 2
+    below = (prof < 0.5 * lev) & (radii[None, :] > 0.75 * r0)
+    pts = []
+    for a in range(len(angles)):
+        idx = np.flatnonzero(below[a])
+        if idx.size == 0 or idx[0] == 0:
+            continue
+        i = idx[0]
+        p0 = prof[a, i - 1] - 0.5 * lev[a, i - 1]
+        p1 = prof[a, i] - 0.5 * lev[a, i]
+        t = p0 / (p0 - p1) if p0 != p1 else 0.0
+        rr = radii[i - 1] + t * (radii[i] - radii[i - 1])
+        pts.append((cx + np.cos(angles[a]) * rr, cy + np.sin(angles[a]) * rr))
+    if len(pts) < 36:
+        raise EstimationError("detect_layout: could not find the edge of a view's disc (too few edge points)")
+    return np.asarray(pts)
+
+
+def _refine_disc(fine: np.ndarray, cx: float, cy: float, r0: float) -> tuple[float, float, float]:
+    for _ in range(2):  # a second pass from the refined centre
+        cx, cy, r0 = _fit_circle(_edge_points(fine, cx, cy, r0))
+    return float(cx), float(cy), float(r0)
+
+
+def _fit_ring(points: list[np.ndarray], init) -> list[tuple[float, float, float]]:
+    """Joint fit of four discs of one radius with centres (X0 +- DX, Y0 +- DY), by Gauss-Newton
+    on the distances, rejecting points beyond 3 robust sigmas."""
+    init = np.asarray(init, dtype=np.float64)
+    sx = np.array([-1.0, 1.0, -1.0, 1.0])
+    sy = np.array([-1.0, -1.0, 1.0, 1.0])
+    p = np.array([init[:, 0].mean(), init[:, 1].mean(), np.mean(np.abs(init[:, 0] - init[:, 0].mean())),
+                  np.mean(np.abs(init[:, 1] - init[:, 1].mean())), np.median(init[:, 2])])
+    pts = np.vstack(points)
+    k = np.concatenate([np.full(len(q), i) for i, q in enumerate(points)])
+    keep = np.ones(len(pts), dtype=bool)
+    for _ in range(30):
+        cx = p[0] + sx[k] * p[2]
+        cy = p[1] + sy[k] * p[3]
+        dx, dy = pts[:, 0] - cx, pts[:, 1] - cy
+        dist = np.hypot(dx, dy)
+        res = dist - p[4]
+        mad = np.median(np.abs(res[keep] - np.median(res[keep]))) * 1.4826 + 1e-3
+        keep = np.abs(res - np.median(res[keep])) < 3 * mad
+        ux, uy = -dx / dist, -dy / dist
+        jac = np.stack([ux, uy, ux * sx[k], uy * sy[k], -np.ones_like(ux)], axis=1)
+        step, *_ = np.linalg.lstsq(jac[keep], -res[keep], rcond=None)
+        p += step
+        if np.abs(step).max() < 1e-4:
+            break
+    return [(p[0] + sx[i] * p[2], p[1] + sy[i] * p[3], p[4]) for i in range(4)]
+
+
+def _fit_circle(pts: np.ndarray) -> tuple[float, float, float]:
+    """Least-squares (Kasa) circle with iterative rejection of points beyond 3 robust sigmas."""
+    keep = np.ones(len(pts), dtype=bool)
+    for _ in range(5):
+        x, y = pts[keep, 0], pts[keep, 1]
+        a = np.stack([x, y, np.ones_like(x)], axis=1)
+        sol, *_ = np.linalg.lstsq(a, x * x + y * y, rcond=None)
+        cx, cy = sol[0] / 2, sol[1] / 2
+        r = np.sqrt(sol[2] + cx * cx + cy * cy)
+        res = np.hypot(pts[:, 0] - cx, pts[:, 1] - cy) - r
+        mad = np.median(np.abs(res[keep] - np.median(res[keep]))) * 1.4826 + 1e-3
+        new = np.abs(res) < 3 * mad
+        if new.sum() < 36 or np.array_equal(new, keep):
+            break
+        keep = new
+    return cx, cy, r

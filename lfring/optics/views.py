@@ -21,7 +21,7 @@ from lfring.errors import InvalidInputError
 from lfring.geometry import to_reference
 from lfring.optics.device import RingDevice
 from lfring.optics.paraxial import sensor_to_pixel
-from lfring.views import Layout
+from lfring.views import Layout, layout_from_circles
 
 __all__ = [
     "ViewCameras",
@@ -97,40 +97,42 @@ def quadrant_rects(device: RingDevice) -> list[tuple[int, int, int, int]]:
 
 
 def _iris_disc_px(device: RingDevice) -> tuple[np.ndarray, float]:
-    """Centres (V, 2) in raw pixels and radius in pixels of the image of the main-lens iris
-    through each mini-lens: centre m_k (1 + c/b), radius R_iris c/b."""
+    """Centres (V, 2) in raw pixels and radius in pixels of each view's valid disc: the image
+    of the main-lens iris through the mini-lens, centred at m_k (1 + c/b), out to where exactly
+    half of the pixel's light cone gets through the iris (see :func:`vignetting`)."""
     b, c = device.require_positions()
     centres = sensor_to_pixel(device, device.lens_centres_m * (1.0 + c / b))
-    radius = device.effective_aperture_radius_m * c / b / device.pixel_pitch_m
+    r_iris, r_foot = device.effective_aperture_radius_m, _footprint_radius_m(device)
+    # Transmission falls monotonically with the chief ray's distance d from the axis at the
+    # main lens; bisect for the half-light point (just inside d = r_iris by curvature).
+    lo, hi = max(0.0, r_iris - r_foot), r_iris + r_foot
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        frac = _disc_overlap(np.array([mid]), r_foot, r_iris)[0] / (np.pi * r_foot**2)
+        lo, hi = (mid, hi) if frac > 0.5 else (lo, mid)
+    radius = 0.5 * (lo + hi) * c / b / device.pixel_pitch_m
     return centres, radius
 
 
+def _footprint_radius_m(device: RingDevice) -> float:
+    """Radius on the main-lens plane of the light cone one pixel receives through its mini-lens
+    (cone through the mini-lens aperture, converging on the conjugate point b2_f = c Fml/(c - Fml))."""
+    b, c = device.require_positions()
+    fml = device.mini_focal_length_m
+    b2f = c * fml / (c - fml)
+    return device.mini_lens_radius_m * (b - b2f) / b2f
+
+
 def optical_layout(device: RingDevice, *, rotate180: bool = False) -> Layout:
-    """The layout the optics predicts: each view is the square around the image of the
-    main-lens iris through its mini-lens, clipped to its quadrant, all of one size; the valid
-    disc is the iris image (where half the light cone gets through)."""
+    """The layout the optics predicts: each view's valid disc is the image of the main-lens iris
+    through its mini-lens (where half the light cone gets through), and the views are the
+    squares around those discs (:func:`lfring.views.layout_from_circles`)."""
     centres, radius = _iris_disc_px(device)
-    quads = quadrant_rects(device)
-    side = int(np.floor(2 * radius))
-    for (qx, qy, qw, qh), (cx, cy) in zip(quads, centres):
-        # Largest square centred on the disc that stays inside the quadrant.
-        half = min(cx - qx + 0.5, qx + qw - 0.5 - cx, cy - qy + 0.5, qy + qh - 0.5 - cy)
-        side = min(side, int(np.floor(2 * half)))
-    if side < 8:
-        raise InvalidInputError(f"device '{device.name}': the views would be smaller than 8 px ({side} px)")
-    rects, circles = [], []
-    for cx, cy in centres:
-        x0 = int(np.round(cx - (side - 1) / 2.0))
-        y0 = int(np.round(cy - (side - 1) / 2.0))
-        rects.append((x0, y0, side, side))
-        circles.append((cx - x0, cy - y0, radius))
-    return Layout(
-        raw_width_px=device.sensor_width_px,
-        raw_height_px=device.sensor_height_px,
-        rects=tuple(rects),
-        rotate180=rotate180,
-        circles=tuple(circles),
-    )
+    circles = [(cx, cy, radius) for cx, cy in centres]
+    try:
+        return layout_from_circles(circles, device.sensor_width_px, device.sensor_height_px, rotate180=rotate180)
+    except InvalidInputError as exc:
+        raise InvalidInputError(f"device '{device.name}': {exc}") from None
 
 
 def optical_homographies(device: RingDevice, layout: Layout, depth_m, *, reference="center") -> np.ndarray:
@@ -222,9 +224,7 @@ def lit_region(device: RingDevice, view: int) -> tuple[int, int, int, int]:
     """(x, y, w, h) bounding box, inside the view's quadrant, of the pixels its mini-lens lights
     at all (vignetting > 0): the iris image widened by the light cone's footprint."""
     b, c = device.require_positions()
-    fml = device.mini_focal_length_m
-    b2f = c * fml / (c - fml)
-    r_foot = device.mini_lens_radius_m * (b - b2f) / b2f
+    r_foot = _footprint_radius_m(device)
     centres, _ = _iris_disc_px(device)
     radius = (device.effective_aperture_radius_m + r_foot) * c / b / device.pixel_pitch_m + 1.0
     qx, qy, qw, qh = quadrant_rects(device)[view]
@@ -240,10 +240,7 @@ def vignetting_region(device: RingDevice, view: int, rect: tuple[int, int, int, 
     """(h, w) float32 vignetting of mini-lens ``view`` over the raw-pixel rectangle ``rect``
     (see :func:`vignetting`)."""
     b, c = device.require_positions()
-    fml = device.mini_focal_length_m
-    b2f = c * fml / (c - fml)
-    b1f = b - b2f
-    r_foot = device.mini_lens_radius_m * b1f / b2f
+    r_foot = _footprint_radius_m(device)
     r_iris = device.effective_aperture_radius_m
     x, y, w, h = rect
     tp = device.pixel_pitch_m

@@ -193,7 +193,9 @@ def test_layout_and_views_consistent(prototype):
     r = render(prototype, _patch_scene((0.0, 0.0), 0.5, size=0.5), binning=2, pattern=None, rotate180=True)
     lay = r.layout
     assert lay.rotate180 and lay.num_views == 4
-    assert lay.view_shape == (708, 708)
+    # Square views as wide as the half-light disc of the iris image (radius about 352 px here).
+    side = int(np.floor(2 * lay.circles[0][2]))
+    assert lay.view_shape == (side, side) and 700 <= side <= 710
     from lfring.views import split_views
 
     np.testing.assert_array_equal(split_views(r.image, lay), r.views)
