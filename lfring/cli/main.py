@@ -15,6 +15,7 @@ from lfring.errors import LfringError
 COMMANDS = {
     "design": "design",
     "raytrace": "raytrace",
+    "split": "split",
     "synth": "synth",
 }
 

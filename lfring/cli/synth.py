@@ -62,7 +62,7 @@ def command(preset, outdir, depth, scene_file, defects, defect_size, part_depth,
     book at 0.5 m, chessboard at 1.0 m, slanted floor), 'part' (inspection part with --defects)
     or 'file' (--scene FILE). Writes DIR/NAME.png (or .tiff), its sidecar DIR/NAME.png.json
     (pattern and levels, read back by lfring's loader) and DIR/NAME_truth/ (per-view depth in
-    metres as float32 TIFF, truth.json with layout, settings, b, c and the exact homographies).
+    metres as float32 TIFF, layout.json, truth.json with settings, b, c and the exact homographies).
     """
     from lfring.synth import presets
     from lfring.synth.render import RenderSettings, render
@@ -110,7 +110,8 @@ def write_render(result, raw_path: Path, *, preset: str = "", overwrite: bool = 
     truth = raw_path.with_name(raw_path.stem + "_truth")
     side = sidecar_path(raw_path)
     depth_paths = [truth / f"depth_view{k}.tiff" for k in range(result.layout.num_views)]
-    check_writable([raw_path, side, truth / "truth.json", *depth_paths], overwrite=overwrite)
+    layout_path = truth / "layout.json"
+    check_writable([raw_path, side, truth / "truth.json", layout_path, *depth_paths], overwrite=overwrite)
     meta = result.metadata()
     surfaces = []
     for s in result.scene.surfaces:
@@ -148,4 +149,5 @@ def write_render(result, raw_path: Path, *, preset: str = "", overwrite: bool = 
     for k, p in enumerate(depth_paths):
         write_float_tiff(p, result.depth_m[k])
     write_json(truth / "truth.json", truth_doc)
-    return [raw_path, side, *depth_paths, truth / "truth.json"]
+    result.layout.save(layout_path)
+    return [raw_path, side, *depth_paths, truth / "truth.json", layout_path]

@@ -185,15 +185,18 @@ class RingDevice:
         )
 
     def binned(self, factor: int) -> RingDevice:
-        """The same optics on a sensor binned ``factor`` x ``factor`` (pitch times ``factor``)."""
+        """The same optics on a sensor binned ``factor`` x ``factor`` (pitch times ``factor``).
+
+        Pixel counts are rounded down to even numbers: a binned colour sensor still delivers
+        whole 2 x 2 CFA blocks."""
         if isinstance(factor, bool) or not isinstance(factor, (int, np.integer)) or factor < 1:
             raise DeviceError(f"binning factor must be an integer >= 1, got {factor!r}")
         if factor == 1:
             return self
         return dataclasses.replace(
             self,
-            sensor_width_px=self.sensor_width_px // factor,
-            sensor_height_px=self.sensor_height_px // factor,
+            sensor_width_px=(self.sensor_width_px // factor) // 2 * 2,
+            sensor_height_px=(self.sensor_height_px // factor) // 2 * 2,
             pixel_pitch_m=self.pixel_pitch_m * factor,
         )
 

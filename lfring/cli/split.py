@@ -1,0 +1,89 @@
+"""``lfring split``: cut a raw frame into its sub-aperture views."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import click
+import numpy as np
+
+from lfring.io.bayer import PATTERNS
+
+log = logging.getLogger("lfring.cli.split")
+
+_METHODS = ("bilinear", "edge-aware", "vng", "rawpy", "kornia")
+
+
+@click.command("split")
+@click.argument("raw", type=click.Path(dir_okay=False))
+@click.option("-o", "--output", "outdir", type=click.Path(file_okay=False), required=True, metavar="DIR",
+              help="Output folder (created if missing).")
+@click.option("--layout", "layout_file", type=click.Path(dir_okay=False), default=None, metavar="FILE",
+              help="Layout JSON (from a previous split, or a twin's truth folder).")
+@click.option("--flat", "flat_file", type=click.Path(dir_okay=False), default=None, metavar="FILE",
+              help="Flat (white) frame to detect the layout from.")
+@click.option("--rotate180", is_flag=True, help="The camera outputs the frame rotated by 180 degrees (with --flat or detection).")
+@click.option("--pattern", type=click.Choice(PATTERNS, case_sensitive=False), default=None,
+              help="Bayer pattern (overrides the file's metadata or sidecar).")
+@click.option("--black-level", type=float, default=None, help="Black level [counts] (overrides metadata).")
+@click.option("--white-level", type=float, default=None, help="White level [counts] (overrides metadata).")
+@click.option("--method", type=click.Choice(_METHODS), default="edge-aware", show_default=True, help="Demosaicing method.")
+@click.option("--format", "fmt", type=click.Choice(["png", "tiff"]), default="png", show_default=True,
+              help="View files: 16-bit PNG or 16-bit TIFF.")
+@click.option("--overwrite", is_flag=True, help="Replace existing output files.")
+def command(raw, outdir, layout_file, flat_file, rotate180, pattern, black_level, white_level, method, fmt, overwrite):
+    """Cut RAW into its views: DIR/<name>_view<k>.png (k = 0 top-left, 1 top-right, 2
+    bottom-left, 3 bottom-right), the layout DIR/<name>_layout.json and a sidecar
+    DIR/<name>_views.json.
+
+    The layout comes from --layout, else is detected on --flat, else on RAW itself (less
+    precise: the scene's content near the view edges biases it).
+    """
+    from lfring.io.demosaic import demosaic
+    from lfring.io.raw import load_raw
+    from lfring.io.writers import check_writable, write_image, write_json
+    from lfring.views import Layout, detect_layout, split_views
+
+    if layout_file and flat_file:
+        raise click.UsageError("give --layout or --flat, not both")
+    if layout_file and rotate180:
+        raise click.UsageError("--rotate180 goes with --flat or detection; a layout file records its own rotation")
+    levels = dict(pattern=pattern.upper() if pattern else None, black_level=black_level, white_level=white_level)
+    frame = load_raw(raw, **levels)
+    image = demosaic(frame, method=method)
+    if layout_file:
+        layout, source = Layout.load(layout_file), f"layout file {layout_file}"
+    elif flat_file:
+        flat = demosaic(load_raw(flat_file, **levels), method="bilinear")
+        if flat.shape != image.shape:
+            raise click.UsageError(f"the flat frame is {flat.shape[1]} x {flat.shape[0]} px, the raw frame {image.shape[1]} x {image.shape[0]} px")
+        layout, source = detect_layout(flat, kind="flat", rotate180=rotate180), f"detected on flat {flat_file}"
+    else:
+        layout, source = detect_layout(image, rotate180=rotate180), "detected on the frame itself"
+        log.warning("no --layout or --flat: layout detected on the frame itself, which is less precise")
+    views = split_views(image, layout)
+    out = Path(outdir)
+    stem = Path(raw).stem
+    ext = "png" if fmt == "png" else "tiff"
+    paths = [out / f"{stem}_view{k}.{ext}" for k in range(layout.num_views)]
+    layout_path, side_path = out / f"{stem}_layout.json", out / f"{stem}_views.json"
+    check_writable([*paths, layout_path, side_path], overwrite=overwrite)
+    out.mkdir(parents=True, exist_ok=True)
+    for k, p in enumerate(paths):
+        v = views[k] if views.shape[-1] == 3 else views[k, ..., 0]
+        write_image(p, np.rint(np.clip(v, 0.0, 1.0) * 65535.0).astype(np.uint16))
+    layout.save(layout_path)
+    write_json(side_path, {
+        "input": str(raw),
+        "layout_source": source,
+        "layout_file": layout_path.name,
+        "views": [p.name for p in paths],
+        "view_order": "0 top-left, 1 top-right, 2 bottom-left, 3 bottom-right",
+        "values": "linear, (counts - black) / (white - black) scaled to 0..65535",
+        "pattern": frame.pattern,
+        "black_level": frame.black_level,
+        "white_level": frame.white_level,
+        "demosaic": method,
+    })
+    log.info("%s: %d views of %d x %d px (%s) -> %s", raw, layout.num_views, layout.view_shape[1], layout.view_shape[0], source, out)
