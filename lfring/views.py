@@ -285,7 +285,9 @@ def detect_layout(
     sigma = max(4.0, min(h, w) / 200.0)
     if kind != "flat":
         envelope = _envelope(fine)
-    blobs = _rough_discs(cv2.GaussianBlur(fine if kind == "flat" else envelope, (0, 0), sigma), grid)
+    # Rough discs on a 4x decimated copy: only their approximate centre and size are needed.
+    small = cv2.resize(fine if kind == "flat" else envelope, (w // 4, h // 4), interpolation=cv2.INTER_AREA)
+    blobs = [(4 * x + 1.5, 4 * y + 1.5, 4 * r) for x, y, r in _rough_discs(cv2.GaussianBlur(small, (0, 0), sigma / 4), grid)]
     if kind == "auto":
         kind = "flat" if _uniform_inside(fine, blobs) else "scene"
     base = fine if kind == "flat" else envelope
@@ -384,8 +386,8 @@ def _edge_points(fine: np.ndarray, cx: float, cy: float, r0: float) -> np.ndarra
     prof = cv2.remap(fine, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     inner = (radii >= 0.3 * r0) & (radii <= 0.75 * r0)
     x = radii[inner] ** 2
-    design = np.stack([np.ones_like(x), x], axis=1)
-    coef, *_ = np.linalg.lstsq(design, prof[:, inner].T, rcond=None)
+    # One design matrix for every ray: its pseudo-inverse solves all 360 fits at once.
+    coef = np.linalg.pinv(np.stack([np.ones_like(x), x], axis=1)) @ prof[:, inner].T
     lev = coef[0][:, None] + coef[1][:, None] * radii[None, :] ** 2
     below = (prof < 0.5 * lev) & (radii[None, :] > 0.75 * r0)
     pts = []
