@@ -243,3 +243,24 @@ def test_interleaved_surfaces_are_refused(prototype):
     card = Plane(0.5, (0.05, 0.2), Texture("checker"), center_m=(0.0, 0.0), name="card")
     with pytest.raises(InvalidInputError, match="'floor' and 'card' interleave"):
         render(prototype, Scene((floor, card)), binning=8)
+
+
+@pytest.mark.parametrize("pattern", PATTERNS)
+def test_each_bayer_phase_demosaics_back_to_the_rendered_colours(prototype, pattern):
+    from lfring.io.demosaic import demosaic
+    from lfring.io.raw import RawFrame
+
+    scene = Scene((Plane(0.5, (0.4, 0.4), Texture("image", name="astronaut")),))
+    r = render(prototype, scene, binning=4, pattern=pattern, bit_depth=16)
+    frame = RawFrame(mosaic=r.raw, pattern=pattern, black_level=r.black_level, white_level=r.white_level, bit_depth=16)
+    rgb = demosaic(frame, method="edge-aware")
+    lit = np.zeros(rgb.shape[:2], bool)
+    for x, y, w, h in r.layout.rects:
+        lit[y + 8 : y + h - 8, x + 8 : x + w - 8] = True
+    mse = np.mean((rgb[lit] - r.image[lit]) ** 2)
+    psnr = 10 * np.log10(1.0 / mse)
+    assert psnr > 38.0
+    # A wrong phase must fail the same check: demosaicing with the pattern's mirror swaps red and blue.
+    wrong = {"RGGB": "BGGR", "BGGR": "RGGB", "GRBG": "GBRG", "GBRG": "GRBG"}[pattern]
+    bad = demosaic(RawFrame(mosaic=r.raw, pattern=wrong, black_level=r.black_level, white_level=r.white_level, bit_depth=16))
+    assert 10 * np.log10(1.0 / np.mean((bad[lit] - r.image[lit]) ** 2)) < psnr - 10
