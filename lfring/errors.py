@@ -15,6 +15,7 @@ __all__ = [
     "FileFormatError",
     "LfringFileNotFoundError",
     "EstimationError",
+    "LfringWarning",
 ]
 
 
@@ -44,3 +45,7 @@ class LfringFileNotFoundError(LfringError, FileNotFoundError):
 
 class EstimationError(LfringError, RuntimeError):
     """An estimator could not produce a trustworthy result from valid input."""
+
+
+class LfringWarning(UserWarning):
+    """Something works but deserves attention (a depth outside the calibrated range, say)."""

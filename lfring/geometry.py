@@ -11,7 +11,7 @@ import numpy as np
 
 from lfring.errors import InvalidInputError
 
-__all__ = ["normalize_homographies", "to_reference", "check_reference"]
+__all__ = ["normalize_homographies", "to_reference", "check_reference", "apply_homography", "homography_rms_px"]
 
 
 def normalize_homographies(h: np.ndarray) -> np.ndarray:
@@ -60,3 +60,26 @@ def to_reference(H_r_from_view: np.ndarray, reference) -> np.ndarray:
     else:
         m = h[..., ref : ref + 1, :, :]
     return normalize_homographies(np.linalg.inv(m) @ h)
+
+
+def apply_homography(h: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """Map points (..., 2) by a (3, 3) homography."""
+    xy = np.asarray(xy, dtype=np.float64)
+    p = xy @ h[:2, :2].T + h[:2, 2]
+    w = xy @ h[2, :2] + h[2, 2]
+    return p / w[..., None]
+
+
+def homography_rms_px(h_a: np.ndarray, h_b: np.ndarray, shape_hw: tuple[int, int], *, step: int = 8) -> float:
+    """RMS distance in pixels between where two homographies send the pixels of a view.
+
+    Parameters
+    ----------
+    h_a, h_b : (3, 3)
+    shape_hw : (h, w) of the view; the pixel grid is sampled every ``step`` pixels.
+    """
+    h, w = shape_hw
+    ys, xs = np.mgrid[0:h:step, 0:w:step]
+    xy = np.stack([xs.ravel(), ys.ravel()], axis=1).astype(np.float64)
+    d = apply_homography(np.asarray(h_a, dtype=np.float64), xy) - apply_homography(np.asarray(h_b, dtype=np.float64), xy)
+    return float(np.sqrt(np.mean(np.sum(d * d, axis=1))))

@@ -13,6 +13,7 @@ from lfring.errors import LfringError
 
 # command name -> module in lfring.cli defining a click command called ``command``.
 COMMANDS = {
+    "calibrate": "calibrate",
     "design": "design",
     "raytrace": "raytrace",
     "split": "split",

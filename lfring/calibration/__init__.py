@@ -1,0 +1,14 @@
+"""Variable-homography calibration of refocusing in metric depth (SPEC 4)."""
+
+from lfring.calibration.calibrate import calibrate
+from lfring.calibration.model import PlaneFit, VariableHomography, fit_variable_homography
+from lfring.calibration.ring import CALIBRATION_VERSION, RingCalibration
+
+__all__ = [
+    "CALIBRATION_VERSION",
+    "PlaneFit",
+    "RingCalibration",
+    "VariableHomography",
+    "calibrate",
+    "fit_variable_homography",
+]

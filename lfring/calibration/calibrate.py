@@ -1,0 +1,142 @@
+"""``lfring.calibrate``: from photographs of a planar target at known depths to a RingCalibration."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import numpy as np
+
+from lfring.calibration.ring import RingCalibration
+from lfring.errors import InvalidInputError
+from lfring.views import Layout, detect_layout, split_views
+
+__all__ = ["calibrate", "load_image"]
+
+log = logging.getLogger("lfring.calibration")
+
+
+def load_image(frame, *, pattern=None, black_level=None, white_level=None, method: str = "edge-aware") -> tuple[np.ndarray, str]:
+    """A frame given as a path, a RawFrame or an array -> (float32 image (H, W, C), name)."""
+    from lfring.io.demosaic import demosaic
+    from lfring.io.raw import RawFrame, load_raw
+
+    if isinstance(frame, (str, Path)):
+        return demosaic(load_raw(frame, pattern=pattern, black_level=black_level, white_level=white_level), method=method), str(frame)
+    if isinstance(frame, RawFrame):
+        return demosaic(frame, method=method), str(frame.path or "frame")
+    arr = np.asarray(frame)
+    if arr.ndim not in (2, 3) or not np.issubdtype(arr.dtype, np.floating):
+        raise InvalidInputError(
+            f"a frame must be a path, a RawFrame or a floating (H, W[, C]) image in [0, 1], got {arr.dtype} {arr.shape}"
+        )
+    return arr.astype(np.float32, copy=False), "array"
+
+
+def calibrate(
+    frames_by_depth: dict,
+    *,
+    flat=None,
+    layout: Layout | None = None,
+    depth_origin_m: float | None = None,
+    method: str = "ecc",
+    reference: int = 0,
+    rank1: bool = False,
+    pattern: str | None = None,
+    black_level=None,
+    white_level=None,
+) -> RingCalibration:
+    """Calibrate refocusing in metric depth from frames of a textured planar target.
+
+    Parameters
+    ----------
+    frames_by_depth : {depth_m: frame}
+        Two or more frames (paths, RawFrames or float images) of a fronto-parallel textured
+        target, keyed by its distance from the main lens in metres.
+    flat : frame, optional
+        A flat (white) frame: the layout is detected on it and the views are flat-fielded
+        before alignment, which removes the views' different vignetting.
+    layout : Layout, optional
+        Use this layout instead of detecting one.
+    depth_origin_m : float or None
+        z0 of the model. None: fitted with three or more planes, 0 with two (SPEC 4).
+    method : {'ecc', 'sift'}
+        Per-plane homographies by direct intensity alignment (ECC, initialised by phase
+        correlation; no features) or by SIFT + RANSAC.
+    reference : int
+        View the homographies are measured into (any reference, 'center' included, can be
+        asked of the result).
+    rank1 : bool
+        Constrain each B_k to rank 1.
+
+    Returns
+    -------
+    RingCalibration
+        With per-plane residuals (model vs measurement) in pixels, leave-one-out errors for
+        three or more planes, and the alignment diagnostics in ``provenance``.
+    """
+    from lfring.calibration.planes import estimate_plane_homographies
+
+    if not isinstance(frames_by_depth, dict) or len(frames_by_depth) < 2:
+        raise InvalidInputError("calibrate needs frames of the target at two or more distinct depths, as {depth_m: frame}")
+    depths = [float(d) for d in frames_by_depth]
+    if any(not np.isfinite(d) or d <= 0 for d in depths):
+        raise InvalidInputError(f"target depths must be positive numbers of metres, got {depths}")
+    if len(set(np.round(depths, 9))) != len(depths):
+        raise InvalidInputError(f"target depths must be distinct, got {depths}")
+    levels = dict(pattern=pattern, black_level=black_level, white_level=white_level)
+    images = {}
+    shape = None
+    for d, f in frames_by_depth.items():
+        img, name = load_image(f, **levels)
+        if shape is None:
+            shape = img.shape[:2]
+        elif img.shape[:2] != shape:
+            raise InvalidInputError(
+                f"all frames must have the same size: {name} is {img.shape[1]} x {img.shape[0]} px, "
+                f"the first is {shape[1]} x {shape[0]} px"
+            )
+        images[float(d)] = (img, name)
+    flat_img = None
+    if flat is not None:
+        flat_img, flat_name = load_image(flat, **levels)
+        if flat_img.shape[:2] != shape:
+            raise InvalidInputError(f"the flat frame {flat_name} is {flat_img.shape[1]} x {flat_img.shape[0]} px, the targets {shape[1]} x {shape[0]} px")
+    if layout is None:
+        if flat_img is not None:
+            layout = detect_layout(flat_img, kind="flat")
+        else:
+            log.warning("no flat frame or layout given: detecting the layout on the nearest target (less precise)")
+            layout = detect_layout(images[min(images)][0])
+    elif (layout.raw_width_px, layout.raw_height_px) != (shape[1], shape[0]):
+        raise InvalidInputError(f"the layout is for {layout.raw_width_px} x {layout.raw_height_px} px frames, the targets are {shape[1]} x {shape[0]} px")
+    masks = layout.masks()
+    flat_views = split_views(flat_img, layout) if flat_img is not None else None
+    measured, diag = {}, []
+    for d in sorted(images):
+        img, name = images[d]
+        est = estimate_plane_homographies(split_views(img, layout), reference=reference, masks=masks, method=method,
+                                          flat_views=flat_views)
+        measured[d] = est.H_ref_from_view
+        diag.append({"depth_m": d, "file": name, "alignment_residual_px": est.residual_px.tolist(),
+                     "correlation": est.correlation.tolist()})
+        log.info("plane %.4g m (%s): alignment residual %s px", d, name, np.round(est.residual_px, 3).tolist())
+    z0 = depth_origin_m
+    if z0 is None and len(measured) == 2:
+        z0 = 0.0
+    return RingCalibration.from_plane_homographies(
+        measured, reference=reference, depth_origin_m=z0, layout=layout, pattern=_pattern_of(frames_by_depth, pattern),
+        rank1=rank1, provenance={"method": method, "flat": None if flat is None else str(flat), "planes": diag,
+                                 "depth_origin": "fitted" if depth_origin_m is None and len(measured) > 2 else "given"},
+    )
+
+
+def _pattern_of(frames_by_depth, pattern):
+    if pattern is not None:
+        return pattern
+    from lfring.io.raw import RawFrame
+
+    for f in frames_by_depth.values():
+        if isinstance(f, RawFrame):
+            return f.pattern
+    return None
