@@ -1,0 +1,39 @@
+"""Calibrations shipped with lfring (the repository's calib/ folder, inside the package)."""
+
+from __future__ import annotations
+
+import json
+
+from lfring._resources import calib_dir
+from lfring.calibration.ring import RingCalibration
+from lfring.errors import LfringFileNotFoundError
+
+__all__ = ["builtin_calibrations", "default_calibration"]
+
+
+def builtin_calibrations() -> dict[str, tuple[int, int]]:
+    """Name -> raw size (width, height) of every calibration file shipped with lfring."""
+    out = {}
+    for entry in sorted(calib_dir().iterdir(), key=lambda e: e.name):
+        if entry.name.endswith(".json"):
+            data = json.loads(entry.read_text(encoding="utf-8"))
+            if "lfring_calibration_version" in data:
+                out[entry.name[: -len(".json")]] = (data["raw_width_px"], data["raw_height_px"])
+    return out
+
+
+def default_calibration(raw_size: tuple[int, int]) -> tuple[RingCalibration, str]:
+    """The shipped calibration for frames of ``raw_size`` = (width, height), and its name.
+
+    Measured calibrations are preferred to ones derived from the optics.
+    """
+    matches = [name for name, size in builtin_calibrations().items() if tuple(size) == tuple(raw_size)]
+    if not matches:
+        known = ", ".join(f"{n} ({w} x {h} px)" for n, (w, h) in builtin_calibrations().items())
+        raise LfringFileNotFoundError(
+            f"no built-in calibration for {raw_size[0]} x {raw_size[1]} px frames (built-in: {known}); "
+            "make one with lfring calibrate and pass it with --calib"
+        )
+    cals = [(RingCalibration.from_dict(json.loads((calib_dir() / f"{n}.json").read_text()), source_name=n), n) for n in matches]
+    cals.sort(key=lambda c: c[0].source != "planes")
+    return cals[0]
