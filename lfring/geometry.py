@@ -7,6 +7,8 @@ pixels (the convention of ``cv2.warpPerspective`` and kornia), composed as
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from lfring.errors import InvalidInputError
@@ -70,16 +72,59 @@ def apply_homography(h: np.ndarray, xy: np.ndarray) -> np.ndarray:
     return p / w[..., None]
 
 
-def homography_rms_px(h_a: np.ndarray, h_b: np.ndarray, shape_hw: tuple[int, int], *, step: int = 8) -> float:
+def homography_rms_px(H_a, H_b, shape_hw: tuple[int, int], mask=None, *, step: int = 1) -> np.ndarray | float:
     """RMS distance in pixels between where two homographies send the pixels of a view.
 
     Parameters
     ----------
-    h_a, h_b : (3, 3)
-    shape_hw : (h, w) of the view; the pixel grid is sampled every ``step`` pixels.
+    H_a, H_b : ndarray, (..., 3, 3)
+        Broadcast against each other, e.g. (V, 3, 3) estimates against (V, 3, 3) truths.
+    shape_hw : (h, w)
+        The view's size; every pixel centre (x, y) = (column, row) is used.
+    mask : ndarray of bool, (h, w) or (..., h, w), optional
+        Only these pixels (e.g. the valid disc of each view).
+    step : int
+        Use every ``step``-th row and column (1: every pixel centre).
+
+    Returns
+    -------
+    float for single homographies, else ndarray of the broadcast leading shape.
+
+    Notes
+    -----
+    ``sqrt(mean_p |pi(H_a p) - pi(H_b p)|^2)`` with pi the perspective division.
     """
-    h, w = shape_hw
+    ha = np.asarray(H_a, dtype=np.float64)
+    hb = np.asarray(H_b, dtype=np.float64)
+    if ha.shape[-2:] != (3, 3) or hb.shape[-2:] != (3, 3):
+        raise InvalidInputError(f"homographies must have shape (..., 3, 3), got {ha.shape} and {hb.shape}")
+    try:
+        ha, hb = np.broadcast_arrays(ha, hb)
+    except ValueError:
+        raise InvalidInputError(f"cannot compare homographies of shapes {ha.shape} and {hb.shape}") from None
+    h, w = (int(v) for v in shape_hw)
+    if h < 1 or w < 1:
+        raise InvalidInputError(f"shape_hw must be a positive (h, w), got {shape_hw!r}")
+    lead = ha.shape[:-2]
+    if mask is not None:
+        mask = np.asarray(mask, dtype=bool)
+        if mask.shape[-2:] != (h, w):
+            raise InvalidInputError(f"mask must have shape (..., {h}, {w}), got {mask.shape}")
+        mask = np.broadcast_to(mask, lead + (h, w)) if mask.ndim > 2 else mask
     ys, xs = np.mgrid[0:h:step, 0:w:step]
-    xy = np.stack([xs.ravel(), ys.ravel()], axis=1).astype(np.float64)
-    d = apply_homography(np.asarray(h_a, dtype=np.float64), xy) - apply_homography(np.asarray(h_b, dtype=np.float64), xy)
-    return float(np.sqrt(np.mean(np.sum(d * d, axis=1))))
+    if mask is not None:
+        mask = mask[..., ::step, ::step]
+    pts = np.stack([xs.ravel(), ys.ravel(), np.ones(xs.size)]).astype(np.float64)  # (3, N)
+    flat_a, flat_b = ha.reshape(-1, 3, 3), hb.reshape(-1, 3, 3)
+    out = np.empty(len(flat_a))
+    for i in range(len(flat_a)):
+        pa, pb = flat_a[i] @ pts, flat_b[i] @ pts
+        d2 = ((pa[:2] / pa[2] - pb[:2] / pb[2]) ** 2).sum(axis=0)
+        if mask is not None:
+            m = (mask if mask.ndim == 2 else mask.reshape(-1, h, w)[i]).ravel()
+            if not m.any():
+                raise InvalidInputError("mask selects no pixel")
+            d2 = d2[m]
+        out[i] = math.sqrt(float(d2.mean()))
+    return float(out[0]) if lead == () else out.reshape(lead)
+

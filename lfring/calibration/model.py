@@ -81,7 +81,7 @@ def _solve(hs: np.ndarray, z: np.ndarray, z0: float, rank1: bool) -> tuple[np.nd
 
 def _errors(hs, z, a, b, z0, shape_hw) -> np.ndarray:
     pred = normalize_homographies(a[None] + b[None] / (z - z0)[:, None, None, None])
-    return np.array([[homography_rms_px(pred[i, k], hs[i, k], shape_hw) for k in range(hs.shape[1])] for i in range(len(z))])
+    return homography_rms_px(pred, hs, shape_hw, step=8)
 
 
 def fit_variable_homography(
