@@ -45,6 +45,7 @@ def calibrate(
     pattern: str | None = None,
     black_level=None,
     white_level=None,
+    device=None,
 ) -> RingCalibration:
     """Calibrate refocusing in metric depth from frames of a textured planar target.
 
@@ -59,7 +60,9 @@ def calibrate(
     layout : Layout, optional
         Use this layout instead of detecting one.
     depth_origin_m : float or None
-        z0 of the model. None: fitted with three or more planes, 0 with two (SPEC 4).
+        z0 of the model. None: fitted with three or more planes; with two, the entrance pupil s
+        of ``device`` when one is given, else 0 (SPEC 4). For the ring z0 = s is exact, and 0
+        costs about 0.2 px at other depths on the binned twin.
     method : {'ecc', 'sift'}
         Per-plane homographies by direct intensity alignment (ECC, initialised by phase
         correlation; no features) or by SIFT + RANSAC.
@@ -68,6 +71,8 @@ def calibrate(
         asked of the result).
     rank1 : bool
         Constrain each B_k to rank 1.
+    device : RingDevice, optional
+        The camera's description, for z0 = s with two planes.
 
     Returns
     -------
@@ -121,13 +126,19 @@ def calibrate(
         diag.append({"depth_m": d, "file": name, "alignment_residual_px": est.residual_px.tolist(),
                      "correlation": est.correlation.tolist()})
         log.info("plane %.4g m (%s): alignment residual %s px", d, name, np.round(est.residual_px, 3).tolist())
-    z0 = depth_origin_m
+    z0, how = depth_origin_m, "given"
     if z0 is None and len(measured) == 2:
-        z0 = 0.0
+        if device is not None:
+            z0, how = device.entrance_pupil_m, f"optics of device '{device.name}'"
+        else:
+            z0, how = 0.0, "0 (no device given)"
+            log.warning("two planes and no device: assuming z0 = 0; give the device (or a third plane) for z0 = s")
+    elif z0 is None:
+        how = "fitted"
     return RingCalibration.from_plane_homographies(
         measured, reference=reference, depth_origin_m=z0, layout=layout, pattern=_pattern_of(frames_by_depth, pattern),
         rank1=rank1, provenance={"method": method, "flat": None if flat is None else str(flat), "planes": diag,
-                                 "depth_origin": "fitted" if depth_origin_m is None and len(measured) > 2 else "given"},
+                                 "depth_origin": how},
     )
 
 

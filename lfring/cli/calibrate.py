@@ -35,10 +35,10 @@ def _floaty(text: str) -> bool:
               help="Flat (white) frame: layout detection and flat-fielding.")
 @click.option("--layout", "layout_file", type=click.Path(dir_okay=False), default=None, metavar="FILE", help="Layout JSON to use.")
 @click.option("--depth-origin", default="auto", show_default=True, metavar="auto|optics|M",
-              help="z0 of H(Z) = A + B/(Z - z0) [m]: 'auto' fits it with 3+ planes (0 with 2), 'optics' uses the "
-                   "device's entrance pupil s, or a number.")
-@click.option("--device", "device_name", default="prototype", show_default=True, metavar="NAME|FILE",
-              help="Device description, used by --depth-origin optics.")
+              help="z0 of H(Z) = A + B/(Z - z0) [m]: 'auto' fits it with 3+ planes and with 2 takes the --device's "
+                   "entrance pupil s (0 without --device); 'optics' always takes s; or a number.")
+@click.option("--device", "device_name", default=None, metavar="NAME|FILE",
+              help="Device description (e.g. prototype), for z0 from the optics.")
 @click.option("--method", type=click.Choice(["ecc", "sift"]), default="ecc", show_default=True,
               help="Per-plane homographies: direct alignment (ECC) or SIFT + RANSAC.")
 @click.option("--rank1", is_flag=True, help="Constrain each B_k to rank 1.")
@@ -74,10 +74,13 @@ def command(frames, depths, output, flat, layout_file, depth_origin, device_name
         raise click.BadParameter(f"depths must be distinct, got {zs}", param_hint="--depths")
     if flat and layout_file:
         raise click.UsageError("give --flat or --layout, not both")
+    device = get_device(device_name) if device_name else None
     if depth_origin == "auto":
         z0 = None
     elif depth_origin == "optics":
-        z0 = get_device(device_name).entrance_pupil_m
+        if device is None:
+            raise click.UsageError("--depth-origin optics needs --device NAME|FILE")
+        z0 = device.entrance_pupil_m
     else:
         try:
             z0 = float(depth_origin)
@@ -86,7 +89,7 @@ def command(frames, depths, output, flat, layout_file, depth_origin, device_name
     check_writable([output], overwrite=overwrite)
     layout = Layout.load(layout_file) if layout_file else None
     cal = calibrate(dict(zip(zs, frames)), flat=flat, layout=layout, depth_origin_m=z0, method=method, rank1=rank1,
-                    pattern=pattern.upper() if pattern else None)
+                    pattern=pattern.upper() if pattern else None, device=device)
     click.echo(f"z0 = {cal.depth_origin_m:.6f} m ({cal.provenance.get('depth_origin')}); valid depth range "
                f"{cal.valid_depth_range_m[0]:g} to {cal.valid_depth_range_m[1]:g} m; reference view {cal.model.reference}")
     click.echo(f"{'plane [m]':>10} " + " ".join(f"{'view ' + str(k) + ' px':>10}" for k in range(cal.num_views))
