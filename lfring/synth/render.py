@@ -6,10 +6,17 @@ surface is rendered as a layer (premultiplied colour, coverage, depth), blurred 
 defocus disc (SPEC 2.3, the blur varying with depth across slanted and curved surfaces), and the
 layers are composited front to back. Then come per-view vignetting and the iris field stop, the
 optional 180-degree rotation, the Bayer mosaic, shot and read noise, and quantisation.
+
+The views render on parallel threads (the heavy loops are OpenCV's and NumPy's, which release
+the GIL) while the noise is drawn on another; every thread writes its own part of the outputs,
+so the frame is the same whatever the number of threads (``benchmarks/bench_render.py``).
 """
 
 from __future__ import annotations
 
+import os
+import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass
 
 import cv2
@@ -27,7 +34,7 @@ from lfring.optics.views import (
     vignetting_region,
 )
 from lfring.synth.scene import HeightField, Plane, Scene
-from lfring.synth.textures import rasterize
+from lfring.synth.textures import _rasterize, raster_shape, rasterize
 from lfring.views import Layout, split_views
 
 __all__ = ["RenderSettings", "RenderResult", "render", "NOISE_PRESETS", "BIT_DEPTHS", "disc_kernel"]
@@ -158,10 +165,26 @@ def disc_kernel(diameter_px: float) -> np.ndarray | None:
 
 
 def _blur(layer: np.ndarray, diameter_px: float) -> np.ndarray:
-    k = disc_kernel(diameter_px)
+    return _convolve(layer, disc_kernel(diameter_px))
+
+
+def _convolve(layer: np.ndarray, k: np.ndarray | None) -> np.ndarray:
     if k is None:
         return layer
+    # filter2D correlates; the disc is symmetric, so this is the convolution. Zero outside.
     return cv2.filter2D(layer, -1, k, borderType=cv2.BORDER_CONSTANT)
+
+
+#: rows per block of the memory-bound per-pixel passes: the temporaries stay in cache and are
+#: reused instead of being fresh (page-faulted) arrays the size of a layer.
+_BLOCK_ROWS = 64
+
+
+def _workers() -> int:
+    """Threads for the views, texture rasters and sensor stripes: the heavy work is in OpenCV
+    and NumPy loops that release the GIL; four views bound the useful count."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return max(1, min(4, cores))
 
 
 @dataclass
@@ -204,6 +227,11 @@ class _Renderer:
         self.cams: ViewCameras = view_cameras(device)
         self.tp = device.pixel_pitch_m
         self._textures: dict[int, tuple] = {}
+        self.regions = [lit_region(device, k) for k in range(4)]
+        self._vignetting: dict[int, np.ndarray] = {}
+        self.vignetting_source = (
+            _mirror_sources(device, self.regions) if settings.vignetting else [(k, 1, 1) for k in range(4)]
+        )
         b, c = device.require_positions()
         self.c = c
         self.b = b
@@ -261,16 +289,15 @@ class _Renderer:
         if idx not in self._textures:
             zs = plane.corners_m()[:, 2]
             texel = self._texel(zs.min())
-            rgb = rasterize(plane.texture, plane.size_m, texel)
-            rows, cols = rgb.shape[:2]
-            alpha = np.ones((rows, cols), np.float32)
+            rgba = _rasterize(plane.texture, plane.size_m, texel, alpha=True)  # opaque RGBA
+            rows, cols = rgba.shape[:2]
             if plane.shape == "disk":
                 yy = (np.arange(rows) + 0.5) / rows * 2 - 1
                 xx = (np.arange(cols) + 0.5) / cols * 2 - 1
                 r = np.sqrt(xx[None, :] ** 2 + yy[:, None] ** 2)
                 # anti-aliased edge about one texel wide
                 alpha = np.clip((1 - r) * min(rows, cols) / 2 + 0.5, 0, 1).astype(np.float32)
-            rgba = np.dstack([rgb * alpha[..., None], alpha]).astype(np.float32)
+                rgba *= alpha[..., None]  # premultiplied colour, and alpha itself (1 * alpha)
             levels = [rgba]
             # Mip levels for the far side of slanted planes (minification > ~1.5 texels/pixel).
             ratio = (zs.max() - self.cams.depth_origin_m) / (zs.min() - self.cams.depth_origin_m)
@@ -300,11 +327,13 @@ class _Renderer:
         W, H = self.dev.sensor_width_px, self.dev.sensor_height_px
         pix_from_sensor = np.array([[1 / self.tp, 0, W / 2 - 0.5 - x0], [0, 1 / self.tp, H / 2 - 0.5 - y0], [0, 0, 1]])
         k = np.array([[f, 0, pp[0]], [0, f, pp[1]], [0, 0, 1]])
-        acc = np.zeros((h, w, 4), np.float32)
         dx, dy = self._pixel_rays(view, x0, y0, w, h)
         # Ray-plane intersection: Z = s + n.(P0 - C) / n.(dx, dy, 1).
-        denom = n[0] * dx + n[1] * dy + n[2]
-        depth = (self.cams.depth_origin_m + float(n @ (p0 - cam)) / denom).astype(np.float32)
+        if n[0] == 0 and n[1] == 0:  # fronto-parallel: n.(dx, dy, 1) is n_z at every pixel
+            depth = np.full((h, w), self.cams.depth_origin_m + float(n @ (p0 - cam)) / n[2], np.float32)
+        else:
+            denom = n[0] * dx + n[1] * dy + n[2]
+            depth = (self.cams.depth_origin_m + float(n @ (p0 - cam)) / denom).astype(np.float32)
         warped = []
         for tex, (tx, ty) in zip(levels, steps):
             a = np.column_stack([tx * u, ty * v, tl + 0.5 * (tx * u + ty * v) - cam])
@@ -316,16 +345,23 @@ class _Renderer:
             # Trilinear mip blend by the local minification (pixel footprint / base texel).
             lod = np.log2(np.maximum(self._texel(depth) / texel, 1.0))
             lod = np.clip(lod, 0, len(warped) - 1)
-            lo = np.floor(lod).astype(int)
-            fr = (lod - lo)[..., None].astype(np.float32)
-            stack = np.stack(warped)
-            hi = np.minimum(lo + 1, len(warped) - 1)
-            yy, xx = np.indices(lod.shape)
-            acc = stack[lo, yy, xx] * (1 - fr) + stack[hi, yy, xx] * fr
-        depth = np.where(acc[..., 3] > 1e-4, depth, np.inf).astype(np.float32)
+            lo = np.floor(lod)
+            fr = (lod - lo).astype(np.float32)  # exact: a number minus its floor
+            # Gather level lo and lo + 1 per pixel by masks (no stacked copy of the levels).
+            acc = warped[-1].copy()
+            upper = warped[-1].copy()
+            for i in range(len(warped) - 1):
+                at = (lo == i).view(np.uint8)
+                cv2.copyTo(warped[i], at, acc)
+                cv2.copyTo(warped[i + 1], at, upper)
+            w_lo, w_hi = 1 - fr, fr
+            acc *= cv2.merge([w_lo] * 4)  # per-channel weights (broadcasting over 4 is slow)
+            upper *= cv2.merge([w_hi] * 4)
+            acc += upper
+        depth[acc[..., 3] <= 1e-4] = np.inf
         return _Layer(x0, y0, acc, depth, float(zs.min()), plane.name or f"surface {idx}")
 
-    def heightfield_layer(self, idx: int, part: HeightField, view: int, region) -> _Layer | None:
+    def _heightfield_texture(self, idx: int, part: HeightField):
         wm, hm = part.size_m
         if idx not in self._textures:
             hmax = max([b.height_m for b in part.bumps if b.height_m > 0], default=0.0)
@@ -337,7 +373,47 @@ class _Renderer:
             rgba = np.dstack([rgb, np.ones(rgb.shape[:2], np.float32)]).astype(np.float32)
             steps = (wm / rgba.shape[1], hm / rgba.shape[0])
             self._textures[idx] = (steps, rgba, heights)
-        (tx, ty), rgba, heights = self._textures[idx]
+        return self._textures[idx]
+
+    def prepare_texture(self, idx: int) -> None:
+        """Rasterise surface ``idx`` once, before the views that share it are rendered."""
+        surf = self.scene.surfaces[idx]
+        if isinstance(surf, Plane):
+            self._plane_texture(idx, surf)
+        else:
+            self._heightfield_texture(idx, surf)
+
+    def prepare_vignetting(self, view: int) -> None:
+        """Compute the vignetting of a view that is not a mirror image of another."""
+        self._vignetting[view] = vignetting_region(self.dev, view, self.regions[view])
+
+    def prepare_tasks(self) -> list:
+        """Per-render work the views share (texture rasters, vignetting maps), largest first."""
+        tasks = []
+        for idx, surf in enumerate(self.scene.surfaces):
+            if isinstance(surf, Plane):
+                texel = self._texel(float(surf.corners_m()[:, 2].min()))
+            else:
+                texel = self._texel(surf.depth_m - max([b.height_m for b in surf.bumps if b.height_m > 0], default=0.0))
+            rows, cols = raster_shape(surf.size_m, texel)
+            tasks.append((rows * cols, lambda i=idx: self.prepare_texture(i)))
+        if self.settings.vignetting:
+            for k, (src, _, _) in enumerate(self.vignetting_source):
+                if src == k:
+                    tasks.append((self.regions[k][2] * self.regions[k][3], lambda k=k: self.prepare_vignetting(k)))
+        return [fn for _, fn in sorted(tasks, key=lambda t: -t[0])]
+
+    def vignetting(self, view: int) -> np.ndarray:
+        """(h, w) vignetting over the view's lit region: computed, or the flipped map of the
+        view it mirrors (:func:`_mirror_sources`)."""
+        src, sx, sy = self.vignetting_source[view]
+        if src not in self._vignetting:
+            self.prepare_vignetting(src)
+        return self._vignetting[src][::sy, ::sx]
+
+    def heightfield_layer(self, idx: int, part: HeightField, view: int, region) -> _Layer | None:
+        wm, hm = part.size_m
+        (tx, ty), rgba, heights = self._heightfield_texture(idx, part)
         zlo = part.depth_m - max(float(heights.max()), 0.0)
         zhi = part.depth_m - min(float(heights.min()), 0.0)
         cx, cy = part.center_m
@@ -362,8 +438,18 @@ class _Renderer:
         return _Layer(x0, y0, acc, depth, zlo, part.name or f"surface {idx}")
 
     # -- one view ----------------------------------------------------------------------------
-    def view(self, view: int):
-        region = lit_region(self.dev, view)
+    def view(self, view: int, image: np.ndarray, views_sharp: np.ndarray, depth_views: np.ndarray,
+             rects, times: dict | None = None) -> None:
+        """Render view ``view`` into its lit region of ``image`` (exposed and clipped to [0, 1])
+        and into its share of the ground truth: the parts of ``views_sharp`` and
+        ``depth_views`` whose view rectangle ``rects[j]`` (erect frame) lies in that region.
+
+        Views write disjoint parts of the outputs (the lit regions are clipped to the
+        quadrants), so they can run in parallel threads.
+        """
+        clock = time.perf_counter
+        t0 = clock()
+        region = self.regions[view]
         rx, ry, rw, rh = region
         layers = []
         for idx, surf in enumerate(self.scene.surfaces):
@@ -373,29 +459,77 @@ class _Renderer:
                 layers.append(lay)
         layers.sort(key=lambda la: la.zmin)
         _check_order(layers)
-        bg = np.array(self.scene.background, np.float32)
+        t1 = clock()
+        # Sharp colour and depth are only output inside the view rectangles: composite them
+        # over the box that the rectangles' parts in this region span, not the whole region.
+        vh, vw = views_sharp.shape[1:3]
+        cuts = []
+        for j, (x, y) in enumerate((r[0], r[1]) for r in rects):
+            ix0, iy0, ix1, iy1 = max(x, rx), max(y, ry), min(x + vw, rx + rw), min(y + vh, ry + rh)
+            if ix1 > ix0 and iy1 > iy0:
+                cuts.append((j, x, y, ix0, iy0, ix1, iy1))
+        if cuts:
+            gx0, gy0 = min(c[3] for c in cuts), min(c[4] for c in cuts)
+            gx1, gy1 = max(c[5] for c in cuts), max(c[6] for c in cuts)
+        else:
+            gx0 = gy0 = gx1 = gy1 = 0
+        sharp = np.zeros((gy1 - gy0, gx1 - gx0, 4), np.float32)
+        depth = np.full((gy1 - gy0, gx1 - gx0), np.inf, np.float32)
         blurred = np.zeros((rh, rw, 4), np.float32)
-        sharp = np.zeros((rh, rw, 4), np.float32)
-        depth = np.full((rh, rw), np.inf, np.float32)
+        t_blur = 0.0
         for lay in layers:
             h, w = lay.depth.shape
-            sl = np.s_[lay.y0 - ry : lay.y0 - ry + h, lay.x0 - rx : lay.x0 - rx + w]
-            _over(sharp[sl], lay.rgba)
-            front = (lay.rgba[..., 3] > 0.5) & (lay.depth < depth[sl])
-            depth[sl] = np.where(front, lay.depth, depth[sl])
-            _over(blurred[sl], self._defocus(lay) if self.settings.defocus else lay.rgba)
-        for acc in (blurred, sharp):
-            acc[..., :3] += (1.0 - acc[..., 3:4]) * bg
-        vig = vignetting_region(self.dev, view, region) if self.settings.vignetting else np.ones((rh, rw), np.float32)
-        radiance = blurred[..., :3] * vig[..., None]
+            lx0, ly0 = max(lay.x0, gx0), max(lay.y0, gy0)
+            lx1, ly1 = min(lay.x0 + w, gx1), min(lay.y0 + h, gy1)
+            if lx1 > lx0 and ly1 > ly0:
+                src = np.s_[ly0 - lay.y0 : ly1 - lay.y0, lx0 - lay.x0 : lx1 - lay.x0]
+                dst = np.s_[ly0 - gy0 : ly1 - gy0, lx0 - gx0 : lx1 - gx0]
+                _over(sharp[dst], lay.rgba[src])
+                front = (lay.rgba[src][..., 3] > 0.5) & (lay.depth[src] < depth[dst])
+                np.copyto(depth[dst], lay.depth[src], where=front)
+            tb = clock()
+            rgba = self._defocus(lay) if self.settings.defocus else lay.rgba
+            t_blur += clock() - tb
+            _over(blurred[lay.y0 - ry : lay.y0 - ry + h, lay.x0 - rx : lay.x0 - rx + w], rgba)
+        bg = np.array(self.scene.background, np.float32)
+        if np.any(bg != 0):  # adding (1 - alpha) * 0 would change nothing
+            for acc in (blurred, sharp):
+                acc[..., :3] += (1.0 - acc[..., 3:4]) * bg
+        t2 = clock()
+        exposure = np.float32(self.settings.exposure)
+        vig = self.vignetting(view) if self.settings.vignetting else None
+        for r in range(0, rh, _BLOCK_ROWS):
+            out = image[ry + r : ry + min(rh, r + _BLOCK_ROWS), rx : rx + rw]
+            rgb = cv2.cvtColor(blurred[r : r + _BLOCK_ROWS], cv2.COLOR_RGBA2RGB)
+            if vig is not None:
+                v = vig[r : r + _BLOCK_ROWS]
+                # Contiguous three-channel operands: NumPy broadcasting over a short axis is slow.
+                np.multiply(rgb, cv2.merge([v, v, v]), out=out)
+            else:
+                out[...] = rgb
+            out *= exposure
+            np.clip(out, 0.0, 1.0, out=out)
         depth[~np.isfinite(depth)] = np.nan
-        return region, radiance, sharp[..., :3], depth
+        for j, x, y, ix0, iy0, ix1, iy1 in cuts:
+            g = np.s_[iy0 - gy0 : iy1 - gy0, ix0 - gx0 : ix1 - gx0]
+            v = np.s_[iy0 - y : iy1 - y, ix0 - x : ix1 - x]
+            np.multiply(cv2.cvtColor(sharp[g], cv2.COLOR_RGBA2RGB), exposure, out=views_sharp[j][v])
+            depth_views[j][v] = depth[g]
+        if times is not None:
+            t3 = clock()
+            for key, dt in (("layers (warp, depth)", t1 - t0), ("defocus", t_blur), ("composite", t2 - t1 - t_blur),
+                            ("out (vignetting, exposure, clip, ground truth)", t3 - t2)):
+                times[key] = times.get(key, 0.0) + dt
 
     def _defocus(self, lay: _Layer) -> np.ndarray:
-        d = self.blur_px(np.where(np.isfinite(lay.depth), lay.depth, np.nan).astype(np.float64))
-        covered = np.isfinite(d)
-        if not covered.any():
+        finite = np.isfinite(lay.depth)
+        if not finite.any():
             return lay.rgba
+        zs = lay.depth[finite]
+        zlo, zhi = zs.min(), zs.max()
+        if zlo == zhi:  # one depth (a fronto-parallel plane): one disc, no per-pixel blur map
+            return _blur(lay.rgba, float(self.blur_px(np.float64(zlo))))
+        d = self.blur_px(np.where(finite, lay.depth, np.nan).astype(np.float64))
         lo, hi = float(np.nanmin(d)), float(np.nanmax(d))
         if hi - lo < 0.5:
             return _blur(lay.rgba, 0.5 * (lo + hi))
@@ -405,19 +539,83 @@ class _Renderer:
         edges = np.arange(lo, hi + 0.5, 0.5)
         idx = np.clip(np.digitize(np.nan_to_num(d, nan=lo), edges) - 1, 0, len(edges) - 1)
         # Pixels at the coverage fringe (no depth) follow their nearest bin: the lowest.
-        out = np.zeros_like(lay.rgba)
-        for i in range(len(edges)):
-            m = idx == i
-            if not m.any():
+        rgba = np.ascontiguousarray(lay.rgba)
+        bits = rgba.view(np.uint64)  # two channels per word: nonzero where any bit is set
+        nonzero = (bits[..., 0] | bits[..., 1]) != 0
+        # Range of bins met on each row and column (pixels that are zero contribute nothing).
+        n = len(edges)
+        low, high = np.where(nonzero, idx, n), np.where(nonzero, idx, -1)
+        row_lo, row_hi = low.min(axis=1), high.max(axis=1)
+        col_lo, col_hi = low.min(axis=0), high.max(axis=0)
+        out = np.zeros_like(rgba)
+        h, w = idx.shape
+        for i in range(n):
+            rows = np.flatnonzero((row_lo <= i) & (i <= row_hi))
+            cols = np.flatnonzero((col_lo <= i) & (i <= col_hi))
+            if rows.size == 0 or cols.size == 0:
                 continue
-            part = lay.rgba * m[..., None]
-            out += _blur(part, edges[i] + 0.25)
+            k = disc_kernel(edges[i] + 0.25)
+            half = 0 if k is None else k.shape[0] // 2
+            # The bin's blur is zero farther than the disc radius from its pixels: convolve
+            # only a box around them grown by that radius (same result, far fewer pixels).
+            r0, r1 = max(0, rows[0] - half), min(h, rows[-1] + 1 + half)
+            c0, c1 = max(0, cols[0] - half), min(w, cols[-1] + 1 + half)
+            mask = (idx[r0:r1, c0:c1] == i).view(np.uint8)
+            part = cv2.copyTo(rgba[r0:r1, c0:c1], mask)  # the bin's pixels, zero elsewhere
+            out[r0:r1, c0:c1] += _convolve(part, k)
         return out
 
 
+def _mirror_sources(device: RingDevice, regions) -> list[tuple[int, int, int]]:
+    """For each view, (source view, x step, y step): its vignetting is the source's map read
+    with those steps (-1 mirrors; a view that is its own source is computed directly)."""
+    out: list[tuple[int, int, int]] = []
+    for k in range(len(regions)):
+        out.append(_mirror_of(device, regions, out, k) or (k, 1, 1))
+    return out
+
+
+def _mirror_of(device: RingDevice, regions, sources, k: int) -> tuple[int, int, int] | None:
+    """An earlier, directly computed view whose vignetting map mirrors view ``k``'s exactly.
+
+    The ring is symmetric: the mini-lens at (-mx, my) lights the mirror image of what the lens
+    at (mx, my) lights, and the mirrored pixel grid is the negated one. Negation is exact in
+    floating point, so the mirrored map equals a direct computation bit for bit; a row and a
+    column through the middle are checked against one all the same.
+    """
+    W, H = device.sensor_width_px, device.sensor_height_px
+    m = device.lens_centres_m
+    x, y, w, h = regions[k]
+    if w == 0 or h == 0:
+        return None
+    for j in range(k):
+        if sources[j][0] != j:
+            continue
+        jx, jy, jw, jh = regions[j]
+        for sx, sy in ((-1, 1), (1, -1), (-1, -1)):
+            mirrored = (jx if sx == 1 else W - jx - jw, jy if sy == 1 else H - jy - jh, jw, jh)
+            if mirrored != (x, y, w, h) or m[k, 0] != sx * m[j, 0] or m[k, 1] != sy * m[j, 1]:
+                continue
+            jrow = jy + (h // 2 if sy == 1 else h - 1 - h // 2)
+            jcol = jx + (w // 2 if sx == 1 else w - 1 - w // 2)
+            row_ok = np.array_equal(vignetting_region(device, k, (x, y + h // 2, w, 1)),
+                                    vignetting_region(device, j, (jx, jrow, w, 1))[:, ::sx])
+            col_ok = np.array_equal(vignetting_region(device, k, (x + w // 2, y, 1, h)),
+                                    vignetting_region(device, j, (jcol, jy, 1, h))[::sy, :])
+            if row_ok and col_ok:
+                return j, sx, sy
+    return None
+
+
 def _over(acc: np.ndarray, rgba: np.ndarray) -> None:
-    """Front-to-back 'over' compositing of a premultiplied layer behind ``acc`` (in place)."""
-    acc += (1.0 - acc[..., 3:4]) * rgba
+    """Front-to-back 'over' compositing of a premultiplied layer behind ``acc`` (in place):
+    ``acc += (1 - acc_alpha) rgba``."""
+    for r in range(0, acc.shape[0], _BLOCK_ROWS):
+        a, c = acc[r : r + _BLOCK_ROWS], rgba[r : r + _BLOCK_ROWS]
+        t = 1.0 - a[..., 3]
+        t = cv2.merge([t, t, t, t])  # transmittance per channel (NumPy broadcasting over 4 is slow)
+        t *= c
+        a += t
 
 
 # ------------------------------------------------------------------------------------------------
@@ -452,53 +650,117 @@ def render(device: RingDevice, scene: Scene, settings: RenderSettings | None = N
         raise InvalidInputError("give either settings or keyword options, not both")
     if not isinstance(scene, Scene):
         raise InvalidInputError(f"scene must be a lfring.synth.Scene, got {type(scene).__name__}")
+    return _render(device, scene, settings)
+
+
+def _render(device: RingDevice, scene: Scene, settings: RenderSettings, *, timings: dict | None = None,
+            workers: int | None = None) -> RenderResult:
+    """:func:`render` after validation, on ``workers`` threads (default: one per core, at most
+    four). ``timings``, when given, receives seconds per stage: wall clock for the stages, and
+    for the ``view:`` entries the time summed over the views (which run ``workers`` at a time,
+    so with several workers they include the threads' waits for a core)."""
+    workers = _workers() if workers is None else max(1, int(workers))
+    clock = time.perf_counter
+    t0 = clock()
     dev = device.binned(settings.binning)
     dev.require_positions()
     layout = optical_layout(dev, rotate180=settings.rotate180)
     rend = _Renderer(dev, scene, settings)
     H, W = dev.sensor_height_px, dev.sensor_width_px
-    image = np.zeros((H, W, 3), np.float32)
-    sharp = np.zeros((H, W, 3), np.float32)
-    depth = np.full((H, W), np.nan, np.float32)
-    for k in range(4):
-        (rx, ry, rw, rh), rad, shp, dep = rend.view(k)
-        image[ry : ry + rh, rx : rx + rw] = rad
-        sharp[ry : ry + rh, rx : rx + rw] = shp
-        depth[ry : ry + rh, rx : rx + rw] = dep
-    image *= np.float32(settings.exposure)
-    sharp *= np.float32(settings.exposure)
-    # Ground truth cut in the erect frame (the frame the views are numbered in).
-    erect = Layout(W, H, layout.rects, False, layout.circles)
-    views_sharp = split_views(sharp, erect)
-    depth_views = split_views(depth, erect)[..., 0]
-    if settings.rotate180:
-        image = np.ascontiguousarray(image[::-1, ::-1])
-    np.clip(image, 0.0, 1.0, out=image)
-    views = split_views(image, layout)
-    raw = _sensor(image, settings)
+    shape = (H, W) if settings.pattern else (H, W, 3)
+    view_times: list[dict | None] = [({} if timings is not None else None) for _ in range(4)]
+    stages = {}
+    with ThreadPoolExecutor(1) as side, ThreadPoolExecutor(workers) as pool:
+        # The noise depends only on the seed and the frame's shape: draw it on a side thread
+        # while the views render (the generator releases the GIL), the same numbers as drawing
+        # it afterwards.
+        noise = side.submit(_draw_noise, shape, settings) if NOISE_PRESETS[settings.noise] else None
+        t1 = clock()
+        list(pool.map(lambda fn: fn(), rend.prepare_tasks()))
+        t2 = clock()
+        image = np.zeros((H, W, 3), np.float32)
+        vh, vw = layout.view_shape
+        views_sharp = np.zeros((layout.num_views, vh, vw, 3), np.float32)
+        depth_views = np.full((layout.num_views, vh, vw), np.nan, np.float32)
+        # Ground truth cut in the erect frame (the frame the views are numbered in).
+        list(pool.map(lambda k: rend.view(k, image, views_sharp, depth_views, layout.rects, view_times[k]), range(4)))
+        t3 = clock()
+        if settings.rotate180:
+            image = np.ascontiguousarray(image[::-1, ::-1])
+        views = split_views(image, layout)
+        t4 = clock()
+        raw = _sensor(image, settings, noise=None if noise is None else noise.result()[0], pool=pool, stripes=workers)
+        t5 = clock()
+    if timings is not None:
+        stages["setup"] = t1 - t0
+        stages["textures, vignetting"] = t2 - t1
+        stages["views (parallel)"] = t3 - t2
+        for vt in view_times:
+            for key, dt in vt.items():
+                stages[f"view: {key}"] = stages.get(f"view: {key}", 0.0) + dt
+        stages["rotate, split views"] = t4 - t3
+        stages["sensor (mosaic, noise, quantise)"] = t5 - t4
+        if noise is not None:
+            stages["noise draw (overlapped)"] = noise.result()[1]
+        stages["total"] = t5 - t0
+        timings.update(stages)
     return RenderResult(
         raw=raw, image=image, views=views, views_sharp=views_sharp, depth_m=depth_views,
         layout=layout, device=dev, settings=settings, scene=scene,
     )
 
 
-def _sensor(image: np.ndarray, settings: RenderSettings) -> np.ndarray:
-    """Colour filter, shot and read noise, and quantisation of a [0, 1] linear image."""
-    signal = mosaic(image, settings.pattern) if settings.pattern else image
+def _draw_noise(shape: tuple[int, ...], settings: RenderSettings) -> tuple[np.ndarray, float]:
+    """Standard normal float32 noise of the frame from the settings' seed, and the seconds it took."""
+    t = time.perf_counter()
+    noise = np.random.default_rng(settings.seed).standard_normal(shape, dtype=np.float32)
+    return noise, time.perf_counter() - t
+
+
+def _sensor(image: np.ndarray, settings: RenderSettings, *, noise: np.ndarray | None = None, pool=None,
+            stripes: int = 1) -> np.ndarray:
+    """Colour filter, shot and read noise, and quantisation of a [0, 1] linear image.
+
+    ``noise`` is the frame's standard normal draw (see :func:`_draw_noise`), drawn here when
+    not given; it is used up (scaled in place). ``stripes`` bands of rows run on ``pool``'s
+    threads.
+    """
+    pattern = settings.pattern
+    shape = image.shape[:2] if pattern else image.shape
     black, white = settings.effective_black_level, settings.white_level
     span = white - black
     preset = NOISE_PRESETS[settings.noise]
-    if preset is not None:
-        full_well, read = preset
-        e_full = full_well / settings.gain  # electrons at full scale
-        rng = np.random.default_rng(settings.seed)
-        e = signal * np.float32(e_full)
-        noise = rng.standard_normal(signal.shape, dtype=np.float32)
-        noise *= np.sqrt(e + np.float32(read * read))
-        e += noise
-        signal = e * np.float32(1.0 / e_full)
-    counts = signal * np.float32(span) + np.float32(black)
-    np.rint(counts, out=counts)
-    np.clip(counts, 0, white, out=counts)
-    return counts.astype(np.uint8 if settings.bit_depth == 8 else np.uint16)
+    if preset is not None and noise is None:
+        noise = _draw_noise(shape, settings)[0]
+    out = np.empty(shape, np.uint8 if settings.bit_depth == 8 else np.uint16)
 
+    def stripe(rows: slice) -> None:
+        signal = mosaic(image[rows], pattern) if pattern else image[rows].copy()
+        if preset is not None:
+            full_well, read = preset
+            e_full = full_well / settings.gain  # electrons at full scale
+            e = signal
+            e *= np.float32(e_full)
+            sd = e + np.float32(read * read)
+            np.sqrt(sd, out=sd)
+            n = noise[rows]
+            n *= sd
+            e += n
+            e *= np.float32(1.0 / e_full)
+        counts = signal
+        counts *= np.float32(span)
+        counts += np.float32(black)
+        np.rint(counts, out=counts)
+        np.clip(counts, 0, white, out=counts)
+        np.copyto(out[rows], counts, casting="unsafe")
+
+    # Stripes start on even rows, so every stripe sees the Bayer pattern in its own phase.
+    n = 1 if pool is None else max(1, stripes)
+    cuts = sorted({0, shape[0]} | {2 * ((shape[0] * i // n) // 2) for i in range(1, n)})
+    rows = [slice(a, b) for a, b in zip(cuts[:-1], cuts[1:]) if b > a]
+    if pool is None:
+        for r in rows:
+            stripe(r)
+    else:
+        list(pool.map(stripe, rows))
+    return out

@@ -80,18 +80,29 @@ def raster_shape(size_m: tuple[float, float], texel_m: float) -> tuple[int, int]
 def rasterize(texture: Texture, size_m: tuple[float, float], texel_m: float) -> np.ndarray:
     """(rows, cols, 3) float32 raster of ``texture`` over a surface of ``size_m`` = (width,
     height) metres, shape from :func:`raster_shape`; texel (0, 0) is the top-left corner."""
+    return _rasterize(texture, size_m, texel_m, alpha=False)
+
+
+def _rasterize(texture: Texture, size_m: tuple[float, float], texel_m: float, *, alpha: bool) -> np.ndarray:
+    """:func:`rasterize`, with an opaque alpha channel appended when ``alpha`` ((rows, cols, 4);
+    the renderer's layers are RGBA, and appending it here saves a copy of a large raster)."""
     w_m, h_m = size_m
     rows, cols = raster_shape(size_m, texel_m)
     tx, ty = w_m / cols, h_m / rows
     if rows * cols > 64e6:
         raise InvalidInputError(f"texture raster of {cols} x {rows} texels is too large; use a larger texel size")
     lo, hi = (np.array(c, dtype=np.float32) for c in (texture.colors + texture.colors)[:2])
+    nch = 4 if alpha else 3
+    # colour = lo + (hi - lo) t per channel; with alpha, a fourth channel 1 + 0 t = 1.
+    base = np.append(lo, np.float32(1))[:nch]
+    scale = np.append(hi - lo, np.float32(0))[:nch]
     if texture.kind == "constant":
-        return np.broadcast_to(lo, (rows, cols, 3)).copy()
+        return np.broadcast_to(base, (rows, cols, nch)).copy()
     if texture.kind == "image":
         img = _image(texture.name)
         interp = cv2.INTER_AREA if img.shape[0] > rows else cv2.INTER_CUBIC
-        return np.clip(cv2.resize(img, (cols, rows), interpolation=interp), 0.0, 1.0)
+        rgb = np.clip(cv2.resize(img, (cols, rows), interpolation=interp), 0.0, 1.0)
+        return cv2.cvtColor(rgb, cv2.COLOR_RGB2RGBA) if alpha else rgb
     if texture.kind == "checker":
         # Area-weighted squares: each texel gets the fraction of its area that is light.
         def frac(n, step, pitch):
@@ -104,8 +115,12 @@ def rasterize(texture: Texture, size_m: tuple[float, float], texel_m: float) -> 
             return (prim(edges[1:]) - prim(edges[:-1])) / (edges[1:] - edges[:-1])
 
         fx, fy = frac(cols, tx, texture.square_m), frac(rows, ty, texture.square_m)
-        light = fy[:, None] * fx[None, :] + (1 - fy[:, None]) * (1 - fx[None, :])
-        return (lo + (hi - lo) * light[..., None].astype(np.float32)).astype(np.float32)
+        # A row depends only on its fraction fy, and rows take few distinct fractions (0, 1 and
+        # the squares' edges): compute each distinct row once and repeat it.
+        fy_distinct, row_kind = np.unique(fy, return_inverse=True)
+        light = fy_distinct[:, None] * fx[None, :] + (1 - fy_distinct[:, None]) * (1 - fx[None, :])
+        distinct = base + scale * light[..., None].astype(np.float32)
+        return distinct[row_kind.ravel()]
     # speckle: band-limited noise pushed towards two levels, like a printed random-dot target.
     rng = np.random.default_rng(texture.seed)
     coarse = max(1.0, texture.feature_m / min(tx, ty) / 2.0)
@@ -114,5 +129,9 @@ def rasterize(texture: Texture, size_m: tuple[float, float], texel_m: float) -> 
     noise = cv2.GaussianBlur(noise, (0, 0), 0.8)
     field = cv2.resize(noise, (int(gw * coarse), int(gh * coarse)), interpolation=cv2.INTER_CUBIC)[:rows, :cols]
     field /= field.std() + 1e-12
-    t = 0.5 + 0.5 * np.tanh(1.5 * field)
-    return (lo + (hi - lo) * t[..., None]).astype(np.float32)
+    t = np.multiply(field, np.float32(1.5))
+    np.tanh(t, out=t)
+    t *= np.float32(0.5)
+    t += np.float32(0.5)  # t = 0.5 + 0.5 tanh(1.5 field), in place
+    # Channel by channel, then interleaved (broadcasting into a length-3/4 last axis is slow).
+    return cv2.merge([t * scale[c] + base[c] for c in range(nch)])
