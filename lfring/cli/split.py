@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import logging
+import os
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import click
@@ -70,9 +72,14 @@ def command(raw, outdir, layout_file, flat_file, rotate180, pattern, black_level
     layout_path, side_path = out / f"{stem}_layout.json", out / f"{stem}_views.json"
     check_writable([*paths, layout_path, side_path], overwrite=overwrite)
     out.mkdir(parents=True, exist_ok=True)
-    for k, p in enumerate(paths):
+
+    def write(k: int) -> None:
         v = views[k] if views.shape[-1] == 3 else views[k, ..., 0]
-        write_image(p, np.rint(np.clip(v, 0.0, 1.0) * 65535.0).astype(np.uint16))
+        write_image(paths[k], np.rint(np.clip(v, 0.0, 1.0) * 65535.0).astype(np.uint16))
+
+    # Encoding dominates; the encoders release the GIL, so the views are written in parallel.
+    with ThreadPoolExecutor(max_workers=min(4, os.cpu_count() or 1)) as pool:
+        list(pool.map(write, range(layout.num_views)))
     layout.save(layout_path)
     write_json(side_path, {
         "input": str(raw),

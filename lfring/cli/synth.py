@@ -143,7 +143,7 @@ def write_render(result, raw_path: Path, *, preset: str = "", overwrite: bool = 
         "depth_units": "metres from the main lens; NaN where no surface is seen",
     }
     raw_path.parent.mkdir(parents=True, exist_ok=True)
-    write_image(raw_path, result.raw)
+    write_image(raw_path, result.raw, png_compression=3)  # raw frames are kept: smaller files
     write_json(side, side_doc)
     truth.mkdir(exist_ok=True)
     for k, p in enumerate(depth_paths):
