@@ -5,6 +5,7 @@ from __future__ import annotations
 import importlib
 import logging
 import sys
+import warnings
 
 import click
 
@@ -16,6 +17,7 @@ COMMANDS = {
     "calibrate": "calibrate",
     "design": "design",
     "raytrace": "raytrace",
+    "refocus": "refocus",
     "split": "split",
     "synth": "synth",
 }
@@ -64,6 +66,9 @@ def cli(verbose: int, quiet: bool) -> None:
     logging.basicConfig(level=logging.WARNING, format="lfring: %(levelname)s: %(message)s", stream=sys.stderr, force=True)
     level = logging.WARNING if quiet else (logging.INFO if verbose < 2 else logging.DEBUG)
     logging.getLogger("lfring").setLevel(level)
+    # Library warnings (a depth outside the calibrated range, say) become one log line each.
+    warn_log = logging.getLogger("lfring.warnings")
+    warnings.showwarning = lambda message, category, *args, **kwargs: warn_log.warning("%s", message)
 
 
 def main(argv=None) -> int:

@@ -1,0 +1,70 @@
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from lfring.cli.main import main
+
+SCENE = Path(__file__).resolve().parents[2] / "data" / "synthetic" / "scene.png"
+
+
+def test_refocus_sample_with_default_calibration(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    assert main(["refocus", str(SCENE), "--depth", "0.5"]) == 0
+    assert "built-in calibration 'twin_binned2'" in capsys.readouterr().err
+    out = tmp_path / "scene_refocus_0.5m.png"
+    img = cv2.imread(str(out), cv2.IMREAD_UNCHANGED)
+    assert img.dtype == np.uint8 and img.shape == (705, 705, 3)
+    side = json.loads((tmp_path / "scene_refocus_0.5m.png.json").read_text())
+    assert side["calibration"] == "twin_binned2" and side["depth_m"] == 0.5 and side["encoding"] == "srgb"
+    # No overwrite without --overwrite.
+    assert main(["refocus", str(SCENE), "--depth", "0.5"]) == 2
+
+
+def test_refocus_stack_and_all_in_focus(tmp_path):
+    out = tmp_path / "st" / "s.png"
+    assert main(["refocus", str(SCENE), "--depths", "0.3,0.5,1.0", "--all-in-focus", "--bit-depth", "16",
+                 "--encoding", "linear", "-o", str(out)]) == 0
+    names = sorted(p.name for p in out.parent.iterdir())
+    for expected in ("s_000_0.3m.png", "s_001_0.5m.png", "s_002_1m.png", "s_stack.tif", "s_stack.gif",
+                     "s_all_in_focus.png", "s_all_in_focus.png.json"):
+        assert expected in names
+    import tifffile
+
+    stack = tifffile.imread(out.parent / "s_stack.tif")
+    assert stack.shape == (3, 705, 705, 3) and stack.dtype == np.uint16
+    import imageio.v3 as iio
+
+    assert iio.imread(out.parent / "s_stack.gif").shape[0] == 3
+
+
+@pytest.mark.parametrize(
+    "args, text",
+    [
+        (["--depth", "0"], "positive"),
+        (["--depth", "nan"], "positive"),
+        (["--depth", "0.5", "--depths", "0.3,0.6"], "exactly one of"),
+        (["--depth", "0.5", "--reference", "north"], "reference"),
+        (["--depth", "0.5", "-o", "x.jpg"], ".png, .tif"),
+    ],
+)
+def test_refocus_errors(tmp_path, capsys, args, text):
+    assert main(["refocus", str(SCENE), *args, "-o" if "-o" not in args else "--overwrite",
+                 *([str(tmp_path / "o.png")] if "-o" not in args else [])]) == 2
+    err = capsys.readouterr().err
+    assert text in err and "Traceback" not in err
+
+
+def test_refocus_frame_without_calibration(tmp_path, capsys, prototype):
+    from lfring.cli.synth import write_render
+    from lfring.synth import render
+    from lfring.synth.presets import target_scene
+
+    write_render(render(prototype, target_scene(prototype, 0.5), binning=8), tmp_path / "small.png")
+    assert main(["refocus", str(tmp_path / "small.png"), "--depth", "0.5", "-o", str(tmp_path / "o.png")]) == 2
+    assert "no built-in calibration for 614 x 460 px" in capsys.readouterr().err
+    cal = Path(__file__).resolve().parents[2] / "calib" / "twin_binned2.json"
+    assert main(["refocus", str(tmp_path / "small.png"), "--depth", "0.5", "--calib", str(cal), "-o", str(tmp_path / "o.png")]) == 2
+    assert "614 x 460 px but the calibration is for 2456 x 1842" in capsys.readouterr().err
