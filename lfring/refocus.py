@@ -191,7 +191,8 @@ class Refocuser:
         return acc[..., None] if c == 1 else acc
 
 
-def refocus(views, calibration, depth_m: float, *, reference="center", interpolation: str = "linear") -> np.ndarray:
+def refocus(views, calibration, depth_m: float, *, reference="center", interpolation: str = "linear",
+            backend: str = "numpy", device=None) -> np.ndarray:
     """Refocus the views at ``depth_m`` metres from the main lens.
 
     Parameters
@@ -205,6 +206,11 @@ def refocus(views, calibration, depth_m: float, *, reference="center", interpola
     reference : 'center' or int
         Frame of the result: the virtual central view (default) or a view index.
     interpolation : {'linear', 'cubic'}
+    backend : {'numpy', 'torch'}
+        'torch' runs on ``device`` (CUDA when present by default) through kornia, and also
+        takes batches (B, V, h, w, C); see :func:`lfring.backends.torch_refocus.refocus_torch`.
+    device : str, optional
+        For the torch backend, e.g. 'cuda' or 'cpu'.
 
     Returns
     -------
@@ -216,6 +222,14 @@ def refocus(views, calibration, depth_m: float, *, reference="center", interpola
     H_ref_from_k(Z)`` and ``m_k`` the valid disc of view k, bilinear interpolation.
     For many frames at one depth, build a :class:`Refocuser` once.
     """
+    from lfring.backends import BACKENDS
+
+    if backend not in BACKENDS:
+        raise InvalidInputError(f"backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
+    if backend == "torch":
+        from lfring.backends.torch_refocus import refocus_torch
+
+        return refocus_torch(views, calibration, depth_m, reference=reference, device=device, interpolation=interpolation)
     arr = _check_views(views)
     return Refocuser(calibration, depth_m, reference=reference, view_shape=arr.shape[1:3], interpolation=interpolation)(arr)
 

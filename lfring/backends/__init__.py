@@ -1,0 +1,34 @@
+"""Compute backends: NumPy/OpenCV is the reference; torch/kornia twins are imported lazily."""
+
+BACKENDS = ("numpy", "torch")
+
+
+def require_torch():
+    """Import torch and kornia, or say how to install them."""
+    try:
+        import kornia  # noqa: F401
+        import torch
+    except ImportError as exc:  # pragma: no cover - depends on the environment
+        from lfring.errors import InvalidInputError
+
+        raise InvalidInputError(
+            f"the torch backend needs torch and kornia ({exc.name} is missing): "
+            'pip install -c constraints.txt "lfring[torch]"'
+        ) from None
+    torch.backends.cuda.matmul.allow_tf32 = False  # same numbers as the NumPy reference
+    torch.backends.cudnn.allow_tf32 = False
+    return torch
+
+
+def resolve_device(device):
+    """'cuda' when asked and present; CPU otherwise (logged when cuda was asked but missing)."""
+    torch = require_torch()
+    if device is None:
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    dev = torch.device(device)
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        import logging
+
+        logging.getLogger("lfring.backends").warning("device %s asked for but CUDA is not available: using the CPU", device)
+        return torch.device("cpu")
+    return dev
