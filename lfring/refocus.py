@@ -8,6 +8,7 @@ not darkened. Objects at Z line up and are sharp; others appear as displaced cop
 from __future__ import annotations
 
 import warnings
+import weakref
 
 import cv2
 import numpy as np
@@ -40,6 +41,21 @@ def _interp(name: str) -> int:
     if name not in INTERPOLATIONS:
         raise InvalidInputError(f"interpolation must be one of {', '.join(INTERPOLATIONS)}, got {name!r}")
     return INTERPOLATIONS[name]
+
+
+# Masks depend only on the calibration and the view shape: made once per calibration object.
+_MASK_CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _cached_masks(calibration, view_shape, channels: int):
+    """(V, h, w) masks and the same repeated over ``channels`` (a list of (h, w[, C]))."""
+    per_cal = _MASK_CACHE.setdefault(calibration, {})
+    key = (tuple(view_shape), channels)
+    if key not in per_cal:
+        base = per_cal[(tuple(view_shape), 1)][0] if (tuple(view_shape), 1) in per_cal else view_masks(calibration, view_shape)
+        rep = [m if channels == 1 else np.repeat(m[..., None], channels, axis=2) for m in base]
+        per_cal[key] = (base, rep)
+    return per_cal[key]
 
 
 def view_masks(calibration, view_shape, *, taper: float = TAPER) -> np.ndarray:
@@ -147,7 +163,8 @@ class Refocuser:
         self._flag = _interp(interpolation)
         self.view_shape = tuple(view_shape or calibration.layout.view_shape)
         self.H = calibration.homographies(self.depth_m, reference=reference)
-        self.masks = view_masks(calibration, self.view_shape)
+        self._calibration = calibration
+        self.masks = _cached_masks(calibration, self.view_shape, 1)[0]
         self._all_valid = bool(np.all(self.masks == 1.0))
         h, w = self.view_shape
         weight = np.zeros((h, w), np.float32)
@@ -159,11 +176,14 @@ class Refocuser:
         self._cache: dict[int, tuple] = {}
 
     def _buffers(self, c: int):
+        """Per channel count: the normalisation and masks shaped like a view, and two scratch
+        buffers, made once and reused for every frame."""
         if c not in self._cache:
             h, w = self.view_shape
-            inv = np.repeat(self._inv[..., None], c, axis=2) if c > 1 else self._inv
-            masks = [np.repeat(m[..., None], c, axis=2) if c > 1 else m for m in self.masks]
-            self._cache[c] = (inv, masks)
+            shape = (h, w) if c == 1 else (h, w, c)
+            inv = self._inv if c == 1 else cv2.merge([self._inv] * c)
+            masks = None if self._all_valid else _cached_masks(self._calibration, self.view_shape, c)[1]
+            self._cache[c] = (inv, masks, np.empty(shape, np.float32), np.empty(shape, np.float32))
         return self._cache[c]
 
     def __call__(self, views) -> np.ndarray:
@@ -172,19 +192,20 @@ class Refocuser:
         if arr.shape[1:3] != self.view_shape or arr.shape[0] != len(self.H):
             raise InvalidInputError(f"expected {len(self.H)} views of {self.view_shape[1]} x {self.view_shape[0]} px, got shape {arr.shape}")
         c = arr.shape[3]
-        inv, masks = self._buffers(c)
+        inv, masks, tmp, masked = self._buffers(c)
         h, w = self.view_shape
         src = arr[..., 0] if c == 1 else arr
-        acc = np.zeros((h, w) if c == 1 else (h, w, c), np.float32)
-        tmp = np.empty_like(acc)
-        masked = np.empty_like(acc)
+        acc = None
         for k in range(len(self.H)):
-            if self._all_valid:
-                _warp(src[k], self.H[k], (w, h), dst=tmp, interpolation=self._flag)
+            if masks is None:
+                s_k = src[k]
             else:
-                cv2.multiply(src[k], masks[k], dst=masked)
-                _warp(masked, self.H[k], (w, h), dst=tmp, interpolation=self._flag)
-            cv2.add(acc, tmp, dst=acc)
+                s_k = cv2.multiply(src[k], masks[k], dst=masked)
+            if acc is None:  # the first view is warped straight into the result
+                acc = _warp(s_k, self.H[k], (w, h), interpolation=self._flag)
+            else:
+                _warp(s_k, self.H[k], (w, h), dst=tmp, interpolation=self._flag)
+                cv2.add(acc, tmp, dst=acc)
         cv2.multiply(acc, inv, dst=acc)
         if self._flag != cv2.INTER_LINEAR:
             np.clip(acc, 0.0, None, out=acc)  # bicubic overshoots below zero at dark edges
