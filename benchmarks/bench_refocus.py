@@ -11,12 +11,12 @@ from __future__ import annotations
 
 import os
 import platform
-import statistics
 import time
 
 import cv2
 import numpy as np
 
+from _timing import bench as _bench
 from lfring.calibration import RingCalibration
 from lfring.optics import load_device
 from lfring.refocus import Refocuser, refocus
@@ -26,13 +26,7 @@ RUNS = 25
 
 
 def bench(fn):
-    fn()
-    ts = []
-    for _ in range(RUNS):
-        t = time.perf_counter()
-        fn()
-        ts.append(time.perf_counter() - t)
-    return statistics.median(ts), min(ts), max(ts)
+    return _bench(fn, RUNS)
 
 
 def main() -> None:

@@ -15,11 +15,11 @@ import importlib
 import os
 import platform
 import statistics
-import time
 
 import cv2
 import numpy as np
 
+from _timing import bench as _bench
 from lfring.optics import load_device
 from lfring.synth import render
 from lfring.synth.presets import three_depth_scene
@@ -31,13 +31,7 @@ SETTINGS = dict(noise="realistic", pattern="RGGB", bit_depth=12)
 
 
 def bench(fn):
-    fn()
-    times = []
-    for _ in range(RUNS):
-        t = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t)
-    return statistics.median(times), min(times), max(times)
+    return _bench(fn, RUNS)
 
 
 def cpu_name() -> str:

@@ -9,13 +9,13 @@ stage of the split, and the whole command in-process. Medians of 7 runs after a 
 from __future__ import annotations
 
 import platform
-import statistics
 import tempfile
-import time
 from pathlib import Path
 
 import cv2
 import numpy as np
+
+from _timing import bench as _bench
 
 import lfring
 from lfring.cli.main import main
@@ -28,13 +28,7 @@ RUNS = 7
 
 
 def bench(fn):
-    fn()
-    times = []
-    for _ in range(RUNS):
-        t = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t)
-    return statistics.median(times), min(times), max(times)
+    return _bench(fn, RUNS)
 
 
 def main_bench() -> None:

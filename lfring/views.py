@@ -15,7 +15,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from lfring.errors import EstimationError, FileFormatError, InvalidInputError, LfringFileNotFoundError
+from lfring.errors import EstimationError, FileFormatError, InvalidInputError
 
 __all__ = ["Layout", "split_views", "layout_from_circles", "detect_layout", "DETECT_KINDS"]
 
@@ -129,16 +129,9 @@ class Layout:
 
     @classmethod
     def load(cls, path: str | Path) -> Layout:
-        path = Path(path)
-        if not path.is_file():
-            raise LfringFileNotFoundError(f"layout file not found: {path}")
-        try:
-            data = json.loads(path.read_text(encoding="utf-8"))
-        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise FileFormatError(f"{path}: not a JSON layout file ({exc})") from None
-        if not isinstance(data, dict):
-            raise FileFormatError(f"{path}: not a JSON layout object")
-        return cls.from_dict(data, source=str(path))
+        from lfring.io.readers import read_json_object
+
+        return cls.from_dict(read_json_object(path, "layout"), source=str(path))
 
 
 def split_views(image: np.ndarray, layout: Layout) -> np.ndarray:

@@ -21,7 +21,6 @@ import cv2
 import numpy as np
 
 from lfring.errors import EstimationError, InvalidInputError
-from lfring.geometry import homography_rms_px
 
 __all__ = [
     "METHODS",
@@ -191,6 +190,7 @@ def estimate_plane_homographies(
     >>> dev = load_device("prototype")
     >>> r = render(dev, target_scene(dev, 1.0), binning=4)
     >>> est = estimate_plane_homographies(r.views, masks=r.layout.masks())
+    >>> from lfring.geometry import homography_rms_px
     >>> bool(homography_rms_px(est.H_ref_from_view, r.homographies(1.0, reference=0), r.layout.view_shape).max() < 0.05)
     True
     """

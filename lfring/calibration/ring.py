@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from lfring.calibration.model import PlaneFit, VariableHomography, fit_variable_homography
-from lfring.errors import FileFormatError, InvalidInputError, LfringFileNotFoundError, LfringWarning
+from lfring.errors import FileFormatError, InvalidInputError, LfringWarning
 from lfring.geometry import check_reference, to_reference
 from lfring.optics.device import RingDevice
 from lfring.optics.views import optical_homography_model, optical_layout, view_cameras
@@ -196,14 +196,9 @@ class RingCalibration:
 
     @classmethod
     def load(cls, path: str | Path) -> RingCalibration:
-        path = Path(path)
-        if not path.is_file():
-            raise LfringFileNotFoundError(f"calibration file not found: {path}")
-        try:
-            data = json.loads(path.read_text(encoding="utf-8"))
-        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise FileFormatError(f"{path}: not a JSON calibration file ({exc})") from None
-        return cls.from_dict(data, source_name=str(path))
+        from lfring.io.readers import read_json_object
+
+        return cls.from_dict(read_json_object(path, "calibration"), source_name=str(path))
 
     @classmethod
     def from_dict(cls, data, *, source_name: str = "calibration") -> RingCalibration:

@@ -308,8 +308,20 @@ def load_raw(
 
     Examples
     --------
-    >>> frame = load_raw("frame.png", pattern="GRBG")  # doctest: +SKIP
-    >>> rgb = lfring.demosaic(frame, method="edge-aware")  # doctest: +SKIP
+    A 12-bit GRBG mosaic stored in a 16-bit PNG, its levels given in a sidecar:
+
+    >>> import json, os, tempfile
+    >>> import cv2, numpy as np
+    >>> path = os.path.join(tempfile.mkdtemp(), "frame.png")
+    >>> _ = cv2.imwrite(path, np.full((4, 6), 2079, np.uint16))
+    >>> with open(path + ".json", "w") as f:
+    ...     json.dump({"pattern": "GRBG", "black_level": 64, "white_level": 4095, "bit_depth": 12}, f)
+    >>> frame = load_raw(path)
+    >>> frame.mosaic.shape, frame.pattern, frame.black_level, frame.white_level
+    ((4, 6), 'GRBG', 64.0, 4095.0)
+    >>> from lfring.io.demosaic import demosaic
+    >>> round(float(demosaic(frame, method="bilinear")[2, 3, 1]), 4)  # (2079 - 64) / (4095 - 64)
+    0.4999
     """
     if isinstance(path, bytes) or not isinstance(path, (str, PathLike)):
         raise InvalidInputError(

@@ -642,7 +642,7 @@ def render(device: RingDevice, scene: Scene, settings: RenderSettings | None = N
     >>> scene = Scene((Plane(0.5, (0.4, 0.3), Texture("checker", square_m=0.02)),))
     >>> r = render(dev, scene, binning=8, pattern="GRBG", bit_depth=8)
     >>> r.raw.shape, r.raw.dtype, r.views.shape
-    ((460, 614), dtype('uint8'), (4, 88, 88, 3))
+    ((460, 614), dtype('uint8'), (4, 176, 176, 3))
     """
     if settings is None:
         settings = RenderSettings(**options)

@@ -1,7 +1,6 @@
 """lfring.calibrate end to end on the twin: targets at 0.3 and 1.0 m, held-out planes at 0.5
 and 2.0 m (issue: 0.05 px noise-free, 0.15 px with realistic noise, z0 within 1 mm)."""
 
-import numpy as np
 import pytest
 
 from lfring.calibration import calibrate
