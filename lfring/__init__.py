@@ -1,7 +1,7 @@
 """lfring: light-field processing for a camera fitted with a ring of four mini-lenses.
 
 The pipeline: ``load_raw`` -> ``demosaic`` -> ``detect_layout`` / ``split_views`` -> views
-(V, h, w, C). The optics (device design, ray tracing, the views' exact geometry) live in
+(V, h, w, C) -> ``calibrate`` / ``RingCalibration`` -> ``refocus`` / ``estimate_depth``. The optics (device design, ray tracing, the views' exact geometry) live in
 :mod:`lfring.optics`, the synthetic twin in :mod:`lfring.synth`.
 
 Importing lfring never imports torch; the torch/kornia paths load on first use.
@@ -16,13 +16,17 @@ from lfring.errors import (
     LfringError,
     LfringFileNotFoundError,
 )
+from lfring.calibration import RingCalibration, calibrate
+from lfring.depth import DepthResult, estimate_depth
 from lfring.io.demosaic import demosaic
 from lfring.io.raw import RawFrame, load_raw
+from lfring.refocus import Refocuser, all_in_focus, focal_stack, refocus
 from lfring.views import Layout, detect_layout, split_views
 
 __version__ = "0.1.0"
 
 __all__ = [
+    "DepthResult",
     "DesignError",
     "DeviceError",
     "EstimationError",
@@ -32,9 +36,16 @@ __all__ = [
     "LfringError",
     "LfringFileNotFoundError",
     "RawFrame",
+    "Refocuser",
+    "RingCalibration",
     "__version__",
+    "all_in_focus",
+    "calibrate",
     "demosaic",
     "detect_layout",
+    "estimate_depth",
+    "focal_stack",
     "load_raw",
+    "refocus",
     "split_views",
 ]
