@@ -1,0 +1,97 @@
+"""Plane-sweep depth against OpenCV's StereoSGBM, side by side on the same frame.
+
+The twin's three-depth scene (2 x 2 binned, realistic noise), depth in view 0's frame, where
+the ground truth lives. SGBM runs on views 0 and 1 (horizontal neighbours: rectified by
+construction) over the same depth range, and its disparity is turned into depth with the same
+calibration model. Errors on textured pixels that all four views see, away from depth edges; pixels
+without an estimate count as failures; disparities between views 0 and 1. Times are medians of 3 runs.
+
+    python benchmarks/bench_depth.py
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+
+import cv2
+import numpy as np
+from _timing import bench
+
+from lfring.calibration import RingCalibration
+from lfring.depth import estimate_depth
+from lfring.io.demosaic import demosaic
+from lfring.io.raw import RawFrame
+from lfring.optics import load_device
+from lfring.refocus import Refocuser
+from lfring.synth import render
+from lfring.synth.presets import three_depth_scene
+from lfring.views import split_views
+
+ZMIN, ZMAX = 0.27, 1.1
+
+
+def sgbm_depth(views, cal, zmin, zmax, block=5):
+    """StereoSGBM on views 0 (left) and 1 (right), disparity d = x0 - x1 turned into depth by
+    inverting the calibration's x translation t(Z) = a + b / (Z - z0) of view 1 into view 0."""
+    g = [cv2.cvtColor(np.clip(views[k], 0, 1), cv2.COLOR_RGB2GRAY) for k in (0, 1)]
+    g8 = [np.rint(x / max(float(x.max()), 1e-6) * 255).astype(np.uint8) for x in g]
+    t = lambda z: cal.model(z)[1, 0, 2] - cal.model(z)[0, 0, 2]  # noqa: E731
+    lo, hi = sorted([t(zmin), t(zmax)])
+    min_d = int(np.floor(lo)) - 1
+    num = int(np.ceil((hi - min_d + 1) / 16.0)) * 16
+    sgbm = cv2.StereoSGBM_create(minDisparity=min_d, numDisparities=num, blockSize=block, P1=8 * block * block,
+                                 P2=32 * block * block, uniquenessRatio=5, mode=cv2.STEREO_SGBM_MODE_SGBM)
+    d = sgbm.compute(g8[0], g8[1]).astype(np.float32) / 16.0
+    d[d < min_d] = np.nan
+    z0 = cal.depth_origin_m
+    a = cal.model(1e6)[1, 0, 2] - cal.model(1e6)[0, 0, 2]
+    b = (t(0.5) - a) * (0.5 - z0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        depth = z0 + b / (d - a)
+    depth[(depth < zmin * 0.8) | (depth > zmax * 1.5)] = np.nan
+    return depth.astype(np.float32), (min_d, num)
+
+
+def main() -> None:
+    dev = load_device("prototype")
+    r = render(dev, three_depth_scene(), binning=2, noise="realistic", seed=3)
+    cal = RingCalibration.from_optics(r.device, layout=r.layout)
+    frame = RawFrame(mosaic=r.raw, pattern="RGGB", black_level=r.black_level, white_level=r.white_level, bit_depth=12)
+    views = split_views(demosaic(frame), r.layout)
+    gt = r.depth_m[0]
+    g = cv2.cvtColor(r.views_sharp[0], cv2.COLOR_RGB2GRAY)
+    textured = cv2.boxFilter(g * g, -1, (9, 9)) - cv2.boxFilter(g, -1, (9, 9)) ** 2 > 1e-4
+    jump = np.abs(np.diff(gt, axis=0, prepend=gt[:1])) + np.abs(np.diff(gt, axis=1, prepend=gt[:, :1])) > 0.01
+    # Non-occluded: seen by all four views (at mid-range) and away from depth edges.
+    seen = Refocuser(cal, 0.5, reference=0).weight > 3.9
+    usable = textured & seen & ~cv2.dilate(jump.astype(np.uint8), np.ones((31, 31), np.uint8)).astype(bool)
+    runs = {
+        "lfring, defaults (1 px spacing)": lambda: estimate_depth(views, cal, zmin_m=ZMIN, zmax_m=ZMAX, reference=0).depth_m,
+        "lfring, 0.25 px spacing": lambda: estimate_depth(views, cal, zmin_m=ZMIN, zmax_m=ZMAX, reference=0, num_planes=41).depth_m,
+        "OpenCV StereoSGBM, views 0 and 1": lambda: sgbm_depth(views, cal, ZMIN, ZMAX)[0],
+    }
+    disp = lambda z: cal.model(np.asarray(z, np.float64))[..., 1, 0, 2] - cal.model(np.asarray(z, np.float64))[..., 0, 0, 2]  # noqa: E731
+    print(f"machine: {platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}, OpenCV {cv2.__version__}, "
+          f"load {os.getloadavg()[0]:.2f}")
+    print(f"frame: twin three-depth scene, 2 x 2 binned, realistic noise; views {views.shape[2]} x {views.shape[1]} px; "
+          f"depth range {ZMIN}-{ZMAX} m; SGBM disparities {sgbm_depth(views, cal, ZMIN, ZMAX)[1]}")
+    print("| method | region | pixels | BadPix 0.3 px | MAE px | MAE mm | median rel. error | time s |")
+    print("|---|---|---|---|---|---|---|---|")
+    for name, fn in runs.items():
+        med, _, _ = bench(fn, 3)
+        depth = fn()
+        for region, z in (("all usable", None), ("cup 0.3 m", 0.3), ("book 0.5 m", 0.5), ("chessboard 1.0 m", 1.0)):
+            m = usable & np.isfinite(gt) & (np.ones_like(usable) if z is None else (np.abs(gt - z) < 1e-6))
+            est = depth[m]
+            ok = np.isfinite(est)
+            err = np.where(ok, np.abs(disp(np.where(ok, est, 1.0)) - disp(gt[m])), np.inf)
+            mae_px = float(np.mean(err[ok])) if ok.any() else float("nan")
+            mae_mm = float(np.mean(np.abs(est[ok] - gt[m][ok]))) * 1e3 if ok.any() else float("nan")
+            rel = float(np.median(np.abs(est[ok] - gt[m][ok]) / gt[m][ok])) if ok.any() else float("nan")
+            print(f"| {name} | {region} | {m.sum()} | {np.mean(err > 0.3) * 100:.1f} % | {mae_px:.3f} | {mae_mm:.1f} | "
+                  f"{rel * 100:.2f} % | {med:.2f} |")
+
+
+if __name__ == "__main__":
+    main()
