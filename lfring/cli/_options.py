@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import logging
+
 import click
 
 from lfring.optics.device import RingDevice, load_device
@@ -41,3 +43,24 @@ device_option = click.option(
 
 def get_device(name: str) -> RingDevice:
     return load_device(name)
+
+
+def load_views(raw: str, calib: str | None):
+    """Load, demosaic and split a raw frame; the calibration from --calib or the built-in
+    default for the frame's size (logged)."""
+    from lfring.calibration import RingCalibration
+    from lfring.calibration.defaults import default_calibration
+    from lfring.io.demosaic import demosaic
+    from lfring.io.raw import load_raw
+    from lfring.views import split_views
+
+    frame = load_raw(raw)
+    image = demosaic(frame)
+    if calib:
+        cal, name = RingCalibration.load(calib), calib
+    else:
+        cal, name = default_calibration((image.shape[1], image.shape[0]))
+        logging.getLogger("lfring.cli").info("no --calib given: using the built-in calibration '%s' (%s, %d x %d px frames)",
+                 name, "measured" if cal.source == "planes" else "from the optics", *cal.raw_size)
+    cal.check_frame(image.shape, what=f"frame {raw}")
+    return split_views(image, cal.layout), cal, name

@@ -15,6 +15,7 @@ from lfring.errors import LfringError
 # command name -> module in lfring.cli defining a click command called ``command``.
 COMMANDS = {
     "calibrate": "calibrate",
+    "depth": "depth",
     "design": "design",
     "raytrace": "raytrace",
     "refocus": "refocus",

@@ -10,30 +10,9 @@ from pathlib import Path
 import click
 import numpy as np
 
-from lfring.cli._options import parse_range
+from lfring.cli._options import load_views, parse_range
 
 log = logging.getLogger("lfring.cli.refocus")
-
-
-def load_views(raw: str, calib: str | None):
-    """Load, demosaic and split a raw frame; the calibration from --calib or the built-in
-    default for the frame's size (logged)."""
-    from lfring.calibration import RingCalibration
-    from lfring.calibration.defaults import default_calibration
-    from lfring.io.demosaic import demosaic
-    from lfring.io.raw import load_raw
-    from lfring.views import split_views
-
-    frame = load_raw(raw)
-    image = demosaic(frame)
-    if calib:
-        cal, name = RingCalibration.load(calib), calib
-    else:
-        cal, name = default_calibration((image.shape[1], image.shape[0]))
-        log.info("no --calib given: using the built-in calibration '%s' (%s, %d x %d px frames)",
-                 name, "measured" if cal.source == "planes" else "from the optics", *cal.raw_size)
-    cal.check_frame(image.shape, what=f"frame {raw}")
-    return split_views(image, cal.layout), cal, name
 
 
 def encode(image: np.ndarray, bit_depth: int, encoding: str) -> np.ndarray:
