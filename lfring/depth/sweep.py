@@ -157,7 +157,7 @@ def estimate_depth(
     masks = view_masks(calibration, arr.shape[1:3])
     h, w = arr.shape[1:3]
     lum = _normalised_luminance(arr, masks, sigma=max(8.0, min(h, w) / 40.0))
-    guide = None
+    guide = guide_image = None
     if aggregation == "guided":
         if ref == "center":
             mid = len(depths) // 2
@@ -169,7 +169,8 @@ def estimate_depth(
             g = acc / np.maximum(wsum, 1e-3)
         else:
             g = lum[ref]
-        guide = cv2.ximgproc.createGuidedFilter(np.clip(g / max(float(g.max()), 1e-6), 0, 1).astype(np.float32), window_px // 2, 1e-3)
+        guide_image = np.clip(g / max(float(g.max()), 1e-6), 0, 1).astype(np.float32)
+        guide = cv2.ximgproc.createGuidedFilter(guide_image, window_px // 2, 1e-3)
     step = _step_px(calibration, depths, (h, w))
     # The second minimum is looked for at least one pixel of motion away from the best.
     exclude = max(1, int(np.ceil(1.0 / max(step, 1e-6))))
@@ -177,7 +178,7 @@ def estimate_depth(
         from lfring.backends.torch_depth import sweep_torch
 
         best_i, c_best, c_prev, c_next, c_second, nviews = sweep_torch(lum, masks, hs, cost=cost, aggregation=aggregation,
-                                                                       window_px=window_px, guide=guide, device=device)
+                                                                       window_px=window_px, guide=guide_image, exclude=exclude, device=device)
     else:
         best_i, c_best, c_prev, c_next, c_second, nviews = _sweep_numpy(lum, masks, hs, cost, window_px, guide, exclude)
     return _finish(best_i, c_best, c_prev, c_next, c_second, nviews, depths, calibration, ref, cost, aggregation, min_views, step)

@@ -1,0 +1,252 @@
+"""The plane sweep with torch/kornia: chunks of depth hypotheses at once, on a GPU or the CPU.
+
+The NumPy/OpenCV :func:`lfring.depth.sweep._sweep_numpy` is the reference and defines every
+number here; tests hold the two together. Hypotheses are processed in chunks sized so that the
+chunk's tensors stay under about ``_CHUNK_BYTES``: memory does not grow with their number.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from lfring.backends import require_torch, resolve_device
+from lfring.errors import InvalidInputError
+
+__all__ = ["sweep_torch"]
+
+_CHUNK_BYTES = 1 << 30
+# Float32 images of the (V, h, w) size alive at once per hypothesis in the worst case (zncc):
+# the repeated sources and their warps (2 channels each), the cost's per-view terms and the
+# three padded window statistics per view.
+_IMAGES_PER_HYPOTHESIS = 24
+_GUIDED_EPS = 1e-3  # as cv2.ximgproc.createGuidedFilter(guide, window_px // 2, 1e-3) in the reference
+
+
+def _border_index(n: int, pad: int, delta: int) -> np.ndarray:
+    """Source index of every padded position, as cv2.borderInterpolate: ``delta`` 1 for
+    BORDER_REFLECT_101 (cv2.boxFilter's default), 0 for BORDER_REFLECT (the ximgproc guided filter)."""
+    idx = np.arange(-pad, n + pad)
+    if n == 1:
+        return np.zeros_like(idx)
+    out = idx.copy()
+    for _ in range(4 * (pad // max(n, 1) + 1)):
+        lo, hi = out < 0, out >= n
+        if not (lo.any() or hi.any()):
+            break
+        out = np.where(lo, -out - 1 + delta, np.where(hi, 2 * n - 1 - out - delta, out))
+    return out
+
+
+class _Box:
+    """Normalised k x k box filter of (B, C, h, w) tensors with OpenCV's border handling."""
+
+    def __init__(self, torch, shape_hw, k: int, delta: int, device):
+        self.torch = torch
+        self.k = k
+        self.pad = k // 2
+        self.delta = delta
+        # Windows wider than the image reflect more than once: gather by cv2.borderInterpolate's indices.
+        self.general = self.pad >= min(shape_hw)
+        if self.general:
+            self.rows = torch.from_numpy(_border_index(shape_hw[0], self.pad, delta)).to(device)
+            self.cols = torch.from_numpy(_border_index(shape_hw[1], self.pad, delta)).to(device)
+
+    def _padded(self, x):
+        p = self.pad
+        if self.general:
+            return x.index_select(-2, self.rows).index_select(-1, self.cols)
+        if self.delta == 1:
+            return self.torch.nn.functional.pad(x, (p, p, p, p), mode="reflect")
+        cat = self.torch.cat
+        x = cat([x[..., :p, :].flip(-2), x, x[..., -p:, :].flip(-2)], dim=-2)
+        return cat([x[..., :p].flip(-1), x, x[..., -p:].flip(-1)], dim=-1)
+
+    def __call__(self, x):
+        if self.k == 1:
+            return x
+        x = self._padded(x)
+        # The vertical pass as k shifted adds: avg_pool2d over columns is several times slower on the CPU.
+        h = x.shape[-2] - self.k + 1
+        y = x[..., :h, :].clone()
+        for i in range(1, self.k):
+            y += x[..., i:i + h, :]
+        return self.torch.nn.functional.avg_pool2d(y, (1, self.k), stride=1).mul_(1.0 / self.k)
+
+
+def _slice_cost(torch, lum_w, wts, cost: str, box):
+    """:func:`lfring.depth.sweep.slice_cost` for a chunk: lum_w, wts (C, V, h, w) -> (C, h, w) twice."""
+    nview = wts.sum(dim=1)
+    safe = nview.clamp_min(1e-3)
+    vals = lum_w / wts.clamp_min(1e-3)
+    valid = (wts > 0.5).to(lum_w.dtype)
+    nvalid = valid.sum(dim=1)  # small integers, exact in float32
+    mean = lum_w.sum(dim=1) / safe
+    if cost in ("sad", "sad-occlusion"):
+        dev = (vals - mean[:, None]).abs() * valid
+        if cost == "sad-occlusion":
+            more = nvalid > 2
+            c = (dev.sum(dim=1) - torch.where(more, dev.amax(dim=1), 0.0)) / (nvalid - more.to(nvalid.dtype)).clamp_min(1)
+        else:
+            c = dev.sum(dim=1) / nvalid.clamp_min(1)
+    elif cost == "ssd":
+        c = ((vals - mean[:, None]) ** 2 * valid).sum(dim=1) / nvalid.clamp_min(1)
+    else:  # zncc of every view with the mean, over the window
+        cc, v, h, w = vals.shape
+        stats_m = box(torch.stack([mean, mean * mean], dim=1))  # (C, 2, h, w)
+        mu_m = stats_m[:, 0]
+        var_m = (stats_m[:, 1] - mu_m**2).clamp_min(1e-8)
+        vj = vals * valid
+        stats = box(torch.stack([vj, vj * vj, vj * mean[:, None]], dim=2).reshape(cc, v * 3, h, w)).reshape(cc, v, 3, h, w)
+        mu_j = stats[:, :, 0]
+        var_j = (stats[:, :, 1] - mu_j**2).clamp_min(1e-8)
+        cov = stats[:, :, 2] - mu_j * mu_m[:, None]
+        acc = (cov / torch.sqrt(var_j * var_m[:, None]) * valid).sum(dim=1)
+        c = 1.0 - acc / nvalid.clamp_min(1)
+    return c, nview
+
+
+class _Guided:
+    """OpenCV's ximgproc guided filter (radius k // 2, BORDER_REFLECT windows) with a fixed
+    grey guide, applied to chunks of (C, h, w) cost slices; the guide's statistics are kept."""
+
+    def __init__(self, torch, guide, k: int, eps: float, device):
+        self.box = _Box(torch, guide.shape, k, 0, device)
+        self.guide = torch.from_numpy(np.ascontiguousarray(guide, dtype=np.float32)).to(device)[None, None]
+        stats = self.box(torch.cat([self.guide, self.guide * self.guide], dim=1))
+        self.mean_i = stats[:, :1]
+        self.var_eps = stats[:, 1:] - self.mean_i**2 + eps
+
+    def __call__(self, torch, p):
+        p = p[:, None]
+        stats = self.box(torch.cat([p, self.guide * p], dim=1))
+        mean_p = stats[:, :1]
+        a = (stats[:, 1:] - self.mean_i * mean_p) / self.var_eps
+        b = mean_p - a * self.mean_i
+        ab = self.box(torch.cat([a, b], dim=1))
+        return (ab[:, :1] * self.guide + ab[:, 1:])[:, 0]
+
+
+def _update_chunk(torch, start: int, aggs, state, exclude: int = 1) -> None:
+    """Fold the slices ``aggs`` (C, h, w), hypotheses ``start`` .. ``start + C - 1``, into the
+    state exactly as :func:`lfring.depth.sweep._update` does one slice at a time (strict '<', so
+    the earliest minimum wins; the second minimum follows the same path-dependent rule, with
+    candidates more than ``exclude`` hypotheses from the best at the time)."""
+    best, best_i, c_prev, c_next, second, last = (state[k] for k in ("best", "best_i", "c_prev", "c_next", "second", "last"))
+    n = aggs.shape[0]
+    inf = torch.tensor(float("inf"), dtype=aggs.dtype, device=aggs.device)
+    j = torch.arange(n, device=aggs.device).view(n, 1, 1)
+    # Best value before slice j: the incoming best, then the running minimum of the chunk.
+    run_min = torch.cummin(aggs, dim=0).values
+    before = torch.cat([best[None], torch.minimum(best[None], run_min[:-1])], dim=0)
+    new = aggs < before
+    # Index of the best before slice j: the last new best so far in the chunk, else the incoming one.
+    last_new = torch.cummax(torch.where(new, j, -1), dim=0).values  # inclusive
+    prior = torch.cat([torch.full_like(last_new[:1], -1), last_new[:-1]], dim=0)
+    idx_before = torch.where(prior >= 0, start + prior, best_i[None])
+    far = (start + j - idx_before).abs() > exclude
+    cand = torch.where(far, torch.where(new, before, aggs), inf)
+    torch.minimum(second, cand.amin(dim=0), out=second)
+    jstar = last_new[-1]  # last new best in the chunk, or -1
+    moved = jstar >= 0
+    # Neighbours of a best found in this chunk: the slice before it (the previous chunk's last
+    # slice for its first) and the slice after it (inf until the next chunk when it is the last).
+    prev_all = torch.cat([last[None], aggs], dim=0)
+    next_all = torch.cat([aggs, inf.expand(1, *aggs.shape[1:])], dim=0)
+    g = jstar.clamp_min(0)[None]
+    c_prev.copy_(torch.where(moved, prev_all.gather(0, g)[0], c_prev))
+    kept_next = torch.where(best_i == start - 1, aggs[0], c_next)
+    c_next.copy_(torch.where(moved, next_all.gather(0, g + 1)[0], kept_next))
+    best.copy_(torch.minimum(best, run_min[-1]))
+    best_i.copy_(torch.where(moved, start + jstar, best_i))
+    state["last"] = aggs[-1].clone()
+
+
+def _chunk_size(n: int, v: int, h: int, w: int) -> int:
+    per = _IMAGES_PER_HYPOTHESIS * v * h * w * 4
+    return int(max(1, min(n, _CHUNK_BYTES // max(per, 1))))
+
+
+def sweep_torch(lum, masks, hs, *, cost, aggregation, window_px, guide, exclude=1, device=None):
+    """Same contract as :func:`lfring.depth.sweep._sweep_numpy`, with kornia.
+
+    Parameters
+    ----------
+    lum : (V, h, w) float32
+        Normalised luminances.
+    masks : (V, h, w) float32
+        Valid weight of every view pixel.
+    hs : (N, V, 3, 3) float64
+        H_ref_from_view for every hypothesis and view.
+    cost : {'sad', 'ssd', 'zncc', 'sad-occlusion'}
+    aggregation : {'box', 'guided'}
+    window_px : int
+        Odd window of the cost and of the aggregation (guided: radius ``window_px // 2``).
+    guide : (h, w) float32 in [0, 1] or None
+        The guided filter's guide image (required for 'guided').
+    exclude : int
+        The second minimum is looked for more than ``exclude`` hypotheses from the best.
+    device : str or torch.device, optional
+
+    Returns
+    -------
+    best_i : (h, w) int32
+    c_best, c_prev, c_next, c_second, nviews : (h, w) float32
+        As the NumPy sweep defines them.
+    """
+    torch = require_torch()
+    from kornia.geometry.transform import warp_perspective
+
+    from lfring.depth.sweep import AGGREGATIONS, COSTS
+
+    if cost not in COSTS:
+        raise InvalidInputError(f"cost must be one of {', '.join(COSTS)}, got {cost!r}")
+    if aggregation not in AGGREGATIONS:
+        raise InvalidInputError(f"aggregation must be one of {', '.join(AGGREGATIONS)}, got {aggregation!r}")
+    lum = np.asarray(lum)
+    masks = np.asarray(masks)
+    hs = np.asarray(hs, dtype=np.float64)
+    if lum.dtype != np.float32 or masks.dtype != np.float32 or lum.ndim != 3 or masks.shape != lum.shape:
+        raise InvalidInputError(
+            f"need float32 (V, h, w) luminances and masks, got {lum.dtype} {lum.shape} and {masks.dtype} {masks.shape}"
+        )
+    v, h, w = lum.shape
+    if hs.ndim != 4 or hs.shape[1:] != (v, 3, 3):
+        raise InvalidInputError(f"need (N, {v}, 3, 3) homographies, got {hs.shape}")
+    if aggregation == "guided" and (guide is None or np.shape(guide) != (h, w)):
+        got = None if guide is None else np.shape(guide)
+        raise InvalidInputError(f"the guided aggregation needs a ({h}, {w}) guide image, got {got}")
+    dev = resolve_device(device)
+    n = hs.shape[0]
+
+    box_cost = _Box(torch, (h, w), window_px, 1, dev)  # cv2.boxFilter: BORDER_REFLECT_101
+    guided = _Guided(torch, guide, window_px, _GUIDED_EPS, dev) if aggregation == "guided" else None
+    lum_t = torch.from_numpy(np.ascontiguousarray(lum)).to(dev)
+    masks_t = torch.from_numpy(np.ascontiguousarray(masks)).to(dev)
+    src = torch.stack([lum_t * masks_t, masks_t], dim=1)  # (V, 2, h, w): each view warps with its mask
+    hs_t = torch.from_numpy(hs).to(dev, torch.float32)
+
+    def full(value):
+        return torch.full((h, w), value, dtype=torch.float32, device=dev)
+
+    state = {"best": full(float("inf")), "best_i": torch.zeros((h, w), dtype=torch.int64, device=dev),
+             "c_prev": full(float("inf")), "c_next": full(float("inf")), "second": full(float("inf")),
+             "last": full(float("inf"))}
+    nviews = full(0.0)
+    chunk = _chunk_size(n, v, h, w)
+    with torch.no_grad():
+        for i0 in range(0, n, chunk):
+            i1 = min(n, i0 + chunk)
+            c = i1 - i0
+            warped = warp_perspective(src.repeat(c, 1, 1, 1), hs_t[i0:i1].reshape(c * v, 3, 3), (h, w),
+                                      mode="bilinear", padding_mode="zeros", align_corners=True)
+            warped = warped.reshape(c, v, 2, h, w)
+            cst, nv = _slice_cost(torch, warped[:, :, 0], warped[:, :, 1], cost, box_cost)
+            del warped
+            finite = (nv >= 1.5) & torch.isfinite(cst)
+            filled = torch.where(finite, cst, 1.0)
+            agg = guided(torch, filled) if guided is not None else box_cost(filled[:, None])[:, 0]
+            agg = torch.where(finite, agg, float("inf"))
+            _update_chunk(torch, i0, agg, state, exclude)
+            torch.maximum(nviews, nv.amax(dim=0), out=nviews)
+    out = (state["best"], state["c_prev"], state["c_next"], state["second"], nviews)
+    return (state["best_i"].to(torch.int32).cpu().numpy(), *(x.cpu().numpy() for x in out))

@@ -1,0 +1,113 @@
+"""The torch/kornia plane sweep against the NumPy/OpenCV reference, on the CPU."""
+
+import cv2
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch", reason="the torch extra is not installed")
+
+from lfring.backends import torch_depth  # noqa: E402
+from lfring.calibration import RingCalibration  # noqa: E402
+from lfring.depth import COSTS, estimate_depth  # noqa: E402
+from lfring.depth.sweep import _update  # noqa: E402
+from lfring.errors import InvalidInputError  # noqa: E402
+from lfring.synth import render  # noqa: E402
+from lfring.synth.presets import three_depth_scene  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def twin(prototype):
+    r = render(prototype, three_depth_scene(), binning=4)
+    return r.views, RingCalibration.from_optics(r.device, layout=r.layout)
+
+
+def _agreement(a, b):
+    both = np.isfinite(a.depth_m) & np.isfinite(b.depth_m)
+    rel = np.abs(b.depth_m[both] - a.depth_m[both]) / a.depth_m[both]
+    dconf = np.abs(b.confidence[both] - a.confidence[both])
+    return both, np.mean(rel <= 0.005), np.mean(dconf <= 0.02)
+
+
+@pytest.mark.parametrize("reference", [0, "center"])
+@pytest.mark.parametrize("aggregation", ["box", "guided"])
+@pytest.mark.parametrize("cost", COSTS)
+def test_parity_with_numpy(twin, cost, aggregation, reference):
+    views, cal = twin
+    kw = dict(zmin_m=0.28, zmax_m=1.1, reference=reference, cost=cost, aggregation=aggregation)
+    ref = estimate_depth(views, cal, **kw)
+    got = estimate_depth(views, cal, backend="torch", device="cpu", **kw)
+    assert got.depth_m.dtype == np.float32 and got.depth_m.shape == ref.depth_m.shape
+    assert got.confidence.dtype == np.float32
+    np.testing.assert_array_equal(got.depths_m, ref.depths_m)
+    both, depth_ok, conf_ok = _agreement(ref, got)
+    assert np.array_equal(np.isfinite(got.depth_m), np.isfinite(ref.depth_m))
+    assert both.mean() > 0.5
+    assert depth_ok >= 0.99, depth_ok
+    assert conf_ok >= 0.99, conf_ok
+
+
+def test_parity_over_many_chunks(twin, monkeypatch):
+    """Chunks of three hypotheses: the streamed bookkeeping carries over chunk boundaries."""
+    views, cal = twin
+    h, w = views.shape[1:3]
+    monkeypatch.setattr(torch_depth, "_CHUNK_BYTES", 3 * torch_depth._IMAGES_PER_HYPOTHESIS * 4 * h * w * 4)
+    assert torch_depth._chunk_size(16, 4, h, w) == 3
+    kw = dict(zmin_m=0.28, zmax_m=1.1, num_planes=16, reference=1, cost="zncc", aggregation="guided")
+    ref = estimate_depth(views, cal, **kw)
+    got = estimate_depth(views, cal, backend="torch", device="cpu", **kw)
+    _, depth_ok, conf_ok = _agreement(ref, got)
+    assert depth_ok >= 0.99 and conf_ok >= 0.99
+
+
+@pytest.mark.parametrize("exclude", [1, 2, 3])
+def test_chunked_update_equals_streamed_update(exclude):
+    """Integer costs with ties and gaps: the vectorised chunk update gives exactly what the
+    reference's one-slice-at-a-time update gives, for any chunking."""
+    rng = np.random.default_rng(exclude)
+    h, w = 5, 7
+    for trial in range(40):
+        n = int(rng.integers(1, 25))
+        aggs = rng.integers(0, 5, (n, h, w)).astype(np.float32)
+        aggs[rng.random(aggs.shape) < 0.2] = np.inf
+        best, c_prev, c_next, second, last = (np.full((h, w), np.inf, np.float32) for _ in range(5))
+        best_i = np.zeros((h, w), np.int32)
+        for i in range(n):
+            _update(i, aggs[i], last, best, best_i, c_prev, c_next, second, exclude)
+            last = aggs[i]
+        state = {k: torch.full((h, w), float("inf")) for k in ("best", "c_prev", "c_next", "second", "last")}
+        state["best_i"] = torch.zeros((h, w), dtype=torch.int64)
+        i = 0
+        while i < n:
+            c = min(int(rng.integers(1, 8)), n - i)
+            torch_depth._update_chunk(torch, i, torch.from_numpy(aggs[i:i + c]), state, exclude)
+            i += c
+        for name, want in (("best", best), ("best_i", best_i), ("c_prev", c_prev), ("c_next", c_next), ("second", second)):
+            np.testing.assert_array_equal(state[name].numpy(), want, err_msg=f"{name}, trial {trial}")
+
+
+@pytest.mark.parametrize("shape, k", [((37, 53), 9), ((53, 37), 5), ((4, 9), 9), ((1, 6), 3), ((20, 30), 1)])
+def test_windows_match_opencv(shape, k):
+    """Box windows as cv2.boxFilter (BORDER_REFLECT_101); the guided filter as ximgproc's
+    (radius k // 2, BORDER_REFLECT, eps on the guide's variance), including windows wider than the image."""
+    rng = np.random.default_rng(7)
+    x = (rng.random(shape) * 3).astype(np.float32)
+    g = cv2.GaussianBlur(rng.random(shape).astype(np.float32), (0, 0), 2)
+    g = ((g - g.min()) / max(float(g.max() - g.min()), 1e-6)).astype(np.float32)
+    box = torch_depth._Box(torch, shape, k, 1, "cpu")(torch.from_numpy(x)[None, None])[0, 0].numpy()
+    np.testing.assert_allclose(box, cv2.boxFilter(x, -1, (k, k)), atol=1e-6)
+    guided = torch_depth._Guided(torch, g, k, 1e-3, "cpu")(torch, torch.from_numpy(x)[None])[0].numpy()
+    np.testing.assert_allclose(guided, cv2.ximgproc.createGuidedFilter(g, k // 2, 1e-3).filter(x), atol=1e-4)
+
+
+def test_errors(twin):
+    views, _ = twin
+    v, h, w = views.shape[:3]
+    lum = np.ones((v, h, w), np.float32)
+    hs = np.tile(np.eye(3), (2, v, 1, 1))
+    kw = dict(cost="sad", aggregation="guided", window_px=9, device="cpu")
+    with pytest.raises(InvalidInputError, match="guide image"):
+        torch_depth.sweep_torch(lum, lum, hs, guide=None, **kw)
+    with pytest.raises(InvalidInputError, match="float32"):
+        torch_depth.sweep_torch(lum.astype(np.float64), lum, hs, guide=lum[0], **kw)
+    with pytest.raises(InvalidInputError, match="homographies"):
+        torch_depth.sweep_torch(lum, lum, hs[:, :2], guide=lum[0], **kw)
