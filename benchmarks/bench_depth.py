@@ -20,6 +20,7 @@ from _timing import bench
 
 from lfring.calibration import RingCalibration
 from lfring.depth import estimate_depth
+from lfring.depth.metrics import evaluation_mask
 from lfring.io.demosaic import demosaic
 from lfring.io.raw import RawFrame
 from lfring.optics import load_device
@@ -60,12 +61,9 @@ def main() -> None:
     frame = RawFrame(mosaic=r.raw, pattern="RGGB", black_level=r.black_level, white_level=r.white_level, bit_depth=12)
     views = split_views(demosaic(frame), r.layout)
     gt = r.depth_m[0]
-    g = cv2.cvtColor(r.views_sharp[0], cv2.COLOR_RGB2GRAY)
-    textured = cv2.boxFilter(g * g, -1, (9, 9)) - cv2.boxFilter(g, -1, (9, 9)) ** 2 > 1e-4
-    jump = np.abs(np.diff(gt, axis=0, prepend=gt[:1])) + np.abs(np.diff(gt, axis=1, prepend=gt[:, :1])) > 0.01
-    # Non-occluded: seen by all four views (at mid-range) and away from depth edges.
+    # Non-occluded textured pixels: seen by all four views (at mid-range), away from depth edges.
     seen = Refocuser(cal, 0.5, reference=0).weight > 3.9
-    usable = textured & seen & ~cv2.dilate(jump.astype(np.uint8), np.ones((31, 31), np.uint8)).astype(bool)
+    usable = evaluation_mask(gt, r.views_sharp[0]) & seen
     runs = {
         "lfring, defaults (1 px spacing)": lambda: estimate_depth(views, cal, zmin_m=ZMIN, zmax_m=ZMAX, reference=0).depth_m,
         "lfring, 0.25 px spacing": lambda: estimate_depth(views, cal, zmin_m=ZMIN, zmax_m=ZMAX, reference=0, num_planes=41).depth_m,

@@ -25,9 +25,12 @@ import numpy as np
 
 from lfring.errors import InvalidInputError
 
-__all__ = ["DEFAULT_TAUS_PX", "badpix", "depth_to_disparity_px", "mae", "median_relative_error", "mse_x100", "summary"]
+__all__ = [
+    "DEFAULT_TAUS_PX", "badpix", "depth_to_disparity_px", "evaluation_mask", "mae", "median_relative_error", "mse_x100",
+    "summary",
+]
 
-#: BadPix thresholds of the HCI benchmark, disparity pixels.
+#: BadPix thresholds in disparity pixels between neighbouring views.
 DEFAULT_TAUS_PX = (0.07, 0.3, 1.0)
 
 
@@ -313,3 +316,33 @@ def summary(
         view_b=int(view_b),
     )
     return out
+
+
+def evaluation_mask(truth_m, image, *, min_variance: float = 1e-4, edge_m: float = 0.01, margin_px: int = 31,
+                    window_px: int = 9) -> np.ndarray:
+    """Pixels where a depth estimate can be judged: textured (local variance of ``image``'s
+    luminance over ``window_px`` above ``min_variance``) and at least ``margin_px // 2`` px away
+    from any depth edge (a jump of more than ``edge_m`` metres between neighbours), where
+    occlusions and defocus spill make the ground truth ambiguous.
+
+    Parameters
+    ----------
+    truth_m : (h, w) float
+        Ground-truth depth in metres.
+    image : (h, w) or (h, w, 3) float
+        The reference view, in [0, 1].
+    """
+    import cv2
+
+    t = np.asarray(truth_m, dtype=np.float64)
+    img = np.asarray(image, dtype=np.float32)
+    if img.ndim == 3:
+        img = img.mean(axis=2)
+    if t.ndim != 2 or img.shape != t.shape:
+        raise InvalidInputError(f"truth_m and image must share one (h, w) shape, got {t.shape} and {img.shape}")
+    k = (window_px, window_px)
+    textured = cv2.boxFilter(img * img, -1, k) - cv2.boxFilter(img, -1, k) ** 2 > min_variance
+    with np.errstate(invalid="ignore"):
+        jump = (np.abs(np.diff(t, axis=0, prepend=t[:1])) + np.abs(np.diff(t, axis=1, prepend=t[:, :1]))) > edge_m
+    near = cv2.dilate(jump.astype(np.uint8), np.ones((margin_px, margin_px), np.uint8)).astype(bool)
+    return textured & ~near & np.isfinite(t)

@@ -197,3 +197,19 @@ def test_summary_validates():
         summary(t, np.ones((2, 3)), m)
     with pytest.raises(InvalidInputError, match="selects no pixel"):
         summary(t, t, m, np.zeros((2, 2), bool))
+
+
+def test_evaluation_mask_keeps_textured_pixels_away_from_depth_edges():
+    from lfring.depth.metrics import evaluation_mask
+
+    rng = np.random.default_rng(0)
+    truth = np.full((60, 80), 0.5)
+    truth[:, 40:] = 0.8  # a depth edge at column 40
+    image = np.full((60, 80), 0.5, np.float32)
+    image[:30] = rng.random((30, 80)).astype(np.float32)  # textured top half only
+    m = evaluation_mask(truth, image, margin_px=11)
+    assert not m[30:].any()  # untextured
+    assert not m[:, 35:45].any()  # within 5 px of the edge
+    assert m[5:25, 5:30].all() and m[5:25, 50:75].all()
+    with pytest.raises(InvalidInputError, match="shape"):
+        evaluation_mask(truth, image[:, :10])

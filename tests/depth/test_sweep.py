@@ -7,6 +7,7 @@ import pytest
 
 from lfring.calibration import RingCalibration
 from lfring.depth import estimate_depth
+from lfring.depth.metrics import evaluation_mask
 from lfring.errors import InvalidInputError, LfringWarning
 from lfring.io.demosaic import demosaic
 from lfring.io.raw import RawFrame
@@ -22,12 +23,8 @@ def twin(prototype):
     frame = RawFrame(mosaic=r.raw, pattern="RGGB", black_level=r.black_level, white_level=r.white_level, bit_depth=12)
     views = split_views(demosaic(frame), r.layout)
     gt = r.depth_m[0]
-    g = cv2.cvtColor(r.views_sharp[0], cv2.COLOR_RGB2GRAY)
-    textured = cv2.boxFilter(g * g, -1, (9, 9)) - cv2.boxFilter(g, -1, (9, 9)) ** 2 > 1e-4
-    jump = np.abs(np.diff(gt, axis=0, prepend=gt[:1])) + np.abs(np.diff(gt, axis=1, prepend=gt[:, :1])) > 0.01
-    near_edge = cv2.dilate(jump.astype(np.uint8), np.ones((31, 31), np.uint8)).astype(bool)
     res = estimate_depth(views, cal, zmin_m=0.27, zmax_m=1.1, num_planes=41, reference=0)
-    return r, cal, views, gt, textured & ~near_edge, res
+    return r, cal, views, gt, evaluation_mask(gt, r.views_sharp[0]), res
 
 
 def _disparity(cal, z):
