@@ -20,7 +20,6 @@ __all__ = [
     "project_points_m",
     "sensor_to_pixel",
     "pixel_to_sensor",
-    "view_offsets_m",
     "focus_sensor_distance_m",
     "blur_diameter_m",
     "disparity_px",
@@ -102,14 +101,6 @@ def pixel_to_sensor(device: RingDevice, colrow) -> np.ndarray:
     cr = np.asarray(colrow, dtype=np.float64)
     size = np.array([device.sensor_width_px, device.sensor_height_px], dtype=np.float64)
     return (cr + 0.5 - size / 2.0) * device.pixel_pitch_m
-
-
-def view_offsets_m(device: RingDevice, distance_m) -> np.ndarray:
-    """(…, 4, 2) sensor position of the image of the optical-axis point at Z: m_k (1 + c/b2)."""
-    _, c = device.require_positions()
-    ratio = c / mini_object_distance_m(device, distance_m)
-    ratio = np.asarray(ratio)[..., None, None]
-    return device.lens_centres_m * (1.0 + ratio)
 
 
 def focus_sensor_distance_m(device: RingDevice, distance_m) -> np.ndarray:

@@ -25,6 +25,7 @@ import numpy as np
 from lfring.errors import InvalidInputError
 from lfring.io.bayer import mosaic, validate_pattern
 from lfring.optics.device import RingDevice
+from lfring.optics.paraxial import blur_diameter_m
 from lfring.optics.views import (
     ViewCameras,
     lit_region,
@@ -232,9 +233,6 @@ class _Renderer:
         self.vignetting_source = (
             _mirror_sources(device, self.regions) if settings.vignetting else [(k, 1, 1) for k in range(4)]
         )
-        b, c = device.require_positions()
-        self.c = c
-        self.b = b
         s = self.cams.depth_origin_m
         for idx, surf in enumerate(scene.surfaces):
             if isinstance(surf, Plane):
@@ -249,12 +247,12 @@ class _Renderer:
 
     # -- geometry helpers --------------------------------------------------------------------
     def blur_px(self, z: np.ndarray) -> np.ndarray:
-        """Defocus disc diameter in pixels for surfaces at Z (SPEC 2.3)."""
-        dev = self.dev
-        fl, fml = dev.main_focal_length_m, dev.mini_focal_length_m
-        b2 = self.b - z * fl / (z - fl)
-        cp = b2 * fml / (b2 - fml)
-        return 2.0 * dev.mini_lens_radius_m * np.abs(self.c - cp) / cp / self.tp
+        """Defocus disc diameter in pixels for surfaces at Z (SPEC 2.3); NaN where Z is."""
+        z = np.asarray(z, dtype=np.float64)
+        out = np.full(z.shape, np.nan)
+        finite = np.isfinite(z)
+        out[finite] = blur_diameter_m(self.dev, z[finite]) / self.tp
+        return out
 
     def _pixel_rays(self, view: int, x0: int, y0: int, w: int, h: int):
         dev = self.dev
