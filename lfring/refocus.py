@@ -15,7 +15,7 @@ import numpy as np
 
 from lfring.errors import InvalidInputError, LfringWarning
 
-__all__ = ["Refocuser", "refocus", "focal_stack", "all_in_focus", "warp_views", "view_masks", "depth_hypotheses"]
+__all__ = ["Refocuser", "refocus", "focal_stack", "all_in_focus", "warp_views", "view_masks", "depth_hypotheses", "view_motion_px"]
 
 
 def _check_views(views) -> np.ndarray:
@@ -267,6 +267,19 @@ def focal_stack(views, calibration, depths_m, *, reference="center", interpolati
         return np.stack([refocus(arr, calibration, float(d), reference=reference, interpolation=interpolation) for d in z])
 
 
+def view_motion_px(calibration, depths_m, view_shape) -> float:
+    """Largest distance any view pixel moves in the reference frame between consecutive depths
+    of ``depths_m`` (its corners bound it: the maps are affine, or nearly so)."""
+    from lfring.geometry import apply_homography
+
+    h, w = view_shape
+    corners = np.array([[0, 0], [w - 1, 0], [0, h - 1], [w - 1, h - 1]], dtype=np.float64)
+    hs = calibration.model(np.asarray(depths_m, dtype=np.float64))
+    steps = [np.abs(apply_homography(hs[i, k], corners) - apply_homography(hs[i + 1, k], corners)).max()
+             for i in range(len(hs) - 1) for k in range(hs.shape[1])]
+    return float(max(steps)) if steps else 0.0
+
+
 def depth_hypotheses(calibration, zmin_m: float, zmax_m: float, *, num=None, max_step_px: float = 1.0) -> np.ndarray:
     """Depths between ``zmin_m`` and ``zmax_m`` evenly spaced in 1/(Z - z0) (evenly in disparity),
     by default close enough that no view moves more than ``max_step_px`` between neighbours."""
@@ -279,14 +292,7 @@ def depth_hypotheses(calibration, zmin_m: float, zmax_m: float, *, num=None, max
     if zmin_m <= z0:
         raise InvalidInputError(f"zmin_m ({zmin_m}) must lie beyond the depth origin z0 = {z0:.4g} m")
     if num is None:
-        # Largest motion of any view pixel between the two ends, over the whole view.
-        h, w = calibration.layout.view_shape
-        corners = np.array([[0, 0], [w - 1, 0], [0, h - 1], [w - 1, h - 1], [w / 2, h / 2]], dtype=np.float64)
-        ha = calibration.model(zmin_m)
-        hb = calibration.model(zmax_m)
-        from lfring.geometry import apply_homography
-
-        move = max(np.abs(apply_homography(ha[k], corners) - apply_homography(hb[k], corners)).max() for k in range(len(ha)))
+        move = view_motion_px(calibration, [zmin_m, zmax_m], calibration.layout.view_shape)
         num = max(2, int(np.ceil(move / max_step_px)) + 1)
     if isinstance(num, bool) or not isinstance(num, (int, np.integer)) or num < 2:
         raise InvalidInputError(f"the number of depths must be an integer >= 2, got {num!r}")

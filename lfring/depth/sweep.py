@@ -18,7 +18,7 @@ import numpy as np
 
 from lfring.errors import InvalidInputError, LfringWarning
 from lfring.geometry import check_reference
-from lfring.refocus import _check_views, _warp, depth_hypotheses, view_masks
+from lfring.refocus import _check_views, _warp, depth_hypotheses, view_masks, view_motion_px
 
 __all__ = ["DepthResult", "estimate_depth", "COSTS", "AGGREGATIONS"]
 
@@ -66,17 +66,6 @@ def _normalised_luminance(views: np.ndarray, masks: np.ndarray, sigma: float) ->
         den = cv2.GaussianBlur(masks[k], (0, 0), sigma)
         out[k] = np.where(den > 1e-3, v[k] / np.maximum(num / np.maximum(den, 1e-6), 1e-4), 0.0)
     return out
-
-
-def _step_px(calibration, depths, view_shape) -> float:
-    from lfring.geometry import apply_homography
-
-    h, w = view_shape
-    corners = np.array([[0, 0], [w - 1, 0], [0, h - 1], [w - 1, h - 1]], dtype=np.float64)
-    hs = calibration.model(depths)
-    steps = [np.abs(apply_homography(hs[i, k], corners) - apply_homography(hs[i + 1, k], corners)).max()
-             for i in range(len(depths) - 1) for k in range(hs.shape[1])]
-    return float(max(steps)) if steps else 0.0
 
 
 def estimate_depth(
@@ -171,7 +160,7 @@ def estimate_depth(
             g = lum[ref]
         guide_image = np.clip(g / max(float(g.max()), 1e-6), 0, 1).astype(np.float32)
         guide = cv2.ximgproc.createGuidedFilter(guide_image, window_px // 2, 1e-3)
-    step = _step_px(calibration, depths, (h, w))
+    step = view_motion_px(calibration, depths, (h, w))
     # The second minimum is looked for at least one pixel of motion away from the best.
     exclude = max(1, int(np.ceil(1.0 / max(step, 1e-6))))
     if backend == "torch":
