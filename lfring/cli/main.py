@@ -14,6 +14,7 @@ from lfring.errors import LfringError
 
 # command name -> module in lfring.cli defining a click command called ``command``.
 COMMANDS = {
+    "batch": "batch",
     "calibrate": "calibrate",
     "depth": "depth",
     "design": "design",
@@ -75,7 +76,7 @@ def cli(verbose: int, quiet: bool) -> None:
 def main(argv=None) -> int:
     """Entry point of the ``lfring`` script; returns the exit code."""
     try:
-        cli.main(args=argv, prog_name="lfring", standalone_mode=False)
+        rv = cli.main(args=argv, prog_name="lfring", standalone_mode=False)
     except click.exceptions.Exit as exc:
         return exc.exit_code
     except click.Abort:
@@ -84,7 +85,8 @@ def main(argv=None) -> int:
     except click.ClickException as exc:
         exc.show()
         return exc.exit_code
-    return 0
+    # Without standalone mode click returns ctx.exit(code)'s code instead of raising.
+    return rv if isinstance(rv, int) else 0
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -16,13 +16,10 @@ log = logging.getLogger("lfring.cli.refocus")
 
 
 def encode(image: np.ndarray, bit_depth: int, encoding: str) -> np.ndarray:
-    """Linear [0, 1] float -> uint8/uint16, sRGB-encoded or linear."""
-    x = np.clip(image, 0.0, 1.0)
-    if encoding == "srgb":
-        x = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
-    top = 255 if bit_depth == 8 else 65535
-    out = np.rint(x * top).astype(np.uint8 if bit_depth == 8 else np.uint16)
-    return out[..., 0] if out.shape[-1] == 1 else out
+    """Linear [0, 1] float -> uint8/uint16, sRGB-encoded or linear (see lfring.io.writers.encode_image)."""
+    from lfring.io.writers import encode_image
+
+    return encode_image(image, bit_depth, encoding)
 
 
 def _depths(depth, depths, sweep) -> list[float]:

@@ -12,7 +12,7 @@ import tifffile
 from lfring.errors import FileFormatError, InvalidInputError
 from lfring.io.atomic import atomic_path, atomic_write_text
 
-__all__ = ["write_image", "write_float_tiff", "write_json", "check_writable", "IMAGE_SUFFIXES"]
+__all__ = ["IMAGE_SUFFIXES", "check_writable", "encode_image", "write_float_tiff", "write_image", "write_json"]
 
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff")
 
@@ -23,6 +23,30 @@ def check_writable(paths, *, overwrite: bool) -> None:
     if existing and not overwrite:
         more = f" (and {len(existing) - 1} more)" if len(existing) > 1 else ""
         raise InvalidInputError(f"{existing[0]}{more} exists; pass --overwrite (overwrite=True) to replace")
+
+
+def encode_image(image: np.ndarray, bit_depth: int = 8, encoding: str = "srgb") -> np.ndarray:
+    """Linear-light float image in [0, 1] -> uint8/uint16 samples, sRGB-encoded or linear.
+
+    (H, W, 1) images come back as (H, W).
+
+    Examples
+    --------
+    >>> encode_image(np.array([[[0.0], [0.5], [1.0]]], np.float32)).tolist()
+    [[0, 188, 255]]
+    >>> encode_image(np.array([[[0.5]]], np.float32), 16, "linear").tolist()
+    [[32768]]
+    """
+    if bit_depth not in (8, 16):
+        raise InvalidInputError(f"bit depth must be 8 or 16, got {bit_depth!r}")
+    if encoding not in ("srgb", "linear"):
+        raise InvalidInputError(f"encoding must be 'srgb' or 'linear', got {encoding!r}")
+    x = np.clip(image, 0.0, 1.0)
+    if encoding == "srgb":
+        x = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
+    top = 255 if bit_depth == 8 else 65535
+    out = np.rint(x * top).astype(np.uint8 if bit_depth == 8 else np.uint16)
+    return out[..., 0] if out.ndim == 3 and out.shape[-1] == 1 else out
 
 
 def write_image(path: str | Path, image: np.ndarray, *, png_compression: int = 1) -> Path:

@@ -1,0 +1,890 @@
+"""Batch processing of folders of raw frames: refocus, depth and all-in-focus for every frame.
+
+The pipeline of one frame (:func:`process_frame`) runs in worker processes, on this machine
+(``executor='local'``) or on a Dask cluster (``executor='dask'``); it returns the encoded output
+files as bytes. This process alone writes into the output folder, so every write is atomic,
+nothing is written twice and no output escapes the folder, whatever the workers do.
+
+Safety rules, for every run:
+
+- inputs are only read;
+- an output is written through a temporary file in ``OUTDIR/.lfring-tmp`` and renamed into
+  place, so a killed run leaves complete files or none;
+- each frame gets a record ``<name>.lfring.json`` beside its outputs, written ``pending``
+  before its outputs and ``done`` after them; a rerun skips frames whose record is done with the
+  same settings and the same input, and never replaces files it did not make unless asked to
+  (``overwrite=True``);
+- a frame that fails is reported by name and the others go on;
+- ``OUTDIR/manifest.jsonl`` gets one JSON line per frame and run (input, outputs, timings,
+  status, error).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import fnmatch
+import glob
+import hashlib
+import json
+import logging
+import os
+import shutil
+import socket
+import tempfile
+import time
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from lfring.errors import InvalidInputError, LfringError
+
+__all__ = [
+    "EXECUTORS",
+    "BatchJob",
+    "BatchReport",
+    "BatchSettings",
+    "FrameResult",
+    "find_inputs",
+    "plan_jobs",
+    "process_frame",
+    "read_manifest",
+    "run_batch",
+]
+
+log = logging.getLogger("lfring.batch")
+
+EXECUTORS = ("local", "dask")
+TMP_DIR = ".lfring-tmp"
+LOCK_FILE = ".lfring-batch.lock"
+MANIFEST = "manifest.jsonl"
+RECORD_SUFFIX = ".lfring.json"
+RECORD_VERSION = 1
+
+_DASK_HINT = 'install it with: python3 -m pip install -c constraints.txt ".[dask]"  (or: pip install "dask[distributed]")'
+
+
+def _frame_suffixes() -> frozenset[str]:
+    from lfring.io.raw import RAW_SUFFIXES
+
+    return frozenset(RAW_SUFFIXES) | {".png", ".tif", ".tiff"}
+
+
+# -- settings ------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class BatchSettings:
+    """What to make of every frame.
+
+    Attributes
+    ----------
+    refocus_m : tuple of float
+        Depths in metres to refocus at (one image each).
+    depth : bool
+        Also compute a depth map over ``zmin_m``..``zmax_m`` (metres).
+    all_in_focus : bool
+        Also write an all-in-focus image (from the depth map when there is one, else over the
+        refocus depths when there are two or more, else over the calibrated range).
+    calibration : RingCalibration, optional
+        None: the built-in calibration for each frame's size.
+    calibration_name : str
+    reference : 'center' or int
+    interpolation : {'cubic', 'linear'}
+    bit_depth : {8, 16}
+    encoding : {'srgb', 'linear'}
+    planes : int, optional
+        Number of depth hypotheses (default: at most 1 px of view motion apart).
+    min_confidence : float
+        Depth preview: pixels below it are black.
+    """
+
+    refocus_m: tuple[float, ...] = ()
+    depth: bool = False
+    zmin_m: float | None = None
+    zmax_m: float | None = None
+    all_in_focus: bool = False
+    calibration: object = None
+    calibration_name: str = "built-in"
+    reference: object = "center"
+    interpolation: str = "cubic"
+    bit_depth: int = 8
+    encoding: str = "srgb"
+    planes: int | None = None
+    min_confidence: float = 0.5
+
+    def __post_init__(self):
+        zs = tuple(float(z) for z in self.refocus_m)
+        object.__setattr__(self, "refocus_m", zs)
+        for z in zs:
+            if not (np.isfinite(z) and z > 0):
+                raise InvalidInputError(f"refocus depths must be positive, finite metres, got {z!r}")
+        if len(set(zs)) != len(zs):
+            raise InvalidInputError(f"refocus depths repeat: {list(zs)}")
+        if not (zs or self.depth or self.all_in_focus):
+            raise InvalidInputError("nothing to do: ask for refocus depths, a depth map or an all-in-focus image")
+        if self.depth:
+            if self.zmin_m is None or self.zmax_m is None:
+                raise InvalidInputError("a depth map needs zmin_m and zmax_m (--zmin, --zmax)")
+            for name in ("zmin_m", "zmax_m"):
+                v = getattr(self, name)
+                if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
+                    raise InvalidInputError(f"{name} must be a positive, finite number of metres, got {v!r}")
+            if not self.zmin_m < self.zmax_m:
+                raise InvalidInputError(f"zmin_m ({self.zmin_m}) must be smaller than zmax_m ({self.zmax_m})")
+        if self.interpolation not in ("cubic", "linear"):
+            raise InvalidInputError(f"interpolation must be 'cubic' or 'linear', got {self.interpolation!r}")
+        if self.bit_depth not in (8, 16):
+            raise InvalidInputError(f"bit_depth must be 8 or 16, got {self.bit_depth!r}")
+        if self.encoding not in ("srgb", "linear"):
+            raise InvalidInputError(f"encoding must be 'srgb' or 'linear', got {self.encoding!r}")
+        if self.planes is not None and (isinstance(self.planes, bool) or not isinstance(self.planes, int) or self.planes < 2):
+            raise InvalidInputError(f"planes must be an integer >= 2, got {self.planes!r}")
+        if not (0.0 <= self.min_confidence <= 1.0):
+            raise InvalidInputError(f"min_confidence must lie in [0, 1], got {self.min_confidence!r}")
+
+    def outputs(self, stem: str) -> dict[str, str]:
+        """Kind -> output path relative to OUTDIR, for a frame whose relative stem is ``stem``."""
+        out = {f"refocus_{z:g}m": f"{stem}_refocus_{z:g}m.png" for z in self.refocus_m}
+        if self.all_in_focus:
+            out["all_in_focus"] = f"{stem}_all_in_focus.png"
+        if self.depth:
+            out["depth"] = f"{stem}_depth.tiff"
+            out["confidence"] = f"{stem}_confidence.tiff"
+            out["depth_preview"] = f"{stem}_depth_preview.png"
+        return out
+
+    def describe(self) -> dict:
+        """The settings as JSON-ready values (the calibration by name and content hash)."""
+        d = {k: v for k, v in asdict(self).items() if k != "calibration"}
+        d["refocus_m"] = list(self.refocus_m)
+        d["calibration_sha256"] = None
+        if self.calibration is not None:
+            blob = json.dumps(self.calibration.to_dict(), sort_keys=True, default=_json_default).encode()
+            d["calibration_sha256"] = hashlib.sha256(blob).hexdigest()
+        return d
+
+    def key(self) -> str:
+        """A short hash of everything that changes the outputs."""
+        blob = json.dumps(self.describe(), sort_keys=True, default=_json_default).encode()
+        return hashlib.sha256(blob).hexdigest()[:16]
+
+
+def _json_default(o):
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, (np.floating, np.integer, np.bool_)):
+        return o.item()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"cannot write {type(o).__name__} to JSON")
+
+
+# -- inputs --------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class BatchJob:
+    """One frame: its path, and the stem of its outputs relative to OUTDIR (folders kept)."""
+
+    input: str
+    stem: str
+
+
+def _is_under(path: Path, folder: Path) -> bool:
+    try:
+        path.relative_to(folder)
+        return True
+    except ValueError:
+        return False
+
+
+def find_inputs(inputs: Sequence[str], *, outdir: str | Path | None = None, exclude: Sequence[str] = ()) -> list[BatchJob]:
+    """Expand files, folders (recursively) and glob patterns into jobs.
+
+    Folders yield the files with a raw-frame suffix (camera RAW, PNG, TIFF), hidden files and
+    folders left out; a file named explicitly is taken whatever its suffix. Files inside
+    ``outdir`` are never inputs (a rerun must not process its own outputs). ``exclude`` holds
+    glob patterns matched against each file's name and its path relative to its folder argument.
+    Output stems keep the folder structure below each folder argument; a file or a glob match
+    gives its bare name.
+
+    Raises
+    ------
+    InvalidInputError
+        An argument matches nothing, or two inputs would write the same outputs.
+    """
+    if isinstance(inputs, (str, Path)):
+        inputs = [inputs]
+    if not inputs:
+        raise InvalidInputError("no inputs given: name files, folders or glob patterns")
+    out_res = Path(outdir).resolve() if outdir is not None else None
+    suffixes = _frame_suffixes()
+    found: list[tuple[Path, str]] = []
+
+    def excluded(rel: str) -> bool:
+        return any(fnmatch.fnmatch(rel, pat) or fnmatch.fnmatch(Path(rel).name, pat) for pat in exclude)
+
+    def keep(p: Path) -> bool:
+        return out_res is None or not _is_under(p.resolve(), out_res)
+
+    for arg in inputs:
+        arg = str(arg)
+        p = Path(arg)
+        if p.is_dir():
+            n0 = len(found)
+            for root, dirs, files in os.walk(p):
+                dirs[:] = sorted(d for d in dirs if not d.startswith(".") and keep(Path(root, d)))
+                for name in sorted(files):
+                    f = Path(root, name)
+                    rel = f.relative_to(p).as_posix()
+                    if name.startswith(".") or f.suffix.lower() not in suffixes or excluded(rel) or not keep(f):
+                        continue
+                    found.append((f, rel))
+            if len(found) == n0:
+                log.warning("%s: no frames found (suffixes %s)", arg, ", ".join(sorted(suffixes)))
+        elif p.is_file():
+            if keep(p) and not excluded(p.name):
+                found.append((p, p.name))
+        elif glob.has_magic(arg):
+            matches = sorted(glob.glob(arg, recursive=True))
+            files = [Path(m) for m in matches if Path(m).is_file()]
+            files = [f for f in files if keep(f) and not excluded(f.name) and not f.name.endswith(".json")]
+            if not files:
+                raise InvalidInputError(f"{arg}: the pattern matches no files")
+            found.extend((f, f.name) for f in files)
+        else:
+            raise InvalidInputError(f"{arg}: no such file or folder")
+    # The same file named twice (a folder and a glob, say) is one job.
+    seen: dict[Path, BatchJob] = {}
+    for f, rel in found:
+        res = f.resolve()
+        if res not in seen:
+            stem = rel[: -len(Path(rel).suffix)] if Path(rel).suffix else rel
+            seen[res] = BatchJob(str(f), stem)
+    jobs = list(seen.values())
+    if not jobs:
+        raise InvalidInputError(f"no frames found in {', '.join(map(str, inputs))}")
+    return jobs
+
+
+def plan_jobs(jobs: Sequence[BatchJob], settings: BatchSettings, outdir: str | Path) -> dict[str, dict[str, str]]:
+    """Input -> {kind: relative output path}; refuses names that collide or leave ``outdir``."""
+    out_res = Path(outdir).resolve()
+    owner: dict[str, str] = {}
+    plan = {}
+    for job in jobs:
+        outs = settings.outputs(job.stem)
+        for rel in [*outs.values(), job.stem + RECORD_SUFFIX]:
+            target = (out_res / rel).resolve()
+            if not _is_under(target, out_res) or target == out_res:
+                raise InvalidInputError(f"{job.input}: output {rel!r} would leave the output folder {outdir}")
+            key = os.path.normcase(str(target))
+            if key in owner and owner[key] != job.input:
+                raise InvalidInputError(
+                    f"{owner[key]} and {job.input} would both write {rel}: rename one, or run them into different folders")
+            owner[key] = job.input
+        plan[job.input] = outs
+    return plan
+
+
+# -- one frame (runs in a worker) ----------------------------------------------------------------
+@dataclass
+class FrameResult:
+    """What a worker sends back for one frame: encoded files or an error, and timings."""
+
+    input: str
+    ok: bool
+    files: dict[str, bytes] = field(default_factory=dict)
+    info: dict = field(default_factory=dict)
+    timings_s: dict = field(default_factory=dict)
+    error: str | None = None
+    worker: str = ""
+
+
+_WORKER_CACHE: dict = {}
+
+
+def _worker_calibration(settings: BatchSettings, size_wh):
+    if settings.calibration is not None:
+        return settings.calibration, settings.calibration_name
+    key = ("default", tuple(size_wh))
+    if key not in _WORKER_CACHE:
+        from lfring.calibration.defaults import default_calibration
+
+        _WORKER_CACHE[key] = default_calibration(tuple(size_wh))
+    return _WORKER_CACHE[key]
+
+
+def _refocuser(cal, cal_name: str, depth_m: float, settings: BatchSettings, view_shape):
+    """Per worker process: one Refocuser per (calibration, depth, frame size), reused for every
+    frame (a folder of frames at one depth pays the geometry once)."""
+    from lfring.refocus import Refocuser
+
+    key = ("refocuser", id(cal), cal_name, depth_m, str(settings.reference), settings.interpolation, tuple(view_shape))
+    r = _WORKER_CACHE.get(key)
+    if r is None:
+        if len([k for k in _WORKER_CACHE if k[0] == "refocuser"]) > 32:
+            for k in [k for k in _WORKER_CACHE if k[0] == "refocuser"]:
+                del _WORKER_CACHE[k]
+        r = Refocuser(cal, depth_m, reference=settings.reference, view_shape=view_shape, interpolation=settings.interpolation)
+        _WORKER_CACHE[key] = (r, cal)  # keep cal alive so that its id stays unique
+        return r
+    return r[0]
+
+
+def process_frame(input_path: str, settings: BatchSettings, outputs: dict[str, str] | None = None) -> FrameResult:
+    """Run the batch pipeline on one frame; never raises for a bad frame.
+
+    Returns a :class:`FrameResult` whose ``files`` maps each output kind of
+    :meth:`BatchSettings.outputs` to the encoded file's bytes; on failure ``ok`` is False and
+    ``error`` says why in one line.
+    """
+    import warnings
+
+    t_start = time.perf_counter()
+    timings: dict[str, float] = {}
+    worker = f"{socket.gethostname()}:{os.getpid()}"
+    outputs = outputs if outputs is not None else settings.outputs(Path(input_path).stem)
+    caught: list[str] = []
+    try:
+        with warnings.catch_warnings(record=True) as wlist:
+            warnings.simplefilter("always")
+            files, info = _process(input_path, settings, outputs, timings)
+            caught = [str(w.message) for w in wlist]
+    except (LfringError, OSError, ValueError, MemoryError) as exc:
+        msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        timings["total"] = time.perf_counter() - t_start
+        error = msg if isinstance(exc, LfringError) else f"{type(exc).__name__}: {msg}"
+        if input_path not in error:
+            error = f"{input_path}: {error}"
+        return FrameResult(input_path, False, timings_s=timings, error=error, worker=worker)
+    except Exception as exc:  # noqa: BLE001 - a bad frame must not stop the batch; the error is kept by name
+        timings["total"] = time.perf_counter() - t_start
+        return FrameResult(input_path, False, timings_s=timings, error=f"unexpected {type(exc).__name__}: {exc}", worker=worker)
+    if caught:
+        info["warnings"] = sorted(set(caught))
+    timings["total"] = time.perf_counter() - t_start
+    return FrameResult(input_path, True, files=files, info=info, timings_s=timings, worker=worker)
+
+
+def _process(input_path, settings: BatchSettings, outputs, timings) -> tuple[dict[str, bytes], dict]:
+    from lfring.io.demosaic import demosaic
+    from lfring.io.raw import load_raw
+    from lfring.io.writers import encode_image, write_image
+    from lfring.refocus import all_in_focus
+    from lfring.views import split_views
+
+    t = time.perf_counter()
+    frame = load_raw(input_path)
+    image = demosaic(frame)
+    cal, cal_name = _worker_calibration(settings, (image.shape[1], image.shape[0]))
+    cal.check_frame(image.shape, what=f"frame {input_path}")
+    views = split_views(image, cal.layout)
+    if not np.all(np.isfinite(views)):
+        raise InvalidInputError(f"{input_path}: the frame holds NaN or infinite values")
+    timings["load"] = time.perf_counter() - t
+    info: dict = {"calibration": cal_name, "frame_size_px": [int(image.shape[1]), int(image.shape[0])]}
+    arrays: dict[str, np.ndarray] = {}
+
+    t = time.perf_counter()
+    for z in settings.refocus_m:
+        r = _refocuser(cal, cal_name, z, settings, views.shape[1:3])
+        arrays[f"refocus_{z:g}m"] = r(views)
+    timings["refocus"] = time.perf_counter() - t
+
+    depth_res = None
+    if settings.depth:
+        from lfring.depth import estimate_depth
+
+        t = time.perf_counter()
+        depth_res = estimate_depth(views, cal, zmin_m=settings.zmin_m, zmax_m=settings.zmax_m, num_planes=settings.planes,
+                                   reference=settings.reference)
+        timings["depth"] = time.perf_counter() - t
+        info["depth_hypotheses"] = len(depth_res.depths_m)
+        info["depth_step_px"] = float(depth_res.step_px)
+        ok = np.isfinite(depth_res.depth_m) & (depth_res.confidence >= settings.min_confidence)
+        info["confident_fraction"] = float(ok.mean())
+        if ok.any():
+            info["depth_median_m"] = float(np.median(depth_res.depth_m[ok]))
+
+    if settings.all_in_focus:
+        t = time.perf_counter()
+        if depth_res is not None:
+            zs = depth_res.depths_m
+            img, _ = all_in_focus(views, cal, zs, depth_map_m=depth_res.depth_m, reference=settings.reference)
+        else:
+            zs = list(settings.refocus_m) if len(settings.refocus_m) > 1 else None
+            img, _ = all_in_focus(views, cal, zs, reference=settings.reference)
+        arrays["all_in_focus"] = img
+        timings["all_in_focus"] = time.perf_counter() - t
+
+    # Encode through the library's writers into a private folder, then hand back bytes: the
+    # caller (maybe on another machine) does the only writes into OUTDIR.
+    t = time.perf_counter()
+    files: dict[str, bytes] = {}
+    with tempfile.TemporaryDirectory(prefix="lfring-batch-") as tmp:
+        for kind, img in arrays.items():
+            p = Path(tmp, kind + Path(outputs[kind]).suffix)
+            write_image(p, encode_image(img, settings.bit_depth, settings.encoding))
+            files[kind] = p.read_bytes()
+        if depth_res is not None:
+            from lfring.depth.io import write_depth_preview, write_depth_tiff
+            from lfring.io.writers import write_float_tiff
+
+            paths = {k: Path(tmp, k + Path(outputs[k]).suffix) for k in ("depth", "confidence", "depth_preview")}
+            write_depth_tiff(paths["depth"], depth_res.depth_m)
+            write_float_tiff(paths["confidence"], depth_res.confidence)
+            write_depth_preview(paths["depth_preview"], depth_res.depth_m, confidence=depth_res.confidence,
+                                zmin_m=settings.zmin_m, zmax_m=settings.zmax_m, title=f"{Path(input_path).name}: depth (m)",
+                                min_confidence=settings.min_confidence)
+            for k, p in paths.items():
+                files[k] = p.read_bytes()
+    timings["encode"] = time.perf_counter() - t
+    missing = set(outputs) - set(files)
+    if missing:  # pragma: no cover - a programming error, not a bad frame
+        raise RuntimeError(f"outputs not produced: {sorted(missing)}")
+    return files, info
+
+
+# -- the run -------------------------------------------------------------------------------------
+@dataclass
+class BatchReport:
+    """The outcome of :func:`run_batch`.
+
+    ``done``, ``skipped`` and ``failed`` are input paths; ``errors`` maps each failed input to
+    its one-line error; ``elapsed_s`` is the wall time; ``frames_per_s`` counts processed
+    (not skipped) frames.
+    """
+
+    outdir: str
+    done: list[str] = field(default_factory=list)
+    skipped: list[str] = field(default_factory=list)
+    failed: list[str] = field(default_factory=list)
+    errors: dict[str, str] = field(default_factory=dict)
+    elapsed_s: float = 0.0
+    manifest: str = ""
+
+    @property
+    def ok(self) -> bool:
+        return not self.failed
+
+    @property
+    def exit_code(self) -> int:
+        """0 when every frame is done or skipped, 1 when some failed."""
+        return 0 if self.ok else 1
+
+    @property
+    def frames_per_s(self) -> float:
+        return len(self.done) / self.elapsed_s if self.elapsed_s > 0 and self.done else 0.0
+
+    def summary(self) -> str:
+        n = len(self.done) + len(self.skipped) + len(self.failed)
+        rate = f", {self.frames_per_s:.2f} frames/s" if self.done else ""
+        return (f"{n} frames: {len(self.done)} done, {len(self.skipped)} skipped (already done), "
+                f"{len(self.failed)} failed in {self.elapsed_s:.1f} s{rate}; outputs in {self.outdir}")
+
+
+def _file_identity(path: str) -> dict:
+    st = os.stat(path)
+    return {"size_bytes": st.st_size, "mtime_ns": st.st_mtime_ns}
+
+
+def _read_record(path: Path) -> dict | None:
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    return data if isinstance(data, dict) and data.get("lfring_batch_record") == RECORD_VERSION else None
+
+
+class _Writer:
+    """The only writer into OUTDIR: temporary files in OUTDIR/.lfring-tmp, renamed into place."""
+
+    def __init__(self, outdir: Path):
+        self.outdir = outdir
+        self.tmp = outdir / TMP_DIR
+
+    def write(self, rel: str, data: bytes) -> Path:
+        target = self.outdir / rel
+        target.parent.mkdir(parents=True, exist_ok=True)
+        self.tmp.mkdir(exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix="part-", suffix=Path(rel).suffix, dir=self.tmp)
+        try:
+            with os.fdopen(fd, "wb") as f:
+                f.write(data)
+                f.flush()
+                os.fsync(f.fileno())
+            umask = os.umask(0)
+            os.umask(umask)
+            os.chmod(tmp, 0o666 & ~umask)
+            os.replace(tmp, target)
+        except BaseException:
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(tmp)
+            raise
+        return target
+
+    def write_json(self, rel: str, obj) -> Path:
+        return self.write(rel, (json.dumps(obj, indent=2, default=_json_default) + "\n").encode("utf-8"))
+
+
+@contextlib.contextmanager
+def _outdir_lock(outdir: Path) -> Iterator[None]:
+    """One batch at a time per output folder; a lock left by a killed run is taken over."""
+    lock = outdir / LOCK_FILE
+    me = {"pid": os.getpid(), "host": socket.gethostname()}
+    for _ in range(2):
+        try:
+            fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+        except FileExistsError:
+            try:
+                other = json.loads(lock.read_text())
+            except (OSError, ValueError):
+                other = {}
+            alive = False
+            if other.get("host") == me["host"] and isinstance(other.get("pid"), int):
+                try:
+                    os.kill(other["pid"], 0)
+                    alive = True
+                except ProcessLookupError:
+                    alive = False
+                except PermissionError:
+                    alive = True
+            elif other.get("host") not in (None, me["host"]):
+                alive = True  # cannot tell from here: refuse rather than clash
+            if alive:
+                raise InvalidInputError(
+                    f"{outdir} is in use by another lfring batch (pid {other.get('pid')} on {other.get('host')}); "
+                    f"wait for it, or remove {lock} if that run is gone")
+            log.info("%s: taking over the lock of a run that is gone (pid %s)", outdir, other.get("pid"))
+            with contextlib.suppress(FileNotFoundError):
+                lock.unlink()
+            continue
+        with os.fdopen(fd, "w") as f:
+            json.dump(me, f)
+        break
+    try:
+        yield
+    finally:
+        with contextlib.suppress(FileNotFoundError):
+            lock.unlink()
+
+
+def _append_manifest(path: Path, entry: dict) -> None:
+    line = (json.dumps(entry, default=_json_default, allow_nan=False) + "\n").encode("utf-8")
+    fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+    try:
+        os.write(fd, line)  # one write with O_APPEND: whole lines, even with a reader tailing it
+    finally:
+        os.close(fd)
+
+
+def read_manifest(path: str | Path) -> list[dict]:
+    """The manifest's entries (a line cut short by a killed run is left out)."""
+    out = []
+    for line in Path(path).read_text(encoding="utf-8").splitlines():
+        try:
+            out.append(json.loads(line))
+        except ValueError:
+            continue
+    return out
+
+
+def _init_worker(threads: int) -> None:
+    import cv2
+
+    cv2.setNumThreads(max(1, int(threads)))
+
+
+class _InProcess:
+    """Runs the frames one by one here (workers=1): no process start-up, same code path."""
+
+    def submit(self, fn, *args):
+        from concurrent.futures import Future
+
+        fut: Future = Future()
+        try:
+            fut.set_result(fn(*args))
+        except BaseException as exc:  # noqa: BLE001 - delivered through the future like a pool does
+            fut.set_exception(exc)
+        return fut
+
+    def shutdown(self, **kwargs):
+        pass
+
+
+def _local_executor(workers: int):
+    import multiprocessing as mp
+
+    if workers == 1:
+        return _InProcess(), wait
+    threads = max(1, (os.cpu_count() or 1) // workers)
+    # spawn, not fork: forking a process whose OpenCV thread pool is running can deadlock.
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"), initializer=_init_worker,
+                               initargs=(threads,))
+    return pool, wait
+
+
+def _dask_client(workers: int, scheduler: str | None):
+    try:
+        from distributed import Client, LocalCluster
+    except ImportError:
+        raise InvalidInputError(f"--executor dask needs dask.distributed, which is not installed; {_DASK_HINT}") from None
+    # The cluster's own chatter (workers starting, connections) only when lfring is verbose.
+    logging.getLogger("distributed").setLevel(max(logging.WARNING, log.getEffectiveLevel()))
+    if scheduler:
+        try:
+            client = Client(scheduler, timeout="10s")
+        except (OSError, TimeoutError, ValueError) as exc:
+            raise InvalidInputError(f"cannot reach the Dask scheduler at {scheduler!r}: {exc}") from None
+        return client, None
+    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                           dashboard_address=":0")
+    return Client(cluster), cluster
+
+
+class _DaskExecutor:
+    def __init__(self, client):
+        self.client = client
+
+    def submit(self, fn, *args):
+        return self.client.submit(fn, *args, pure=False)
+
+    def shutdown(self, **kwargs):
+        pass
+
+
+def _dask_wait(futures, return_when=FIRST_COMPLETED):
+    from distributed import wait as dwait
+
+    res = dwait(list(futures), return_when="FIRST_COMPLETED")
+    return res.done, res.not_done
+
+
+def run_batch(
+    inputs: Sequence[str],
+    outdir: str | Path,
+    settings: BatchSettings,
+    *,
+    workers: int | None = None,
+    executor: str = "local",
+    scheduler: str | None = None,
+    overwrite: bool = False,
+    exclude: Sequence[str] = (),
+    progress: bool | None = False,
+    on_result: Callable[[dict], None] | None = None,
+) -> BatchReport:
+    """Process every frame of ``inputs`` (files, folders, glob patterns) into ``outdir``.
+
+    Parameters
+    ----------
+    inputs : sequence of str
+    outdir : str or Path
+        Created if missing. Outputs keep the folder structure of folder inputs.
+    settings : BatchSettings
+    workers : int, optional
+        Worker processes (default: the number of cores); 1 runs the frames in this process.
+    executor : {'local', 'dask'}
+        'dask' runs on the cluster at ``scheduler`` (an address such as 'tcp://host:8786'),
+        or on a local Dask cluster of ``workers`` processes when none is given. The workers must
+        see the inputs at the same paths; outputs come back to this process, which writes them.
+    overwrite : bool
+        Redo frames already done and replace files this run did not make.
+    exclude : sequence of str
+        Glob patterns of files to leave out of folder inputs.
+    progress : bool or None
+        A progress bar on stderr (None: only when stderr is a terminal).
+    on_result : callable, optional
+        Called with each manifest entry as it is written.
+
+    Returns
+    -------
+    BatchReport
+        ``exit_code`` is 0 when all frames are done or skipped, 1 when some failed.
+
+    Raises
+    ------
+    InvalidInputError
+        Bad arguments, no inputs, outputs that would collide: nothing is processed.
+    """
+    if executor not in EXECUTORS:
+        raise InvalidInputError(f"executor must be one of {', '.join(EXECUTORS)}, got {executor!r}")
+    if scheduler and executor != "dask":
+        raise InvalidInputError("a scheduler address goes with executor='dask' (--executor dask)")
+    if workers is None:
+        workers = os.cpu_count() or 1
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise InvalidInputError(f"workers must be an integer >= 1, got {workers!r}")
+    if not isinstance(settings, BatchSettings):
+        raise InvalidInputError(f"settings must be a BatchSettings, got {type(settings).__name__}")
+    out = Path(outdir)
+    if out.exists() and not out.is_dir():
+        raise InvalidInputError(f"{out} exists and is not a folder")
+    jobs = find_inputs(inputs, outdir=out, exclude=exclude)
+    plan = plan_jobs(jobs, settings, out)
+    out.mkdir(parents=True, exist_ok=True)
+    key = settings.key()
+    desc = settings.describe()
+    report = BatchReport(str(out), manifest=str(out / MANIFEST))
+    t0 = time.perf_counter()
+    run_id = time.strftime("%Y%m%dT%H%M%S") + f"-{os.getpid()}"
+
+    with _outdir_lock(out):
+        writer = _Writer(out)
+        # Temporary files left by a killed run are never outputs; clear them.
+        if writer.tmp.exists():
+            shutil.rmtree(writer.tmp, ignore_errors=True)
+
+        def entry(job: BatchJob, status: str, **kw) -> dict:
+            e = {"run": run_id, "input": job.input, "status": status, "outputs": list(plan[job.input].values()),
+                 "record": job.stem + RECORD_SUFFIX, "settings_key": key, **kw}
+            _append_manifest(out / MANIFEST, e)
+            if on_result is not None:
+                on_result(e)
+            return e
+
+        def fail(job: BatchJob, error: str, record: bool = False, **kw) -> None:
+            report.failed.append(job.input)
+            report.errors[job.input] = error
+            log.error("%s: %s", job.input, error)
+            if record:  # our pending record becomes a failed one (a rerun tries the frame again)
+                with contextlib.suppress(OSError):
+                    writer.write_json(job.stem + RECORD_SUFFIX, {
+                        "lfring_batch_record": RECORD_VERSION, "status": "failed", "run": run_id, "input": job.input,
+                        "input_identity": _file_identity(job.input), "settings_key": key, "settings": desc,
+                        "outputs": plan[job.input], "error": error, "lfring_version": _version()})
+            entry(job, "failed", error=error, **kw)
+
+        todo: list[BatchJob] = []
+        for job in jobs:
+            outs = plan[job.input]
+            rec_path = out / (job.stem + RECORD_SUFFIX)
+            rec = _read_record(rec_path)
+            try:
+                ident = _file_identity(job.input)
+            except OSError as exc:
+                fail(job, f"cannot read the input: {exc.strerror or exc}")
+                continue
+            existing = [rel for rel in outs.values() if (out / rel).exists()]
+            if overwrite:
+                todo.append(job)
+                continue
+            if rec is not None and rec.get("settings_key") == key and rec.get("input_identity") == ident:
+                if rec.get("status") == "done" and not set(outs.values()) - set(existing):
+                    report.skipped.append(job.input)
+                    entry(job, "skipped")
+                    continue
+                todo.append(job)  # our own run, cut short: its files may be replaced
+                continue
+            if rec is not None and existing:
+                why = ("the input changed since" if rec.get("settings_key") == key else "other settings made them")
+                fail(job, f"outputs exist ({existing[0]}...) and {why}; pass --overwrite to replace them")
+                continue
+            if existing or (rec is None and rec_path.exists()):
+                fail(job, f"{existing[0] if existing else rec_path.name} exists and was not made by lfring batch; "
+                          "pass --overwrite to replace it")
+                continue
+            todo.append(job)
+
+        bar = None
+        if todo:
+            try:
+                from tqdm import tqdm
+
+                bar = tqdm(total=len(todo), unit="frame", desc="lfring batch", disable=(None if progress is None else not progress),
+                           dynamic_ncols=True, smoothing=0.1)
+            except ImportError:  # pragma: no cover - tqdm is a dependency
+                bar = None
+
+        cluster = client = None
+        pool = None
+        try:
+            if todo:
+                if executor == "dask":
+                    client, cluster = _dask_client(workers, scheduler)
+                    pool, waiter = _DaskExecutor(client), _dask_wait
+                else:
+                    pool, waiter = _local_executor(min(workers, len(todo)))
+            window = max(2, 2 * workers)
+            pending: dict = {}
+            queue = list(todo)
+            retried: set[str] = set()
+
+            def submit(job: BatchJob) -> None:
+                writer.write_json(job.stem + RECORD_SUFFIX, {
+                    "lfring_batch_record": RECORD_VERSION, "status": "pending", "run": run_id, "input": job.input,
+                    "input_identity": _file_identity(job.input), "settings_key": key, "settings": desc,
+                    "outputs": plan[job.input]})
+                pending[pool.submit(process_frame, job.input, settings, plan[job.input])] = job
+
+            while queue or pending:
+                while queue and len(pending) < window:
+                    job = queue.pop(0)
+                    try:
+                        submit(job)
+                    except OSError as exc:
+                        fail(job, f"cannot write its record: {exc}")
+                done_set, _ = waiter(list(pending), return_when=FIRST_COMPLETED)
+                for fut in done_set:
+                    job = pending.pop(fut)
+                    try:
+                        res: FrameResult = fut.result()
+                    except Exception as exc:  # noqa: BLE001 - a worker died (crash, killed): retry once elsewhere
+                        if job.input not in retried and executor == "local" and not isinstance(pool, _InProcess):
+                            retried.add(job.input)
+                            log.warning("%s: worker lost (%s); retrying once", job.input, type(exc).__name__)
+                            pool.shutdown(wait=False, cancel_futures=True)
+                            requeue = [job, *pending.values()]
+                            pending.clear()
+                            pool, waiter = _local_executor(min(workers, len(requeue) + len(queue)))
+                            queue[:0] = requeue
+                            break
+                        fail(job, f"the worker processing it was lost: {type(exc).__name__}: {exc}", record=True)
+                        if bar is not None:
+                            bar.update(1)
+                        continue
+                    if not res.ok:
+                        fail(job, res.error, record=True, timings_s=res.timings_s, worker=res.worker)
+                    else:
+                        t_w = time.perf_counter()
+                        try:
+                            for kind, rel in plan[job.input].items():
+                                writer.write(rel, res.files[kind])
+                            writer.write_json(job.stem + RECORD_SUFFIX, {
+                                "lfring_batch_record": RECORD_VERSION, "status": "done", "run": run_id, "input": job.input,
+                                "input_identity": _file_identity(job.input), "settings_key": key, "settings": desc,
+                                "outputs": plan[job.input], "info": res.info, "timings_s": res.timings_s,
+                                "lfring_version": _version()})
+                        except OSError as exc:
+                            fail(job, f"cannot write its outputs: {exc.strerror or exc}", record=True)
+                        else:
+                            res.timings_s["write"] = time.perf_counter() - t_w
+                            report.done.append(job.input)
+                            entry(job, "done", timings_s=res.timings_s, worker=res.worker, info=res.info)
+                            for w in res.info.get("warnings", []):
+                                log.warning("%s: %s", job.input, w)
+                    if bar is not None:
+                        bar.update(1)
+                        bar.set_postfix(failed=len(report.failed), refresh=False)
+        finally:
+            if bar is not None:
+                bar.close()
+            if pool is not None:
+                pool.shutdown(wait=True, cancel_futures=True)
+            if client is not None:
+                client.close()
+            if cluster is not None:
+                cluster.close()
+            shutil.rmtree(writer.tmp, ignore_errors=True)
+    report.elapsed_s = time.perf_counter() - t0
+    return report
+
+
+def _version() -> str:
+    from lfring import __version__
+
+    return __version__
+
+
+def iter_failed(report: BatchReport) -> Iterable[tuple[str, str]]:
+    """(input, error) of every failed frame, in input order."""
+    return ((p, report.errors[p]) for p in report.failed)
