@@ -1,0 +1,653 @@
+"""Inspection at a working plane: which pixels lie on it, which regions leave it, and a report.
+
+An inspection line images parts at a known distance. :func:`inspect_frame` takes the views of
+one frame and
+
+* highlights the **working plane**: pixels that are photo-consistent when the views are warped
+  to the plane's depth (their spread across the views is small next to the local contrast);
+* measures the **deviation** of every confident pixel from the plane (or from a reference depth
+  map) with a plane sweep over a narrow band of depths around it, and flags connected regions
+  of confident pixels deviating by more than the tolerance as **defects**;
+* returns an :class:`InspectionResult` (pass/fail, the :class:`Defect` records, the masks and
+  maps behind them, the refocused image), which :func:`annotate` draws and :func:`report`
+  turns into a JSON-ready dict; :func:`write_report` writes both, atomically.
+
+Sign convention: a deviation is the **target depth minus the measured depth**, so it is
+positive towards the camera (a bump, like :class:`lfring.synth.Bump` heights) and negative
+away from it (a dent).
+
+Physics: the ring's baseline is small. At 0.3 m on the 2 x 2 binned prototype one pixel of
+disparity between neighbouring views is about 24 mm of depth, so a 10 mm tolerance is about
+0.4 px: the sweep is sampled at 0.25 px of view motion and refined to sub-pixel, and only
+confident pixels (textured, seen alike by the views) can raise an alarm.
+"""
+
+from __future__ import annotations
+
+import numbers
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from lfring.errors import InvalidInputError, LfringWarning
+from lfring.geometry import check_reference
+
+__all__ = [
+    "Defect", "InspectionResult", "annotate", "default_depth_band", "inspect_frame", "photo_consistency", "report",
+    "write_report",
+]
+
+#: Spacing of the depth hypotheses, in pixels of view motion (the sweep refines below it).
+STEP_PX = 0.25
+#: Half-width of the default band beyond the deviations it must see, in pixels of view motion:
+#: the sweep's confidence compares the best cost with the best one at least 1 px away, which
+#: needs hypotheses on both sides of every depth of interest.
+MARGIN_PX = 1.5
+
+
+# -- records --------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Defect:
+    """A region whose depth leaves the target by more than the tolerance.
+
+    Attributes
+    ----------
+    bbox_px : (x, y, w, h)
+        Bounding box in pixels of the reference frame (x right, y down, pixel centres at
+        integers).
+    centroid_px : (x, y)
+    area_px : int
+        Pixels in the region (after morphological clean-up).
+    area_mm2 : float or None
+        The same at the plane's distance, when the optics are known.
+    deviation_m : float
+        Robust maximum deviation (see ``percentile`` of :func:`inspect_frame`), signed:
+        positive towards the camera (bump), negative away (dent).
+    kind : {'bump', 'dent'}
+    mean_confidence : float
+        Mean sweep confidence of the region's pixels, in [0, 1].
+    """
+
+    bbox_px: tuple[int, int, int, int]
+    centroid_px: tuple[float, float]
+    area_px: int
+    area_mm2: float | None
+    deviation_m: float
+    kind: str
+    mean_confidence: float
+
+    def to_dict(self) -> dict:
+        x, y, w, h = self.bbox_px
+        return {
+            "kind": self.kind,
+            "bbox_px": {"x": x, "y": y, "w": w, "h": h},
+            "centroid_px": [round(self.centroid_px[0], 2), round(self.centroid_px[1], 2)],
+            "area_px": self.area_px,
+            "area_mm2": None if self.area_mm2 is None else round(self.area_mm2, 3),
+            "max_deviation_mm": round(self.deviation_m * 1e3, 3),
+            "mean_confidence": round(self.mean_confidence, 4),
+        }
+
+
+@dataclass(frozen=True, eq=False)
+class InspectionResult:
+    """The outcome of :func:`inspect_frame`, all maps in the reference frame (h, w).
+
+    Attributes
+    ----------
+    passed : bool
+        True when no defect was found.
+    defects : tuple of Defect
+        Largest deviation first.
+    plane_mask : (h, w) bool
+        Pixels photo-consistent at the plane's depth (textured, seen by two views or more).
+    consistency : (h, w) float32
+        Spread of the views warped to the plane over the local contrast (0: perfectly
+        consistent; NaN where fewer than two views see the pixel).
+    deviation_m : (h, w) float32
+        Target depth minus measured depth, metres (positive towards the camera); NaN where the
+        sweep has no depth or the depth left the searched band.
+    reliable : (h, w) bool
+        Pixels that can raise an alarm: confident, inside the band and the region of interest.
+    deviating : (h, w) bool
+        Reliable pixels beyond the tolerance after clean-up (the defects are its components
+        of at least ``min_area_px``).
+    depth : DepthResult
+        The plane sweep over the band.
+    refocused : (h, w, C) float32
+        The views refocused at the plane.
+    settings : dict
+        The inspection's parameters (JSON-ready), the band included.
+    stats : dict
+        Fractions of reliable, on-plane and out-of-band pixels inside the region of interest,
+        and the median absolute deviation of the reliable ones in metres.
+    """
+
+    passed: bool
+    defects: tuple
+    plane_mask: np.ndarray
+    consistency: np.ndarray
+    deviation_m: np.ndarray
+    reliable: np.ndarray
+    deviating: np.ndarray
+    depth: object
+    refocused: np.ndarray
+    settings: dict = field(default_factory=dict)
+    stats: dict = field(default_factory=dict)
+
+
+# -- validation -----------------------------------------------------------------------------------
+def _positive(value, name: str, unit: str = "metres") -> float:
+    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not np.isfinite(value) or value <= 0:
+        raise InvalidInputError(f"{name} must be a positive, finite number of {unit}, got {value!r}")
+    return float(value)
+
+
+def _check_roi(roi, shape_hw) -> tuple[int, int, int, int] | None:
+    if roi is None:
+        return None
+    h, w = shape_hw
+    try:
+        vals = tuple(roi)
+    except TypeError:
+        raise InvalidInputError(f"roi must be (x, y, w, h) in pixels of the reference frame, got {roi!r}") from None
+    if len(vals) != 4 or not all(isinstance(v, numbers.Integral) and not isinstance(v, bool) for v in vals):
+        raise InvalidInputError(f"roi must be four integers (x, y, w, h) in pixels of the reference frame, got {roi!r}")
+    x, y, rw, rh = (int(v) for v in vals)
+    if rw < 1 or rh < 1:
+        raise InvalidInputError(f"roi width and height must be at least 1 px, got {rw} x {rh}")
+    if x < 0 or y < 0 or x + rw > w or y + rh > h:
+        raise InvalidInputError(
+            f"roi (x={x}, y={y}, w={rw}, h={rh}) does not fit inside the {w} x {h} px reference frame; "
+            f"x + w must be <= {w} and y + h <= {h}"
+        )
+    return x, y, rw, rh
+
+
+def _check_reference_depth(ref_depth, shape_hw, z0: float) -> np.ndarray:
+    arr = np.asarray(ref_depth)
+    if not np.issubdtype(arr.dtype, np.floating):
+        raise InvalidInputError(f"reference_depth_m must be a float map in metres (NaN where unknown), got dtype {arr.dtype}")
+    if arr.shape != tuple(shape_hw):
+        raise InvalidInputError(
+            f"reference_depth_m must have the reference frame's shape (h, w) = {tuple(shape_hw)}, got {arr.shape}; "
+            "it must be a depth map in the same frame (reference view) as the inspection"
+        )
+    finite = np.isfinite(arr)
+    if not finite.any():
+        raise InvalidInputError("reference_depth_m has no finite depth")
+    if np.any(arr[finite] <= z0):
+        raise InvalidInputError(
+            f"reference_depth_m must lie beyond the calibration's depth origin z0 = {z0:.4g} m (metres, not mm?); "
+            f"got a minimum of {float(arr[finite].min()):.4g}"
+        )
+    return arr.astype(np.float32)
+
+
+def _check_views(views) -> np.ndarray:
+    arr = np.asarray(views)
+    if arr.ndim != 4 or arr.shape[0] < 2 or min(arr.shape[1:3]) < 2:
+        raise InvalidInputError(f"views must be (V, h, w, C) with at least two views, got shape {arr.shape}")
+    if arr.dtype != np.float32:
+        raise InvalidInputError(f"views must be float32 in [0, 1] (lfring.split_views gives that), got {arr.dtype}")
+    return arr
+
+
+# -- band -----------------------------------------------------------------------------------------
+def _motion_per_inv(calibration, depth_m: float) -> float:
+    """View motion in pixels per unit of 1/(Z - z0) near ``depth_m`` (the maps are affine in it)."""
+    from lfring.refocus import view_motion_px
+
+    z0 = calibration.depth_origin_m
+    z1, z2 = depth_m * 0.98, depth_m * 1.02
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", LfringWarning)
+        move = view_motion_px(calibration, [z1, z2], calibration.layout.view_shape)
+    return move / abs(1.0 / (z1 - z0) - 1.0 / (z2 - z0))
+
+
+def default_depth_band(calibration, near_m: float, far_m: float, tolerance_m: float) -> tuple[float, float]:
+    """The depths a sweep searches to judge surfaces between ``near_m`` and ``far_m``.
+
+    The band reaches, on either side, four tolerances or one pixel of view motion (whichever
+    is larger) plus :data:`MARGIN_PX` pixels of view motion, measured in disparity
+    (1/(Z - z0)), so that deviations well beyond the tolerance are measured, not clipped, and
+    the sweep's confidence has hypotheses on both sides to compare with.
+
+    Returns
+    -------
+    (zmin_m, zmax_m) : floats, metres
+    """
+    z0 = calibration.depth_origin_m
+    k = _motion_per_inv(calibration, 0.5 * (near_m + far_m))
+    inv_near, inv_far = 1.0 / (near_m - z0), 1.0 / (far_m - z0)
+    tol_inv = abs(1.0 / (near_m - z0) - 1.0 / (near_m + tolerance_m - z0))
+    reach = max(4.0 * tol_inv, 1.0 / k) + MARGIN_PX / k
+    inv_lo = inv_far - reach
+    if inv_lo <= 0:
+        raise InvalidInputError(
+            f"the depth band around {far_m:g} m reaches infinity: depths in metres are expected (not mm); "
+            "for very far surfaces give zmin_m and zmax_m explicitly"
+        )
+    return float(z0 + 1.0 / (inv_near + reach)), float(z0 + 1.0 / inv_lo)
+
+
+def _aligned_band(calibration, near_m, far_m, tolerance_m, num_planes=None) -> tuple[float, float, int]:
+    """The default band with its hypotheses placed so that one falls on the middle of
+    [near_m, far_m] in disparity (on the plane itself for a plane): a good part then sits on
+    a hypothesis instead of between two, where the sweep's sub-hypothesis refinement is
+    weakest. Returns (zmin_m, zmax_m, number of hypotheses)."""
+    z0 = calibration.depth_origin_m
+    lo, hi = default_depth_band(calibration, near_m, far_m, tolerance_m)
+    inv_lo, inv_hi = 1.0 / (hi - z0), 1.0 / (lo - z0)
+    inv_mid = 0.5 * (1.0 / (near_m - z0) + 1.0 / (far_m - z0))
+    k = _motion_per_inv(calibration, 0.5 * (near_m + far_m))
+    if num_planes is None:
+        half = int(np.ceil(max(inv_hi - inv_mid, inv_mid - inv_lo) * k / STEP_PX))
+    else:
+        if isinstance(num_planes, bool) or not isinstance(num_planes, numbers.Integral) or num_planes < 3:
+            raise InvalidInputError(f"num_planes must be an integer >= 3 (or None for the default spacing), got {num_planes!r}")
+        half = (int(num_planes) - 1) // 2
+    step = max(inv_hi - inv_mid, inv_mid - inv_lo) / half
+    return float(z0 + 1.0 / (inv_mid + half * step)), float(z0 + 1.0 / (inv_mid - half * step)), 2 * half + 1
+
+
+# -- core -----------------------------------------------------------------------------------------
+def _luminance(views: np.ndarray, masks: np.ndarray, sigma: float) -> np.ndarray:
+    """Luminance of each view over its local mean: removes the views' different vignetting."""
+    lum = views.mean(axis=3) if views.shape[3] > 1 else views[..., 0].copy()
+    for k in range(len(lum)):
+        num = cv2.GaussianBlur(lum[k] * masks[k], (0, 0), sigma)
+        den = cv2.GaussianBlur(masks[k], (0, 0), sigma)
+        lum[k] = np.where(den > 1e-3, lum[k] / np.maximum(num / np.maximum(den, 1e-6), 1e-4), 0.0)
+    return lum.astype(np.float32)
+
+
+def photo_consistency(views, calibration, depth_m: float, *, reference="center", window_px: int = 9,
+                      min_contrast: float = 1e-3) -> np.ndarray:
+    """Spread of the views warped to ``depth_m`` relative to the local contrast.
+
+    Parameters
+    ----------
+    views : (V, h, w, C) float32
+    calibration : RingCalibration
+    depth_m : float
+    reference : 'center' or int
+    window_px : int
+        Side of the box over which spread and contrast are averaged.
+    min_contrast : float
+        Below this local variance of the (locally normalised) luminance a pixel is untextured
+        and gets NaN: its consistency says nothing about its depth.
+
+    Returns
+    -------
+    (h, w) float32
+        ``box(var_k L_k) / box_var(mean_k L_k)``, with ``L_k`` the warped, locally normalised
+        luminances; NaN where fewer than two views see the pixel or it is untextured.
+    """
+    from lfring.refocus import view_masks, warp_views
+
+    arr = np.asarray(views)
+    masks = view_masks(calibration, arr.shape[1:3])
+    lum = _luminance(arr, masks, sigma=max(8.0, min(arr.shape[1:3]) / 40.0))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", LfringWarning)
+        hs = calibration.homographies(depth_m, reference=reference)
+    warped, wts = warp_views(lum[..., None], hs, masks=masks)
+    warped = warped[..., 0]
+    valid = wts > 0.5
+    n = valid.sum(axis=0)
+    vals = warped / np.maximum(wts, 1e-3)
+    mean = (vals * valid).sum(axis=0) / np.maximum(n, 1)
+    spread = (((vals - mean) ** 2) * valid).sum(axis=0) / np.maximum(n - 1, 1)
+    k = (window_px, window_px)
+    spread = cv2.boxFilter(spread.astype(np.float32), -1, k)
+    mean = mean.astype(np.float32)
+    contrast = cv2.boxFilter(mean * mean, -1, k) - cv2.boxFilter(mean, -1, k) ** 2
+    out = spread / np.maximum(contrast, 1e-12)
+    out[(n < 2) | (contrast < min_contrast)] = np.nan
+    return out.astype(np.float32)
+
+
+def _target(plane_m: float, reference_depth) -> np.ndarray | float:
+    return plane_m if reference_depth is None else reference_depth
+
+
+def inspect_frame(
+    views,
+    calibration,
+    *,
+    plane_m: float,
+    tolerance_m: float,
+    roi=None,
+    reference_depth_m=None,
+    reference="center",
+    min_area_px: int = 150,
+    min_confidence: float = 0.6,
+    percentile: float = 90.0,
+    zmin_m: float | None = None,
+    zmax_m: float | None = None,
+    num_planes: int | None = None,
+    opening_px: int = 2,
+    consistency_threshold: float = 0.02,
+    device=None,
+    backend: str = "numpy",
+) -> InspectionResult:
+    """Check that the surface seen by the views lies on the working plane within a tolerance.
+
+    Parameters
+    ----------
+    views : (V, h, w, C) float32 in [0, 1]
+        From :func:`lfring.split_views` with the calibration's layout.
+    calibration : RingCalibration
+    plane_m : float
+        Distance of the working plane from the main lens, metres. Outside the calibrated
+        range it warns (:class:`lfring.errors.LfringWarning`).
+    tolerance_m : float
+        Largest accepted deviation from the plane (or the reference depth), metres, > 0.
+    roi : (x, y, w, h) ints, optional
+        Region of interest in pixels of the reference frame; only it can raise alarms.
+    reference_depth_m : (h, w) float, optional
+        Expected depth of every reference pixel in metres (a golden part's depth map, NaN
+        where unknown) instead of the plane. The plane still sets the refocused image and
+        the highlighted working plane.
+    reference : 'center' or int
+        Frame of every map and of the defects' boxes.
+    min_area_px : int
+        Smallest region reported as a defect, pixels.
+    min_confidence : float in [0, 1]
+        Pixels whose sweep confidence is lower (untextured, occluded, noisy) never raise an
+        alarm.
+    percentile : float in (0, 100]
+        A defect's deviation is this percentile of the absolute deviations of its pixels: a
+        maximum that one noisy pixel cannot make.
+    zmin_m, zmax_m : float, optional
+        Depth band of the sweep; by default :func:`default_depth_band` around the plane (or
+        the reference depth's range). Surfaces beyond the band (the belt behind a part, say)
+        are out of band and left out: use ``roi`` and a wider band to judge them.
+    num_planes : int, optional
+        Hypotheses in the band (default: :data:`STEP_PX` pixels of view motion apart).
+    opening_px : int
+        Radius of the morphological opening (then closing) of the deviating pixels, which
+        removes isolated noisy pixels and fills pinholes; 0 turns it off.
+    consistency_threshold : float
+        Pixels whose :func:`photo_consistency` at the plane is below it form ``plane_mask``.
+    device : RingDevice, optional
+        The optics (binned to the frame), for defect areas in mm^2.
+    backend : {'numpy', 'torch'}
+        Of the plane sweep (:func:`lfring.estimate_depth`).
+
+    Returns
+    -------
+    InspectionResult
+
+    Raises
+    ------
+    InvalidInputError
+        A bad value, named in the message.
+
+    Notes
+    -----
+    With ``Z(x)`` the swept depth, ``c(x)`` its confidence and ``T(x)`` the target (the plane
+    or ``reference_depth_m``), the deviation is ``d(x) = T(x) - Z(x)``. A pixel is reliable
+    when ``c >= min_confidence``, its depth lies strictly inside the band (not on its first
+    or last hypothesis) and it is in the ROI. The deviation is median-filtered (5 x 5,
+    unreliable pixels counting as 0), thresholded at ``+-tolerance_m`` on reliable pixels,
+    opened and closed with a disc of radius ``opening_px``, and split into 8-connected
+    components; those of at least ``min_area_px`` pixels are defects, their deviation the
+    ``percentile`` of ``|d|`` over their reliable pixels with the sign of their median.
+    Areas in mm^2 use the pixel footprint at the plane, ``pitch (Z - s) / f``.
+    """
+    from lfring.depth import estimate_depth
+    from lfring.refocus import Refocuser, depth_hypotheses
+
+    arr = _check_views(views)
+    plane = _positive(plane_m, "plane_m")
+    tol = _positive(tolerance_m, "tolerance_m")
+    z0 = calibration.depth_origin_m
+    if plane <= z0:
+        raise InvalidInputError(f"plane_m ({plane:g} m) must lie beyond the calibration's depth origin z0 = {z0:.4g} m")
+    if isinstance(min_area_px, bool) or not isinstance(min_area_px, numbers.Integral) or min_area_px < 1:
+        raise InvalidInputError(f"min_area_px must be an integer >= 1, got {min_area_px!r}")
+    if isinstance(min_confidence, bool) or not isinstance(min_confidence, numbers.Real) or not 0 <= min_confidence <= 1:
+        raise InvalidInputError(f"min_confidence must be a number in [0, 1], got {min_confidence!r}")
+    if isinstance(percentile, bool) or not isinstance(percentile, numbers.Real) or not 0 < percentile <= 100:
+        raise InvalidInputError(f"percentile must be a number in (0, 100], got {percentile!r}")
+    if isinstance(opening_px, bool) or not isinstance(opening_px, numbers.Integral) or opening_px < 0:
+        raise InvalidInputError(f"opening_px must be an integer >= 0, got {opening_px!r}")
+    consistency_threshold = _positive(consistency_threshold, "consistency_threshold", "(spread over contrast)")
+    ref = check_reference(reference, calibration.num_views)
+    shape = arr.shape[1:3]
+    if shape != tuple(calibration.layout.view_shape):
+        raise InvalidInputError(
+            f"views are {shape[1]} x {shape[0]} px but the calibration's layout cuts "
+            f"{calibration.layout.view_shape[1]} x {calibration.layout.view_shape[0]} px views"
+        )
+    box = _check_roi(roi, shape)
+    target = None if reference_depth_m is None else _check_reference_depth(reference_depth_m, shape, z0)
+    calibration.check_depth(plane, stacklevel=3)  # warns when the plane is outside the calibrated range
+    if target is None:
+        near = far = plane
+    else:
+        near, far = float(np.nanmin(target)), float(np.nanmax(target))
+        # A golden part's map at a plane on the range's edge straddles it by noise: only a
+        # typical depth beyond the tolerance from the range is worth a warning.
+        typical = float(np.nanmedian(target))
+        lo, hi = calibration.valid_depth_range_m
+        if typical < lo - tol or (hi is not None and typical > hi + tol):
+            calibration.check_depth(typical, stacklevel=3)
+    if zmin_m is None and zmax_m is None:
+        zlo, zhi, num = _aligned_band(calibration, near, far, tol, num_planes)
+        num_planes = num_planes or num
+    else:
+        auto_lo, auto_hi = default_depth_band(calibration, near, far, tol)
+        zlo = auto_lo if zmin_m is None else _positive(zmin_m, "zmin_m")
+        zhi = auto_hi if zmax_m is None else _positive(zmax_m, "zmax_m")
+    if not zlo < near <= far < zhi:
+        what = f"the plane ({plane:g} m)" if target is None else f"the reference depths ({near:g} to {far:g} m)"
+        raise InvalidInputError(f"the depth band {zlo:g} to {zhi:g} m (zmin_m, zmax_m) must contain {what} strictly")
+    if zlo <= z0:
+        raise InvalidInputError(f"zmin_m ({zlo:g} m) must lie beyond the calibration's depth origin z0 = {z0:.4g} m")
+    if num_planes is None:
+        num_planes = len(depth_hypotheses(calibration, zlo, zhi, max_step_px=STEP_PX))
+
+    # The band may reach past the calibrated range around a plane at its edge: a small, smooth
+    # extrapolation of the model, not worth a warning of its own (the plane's was given).
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", LfringWarning)
+        depth = estimate_depth(arr, calibration, zmin_m=zlo, zmax_m=zhi, num_planes=num_planes, reference=ref,
+                               backend=backend)
+        refocused = Refocuser(calibration, plane, reference=ref, view_shape=shape)(arr)
+    consistency = photo_consistency(arr, calibration, plane, reference=ref)
+    with np.errstate(invalid="ignore"):
+        plane_mask = consistency < consistency_threshold
+
+    n = len(depth.depths_m)
+    idx = depth.hypothesis_index
+    with np.errstate(invalid="ignore"):
+        in_band = np.isfinite(depth.depth_m) & (idx > 1.0) & (idx < n - 2.0)
+    in_roi = np.zeros(shape, bool)
+    if box is None:
+        in_roi[:] = True
+    else:
+        x, y, rw, rh = box
+        in_roi[y:y + rh, x:x + rw] = True
+    dev = (_target(plane, target) - depth.depth_m).astype(np.float32)
+    dev[~in_band] = np.nan
+    reliable = in_band & (depth.confidence >= min_confidence) & in_roi & np.isfinite(dev)
+    smooth = cv2.medianBlur(np.where(reliable, dev, 0.0).astype(np.float32), 5)
+    deviating = np.zeros(shape, bool)
+    defects = []
+    footprint_mm = _footprint_mm(device, calibration, plane)
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * opening_px + 1,) * 2) if opening_px else None
+    for sign in (1.0, -1.0):
+        m = (reliable & (sign * smooth > tol)).astype(np.uint8)
+        if kernel is not None:
+            m = cv2.morphologyEx(cv2.morphologyEx(m, cv2.MORPH_OPEN, kernel), cv2.MORPH_CLOSE, kernel)
+        count, labels, stats, cents = cv2.connectedComponentsWithStats(m, connectivity=8)
+        for j in range(1, count):
+            area = int(stats[j, cv2.CC_STAT_AREA])
+            if area < min_area_px:
+                continue
+            comp = labels == j
+            deviating |= comp
+            px = comp & reliable
+            vals = dev[px] if px.any() else smooth[comp]
+            d = float(np.percentile(np.abs(vals), percentile))
+            defects.append(Defect(
+                bbox_px=tuple(int(v) for v in stats[j, :4]),
+                centroid_px=(float(cents[j, 0]), float(cents[j, 1])),
+                area_px=area,
+                area_mm2=None if footprint_mm is None else area * footprint_mm**2,
+                deviation_m=sign * d,
+                kind="bump" if sign > 0 else "dent",
+                mean_confidence=float(depth.confidence[comp].mean()),
+            ))
+    defects.sort(key=lambda dd: -abs(dd.deviation_m))
+    roi_px = max(int(in_roi.sum()), 1)
+    settings = {
+        "plane_m": plane, "tolerance_m": tol, "roi_px": None if box is None else list(box),
+        "reference_depth": target is not None, "reference": ref, "zmin_m": zlo, "zmax_m": zhi, "num_planes": n,
+        "step_px": depth.step_px, "min_area_px": int(min_area_px), "min_confidence": float(min_confidence),
+        "percentile": float(percentile), "opening_px": int(opening_px),
+        "consistency_threshold": consistency_threshold, "pixel_footprint_mm": footprint_mm, "backend": backend,
+    }
+    stats = {
+        "reliable_fraction": float(reliable.sum() / roi_px),
+        "plane_fraction": float((plane_mask & in_roi).sum() / roi_px),
+        "out_of_band_fraction": float((~in_band & in_roi).sum() / roi_px),
+        "median_abs_deviation_m": float(np.median(np.abs(dev[reliable]))) if reliable.any() else None,
+    }
+    return InspectionResult(
+        passed=not defects, defects=tuple(defects), plane_mask=plane_mask, consistency=consistency, deviation_m=dev,
+        reliable=reliable, deviating=deviating, depth=depth, refocused=refocused, settings=settings, stats=stats,
+    )
+
+
+def _footprint_mm(device, calibration, depth_m: float) -> float | None:
+    """Side of one reference pixel on the plane at ``depth_m`` in mm, when the optics are known."""
+    if device is None:
+        return None
+    from lfring.optics.views import view_cameras
+
+    if (device.sensor_width_px, device.sensor_height_px) != tuple(calibration.raw_size):
+        raise InvalidInputError(
+            f"device is {device.sensor_width_px} x {device.sensor_height_px} px but the calibration is for "
+            f"{calibration.raw_size[0]} x {calibration.raw_size[1]} px frames; bin it to match (device.binned(k))"
+        )
+    cams = view_cameras(device)
+    return float(device.pixel_pitch_m * (depth_m - cams.depth_origin_m) / cams.focal_m * 1e3)
+
+
+# -- outputs --------------------------------------------------------------------------------------
+_BUMP_RGB = (255, 40, 40)
+_DENT_RGB = (40, 140, 255)
+_PLANE_RGB = (40, 220, 60)
+_ROI_RGB = (255, 220, 0)
+
+
+def _display(image: np.ndarray) -> np.ndarray:
+    """Linear float image -> uint8 RGB for viewing: stretched to its 99.5th percentile, gamma 2.2."""
+    img = np.asarray(image, dtype=np.float32)
+    if img.ndim == 3 and img.shape[2] == 1:
+        img = img[..., 0]
+    if img.ndim == 2:
+        img = np.repeat(img[..., None], 3, axis=2)
+    top = float(np.percentile(img, 99.5)) if img.size else 1.0
+    img = np.clip(img / max(top, 1e-6), 0.0, 1.0) ** (1 / 2.2)
+    return np.rint(img[..., :3] * 255).astype(np.uint8)
+
+
+def annotate(result: InspectionResult, *, tint: float = 0.35, scale: int = 1) -> np.ndarray:
+    """Draw an inspection: the refocused image, the working plane tinted green, the region of
+    interest in yellow, defect boxes (bumps red, dents blue) labelled with their number and
+    deviation in mm, and a PASS/FAIL banner.
+
+    Parameters
+    ----------
+    result : InspectionResult
+    tint : float in [0, 1]
+        Opacity of the plane's tint.
+    scale : int
+        Integer upscaling before drawing, for legible labels on small frames.
+
+    Returns
+    -------
+    (h * scale, w * scale, 3) uint8 RGB
+    """
+    if not 0 <= tint <= 1:
+        raise InvalidInputError(f"tint must be in [0, 1], got {tint!r}")
+    if isinstance(scale, bool) or not isinstance(scale, numbers.Integral) or scale < 1:
+        raise InvalidInputError(f"scale must be an integer >= 1, got {scale!r}")
+    img = _display(result.refocused).astype(np.float32)
+    m = result.plane_mask
+    img[m] = (1 - tint) * img[m] + tint * np.array(_PLANE_RGB, np.float32)
+    out = np.rint(img).astype(np.uint8)
+    if scale > 1:
+        out = cv2.resize(out, None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)
+    out = np.ascontiguousarray(out)
+    h, w = out.shape[:2]
+    thick = max(1, round(min(h, w) / 350))
+    font = 0.4 * max(1.0, min(h, w) / 500)
+    roi = result.settings.get("roi_px")
+    if roi:
+        x, y, rw, rh = (v * scale for v in roi)
+        cv2.rectangle(out, (x, y), (x + rw - 1, y + rh - 1), _ROI_RGB, thick)
+    for i, d in enumerate(result.defects, 1):
+        x, y, bw, bh = (v * scale for v in d.bbox_px)
+        colour = _BUMP_RGB if d.kind == "bump" else _DENT_RGB
+        cv2.rectangle(out, (x, y), (x + bw - 1, y + bh - 1), colour, thick)
+        label = f"{i} {d.kind} {d.deviation_m * 1e3:+.1f} mm"
+        ty = y - 4 if y > 20 else y + bh + int(14 * font / 0.4)
+        cv2.putText(out, label, (x, ty), cv2.FONT_HERSHEY_SIMPLEX, font, (0, 0, 0), thick + 2, cv2.LINE_AA)
+        cv2.putText(out, label, (x, ty), cv2.FONT_HERSHEY_SIMPLEX, font, colour, thick, cv2.LINE_AA)
+    s = result.settings
+    verdict = "PASS" if result.passed else f"FAIL: {len(result.defects)} defect(s)"
+    banner = f"{verdict}  plane {s['plane_m']:.3f} m  tolerance {s['tolerance_m'] * 1e3:.1f} mm"
+    cv2.putText(out, banner, (8, int(22 * font / 0.4)), cv2.FONT_HERSHEY_SIMPLEX, font * 1.2, (0, 0, 0), thick + 2, cv2.LINE_AA)
+    cv2.putText(out, banner, (8, int(22 * font / 0.4)), cv2.FONT_HERSHEY_SIMPLEX, font * 1.2,
+                _PLANE_RGB if result.passed else _BUMP_RGB, thick, cv2.LINE_AA)
+    return out
+
+
+def report(result: InspectionResult, **metadata) -> dict:
+    """The JSON-ready report of an inspection: verdict, settings, defects, statistics.
+
+    Keyword arguments (input file, calibration name...) are added under ``"input"``. Lengths
+    are in the units their keys name; a defect's ``max_deviation_mm`` is positive towards the
+    camera (bump) and negative away from it (dent); boxes are in reference-frame pixels.
+    """
+    return {
+        "passed": bool(result.passed),
+        "verdict": "pass" if result.passed else "fail",
+        "num_defects": len(result.defects),
+        "defects": [dict(id=i, **d.to_dict()) for i, d in enumerate(result.defects, 1)],
+        "settings": result.settings,
+        "stats": result.stats,
+        "input": metadata,
+        "conventions": {
+            "deviation": "target depth minus measured depth: positive towards the camera (bump), negative away (dent)",
+            "bbox_px": "x, y, w, h in pixels of the reference frame (x right, y down)",
+        },
+    }
+
+
+def write_report(result: InspectionResult, json_path, *, image_path=None, overwrite: bool = False, **metadata) -> list[Path]:
+    """Write the JSON report (and the annotated image when ``image_path`` is given), atomically.
+
+    Existing files are refused unless ``overwrite`` (checked before anything is written).
+    Returns the paths written.
+    """
+    from lfring.io.writers import check_writable, write_image, write_json
+
+    paths = [Path(json_path)] + ([Path(image_path)] if image_path is not None else [])
+    check_writable(paths, overwrite=overwrite)
+    for p in paths:
+        p.parent.mkdir(parents=True, exist_ok=True)
+    if image_path is not None:
+        write_image(image_path, annotate(result))
+    write_json(json_path, report(result, **metadata))
+    return paths

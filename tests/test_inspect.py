@@ -1,0 +1,219 @@
+"""Inspection at a working plane on rendered parts of the twin (2 x 2 binned, realistic noise, the
+shipped calibration): every planted bump and dent is found with its sign and size, good parts
+pass, and bad inputs are refused with the bad value named."""
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from lfring.calibration.defaults import default_calibration
+from lfring.errors import InvalidInputError, LfringWarning
+from lfring.inspect import Defect, InspectionResult, annotate, inspect_frame, report, write_report
+from lfring.io.demosaic import demosaic
+from lfring.io.raw import RawFrame
+from lfring.synth import render
+from lfring.synth.presets import part_scene
+from lfring.views import split_views
+
+PLANE, TOL = 0.3, 0.008
+
+
+def _truth_deviation(r, cal, plane_m):
+    """Plane minus true depth (+ towards the camera) in the central frame: each view's ground
+    truth carried by its plane homography (its rectangle may sit a pixel off the calibration's)."""
+    h, w = cal.layout.view_shape
+    acc, cnt = np.zeros((h, w)), np.zeros((h, w))
+    with np.errstate(invalid="ignore"):
+        for k, hk in enumerate(cal.homographies(plane_m)):
+            t = np.eye(3)
+            t[:2, 2] = np.subtract(r.layout.rects[k][:2], cal.layout.rects[k][:2])
+            z = r.depth_m[k]
+            ok = np.isfinite(z).astype(np.float32)
+            dev = np.where(np.isfinite(z), plane_m - z, 0).astype(np.float32)
+            wo = cv2.warpPerspective(ok, hk @ t, (w, h), flags=cv2.INTER_NEAREST)
+            acc += cv2.warpPerspective(dev, hk @ t, (w, h), flags=cv2.INTER_NEAREST) * wo
+            cnt += wo
+        return np.where(cnt > 0, acc / np.maximum(cnt, 1), np.nan)
+
+
+def _truth_defects(dev_m, tol_m):
+    """Planted defects: regions deviating by more than tol/2 (and less than 5 cm: not the belt)."""
+    out = []
+    d = np.nan_to_num(dev_m)
+    for sign in (1, -1):
+        m = (sign * d > tol_m / 2) & (np.abs(d) < 0.05)
+        n, lab, st, _ = cv2.connectedComponentsWithStats(m.astype(np.uint8))
+        out += [(tuple(st[j, :4]), float(sign * np.max(sign * d[lab == j]))) for j in range(1, n) if st[j, 4] >= 50]
+    return out
+
+
+def _overlap(a, b):
+    return a[0] < b[0] + b[2] and b[0] < a[0] + a[2] and a[1] < b[1] + b[3] and b[1] < a[1] + a[3]
+
+
+@pytest.fixture(scope="module")
+def parts(prototype):
+    """name -> (render, calibration, views, truth defects, inspection)."""
+    cal = default_calibration((2456, 1842))[0]
+    specs = {
+        "good": dict(defect_heights_m=(), seed=21),
+        "two": dict(defect_heights_m=(0.015, -0.013), defect_size_m=0.012, seed=22),
+        # 12.5 mm is 0.52 px of disparity between neighbouring views at 0.3 m.
+        "three": dict(defect_heights_m=(0.0125, -0.016, -0.0125), defect_size_m=0.0125, seed=23),
+    }
+    out = {}
+    for name, kw in specs.items():
+        r = render(prototype, part_scene(depth_m=PLANE, **kw), binning=2, noise="realistic", seed=kw["seed"])
+        frame = RawFrame(mosaic=r.raw, pattern="RGGB", black_level=r.black_level, white_level=r.white_level, bit_depth=12)
+        views = split_views(demosaic(frame), cal.layout)
+        res = inspect_frame(views, cal, plane_m=PLANE, tolerance_m=TOL, device=r.device)
+        out[name] = (r, cal, views, _truth_defects(_truth_deviation(r, cal, PLANE), TOL), res)
+    return out
+
+
+def test_good_part_passes(parts):
+    r, cal, views, truth, res = parts["good"]
+    assert truth == []
+    assert isinstance(res, InspectionResult) and res.passed and res.defects == ()
+    assert res.deviating.sum() == 0
+    # Good parts sit on the plane: the reliable deviations are small and unbiased.
+    assert abs(res.stats["median_abs_deviation_m"]) < 0.002
+    assert res.stats["reliable_fraction"] > 0.4
+
+
+@pytest.mark.parametrize("name", ["two", "three"])
+def test_every_planted_defect_is_found(parts, name):
+    r, cal, views, truth, res = parts[name]
+    assert len(truth) == len(r.scene.surfaces[0].bumps)
+    assert not res.passed and len(res.defects) == len(truth)  # no false defect either
+    for box, dev in truth:
+        hits = [d for d in res.defects if _overlap(d.bbox_px, box)]
+        assert len(hits) == 1, (box, res.defects)
+        d = hits[0]
+        assert np.sign(d.deviation_m) == np.sign(dev) and d.kind == ("bump" if dev > 0 else "dent")
+        assert abs(d.deviation_m - dev) < 0.003, (d.deviation_m, dev)  # within 3 mm of the truth
+        assert 0.8 < d.mean_confidence <= 1.0
+        # The box lies inside the truth's footprint (> tol/2) give or take the depth's smoothing.
+        x, y, w, h = d.bbox_px
+        assert box[0] - 4 <= x and x + w <= box[0] + box[2] + 4 and box[1] - 4 <= y and y + h <= box[1] + box[3] + 4
+
+
+def test_result_maps_and_areas(parts):
+    r, cal, views, truth, res = parts["two"]
+    shape = views.shape[1:3]
+    for m in (res.plane_mask, res.reliable, res.deviating):
+        assert m.dtype == bool and m.shape == shape
+    assert res.deviation_m.dtype == np.float32 and res.refocused.shape == (*shape, 3)
+    assert res.settings["zmin_m"] < PLANE < res.settings["zmax_m"]
+    # The plane is one of the hypotheses (a good part sits on one, not between two).
+    assert np.min(np.abs(res.depth.depths_m - PLANE)) < 1e-9
+    # A binned pixel covers about 0.14 mm at 0.3 m (the 80 mm part spans about 580 px); areas follow.
+    for d in res.defects:
+        assert isinstance(d, Defect)
+        assert d.area_mm2 == pytest.approx(d.area_px * res.settings["pixel_footprint_mm"] ** 2)
+    assert 0.12 < res.settings["pixel_footprint_mm"] < 0.16
+    # The working plane: mostly photo-consistent on the part, never on the belt 10 cm behind.
+    dev = _truth_deviation(r, cal, PLANE)
+    flat = np.abs(dev) < 1e-4
+    belt = dev < -0.05
+    assert res.plane_mask[flat].mean() > 0.6 and res.plane_mask[belt].mean() < 0.05
+
+
+def test_report_and_annotation(parts, tmp_path):
+    r, cal, views, truth, res = parts["two"]
+    rep = report(res, raw="part.png")
+    text = json.dumps(rep, allow_nan=False)  # plain JSON: no NaN, no NumPy types
+    back = json.loads(text)
+    assert back["passed"] is False and back["verdict"] == "fail" and back["num_defects"] == 2
+    d0 = back["defects"][0]
+    assert set(d0) == {"id", "kind", "bbox_px", "centroid_px", "area_px", "area_mm2", "max_deviation_mm", "mean_confidence"}
+    assert set(d0["bbox_px"]) == {"x", "y", "w", "h"}
+    assert abs(d0["max_deviation_mm"]) > TOL * 1e3
+    assert back["settings"]["tolerance_m"] == TOL and back["input"]["raw"] == "part.png"
+    img = annotate(res)
+    assert img.dtype == np.uint8 and img.shape == (*views.shape[1:3], 3)
+    x, y, w, h = res.defects[0].bbox_px
+    colour = (255, 40, 40) if res.defects[0].kind == "bump" else (40, 140, 255)
+    assert (img[y + h // 2, x] == colour).all()  # the box's left edge
+    paths = write_report(res, tmp_path / "r.json", image_path=tmp_path / "r.png")
+    assert [p.name for p in paths] == ["r.json", "r.png"] and (tmp_path / "r.png").read_bytes()[:4] == b"\x89PNG"
+    with pytest.raises(InvalidInputError, match="exists"):
+        write_report(res, tmp_path / "r.json")
+    write_report(res, tmp_path / "r.json", overwrite=True)
+
+
+def test_roi_and_reference_depth(parts):
+    r, cal, views, truth, res = parts["two"]
+    d = res.defects[0]
+    x, y, w, h = d.bbox_px
+    inside = (max(x - 20, 0), max(y - 20, 0), w + 40, h + 40)
+    only = inspect_frame(views, cal, plane_m=PLANE, tolerance_m=TOL, roi=inside)
+    assert len(only.defects) == 1 and only.defects[0].kind == d.kind and only.settings["roi_px"] == list(inside)
+    assert only.reliable[: inside[1]].sum() == 0  # nothing outside the ROI can raise an alarm
+    # Against its own depth map (a golden part with the same bumps) the part passes.
+    known = np.where(res.reliable, res.depth.depth_m, np.nan).astype(np.float32)  # NaN where unknown
+    golden = inspect_frame(views, cal, plane_m=PLANE, tolerance_m=TOL, reference_depth_m=known)
+    assert golden.passed and golden.settings["reference_depth"] is True
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        (dict(tolerance_m=0.0), "tolerance_m must be a positive"),
+        (dict(tolerance_m=-0.01), "tolerance_m must be a positive"),
+        (dict(tolerance_m=float("nan")), "tolerance_m must be a positive"),
+        (dict(tolerance_m=float("inf")), "tolerance_m"),
+        (dict(tolerance_m=True), "tolerance_m"),
+        (dict(plane_m=float("nan")), "plane_m"),
+        (dict(plane_m=0.01), "depth origin"),
+        (dict(roi=(600, 600, 200, 200)), r"roi \(x=600, y=600, w=200, h=200\) does not fit"),
+        (dict(roi=(0, 0, 10)), "four integers"),
+        (dict(roi=(0, 0, 0, 10)), "at least 1 px"),
+        (dict(roi=(-1, 0, 10, 10)), "does not fit"),
+        (dict(roi=(0.5, 0, 10, 10)), "four integers"),
+        (dict(reference_depth_m=np.full((10, 10), 0.3, np.float32)), r"shape \(h, w\) = \(705, 705\), got \(10, 10\)"),
+        (dict(reference_depth_m=np.full((705, 705), 0.001, np.float32)), "metres, not mm"),
+        (dict(reference_depth_m=np.full((705, 705), np.nan, np.float32)), "no finite depth"),
+        (dict(reference_depth_m=np.full((705, 705), 3, np.int32)), "float map"),
+        (dict(min_area_px=0), "min_area_px"),
+        (dict(min_confidence=1.5), "min_confidence"),
+        (dict(percentile=0), "percentile"),
+        (dict(zmin_m=0.31, zmax_m=0.4), "must contain the plane"),
+        (dict(zmin_m=0.25, zmax_m=0.29), "must contain the plane"),
+        (dict(num_planes=2), "num_planes"),
+        (dict(reference="left"), "reference"),
+        (dict(opening_px=-1), "opening_px"),
+    ],
+)
+def test_bad_inputs(parts, kwargs, match):
+    r, cal, views, *_ = parts["good"]
+    args = dict(plane_m=PLANE, tolerance_m=TOL) | kwargs
+    with pytest.raises(InvalidInputError, match=match):
+        inspect_frame(views, cal, **args)
+
+
+def test_bad_views_and_device(parts, prototype):
+    r, cal, views, *_ = parts["good"]
+    with pytest.raises(InvalidInputError, match="float32"):
+        inspect_frame(views.astype(np.float64), cal, plane_m=PLANE, tolerance_m=TOL)
+    with pytest.raises(InvalidInputError, match="layout cuts"):
+        inspect_frame(views[:, :-1], cal, plane_m=PLANE, tolerance_m=TOL)
+    with pytest.raises(InvalidInputError, match="bin it"):
+        inspect_frame(views, cal, plane_m=PLANE, tolerance_m=TOL, device=prototype)
+
+
+def test_reference_depth_in_millimetres(parts):
+    r, cal, views, *_ = parts["good"]
+    mm = np.full(views.shape[1:3], 300.0, np.float32)
+    with pytest.warns(LfringWarning, match="outside the calibrated range"):
+        with pytest.raises(InvalidInputError, match="reaches infinity"):
+            inspect_frame(views, cal, plane_m=PLANE, tolerance_m=TOL, reference_depth_m=mm)
+
+
+def test_plane_outside_calibrated_range_warns(parts):
+    r, cal, views, *_ = parts["good"]
+    lo, hi = cal.valid_depth_range_m
+    with pytest.warns(LfringWarning, match="outside the calibrated range"):
+        inspect_frame(views, cal, plane_m=hi + 0.2, tolerance_m=0.05, min_area_px=400)
