@@ -12,7 +12,7 @@ import numpy as np
 from lfring.backends import require_torch, resolve_device
 from lfring.errors import InvalidInputError
 
-__all__ = ["sweep_torch"]
+__all__ = ["fine_torch", "sweep_torch"]
 
 _CHUNK_BYTES = 1 << 30
 # Float32 images of the (V, h, w) size alive at once per hypothesis in the worst case (zncc):
@@ -250,3 +250,69 @@ def sweep_torch(lum, masks, hs, *, cost, aggregation, window_px, guide, exclude=
             torch.maximum(nviews, nv.amax(dim=0), out=nviews)
     out = (state["best"], state["c_prev"], state["c_next"], state["second"], nviews)
     return (state["best_i"].to(torch.int32).cpu().numpy(), *(x.cpu().numpy() for x in out))
+
+
+def fine_torch(lum, masks, maps, *, cost, aggregation, window_px, guide, device=None):
+    """:func:`lfring.depth.sweep._fine_numpy` with torch: the fine stage of the coarse-to-fine
+    sweep, each pixel's band of hypotheses sampled with ``grid_sample`` (bilinear, zeros outside).
+
+    Parameters
+    ----------
+    lum, masks : (V, h, w) float32
+    maps : lfring.depth.sweep._FineMaps
+        The per-pixel band (centre index, the views' translations per hypothesis).
+    cost, aggregation, window_px, guide, device
+        As :func:`sweep_torch`.
+
+    Returns
+    -------
+    aggs : (nb, h, w) float32
+        Aggregated cost of every band slot (inf where fewer than two views are valid).
+    nviews : (h, w) float32
+        The most views seen over the band.
+    """
+    torch = require_torch()
+    from lfring.depth.sweep import AGGREGATIONS, COSTS
+
+    if cost not in COSTS:
+        raise InvalidInputError(f"cost must be one of {', '.join(COSTS)}, got {cost!r}")
+    if aggregation not in AGGREGATIONS:
+        raise InvalidInputError(f"aggregation must be one of {', '.join(AGGREGATIONS)}, got {aggregation!r}")
+    lum = np.asarray(lum)
+    masks = np.asarray(masks)
+    v, h, w = lum.shape
+    if aggregation == "guided" and (guide is None or np.shape(guide) != (h, w)):
+        got = None if guide is None else np.shape(guide)
+        raise InvalidInputError(f"the guided aggregation needs a ({h}, {w}) guide image, got {got}")
+    dev = resolve_device(device)
+    box_cost = _Box(torch, (h, w), window_px, 1, dev)
+    guided = _Guided(torch, guide, window_px, _GUIDED_EPS, dev) if aggregation == "guided" else None
+    lum_t = torch.from_numpy(np.ascontiguousarray(lum, dtype=np.float32)).to(dev)
+    masks_t = torch.from_numpy(np.ascontiguousarray(masks, dtype=np.float32)).to(dev)
+    src = torch.stack([lum_t * masks_t, masks_t], dim=1)  # (V, 2, h, w)
+    center = torch.from_numpy(np.ascontiguousarray(maps.center, dtype=np.float32)).to(dev)
+    xx = torch.arange(w, dtype=torch.float32, device=dev)[None, :]
+    yy = torch.arange(h, dtype=torch.float32, device=dev)[:, None]
+    aggs = torch.empty((maps.nb, h, w), dtype=torch.float32, device=dev)
+    nviews = torch.zeros((h, w), dtype=torch.float32, device=dev)
+    with torch.no_grad():
+        for j in range(maps.nb):
+            off = j - maps.band
+            grids = []
+            for k in range(v):
+                tx0, ty0 = maps.t0[k] + off * maps.dt[k]
+                dtx, dty = (float(x) for x in maps.dt[k])
+                # Positions rounded to 1/32 px as cv2.remap does (its bilinear weights are fixed-point).
+                mx = torch.round((xx - float(tx0) - center * dtx) * 32.0) / 32.0
+                my = torch.round((yy - float(ty0) - center * dty) * 32.0) / 32.0
+                # align_corners=True: -1 and 1 are the centres of the first and last pixels.
+                grids.append(torch.stack([mx * (2.0 / max(w - 1, 1)) - 1.0, my * (2.0 / max(h - 1, 1)) - 1.0], dim=-1))
+            warped = torch.nn.functional.grid_sample(src, torch.stack(grids), mode="bilinear", padding_mode="zeros",
+                                                     align_corners=True)  # (V, 2, h, w)
+            cst, nv = _slice_cost(torch, warped[None, :, 0], warped[None, :, 1], cost, box_cost)
+            finite = (nv >= 1.5) & torch.isfinite(cst)
+            filled = torch.where(finite, cst, 1.0)
+            agg = guided(torch, filled) if guided is not None else box_cost(filled[:, None])[:, 0]
+            aggs[j] = torch.where(finite, agg, float("inf"))[0]
+            torch.maximum(nviews, nv[0], out=nviews)
+    return aggs.cpu().numpy(), nviews.cpu().numpy()

@@ -46,6 +46,19 @@ def test_parity_with_numpy(twin, cost, aggregation, reference):
     assert conf_ok >= 0.99, conf_ok
 
 
+@pytest.mark.parametrize("reference", [0, "center"])
+def test_parity_coarse_to_fine(twin, reference):
+    views, cal = twin
+    kw = dict(zmin_m=0.28, zmax_m=1.1, num_planes=12, reference=reference, coarse_to_fine=True)
+    ref = estimate_depth(views, cal, **kw)
+    got = estimate_depth(views, cal, backend="torch", device="cpu", **kw)
+    both, depth_ok, conf_ok = _agreement(ref, got)
+    assert np.array_equal(np.isfinite(got.depth_m), np.isfinite(ref.depth_m))
+    assert both.mean() > 0.5
+    assert depth_ok >= 0.99, depth_ok
+    assert conf_ok >= 0.99, conf_ok
+
+
 def test_parity_over_many_chunks(twin, monkeypatch):
     """Chunks of three hypotheses: the streamed bookkeeping carries over chunk boundaries."""
     views, cal = twin
