@@ -1,0 +1,127 @@
+"""``lfring inspect``: check a part against the working plane; exit 0 pass, 1 defects, 2 error."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import click
+
+from lfring.cli._options import load_views
+
+log = logging.getLogger("lfring.cli.inspect")
+
+
+def _parse_roi(ctx, param, text):
+    if text is None:
+        return None
+    parts = text.split(",")
+    try:
+        vals = tuple(int(p) for p in parts)
+    except ValueError:
+        raise click.BadParameter(f"expected X,Y,W,H as four integers in pixels, got {text!r}") from None
+    if len(vals) != 4:
+        raise click.BadParameter(f"expected X,Y,W,H (four integers in pixels), got {text!r}")
+    return vals
+
+
+def _read_depth(path: str):
+    """A float32 depth map in metres from a TIFF or PFM file."""
+    import numpy as np
+    import tifffile
+
+    from lfring.depth.io import read_pfm
+    from lfring.errors import FileFormatError, LfringFileNotFoundError
+
+    p = Path(path)
+    if not p.is_file():
+        raise LfringFileNotFoundError(f"reference depth file not found: {p}")
+    suffix = p.suffix.lower()
+    if suffix == ".pfm":
+        arr = read_pfm(p)
+    elif suffix in (".tif", ".tiff"):
+        try:
+            arr = tifffile.imread(p)
+        except (tifffile.TiffFileError, ValueError) as exc:
+            raise FileFormatError(f"{p}: not a readable TIFF ({exc})") from None
+    else:
+        raise FileFormatError(f"reference depth must be a .tiff/.tif or .pfm file in metres, got {p.name!r}")
+    if arr.ndim != 2 or not np.issubdtype(arr.dtype, np.floating):
+        raise FileFormatError(f"{p}: expected a single-channel float depth map in metres, got {arr.dtype} {arr.shape}")
+    return arr.astype(np.float32)
+
+
+@click.command("inspect")
+@click.argument("raw", type=click.Path(dir_okay=False))
+@click.option("--plane", type=float, required=True, metavar="M", help="Working plane [m from the main lens].")
+@click.option("--tolerance", type=float, required=True, metavar="M", help="Largest accepted deviation [m], e.g. 0.01.")
+@click.option("-o", "--output", "outdir", type=click.Path(file_okay=False), required=True, metavar="DIR", help="Output folder.")
+@click.option("--calib", type=click.Path(dir_okay=False), default=None, metavar="FILE",
+              help="Calibration JSON (default: the built-in one for the frame's size).")
+@click.option("--roi", callback=_parse_roi, default=None, metavar="X,Y,W,H",
+              help="Region of interest in pixels of the reference frame (default: the whole frame).")
+@click.option("--reference-depth", "reference_depth", type=click.Path(dir_okay=False), default=None, metavar="FILE",
+              help="Expected depth per pixel (float32 TIFF or PFM, metres, the reference frame) instead of the plane.")
+@click.option("--min-area", type=int, default=150, show_default=True, metavar="PX", help="Smallest defect [px].")
+@click.option("--min-confidence", type=float, default=0.6, show_default=True,
+              help="Less confident pixels (untextured, occluded) never raise an alarm.")
+@click.option("--zmin", type=float, default=None, metavar="M", help="Nearest depth searched (default: a band around the plane).")
+@click.option("--zmax", type=float, default=None, metavar="M", help="Farthest depth searched.")
+@click.option("--reference", default="center", show_default=True, metavar="center|0..3", help="Frame of the maps and boxes.")
+@click.option("--backend", type=click.Choice(["numpy", "torch"]), default="numpy", show_default=True, help="Plane-sweep backend.")
+@click.option("--device-file", "device_name", default=None, metavar="NAME|FILE",
+              help="Device description for areas in mm^2 (default: the calibration's, else prototype).")
+@click.option("--overwrite", is_flag=True, help="Replace existing output files.")
+@click.pass_context
+def command(ctx, raw, plane, tolerance, outdir, calib, roi, reference_depth, min_area, min_confidence, zmin, zmax, reference,
+            backend, device_name, overwrite):
+    """Check that the part in RAW lies on the working plane within the tolerance.
+
+    Writes DIR/<name>_inspect.png (refocused at the plane, the plane tinted green, defect boxes:
+    bumps red, dents blue) and DIR/<name>_inspect.json (verdict, settings, each defect's box in
+    reference-frame pixels, area in px and mm^2, maximum deviation in mm: + towards the camera,
+    - away). Exit code 0: pass; 1: defects found; 2: bad input or a failed step.
+    """
+    from lfring.errors import LfringError
+    from lfring.geometry import check_reference
+    from lfring.inspect import annotate, inspect_frame, report
+    from lfring.io.writers import check_writable, write_image, write_json
+    from lfring.optics.device import load_device
+
+    views, cal, cal_name = load_views(raw, calib)
+    ref = check_reference(reference, cal.num_views)
+    out = Path(outdir)
+    stem = Path(raw).stem
+    png, js = out / f"{stem}_inspect.png", out / f"{stem}_inspect.json"
+    check_writable([png, js], overwrite=overwrite)
+    target = _read_depth(reference_depth) if reference_depth else None
+    # The optics give areas in mm^2: the calibration's device, else the prototype, binned to
+    # the frame's size when that matches; without a match areas are left in pixels.
+    dev = None
+    try:
+        dev = load_device(device_name or cal.device or "prototype")
+        scale = dev.sensor_width_px // cal.raw_size[0]
+        dev = dev.binned(scale) if scale > 1 else dev
+        if (dev.sensor_width_px, dev.sensor_height_px) != tuple(cal.raw_size):
+            log.warning("no device description matches %d x %d px frames: defect areas in px only", *cal.raw_size)
+            dev = None
+    except LfringError:
+        if device_name:
+            raise
+        log.warning("the calibration's device %r is unknown: defect areas in px only", cal.device)
+    res = inspect_frame(views, cal, plane_m=plane, tolerance_m=tolerance, roi=roi, reference_depth_m=target,
+                        reference=ref, min_area_px=min_area, min_confidence=min_confidence, zmin_m=zmin, zmax_m=zmax,
+                        device=dev, backend=backend)
+    out.mkdir(parents=True, exist_ok=True)
+    write_image(png, annotate(res))
+    write_json(js, report(res, raw=str(raw), calibration=cal_name, reference_depth=reference_depth,
+                          annotated_image=str(png)))
+    for i, d in enumerate(res.defects, 1):
+        x, y, w, h = d.bbox_px
+        log.info("defect %d: %s %+.1f mm at x=%d y=%d (%d x %d px), %d px, confidence %.2f", i, d.kind, d.deviation_m * 1e3,
+                 x, y, w, h, d.area_px, d.mean_confidence)
+    verdict = "pass" if res.passed else f"fail ({len(res.defects)} defect{'s' if len(res.defects) != 1 else ''})"
+    log.info("%s: %s at %.3f m +- %.1f mm", raw, verdict, plane, tolerance * 1e3)
+    click.echo(f"{js}: {verdict}")
+    if not res.passed:
+        ctx.exit(1)

@@ -1,0 +1,113 @@
+"""``lfring inspect`` and examples/defect_check.py on the sample parts: exit 0 for the good part,
+1 for the part with a bump and a dent, 2 for bad input; outputs written atomically, never
+overwritten without --overwrite."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import lfring.cli.main as cli_main
+from lfring.depth.io import write_pfm
+
+ROOT = Path(__file__).resolve().parents[2]
+DATA = ROOT / "data" / "synthetic"
+GOOD, BAD = DATA / "part_good.png", DATA / "part_defects.png"
+
+
+@pytest.fixture(autouse=True)
+def registered(monkeypatch):
+    # Until lfring.cli.main lists the command (and after: setitem is then a no-op in effect).
+    monkeypatch.setitem(cli_main.COMMANDS, "inspect", "inspect")
+
+
+def _run(*args):
+    return cli_main.main(["inspect", *map(str, args)])
+
+
+def test_good_part_passes_and_defects_fail(tmp_path, capsys):
+    out = tmp_path / "report"
+    assert _run(GOOD, "--plane", "0.3", "--tolerance", "0.008", "-o", out) == 0
+    rep = json.loads((out / "part_good_inspect.json").read_text())
+    assert rep["passed"] is True and rep["verdict"] == "pass" and rep["defects"] == []
+    assert (out / "part_good_inspect.png").read_bytes()[:4] == b"\x89PNG"
+    assert "pass" in capsys.readouterr().out
+
+    assert _run(BAD, "--plane", "0.3", "--tolerance", "0.008", "-o", out) == 1
+    rep = json.loads((out / "part_defects_inspect.json").read_text())
+    assert rep["passed"] is False and rep["num_defects"] == 2
+    # The sample has a 15 mm bump and a 15 mm dent (domes: their peaks deviate most).
+    assert sorted(d["kind"] for d in rep["defects"]) == ["bump", "dent"]
+    for d in rep["defects"]:
+        assert 10 < abs(d["max_deviation_mm"]) < 17 and (d["max_deviation_mm"] > 0) == (d["kind"] == "bump")
+        assert d["area_px"] >= 150 and d["area_mm2"] > 1 and d["mean_confidence"] > 0.8
+        assert {"x", "y", "w", "h"} == set(d["bbox_px"])
+    s = rep["settings"]
+    assert s["plane_m"] == 0.3 and s["tolerance_m"] == 0.008 and s["zmin_m"] < 0.3 < s["zmax_m"] and s["roi_px"] is None
+    assert rep["input"]["calibration"] == "twin_binned2" and rep["input"]["raw"] == str(BAD)
+    assert "fail (2 defects)" in capsys.readouterr().out
+
+    # No overwrite without --overwrite (exit 2, nothing replaced); with it, an ROI around the
+    # first defect finds only that one.
+    before = (out / "part_defects_inspect.json").read_bytes()
+    assert _run(BAD, "--plane", "0.3", "--tolerance", "0.008", "-o", out) == 2
+    assert "exists" in capsys.readouterr().err and (out / "part_defects_inspect.json").read_bytes() == before
+    b = rep["defects"][0]["bbox_px"]
+    roi = f"{b['x'] - 10},{b['y'] - 10},{b['w'] + 20},{b['h'] + 20}"
+    assert _run(BAD, "--plane", "0.3", "--tolerance", "0.008", "--roi", roi, "--overwrite", "-o", out) == 1
+    rep2 = json.loads((out / "part_defects_inspect.json").read_text())
+    assert rep2["num_defects"] == 1 and rep2["defects"][0]["kind"] == rep["defects"][0]["kind"]
+
+
+@pytest.mark.parametrize(
+    "args, text",
+    [
+        (["--tolerance", "0"], "tolerance_m must be a positive"),
+        (["--tolerance", "nan"], "tolerance_m must be a positive"),
+        (["--tolerance", "-0.01"], "tolerance_m must be a positive"),
+        (["--tolerance", "0.01", "--roi", "600,600,200,200"], "roi (x=600, y=600, w=200, h=200) does not fit"),
+        (["--tolerance", "0.01", "--roi", "1,2,3"], "X,Y,W,H"),
+        (["--tolerance", "0.01", "--reference", "7"], "reference"),
+        (["--tolerance", "0.01", "--reference-depth", "missing.pfm"], "not found"),
+        (["--tolerance", "ten"], "not a valid float"),
+    ],
+)
+def test_bad_input_exits_2(tmp_path, capsys, args, text):
+    assert _run(GOOD, "--plane", "0.3", *args, "-o", tmp_path / "o") == 2
+    assert text in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+
+
+def test_reference_depth_file(tmp_path, capsys):
+    small = tmp_path / "small.pfm"
+    write_pfm(small, np.full((10, 12), 0.3, np.float32))
+    assert _run(GOOD, "--plane", "0.3", "--tolerance", "0.01", "--reference-depth", small, "-o", tmp_path / "o") == 2
+    assert "(h, w) = (705, 705), got (10, 12)" in capsys.readouterr().err
+    bad = tmp_path / "depth.txt"
+    bad.write_text("0.3")
+    assert _run(GOOD, "--plane", "0.3", "--tolerance", "0.01", "--reference-depth", bad, "-o", tmp_path / "o") == 2
+    assert ".tiff/.tif or .pfm" in capsys.readouterr().err
+
+
+def test_missing_raw_and_plane_warning(tmp_path, capsys):
+    assert _run(tmp_path / "nope.png", "--plane", "0.3", "--tolerance", "0.01", "-o", tmp_path / "o") == 2
+    assert "nope.png" in capsys.readouterr().err
+
+
+def test_defect_check_example(tmp_path):
+    """The example an engineer starts from: one line per part, non-zero exit when one fails."""
+    proc = subprocess.run(
+        [sys.executable, str(ROOT / "examples" / "defect_check.py"), str(GOOD), str(BAD), "--plane", "0.3",
+         "--tolerance", "0.008", "-o", str(tmp_path / "out")],
+        capture_output=True, text=True, timeout=300, cwd=ROOT,
+    )
+    assert proc.returncode == 1, proc.stderr
+    lines = proc.stdout.strip().splitlines()
+    assert lines[0].startswith("PASS") and "part_good.png" in lines[0]
+    assert lines[1].startswith("FAIL") and "part_defects.png" in lines[1] and "2 defects" in lines[1]
+    assert "1 of 2 parts failed" in lines[-1]
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == [
+        "part_defects_inspect.json", "part_defects_inspect.png", "part_good_inspect.json", "part_good_inspect.png"]
