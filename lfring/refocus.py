@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import warnings
 import weakref
+from concurrent.futures import ThreadPoolExecutor
 
 import cv2
 import numpy as np
@@ -48,13 +49,19 @@ _MASK_CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 def _cached_masks(calibration, view_shape, channels: int):
-    """(V, h, w) masks and the same repeated over ``channels`` (a list of (h, w[, C]))."""
+    """(V, h, w) masks, the same repeated over ``channels`` (a list of (h, w[, C])) and whether
+    every view is valid everywhere (all ones)."""
     per_cal = _MASK_CACHE.setdefault(calibration, {})
     key = (tuple(view_shape), channels)
     if key not in per_cal:
-        base = per_cal[(tuple(view_shape), 1)][0] if (tuple(view_shape), 1) in per_cal else view_masks(calibration, view_shape)
+        one = (tuple(view_shape), 1)
+        if one in per_cal:
+            base, _, all_valid = per_cal[one]
+        else:
+            base = view_masks(calibration, view_shape)
+            all_valid = bool(np.all(base == 1.0))
         rep = [m if channels == 1 else np.repeat(m[..., None], channels, axis=2) for m in base]
-        per_cal[key] = (base, rep)
+        per_cal[key] = (base, rep, all_valid)
     return per_cal[key]
 
 
@@ -78,6 +85,11 @@ def view_masks(calibration, view_shape, *, taper: float = TAPER) -> np.ndarray:
         t = np.clip((r + 0.5 - np.sqrt((xx - cx) ** 2 + (yy - cy) ** 2)) / max(taper * r, 1.0), 0.0, 1.0)
         out.append(0.5 - 0.5 * np.cos(np.pi * t))
     return np.stack(out).astype(np.float32)
+
+
+def _inverse_weight(weight: np.ndarray) -> np.ndarray:
+    """1 / weight where some view is valid (weight > 1e-3), else 0; float32."""
+    return np.where(weight > 1e-3, 1.0 / np.maximum(weight, 1e-3), 0.0).astype(np.float32)
 
 
 def _warp(src: np.ndarray, h: np.ndarray, size_wh, dst=None, *, interpolation: int = cv2.INTER_LINEAR) -> np.ndarray:
@@ -125,11 +137,202 @@ def warp_views(views, H_ref_from_view, *, masks=None, out_shape=None, interpolat
     return warped, weights
 
 
+# Views whose homography is a translation to within this many pixels over the whole reference
+# frame take the shift path (constant bilinear weights); others take the general warp.
+TRANSLATION_TOL_PX = 1e-3
+# Rows per strip of the shift path are chosen so that a strip's accumulator and its two scratch
+# buffers stay in a core's L2 cache: each view is then read from memory once, and the
+# intermediate images of the bilinear stencil never leave the cache.
+STRIP_BYTES = 640 * 1024
+
+_POOL = None
+
+
+def _pool(workers: int):
+    global _POOL
+    if _POOL is None or _POOL._max_workers < workers:
+        _POOL = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="lfring-refocus")
+    return _POOL
+
+
+def _translation_of(h: np.ndarray, out_shape, *, tol_px: float = TRANSLATION_TOL_PX):
+    """The shift ``s`` (x, y) such that reference pixel ``x`` samples view pixel ``x + s`` to
+    within ``tol_px`` everywhere in the reference frame of ``out_shape``, or None.
+
+    ``G = H^-1`` maps reference pixels to view pixels. With ``q(x) = g.x + 1`` its denominator
+    (positive over the frame, else None), ``G(x) - x - s = (L(x) - x (g.x)) / q(x)`` where ``L``
+    is affine, so ``|G(x) - x - s| <= (max|L| + max|x| max|g.x|) / min q`` with every maximum
+    and minimum taken at the frame's corners: a rigorous bound, not a sample.
+    """
+    try:
+        g = np.linalg.inv(np.asarray(h, dtype=np.float64))
+    except np.linalg.LinAlgError:
+        return None
+    if not np.all(np.isfinite(g)) or g[2, 2] == 0:
+        return None
+    g = g / g[2, 2]
+    rows, cols = out_shape
+    corners = np.array([[0, 0], [cols - 1, 0], [0, rows - 1], [cols - 1, rows - 1]], dtype=np.float64)
+    gx = corners @ g[2, :2]
+    q = gx + 1.0
+    if q.min() <= 0:
+        return None
+    centre = np.array([(cols - 1) / 2, (rows - 1) / 2])
+    s = (g[:2, :2] @ centre + g[:2, 2]) / (g[2, :2] @ centre + 1.0) - centre
+    lin = corners @ (g[:2, :2] - np.eye(2) - np.outer(s, g[2, :2])).T + (g[:2, 2] - s)
+    bound = (np.abs(lin).max(axis=0) + corners.max(axis=0) * np.abs(gx).max()) / q.min()
+    return s if bound.max() <= tol_px else None
+
+
+def _edge_weights(shift: float, n: int) -> np.ndarray:
+    """(n,) bilinear weight of a zero-padded line of ones shifted by ``shift``: what warping an
+    all-valid view gives along one axis (1 inside, the fraction at the two edge pixels)."""
+    i = int(np.floor(shift))
+    f = shift - i
+    pos = np.arange(n) + i  # the line's pixel under the first tap
+    return (np.where((pos >= 0) & (pos < n), 1.0 - f, 0.0) + np.where((pos + 1 >= 0) & (pos + 1 < n), f, 0.0))
+
+
+class _ShiftPlan:
+    """Refocus by pure shifts: bilinear resampling with constant weights, fused in row strips.
+
+    Reference pixel (x, y) of view k is ``(1-fy) [(1-fx) v(y', x') + fx v(y', x'+1)] + fy [...
+    row y'+1 ...]`` with ``x' = x + ix``, ``y' = y + iy`` and the views zero outside (as
+    ``cv2.warpAffine`` with a constant border). Per strip of output rows and per view: one
+    vertical two-tap pass reads the view's rows from memory into a cache-resident buffer (with
+    a zero column on either side, so the horizontal edges need no special case), one
+    horizontal two-tap pass and one add accumulate it; then the strip is normalised. Strips
+    are shared among OpenCV's number of threads (the calls release the GIL).
+    """
+
+    def __init__(self, shifts: np.ndarray, view_shape, masks=None):
+        h, w = view_shape
+        self.view_shape = (h, w)
+        self.masks = masks  # (V, h, w) or None when every view is valid everywhere
+        ints = np.floor(shifts).astype(int)
+        self.geometry = [(int(ix), int(iy), float(sx - ix), float(sy - iy))
+                         for (sx, sy), (ix, iy) in zip(shifts, ints)]
+        self._strips: dict[int, list] = {}
+        self._inv_bands = None
+
+    # -- geometry ------------------------------------------------------------------------
+    def strips(self, rows: int) -> list:
+        """Per strip of ``rows`` output rows, per view touching it, the slices it needs."""
+        if rows not in self._strips:
+            h, w = self.view_shape
+            plan = []
+            for s0 in range(0, h, rows):
+                s1 = min(s0 + rows, h)
+                ops = []
+                for k, (ix, iy, fx, fy) in enumerate(self.geometry):
+                    # Output pixels whose taps touch the view: x + ix in [-1, w - 1].
+                    x0, x1 = max(0, -ix - 1), min(w, w - ix)
+                    y0, y1 = max(s0, -iy - 1), min(s1, h - iy)
+                    if x0 >= x1 or y0 >= y1:
+                        continue
+                    c0, c1 = max(0, x0 + ix), min(w, x1 + ix + 1)  # view columns read
+                    r0, r1 = max(0, y0 + iy), min(h, y1 + iy + 1)  # view rows read
+                    b0, b1 = max(y0, -iy), min(y1, h - 1 - iy)  # output rows with both taps inside
+                    ops.append((k, x0, x1, c0, c1, r0, r1, y0, y1, b0, b1, ix, iy, fx, fy))
+                plan.append((s0, s1, ops))
+            self._strips[rows] = plan
+        return self._strips[rows]
+
+    def inv_bands(self):
+        """Normalisation of an all-valid plan: the weight is ``sum_k wy_k(y) wx_k(x)``, so rows
+        fall into bands with one (w,) row each: [(y0, y1, weight_row, inverse_row)]."""
+        if self._inv_bands is None:
+            h, w = self.view_shape
+            wy = np.array([_edge_weights(iy + fy, h) for ix, iy, fx, fy in self.geometry])
+            wx = np.array([_edge_weights(ix + fx, w) for ix, iy, fx, fy in self.geometry])
+            starts = [0, *(np.flatnonzero(np.any(wy[:, 1:] != wy[:, :-1], axis=0)) + 1), h]
+            bands = []
+            for y0, y1 in zip(starts[:-1], starts[1:]):
+                weight = (wy[:, y0] @ wx).astype(np.float32)
+                bands.append((y0, y1, weight, _inverse_weight(weight)))
+            self._inv_bands = bands
+        return self._inv_bands
+
+    # -- per frame -----------------------------------------------------------------------
+    def run(self, views: np.ndarray, out: np.ndarray, *, masks3=None, inv=None, inv_bands=None, threads: int = 1):
+        """Accumulate the shifted views into ``out`` (h, w[, C]) and normalise it by ``inv``
+        (a map like ``out``) or ``inv_bands`` (per band of rows, a (w[, C]) row), if given."""
+        h, w = self.view_shape
+        tail = out.shape[2:]
+        rows = max(8, min(h, STRIP_BYTES // (3 * (w + 2) * out.itemsize * max(1, int(np.prod(tail))))))
+        plan = self.strips(rows)
+        threads = max(1, min(threads, len(plan)))
+        chunks = [plan[i * len(plan) // threads:(i + 1) * len(plan) // threads] for i in range(threads)]
+
+        def work(chunk):
+            tv = np.zeros((rows, w + 2, *tail), np.float32)  # the zero pad columns stay zero
+            th = np.empty((rows, w, *tail), np.float32)
+            tm = None if masks3 is None else np.empty((rows + 1, w, *tail), np.float32)
+            for s0, s1, ops in chunk:
+                self._strip(views, out, s0, s1, ops, tv, th, tm, masks3)
+                acc = out[s0:s1]
+                if inv is not None:
+                    cv2.multiply(acc, inv[s0:s1], dst=acc)
+                elif inv_bands is not None:
+                    for y0, y1, row in inv_bands:
+                        a, b = max(y0, s0), min(y1, s1)
+                        if a < b:
+                            np.multiply(out[a:b], row, out=out[a:b])
+
+        if threads == 1:
+            work(chunks[0])
+        else:
+            futures = [_pool(threads - 1).submit(work, c) for c in chunks[1:]]
+            work(chunks[0])
+            for f in futures:
+                f.result()
+        return out
+
+    def _strip(self, views, out, s0, s1, ops, tv, th, tm, masks3):
+        h, w = self.view_shape
+        n = s1 - s0
+        acc = out[s0:s1]
+        first = True
+        for k, x0, x1, c0, c1, r0, r1, y0, y1, b0, b1, ix, iy, fx, fy in ops:
+            if masks3 is None:
+                src, roff = views[k, :, c0:c1], 0
+            else:
+                src, roff = tm[: r1 - r0, : c1 - c0], r0
+                cv2.multiply(views[k, r0:r1, c0:c1], masks3[k][r0:r1, c0:c1], dst=src)
+            cols = slice(c0 + 1, c1 + 1)
+            if y0 > s0:
+                tv[: y0 - s0, cols] = 0
+            if y1 < s1:
+                tv[y1 - s0 : n, cols] = 0
+            if b0 > y0:  # the view's first row under the second tap only
+                np.multiply(src[0], np.float32(fy), out=tv[y0 - s0, cols])
+            if b1 > b0:
+                cv2.addWeighted(src[b0 + iy - roff : b1 + iy - roff], 1.0 - fy, src[b0 + iy + 1 - roff : b1 + iy + 1 - roff],
+                                fy, 0.0, dst=tv[b0 - s0 : b1 - s0, cols])
+            if y1 > b1:  # the view's last row under the first tap only
+                np.multiply(src[h - 1 - roff], np.float32(1.0 - fy), out=tv[b1 - s0, cols])
+            a, m = x0 + ix + 1, x1 - x0
+            if first:
+                if x0 > 0:
+                    acc[:, :x0] = 0
+                if x1 < w:
+                    acc[:, x1:] = 0
+                cv2.addWeighted(tv[:n, a : a + m], 1.0 - fx, tv[:n, a + 1 : a + 1 + m], fx, 0.0, dst=acc[:, x0:x1])
+                first = False
+            else:
+                t = th[:n, :m]
+                cv2.addWeighted(tv[:n, a : a + m], 1.0 - fx, tv[:n, a + 1 : a + 1 + m], fx, 0.0, dst=t)
+                d = acc[:, x0:x1]
+                cv2.add(d, t, dst=d)
+        if first:
+            acc[...] = 0
+
+
 class Refocuser:
     """Refocus many frames at one depth: warps, masks and normalisation are computed once.
 
     An inspection line refocuses thousands of frames at one depth; this does the geometry
-    once and leaves each frame with one masking multiply, one warp and one add per view.
+    once and leaves each frame with the resampling and one normalisation.
 
     Parameters
     ----------
@@ -142,6 +345,17 @@ class Refocuser:
     interpolation : {'linear', 'cubic'}
         Bilinear is fastest; bicubic keeps more detail and its smoothing depends less on the
         sub-pixel phase of each view's shift.
+    threads : int, optional
+        Threads for the shift path (default: OpenCV's, ``cv2.getNumThreads()``).
+
+    Notes
+    -----
+    When every view's ``H_ref_from_view`` is a translation to within ``TRANSLATION_TOL_PX``
+    (1e-3 px) over the whole reference frame, as for a ring whose views are parallel pinhole
+    cameras of one focal length, bilinear resampling has the same four weights at every pixel:
+    the views are then shifted and accumulated strip by strip in the cache (``shift_path`` is
+    True). Otherwise every view goes through ``cv2.warpAffine`` / ``cv2.warpPerspective``.
+    Both give the same image to float32 rounding.
 
     Examples
     --------
@@ -155,35 +369,63 @@ class Refocuser:
     ((705, 705, 3), 0.5)
     """
 
-    def __init__(self, calibration, depth_m: float, *, reference="center", view_shape=None, interpolation: str = "linear"):
+    def __init__(self, calibration, depth_m: float, *, reference="center", view_shape=None, interpolation: str = "linear",
+                 threads: int | None = None):
         if np.ndim(depth_m) != 0:
             raise InvalidInputError("Refocuser takes one depth; use focal_stack for several")
+        if threads is not None and (isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 1):
+            raise InvalidInputError(f"threads must be a positive integer or None, got {threads!r}")
         self.depth_m = float(depth_m)
         self.reference = reference
         self._flag = _interp(interpolation)
         self.view_shape = tuple(view_shape or calibration.layout.view_shape)
+        self.threads = threads
         self.H = calibration.homographies(self.depth_m, reference=reference)
         self._calibration = calibration
-        self.masks = _cached_masks(calibration, self.view_shape, 1)[0]
-        self._all_valid = bool(np.all(self.masks == 1.0))
-        h, w = self.view_shape
-        weight = np.zeros((h, w), np.float32)
-        for k in range(len(self.H)):
-            weight += _warp(self.masks[k], self.H[k], (w, h))
-        #: (h, w) number of views that see each reference pixel (fractional at edges).
-        self.weight = weight
-        self._inv = np.where(weight > 1e-3, 1.0 / np.maximum(weight, 1e-3), 0.0).astype(np.float32)
+        self.masks, _, self._all_valid = _cached_masks(calibration, self.view_shape, 1)
+        self._shift = None
+        if self._flag == cv2.INTER_LINEAR:
+            shifts = [_translation_of(hk, self.view_shape) for hk in self.H]
+            if all(s is not None for s in shifts):
+                self._shift = _ShiftPlan(np.array(shifts), self.view_shape, None if self._all_valid else self.masks)
+        self._weight = None
+        self._inv = None
         self._cache: dict[int, tuple] = {}
 
-    def _buffers(self, c: int):
-        """Per channel count: the normalisation and masks shaped like a view, and two scratch
-        buffers, made once and reused for every frame."""
-        if c not in self._cache:
+    @property
+    def shift_path(self) -> bool:
+        """Whether frames take the shift path (every homography a translation)."""
+        return self._shift is not None
+
+    @property
+    def weight(self) -> np.ndarray:
+        """(h, w) number of views that see each reference pixel (fractional at edges)."""
+        if self._weight is None:
             h, w = self.view_shape
-            shape = (h, w) if c == 1 else (h, w, c)
-            inv = self._inv if c == 1 else cv2.merge([self._inv] * c)
+            weight = np.zeros((h, w), np.float32)
+            if self._shift is not None and self._all_valid:
+                for y0, y1, row, _ in self._shift.inv_bands():
+                    weight[y0:y1] = row
+            elif self._shift is not None:
+                self._shift.run(self.masks, weight)
+            else:
+                for k in range(len(self.H)):
+                    weight += _warp(self.masks[k], self.H[k], (w, h))
+            self._weight = weight
+        return self._weight
+
+    def _buffers(self, c: int):
+        """Per channel count: the normalisation (a map like the result, or per band of rows one
+        row) and the masks shaped like a view, made once and reused for every frame."""
+        if c not in self._cache:
             masks = None if self._all_valid else _cached_masks(self._calibration, self.view_shape, c)[1]
-            self._cache[c] = (inv, masks, np.empty(shape, np.float32), np.empty(shape, np.float32))
+            if self._shift is not None and self._all_valid:
+                inv = [(y0, y1, row if c == 1 else np.repeat(row[:, None], c, axis=1)) for y0, y1, _, row in self._shift.inv_bands()]
+            else:
+                if self._inv is None:
+                    self._inv = _inverse_weight(self.weight)
+                inv = self._inv if c == 1 else cv2.merge([self._inv] * c)
+            self._cache[c] = (inv, masks)
         return self._cache[c]
 
     def __call__(self, views) -> np.ndarray:
@@ -192,9 +434,19 @@ class Refocuser:
         if arr.shape[1:3] != self.view_shape or arr.shape[0] != len(self.H):
             raise InvalidInputError(f"expected {len(self.H)} views of {self.view_shape[1]} x {self.view_shape[0]} px, got shape {arr.shape}")
         c = arr.shape[3]
-        inv, masks, tmp, masked = self._buffers(c)
+        inv, masks = self._buffers(c)
         h, w = self.view_shape
-        src = arr[..., 0] if c == 1 else arr
+        src = np.ascontiguousarray(arr[..., 0] if c == 1 else arr)
+        if self._shift is not None:
+            out = np.empty((h, w) if c == 1 else (h, w, c), np.float32)
+            threads = cv2.getNumThreads() if self.threads is None else self.threads
+            if masks is None:
+                self._shift.run(src, out, inv_bands=inv, threads=threads)
+            else:
+                self._shift.run(src, out, masks3=masks, inv=inv, threads=threads)
+            return out[..., None] if c == 1 else out
+        shape = (h, w) if c == 1 else (h, w, c)
+        tmp, masked = np.empty(shape, np.float32), np.empty(shape, np.float32)
         acc = None
         for k in range(len(self.H)):
             if masks is None:
