@@ -334,3 +334,12 @@ def test_dask_missing_says_how_to_install(frames, tmp_path, monkeypatch):
         run_batch([str(d / "scene.png")], tmp_path / "o", BatchSettings(refocus_m=(0.5,), calibration=_load(cal_path)),
                   executor="dask")
     assert not (tmp_path / "o" / "scene_refocus_0.5m.png").exists()
+
+
+def test_progress_bar_shows_rate_and_eta(frames, tmp_path, capsys):
+    d, cal_path = frames
+    rep = run_batch([str(d / "scene.png"), str(d / "part.png")], tmp_path / "o",
+                    BatchSettings(refocus_m=(0.5,), calibration=_load(cal_path)), workers=1, progress=True)
+    assert rep.exit_code == 0
+    err = capsys.readouterr().err
+    assert "lfring batch" in err and "2/2" in err and "frame/s" in err and "<00:00" in err
