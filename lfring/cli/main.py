@@ -18,6 +18,7 @@ COMMANDS = {
     "calibrate": "calibrate",
     "depth": "depth",
     "design": "design",
+    "inspect": "inspect",
     "raytrace": "raytrace",
     "refocus": "refocus",
     "split": "split",
