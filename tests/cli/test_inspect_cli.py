@@ -92,7 +92,7 @@ def test_reference_depth_file(tmp_path, capsys):
     assert ".tiff/.tif or .pfm" in capsys.readouterr().err
 
 
-def test_missing_raw_and_plane_warning(tmp_path, capsys):
+def test_missing_raw(tmp_path, capsys):
     assert _run(tmp_path / "nope.png", "--plane", "0.3", "--tolerance", "0.01", "-o", tmp_path / "o") == 2
     assert "nope.png" in capsys.readouterr().err
 
