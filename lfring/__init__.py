@@ -1,7 +1,8 @@
 """lfring: light-field processing for a camera fitted with a ring of four mini-lenses.
 
 The pipeline: ``load_raw`` -> ``demosaic`` -> ``detect_layout`` / ``split_views`` -> views
-(V, h, w, C) -> ``calibrate`` / ``RingCalibration`` -> ``refocus`` / ``estimate_depth``. The optics (device design, ray tracing, the views' exact geometry) live in
+(V, h, w, C) -> ``calibrate`` / ``RingCalibration`` -> ``refocus`` / ``estimate_depth`` -> ``inspect_frame`` /
+:mod:`lfring.batch`. The optics (device design, ray tracing, the views' exact geometry) live in
 :mod:`lfring.optics`, the synthetic twin in :mod:`lfring.synth`.
 
 Importing lfring never imports torch; the torch/kornia paths load on first use.
@@ -19,6 +20,7 @@ from lfring.errors import (
 from lfring.calibration import RingCalibration, calibrate
 from lfring.depth import DepthResult, estimate_depth
 from lfring.io.demosaic import demosaic
+from lfring.inspect import Defect, InspectionResult, inspect_frame
 from lfring.io.raw import RawFrame, load_raw
 from lfring.refocus import Refocuser, all_in_focus, focal_stack, refocus
 from lfring.views import Layout, detect_layout, split_views
@@ -26,11 +28,13 @@ from lfring.views import Layout, detect_layout, split_views
 __version__ = "0.1.0"
 
 __all__ = [
+    "Defect",
     "DepthResult",
     "DesignError",
     "DeviceError",
     "EstimationError",
     "FileFormatError",
+    "InspectionResult",
     "InvalidInputError",
     "Layout",
     "LfringError",
@@ -45,6 +49,7 @@ __all__ = [
     "detect_layout",
     "estimate_depth",
     "focal_stack",
+    "inspect_frame",
     "load_raw",
     "refocus",
     "split_views",
