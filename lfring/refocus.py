@@ -209,6 +209,7 @@ class _ShiftPlan:
         h, w = view_shape
         self.view_shape = (h, w)
         self.masks = masks  # (V, h, w) or None when every view is valid everywhere
+        self.shifts = np.asarray(shifts, dtype=np.float64)
         ints = np.floor(shifts).astype(int)
         self.geometry = [(int(ix), int(iy), float(sx - ix), float(sy - iy))
                          for (sx, sy), (ix, iy) in zip(shifts, ints)]
@@ -217,24 +218,52 @@ class _ShiftPlan:
 
     # -- geometry ------------------------------------------------------------------------
     def strips(self, rows: int) -> list:
-        """Per strip of ``rows`` output rows, per view touching it, the slices it needs."""
+        """Per strip of ``rows`` output rows: (s0, s1, steps, bands), ``steps`` per view
+        touching the strip (its slices made here, once, so a frame only applies them) and
+        ``bands`` the row bands of the all-valid normalisation within the strip."""
         if rows not in self._strips:
             h, w = self.view_shape
+            masked = self.masks is not None
+            per_view = []  # what does not depend on the strip
+            for k, (ix, iy, fx, fy) in enumerate(self.geometry):
+                # Output pixels whose taps touch the view: x + ix in [-1, w - 1].
+                x0, x1 = max(0, -ix - 1), min(w, w - ix)
+                if x0 >= x1:
+                    continue
+                c0, c1 = max(0, x0 + ix), min(w, x1 + ix + 1)  # view columns read
+                a, m = x0 + ix + 1, x1 - x0
+                # Columns of the source: the view itself, or its masked rows in scratch.
+                cs = slice(0, c1 - c0) if masked else slice(c0, c1)
+                per_view.append((k, ix, iy, np.float32(fy), np.float32(1.0 - fy), fx, c0, c1, slice(c0, c1), slice(0, c1 - c0),
+                                 cs, slice(c0 + 1, c1 + 1), slice(a, a + m), slice(a + 1, a + 1 + m), slice(0, m), slice(x0, x1),
+                                 [slice(0, x0)] * (x0 > 0) + [slice(x1, w)] * (x1 < w)))
+            bands = self.inv_bands() if not masked else []
             plan = []
             for s0 in range(0, h, rows):
                 s1 = min(s0 + rows, h)
-                ops = []
-                for k, (ix, iy, fx, fy) in enumerate(self.geometry):
-                    # Output pixels whose taps touch the view: x + ix in [-1, w - 1].
-                    x0, x1 = max(0, -ix - 1), min(w, w - ix)
+                n = s1 - s0
+                out_rows, strip_rows = slice(s0, s1), slice(0, n)
+                steps = []
+                for k, ix, iy, fy, gy, fx, c0, c1, vcols, tcols, cs, cols, ha, hb, hm, dcols, clear in per_view:
                     y0, y1 = max(s0, -iy - 1), min(s1, h - iy)
-                    if x0 >= x1 or y0 >= y1:
+                    if y0 >= y1:
                         continue
-                    c0, c1 = max(0, x0 + ix), min(w, x1 + ix + 1)  # view columns read
                     r0, r1 = max(0, y0 + iy), min(h, y1 + iy + 1)  # view rows read
                     b0, b1 = max(y0, -iy), min(y1, h - 1 - iy)  # output rows with both taps inside
-                    ops.append((k, x0, x1, c0, c1, r0, r1, y0, y1, b0, b1, ix, iy, fx, fy))
-                plan.append((s0, s1, ops))
+                    ro = r0 if masked else 0  # the source's first row
+                    zeros = [(slice(0, y0 - s0), cols)] if y0 > s0 else []
+                    if y1 < s1:
+                        zeros.append((slice(y1 - s0, n), cols))
+                    # The view's first row under the second tap only; its last under the first only.
+                    top = ((0 - ro, cs), fy, (y0 - s0, cols)) if b0 > y0 else None
+                    bottom = ((h - 1 - ro, cs), gy, (b1 - s0, cols)) if y1 > b1 else None
+                    both = (((slice(b0 + iy - ro, b1 + iy - ro), cs), 1.0 - fy, (slice(b0 + iy + 1 - ro, b1 + iy + 1 - ro), cs),
+                             float(fy), (slice(b0 - s0, b1 - s0), cols)) if b1 > b0 else None)
+                    steps.append((k, (slice(r0, r1), vcols), (slice(0, r1 - r0), tcols), zeros, top, both, bottom,
+                                  ((strip_rows, ha), 1.0 - fx, (strip_rows, hb), fx), (strip_rows, hm), (out_rows, dcols),
+                                  [(out_rows, c) for c in clear]))
+                strip_bands = [(slice(max(y0, s0), min(y1, s1)), i) for i, (y0, y1, _, _) in enumerate(bands) if y0 < s1 and s0 < y1]
+                plan.append((s0, s1, steps, strip_bands))
             self._strips[rows] = plan
         return self._strips[rows]
 
@@ -254,30 +283,55 @@ class _ShiftPlan:
         return self._inv_bands
 
     # -- per frame -----------------------------------------------------------------------
-    def run(self, views: np.ndarray, out: np.ndarray, *, masks3=None, inv=None, inv_bands=None, threads: int = 1):
-        """Accumulate the shifted views into ``out`` (h, w[, C]) and normalise it by ``inv``
-        (a map like ``out``) or ``inv_bands`` (per band of rows, a (w[, C]) row), if given."""
+    def run(self, views: np.ndarray, out: np.ndarray, *, masks3=None, inv=None, inv_rows=None, threads: int = 1):
+        """Accumulate the shifted views (V, h, w[, C]) into ``out`` (h, w[, C]) and normalise it
+        by ``inv`` (a map like ``out``) or, for an all-valid plan, ``inv_rows`` (the inverse row
+        of every band of :meth:`inv_bands`, shaped (w[, C])), if given. ``masks3``: the masks
+        shaped like the views, when the plan has masks."""
         h, w = self.view_shape
         tail = out.shape[2:]
         rows = max(8, min(h, STRIP_BYTES // (3 * (w + 2) * out.itemsize * max(1, int(np.prod(tail))))))
         plan = self.strips(rows)
         threads = max(1, min(threads, len(plan)))
         chunks = [plan[i * len(plan) // threads:(i + 1) * len(plan) // threads] for i in range(threads)]
+        add, weighted, multiply = cv2.add, cv2.addWeighted, cv2.multiply
 
         def work(chunk):
             tv = np.zeros((rows, w + 2, *tail), np.float32)  # the zero pad columns stay zero
             th = np.empty((rows, w, *tail), np.float32)
             tm = None if masks3 is None else np.empty((rows + 1, w, *tail), np.float32)
-            for s0, s1, ops in chunk:
-                self._strip(views, out, s0, s1, ops, tv, th, tm, masks3)
+            for s0, s1, steps, bands in chunk:
                 acc = out[s0:s1]
+                for i, (k, vsl, tsl, zeros, top, both, bottom, hz, hsl, dst, clear) in enumerate(steps):
+                    if masks3 is None:
+                        src = views[k]
+                    else:
+                        src = tm[tsl]
+                        multiply(views[k][vsl], masks3[k][vsl], dst=src)
+                    for z in zeros:
+                        tv[z] = 0
+                    if top is not None:
+                        np.multiply(src[top[0]], top[1], out=tv[top[2]])
+                    if both is not None:
+                        weighted(src[both[0]], both[1], src[both[2]], both[3], 0.0, dst=tv[both[4]])
+                    if bottom is not None:
+                        np.multiply(src[bottom[0]], bottom[1], out=tv[bottom[2]])
+                    if i == 0:  # the first view goes straight into the result
+                        for c in clear:
+                            out[c] = 0
+                        weighted(tv[hz[0]], hz[1], tv[hz[2]], hz[3], 0.0, dst=out[dst])
+                    else:
+                        t = th[hsl]
+                        weighted(tv[hz[0]], hz[1], tv[hz[2]], hz[3], 0.0, dst=t)
+                        d = out[dst]
+                        add(d, t, dst=d)
+                if not steps:
+                    acc[...] = 0
                 if inv is not None:
-                    cv2.multiply(acc, inv[s0:s1], dst=acc)
-                elif inv_bands is not None:
-                    for y0, y1, row in inv_bands:
-                        a, b = max(y0, s0), min(y1, s1)
-                        if a < b:
-                            np.multiply(out[a:b], row, out=out[a:b])
+                    multiply(acc, inv[s0:s1], dst=acc)
+                elif inv_rows is not None:
+                    for sl, i in bands:
+                        np.multiply(out[sl], inv_rows[i], out=out[sl])
 
         if threads == 1:
             work(chunks[0])
@@ -287,45 +341,6 @@ class _ShiftPlan:
             for f in futures:
                 f.result()
         return out
-
-    def _strip(self, views, out, s0, s1, ops, tv, th, tm, masks3):
-        h, w = self.view_shape
-        n = s1 - s0
-        acc = out[s0:s1]
-        first = True
-        for k, x0, x1, c0, c1, r0, r1, y0, y1, b0, b1, ix, iy, fx, fy in ops:
-            if masks3 is None:
-                src, roff = views[k, :, c0:c1], 0
-            else:
-                src, roff = tm[: r1 - r0, : c1 - c0], r0
-                cv2.multiply(views[k, r0:r1, c0:c1], masks3[k][r0:r1, c0:c1], dst=src)
-            cols = slice(c0 + 1, c1 + 1)
-            if y0 > s0:
-                tv[: y0 - s0, cols] = 0
-            if y1 < s1:
-                tv[y1 - s0 : n, cols] = 0
-            if b0 > y0:  # the view's first row under the second tap only
-                np.multiply(src[0], np.float32(fy), out=tv[y0 - s0, cols])
-            if b1 > b0:
-                cv2.addWeighted(src[b0 + iy - roff : b1 + iy - roff], 1.0 - fy, src[b0 + iy + 1 - roff : b1 + iy + 1 - roff],
-                                fy, 0.0, dst=tv[b0 - s0 : b1 - s0, cols])
-            if y1 > b1:  # the view's last row under the first tap only
-                np.multiply(src[h - 1 - roff], np.float32(1.0 - fy), out=tv[b1 - s0, cols])
-            a, m = x0 + ix + 1, x1 - x0
-            if first:
-                if x0 > 0:
-                    acc[:, :x0] = 0
-                if x1 < w:
-                    acc[:, x1:] = 0
-                cv2.addWeighted(tv[:n, a : a + m], 1.0 - fx, tv[:n, a + 1 : a + 1 + m], fx, 0.0, dst=acc[:, x0:x1])
-                first = False
-            else:
-                t = th[:n, :m]
-                cv2.addWeighted(tv[:n, a : a + m], 1.0 - fx, tv[:n, a + 1 : a + 1 + m], fx, 0.0, dst=t)
-                d = acc[:, x0:x1]
-                cv2.add(d, t, dst=d)
-        if first:
-            acc[...] = 0
 
 
 class Refocuser:
@@ -406,8 +421,8 @@ class Refocuser:
             if self._shift is not None and self._all_valid:
                 for y0, y1, row, _ in self._shift.inv_bands():
                     weight[y0:y1] = row
-            elif self._shift is not None:
-                self._shift.run(self.masks, weight)
+            elif self._shift is not None:  # the masks shifted like the views (not masked again)
+                _ShiftPlan(self._shift.shifts, self.view_shape).run(self.masks, weight)
             else:
                 for k in range(len(self.H)):
                     weight += _warp(self.masks[k], self.H[k], (w, h))
@@ -420,7 +435,7 @@ class Refocuser:
         if c not in self._cache:
             masks = None if self._all_valid else _cached_masks(self._calibration, self.view_shape, c)[1]
             if self._shift is not None and self._all_valid:
-                inv = [(y0, y1, row if c == 1 else np.repeat(row[:, None], c, axis=1)) for y0, y1, _, row in self._shift.inv_bands()]
+                inv = [row if c == 1 else np.repeat(row[:, None], c, axis=1) for _, _, _, row in self._shift.inv_bands()]
             else:
                 if self._inv is None:
                     self._inv = _inverse_weight(self.weight)
@@ -441,7 +456,7 @@ class Refocuser:
             out = np.empty((h, w) if c == 1 else (h, w, c), np.float32)
             threads = cv2.getNumThreads() if self.threads is None else self.threads
             if masks is None:
-                self._shift.run(src, out, inv_bands=inv, threads=threads)
+                self._shift.run(src, out, inv_rows=inv, threads=threads)
             else:
                 self._shift.run(src, out, masks3=masks, inv=inv, threads=threads)
             return out[..., None] if c == 1 else out
