@@ -287,31 +287,37 @@ class _ShiftPlan:
         return self._inv_bands
 
     # -- per frame -----------------------------------------------------------------------
-    def run(self, views: np.ndarray, out: np.ndarray, *, masks3=None, inv=None, inv_rows=None, threads: int = 1):
+    def run(self, views: np.ndarray, out: np.ndarray, *, masks=None, inv=None, inv_rows=None, threads: int = 1):
         """Accumulate the shifted views (V, h, w[, C]) into ``out`` (h, w[, C]) and normalise it
-        by ``inv`` (a map like ``out``) or, for an all-valid plan, ``inv_rows`` (the inverse row
-        of every band of :meth:`inv_bands`, shaped (w[, C])), if given. ``masks3``: the masks
-        shaped like the views, when the plan has masks."""
+        by ``inv`` ((h, w) map) or, for an all-valid plan, ``inv_rows`` (the inverse row of every
+        band of :meth:`inv_bands`, shaped (w[, C])), if given. A plan with masks multiplies
+        every view by its mask first. Single-channel masks and ``inv`` are spread over the
+        channels strip by strip, in the cache: memory traffic, not arithmetic, bounds this."""
         h, w = self.view_shape
         tail = out.shape[2:]
         rows = max(8, min(h, STRIP_BYTES // (3 * (w + 2) * out.itemsize * max(1, int(np.prod(tail))))))
         plan = self.strips(rows)
         threads = max(1, min(threads, len(plan)))
         chunks = [plan[i * len(plan) // threads:(i + 1) * len(plan) // threads] for i in range(threads)]
-        add, weighted, multiply = cv2.add, cv2.addWeighted, cv2.multiply
+        add, weighted, multiply, merge = cv2.add, cv2.addWeighted, cv2.multiply, cv2.merge
+        masks, nc = self.masks if masks is None else masks, (tail or (1,))[0]
 
         def work(chunk):
             tv = np.zeros((rows, w + 2, *tail), np.float32)  # the zero pad columns stay zero
             th = np.empty((rows, w, *tail), np.float32)
-            tm = None if masks3 is None else np.empty((rows + 1, w, *tail), np.float32)
+            tm = None if masks is None else np.empty((rows + 1, w, *tail), np.float32)
+            spread = np.empty((rows + 1, w, *tail), np.float32) if tail and (masks is not None or inv is not None) else None
             for s0, s1, steps, bands in chunk:
                 acc = out[s0:s1]
                 for i, (k, vsl, tsl, zeros, top, both, bottom, hz, hsl, dst, clear) in enumerate(steps):
-                    if masks3 is None:
+                    if masks is None:
                         src = views[k]
                     else:
                         src = tm[tsl]
-                        multiply(views[k][vsl], masks3[k][vsl], dst=src)
+                        m = masks[k][vsl]
+                        if spread is not None and m.ndim == 2:
+                            m = merge([m] * nc, dst=spread[tsl])
+                        multiply(views[k][vsl], m, dst=src)
                     for z in zeros:
                         tv[z] = 0
                     if top is not None:
@@ -332,7 +338,10 @@ class _ShiftPlan:
                 if not steps:
                     acc[...] = 0
                 if inv is not None:
-                    multiply(acc, inv[s0:s1], dst=acc)
+                    m = inv[s0:s1]
+                    if spread is not None and m.ndim == 2:
+                        m = merge([m] * nc, dst=spread[: s1 - s0])
+                    multiply(acc, m, dst=acc)
                 elif inv_rows is not None:
                     for sl, i in bands:
                         np.multiply(out[sl], inv_rows[i], out=out[sl])
@@ -433,17 +442,30 @@ class Refocuser:
             self._weight = weight
         return self._weight
 
+    def _inverse(self) -> np.ndarray:
+        if self._inv is None:
+            self._inv = _inverse_weight(self.weight)
+        return self._inv
+
     def _buffers(self, c: int):
         """Per channel count: the normalisation (a map like the result, or per band of rows one
-        row) and the masks shaped like a view, made once and reused for every frame."""
-        if c not in self._cache:
+        row) and the masks shaped like a view, made once and reused for every frame.
+
+        With masks on the shift path, a Refocuser's first frame (all that a one-shot
+        :func:`refocus` makes) takes the single-channel masks and inverse weight, spread over
+        the channels strip by strip in the cache, rather than first writing a full-size
+        per-depth map; later frames read the maps shaped like a view, which is faster per
+        frame. Both give the same bits."""
+        first = c not in self._cache
+        if first or self._cache[c] is None:
             masks = None if self._all_valid else _cached_masks(self._calibration, self.view_shape, c)[1]
             if self._shift is not None and self._all_valid:
                 inv = [row if c == 1 else np.repeat(row[:, None], c, axis=1) for _, _, _, row in self._shift.inv_bands()]
+            elif self._shift is not None and first:
+                self._cache[c] = None
+                return self._inverse(), self.masks
             else:
-                if self._inv is None:
-                    self._inv = _inverse_weight(self.weight)
-                inv = self._inv if c == 1 else cv2.merge([self._inv] * c)
+                inv = self._inverse() if c == 1 else cv2.merge([self._inverse()] * c)
             self._cache[c] = (inv, masks)
         return self._cache[c]
 
@@ -459,10 +481,10 @@ class Refocuser:
         if self._shift is not None:
             out = np.empty((h, w) if c == 1 else (h, w, c), np.float32)
             threads = cv2.getNumThreads() if self.threads is None else self.threads
-            if masks is None:
+            if self._all_valid:
                 self._shift.run(src, out, inv_rows=inv, threads=threads)
             else:
-                self._shift.run(src, out, masks3=masks, inv=inv, threads=threads)
+                self._shift.run(src, out, masks=masks, inv=inv, threads=threads)
             return out[..., None] if c == 1 else out
         shape = (h, w) if c == 1 else (h, w, c)
         tmp, masked = np.empty(shape, np.float32), np.empty(shape, np.float32)

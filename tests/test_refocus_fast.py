@@ -79,6 +79,8 @@ def test_shift_path_matches_the_general_warp(circles, channels, depth_m, strips)
     np.testing.assert_allclose(out, ref, atol=1e-5, rtol=0)
     np.testing.assert_allclose(r.weight, wsum, atol=1e-4, rtol=0)
     assert np.all(out[wsum <= 1e-3] == 0)
+    # Later frames read full-size normalisation and masks, the first spreads single-channel ones.
+    np.testing.assert_array_equal(r(views), out)
     # One-shot refocus takes the same path.
     np.testing.assert_array_equal(refocus(views, cal, depth_m, reference=0), out)
 
