@@ -7,6 +7,7 @@ not darkened. Objects at Z line up and are sharp; others appear as displaced cop
 
 from __future__ import annotations
 
+import threading
 import warnings
 import weakref
 from concurrent.futures import ThreadPoolExecutor
@@ -159,6 +160,21 @@ def _pool(workers: int):
     return _POOL
 
 
+_SCRATCH = threading.local()
+
+
+def _scratch(rows: int, w: int, tail: tuple):
+    """This thread's scratch strips of the shift path, reused from frame to frame (fresh ones
+    would cost page faults every frame): the padded vertical pass (its two pad columns are
+    never written, so stay zero), the horizontal pass, masked rows and spread channels."""
+    key = (rows, w, tail)
+    if getattr(_SCRATCH, "key", None) != key:
+        _SCRATCH.key = key
+        _SCRATCH.bufs = (np.zeros((rows, w + 2, *tail), np.float32), np.empty((rows, w, *tail), np.float32),
+                         np.empty((rows + 1, w, *tail), np.float32), np.empty((rows + 1, w, *tail), np.float32))
+    return _SCRATCH.bufs
+
+
 def _translation_of(h: np.ndarray, out_shape, *, tol_px: float = TRANSLATION_TOL_PX):
     """The shift ``s`` (x, y) such that reference pixel ``x`` samples view pixel ``x + s`` to
     within ``tol_px`` everywhere in the reference frame of ``out_shape``, or None.
@@ -303,10 +319,7 @@ class _ShiftPlan:
         masks, nc = self.masks if masks is None else masks, (tail or (1,))[0]
 
         def work(chunk):
-            tv = np.zeros((rows, w + 2, *tail), np.float32)  # the zero pad columns stay zero
-            th = np.empty((rows, w, *tail), np.float32)
-            tm = None if masks is None else np.empty((rows + 1, w, *tail), np.float32)
-            spread = np.empty((rows + 1, w, *tail), np.float32) if tail and (masks is not None or inv is not None) else None
+            tv, th, tm, spread = _scratch(rows, w, tail)
             for s0, s1, steps, bands in chunk:
                 acc = out[s0:s1]
                 for i, (k, vsl, tsl, zeros, top, both, bottom, hz, hsl, dst, clear) in enumerate(steps):
@@ -315,7 +328,7 @@ class _ShiftPlan:
                     else:
                         src = tm[tsl]
                         m = masks[k][vsl]
-                        if spread is not None and m.ndim == 2:
+                        if nc > 1 and m.ndim == 2:
                             m = merge([m] * nc, dst=spread[tsl])
                         multiply(views[k][vsl], m, dst=src)
                     for z in zeros:
@@ -339,7 +352,7 @@ class _ShiftPlan:
                     acc[...] = 0
                 if inv is not None:
                     m = inv[s0:s1]
-                    if spread is not None and m.ndim == 2:
+                    if nc > 1 and m.ndim == 2:
                         m = merge([m] * nc, dst=spread[: s1 - s0])
                     multiply(acc, m, dst=acc)
                 elif inv_rows is not None:
