@@ -7,6 +7,7 @@ not darkened. Objects at Z line up and are sharp; others appear as displaced cop
 
 from __future__ import annotations
 
+import os
 import threading
 import warnings
 import weakref
@@ -150,14 +151,15 @@ TRANSLATION_TOL_PX = 1e-3
 # benchmark machine (32 MiB L3) 2 to 6 MiB were best, 0.6 MiB (strips fit for L2) 1.8x slower.
 STRIP_BYTES = 3 << 20
 
-_POOL = None
+_POOL: tuple | None = None  # (pid, executor, workers)
 
 
-def _pool(workers: int):
+def _pool(workers: int) -> ThreadPoolExecutor:
+    """The shift path's worker threads, made anew in a forked child (which has none of them)."""
     global _POOL
-    if _POOL is None or _POOL._max_workers < workers:
-        _POOL = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="lfring-refocus")
-    return _POOL
+    if _POOL is None or _POOL[0] != os.getpid() or _POOL[2] < workers:
+        _POOL = (os.getpid(), ThreadPoolExecutor(max_workers=workers, thread_name_prefix="lfring-refocus"), workers)
+    return _POOL[1]
 
 
 _SCRATCH = threading.local()

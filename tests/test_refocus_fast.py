@@ -146,3 +146,25 @@ def test_bad_threads():
 
     with pytest.raises(InvalidInputError, match="threads"):
         Refocuser(_calibration(SHIFTS), 0.5, threads=0)
+
+
+@pytest.mark.skipif(not hasattr(__import__("os"), "fork"), reason="needs os.fork")
+def test_threads_work_in_a_forked_child():
+    """A child forked after the worker threads started has none of them: it makes its own."""
+    import multiprocessing
+
+    cal = _calibration(SHIFTS)
+    views = _views(3)
+    REFOCUS_MODULE.STRIP_BYTES, saved = 1, REFOCUS_MODULE.STRIP_BYTES
+    try:
+        expected = Refocuser(cal, 0.6, reference=0, threads=2)(views)  # starts the threads here
+        ctx = multiprocessing.get_context("fork")
+        with ctx.Pool(1) as pool:
+            got = pool.apply_async(_refocus_in_child, (cal, views)).get(timeout=60)
+    finally:
+        REFOCUS_MODULE.STRIP_BYTES = saved
+    np.testing.assert_array_equal(got, expected)
+
+
+def _refocus_in_child(cal, views):
+    return Refocuser(cal, 0.6, reference=0, threads=2)(views)
