@@ -55,11 +55,15 @@ def plain_loop(root: Path, out: Path, depth_m: float, depth_map: bool) -> None:
         if refocuser is None:
             refocuser = lfring.Refocuser(cal, depth_m, interpolation="cubic")
         write_image(out / f"{p.stem}_refocus.png", encode_image(refocuser(views), 8, "srgb"))
-        if depth_map:
-            res = lfring.estimate_depth(views, cal, zmin_m=0.25, zmax_m=0.45)
+        if depth_map:  # the same three files as the batch writes
+            from lfring.depth.io import write_depth_preview, write_depth_tiff
             from lfring.io.writers import write_float_tiff
 
-            write_float_tiff(out / f"{p.stem}_depth.tiff", res.depth_m)
+            res = lfring.estimate_depth(views, cal, zmin_m=0.3, zmax_m=0.45)
+            write_depth_tiff(out / f"{p.stem}_depth.tiff", res.depth_m)
+            write_float_tiff(out / f"{p.stem}_confidence.tiff", res.confidence)
+            write_depth_preview(out / f"{p.stem}_depth_preview.png", res.depth_m, confidence=res.confidence, zmin_m=0.3,
+                                zmax_m=0.45, min_confidence=0.5)
 
 
 def timed(fn, runs: int) -> tuple[float, float, float]:
@@ -75,13 +79,13 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=24)
     ap.add_argument("--runs", type=int, default=3)
-    ap.add_argument("--depth-map", action="store_true", help="also a depth map of every frame (0.25-0.45 m)")
+    ap.add_argument("--depth-map", action="store_true", help="also a depth map of every frame (0.3-0.45 m)")
     args = ap.parse_args()
-    settings = BatchSettings(refocus_m=(0.3,), depth=args.depth_map, zmin_m=0.25 if args.depth_map else None,
+    settings = BatchSettings(refocus_m=(0.3,), depth=args.depth_map, zmin_m=0.3 if args.depth_map else None,
                              zmax_m=0.45 if args.depth_map else None)
     print(f"machine: {platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}, "
           f"numpy {np.__version__}, OpenCV {cv2.__version__}, load {os.getloadavg()[0]:.2f}")
-    work = "refocus at 0.3 m" + (" + depth map 0.25-0.45 m" if args.depth_map else "")
+    work = "refocus at 0.3 m" + (" + depth map 0.3-0.45 m (TIFFs and preview)" if args.depth_map else "")
     print(f"{args.frames} frames of 2456 x 1842 px (12-bit RGGB PNG), {work}, 8-bit PNG out; median of {args.runs} runs")
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
