@@ -32,14 +32,16 @@ import shutil
 import socket
 import tempfile
 import time
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 import numpy as np
 
 from lfring.errors import InvalidInputError, LfringError
+from lfring.io.atomic import atomic_write_bytes
+from lfring.io.writers import json_default
 
 __all__ = [
     "EXECUTORS",
@@ -156,28 +158,22 @@ class BatchSettings:
 
     def describe(self) -> dict:
         """The settings as JSON-ready values (the calibration by name and content hash)."""
-        d = {k: v for k, v in asdict(self).items() if k != "calibration"}
+        d = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "calibration"}
         d["refocus_m"] = list(self.refocus_m)
         d["calibration_sha256"] = None
         if self.calibration is not None:
-            blob = json.dumps(self.calibration.to_dict(), sort_keys=True, default=_json_default).encode()
+            blob = json.dumps(self.calibration.to_dict(), sort_keys=True, default=json_default).encode()
             d["calibration_sha256"] = hashlib.sha256(blob).hexdigest()
         return d
 
     def key(self) -> str:
-        """A short hash of everything that changes the outputs."""
-        blob = json.dumps(self.describe(), sort_keys=True, default=_json_default).encode()
-        return hashlib.sha256(blob).hexdigest()[:16]
-
-
-def _json_default(o):
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, (np.floating, np.integer, np.bool_)):
-        return o.item()
-    if isinstance(o, Path):
-        return str(o)
-    raise TypeError(f"cannot write {type(o).__name__} to JSON")
+        """A short hash of everything that changes the outputs (computed once per instance)."""
+        k = self.__dict__.get("_key")
+        if k is None:
+            blob = json.dumps(self.describe(), sort_keys=True, default=json_default).encode()
+            k = hashlib.sha256(blob).hexdigest()[:16]
+            object.__setattr__(self, "_key", k)  # frozen: a memo, not a field
+        return k
 
 
 # -- inputs --------------------------------------------------------------------------------------
@@ -315,20 +311,20 @@ def _worker_calibration(settings: BatchSettings, size_wh):
 
 
 def _refocuser(cal, cal_name: str, depth_m: float, settings: BatchSettings, view_shape):
-    """Per worker process: one Refocuser per (calibration, depth, frame size), reused for every
-    frame (a folder of frames at one depth pays the geometry once)."""
+    """Per worker process: one Refocuser per (settings, calibration, depth, frame size), reused
+    for every frame (a folder of frames at one depth pays the geometry once). Keyed by content,
+    not identity: every task brings its own unpickled copy of the settings."""
     from lfring.refocus import Refocuser
 
-    key = ("refocuser", id(cal), cal_name, depth_m, str(settings.reference), settings.interpolation, tuple(view_shape))
+    key = ("refocuser", settings.key(), cal_name, depth_m, tuple(view_shape))
     r = _WORKER_CACHE.get(key)
     if r is None:
-        if len([k for k in _WORKER_CACHE if k[0] == "refocuser"]) > 32:
+        if sum(k[0] == "refocuser" for k in _WORKER_CACHE) >= 32:
             for k in [k for k in _WORKER_CACHE if k[0] == "refocuser"]:
                 del _WORKER_CACHE[k]
-        r = Refocuser(cal, depth_m, reference=settings.reference, view_shape=view_shape, interpolation=settings.interpolation)
-        _WORKER_CACHE[key] = (r, cal)  # keep cal alive so that its id stays unique
-        return r
-    return r[0]
+        r = _WORKER_CACHE[key] = Refocuser(cal, depth_m, reference=settings.reference, view_shape=view_shape,
+                                           interpolation=settings.interpolation)
+    return r
 
 
 def process_frame(input_path: str, settings: BatchSettings, outputs: dict[str, str] | None = None) -> FrameResult:
@@ -504,27 +500,10 @@ class _Writer:
         self.tmp = outdir / TMP_DIR
 
     def write(self, rel: str, data: bytes) -> Path:
-        target = self.outdir / rel
-        target.parent.mkdir(parents=True, exist_ok=True)
-        self.tmp.mkdir(exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix="part-", suffix=Path(rel).suffix, dir=self.tmp)
-        try:
-            with os.fdopen(fd, "wb") as f:
-                f.write(data)
-                f.flush()
-                os.fsync(f.fileno())
-            umask = os.umask(0)
-            os.umask(umask)
-            os.chmod(tmp, 0o666 & ~umask)
-            os.replace(tmp, target)
-        except BaseException:
-            with contextlib.suppress(FileNotFoundError):
-                os.unlink(tmp)
-            raise
-        return target
+        return atomic_write_bytes(self.outdir / rel, data, tmp_dir=self.tmp)
 
     def write_json(self, rel: str, obj) -> Path:
-        return self.write(rel, (json.dumps(obj, indent=2, default=_json_default) + "\n").encode("utf-8"))
+        return self.write(rel, (json.dumps(obj, indent=2, default=json_default) + "\n").encode("utf-8"))
 
 
 @contextlib.contextmanager
@@ -570,7 +549,7 @@ def _outdir_lock(outdir: Path) -> Iterator[None]:
 
 
 def _append_manifest(path: Path, entry: dict) -> None:
-    line = (json.dumps(entry, default=_json_default, allow_nan=False) + "\n").encode("utf-8")
+    line = (json.dumps(entry, default=json_default, allow_nan=False) + "\n").encode("utf-8")
     fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
     try:
         os.write(fd, line)  # one write with O_APPEND: whole lines, even with a reader tailing it
@@ -760,16 +739,23 @@ def run_batch(
                 on_result(e)
             return e
 
-        def fail(job: BatchJob, error: str, record: bool = False, **kw) -> None:
+        # The inputs' size and mtime as planned: a frame changed while it was processed reads as
+        # changed on the next run.
+        identity: dict[str, dict] = {}
+
+        def record(job: BatchJob, status: str, **extra) -> None:
+            writer.write_json(job.stem + RECORD_SUFFIX, {
+                "lfring_batch_record": RECORD_VERSION, "status": status, "run": run_id, "input": job.input,
+                "input_identity": identity[job.input], "settings_key": key, "settings": desc,
+                "outputs": plan[job.input], "lfring_version": _version(), **extra})
+
+        def fail(job: BatchJob, error: str, record_it: bool = False, **kw) -> None:
             report.failed.append(job.input)
             report.errors[job.input] = error
             log.error("%s: %s", job.input, error)
-            if record:  # our pending record becomes a failed one (a rerun tries the frame again)
+            if record_it:  # our pending record becomes a failed one (a rerun tries the frame again)
                 with contextlib.suppress(OSError):
-                    writer.write_json(job.stem + RECORD_SUFFIX, {
-                        "lfring_batch_record": RECORD_VERSION, "status": "failed", "run": run_id, "input": job.input,
-                        "input_identity": _file_identity(job.input), "settings_key": key, "settings": desc,
-                        "outputs": plan[job.input], "error": error, "lfring_version": _version()})
+                    record(job, "failed", error=error)
             entry(job, "failed", error=error, **kw)
 
         todo: list[BatchJob] = []
@@ -778,7 +764,7 @@ def run_batch(
             rec_path = out / (job.stem + RECORD_SUFFIX)
             rec = _read_record(rec_path)
             try:
-                ident = _file_identity(job.input)
+                ident = identity[job.input] = _file_identity(job.input)
             except OSError as exc:
                 fail(job, f"cannot read the input: {exc.strerror or exc}")
                 continue
@@ -828,10 +814,7 @@ def run_batch(
             retried: set[str] = set()
 
             def submit(job: BatchJob) -> None:
-                writer.write_json(job.stem + RECORD_SUFFIX, {
-                    "lfring_batch_record": RECORD_VERSION, "status": "pending", "run": run_id, "input": job.input,
-                    "input_identity": _file_identity(job.input), "settings_key": key, "settings": desc,
-                    "outputs": plan[job.input]})
+                record(job, "pending")
                 pending[pool.submit(process_frame, job.input, settings, plan[job.input])] = job
 
             while queue or pending:
@@ -856,24 +839,20 @@ def run_batch(
                             pool, waiter = _local_executor(min(workers, len(requeue) + len(queue)))
                             queue[:0] = requeue
                             break
-                        fail(job, f"the worker processing it was lost: {type(exc).__name__}: {exc}", record=True)
+                        fail(job, f"the worker processing it was lost: {type(exc).__name__}: {exc}", record_it=True)
                         if bar is not None:
                             bar.update(1)
                         continue
                     if not res.ok:
-                        fail(job, res.error, record=True, timings_s=res.timings_s, worker=res.worker)
+                        fail(job, res.error, record_it=True, timings_s=res.timings_s, worker=res.worker)
                     else:
                         t_w = time.perf_counter()
                         try:
                             for kind, rel in plan[job.input].items():
                                 writer.write(rel, res.files[kind])
-                            writer.write_json(job.stem + RECORD_SUFFIX, {
-                                "lfring_batch_record": RECORD_VERSION, "status": "done", "run": run_id, "input": job.input,
-                                "input_identity": _file_identity(job.input), "settings_key": key, "settings": desc,
-                                "outputs": plan[job.input], "info": res.info, "timings_s": res.timings_s,
-                                "lfring_version": _version()})
+                            record(job, "done", info=res.info, timings_s=res.timings_s)
                         except OSError as exc:
-                            fail(job, f"cannot write its outputs: {exc.strerror or exc}", record=True)
+                            fail(job, f"cannot write its outputs: {exc.strerror or exc}", record_it=True)
                         else:
                             res.timings_s["write"] = time.perf_counter() - t_w
                             report.done.append(job.input)
@@ -901,8 +880,3 @@ def _version() -> str:
     from lfring import __version__
 
     return __version__
-
-
-def iter_failed(report: BatchReport) -> Iterable[tuple[str, str]]:
-    """(input, error) of every failed frame, in input order."""
-    return ((p, report.errors[p]) for p in report.failed)

@@ -12,15 +12,18 @@ __all__ = ["atomic_path", "atomic_write_bytes", "atomic_write_text"]
 
 
 @contextlib.contextmanager
-def atomic_path(path: str | Path) -> Iterator[Path]:
-    """Yield a temporary path beside ``path``; on success it is renamed onto ``path``.
+def atomic_path(path: str | Path, *, tmp_dir: str | Path | None = None) -> Iterator[Path]:
+    """Yield a temporary path beside ``path`` (or in ``tmp_dir``, which must be on the same file
+    system); on success it is renamed onto ``path``.
 
     The temporary file keeps the target's suffix so that writers choosing a format by extension
     (OpenCV, tifffile, imageio) work unchanged. On error the temporary file is removed.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".part{path.suffix}", dir=path.parent)
+    where = path.parent if tmp_dir is None else Path(tmp_dir)
+    where.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".part{path.suffix}", dir=where)
     os.close(fd)
     tmp_path = Path(tmp)
     # mkstemp creates 0600; outputs get the ordinary permissions the umask allows.
@@ -36,8 +39,8 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
         raise
 
 
-def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
-    with atomic_path(path) as tmp:
+def atomic_write_bytes(path: str | Path, data: bytes, *, tmp_dir: str | Path | None = None) -> Path:
+    with atomic_path(path, tmp_dir=tmp_dir) as tmp:
         tmp.write_bytes(data)
     return Path(path)
 

@@ -80,7 +80,8 @@ def write_float_tiff(path: str | Path, data: np.ndarray) -> Path:
     return Path(path)
 
 
-def _default(o):
+def json_default(o):
+    """``default=`` for :func:`json.dumps`: NumPy arrays and scalars, and paths."""
     if isinstance(o, np.ndarray):
         return o.tolist()
     if isinstance(o, (np.floating, np.integer, np.bool_)):
@@ -92,4 +93,4 @@ def _default(o):
 
 def write_json(path: str | Path, obj) -> Path:
     """Write ``obj`` as indented JSON (NumPy arrays and scalars converted)."""
-    return atomic_write_text(path, json.dumps(obj, indent=2, default=_default, allow_nan=True) + "\n")
+    return atomic_write_text(path, json.dumps(obj, indent=2, default=json_default, allow_nan=True) + "\n")
