@@ -31,6 +31,16 @@ def parse_range(text: str, *, with_count: bool) -> tuple[float, ...]:
     return start, stop
 
 
+def parse_depths(text: str, *, param_hint: str) -> tuple[float, ...]:
+    """'0.3,0.5 1.0' -> (0.3, 0.5, 1.0) metres; raises click.BadParameter on bad text."""
+    import re
+
+    try:
+        return tuple(float(t) for t in re.split(r"[,\s]+", text.strip()) if t)
+    except ValueError:
+        raise click.BadParameter(f"expected comma-separated metres, got {text!r}", param_hint=param_hint) from None
+
+
 device_option = click.option(
     "--device",
     "device_name",

@@ -3,20 +3,12 @@
 from __future__ import annotations
 
 import logging
-import re
 
 import click
 
+from lfring.cli._options import parse_depths
+
 log = logging.getLogger("lfring.cli.batch")
-
-
-def _parse_depths(text: str | None) -> tuple[float, ...]:
-    if text is None:
-        return ()
-    try:
-        return tuple(float(t) for t in re.split(r"[,\s]+", text.strip()) if t)
-    except ValueError:
-        raise click.BadParameter(f"expected comma-separated metres, got {text!r}", param_hint="--refocus") from None
 
 
 @click.command("batch")
@@ -59,7 +51,7 @@ def command(ctx, inputs, outdir, calib, refocus_m, depth_map, zmin, zmax, planes
     from lfring.batch import BatchSettings, run_batch
     from lfring.geometry import check_reference
 
-    zs = _parse_depths(refocus_m)
+    zs = parse_depths(refocus_m, param_hint="--refocus") if refocus_m is not None else ()
     if not (zs or depth_map or aif):
         raise click.UsageError("nothing to do: give --refocus Z1,Z2,..., --depth (with --zmin/--zmax) or --all-in-focus")
     if (zmin is not None or zmax is not None) and not depth_map:

@@ -4,13 +4,12 @@ from __future__ import annotations
 
 import logging
 import math
-import re
 from pathlib import Path
 
 import click
 import numpy as np
 
-from lfring.cli._options import load_views, parse_range
+from lfring.cli._options import load_views, parse_depths, parse_range
 
 log = logging.getLogger("lfring.cli.refocus")
 
@@ -29,10 +28,7 @@ def _depths(depth, depths, sweep) -> list[float]:
     if depth is not None:
         zs = [depth]
     elif depths is not None:
-        try:
-            zs = [float(t) for t in re.split(r"[,\s]+", depths.strip()) if t]
-        except ValueError:
-            raise click.BadParameter(f"expected comma-separated metres, got {depths!r}", param_hint="--depths") from None
+        zs = list(parse_depths(depths, param_hint="--depths"))
     else:
         start, stop, n = parse_range(sweep, with_count=True)
         zs = list(np.linspace(start, stop, n))
