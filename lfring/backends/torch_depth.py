@@ -161,6 +161,28 @@ def _update_chunk(torch, start: int, aggs, state, exclude: int = 1) -> None:
     state["last"] = aggs[-1].clone()
 
 
+def _checked_inputs(lum, masks, cost: str, aggregation: str, guide):
+    """The argument checks both torch sweeps share: cost and aggregation names, float32 (V, h, w)
+    luminances and masks, and a guide of the views' size for the guided aggregation."""
+    from lfring.depth.sweep import AGGREGATIONS, COSTS
+
+    if cost not in COSTS:
+        raise InvalidInputError(f"cost must be one of {', '.join(COSTS)}, got {cost!r}")
+    if aggregation not in AGGREGATIONS:
+        raise InvalidInputError(f"aggregation must be one of {', '.join(AGGREGATIONS)}, got {aggregation!r}")
+    lum = np.asarray(lum)
+    masks = np.asarray(masks)
+    if lum.dtype != np.float32 or masks.dtype != np.float32 or lum.ndim != 3 or masks.shape != lum.shape:
+        raise InvalidInputError(
+            f"need float32 (V, h, w) luminances and masks, got {lum.dtype} {lum.shape} and {masks.dtype} {masks.shape}"
+        )
+    h, w = lum.shape[1:]
+    if aggregation == "guided" and (guide is None or np.shape(guide) != (h, w)):
+        got = None if guide is None else np.shape(guide)
+        raise InvalidInputError(f"the guided aggregation needs a ({h}, {w}) guide image, got {got}")
+    return lum, masks
+
+
 def _chunk_size(n: int, v: int, h: int, w: int) -> int:
     per = _IMAGES_PER_HYPOTHESIS * v * h * w * 4
     return int(max(1, min(n, _CHUNK_BYTES // max(per, 1))))
@@ -196,25 +218,11 @@ def sweep_torch(lum, masks, hs, *, cost, aggregation, window_px, guide, exclude=
     torch = require_torch()
     from kornia.geometry.transform import warp_perspective
 
-    from lfring.depth.sweep import AGGREGATIONS, COSTS
-
-    if cost not in COSTS:
-        raise InvalidInputError(f"cost must be one of {', '.join(COSTS)}, got {cost!r}")
-    if aggregation not in AGGREGATIONS:
-        raise InvalidInputError(f"aggregation must be one of {', '.join(AGGREGATIONS)}, got {aggregation!r}")
-    lum = np.asarray(lum)
-    masks = np.asarray(masks)
-    hs = np.asarray(hs, dtype=np.float64)
-    if lum.dtype != np.float32 or masks.dtype != np.float32 or lum.ndim != 3 or masks.shape != lum.shape:
-        raise InvalidInputError(
-            f"need float32 (V, h, w) luminances and masks, got {lum.dtype} {lum.shape} and {masks.dtype} {masks.shape}"
-        )
+    lum, masks = _checked_inputs(lum, masks, cost, aggregation, guide)
     v, h, w = lum.shape
+    hs = np.asarray(hs, dtype=np.float64)
     if hs.ndim != 4 or hs.shape[1:] != (v, 3, 3):
         raise InvalidInputError(f"need (N, {v}, 3, 3) homographies, got {hs.shape}")
-    if aggregation == "guided" and (guide is None or np.shape(guide) != (h, w)):
-        got = None if guide is None else np.shape(guide)
-        raise InvalidInputError(f"the guided aggregation needs a ({h}, {w}) guide image, got {got}")
     dev = resolve_device(device)
     n = hs.shape[0]
 
@@ -272,18 +280,8 @@ def fine_torch(lum, masks, maps, *, cost, aggregation, window_px, guide, device=
         The most views seen over the band.
     """
     torch = require_torch()
-    from lfring.depth.sweep import AGGREGATIONS, COSTS
-
-    if cost not in COSTS:
-        raise InvalidInputError(f"cost must be one of {', '.join(COSTS)}, got {cost!r}")
-    if aggregation not in AGGREGATIONS:
-        raise InvalidInputError(f"aggregation must be one of {', '.join(AGGREGATIONS)}, got {aggregation!r}")
-    lum = np.asarray(lum)
-    masks = np.asarray(masks)
+    lum, masks = _checked_inputs(lum, masks, cost, aggregation, guide)
     v, h, w = lum.shape
-    if aggregation == "guided" and (guide is None or np.shape(guide) != (h, w)):
-        got = None if guide is None else np.shape(guide)
-        raise InvalidInputError(f"the guided aggregation needs a ({h}, {w}) guide image, got {got}")
     dev = resolve_device(device)
     box_cost = _Box(torch, (h, w), window_px, 1, dev)
     guided = _Guided(torch, guide, window_px, _GUIDED_EPS, dev) if aggregation == "guided" else None
