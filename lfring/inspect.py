@@ -256,16 +256,6 @@ def _aligned_band(calibration, near_m, far_m, tolerance_m, num_planes=None) -> t
 
 
 # -- core -----------------------------------------------------------------------------------------
-def _luminance(views: np.ndarray, masks: np.ndarray, sigma: float) -> np.ndarray:
-    """Luminance of each view over its local mean: removes the views' different vignetting."""
-    lum = views.mean(axis=3) if views.shape[3] > 1 else views[..., 0].copy()
-    for k in range(len(lum)):
-        num = cv2.GaussianBlur(lum[k] * masks[k], (0, 0), sigma)
-        den = cv2.GaussianBlur(masks[k], (0, 0), sigma)
-        lum[k] = np.where(den > 1e-3, lum[k] / np.maximum(num / np.maximum(den, 1e-6), 1e-4), 0.0)
-    return lum.astype(np.float32)
-
-
 def photo_consistency(views, calibration, depth_m: float, *, reference="center", window_px: int = 9,
                       min_contrast: float = 1e-3) -> np.ndarray:
     """Spread of the views warped to ``depth_m`` relative to the local contrast.
@@ -288,11 +278,12 @@ def photo_consistency(views, calibration, depth_m: float, *, reference="center",
         ``box(var_k L_k) / box_var(mean_k L_k)``, with ``L_k`` the warped, locally normalised
         luminances; NaN where fewer than two views see the pixel or it is untextured.
     """
+    from lfring.depth.sweep import _normalised_luminance
     from lfring.refocus import view_masks, warp_views
 
     arr = np.asarray(views)
     masks = view_masks(calibration, arr.shape[1:3])
-    lum = _luminance(arr, masks, sigma=max(8.0, min(arr.shape[1:3]) / 40.0))
+    lum = _normalised_luminance(arr, masks, sigma=max(8.0, min(arr.shape[1:3]) / 40.0))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", LfringWarning)
         hs = calibration.homographies(depth_m, reference=reference)
