@@ -6,9 +6,11 @@ import statistics
 import time
 
 
-def bench(fn, runs: int) -> tuple[float, float, float]:
-    """(median, min, max) seconds of ``runs`` calls of ``fn`` after one warm-up call."""
-    fn()
+def bench(fn, runs: int, *, warmup: bool = True) -> tuple[float, float, float]:
+    """(median, min, max) seconds of ``runs`` calls of ``fn`` after one warm-up call (none
+    when ``warmup`` is False: for work whose start-up cost is part of the figure)."""
+    if warmup:
+        fn()
     times = []
     for _ in range(runs):
         t = time.perf_counter()

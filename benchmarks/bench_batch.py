@@ -19,13 +19,13 @@ import argparse
 import os
 import platform
 import shutil
-import statistics
 import tempfile
 import time
 from pathlib import Path
 
 import cv2
 import numpy as np
+from _timing import bench
 
 import lfring
 from lfring.batch import BatchSettings, run_batch
@@ -66,15 +66,6 @@ def plain_loop(root: Path, out: Path, depth_m: float, depth_map: bool) -> None:
                                 zmax_m=0.45, min_confidence=0.5)
 
 
-def timed(fn, runs: int) -> tuple[float, float, float]:
-    times = []
-    for _ in range(runs):
-        t = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t)
-    return statistics.median(times), min(times), max(times)
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=24)
@@ -108,7 +99,7 @@ def main() -> None:
         ]
         configs[0][1]()  # warm-up: imports and the built-in calibration's first load
         for name, fn in configs:
-            med, lo, hi = timed(fn, args.runs)
+            med, lo, hi = bench(fn, args.runs, warmup=False)
             rows.append((name, med, lo, hi))
         # Resume: a rerun over a finished folder only reads records.
         out = fresh()
