@@ -88,6 +88,9 @@ def _slice_cost(torch, lum_w, wts, cost: str, box):
             c = (dev.sum(dim=1) - torch.where(more, dev.amax(dim=1), 0.0)) / (nvalid - more.to(nvalid.dtype)).clamp_min(1)
         else:
             c = dev.sum(dim=1) / nvalid.clamp_min(1)
+    elif cost == "lcn":  # lum_w: the warped locally normalised luminances times their masks
+        c = (lum_w * lum_w).sum(dim=1) - lum_w.sum(dim=1) ** 2 / nview.clamp_min(1e-3)
+        c = c / (nview - 1.0).clamp_min(0.5)
     elif cost == "ssd":
         c = ((vals - mean[:, None]) ** 2 * valid).sum(dim=1) / nvalid.clamp_min(1)
     else:  # zncc of every view with the mean, over the window
@@ -126,39 +129,47 @@ class _Guided:
         return (ab[:, :1] * self.guide + ab[:, 1:])[:, 0]
 
 
-def _update_chunk(torch, start: int, aggs, state, exclude: int = 1) -> None:
-    """Fold the slices ``aggs`` (C, h, w), hypotheses ``start`` .. ``start + C - 1``, into the
-    state exactly as :func:`lfring.depth.sweep._update` does one slice at a time (strict '<', so
-    the earliest minimum wins; the second minimum follows the same path-dependent rule, with
-    candidates more than ``exclude`` hypotheses from the best at the time)."""
-    best, best_i, c_prev, c_next, second, last = (state[k] for k in ("best", "best_i", "c_prev", "c_next", "second", "last"))
-    n = aggs.shape[0]
-    inf = torch.tensor(float("inf"), dtype=aggs.dtype, device=aggs.device)
-    j = torch.arange(n, device=aggs.device).view(n, 1, 1)
-    # Best value before slice j: the incoming best, then the running minimum of the chunk.
-    run_min = torch.cummin(aggs, dim=0).values
-    before = torch.cat([best[None], torch.minimum(best[None], run_min[:-1])], dim=0)
-    new = aggs < before
-    # Index of the best before slice j: the last new best so far in the chunk, else the incoming one.
-    last_new = torch.cummax(torch.where(new, j, -1), dim=0).values  # inclusive
-    prior = torch.cat([torch.full_like(last_new[:1], -1), last_new[:-1]], dim=0)
-    idx_before = torch.where(prior >= 0, start + prior, best_i[None])
-    far = (start + j - idx_before).abs() > exclude
-    cand = torch.where(far, torch.where(new, before, aggs), inf)
-    torch.minimum(second, cand.amin(dim=0), out=second)
-    jstar = last_new[-1]  # last new best in the chunk, or -1
-    moved = jstar >= 0
-    # Neighbours of a best found in this chunk: the slice before it (the previous chunk's last
-    # slice for its first) and the slice after it (inf until the next chunk when it is the last).
-    prev_all = torch.cat([last[None], aggs], dim=0)
-    next_all = torch.cat([aggs, inf.expand(1, *aggs.shape[1:])], dim=0)
-    g = jstar.clamp_min(0)[None]
-    c_prev.copy_(torch.where(moved, prev_all.gather(0, g)[0], c_prev))
-    kept_next = torch.where(best_i == start - 1, aggs[0], c_next)
-    c_next.copy_(torch.where(moved, next_all.gather(0, g + 1)[0], kept_next))
-    best.copy_(torch.minimum(best, run_min[-1]))
-    best_i.copy_(torch.where(moved, start + jstar, best_i))
-    state["last"] = aggs[-1].clone()
+class _RunningMinimum:
+    """:class:`lfring.depth.stream.RunningMinimum` with torch tensors, folding chunks of slices
+    one slice at a time with the same rules (strict '<', so the earliest minimum wins; the
+    second minimum exact, from a lagging prefix minimum and a minimum after the best)."""
+
+    def __init__(self, torch, shape, exclude: int, device):
+        self.torch = torch
+        self.exclude = e = max(1, int(exclude))
+        full = lambda: torch.full(shape, float("inf"), dtype=torch.float32, device=device)
+        self.best, self.c_prev, self.c_next, self.far_lo, self.far_hi, self.prefix = (full() for _ in range(6))
+        self.best_i = torch.zeros(shape, dtype=torch.int64, device=device)
+        self.ring = [full() for _ in range(e + 2)]  # slices i - e - 1 .. i
+        self.inf = torch.tensor(float("inf"), dtype=torch.float32, device=device)
+        self.i = 0
+
+    def push_chunk(self, aggs) -> None:
+        for a in aggs:
+            self.push(a)
+
+    def push(self, cur) -> None:
+        torch, i, e, ring = self.torch, self.i, self.exclude, self.ring
+        ring[i % len(ring)].copy_(cur)  # a copy: a view would keep the whole chunk alive
+        cur = ring[i % len(ring)]
+        if i >= e + 1:
+            torch.minimum(self.prefix, ring[(i - e - 1) % len(ring)], out=self.prefix)
+        if i >= 1:
+            self.c_next.copy_(torch.where(self.best_i == i - 1, cur, self.c_next))
+            self.far_hi.copy_(torch.where(self.best_i < i - e, torch.minimum(self.far_hi, cur), self.far_hi))
+        new = cur < self.best
+        self.best.copy_(torch.where(new, cur, self.best))
+        self.best_i.masked_fill_(new, i)
+        if i >= 1:
+            self.c_prev.copy_(torch.where(new, ring[(i - 1) % len(ring)], self.c_prev))
+            self.c_next.masked_fill_(new, float("inf"))
+            self.far_hi.masked_fill_(new, float("inf"))
+        if i >= e + 1:
+            self.far_lo.copy_(torch.where(new, self.prefix, self.far_lo))
+        self.i += 1
+
+    def second(self):
+        return self.torch.minimum(self.far_lo, self.far_hi)
 
 
 def _checked_inputs(lum, masks, cost: str, aggregation: str, guide):
@@ -188,7 +199,7 @@ def _chunk_size(n: int, v: int, h: int, w: int) -> int:
     return int(max(1, min(n, _CHUNK_BYTES // max(per, 1))))
 
 
-def sweep_torch(lum, masks, hs, *, cost, aggregation, window_px, guide, exclude=1, device=None):
+def sweep_torch(lum, masks, hs, *, cost, aggregation, window_px, guide, exclude=1, device=None, aggregate_px=None):
     """Same contract as :func:`lfring.depth.sweep._sweep_numpy`, with kornia.
 
     Parameters
@@ -199,10 +210,13 @@ def sweep_torch(lum, masks, hs, *, cost, aggregation, window_px, guide, exclude=
         Valid weight of every view pixel.
     hs : (N, V, 3, 3) float64
         H_ref_from_view for every hypothesis and view.
-    cost : {'sad', 'ssd', 'zncc', 'sad-occlusion'}
+    cost : {'lcn', 'zncc', 'sad', 'ssd', 'sad-occlusion'}
+        For 'lcn', ``lum`` holds the locally normalised luminances (:func:`lfring.depth.stream.lcn_sources`).
     aggregation : {'box', 'guided'}
     window_px : int
-        Odd window of the cost and of the aggregation (guided: radius ``window_px // 2``).
+        Odd window of the cost ('zncc').
+    aggregate_px : int, optional
+        Odd window of the aggregation (guided: radius ``aggregate_px // 2``); ``window_px`` by default.
     guide : (h, w) float32 in [0, 1] or None
         The guided filter's guide image (required for 'guided').
     exclude : int
@@ -226,8 +240,10 @@ def sweep_torch(lum, masks, hs, *, cost, aggregation, window_px, guide, exclude=
     dev = resolve_device(device)
     n = hs.shape[0]
 
+    aggregate_px = window_px if aggregate_px is None else aggregate_px
     box_cost = _Box(torch, (h, w), window_px, 1, dev)  # cv2.boxFilter: BORDER_REFLECT_101
-    guided = _Guided(torch, guide, window_px, _GUIDED_EPS, dev) if aggregation == "guided" else None
+    box_agg = box_cost if aggregate_px == window_px else _Box(torch, (h, w), aggregate_px, 1, dev)
+    guided = _Guided(torch, guide, aggregate_px, _GUIDED_EPS, dev) if aggregation == "guided" else None
     lum_t = torch.from_numpy(np.ascontiguousarray(lum)).to(dev)
     masks_t = torch.from_numpy(np.ascontiguousarray(masks)).to(dev)
     src = torch.stack([lum_t * masks_t, masks_t], dim=1)  # (V, 2, h, w): each view warps with its mask
@@ -236,9 +252,7 @@ def sweep_torch(lum, masks, hs, *, cost, aggregation, window_px, guide, exclude=
     def full(value):
         return torch.full((h, w), value, dtype=torch.float32, device=dev)
 
-    state = {"best": full(float("inf")), "best_i": torch.zeros((h, w), dtype=torch.int64, device=dev),
-             "c_prev": full(float("inf")), "c_next": full(float("inf")), "second": full(float("inf")),
-             "last": full(float("inf"))}
+    run = _RunningMinimum(torch, (h, w), exclude, dev)
     nviews = full(0.0)
     chunk = _chunk_size(n, v, h, w)
     with torch.no_grad():
@@ -252,15 +266,15 @@ def sweep_torch(lum, masks, hs, *, cost, aggregation, window_px, guide, exclude=
             del warped
             finite = (nv >= 1.5) & torch.isfinite(cst)
             filled = torch.where(finite, cst, 1.0)
-            agg = guided(torch, filled) if guided is not None else box_cost(filled[:, None])[:, 0]
+            agg = guided(torch, filled) if guided is not None else box_agg(filled[:, None])[:, 0]
             agg = torch.where(finite, agg, float("inf"))
-            _update_chunk(torch, i0, agg, state, exclude)
+            run.push_chunk(agg)
             torch.maximum(nviews, nv.amax(dim=0), out=nviews)
-    out = (state["best"], state["c_prev"], state["c_next"], state["second"], nviews)
-    return (state["best_i"].to(torch.int32).cpu().numpy(), *(x.cpu().numpy() for x in out))
+    out = (run.best, run.c_prev, run.c_next, run.second(), nviews)
+    return (run.best_i.to(torch.int32).cpu().numpy(), *(x.cpu().numpy() for x in out))
 
 
-def fine_torch(lum, masks, maps, *, cost, aggregation, window_px, guide, device=None):
+def fine_torch(lum, masks, maps, *, cost, aggregation, window_px, guide, device=None, aggregate_px=None):
     """:func:`lfring.depth.sweep._fine_numpy` with torch: the fine stage of the coarse-to-fine
     sweep, each pixel's band of hypotheses sampled with ``grid_sample`` (bilinear, zeros outside).
 
@@ -269,7 +283,7 @@ def fine_torch(lum, masks, maps, *, cost, aggregation, window_px, guide, device=
     lum, masks : (V, h, w) float32
     maps : lfring.depth.sweep._FineMaps
         The per-pixel band (centre index, the views' translations per hypothesis).
-    cost, aggregation, window_px, guide, device
+    cost, aggregation, window_px, guide, device, aggregate_px
         As :func:`sweep_torch`.
 
     Returns
@@ -283,8 +297,10 @@ def fine_torch(lum, masks, maps, *, cost, aggregation, window_px, guide, device=
     lum, masks = _checked_inputs(lum, masks, cost, aggregation, guide)
     v, h, w = lum.shape
     dev = resolve_device(device)
+    aggregate_px = window_px if aggregate_px is None else aggregate_px
     box_cost = _Box(torch, (h, w), window_px, 1, dev)
-    guided = _Guided(torch, guide, window_px, _GUIDED_EPS, dev) if aggregation == "guided" else None
+    box_agg = box_cost if aggregate_px == window_px else _Box(torch, (h, w), aggregate_px, 1, dev)
+    guided = _Guided(torch, guide, aggregate_px, _GUIDED_EPS, dev) if aggregation == "guided" else None
     lum_t = torch.from_numpy(np.ascontiguousarray(lum, dtype=np.float32)).to(dev)
     masks_t = torch.from_numpy(np.ascontiguousarray(masks, dtype=np.float32)).to(dev)
     src = torch.stack([lum_t * masks_t, masks_t], dim=1)  # (V, 2, h, w)
@@ -310,7 +326,7 @@ def fine_torch(lum, masks, maps, *, cost, aggregation, window_px, guide, device=
             cst, nv = _slice_cost(torch, warped[None, :, 0], warped[None, :, 1], cost, box_cost)
             finite = (nv >= 1.5) & torch.isfinite(cst)
             filled = torch.where(finite, cst, 1.0)
-            agg = guided(torch, filled) if guided is not None else box_cost(filled[:, None])[:, 0]
+            agg = guided(torch, filled) if guided is not None else box_agg(filled[:, None])[:, 0]
             aggs[j] = torch.where(finite, agg, float("inf"))[0]
             torch.maximum(nviews, nv[0], out=nviews)
     return aggs.cpu().numpy(), nviews.cpu().numpy()

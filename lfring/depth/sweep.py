@@ -6,6 +6,9 @@ default) every view is warped into the reference frame with H_ref_from_view(Z), 
 views are compared with their consensus, the cost is aggregated spatially, and each pixel keeps
 its best hypothesis and the costs of its neighbours. A parabola through those three costs gives
 the sub-hypothesis depth; the cost curve's distinctness gives the confidence.
+
+The default cost ('lcn' with box aggregation) runs in :mod:`lfring.depth.stream`, strip by strip
+on several threads; the other costs and the guided aggregation run here, a whole slice at a time.
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ from dataclasses import dataclass, replace
 import cv2
 import numpy as np
 
+from lfring.depth.stream import RunningMinimum, lcn_cost, lcn_sources, sweep_strips
 from lfring.errors import InvalidInputError, LfringWarning
 from lfring.geometry import check_reference
 from lfring.refocus import (
@@ -29,7 +33,9 @@ from lfring.refocus import (
 
 __all__ = ["AGGREGATIONS", "COSTS", "DepthResult", "estimate_depth"]
 
-COSTS = ("sad", "ssd", "zncc", "sad-occlusion")
+COSTS = ("lcn", "zncc", "sad", "ssd", "sad-occlusion")
+# The default aggregation window of the 'lcn' cost (the other costs aggregate over window_px).
+LCN_AGGREGATE_PX = 15
 AGGREGATIONS = ("box", "guided")
 
 
@@ -97,11 +103,13 @@ def estimate_depth(
     reference="center",
     backend: str = "numpy",
     device=None,
-    cost: str = "zncc",
-    aggregation: str = "guided",
+    cost: str = "lcn",
+    aggregation: str = "box",
     window_px: int = 9,
+    aggregate_px: int | None = None,
     min_views: int = 2,
     coarse_to_fine: bool = False,
+    threads: int | None = None,
 ) -> DepthResult:
     """Metric depth and confidence by plane sweep over the views.
 
@@ -119,15 +127,23 @@ def estimate_depth(
         Frame of the depth map.
     backend : {'numpy', 'torch'}, device : str, optional
         The torch backend runs the same algorithm with kornia (GPU-ready).
-    cost : {'sad', 'ssd', 'zncc', 'sad-occlusion'}
-        Photo-consistency of the warped, locally normalised luminances: absolute or squared
-        deviation from their mean, one minus their mean zero-normalised cross-correlation with
-        the mean over the window, or the absolute deviation of the best subset (the view
-        deviating most is left out, against occlusions).
+    cost : {'lcn', 'zncc', 'sad', 'ssd', 'sad-occlusion'}
+        Photo-consistency. 'lcn': the variance across views of their luminances normalised by
+        the local mean and contrast over ``window_px`` (normalised once per view, before the
+        sweep: the fastest, and the most accurate on the twin with box aggregation; see
+        :mod:`lfring.depth.stream`). The others compare the warped luminances divided by their
+        wide local mean: absolute or squared deviation from their mean, one minus their mean
+        zero-normalised cross-correlation with the mean over ``window_px``, or the absolute
+        deviation of the best subset (the view deviating most is left out, against occlusions).
     aggregation : {'box', 'guided'}
-        Spatial aggregation of each cost slice over ``window_px``: a box, or an edge-aware
+        Spatial aggregation of each cost slice over ``aggregate_px``: a box, or an edge-aware
         guided filter (guide: the reference view, or for 'center' the views' mean refocused at
         the middle hypothesis).
+    window_px : int
+        Odd window of the normalisation ('lcn') or of the correlation ('zncc').
+    aggregate_px : int, optional
+        Odd window of the aggregation: by default LCN_AGGREGATE_PX (15) for 'lcn' and
+        ``window_px`` for the other costs.
     min_views : int
         Pixels seen by fewer views get NaN.
     coarse_to_fine : bool
@@ -138,6 +154,8 @@ def estimate_depth(
         model); otherwise the full sweep runs. The confidence then comes from the coarse sweep.
         Off by default: on the twin it keeps the accuracy on pixels all four views see, but
         loses it on weakly textured, far, partly seen surfaces (see benchmarks/RESULTS.md).
+    threads : int, optional
+        Threads of the default ('lcn', 'box', numpy) sweep; by default OpenCV's thread count.
 
     Returns
     -------
@@ -148,7 +166,7 @@ def estimate_depth(
     With c(i) the aggregated cost, i* = argmin c and a parabola through c(i*-1), c(i*), c(i*+1),
     the refined index is ``i* + (c(i*-1) - c(i*+1)) / (2 (c(i*-1) - 2 c(i*) + c(i*+1)))``; the
     depth follows from linear interpolation in 1/(Z - z0). The confidence is
-    ``1 - c(i*) / c2`` with c2 the best cost at least one pixel of view motion away.
+    ``1 - c(i*) / c2`` with c2 the lowest cost more than one pixel of view motion from i*.
     """
     from lfring.backends import BACKENDS
 
@@ -158,8 +176,13 @@ def estimate_depth(
         raise InvalidInputError(f"cost must be one of {', '.join(COSTS)}, got {cost!r}")
     if aggregation not in AGGREGATIONS:
         raise InvalidInputError(f"aggregation must be one of {', '.join(AGGREGATIONS)}, got {aggregation!r}")
-    if isinstance(window_px, bool) or not isinstance(window_px, (int, np.integer)) or window_px < 1 or window_px % 2 == 0:
-        raise InvalidInputError(f"window_px must be an odd positive integer, got {window_px!r}")
+    for name, value in (("window_px", window_px), ("aggregate_px", 1 if aggregate_px is None else aggregate_px)):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1 or value % 2 == 0:
+            raise InvalidInputError(f"{name} must be an odd positive integer, got {value!r}")
+    if threads is not None and (isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 1):
+        raise InvalidInputError(f"threads must be a positive integer, got {threads!r}")
+    if aggregate_px is None:
+        aggregate_px = LCN_AGGREGATE_PX if cost == "lcn" else window_px
     arr = _check_views(views)
     if not np.all(np.isfinite(arr)):
         raise InvalidInputError("views contain NaN or infinite values")
@@ -173,7 +196,21 @@ def estimate_depth(
         hs = calibration.homographies(depths, reference=ref)  # (N, V, 3, 3)
     h, w = arr.shape[1:3]
     masks = _masks(calibration, (h, w))
-    lum = _normalised_luminance(arr, masks, sigma=max(8.0, min(h, w) / 40.0))
+    step = view_motion_px(calibration, depths, (h, w))
+    # The second minimum is looked for more than one pixel of motion away from the best.
+    exclude = max(1, int(np.ceil(1.0 / max(step, 1e-6))))
+    n = len(depths)
+    use_coarse = coarse_to_fine and n >= COARSE_MIN_PLANES and min(h, w) >= COARSE_MIN_SIZE_PX and _is_translation(hs)
+    threads = max(1, cv2.getNumThreads()) if threads is None else int(threads)
+    if cost == "lcn" and aggregation == "box" and backend == "numpy" and not use_coarse:
+        fin = _Finisher(depths, calibration.depth_origin_m, (h, w), min_views)
+        sweep_strips(lcn_sources(arr, masks, window_px, threads=threads), masks, hs, aggregate_px=aggregate_px,
+                     exclude=exclude, threads=threads, on_strip=fin)
+        return DepthResult(depth_m=fin.depth, confidence=fin.conf, hypothesis_index=fin.index, depths_m=depths,
+                           step_px=step, reference=ref, cost=cost, aggregation=aggregation)
+    lum = None
+    if cost != "lcn" or aggregation == "guided":
+        lum = _normalised_luminance(arr, masks, sigma=max(8.0, min(h, w) / 40.0))
     guide_image = None
     if aggregation == "guided":
         if ref == "center":
@@ -187,12 +224,10 @@ def estimate_depth(
         else:
             g = lum[ref]
         guide_image = np.clip(g / max(float(g.max()), 1e-6), 0, 1).astype(np.float32)
-    step = view_motion_px(calibration, depths, (h, w))
-    # The second minimum is looked for at least one pixel of motion away from the best.
-    exclude = max(1, int(np.ceil(1.0 / max(step, 1e-6))))
-    n = len(depths)
-    if not (coarse_to_fine and n >= COARSE_MIN_PLANES and min(h, w) >= COARSE_MIN_SIZE_PX and _is_translation(hs)):
-        out = _sweep(backend, device, lum, masks, hs, cost, aggregation, window_px, guide_image, exclude)
+    if cost == "lcn":  # the sweep compares the locally normalised luminances instead
+        lum = lcn_sources(arr, masks, window_px, threads=threads)
+    if not use_coarse:
+        out = _sweep(backend, device, lum, masks, hs, cost, aggregation, window_px, aggregate_px, guide_image, exclude)
         return _finish(*out, depths, calibration, ref, cost, aggregation, min_views, step)
 
     # Coarse: the whole sweep at half resolution over every other hypothesis.
@@ -208,7 +243,8 @@ def estimate_depth(
     guide_c = None if guide_image is None else half(guide_image)
     step_c = step * (n - 1) / (nc - 1)
     window_c = max(1, (window_px // 2) | 1)
-    out_c = _sweep(backend, device, lum_c, masks_c, hs_c, cost, aggregation, window_c, guide_c,
+    aggregate_c = max(1, (aggregate_px // 2) | 1)
+    out_c = _sweep(backend, device, lum_c, masks_c, hs_c, cost, aggregation, window_c, aggregate_c, guide_c,
                    max(1, int(np.ceil(1.0 / max(step_c, 1e-6)))))
     coarse = _finish(*out_c, depths_c, calibration, ref, cost, aggregation, min_views, step_c)
     # Fine: at full resolution, the 2 * FINE_BAND + 1 hypotheses around each pixel's coarse one.
@@ -226,9 +262,9 @@ def estimate_depth(
         from lfring.backends.torch_depth import fine_torch
 
         aggs, nviews = fine_torch(lum, masks, maps, cost=cost, aggregation=aggregation, window_px=window_px,
-                                  guide=guide_image, device=device)
+                                  aggregate_px=aggregate_px, guide=guide_image, device=device)
     else:
-        aggs, nviews = _fine_numpy(lum, masks, maps, cost, aggregation, window_px, guide_image)
+        aggs, nviews = _fine_numpy(lum, masks, maps, cost, aggregation, window_px, aggregate_px, guide_image)
     best_j, c_best, c_prev, c_next = _select(aggs)
     idx = center + (best_j - FINE_BAND) + _parabola(c_prev, c_best, c_next)
     res = _finish_index(idx, c_best, nviews, depths, calibration, ref, cost, aggregation, min_views, step)
@@ -258,14 +294,14 @@ def _masks(calibration, shape_hw) -> np.ndarray:
     return per[tuple(shape_hw)]
 
 
-def _sweep(backend, device, lum, masks, hs, cost, aggregation, window_px, guide_image, exclude):
+def _sweep(backend, device, lum, masks, hs, cost, aggregation, window_px, aggregate_px, guide_image, exclude):
     if backend == "torch":
         from lfring.backends.torch_depth import sweep_torch
 
-        return sweep_torch(lum, masks, hs, cost=cost, aggregation=aggregation, window_px=window_px, guide=guide_image,
-                           exclude=exclude, device=device)
-    guide = None if guide_image is None else cv2.ximgproc.createGuidedFilter(guide_image, window_px // 2, 1e-3)
-    return _sweep_numpy(lum, masks, hs, cost, window_px, guide, exclude)
+        return sweep_torch(lum, masks, hs, cost=cost, aggregation=aggregation, window_px=window_px,
+                           aggregate_px=aggregate_px, guide=guide_image, exclude=exclude, device=device)
+    guide = None if guide_image is None else cv2.ximgproc.createGuidedFilter(guide_image, aggregate_px // 2, 1e-3)
+    return _sweep_numpy(lum, masks, hs, cost, window_px, guide, exclude, aggregate_px)
 
 
 def _is_translation(hs) -> bool:
@@ -312,11 +348,11 @@ class _FineMaps:
         return mx, my
 
 
-def _fine_numpy(lum, masks, maps, cost, aggregation, window_px, guide_image):
+def _fine_numpy(lum, masks, maps, cost, aggregation, window_px, aggregate_px, guide_image):
     """Aggregated costs (nb, h, w) of the band hypotheses and the most views seen."""
     v, h, w = lum.shape
     src = [np.ascontiguousarray(np.stack([lum[k] * masks[k], masks[k]], axis=-1)) for k in range(v)]
-    guide = None if guide_image is None else cv2.ximgproc.createGuidedFilter(guide_image, window_px // 2, 1e-3)
+    guide = None if guide_image is None else cv2.ximgproc.createGuidedFilter(guide_image, aggregate_px // 2, 1e-3)
     aggs = np.empty((maps.nb, h, w), np.float32)
     nviews = np.zeros((h, w), np.float32)
     lum_w = np.empty((v, h, w), np.float32)
@@ -327,7 +363,7 @@ def _fine_numpy(lum, masks, maps, cost, aggregation, window_px, guide_image):
             both = cv2.remap(src[k], mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
             lum_w[k] = both[..., 0]
             wts[k] = both[..., 1]
-        aggs[j] = _aggregate(*slice_cost(lum_w, wts, cost, window_px), guide, window_px)
+        aggs[j] = _aggregate(*slice_cost(lum_w, wts, cost, window_px), guide, aggregate_px)
         np.maximum(nviews, wts.sum(axis=0), out=nviews)
     return aggs, nviews
 
@@ -358,6 +394,8 @@ def slice_cost(lum_w: np.ndarray, wts: np.ndarray, cost: str, window_px: int) ->
     nview = wts.sum(axis=0)
     if cost == "zncc":
         return _zncc(lum_w, wts, nview, window_px), nview
+    if cost == "lcn":  # lum_w: the warped locally normalised luminances (lcn_sources) times their masks
+        return lcn_cost(lum_w.sum(axis=0), np.square(lum_w).sum(axis=0), nview), nview
     safe = np.maximum(nview, 1e-3)
     vals = lum_w / np.maximum(wts, 1e-3)
     valid = wts > 0.5
@@ -437,16 +475,12 @@ def _zncc(lum_w: np.ndarray, wts: np.ndarray, nview: np.ndarray, window_px: int)
     return acc
 
 
-def _sweep_numpy(lum, masks, hs, cost, window_px, guide, exclude=1):
+def _sweep_numpy(lum, masks, hs, cost, window_px, guide, exclude=1, aggregate_px=None):
     n, v = hs.shape[:2]
     h, w = lum.shape[1:]
-    best = np.full((h, w), np.inf, np.float32)
-    best_i = np.zeros((h, w), np.int32)
-    c_prev = np.full((h, w), np.inf, np.float32)
-    c_next = np.full((h, w), np.inf, np.float32)
-    second = np.full((h, w), np.inf, np.float32)
+    aggregate_px = window_px if aggregate_px is None else aggregate_px
+    run = RunningMinimum((h, w), exclude)
     nviews = np.zeros((h, w), np.float32)
-    last = np.full((h, w), np.inf, np.float32)
     src = lum * masks
     lum_w = np.empty((v, h, w), np.float32)
     wts = np.empty((v, h, w), np.float32)
@@ -455,40 +489,69 @@ def _sweep_numpy(lum, masks, hs, cost, window_px, guide, exclude=1):
             _warp(src[k], hs[i, k], (w, h), dst=lum_w[k])
             _warp(masks[k], hs[i, k], (w, h), dst=wts[k])
         c, nv = slice_cost(lum_w, wts, cost, window_px)
-        agg = _aggregate(c, nv, guide, window_px)
-        _update(i, agg, last, best, best_i, c_prev, c_next, second, exclude)
+        np.copyto(run.slot(), _aggregate(c, nv, guide, aggregate_px))
+        run.push()
         np.maximum(nviews, nv, out=nviews)
-        last = agg
-    return best_i, best, c_prev, c_next, second, nviews
-
-
-def _update(i, agg, last, best, best_i, c_prev, c_next, second, exclude=1):
-    """Streamed argmin with the neighbours' costs and the best cost at least ``exclude``
-    hypotheses away from the minimum (an approximation when the minimum moves later)."""
-    # The slice right after the current best gives its right neighbour.
-    after = best_i == i - 1
-    c_next[after] = agg[after]
-    new = agg < best
-    far = np.abs(i - best_i) > exclude
-    # The old best becomes a candidate for the second minimum when the new best is far from it.
-    np.minimum(second, np.where(new & far, best, np.inf), out=second)
-    # A slice that is not the new best and is far from the best is a candidate too.
-    np.minimum(second, np.where(~new & far, agg, np.inf), out=second)
-    c_prev[new] = last[new]
-    c_next[new] = np.inf
-    best[new] = agg[new]
-    best_i[new] = i
+    return run.best_i, run.best, run.c_prev, run.c_next, run.second(), nviews
 
 
 def _parabola(a, b, c):
     """Offset of the minimum of the parabola through (-1, a), (0, b), (1, c), within +-0.5;
-    0 where a neighbour is missing (inf) or the curve is not convex."""
-    a, b, c = (np.asarray(x, np.float64) for x in (a, b, c))
-    inner = np.isfinite(a) & np.isfinite(b) & np.isfinite(c)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        denom = np.where(inner, a - 2 * b + c, 0.0)
-        delta = np.where(inner & (denom > 1e-12), 0.5 * (a - c) / np.where(denom > 1e-12, denom, 1.0), 0.0)
-    return np.clip(delta, -0.5, 0.5)
+    0 where a neighbour is missing (inf) or the curve is not convex. float32."""
+    a, b, c = (np.asarray(x, np.float32) for x in (a, b, c))
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        denom = a + c
+        denom -= 2 * b  # inf or nan where a cost is missing
+        delta = a - c
+        delta *= 0.5
+        delta /= denom
+        ok = (denom > 1e-12) & np.isfinite(denom) & np.isfinite(delta)
+    delta = np.where(ok, delta, np.float32(0.0))
+    return np.clip(delta, -0.5, 0.5, out=delta)
+
+
+def _refine(best_i, c_best, c_prev, c_next, c_second, n):
+    """Fractional hypothesis index (parabola, none at the range's ends) and confidence
+    ``1 - c_best / c_second`` (0 where c_second is missing or not positive), float32."""
+    edge = (best_i <= 0) | (best_i >= n - 1)
+    c_prev = np.where(edge, np.float32(np.inf), c_prev)
+    idx = _parabola(c_prev, c_best, c_next)
+    idx += best_i
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        conf = c_best / c_second
+        np.subtract(np.float32(1.0), conf, out=conf)
+    ok = np.isfinite(c_second) & (c_second > 0) & np.isfinite(conf)
+    conf = np.where(ok, conf, np.float32(0.0))
+    return idx, np.clip(conf, 0.0, 1.0, out=conf)
+
+
+class _Finisher:
+    """Depth, confidence and index rows from a sweep's strips (called from its threads)."""
+
+    def __init__(self, depths, z0, shape, min_views):
+        self.n = len(depths)
+        self.inv = 1.0 / (np.asarray(depths, np.float64) - z0)
+        self.z0 = z0
+        # Hypotheses evenly spaced in 1/(Z - z0) (depth_hypotheses): interpolation is a line.
+        step = (self.inv[-1] - self.inv[0]) / max(self.n - 1, 1)
+        self.linear = bool(np.allclose(self.inv, self.inv[0] + step * np.arange(self.n), rtol=1e-9, atol=0))
+        self.step = step
+        self.min_views = min_views
+        self.depth, self.conf, self.index = (np.empty(shape, np.float32) for _ in range(3))
+
+    def __call__(self, r0, r1, best_i, c_best, c_prev, c_next, c_second, nviews):
+        idx, conf = _refine(best_i, c_best, c_prev, c_next, c_second, self.n)
+        if self.linear:
+            inv_at = idx * np.float32(self.step)
+            inv_at += np.float32(self.inv[0])
+        else:
+            inv_at = np.interp(idx, np.arange(self.n), self.inv).astype(np.float32)
+        depth = np.divide(np.float32(1.0), inv_at, out=inv_at)
+        depth += np.float32(self.z0)
+        seen = (nviews >= self.min_views - 0.5) & np.isfinite(c_best)
+        self.depth[r0:r1] = np.where(seen, depth, np.float32(np.nan))
+        self.conf[r0:r1] = np.where(seen, conf, np.float32(0.0))
+        self.index[r0:r1] = np.where(seen, idx, np.float32(np.nan))
 
 
 def _finish_index(idx, c_best, nviews, depths, calibration, ref, cost, aggregation, min_views, step_px, conf=None):
@@ -507,12 +570,7 @@ def _finish_index(idx, c_best, nviews, depths, calibration, ref, cost, aggregati
 
 
 def _finish(best_i, c_best, c_prev, c_next, c_second, nviews, depths, calibration, ref, cost, aggregation, min_views, step_px):
-    n = len(depths)
-    b = c_best.astype(np.float64)
-    edge = (best_i <= 0) | (best_i >= n - 1)
-    delta = _parabola(np.where(edge, np.inf, c_prev), b, np.where(edge, np.inf, c_next))
-    idx = best_i + delta
-    with np.errstate(invalid="ignore", divide="ignore"):
-        conf = np.where(np.isfinite(c_second) & (c_second > 0), 1.0 - b / c_second, 0.0)
-    conf = np.clip(np.nan_to_num(conf, nan=0.0), 0.0, 1.0).astype(np.float32)
-    return _finish_index(idx, c_best, nviews, depths, calibration, ref, cost, aggregation, min_views, step_px, conf)
+    fin = _Finisher(depths, calibration.depth_origin_m, c_best.shape, min_views)
+    fin(0, c_best.shape[0], best_i, c_best, c_prev, c_next, c_second, nviews)
+    return DepthResult(depth_m=fin.depth, confidence=fin.conf, hypothesis_index=fin.index, depths_m=depths,
+                       step_px=step_px, reference=ref, cost=cost, aggregation=aggregation)

@@ -9,7 +9,7 @@ torch = pytest.importorskip("torch", reason="the torch extra is not installed")
 from lfring.backends import torch_depth  # noqa: E402
 from lfring.calibration import RingCalibration  # noqa: E402
 from lfring.depth import COSTS, estimate_depth  # noqa: E402
-from lfring.depth.sweep import _update  # noqa: E402
+from lfring.depth.stream import RunningMinimum  # noqa: E402
 from lfring.errors import InvalidInputError  # noqa: E402
 from lfring.synth import render  # noqa: E402
 from lfring.synth.presets import three_depth_scene  # noqa: E402
@@ -72,30 +72,46 @@ def test_parity_over_many_chunks(twin, monkeypatch):
     assert depth_ok >= 0.99 and conf_ok >= 0.99
 
 
+def _brute_force(aggs, exclude):
+    """What the streamed trackers must give, from the whole cost volume."""
+    n = len(aggs)
+    best_i = np.argmin(aggs, axis=0)  # the first of equal minima
+    take = lambda j: np.take_along_axis(aggs, np.clip(j, 0, n - 1)[None], axis=0)[0]
+    best = take(best_i)
+    c_prev = np.where(best_i > 0, take(best_i - 1), np.inf)
+    c_next = np.where(best_i < n - 1, take(best_i + 1), np.inf)
+    far = np.abs(np.arange(n)[:, None, None] - best_i[None]) > exclude
+    second = np.where(far, aggs, np.inf).min(axis=0)
+    return {"best": best, "best_i": best_i, "c_prev": c_prev, "c_next": c_next, "second": second}
+
+
 @pytest.mark.parametrize("exclude", [1, 2, 3])
-def test_chunked_update_equals_streamed_update(exclude):
-    """Integer costs with ties and gaps: the vectorised chunk update gives exactly what the
-    reference's one-slice-at-a-time update gives, for any chunking."""
+def test_running_minimum_is_exact(exclude):
+    """Integer costs with ties, gaps and missing (inf) slices: the NumPy/OpenCV tracker and the
+    torch one, fed in chunks of any size, give exactly the minimum, its first index, its
+    neighbours and the lowest cost more than ``exclude`` hypotheses away from it."""
     rng = np.random.default_rng(exclude)
     h, w = 5, 7
     for trial in range(40):
         n = int(rng.integers(1, 25))
         aggs = rng.integers(0, 5, (n, h, w)).astype(np.float32)
         aggs[rng.random(aggs.shape) < 0.2] = np.inf
-        best, c_prev, c_next, second, last = (np.full((h, w), np.inf, np.float32) for _ in range(5))
-        best_i = np.zeros((h, w), np.int32)
+        want = _brute_force(aggs, exclude)
+        run = RunningMinimum((h, w), exclude)
         for i in range(n):
-            _update(i, aggs[i], last, best, best_i, c_prev, c_next, second, exclude)
-            last = aggs[i]
-        state = {k: torch.full((h, w), float("inf")) for k in ("best", "c_prev", "c_next", "second", "last")}
-        state["best_i"] = torch.zeros((h, w), dtype=torch.int64)
+            np.copyto(run.slot(), aggs[i])
+            run.push()
+        got = {"best": run.best, "best_i": run.best_i, "c_prev": run.c_prev, "c_next": run.c_next, "second": run.second()}
+        trun = torch_depth._RunningMinimum(torch, (h, w), exclude, "cpu")
         i = 0
         while i < n:
             c = min(int(rng.integers(1, 8)), n - i)
-            torch_depth._update_chunk(torch, i, torch.from_numpy(aggs[i:i + c]), state, exclude)
+            trun.push_chunk(torch.from_numpy(aggs[i:i + c]))
             i += c
-        for name, want in (("best", best), ("best_i", best_i), ("c_prev", c_prev), ("c_next", c_next), ("second", second)):
-            np.testing.assert_array_equal(state[name].numpy(), want, err_msg=f"{name}, trial {trial}")
+        tgot = {"best": trun.best, "best_i": trun.best_i, "c_prev": trun.c_prev, "c_next": trun.c_next, "second": trun.second()}
+        for name in want:
+            np.testing.assert_array_equal(got[name], want[name], err_msg=f"numpy {name}, trial {trial}")
+            np.testing.assert_array_equal(tgot[name].numpy(), want[name], err_msg=f"torch {name}, trial {trial}")
 
 
 @pytest.mark.parametrize("shape, k", [((37, 53), 9), ((53, 37), 5), ((4, 9), 9), ((1, 6), 3), ((20, 30), 1)])
