@@ -5,7 +5,8 @@ the ground truth lives. SGBM runs on views 0 and 1 (horizontal neighbours: recti
 construction) over the same depth range, and its disparity is turned into depth with the same
 calibration model. Errors on textured pixels that all four views see, away from depth edges (and,
 as a separate region, the textured pixels all views see within 15 px of a depth edge); pixels
-without an estimate count as failures; disparities between views 0 and 1. Times are medians of 3 runs.
+without an estimate count as failures; disparities between views 0 and 1. Times are medians of 9
+runs, every method timed first, one after the other; the last column divides by SGBM's median.
 
 A second table times 4 views of 1060 x 1060 (the paper's sub-aperture size; random texture, the
 prototype's optics calibration with views valid everywhere) at exactly 64 planes, medians of 3 runs.
@@ -34,6 +35,7 @@ from lfring.synth.presets import three_depth_scene
 from lfring.views import layout_from_circles, split_views
 
 ZMIN, ZMAX = 0.27, 1.1
+RUNS = 9
 
 
 def sgbm_depth(views, cal, zmin, zmax, block=5):
@@ -69,11 +71,14 @@ def main() -> None:
     seen = Refocuser(cal, 0.5, reference=0).weight > 3.9
     usable = evaluation_mask(gt, r.views_sharp[0]) & seen
     near_edges = evaluation_mask(gt, r.views_sharp[0], margin_px=3) & seen & ~usable
+    est = lambda **kw: (lambda: estimate_depth(views, cal, zmin_m=ZMIN, zmax_m=ZMAX, reference=0, **kw).depth_m)
     runs = {
-        "lfring, defaults (1 px spacing)": lambda: estimate_depth(views, cal, zmin_m=ZMIN, zmax_m=ZMAX, reference=0).depth_m,
-        "lfring, defaults + coarse_to_fine=True": lambda: estimate_depth(views, cal, zmin_m=ZMIN, zmax_m=ZMAX, reference=0,
-                                                                         coarse_to_fine=True).depth_m,
-        "lfring, 0.25 px spacing": lambda: estimate_depth(views, cal, zmin_m=ZMIN, zmax_m=ZMAX, reference=0, num_planes=41).depth_m,
+        "lfring, defaults (lcn, box 15 px, 1 px spacing)": est(),
+        "lfring, defaults, threads=1": est(threads=1),
+        "lfring, aggregation='guided'": est(aggregation="guided"),
+        "lfring, cost='zncc', aggregation='guided' (the former defaults)": est(cost="zncc", aggregation="guided"),
+        "lfring, defaults + coarse_to_fine=True": est(coarse_to_fine=True),
+        "lfring, 0.25 px spacing": est(num_planes=41),
         "OpenCV StereoSGBM, views 0 and 1": lambda: sgbm_depth(views, cal, ZMIN, ZMAX)[0],
     }
     disp = lambda z: cal.model(np.asarray(z, np.float64))[..., 1, 0, 2] - cal.model(np.asarray(z, np.float64))[..., 0, 0, 2]
@@ -81,10 +86,12 @@ def main() -> None:
           f"load {os.getloadavg()[0]:.2f}")
     print(f"frame: twin three-depth scene, 2 x 2 binned, realistic noise; views {views.shape[2]} x {views.shape[1]} px; "
           f"depth range {ZMIN}-{ZMAX} m; SGBM disparities {sgbm_depth(views, cal, ZMIN, ZMAX)[1]}")
-    print("| method | region | pixels | BadPix 0.3 px | MAE px | MAE mm | median rel. error | time s |")
-    print("|---|---|---|---|---|---|---|---|")
+    print("| method | region | pixels | BadPix 0.3 px | MAE px | MAE mm | median rel. error | time s | time / SGBM |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    times = {name: bench(fn, RUNS)[0] for name, fn in runs.items()}  # all timed first, in one stretch
+    sgbm_s = times["OpenCV StereoSGBM, views 0 and 1"]
     for name, fn in runs.items():
-        med, _, _ = bench(fn, 3)
+        med = times[name]
         depth = fn()
         for region, z in (("all usable", None), ("cup 0.3 m", 0.3), ("book 0.5 m", 0.5), ("chessboard 1.0 m", 1.0),
                           ("within 15 px of a depth edge", "edges")):
@@ -99,7 +106,7 @@ def main() -> None:
             mae_mm = float(np.mean(np.abs(est[ok] - gt[m][ok]))) * 1e3 if ok.any() else float("nan")
             rel = float(np.median(np.abs(est[ok] - gt[m][ok]) / gt[m][ok])) if ok.any() else float("nan")
             print(f"| {name} | {region} | {m.sum()} | {np.mean(err > 0.3) * 100:.1f} % | {mae_px:.3f} | {mae_mm:.1f} | "
-                  f"{rel * 100:.2f} % | {med:.3f} |")
+                  f"{rel * 100:.2f} % | {med:.3f} | {med / sgbm_s:.2f} |")
     big_views()
 
 
@@ -116,7 +123,9 @@ def big_views(side: int = 1060, planes: int = 64, runs: int = 3) -> None:
     print(f"\n4 views of {side} x {side} x 3 float32, {planes} planes, depth range {ZMIN}-{ZMAX} m; median of {runs} runs")
     print("| what | median s | min s | max s |")
     print("|---|---|---|---|")
-    for name, kw in (("estimate_depth, defaults", {}), ("estimate_depth, coarse_to_fine=True", {"coarse_to_fine": True})):
+    for name, kw in (("estimate_depth, defaults", {}), ("estimate_depth, defaults, threads=1", {"threads": 1}),
+                     ("estimate_depth, cost='zncc', aggregation='guided' (the former defaults)", {"cost": "zncc", "aggregation": "guided"}),
+                     ("estimate_depth, coarse_to_fine=True", {"coarse_to_fine": True})):
         med, lo, hi = bench(lambda kw=kw: estimate_depth(views, cal, zmin_m=ZMIN, zmax_m=ZMAX, num_planes=planes, **kw), runs)
         print(f"| {name} | {med:.2f} | {lo:.2f} | {hi:.2f} |")
 
