@@ -162,6 +162,32 @@ def _pool(workers: int) -> ThreadPoolExecutor:
     return _POOL[1]
 
 
+def _run_threads(tasks, threads: int) -> None:
+    """Run the callables, shared among ``threads`` threads: this one and the pool's (which take
+    the next task as they free up; OpenCV and NumPy release the GIL)."""
+    lock = threading.Lock()
+    todo = iter(tasks)
+
+    def worker() -> None:
+        while True:
+            with lock:
+                task = next(todo, None)
+            if task is None:
+                return
+            task()
+
+    threads = max(1, min(int(threads), len(tasks)))
+    if threads == 1:
+        worker()
+        return
+    futures = [_pool(threads - 1).submit(worker) for _ in range(threads - 1)]
+    try:
+        worker()
+    finally:
+        for f in futures:
+            f.result()
+
+
 _SCRATCH = threading.local()
 
 
@@ -361,13 +387,7 @@ class _ShiftPlan:
                     for sl, i in bands:
                         np.multiply(out[sl], inv_rows[i], out=out[sl])
 
-        if threads == 1:
-            work(chunks[0])
-        else:
-            futures = [_pool(threads - 1).submit(work, c) for c in chunks[1:]]
-            work(chunks[0])
-            for f in futures:
-                f.result()
+        _run_threads([lambda c=c: work(c) for c in chunks], threads)
         return out
 
 

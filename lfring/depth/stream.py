@@ -25,6 +25,8 @@ import threading
 import cv2
 import numpy as np
 
+from lfring.refocus import _run_threads
+
 __all__ = ["LCN_EPS", "LCN_FLOOR", "RunningMinimum", "lcn_cost", "lcn_sources", "sweep_strips"]
 
 # Relative contrast floor of the normalisation (its variance term is LCN_EPS mu^2): texture
@@ -81,33 +83,6 @@ def lcn_sources(views: np.ndarray, masks: np.ndarray, window_px: int, *, threads
 
     _run_threads([lambda k=k, r=r: one(k, r, min(h, r + rows)) for k in range(v) for r in range(0, h, rows)], threads)
     return out
-
-
-def _run_threads(tasks, threads: int) -> None:
-    """Run the callables, shared among ``threads`` threads (this one and a pool's)."""
-    lock = threading.Lock()
-    todo = iter(tasks)
-
-    def worker() -> None:
-        while True:
-            with lock:
-                task = next(todo, None)
-            if task is None:
-                return
-            task()
-
-    threads = max(1, min(int(threads), len(tasks)))
-    if threads == 1:
-        worker()
-        return
-    from lfring.refocus import _pool
-
-    futures = [_pool(threads - 1).submit(worker) for _ in range(threads - 1)]
-    try:
-        worker()
-    finally:
-        for f in futures:
-            f.result()
 
 
 _WEIGHTS: dict = {}
@@ -231,12 +206,6 @@ class _Shifter:
         ints = np.floor(s).astype(int)
         self.plan = [(int(ix), int(iy), float(sx - ix), float(sy - iy)) for (sx, sy), (ix, iy) in zip(s, ints)]
         self.w = w
-
-    def nearest(self, i: int, q0: int, rows: int) -> np.ndarray:
-        """Rows [q0, q0 + rows) shifted by the nearest whole pixel: a view of the padded copy."""
-        ix, iy, fx, fy = self.plan[i]
-        r, c = q0 + iy + round(fy) + self.pad, ix + round(fx) + self.pad
-        return self.src[r:r + rows, c:c + self.w]
 
     def render(self, i: int, q0: int, rows: int, tmp: np.ndarray, out: np.ndarray) -> np.ndarray:
         ix, iy, fx, fy = self.plan[i]

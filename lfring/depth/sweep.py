@@ -15,12 +15,19 @@ from __future__ import annotations
 
 import warnings
 import weakref
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
-from lfring.depth.stream import RunningMinimum, lcn_cost, lcn_sources, sweep_strips
+from lfring.depth.stream import (
+    RunningMinimum,
+    _luminance,
+    _translations,
+    lcn_cost,
+    lcn_sources,
+    sweep_strips,
+)
 from lfring.errors import InvalidInputError, LfringWarning
 from lfring.geometry import check_reference
 from lfring.refocus import (
@@ -76,14 +83,11 @@ def _normalised_luminance(views: np.ndarray, masks: np.ndarray, sigma: float) ->
     The local mean varies slowly (sigma of tens of pixels), so it is computed on the image
     shrunk by up to sigma / 4 and enlarged back bilinearly: a few percent of the time of the
     full-size blur, and the same to a fraction of a percent."""
-    v, h, w, c = views.shape
+    v, h, w = views.shape[:3]
     f = int(max(1, min(sigma // 4, min(h, w) // 16)))
     small = (max(1, w // f), max(1, h // f))
     out = np.empty((v, h, w), np.float32)
-    mix = np.full((1, c), 1.0 / c, np.float32)
-    for k in range(v):
-        lum = cv2.transform(views[k], mix) if c > 1 else views[k, ..., 0].copy()
-        lum = lum.reshape(h, w)
+    for k, lum in enumerate(_luminance(views)):
         num = cv2.GaussianBlur(cv2.resize(lum * masks[k], small, interpolation=cv2.INTER_AREA), (0, 0), sigma / f)
         den = cv2.GaussianBlur(cv2.resize(masks[k], small, interpolation=cv2.INTER_AREA), (0, 0), sigma / f)
         local = np.where(den > 1e-3, num / np.maximum(den, 1e-6), 0.0).astype(np.float32)
@@ -206,8 +210,7 @@ def estimate_depth(
         fin = _Finisher(depths, calibration.depth_origin_m, (h, w), min_views)
         sweep_strips(lcn_sources(arr, masks, window_px, threads=threads), masks, hs, aggregate_px=aggregate_px,
                      exclude=exclude, threads=threads, on_strip=fin)
-        return DepthResult(depth_m=fin.depth, confidence=fin.conf, hypothesis_index=fin.index, depths_m=depths,
-                           step_px=step, reference=ref, cost=cost, aggregation=aggregation)
+        return fin.result(depths_m=depths, step_px=step, reference=ref, cost=cost, aggregation=aggregation)
     lum = None
     if cost != "lcn" or aggregation == "guided":
         lum = _normalised_luminance(arr, masks, sigma=max(8.0, min(h, w) / 40.0))
@@ -267,11 +270,10 @@ def estimate_depth(
         aggs, nviews = _fine_numpy(lum, masks, maps, cost, aggregation, window_px, aggregate_px, guide_image)
     best_j, c_best, c_prev, c_next = _select(aggs)
     idx = center + (best_j - FINE_BAND) + _parabola(c_prev, c_best, c_next)
-    res = _finish_index(idx, c_best, nviews, depths, calibration, ref, cost, aggregation, min_views, step)
     # The confidence is the coarse cost curve's distinctness (the fine band is too narrow for it).
-    conf = np.clip(up(coarse.confidence), 0.0, 1.0)
-    conf[~np.isfinite(res.depth_m)] = 0.0
-    return replace(res, confidence=conf.astype(np.float32))
+    fin = _Finisher(depths, calibration.depth_origin_m, (h, w), min_views)
+    fin.rows(0, h, idx.astype(np.float32), np.clip(up(coarse.confidence), 0.0, 1.0), c_best, nviews)
+    return fin.result(depths_m=depths, step_px=step, reference=ref, cost=cost, aggregation=aggregation)
 
 
 # Coarse-to-fine (when asked for) runs when the sweep has at least this many hypotheses on views
@@ -307,11 +309,9 @@ def _sweep(backend, device, lum, masks, hs, cost, aggregation, window_px, aggreg
 def _is_translation(hs) -> bool:
     """Whether every H_ref_from_view is a translation that is linear in the hypothesis index
     (the optics model, or any calibration whose views are parallel pinholes of equal focal length)."""
-    hs = np.asarray(hs, np.float64)
-    if not (np.all(np.abs(hs[..., :2, :2] - np.eye(2)) < 1e-12) and np.all(np.abs(hs[..., 2, :2]) < 1e-15)
-            and np.all(hs[..., 2, 2] == 1.0)):
+    t = _translations(hs)
+    if t is None:
         return False
-    t = hs[..., :2, 2]
     i = np.arange(len(t), dtype=np.float64)[:, None, None]
     lin = t[:1] + i * (t[-1:] - t[:1]) / max(len(t) - 1, 1)
     return bool(np.all(np.abs(t - lin) < 1e-6))
@@ -541,6 +541,10 @@ class _Finisher:
 
     def __call__(self, r0, r1, best_i, c_best, c_prev, c_next, c_second, nviews):
         idx, conf = _refine(best_i, c_best, c_prev, c_next, c_second, self.n)
+        self.rows(r0, r1, idx, conf, c_best, nviews)
+
+    def rows(self, r0, r1, idx, conf, c_best, nviews):
+        """Rows r0 to r1 from fractional hypothesis indices and confidences."""
         if self.linear:
             inv_at = idx * np.float32(self.step)
             inv_at += np.float32(self.inv[0])
@@ -553,24 +557,11 @@ class _Finisher:
         self.conf[r0:r1] = np.where(seen, conf, np.float32(0.0))
         self.index[r0:r1] = np.where(seen, idx, np.float32(np.nan))
 
-
-def _finish_index(idx, c_best, nviews, depths, calibration, ref, cost, aggregation, min_views, step_px, conf=None):
-    """DepthResult from fractional hypothesis indices."""
-    n = len(depths)
-    z0 = calibration.depth_origin_m
-    inv = 1.0 / (depths - z0)
-    inv_at = np.interp(idx, np.arange(n), inv)
-    depth = (z0 + 1.0 / inv_at).astype(np.float32)
-    conf = np.zeros(depth.shape, np.float32) if conf is None else conf
-    seen = (nviews >= min_views - 0.5) & np.isfinite(c_best)
-    depth[~seen] = np.nan
-    conf[~seen] = 0.0
-    return DepthResult(depth_m=depth, confidence=conf, hypothesis_index=np.where(seen, idx, np.nan).astype(np.float32),
-                       depths_m=depths, step_px=step_px, reference=ref, cost=cost, aggregation=aggregation)
+    def result(self, **record) -> DepthResult:
+        return DepthResult(depth_m=self.depth, confidence=self.conf, hypothesis_index=self.index, **record)
 
 
 def _finish(best_i, c_best, c_prev, c_next, c_second, nviews, depths, calibration, ref, cost, aggregation, min_views, step_px):
     fin = _Finisher(depths, calibration.depth_origin_m, c_best.shape, min_views)
     fin(0, c_best.shape[0], best_i, c_best, c_prev, c_next, c_second, nviews)
-    return DepthResult(depth_m=fin.depth, confidence=fin.conf, hypothesis_index=fin.index, depths_m=depths,
-                       step_px=step_px, reference=ref, cost=cost, aggregation=aggregation)
+    return fin.result(depths_m=depths, step_px=step_px, reference=ref, cost=cost, aggregation=aggregation)
