@@ -29,7 +29,7 @@ from lfring.depth.metrics import evaluation_mask
 from lfring.io.demosaic import demosaic
 from lfring.io.raw import RawFrame
 from lfring.optics import load_device
-from lfring.refocus import Refocuser
+from lfring.focus import Refocuser
 from lfring.synth import render
 from lfring.synth.presets import three_depth_scene
 from lfring.views import layout_from_circles, split_views
@@ -77,7 +77,6 @@ def main() -> None:
         "lfring, defaults, threads=1": est(threads=1),
         "lfring, aggregation='guided'": est(aggregation="guided"),
         "lfring, cost='zncc', aggregation='guided' (the former defaults)": est(cost="zncc", aggregation="guided"),
-        "lfring, defaults + coarse_to_fine=True": est(coarse_to_fine=True),
         "lfring, 0.25 px spacing": est(num_planes=41),
         "OpenCV StereoSGBM, views 0 and 1": lambda: sgbm_depth(views, cal, ZMIN, ZMAX)[0],
     }
@@ -124,8 +123,7 @@ def big_views(side: int = 1060, planes: int = 64, runs: int = 3) -> None:
     print("| what | median s | min s | max s |")
     print("|---|---|---|---|")
     for name, kw in (("estimate_depth, defaults", {}), ("estimate_depth, defaults, threads=1", {"threads": 1}),
-                     ("estimate_depth, cost='zncc', aggregation='guided' (the former defaults)", {"cost": "zncc", "aggregation": "guided"}),
-                     ("estimate_depth, coarse_to_fine=True", {"coarse_to_fine": True})):
+                     ("estimate_depth, cost='zncc', aggregation='guided' (the former defaults)", {"cost": "zncc", "aggregation": "guided"})):
         med, lo, hi = bench(lambda kw=kw: estimate_depth(views, cal, zmin_m=ZMIN, zmax_m=ZMAX, num_planes=planes, **kw), runs)
         print(f"| {name} | {med:.2f} | {lo:.2f} | {hi:.2f} |")
 

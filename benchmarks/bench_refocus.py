@@ -32,7 +32,7 @@ import numpy as np
 from _timing import bench
 from lfring.calibration import RingCalibration
 from lfring.optics import load_device
-from lfring.refocus import Refocuser, refocus
+from lfring.focus import Refocuser, refocus
 from lfring.views import layout_from_circles
 
 RUNS = 31

@@ -11,7 +11,6 @@ render. Medians of 5 runs after a warm-up; prints only, writes nothing.
 
 from __future__ import annotations
 
-import importlib
 import os
 import platform
 import statistics
@@ -24,7 +23,7 @@ from lfring.optics import load_device
 from lfring.synth import render
 from lfring.synth.presets import three_depth_scene
 
-_render_module = importlib.import_module("lfring.synth.render")  # the module, not the function
+from lfring.synth import renderer as _render_module
 
 RUNS = 5
 SETTINGS = dict(noise="realistic", pattern="RGGB", bit_depth=12)

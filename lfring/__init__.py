@@ -22,7 +22,7 @@ from lfring.depth import DepthResult, estimate_depth
 from lfring.io.demosaic import demosaic
 from lfring.inspect import Defect, InspectionResult, inspect_frame
 from lfring.io.raw import RawFrame, load_raw
-from lfring.refocus import Refocuser, all_in_focus, focal_stack, refocus
+from lfring.focus import Refocuser, all_in_focus, focal_stack, refocus
 from lfring.views import Layout, detect_layout, split_views
 
 __version__ = "0.1.0"

@@ -314,7 +314,7 @@ def _refocuser(cal, cal_name: str, depth_m: float, settings: BatchSettings, view
     """Per worker process: one Refocuser per (settings, calibration, depth, frame size), reused
     for every frame (a folder of frames at one depth pays the geometry once). Keyed by content,
     not identity: every task brings its own unpickled copy of the settings."""
-    from lfring.refocus import Refocuser
+    from lfring.focus import Refocuser
 
     key = ("refocuser", settings.key(), cal_name, depth_m, tuple(view_shape))
     r = _WORKER_CACHE.get(key)
@@ -366,7 +366,7 @@ def _process(input_path, settings: BatchSettings, outputs, timings) -> tuple[dic
     from lfring.io.demosaic import demosaic
     from lfring.io.raw import load_raw
     from lfring.io.writers import encode_image, write_image
-    from lfring.refocus import all_in_focus
+    from lfring.focus import all_in_focus
     from lfring.views import split_views
 
     t = time.perf_counter()

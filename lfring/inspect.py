@@ -33,7 +33,9 @@ import cv2
 import numpy as np
 
 from lfring.errors import InvalidInputError, LfringWarning
+from lfring.depth.hypotheses import depth_hypotheses, view_motion_px
 from lfring.geometry import check_reference
+from lfring.warp import WEIGHT_FLOOR, cached_view_masks, check_views, normalised_luminance, warp_views
 
 __all__ = [
     "Defect", "InspectionResult", "annotate", "default_depth_band", "inspect_frame", "photo_consistency", "report",
@@ -187,20 +189,9 @@ def _check_reference_depth(ref_depth, shape_hw, z0: float) -> np.ndarray:
     return arr.astype(np.float32)
 
 
-def _check_views(views) -> np.ndarray:
-    arr = np.asarray(views)
-    if arr.ndim != 4 or arr.shape[0] < 2 or min(arr.shape[1:3]) < 2:
-        raise InvalidInputError(f"views must be (V, h, w, C) with at least two views, got shape {arr.shape}")
-    if arr.dtype != np.float32:
-        raise InvalidInputError(f"views must be float32 in [0, 1] (lfring.split_views gives that), got {arr.dtype}")
-    return arr
-
-
 # -- band -----------------------------------------------------------------------------------------
 def _motion_per_inv(calibration, depth_m: float) -> float:
     """View motion in pixels per unit of 1/(Z - z0) near ``depth_m`` (the maps are affine in it)."""
-    from lfring.refocus import view_motion_px
-
     z0 = calibration.depth_origin_m
     z1, z2 = depth_m * 0.98, depth_m * 1.02
     with warnings.catch_warnings():
@@ -278,12 +269,9 @@ def photo_consistency(views, calibration, depth_m: float, *, reference="center",
         ``box(var_k L_k) / box_var(mean_k L_k)``, with ``L_k`` the warped, locally normalised
         luminances; NaN where fewer than two views see the pixel or it is untextured.
     """
-    from lfring.depth.sweep import _normalised_luminance
-    from lfring.refocus import view_masks, warp_views
-
     arr = np.asarray(views)
-    masks = view_masks(calibration, arr.shape[1:3])
-    lum = _normalised_luminance(arr, masks, sigma=max(8.0, min(arr.shape[1:3]) / 40.0))
+    masks = cached_view_masks(calibration, arr.shape[1:3])
+    lum = normalised_luminance(arr, masks, sigma=max(8.0, min(arr.shape[1:3]) / 40.0))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", LfringWarning)
         hs = calibration.homographies(depth_m, reference=reference)
@@ -291,7 +279,7 @@ def photo_consistency(views, calibration, depth_m: float, *, reference="center",
     warped = warped[..., 0]
     valid = wts > 0.5
     n = valid.sum(axis=0)
-    vals = warped / np.maximum(wts, 1e-3)
+    vals = warped / np.maximum(wts, WEIGHT_FLOOR)
     mean = (vals * valid).sum(axis=0) / np.maximum(n, 1)
     spread = (((vals - mean) ** 2) * valid).sum(axis=0) / np.maximum(n - 1, 1)
     k = (window_px, window_px)
@@ -402,9 +390,9 @@ def inspect_frame(
     Areas in mm^2 use the pixel footprint at the plane, ``pitch (Z - s) / f``.
     """
     from lfring.depth import estimate_depth
-    from lfring.refocus import Refocuser, depth_hypotheses
+    from lfring.focus import Refocuser
 
-    arr = _check_views(views)
+    arr = check_views(views, min_views=2)
     plane = _positive(plane_m, "plane_m")
     tol = _positive(tolerance_m, "tolerance_m")
     z0 = calibration.depth_origin_m

@@ -77,7 +77,7 @@ def _digest(folder: Path) -> dict[str, str]:
 def _expected_refocus(frame: Path, cal_path: Path, depth_m: float) -> np.ndarray:
     from lfring import RingCalibration, demosaic, load_raw, split_views
     from lfring.io.writers import encode_image
-    from lfring.refocus import refocus
+    from lfring.focus import refocus
 
     cal = RingCalibration.load(cal_path)
     views = split_views(demosaic(load_raw(frame)), cal.layout)

@@ -10,7 +10,8 @@ from lfring.calibration import RingCalibration
 from lfring.errors import InvalidInputError, LfringWarning
 from lfring.io.demosaic import demosaic
 from lfring.io.raw import RawFrame
-from lfring.refocus import Refocuser, all_in_focus, depth_hypotheses, focal_stack, refocus
+from lfring.depth.hypotheses import depth_hypotheses
+from lfring.focus import Refocuser, all_in_focus, focal_stack, refocus
 from lfring.synth import render
 from lfring.synth.presets import three_depth_scene
 from lfring.views import Layout, split_views

@@ -5,17 +5,15 @@ than the view; with and without valid discs; and a homography just off a transla
 must take the general warp.
 """
 
-import sys
-
 import cv2
 import numpy as np
 import pytest
 
 from lfring.calibration import RingCalibration
-from lfring.refocus import TRANSLATION_TOL_PX, Refocuser, _translation_of, refocus, view_masks, warp_views
+from lfring import warp
+from lfring.focus import Refocuser, refocus
+from lfring.warp import TRANSLATION_TOL_PX, translation_of, view_masks, warp_views
 from lfring.views import Layout
-
-REFOCUS_MODULE = sys.modules["lfring.refocus"]  # the name lfring.refocus is also the function
 
 H_PX, W_PX = 61, 97  # view size: non-square, odd
 # Shifts (x, y) in reference pixels of each view at 0.5 m (view -> reference).
@@ -61,7 +59,7 @@ def strips(request, monkeypatch):
     """The default strips (one for these small views) and the smallest (8 rows), so that
     view edges fall inside, at the start and at the end of strips."""
     if request.param == "8-row-strips":
-        monkeypatch.setattr(REFOCUS_MODULE, "STRIP_BYTES", 1)
+        monkeypatch.setattr(warp, "STRIP_BYTES", 1)
     return request.param
 
 
@@ -86,7 +84,7 @@ def test_shift_path_matches_the_general_warp(circles, channels, depth_m, strips)
 
 
 def test_threads_split_strips_without_changing_the_result(monkeypatch):
-    monkeypatch.setattr(REFOCUS_MODULE, "STRIP_BYTES", 1)  # 8 strips of 8 rows (the last 5)
+    monkeypatch.setattr(warp, "STRIP_BYTES", 1)  # 8 strips of 8 rows (the last 5)
     cal = _calibration(SHIFTS, circles=DISCS)
     views = _views(3)
     one = Refocuser(cal, 0.6, reference=0, threads=1)(views)
@@ -128,7 +126,7 @@ def test_translation_bound_is_rigorous():
     for scale in np.geomspace(1e-9, 1e-4, 40):
         h = np.eye(3) + rng.normal(size=(3, 3)) * scale * np.array([[1, 1, 1e4], [1, 1, 1e4], [1e-2, 1e-2, 0]])
         h[:2, 2] += rng.normal(size=2) * 20
-        s = _translation_of(h, (H_PX, W_PX))
+        s = translation_of(h, (H_PX, W_PX))
         g = np.linalg.inv(h) @ pts
         dev = np.abs(g[:2] / g[2] - pts[:2] - (np.zeros((2, 1)) if s is None else np.asarray(s)[:, None])).max()
         if s is None:
@@ -137,8 +135,8 @@ def test_translation_bound_is_rigorous():
             accepted += 1
             assert dev <= TRANSLATION_TOL_PX, (scale, dev)
     assert accepted > 5 and rejected > 5
-    assert _translation_of(_translations([(3.25, -1.5)])[0], (H_PX, W_PX)) == pytest.approx([-3.25, 1.5], abs=1e-12)
-    assert _translation_of(np.array([[1.0, 0, 0], [0, 1, 0], [0, -1.0, 1]]), (H_PX, W_PX)) is None  # horizon inside
+    assert translation_of(_translations([(3.25, -1.5)])[0], (H_PX, W_PX)) == pytest.approx([-3.25, 1.5], abs=1e-12)
+    assert translation_of(np.array([[1.0, 0, 0], [0, 1, 0], [0, -1.0, 1]]), (H_PX, W_PX)) is None  # horizon inside
 
 
 def test_bad_threads():
@@ -155,14 +153,14 @@ def test_threads_work_in_a_forked_child():
 
     cal = _calibration(SHIFTS)
     views = _views(3)
-    REFOCUS_MODULE.STRIP_BYTES, saved = 1, REFOCUS_MODULE.STRIP_BYTES
+    warp.STRIP_BYTES, saved = 1, warp.STRIP_BYTES
     try:
         expected = Refocuser(cal, 0.6, reference=0, threads=2)(views)  # starts the threads here
         ctx = multiprocessing.get_context("fork")
         with ctx.Pool(1) as pool:
             got = pool.apply_async(_refocus_in_child, (cal, views)).get(timeout=60)
     finally:
-        REFOCUS_MODULE.STRIP_BYTES = saved
+        warp.STRIP_BYTES = saved
     np.testing.assert_array_equal(got, expected)
 
 

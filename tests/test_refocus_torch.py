@@ -7,7 +7,7 @@ torch = pytest.importorskip("torch", reason="the torch extra is not installed")
 
 from lfring.calibration import RingCalibration  # noqa: E402
 from lfring.errors import InvalidInputError  # noqa: E402
-from lfring.refocus import refocus  # noqa: E402
+from lfring.focus import refocus  # noqa: E402
 from lfring.synth import render  # noqa: E402
 from lfring.synth.presets import three_depth_scene  # noqa: E402
 

@@ -1,6 +1,6 @@
 """The plane sweep with torch/kornia: chunks of depth hypotheses at once, on a GPU or the CPU.
 
-The NumPy/OpenCV :func:`lfring.depth.sweep._sweep_numpy` is the reference and defines every
+The NumPy/OpenCV :func:`lfring.depth.stream.sweep_slices` is the reference and defines every
 number here; tests hold the two together. Hypotheses are processed in chunks sized so that the
 chunk's tensors stay under about ``_CHUNK_BYTES``: memory does not grow with their number.
 """
@@ -10,16 +10,17 @@ from __future__ import annotations
 import numpy as np
 
 from lfring.backends import require_torch, resolve_device
+from lfring.depth.costs import AGGREGATIONS, COSTS, GUIDED_EPS
 from lfring.errors import InvalidInputError
+from lfring.warp import WEIGHT_FLOOR
 
-__all__ = ["fine_torch", "sweep_torch"]
+__all__ = ["sweep_torch"]
 
 _CHUNK_BYTES = 1 << 30
 # Float32 images of the (V, h, w) size alive at once per hypothesis in the worst case (zncc):
 # the repeated sources and their warps (2 channels each), the cost's per-view terms and the
 # three padded window statistics per view.
 _IMAGES_PER_HYPOTHESIS = 24
-_GUIDED_EPS = 1e-3  # as cv2.ximgproc.createGuidedFilter(guide, window_px // 2, 1e-3) in the reference
 
 
 def _border_index(n: int, pad: int, delta: int) -> np.ndarray:
@@ -74,10 +75,10 @@ class _Box:
 
 
 def _slice_cost(torch, lum_w, wts, cost: str, box):
-    """:func:`lfring.depth.sweep.slice_cost` for a chunk: lum_w, wts (C, V, h, w) -> (C, h, w) twice."""
+    """:func:`lfring.depth.costs.slice_cost` for a chunk: lum_w, wts (C, V, h, w) -> (C, h, w) twice."""
     nview = wts.sum(dim=1)
-    safe = nview.clamp_min(1e-3)
-    vals = lum_w / wts.clamp_min(1e-3)
+    safe = nview.clamp_min(WEIGHT_FLOOR)
+    vals = lum_w / wts.clamp_min(WEIGHT_FLOOR)
     valid = (wts > 0.5).to(lum_w.dtype)
     nvalid = valid.sum(dim=1)  # small integers, exact in float32
     mean = lum_w.sum(dim=1) / safe
@@ -89,7 +90,7 @@ def _slice_cost(torch, lum_w, wts, cost: str, box):
         else:
             c = dev.sum(dim=1) / nvalid.clamp_min(1)
     elif cost == "lcn":  # lum_w: the warped locally normalised luminances times their masks
-        c = (lum_w * lum_w).sum(dim=1) - lum_w.sum(dim=1) ** 2 / nview.clamp_min(1e-3)
+        c = (lum_w * lum_w).sum(dim=1) - lum_w.sum(dim=1) ** 2 / nview.clamp_min(WEIGHT_FLOOR)
         c = c / (nview - 1.0).clamp_min(0.5)
     elif cost == "ssd":
         c = ((vals - mean[:, None]) ** 2 * valid).sum(dim=1) / nvalid.clamp_min(1)
@@ -130,7 +131,7 @@ class _Guided:
 
 
 class _RunningMinimum:
-    """:class:`lfring.depth.stream.RunningMinimum` with torch tensors, folding chunks of slices
+    """:class:`lfring.depth.selection.RunningMinimum` with torch tensors, folding chunks of slices
     one slice at a time with the same rules (strict '<', so the earliest minimum wins; the
     second minimum exact, from a lagging prefix minimum and a minimum after the best)."""
 
@@ -175,8 +176,6 @@ class _RunningMinimum:
 def _checked_inputs(lum, masks, cost: str, aggregation: str, guide):
     """The argument checks both torch sweeps share: cost and aggregation names, float32 (V, h, w)
     luminances and masks, and a guide of the views' size for the guided aggregation."""
-    from lfring.depth.sweep import AGGREGATIONS, COSTS
-
     if cost not in COSTS:
         raise InvalidInputError(f"cost must be one of {', '.join(COSTS)}, got {cost!r}")
     if aggregation not in AGGREGATIONS:
@@ -200,7 +199,7 @@ def _chunk_size(n: int, v: int, h: int, w: int) -> int:
 
 
 def sweep_torch(lum, masks, hs, *, cost, aggregation, window_px, guide, exclude=1, device=None, aggregate_px=None):
-    """Same contract as :func:`lfring.depth.sweep._sweep_numpy`, with kornia.
+    """Same contract as :func:`lfring.depth.stream.sweep_slices`, with kornia.
 
     Parameters
     ----------
@@ -211,7 +210,7 @@ def sweep_torch(lum, masks, hs, *, cost, aggregation, window_px, guide, exclude=
     hs : (N, V, 3, 3) float64
         H_ref_from_view for every hypothesis and view.
     cost : {'lcn', 'zncc', 'sad', 'ssd', 'sad-occlusion'}
-        For 'lcn', ``lum`` holds the locally normalised luminances (:func:`lfring.depth.stream.lcn_sources`).
+        For 'lcn', ``lum`` holds the locally normalised luminances (:func:`lfring.depth.costs.lcn_sources`).
     aggregation : {'box', 'guided'}
     window_px : int
         Odd window of the cost ('zncc').
@@ -243,9 +242,9 @@ def sweep_torch(lum, masks, hs, *, cost, aggregation, window_px, guide, exclude=
     aggregate_px = window_px if aggregate_px is None else aggregate_px
     box_cost = _Box(torch, (h, w), window_px, 1, dev)  # cv2.boxFilter: BORDER_REFLECT_101
     box_agg = box_cost if aggregate_px == window_px else _Box(torch, (h, w), aggregate_px, 1, dev)
-    guided = _Guided(torch, guide, aggregate_px, _GUIDED_EPS, dev) if aggregation == "guided" else None
+    guided = _Guided(torch, guide, aggregate_px, GUIDED_EPS, dev) if aggregation == "guided" else None
     lum_t = torch.from_numpy(np.ascontiguousarray(lum)).to(dev)
-    masks_t = torch.from_numpy(np.ascontiguousarray(masks)).to(dev)
+    masks_t = torch.from_numpy(np.array(masks, dtype=np.float32)).to(dev)  # a writable copy: the cached masks are read-only
     src = torch.stack([lum_t * masks_t, masks_t], dim=1)  # (V, 2, h, w): each view warps with its mask
     hs_t = torch.from_numpy(hs).to(dev, torch.float32)
 
@@ -272,61 +271,3 @@ def sweep_torch(lum, masks, hs, *, cost, aggregation, window_px, guide, exclude=
             torch.maximum(nviews, nv.amax(dim=0), out=nviews)
     out = (run.best, run.c_prev, run.c_next, run.second(), nviews)
     return (run.best_i.to(torch.int32).cpu().numpy(), *(x.cpu().numpy() for x in out))
-
-
-def fine_torch(lum, masks, maps, *, cost, aggregation, window_px, guide, device=None, aggregate_px=None):
-    """:func:`lfring.depth.sweep._fine_numpy` with torch: the fine stage of the coarse-to-fine
-    sweep, each pixel's band of hypotheses sampled with ``grid_sample`` (bilinear, zeros outside).
-
-    Parameters
-    ----------
-    lum, masks : (V, h, w) float32
-    maps : lfring.depth.sweep._FineMaps
-        The per-pixel band (centre index, the views' translations per hypothesis).
-    cost, aggregation, window_px, guide, device, aggregate_px
-        As :func:`sweep_torch`.
-
-    Returns
-    -------
-    aggs : (nb, h, w) float32
-        Aggregated cost of every band slot (inf where fewer than two views are valid).
-    nviews : (h, w) float32
-        The most views seen over the band.
-    """
-    torch = require_torch()
-    lum, masks = _checked_inputs(lum, masks, cost, aggregation, guide)
-    v, h, w = lum.shape
-    dev = resolve_device(device)
-    aggregate_px = window_px if aggregate_px is None else aggregate_px
-    box_cost = _Box(torch, (h, w), window_px, 1, dev)
-    box_agg = box_cost if aggregate_px == window_px else _Box(torch, (h, w), aggregate_px, 1, dev)
-    guided = _Guided(torch, guide, aggregate_px, _GUIDED_EPS, dev) if aggregation == "guided" else None
-    lum_t = torch.from_numpy(np.ascontiguousarray(lum, dtype=np.float32)).to(dev)
-    masks_t = torch.from_numpy(np.ascontiguousarray(masks, dtype=np.float32)).to(dev)
-    src = torch.stack([lum_t * masks_t, masks_t], dim=1)  # (V, 2, h, w)
-    center = torch.from_numpy(np.ascontiguousarray(maps.center, dtype=np.float32)).to(dev)
-    xx = torch.arange(w, dtype=torch.float32, device=dev)[None, :]
-    yy = torch.arange(h, dtype=torch.float32, device=dev)[:, None]
-    aggs = torch.empty((maps.nb, h, w), dtype=torch.float32, device=dev)
-    nviews = torch.zeros((h, w), dtype=torch.float32, device=dev)
-    with torch.no_grad():
-        for j in range(maps.nb):
-            off = j - maps.band
-            grids = []
-            for k in range(v):
-                tx0, ty0 = maps.t0[k] + off * maps.dt[k]
-                dtx, dty = (float(x) for x in maps.dt[k])
-                # Positions rounded to 1/32 px as cv2.remap does (its bilinear weights are fixed-point).
-                mx = torch.round((xx - float(tx0) - center * dtx) * 32.0) / 32.0
-                my = torch.round((yy - float(ty0) - center * dty) * 32.0) / 32.0
-                # align_corners=True: -1 and 1 are the centres of the first and last pixels.
-                grids.append(torch.stack([mx * (2.0 / max(w - 1, 1)) - 1.0, my * (2.0 / max(h - 1, 1)) - 1.0], dim=-1))
-            warped = torch.nn.functional.grid_sample(src, torch.stack(grids), mode="bilinear", padding_mode="zeros",
-                                                     align_corners=True)  # (V, 2, h, w)
-            cst, nv = _slice_cost(torch, warped[None, :, 0], warped[None, :, 1], cost, box_cost)
-            finite = (nv >= 1.5) & torch.isfinite(cst)
-            filled = torch.where(finite, cst, 1.0)
-            agg = guided(torch, filled) if guided is not None else box_agg(filled[:, None])[:, 0]
-            aggs[j] = torch.where(finite, agg, float("inf"))[0]
-            torch.maximum(nviews, nv[0], out=nviews)
-    return aggs.cpu().numpy(), nviews.cpu().numpy()

@@ -1,6 +1,6 @@
 """Refocusing with torch/kornia: batches of frames on a GPU, the same numbers on the CPU.
 
-The NumPy/OpenCV :mod:`lfring.refocus` is the reference; tests hold the two together.
+The NumPy/OpenCV :mod:`lfring.focus` is the reference; tests hold the two together.
 """
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import numpy as np
 
 from lfring.backends import require_torch, resolve_device
 from lfring.errors import InvalidInputError
-from lfring.refocus import view_masks
+from lfring.warp import WEIGHT_FLOOR, cached_view_masks
 
 __all__ = ["refocus_torch"]
 
@@ -18,7 +18,7 @@ def refocus_torch(frames, calibration, depth_m: float, *, reference="center", de
     """Refocus one frame's views (V, h, w, C) or a batch of frames (B, V, h, w, C).
 
     NumPy input gives NumPy output (float32); a torch tensor gives a tensor on ``device``.
-    ``interpolation`` is 'linear' (or 'nearest'); see :func:`lfring.refocus.refocus`.
+    ``interpolation`` is 'linear' (or 'nearest'); see :func:`lfring.refocus`.
     """
     torch = require_torch()
     from kornia.geometry.transform import warp_perspective
@@ -36,7 +36,7 @@ def refocus_torch(frames, calibration, depth_m: float, *, reference="center", de
     if x.ndim != 5:
         raise InvalidInputError(f"expected (V, h, w, C) or (B, V, h, w, C) views, got shape {tuple(x.shape)}")
     b, v, h, w, c = x.shape
-    masks = torch.from_numpy(view_masks(calibration, (h, w))).to(dev)  # (V, h, w)
+    masks = torch.from_numpy(np.array(cached_view_masks(calibration, (h, w)))).to(dev)  # writable copy of the read-only cache  # (V, h, w)
     hs = torch.from_numpy(calibration.homographies(depth_m, reference=reference)).to(dev, torch.float32)
     if hs.shape[0] != v:
         raise InvalidInputError(f"the calibration has {hs.shape[0]} views, the frames {v}")
@@ -48,7 +48,7 @@ def refocus_torch(frames, calibration, depth_m: float, *, reference="center", de
     warped = warp_perspective(src, hs.repeat(b, 1, 1), (h, w), mode=mode, padding_mode="zeros", align_corners=True)
     warped = warped.reshape(b, v, c + 1, h, w).sum(dim=1)
     weight = warped[:, c:]
-    out = torch.where(weight > 1e-3, warped[:, :c] / weight.clamp_min(1e-3), torch.zeros_like(warped[:, :c]))
+    out = torch.where(weight > WEIGHT_FLOOR, warped[:, :c] / weight.clamp_min(WEIGHT_FLOOR), torch.zeros_like(warped[:, :c]))
     out = out.permute(0, 2, 3, 1)
     if single:
         out = out[0]

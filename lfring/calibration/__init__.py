@@ -1,6 +1,6 @@
 """Variable-homography calibration of refocusing in metric depth (SPEC 4)."""
 
-from lfring.calibration.calibrate import calibrate
+from lfring.calibration.fit import calibrate
 from lfring.calibration.model import PlaneFit, VariableHomography, fit_variable_homography
 from lfring.calibration.ring import CALIBRATION_VERSION, RingCalibration
 

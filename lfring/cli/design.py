@@ -9,7 +9,7 @@ import click
 import numpy as np
 
 from lfring.cli._options import device_option, get_device, parse_range
-from lfring.optics.design import METHODS, design, design_working_range, sweep
+from lfring.optics.positions import METHODS, design, design_working_range, sweep
 
 log = logging.getLogger("lfring.cli.design")
 

@@ -12,7 +12,7 @@ import numpy as np
 from lfring.cli._options import device_option, get_device
 from lfring.errors import DeviceError, InvalidInputError
 from lfring.io.atomic import atomic_write_text
-from lfring.optics.design import METHODS, design, evaluate
+from lfring.optics.positions import METHODS, design, evaluate
 from lfring.optics.raytrace import APERTURES, LOWER, MISSED_RING, STOPPED_MAIN, UPPER, bundle_stats, trace
 
 log = logging.getLogger(__name__)

@@ -65,7 +65,7 @@ def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolat
     """
     from lfring.geometry import check_reference
     from lfring.io.writers import check_writable, write_image, write_json
-    from lfring.refocus import all_in_focus, focal_stack
+    from lfring.focus import all_in_focus, focal_stack
 
     zs = _depths(depth, depths, sweep)
     bits = int(bit_depth)

@@ -65,7 +65,7 @@ def command(preset, outdir, depth, scene_file, defects, defect_size, part_depth,
     metres as float32 TIFF, layout.json, truth.json with settings, b, c and the exact homographies).
     """
     from lfring.synth import presets
-    from lfring.synth.render import RenderSettings, render
+    from lfring.synth.renderer import RenderSettings, render
 
     device = get_device(device_name)
     if preset == "target" and depth is None:

@@ -220,7 +220,7 @@ def _demosaic_rawpy(frame: RawFrame) -> np.ndarray:
     import rawpy
 
     from lfring.errors import FileFormatError, LfringError, LfringFileNotFoundError
-    from lfring.io.raw import _cfa_letters, _visible_cfa_indices
+    from lfring.io.raw import cfa_letters, visible_cfa_indices
 
     p = frame.path
     if not p.is_file():
@@ -228,8 +228,8 @@ def _demosaic_rawpy(frame: RawFrame) -> np.ndarray:
     h, w = frame.shape
     try:
         with rawpy.imread(str(p)) as raw:
-            indices = _visible_cfa_indices(raw, p)
-            letters = _cfa_letters(raw, indices, p)
+            indices = visible_cfa_indices(raw, p)
+            letters = cfa_letters(raw, indices, p)
             if letters != frame.pattern:
                 raise InvalidInputError(
                     f"{p}: method 'rawpy' demosaics with the file's own CFA ({letters}), but the frame "

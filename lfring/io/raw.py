@@ -431,8 +431,8 @@ def _load_camera_raw(p: Path, overrides: dict[str, Any]) -> RawFrame:
 
     try:
         with rawpy.imread(str(p)) as raw:
-            indices = _visible_cfa_indices(raw, p)
-            letters = _cfa_letters(raw, indices, p)
+            indices = visible_cfa_indices(raw, p)
+            letters = cfa_letters(raw, indices, p)
             mosaic = np.array(raw.raw_image_visible, dtype=np.uint16, copy=True)
             per_channel = [float(v) for v in raw.black_level_per_channel]
             meta_black = tuple(per_channel[i] for i in indices.ravel())
@@ -478,7 +478,7 @@ def _libraw_message(exc: BaseException) -> str:
     return str(arg)
 
 
-def _visible_cfa_indices(raw: Any, p: Path) -> np.ndarray:
+def visible_cfa_indices(raw: Any, p: Path) -> np.ndarray:
     """(2, 2) LibRaw colour indices of the top-left block of the visible area; refuse non-Bayer."""
     import rawpy
 
@@ -506,7 +506,7 @@ def _visible_cfa_indices(raw: Any, p: Path) -> np.ndarray:
     return np.array(rows, dtype=np.intp)
 
 
-def _cfa_letters(raw: Any, indices: np.ndarray, p: Path) -> str:
+def cfa_letters(raw: Any, indices: np.ndarray, p: Path) -> str:
     desc = raw.color_desc.decode("ascii", "replace")
     try:
         letters = "".join(desc[i] for i in indices.ravel())

@@ -1,6 +1,6 @@
 """Optics of the ring camera: device records, the paraxial model, design and ray tracing."""
 
-from lfring.optics.design import (
+from lfring.optics.positions import (
     METHODS,
     Design,
     Sweep,

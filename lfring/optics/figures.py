@@ -16,7 +16,7 @@ from matplotlib.patches import Rectangle
 
 from lfring.errors import InvalidInputError
 from lfring.io.atomic import atomic_path
-from lfring.optics.design import Sweep
+from lfring.optics.positions import Sweep
 from lfring.optics.raytrace import LOWER, MISSED_RING, STOPPED_MAIN, UPPER, RayTrace, bundle_stats
 
 __all__ = ["RAY_COLOURS", "raytrace_figure", "save_figure", "sweep_figure"]

@@ -126,12 +126,6 @@ class RayTrace:
         return int(self.source_heights_m.size)
 
     @property
-    def planes_z_m(self) -> np.ndarray:
-        """(4,) z of the object, main lens, ring and sensor planes."""
-        b, c = self.ring_distance_m, self.sensor_distance_m
-        return np.array([-self.distance_m, 0.0, b, b + c])
-
-    @property
     def reached_sensor(self) -> np.ndarray:
         """(N,) True for rays that went through a mini-lens to the sensor plane."""
         return self.lens >= 0

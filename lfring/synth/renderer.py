@@ -35,7 +35,7 @@ from lfring.optics.views import (
     vignetting_region,
 )
 from lfring.synth.scene import HeightField, Plane, Scene
-from lfring.synth.textures import _rasterize, raster_shape, rasterize
+from lfring.synth.textures import raster_shape, rasterize
 from lfring.views import Layout, split_views
 
 __all__ = ["RenderSettings", "RenderResult", "render", "NOISE_PRESETS", "BIT_DEPTHS", "disc_kernel"]
@@ -287,7 +287,7 @@ class _Renderer:
         if idx not in self._textures:
             zs = plane.corners_m()[:, 2]
             texel = self._texel(zs.min())
-            rgba = _rasterize(plane.texture, plane.size_m, texel, alpha=True)  # opaque RGBA
+            rgba = rasterize(plane.texture, plane.size_m, texel, alpha=True)  # opaque RGBA
             rows, cols = rgba.shape[:2]
             if plane.shape == "disk":
                 yy = (np.arange(rows) + 0.5) / rows * 2 - 1

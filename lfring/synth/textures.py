@@ -77,15 +77,11 @@ def raster_shape(size_m: tuple[float, float], texel_m: float) -> tuple[int, int]
     return max(2, int(np.ceil(h_m / texel_m))), max(2, int(np.ceil(w_m / texel_m)))
 
 
-def rasterize(texture: Texture, size_m: tuple[float, float], texel_m: float) -> np.ndarray:
+def rasterize(texture: Texture, size_m: tuple[float, float], texel_m: float, *, alpha: bool = False) -> np.ndarray:
     """(rows, cols, 3) float32 raster of ``texture`` over a surface of ``size_m`` = (width,
-    height) metres, shape from :func:`raster_shape`; texel (0, 0) is the top-left corner."""
-    return _rasterize(texture, size_m, texel_m, alpha=False)
-
-
-def _rasterize(texture: Texture, size_m: tuple[float, float], texel_m: float, *, alpha: bool) -> np.ndarray:
-    """:func:`rasterize`, with an opaque alpha channel appended when ``alpha`` ((rows, cols, 4);
-    the renderer's layers are RGBA, and appending it here saves a copy of a large raster)."""
+    height) metres, shape from :func:`raster_shape`; texel (0, 0) is the top-left corner.
+    With ``alpha``, an opaque alpha channel is appended ((rows, cols, 4): the renderer's layers
+    are RGBA, and appending it here saves a copy of a large raster)."""
     w_m, h_m = size_m
     rows, cols = raster_shape(size_m, texel_m)
     tx, ty = w_m / cols, h_m / rows

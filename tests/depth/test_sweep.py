@@ -118,7 +118,7 @@ def test_nan_views_and_out_of_range(twin):
 def test_issue_targets_on_pixels_all_views_see(twin):
     """The issue's targets on non-occluded textured pixels (seen by all four views, away from
     depth edges): at most 5 % off by more than 0.3 px, median relative depth error <= 0.5 %."""
-    from lfring.refocus import Refocuser
+    from lfring.focus import Refocuser
 
     r, cal, views, gt, usable, res = twin
     seen = Refocuser(cal, 0.5, reference=0).weight > 3.9
@@ -129,30 +129,6 @@ def test_issue_targets_on_pixels_all_views_see(twin):
     err = np.where(ok, np.abs(_disparity(cal, np.where(ok, est, 1.0)) - _disparity(cal, gt[m])), np.inf)
     assert np.mean(err > 0.3) <= 0.05
     assert np.median(np.abs(est[ok] - gt[m][ok]) / gt[m][ok]) <= 0.005
-
-
-def test_coarse_to_fine_meets_the_issue_targets(twin):
-    """The coarse-to-fine sweep at the default spacing keeps the issue's targets on pixels all
-    four views see, and falls back to the full sweep when it cannot apply."""
-    from lfring.refocus import Refocuser
-
-    r, cal, views, gt, usable, _ = twin
-    res = estimate_depth(views, cal, zmin_m=0.27, zmax_m=1.1, reference=0, coarse_to_fine=True)
-    full = estimate_depth(views, cal, zmin_m=0.27, zmax_m=1.1, reference=0)
-    assert res.depth_m.dtype == np.float32 and res.confidence.dtype == np.float32
-    np.testing.assert_array_equal(res.depths_m, full.depths_m)
-    assert res.step_px == full.step_px
-    m = usable & (Refocuser(cal, 0.5, reference=0).weight > 3.9) & np.isfinite(gt)
-    est = res.depth_m[m]
-    ok = np.isfinite(est)
-    err = np.where(ok, np.abs(_disparity(cal, np.where(ok, est, 1.0)) - _disparity(cal, gt[m])), np.inf)
-    assert np.mean(err > 0.3) <= 0.05
-    assert np.median(np.abs(est[ok] - gt[m][ok]) / gt[m][ok]) <= 0.005
-    assert np.median(res.confidence[m]) > 0.7
-    # Too few hypotheses for a coarse level: the full sweep, bit for bit.
-    a = estimate_depth(views, cal, zmin_m=0.27, zmax_m=1.1, num_planes=4, reference=0, coarse_to_fine=True)
-    b = estimate_depth(views, cal, zmin_m=0.27, zmax_m=1.1, num_planes=4, reference=0)
-    np.testing.assert_array_equal(a.depth_m, b.depth_m)
 
 
 def _issue_errors(cal, res, gt, m):
@@ -166,7 +142,7 @@ def test_default_settings_meet_the_issue_targets(twin):
     """At the default settings (cost 'lcn', box aggregation, 1 px spacing, strips on threads)
     and with the slower, edge-aware options, on pixels all four views see: at most 5 % off by
     more than 0.3 px and a median relative error of at most 0.5 %; threads change nothing."""
-    from lfring.refocus import Refocuser
+    from lfring.focus import Refocuser
 
     _, cal, views, gt, usable, _ = twin
     m = usable & (Refocuser(cal, 0.5, reference=0).weight > 3.9) & np.isfinite(gt)
@@ -190,22 +166,23 @@ def test_strips_equal_whole_slices(prototype, reference, warp):
     warpPerspective per strip), gives what the whole-slice sweep gives for the same cost."""
     import warnings
 
-    from lfring.depth.stream import lcn_sources, sweep_strips
-    from lfring.depth.sweep import _masks, _sweep_numpy
-    from lfring.refocus import depth_hypotheses
+    from lfring.depth.costs import lcn_sources
+    from lfring.depth.hypotheses import depth_hypotheses
+    from lfring.depth.stream import sweep_slices, sweep_strips
+    from lfring.warp import cached_view_masks
 
     r = render(prototype, three_depth_scene(), binning=4)
     cal = RingCalibration.from_optics(r.device, layout=r.layout)
     h, w = r.views.shape[1:3]
-    masks = _masks(cal, (h, w))
-    src = lcn_sources(r.views, masks, 9, threads=2)
+    masks = cached_view_masks(cal, (h, w))
+    src = lcn_sources(r.views, cal, 9, threads=2)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", LfringWarning)
         hs = cal.homographies(depth_hypotheses(cal, 0.28, 1.1), reference=reference)
     if warp == "perspective":  # a slight tilt: no longer translations
         tilt = np.array([[1.0, 0.002, 0.3], [-0.001, 1.0, -0.2], [2e-6, -1e-6, 1.0]])
         hs = np.where(np.all(hs == np.eye(3), axis=(-2, -1))[..., None, None], hs, tilt @ hs)
-    want = _sweep_numpy(src, masks, hs, "lcn", 9, None, 2, 15)
+    want = sweep_slices(src, masks, hs, "lcn", 9, None, 2, 15)
     for threads in (1, 3):
         got = sweep_strips(src, masks, hs, aggregate_px=15, exclude=2, threads=threads)
         ok = np.isfinite(want[1])

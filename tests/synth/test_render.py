@@ -10,7 +10,7 @@ from lfring.io.bayer import PATTERNS, mosaic
 from lfring.optics import paraxial
 from lfring.optics.views import view_cameras
 from lfring.synth import Bump, HeightField, Plane, Scene, Texture, render
-from lfring.synth.render import disc_kernel
+from lfring.synth.renderer import disc_kernel
 
 BIN = 4  # 1228 x 921 px, 5 um: fast, and every geometric relation is independent of binning
 

@@ -1,0 +1,177 @@
+"""Photo-consistency costs of one depth hypothesis and their spatial aggregation.
+
+The default cost ('lcn') of a hypothesis at a pixel is the variance across the views of their
+locally normalised luminances, ``n = (L - mu) / sqrt(var + LCN_EPS mu^2 + LCN_FLOOR)`` with
+``mu`` and ``var`` the masked local mean and variance of the luminance ``L`` over ``window_px``.
+The normalisation is done once per view, before the sweep (:func:`lcn_sources`), so a hypothesis
+only has to shift the views and sum: with S1, S2 the sums over views of the (mask-weighted)
+normalised values and their squares and C the sum of the views' weights,
+``c = (S2 - S1^2 / C) / max(C - 1, 0.5)`` (:func:`lcn_cost`). Dividing by the local mean makes
+it blind to the views' different vignetting and exposure.
+
+The other costs (:func:`slice_cost`) compare warped luminances divided by their wide local mean
+(:func:`lfring.warp.normalised_luminance`).
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from lfring.warp import WEIGHT_FLOOR, box_filter, cached_view_masks, luminance, run_threads
+
+__all__ = ["AGGREGATIONS", "COSTS", "GUIDED_EPS", "LCN_AGGREGATE_PX", "LCN_EPS", "LCN_FLOOR", "STRIP_PIXELS", "aggregate", "lcn_cost",
+           "lcn_sources", "slice_cost", "window_weights"]
+
+COSTS = ("lcn", "zncc", "sad", "ssd", "sad-occlusion")
+AGGREGATIONS = ("box", "guided")
+# Regularisation of the guided aggregation (cv2.ximgproc.createGuidedFilter's eps; the torch twin the same).
+GUIDED_EPS = 1e-3
+# The default aggregation window of the 'lcn' cost (the other costs aggregate over window_px).
+LCN_AGGREGATE_PX = 15
+# Relative contrast floor of the normalisation (its variance term is LCN_EPS mu^2): texture
+# fainter than 10 % of the local mean is compared unnormalised; LCN_FLOOR keeps black regions finite.
+LCN_EPS = 1e-2
+LCN_FLOOR = 1e-6
+# Pixels per strip (rows times width, with the halo): about 0.4 MiB a buffer, so a thread's dozen
+# buffers stay in its L2 and L3 share; larger strips measured no faster, smaller ones slower.
+STRIP_PIXELS = 1 << 17
+
+
+def lcn_sources(views: np.ndarray, calibration, window_px: int, *, threads: int = 1) -> np.ndarray:
+    """(V, h, w) float32 locally normalised luminance of every view, to be multiplied by the
+    mask before warping; views are shared among ``threads`` threads."""
+    masks = cached_view_masks(calibration, views.shape[1:3])
+    lum = luminance(views)
+    out = np.empty(lum.shape, np.float32)
+
+    weights = window_weights(calibration, views.shape[1:3], window_px)
+    v, h, w = lum.shape
+    pad = window_px // 2
+    rows = max(8, STRIP_PIXELS // (2 * max(w, 1)))  # row strips of every view, in the cache
+
+    def one(k: int, r0: int, r1: int) -> None:
+        q0, q1 = max(0, r0 - pad), min(h, r1 + pad)
+        inner = slice(r0 - q0, r1 - q0)
+        m, x = masks[k][q0:q1], lum[k][q0:q1]
+        a = cv2.multiply(x, m)
+        mu = box_filter(a, window_px)[inner]
+        cv2.multiply(a, x, dst=a)
+        s2 = box_filter(a, window_px)[inner]
+        wk = weights[k][r0:r1]
+        cv2.multiply(mu, wk, dst=mu)
+        cv2.multiply(s2, wk, dst=s2)
+        # sqrt(max(E[x^2] - mu^2, 0) + eps mu^2 + floor)
+        sq = cv2.multiply(mu, mu)
+        var = cv2.subtract(s2, sq)
+        cv2.max(var, 0.0, dst=var)
+        cv2.scaleAdd(sq, LCN_EPS, var, dst=var)
+        cv2.add(var, LCN_FLOOR, dst=var)
+        cv2.sqrt(var, dst=var)
+        dst = out[k][r0:r1]
+        cv2.subtract(x[inner], mu, dst=dst)
+        cv2.divide(dst, var, dst=dst)
+
+    run_threads([lambda k=k, r=r: one(k, r, min(h, r + rows)) for k in range(v) for r in range(0, h, rows)], threads)
+    return out
+
+
+def window_weights(calibration, view_shape, window_px: int) -> np.ndarray:
+    """(V, h, w) float32 ``1 / max(box(mask), WEIGHT_FLOOR)`` of every view's mask over
+    ``window_px``: made once per calibration, view shape and window."""
+    return cached_view_masks(
+        calibration, view_shape, ("window_weights", int(window_px)),
+        lambda masks: np.stack([1.0 / np.maximum(box_filter(m, window_px), WEIGHT_FLOOR) for m in masks]).astype(np.float32),
+    )
+
+
+def lcn_cost(s1: np.ndarray, s2: np.ndarray, count: np.ndarray) -> np.ndarray:
+    """The 'lcn' cost from the sums over views (S1, S2, C; see the module's docstring)."""
+    c = s2 - s1 * s1 / np.maximum(count, WEIGHT_FLOOR)
+    c /= np.maximum(count - 1.0, 0.5)
+    return c.astype(np.float32, copy=False)
+
+
+def slice_cost(lum_w: np.ndarray, wts: np.ndarray, cost: str, window_px: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per-pixel cost of one hypothesis from warped luminances (V, h, w) premultiplied by their
+    warped masks ``wts`` (V, h, w); returns (cost before aggregation, number of views)."""
+    nview = wts.sum(axis=0)
+    if cost == "zncc":
+        return zncc_cost(lum_w, wts, nview, window_px), nview
+    if cost == "lcn":  # lum_w: the warped locally normalised luminances (lcn_sources) times their masks
+        return lcn_cost(lum_w.sum(axis=0), np.square(lum_w).sum(axis=0), nview), nview
+    safe = np.maximum(nview, WEIGHT_FLOOR)
+    vals = lum_w / np.maximum(wts, WEIGHT_FLOOR)
+    valid = wts > 0.5
+    mean = (lum_w.sum(axis=0)) / safe
+    if cost in ("sad", "sad-occlusion"):
+        dev = np.abs(vals - mean) * valid
+        if cost == "sad-occlusion":
+            worst = dev.max(axis=0)
+            n = valid.sum(axis=0)
+            c = (dev.sum(axis=0) - np.where(n > 2, worst, 0.0)) / np.maximum(n - (n > 2), 1)
+        else:
+            c = dev.sum(axis=0) / np.maximum(valid.sum(axis=0), 1)
+    else:  # ssd
+        c = ((vals - mean) ** 2 * valid).sum(axis=0) / np.maximum(valid.sum(axis=0), 1)
+    return c.astype(np.float32), nview
+
+
+def zncc_cost(lum_w: np.ndarray, wts: np.ndarray, nview: np.ndarray, window_px: int) -> np.ndarray:
+    """One minus the mean, over the views valid at a pixel, of the zero-normalised
+    cross-correlation over the window of each view with the views' weighted mean.
+
+    The same numbers as the textbook expression (box means, variances clamped at 1e-8), computed
+    with in-place float32 operations: a slice costs a few dozen passes over the image."""
+    k = window_px
+    mean = lum_w.sum(axis=0)
+    np.divide(mean, np.maximum(nview, WEIGHT_FLOOR), out=mean)
+    mu_m = box_filter(mean, k)
+    t = np.multiply(mean, mean)
+    var_m = box_filter(t, k)
+    var_m -= mu_m * mu_m
+    np.maximum(var_m, 1e-8, out=var_m)
+    np.sqrt(var_m, out=var_m)  # now the standard deviation of the mean
+    acc = np.zeros_like(mean)
+    nvalid = np.zeros_like(mean)
+    vj = np.empty_like(mean)
+    valid = np.empty_like(mean)
+    mu_j = np.empty_like(mean)
+    s2 = np.empty_like(mean)
+    cov = np.empty_like(mean)
+    for j in range(len(lum_w)):
+        np.greater(wts[j], 0.5, out=valid, casting="unsafe")
+        nvalid += valid
+        np.maximum(wts[j], WEIGHT_FLOOR, out=vj)
+        np.divide(lum_w[j], vj, out=vj)
+        vj *= valid
+        box_filter(vj, k, dst=mu_j)
+        np.multiply(vj, vj, out=t)
+        box_filter(t, k, dst=s2)
+        np.multiply(vj, mean, out=t)
+        box_filter(t, k, dst=cov)
+        # cov / sqrt(var_j var_m), var_j = max(E[v^2] - E[v]^2, 1e-8)
+        np.multiply(mu_j, mu_m, out=t)
+        cov -= t
+        np.multiply(mu_j, mu_j, out=t)
+        s2 -= t
+        np.maximum(s2, 1e-8, out=s2)
+        np.sqrt(s2, out=s2)
+        s2 *= var_m
+        cov /= s2
+        cov *= valid
+        acc += cov
+    np.maximum(nvalid, 1.0, out=nvalid)
+    acc /= nvalid
+    np.subtract(1.0, acc, out=acc)
+    return acc
+
+
+def aggregate(c, nv, guide, window_px):
+    """Aggregate one cost slice over ``window_px`` (box) or with ``guide`` (a guided filter),
+    inf where fewer than 1.5 views are valid or the cost is not finite."""
+    finite = (nv >= 1.5) & np.isfinite(c)
+    filled = np.where(finite, c, np.float32(1.0)).astype(np.float32)
+    agg = guide.filter(filled) if guide is not None else box_filter(filled, window_px)
+    agg[~finite] = np.inf
+    return agg

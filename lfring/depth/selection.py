@@ -1,0 +1,162 @@
+"""Selecting each pixel's depth from a sweep's costs: the streamed running minimum, the
+sub-hypothesis parabola, the confidence, and the finisher that turns hypothesis indices into
+a :class:`DepthResult`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+__all__ = ["DepthResult", "Finisher", "RunningMinimum", "parabola", "refine"]
+
+
+@dataclass(frozen=True, eq=False)
+class DepthResult:
+    """A depth map in the reference frame.
+
+    Attributes
+    ----------
+    depth_m : (h, w) float32
+        Distance from the main lens in metres; NaN where fewer than two views see the pixel.
+    confidence : (h, w) float32 in [0, 1]
+        How distinct the best hypothesis is: 1 - best cost / best cost away from it.
+    hypothesis_index : (h, w) float32
+        The disparity-space result: the refined (fractional) index into ``depths_m``, which are
+        evenly spaced in 1/(Z - z0), i.e. in disparity.
+    depths_m : (N,) float64
+        The hypotheses.
+    step_px : float
+        Largest motion of any view pixel between neighbouring hypotheses.
+    reference : 'center' or int
+    """
+
+    depth_m: np.ndarray
+    confidence: np.ndarray
+    hypothesis_index: np.ndarray
+    depths_m: np.ndarray
+    step_px: float
+    reference: object
+    cost: str
+    aggregation: str
+
+
+class RunningMinimum:
+    """Streamed argmin over hypotheses with what refinement and confidence need, per pixel:
+    the best cost and its (first) index, its neighbours' costs, and the best cost more than
+    ``exclude`` hypotheses away from the final best. That last one is exact: the minimum over
+    the slices before the best (a prefix minimum lagging ``exclude + 1`` slices, copied when
+    the best moves) and over the slices after it (restarted when the best moves); the tracker
+    keeps the last ``exclude + 2`` slices for it. OpenCV masked copies throughout: NumPy's
+    masked assignments are 40x slower on these arrays."""
+
+    def __init__(self, shape, exclude: int = 1):
+        self.exclude = e = max(1, int(exclude))
+        inf = lambda: np.full(shape, np.inf, np.float32)
+        self.best, self.c_prev, self.c_next, self.far_lo, self.far_hi, self.prefix = (inf() for _ in range(6))
+        self.best_i = np.zeros(shape, np.int32)
+        self.ring = [np.empty(shape, np.float32) for _ in range(e + 2)]  # slices i - e - 1 .. i
+        self._inf = inf()
+        self._idx = np.empty(shape, np.int32)
+        self._tmp = np.empty(shape, np.float32)
+        self._mask = np.empty(shape, np.uint8)
+        self._new = np.empty(shape, np.uint8)
+        self.i = 0
+
+    def slot(self) -> np.ndarray:
+        """The buffer to write the next slice into (then call :meth:`push`)."""
+        return self.ring[self.i % len(self.ring)]
+
+    def push(self) -> None:
+        i, e, ring = self.i, self.exclude, self.ring
+        cur = ring[i % len(ring)]
+        if i >= e + 1:
+            cv2.min(self.prefix, ring[(i - e - 1) % len(ring)], dst=self.prefix)  # min over slices <= i - e - 1
+        if i >= 1:
+            cv2.compare(self.best_i, i - 1, cv2.CMP_EQ, dst=self._mask)
+            cv2.copyTo(cur, self._mask, dst=self.c_next)
+            cv2.compare(self.best_i, i - e, cv2.CMP_LT, dst=self._mask)  # slice i is far after the best
+            cv2.min(self.far_hi, cur, dst=self._tmp)
+            cv2.copyTo(self._tmp, self._mask, dst=self.far_hi)
+        new = cv2.compare(cur, self.best, cv2.CMP_LT, dst=self._new)
+        cv2.copyTo(cur, new, dst=self.best)
+        self._idx.fill(i)
+        cv2.copyTo(self._idx, new, dst=self.best_i)
+        if i >= 1:
+            cv2.copyTo(ring[(i - 1) % len(ring)], new, dst=self.c_prev)
+            cv2.copyTo(self._inf, new, dst=self.c_next)
+            cv2.copyTo(self._inf, new, dst=self.far_hi)
+        if i >= e + 1:
+            cv2.copyTo(self.prefix, new, dst=self.far_lo)
+        self.i += 1
+
+    def second(self) -> np.ndarray:
+        return np.minimum(self.far_lo, self.far_hi)
+
+
+def parabola(a, b, c):
+    """Offset of the minimum of the parabola through (-1, a), (0, b), (1, c), within +-0.5;
+    0 where a neighbour is missing (inf) or the curve is not convex. float32."""
+    a, b, c = (np.asarray(x, np.float32) for x in (a, b, c))
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        denom = a + c
+        denom -= 2 * b  # inf or nan where a cost is missing
+        delta = a - c
+        delta *= 0.5
+        delta /= denom
+        ok = (denom > 1e-12) & np.isfinite(denom) & np.isfinite(delta)
+    delta = np.where(ok, delta, np.float32(0.0))
+    return np.clip(delta, -0.5, 0.5, out=delta)
+
+
+def refine(best_i, c_best, c_prev, c_next, c_second, n):
+    """Fractional hypothesis index (parabola, none at the range's ends) and confidence
+    ``1 - c_best / c_second`` (0 where c_second is missing or not positive), float32."""
+    edge = (best_i <= 0) | (best_i >= n - 1)
+    c_prev = np.where(edge, np.float32(np.inf), c_prev)
+    idx = parabola(c_prev, c_best, c_next)
+    idx += best_i
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        conf = c_best / c_second
+        np.subtract(np.float32(1.0), conf, out=conf)
+    ok = np.isfinite(c_second) & (c_second > 0) & np.isfinite(conf)
+    conf = np.where(ok, conf, np.float32(0.0))
+    return idx, np.clip(conf, 0.0, 1.0, out=conf)
+
+
+class Finisher:
+    """Depth, confidence and index rows from a sweep's strips (called from its threads)."""
+
+    def __init__(self, depths, z0, shape, min_views):
+        self.n = len(depths)
+        self.inv = 1.0 / (np.asarray(depths, np.float64) - z0)
+        self.z0 = z0
+        # Hypotheses evenly spaced in 1/(Z - z0) (depth_hypotheses): interpolation is a line.
+        step = (self.inv[-1] - self.inv[0]) / max(self.n - 1, 1)
+        self.linear = bool(np.allclose(self.inv, self.inv[0] + step * np.arange(self.n), rtol=1e-9, atol=0))
+        self.step = step
+        self.min_views = min_views
+        self.depth, self.conf, self.index = (np.empty(shape, np.float32) for _ in range(3))
+
+    def __call__(self, r0, r1, best_i, c_best, c_prev, c_next, c_second, nviews):
+        idx, conf = refine(best_i, c_best, c_prev, c_next, c_second, self.n)
+        self.rows(r0, r1, idx, conf, c_best, nviews)
+
+    def rows(self, r0, r1, idx, conf, c_best, nviews):
+        """Rows r0 to r1 from fractional hypothesis indices and confidences."""
+        if self.linear:
+            inv_at = idx * np.float32(self.step)
+            inv_at += np.float32(self.inv[0])
+        else:
+            inv_at = np.interp(idx, np.arange(self.n), self.inv).astype(np.float32)
+        depth = np.divide(np.float32(1.0), inv_at, out=inv_at)
+        depth += np.float32(self.z0)
+        seen = (nviews >= self.min_views - 0.5) & np.isfinite(c_best)
+        self.depth[r0:r1] = np.where(seen, depth, np.float32(np.nan))
+        self.conf[r0:r1] = np.where(seen, conf, np.float32(0.0))
+        self.index[r0:r1] = np.where(seen, idx, np.float32(np.nan))
+
+    def result(self, **record) -> DepthResult:
+        return DepthResult(depth_m=self.depth, confidence=self.conf, hypothesis_index=self.index, **record)
