@@ -28,7 +28,7 @@ __all__ = ["sweep_slices", "sweep_strips"]
 
 
 def sweep_strips(sources: np.ndarray, masks: np.ndarray, hs: np.ndarray, *, aggregate_px: int, exclude: int = 1,
-                 threads: int = 1, on_strip=None):
+                 threads: int = 1, on_strip=None, volume=None):
     """The 'lcn' cost with box aggregation over every hypothesis, strip by strip.
 
     Parameters
@@ -49,6 +49,11 @@ def sweep_strips(sources: np.ndarray, masks: np.ndarray, hs: np.ndarray, *, aggr
         Called, in the thread that swept it, as ``on_strip(r0, r1, best_i, c_best, c_prev,
         c_next, c_second, nviews)`` with the results for rows r0 to r1 of each strip; then
         nothing is returned.
+    volume : (N, h, w) float32, optional
+        Filled with every hypothesis's aggregated cost (inf where fewer than 1.5 views see the
+        pixel) instead of keeping a running minimum: for an optimisation over the whole volume
+        (:mod:`lfring.depth.sgm`). Then ``on_strip`` is called as ``on_strip(r0, r1, nviews)``
+        and, without it, ``nviews`` is returned.
 
     Returns
     -------
@@ -76,7 +81,16 @@ def sweep_strips(sources: np.ndarray, masks: np.ndarray, hs: np.ndarray, *, aggr
     count = threads * -(-h // (threads * most))
     rows = max(1, -(-h // count))
     strips = [(r0, min(h, r0 + rows)) for r0 in range(0, h, rows)]
-    if on_strip is None:
+    if volume is not None and (volume.shape != (n, h, w) or volume.dtype != np.float32):
+        raise ValueError(f"volume must be float32 {(n, h, w)}, got {volume.dtype} {volume.shape}")
+    nviews_all = None
+    if on_strip is None and volume is not None:
+        nviews_all = np.empty((h, w), np.float32)
+
+        def on_strip(r0, r1, nviews):
+            nviews_all[r0:r1] = nviews
+        out = None
+    elif on_strip is None:
         out = {name: np.empty((h, w), np.float32) for name in ("c_best", "c_prev", "c_next", "second", "nviews")}
         best_i = np.empty((h, w), np.int32)
 
@@ -96,7 +110,7 @@ def sweep_strips(sources: np.ndarray, masks: np.ndarray, hs: np.ndarray, *, aggr
         if static:
             base = (sum(weighted[k][q0:q1] for k in static), sum(weighted[k][q0:q1] ** 2 for k in static),
                     sum(masks[k][q0:q1] for k in static))
-        run = RunningMinimum((m, w), exclude)
+        run = RunningMinimum((m, w), exclude) if volume is None else None
         missing = np.full((m, w), np.inf, np.float32)
         nviews = np.zeros((m, w), np.float32)
         if shifts is None:
@@ -135,12 +149,16 @@ def sweep_strips(sources: np.ndarray, masks: np.ndarray, hs: np.ndarray, *, aggr
             cv2.compare(cnt, 1.5, cv2.CMP_LT, dst=bad)
             cv2.copyTo(ones, bad, dst=t)
             cv2.boxFilter(t, cv2.CV_32F, (aggregate_px, aggregate_px), dst=agg, borderType=cv2.BORDER_REFLECT_101)
-            cur = run.slot()
+            cur = run.slot() if volume is None else volume[i, r0:r1]
             np.copyto(cur, agg[o0:o0 + m])
             cv2.copyTo(missing, bad[o0:o0 + m], dst=cur)
             cv2.max(nviews, cnt[o0:o0 + m], dst=nviews)
-            run.push()
-        on_strip(r0, r1, run.best_i, run.best, run.c_prev, run.c_next, run.second(), nviews)
+            if run is not None:
+                run.push()
+        if run is None:
+            on_strip(r0, r1, nviews)
+        else:
+            on_strip(r0, r1, run.best_i, run.best, run.c_prev, run.c_next, run.second(), nviews)
 
     local = threading.local()
 
@@ -153,6 +171,8 @@ def sweep_strips(sources: np.ndarray, masks: np.ndarray, hs: np.ndarray, *, aggr
         strip(r0, r1, local.bufs)
 
     run_threads([lambda s=s: task(*s) for s in strips], threads)
+    if nviews_all is not None:
+        return nviews_all
     if out is not None:
         return best_i, out["c_best"], out["c_prev"], out["c_next"], out["second"], out["nviews"]
     return None

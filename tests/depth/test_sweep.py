@@ -193,3 +193,12 @@ def test_strips_equal_whole_slices(prototype, reference, warp):
             fin = same & np.isfinite(x)
             np.testing.assert_allclose(g[fin], x[fin], rtol=1e-3, atol=1e-4)
         np.testing.assert_allclose(got[5], want[5], atol=1e-4)
+    # The whole volume instead of the running minimum: the same best hypothesis and costs.
+    volume = np.empty((len(hs), h, w), np.float32)
+    nviews = sweep_strips(src, masks, hs, aggregate_px=15, exclude=2, threads=3, volume=volume)
+    np.testing.assert_allclose(nviews, want[5], atol=1e-4)
+    ok = np.isfinite(want[1])
+    np.testing.assert_array_equal(np.isfinite(volume).any(axis=0), ok)
+    best = np.argmin(np.where(np.isfinite(volume), volume, np.inf), axis=0)
+    assert np.mean(best[ok] == want[0][ok]) > 0.999
+    np.testing.assert_allclose(np.take_along_axis(volume, best[None], 0)[0][ok], want[1][ok], rtol=1e-3, atol=1e-4)
