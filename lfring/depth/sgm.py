@@ -58,7 +58,7 @@ P1_SCALE = 0.5
 P2_SCALE = 4.0
 # Guide-luminance step (guide in [0, 1]) over which p2 is halved: P2_eff = p2 / (1 + |dI| / s).
 EDGE_SCALE = 0.04
-# Columns per parallel task of the vertical and diagonal sweeps (one row of state per task).
+# Lines (columns or diagonals) per parallel task of the vertical and diagonal paths.
 _BLOCK = 64
 
 _KERNELS = None
@@ -134,49 +134,70 @@ def _horizontal_py(cost, fill, guide, use_guide, p1, p2, edge_scale, out, do_lr,
                 out[d, y, x] += s[x, d]
 
 
-def _sweep_py(cost, fill, guide, use_guide, p1, p2, edge_scale, out, dy, dx, block):
-    """One path with dy = +-1 (vertical or diagonal): rows in scan order, columns in parallel."""
+def _lines_py(cost, fill, guide, use_guide, p1, p2, edge_scale, out, dy, dx, block):
+    """One path with dy = +-1 (vertical or diagonal), one block of parallel lines per task.
+
+    The lines of a path (columns, or diagonals x -+ y = const) are independent; a block of
+    ``block`` neighbouring lines covers a contiguous run of columns on every row, so the task
+    reads the cost row by row and keeps its lines' state in (N, block) buffers.
+    """
     n, h, w = cost.shape
-    prev = np.empty((n, w), np.float32)
-    cur = np.empty((n, w), np.float32)
-    pmin = np.zeros(w, np.float32)
-    cmin = np.empty(w, np.float32)
-    p2row = np.empty(w, np.float32)
-    nblocks = (w + block - 1) // block
-    for i in range(h):
-        y = i if dy > 0 else h - 1 - i
-        yp = y - dy
-        for b in _prange(nblocks):
-            x0 = b * block
-            x1 = min(w, x0 + block)
-            for x in range(x0, x1):
-                cmin[x] = np.float32(np.inf)
-                xp = x - dx
+    s = dx * dy  # on a line, x = k + s * y
+    if s == 0:
+        kmin, kmax = 0, w - 1
+    elif s == 1:
+        kmin, kmax = -(h - 1), w - 1
+    else:
+        kmin, kmax = 0, w + h - 2
+    nblocks = (kmax - kmin + block) // block
+    for b in _prange(nblocks):
+        k0 = kmin + b * block
+        nb = min(block, kmax + 1 - k0)
+        prev = np.empty((n, block), np.float32)
+        cur = np.empty((n, block), np.float32)
+        pmin = np.zeros(block, np.float32)
+        cmin = np.zeros(block, np.float32)
+        p2row = np.empty(block, np.float32)
+        started = np.zeros(block, np.bool_)
+        for i in range(h):
+            y = i if dy > 0 else h - 1 - i
+            xb = k0 + s * y
+            j0 = max(0, -xb)
+            j1 = min(nb, w - xb)
+            if j0 >= j1:
+                continue
+            for j in range(j0, j1):
+                x = xb + j
+                cmin[j] = np.float32(np.inf)
                 p2e = p2
-                if use_guide and i > 0 and 0 <= xp < w:
-                    p2e = max(p1, np.float32(p2 / (np.float32(1.0) + abs(guide[y, x] - guide[yp, xp]) / edge_scale)))
-                p2row[x] = p2e
+                if use_guide and started[j]:
+                    p2e = max(p1, np.float32(p2 / (np.float32(1.0) + abs(guide[y, x] - guide[y - dy, x - dx]) / edge_scale)))
+                p2row[j] = p2e
             for d in range(n):
-                for x in range(x0, x1):
+                for j in range(j0, j1):
+                    x = xb + j
                     v = cost[d, y, x]
                     if not np.isfinite(v):
                         v = fill[y, x]
-                    xp = x - dx
-                    if i == 0 or xp < 0 or xp >= w:
+                    if not started[j]:
                         L = v
                     else:
-                        best = prev[d, xp]
+                        best = prev[d, j]
                         if d > 0:
-                            best = min(best, prev[d - 1, xp] + p1)
+                            best = min(best, prev[d - 1, j] + p1)
                         if d < n - 1:
-                            best = min(best, prev[d + 1, xp] + p1)
-                        best = min(best, pmin[xp] + p2row[x])
-                        L = v + (best - pmin[xp])
-                    cur[d, x] = L
-                    cmin[x] = min(cmin[x], L)
+                            best = min(best, prev[d + 1, j] + p1)
+                        best = min(best, pmin[j] + p2row[j])
+                        L = v + (best - pmin[j])
+                    cur[d, j] = L
+                    cmin[j] = min(cmin[j], L)
                     out[d, y, x] += L
-        prev, cur = cur, prev
-        pmin, cmin = cmin, pmin
+            for j in range(j0, j1):
+                started[j] = True
+            # A line inside the image on this row was inside on the previous one (lines are
+            # contiguous), so swapping whole buffers never hands a line stale state.
+            prev, cur = cur, prev
+            pmin, cmin = cmin, pmin
 
 
 def _select_py(agg, raw, fill, use_raw, exclude, index, conf):
@@ -232,7 +253,7 @@ def _prange(n):  # pragma: no cover - replaced by numba.prange when compiled
     return range(n)
 
 
-_PLAIN = {"fill": _fill_values_py, "horizontal": _horizontal_py, "sweep": _sweep_py, "select": _select_py}
+_PLAIN = {"fill": _fill_values_py, "horizontal": _horizontal_py, "lines": _lines_py, "select": _select_py}
 
 
 def _kernel(name: str):
@@ -412,8 +433,8 @@ def sgm_aggregate(cost, *, guide=None, p1: float | None = None, p2: float | None
     volume: values stay below ``paths * (max C + p2)``.
 
     Memory: the result (N, h, w) float32 is the only volume allocated (the input is read, not
-    copied, when it is C-contiguous float32); the horizontal paths keep two (w, N) float32 rows
-    per thread, the others two (N, w) rows. For 1060 x 1060 pixels that is 288 MB for 64
+    copied, when it is C-contiguous float32); the horizontal paths keep three (w, N) float32
+    rows per task (one image row), the others two (N, 64) buffers per task (64 lines). For 1060 x 1060 pixels that is 288 MB for 64
     hypotheses and 575 MB for 128 (plus the caller's cost volume of the same size); a uint16
     accumulator would halve it but needs integer costs and saturating sums, not worth the loss of
     the float cost's resolution. Time grows as paths * N * h * w.
@@ -458,7 +479,7 @@ def sgm_aggregate(cost, *, guide=None, p1: float | None = None, p2: float | None
                               (0, 1) in directions, (0, -1) in directions)
         for dy, dx in directions:
             if dy != 0:
-                _kernel("sweep")(c, fill, g, use_guide, f32(p1), f32(p2), f32(edge_scale), out, dy, dx, _BLOCK)
+                _kernel("lines")(c, fill, g, use_guide, f32(p1), f32(p2), f32(edge_scale), out, dy, dx, _BLOCK)
     return out
 
 
