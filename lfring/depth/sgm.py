@@ -1,0 +1,650 @@
+"""Semi-global optimisation of a disparity-space cost volume, selection and confidence.
+
+A plane sweep gives, for every pixel, a cost curve over N hypotheses evenly spaced in disparity.
+Winner-take-all on that curve fails where the image has no texture (the curve is flat) and near
+depth edges (the aggregation window straddles two surfaces). Semi-global matching (SGM,
+Hirschmuller 2008) adds, along several 1-D scan paths through the image, a penalty ``p1`` for a
+change of one hypothesis between neighbouring pixels and a larger penalty ``p2`` for any larger
+jump; the per-path minima are summed into one aggregated volume, on which winner-take-all is run.
+
+Functional interface::
+
+    aggregated = sgm_aggregate(cost, guide=luminance)      # (N, h, w) float32
+    index, confidence = select(aggregated, raw=cost)       # (h, w) float32 each
+    confidence = combine_confidence(confidence, index, other_index)
+    curve = sparsification_auc(error, confidence)          # how well confidence ranks errors
+
+:mod:`lfring.depth.refine` turns ``index`` and ``confidence`` into an edge-aware refined map and
+a hole-filled one.
+
+The kernels are compiled with numba on first use (importing lfring imports neither numba nor
+compiles anything); the first call of a session pays the compile time (a few seconds).
+:mod:`lfring.backends.torch_sgm` is the torch twin of :func:`sgm_aggregate`.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from typing import NamedTuple
+
+import numpy as np
+
+from lfring.errors import InvalidInputError
+
+__all__ = [
+    "PATHS",
+    "P1_SCALE",
+    "P2_SCALE",
+    "EDGE_SCALE",
+    "Sparsification",
+    "cost_scale",
+    "edge_penalty",
+    "sgm_aggregate",
+    "select",
+    "combine_confidence",
+    "sparsification_auc",
+]
+
+# Scan directions (dy, dx) of a path: a pixel's predecessor on the path is (y - dy, x - dx).
+PATHS = {
+    4: ((0, 1), (0, -1), (1, 0), (-1, 0)),
+    8: ((0, 1), (0, -1), (1, 0), (-1, 0), (1, 1), (1, -1), (-1, 1), (-1, -1)),
+}
+# Default penalties, in units of the cost volume's own scale (see cost_scale): the penalties then
+# follow the cost function (LCN variance, absolute differences, census) without retuning. Tuned
+# on Middlebury 2003 Teddy and Cones with one pixel of motion per hypothesis (lfring's spacing).
+P1_SCALE = 0.5
+P2_SCALE = 4.0
+# Guide-luminance step (guide in [0, 1]) over which p2 is halved: P2_eff = p2 / (1 + |dI| / s).
+EDGE_SCALE = 0.04
+# Lines (columns or diagonals) per parallel task of the vertical and diagonal paths.
+_BLOCK = 64
+
+_KERNELS = None
+_KERNELS_LOCK = threading.Lock()
+
+
+# --------------------------------------------------------------------------------------------
+# numba kernels, written as plain functions and compiled on first use (see _kernel). Each one is
+# self-contained: a kernel compiled from a plain function cannot call another plain function.
+# --------------------------------------------------------------------------------------------
+
+
+def _fill_values_py(cost, out):
+    """Per pixel, the mean of its finite costs (0 where none is finite)."""
+    n, h, w = cost.shape
+    for y in _prange(h):
+        acc = np.zeros(w, np.float64)
+        cnt = np.zeros(w, np.int64)
+        for d in range(n):
+            for x in range(w):
+                v = cost[d, y, x]
+                if np.isfinite(v):
+                    acc[x] += v
+                    cnt[x] += 1
+        for x in range(w):
+            out[y, x] = np.float32(acc[x] / cnt[x]) if cnt[x] > 0 else np.float32(0.0)
+
+
+def _horizontal_py(cost, fill, guide, use_guide, p1, p2, edge_scale, out, do_lr, do_rl):
+    """Left-right and right-left paths, one row per parallel task; adds them into ``out``."""
+    n, h, w = cost.shape
+    for y in _prange(h):
+        c = np.empty((w, n), np.float32)
+        for d in range(n):
+            for x in range(w):
+                v = cost[d, y, x]
+                c[x, d] = v if np.isfinite(v) else fill[y, x]
+        s = np.zeros((w, n), np.float32)
+        prev = np.empty(n, np.float32)
+        cur = np.empty(n, np.float32)
+        for pass_ in range(2):
+            if (pass_ == 0 and not do_lr) or (pass_ == 1 and not do_rl):
+                continue
+            pmin = np.float32(0.0)
+            for i in range(w):
+                x = i if pass_ == 0 else w - 1 - i
+                cmin = np.float32(np.inf)
+                if i == 0:
+                    for d in range(n):
+                        cur[d] = c[x, d]
+                        cmin = min(cmin, cur[d])
+                else:
+                    xp = x - 1 if pass_ == 0 else x + 1
+                    p2e = p2
+                    if use_guide:
+                        p2e = max(p1, np.float32(p2 / (np.float32(1.0) + abs(guide[y, x] - guide[y, xp]) / edge_scale)))
+                    jump = pmin + p2e
+                    for d in range(n):
+                        best = prev[d]
+                        if d > 0:
+                            best = min(best, prev[d - 1] + p1)
+                        if d < n - 1:
+                            best = min(best, prev[d + 1] + p1)
+                        best = min(best, jump)
+                        cur[d] = c[x, d] + (best - pmin)
+                        cmin = min(cmin, cur[d])
+                for d in range(n):
+                    s[x, d] += cur[d]
+                pmin = cmin
+                prev, cur = cur, prev
+        for d in range(n):
+            for x in range(w):
+                out[d, y, x] += s[x, d]
+
+
+def _lines_py(cost, fill, guide, use_guide, p1, p2, edge_scale, out, dy, dx, block):
+    """One path with dy = +-1 (vertical or diagonal), one block of parallel lines per task.
+
+    The lines of a path (columns, or diagonals x -+ y = const) are independent; a block of
+    ``block`` neighbouring lines covers a contiguous run of columns on every row, so the task
+    reads the cost row by row and keeps its lines' state in (N, block) buffers.
+    """
+    n, h, w = cost.shape
+    s = dx * dy  # on a line, x = k + s * y
+    if s == 0:
+        kmin, kmax = 0, w - 1
+    elif s == 1:
+        kmin, kmax = -(h - 1), w - 1
+    else:
+        kmin, kmax = 0, w + h - 2
+    nblocks = (kmax - kmin + block) // block
+    for b in _prange(nblocks):
+        k0 = kmin + b * block
+        nb = min(block, kmax + 1 - k0)
+        prev = np.empty((n, block), np.float32)
+        cur = np.empty((n, block), np.float32)
+        pmin = np.zeros(block, np.float32)
+        cmin = np.zeros(block, np.float32)
+        p2row = np.empty(block, np.float32)
+        started = np.zeros(block, np.bool_)
+        for i in range(h):
+            y = i if dy > 0 else h - 1 - i
+            xb = k0 + s * y
+            j0 = max(0, -xb)
+            j1 = min(nb, w - xb)
+            if j0 >= j1:
+                continue
+            for j in range(j0, j1):
+                x = xb + j
+                cmin[j] = np.float32(np.inf)
+                p2e = p2
+                if use_guide and started[j]:
+                    p2e = max(p1, np.float32(p2 / (np.float32(1.0) + abs(guide[y, x] - guide[y - dy, x - dx]) / edge_scale)))
+                p2row[j] = p2e
+            for d in range(n):
+                for j in range(j0, j1):
+                    x = xb + j
+                    v = cost[d, y, x]
+                    if not np.isfinite(v):
+                        v = fill[y, x]
+                    if not started[j]:
+                        L = v
+                    else:
+                        best = prev[d, j]
+                        if d > 0:
+                            best = min(best, prev[d - 1, j] + p1)
+                        if d < n - 1:
+                            best = min(best, prev[d + 1, j] + p1)
+                        best = min(best, pmin[j] + p2row[j])
+                        L = v + (best - pmin[j])
+                    cur[d, j] = L
+                    cmin[j] = min(cmin[j], L)
+                    out[d, y, x] += L
+            for j in range(j0, j1):
+                started[j] = True
+            # A line inside the image on this row was inside on the previous one (lines are
+            # contiguous), so swapping whole buffers never hands a line stale state.
+            prev, cur = cur, prev
+            pmin, cmin = cmin, pmin
+
+
+def _select_py(agg, raw, fill, use_raw, exclude, index, conf):
+    """Winner-take-all, parabola sub-hypothesis offset, distinctness 1 - best / second."""
+    n, h, w = agg.shape
+    for y in _prange(h):
+        best = np.full(w, np.inf, np.float32)
+        arg = np.zeros(w, np.int64)
+        for d in range(n):
+            for x in range(w):
+                v = agg[d, y, x]
+                if v < best[x]:
+                    best[x] = v
+                    arg[x] = d
+        second = np.full(w, np.inf, np.float32)
+        for d in range(n):
+            for x in range(w):
+                if abs(d - arg[x]) > exclude:
+                    second[x] = min(second[x], agg[d, y, x])
+        for x in range(w):
+            k = arg[x]
+            b = best[x]
+            if not np.isfinite(b):
+                index[y, x] = np.nan
+                conf[y, x] = 0.0
+                continue
+            off = 0.0
+            if 0 < k < n - 1:
+                if use_raw:
+                    cm = raw[k - 1, y, x]
+                    c0 = raw[k, y, x]
+                    cp = raw[k + 1, y, x]
+                    cm = cm if np.isfinite(cm) else fill[y, x]
+                    c0 = c0 if np.isfinite(c0) else fill[y, x]
+                    cp = cp if np.isfinite(cp) else fill[y, x]
+                else:
+                    cm = agg[k - 1, y, x]
+                    c0 = b
+                    cp = agg[k + 1, y, x]
+                den = np.float64(cm) - 2.0 * np.float64(c0) + np.float64(cp)
+                if den > 0.0:
+                    off = 0.5 * (np.float64(cm) - np.float64(cp)) / den
+                    off = min(0.5, max(-0.5, off))
+            index[y, x] = np.float32(k + off)
+            s = second[x]
+            if np.isfinite(s) and s > 0.0:
+                conf[y, x] = np.float32(min(1.0, max(0.0, 1.0 - np.float64(b) / np.float64(s))))
+            else:
+                conf[y, x] = 0.0
+
+
+def _prange(n):  # pragma: no cover - replaced by numba.prange when compiled
+    return range(n)
+
+
+_PLAIN = {"fill": _fill_values_py, "horizontal": _horizontal_py, "lines": _lines_py, "select": _select_py}
+
+
+def _kernel(name: str):
+    """The compiled kernel ``name``, compiled on first use (seconds, once per process)."""
+    global _KERNELS
+    with _KERNELS_LOCK:
+        if _KERNELS is None:
+            _KERNELS = {}
+        if name not in _KERNELS:
+            try:
+                import numba
+            except ImportError:  # pragma: no cover - numba is a core dependency
+                raise InvalidInputError("semi-global matching needs numba: pip install numba") from None
+            fn = _PLAIN[name]
+            # The kernels call _prange; the compiled copy sees numba.prange under that name.
+            g = dict(fn.__globals__)
+            g["_prange"] = numba.prange
+            clone = type(fn)(fn.__code__, g, fn.__name__, fn.__defaults__, fn.__closure__)
+            _KERNELS[name] = numba.njit(parallel=True, cache=False, fastmath=False, nogil=True)(clone)
+        return _KERNELS[name]
+
+
+class _threads:
+    """Run numba kernels on ``n`` threads (None: numba's default), restoring the old count."""
+
+    def __init__(self, n):
+        self.n = n
+
+    def __enter__(self):
+        import numba
+
+        self.old = numba.get_num_threads()
+        if self.n is not None:
+            numba.set_num_threads(max(1, min(int(self.n), numba.config.NUMBA_NUM_THREADS)))
+
+    def __exit__(self, *exc):
+        import numba
+
+        numba.set_num_threads(self.old)
+        return False
+
+
+# --------------------------------------------------------------------------------------------
+# Validation
+# --------------------------------------------------------------------------------------------
+
+
+def _check_cost(cost, name="cost") -> np.ndarray:
+    a = np.asarray(cost)
+    if a.ndim != 3:
+        raise InvalidInputError(f"{name} must be a (N, h, w) cost volume, got shape {a.shape}: "
+                                "stack one (h, w) cost slice per hypothesis along axis 0")
+    if a.shape[0] < 1 or a.shape[1] < 1 or a.shape[2] < 1:
+        raise InvalidInputError(f"{name} must not be empty, got shape {a.shape}")
+    if not np.issubdtype(a.dtype, np.floating):
+        raise InvalidInputError(f"{name} must be floating point (float32), got {a.dtype}: cast it with .astype(np.float32)")
+    return np.ascontiguousarray(a, dtype=np.float32)
+
+
+def _check_guide(guide, shape) -> np.ndarray:
+    g = np.asarray(guide)
+    if g.ndim == 3 and g.shape[2] in (1, 3):
+        g = g.mean(axis=2)
+    if g.shape != tuple(shape):
+        raise InvalidInputError(f"guide must be an (h, w) or (h, w, C) image of the cost's (h, w) = {tuple(shape)}, "
+                                f"got shape {np.shape(guide)}")
+    if not np.issubdtype(g.dtype, np.number) or not np.all(np.isfinite(g)):
+        raise InvalidInputError("guide must be a finite numeric image (luminance in [0, 1])")
+    return np.ascontiguousarray(g, dtype=np.float32)
+
+
+def _check_positive(value, name, *, allow_zero=True) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise InvalidInputError(f"{name} must be a number, got {value!r}") from None
+    if not math.isfinite(v) or v < 0 or (v == 0 and not allow_zero):
+        raise InvalidInputError(f"{name} must be {'>= 0' if allow_zero else '> 0'} and finite, got {value!r}")
+    return v
+
+
+# --------------------------------------------------------------------------------------------
+# Public API
+# --------------------------------------------------------------------------------------------
+
+
+def cost_scale(cost, *, max_pixels: int = 1 << 14) -> float:
+    """Typical height of a pixel's cost curve above its minimum: the unit of the default penalties.
+
+    Parameters
+    ----------
+    cost : (N, h, w) float array
+        Cost volume; non-finite entries are ignored.
+    max_pixels : int
+        Pixels sampled on a regular grid (the scale is a median, so a sample is enough).
+
+    Returns
+    -------
+    float
+        ``median_p (mean_d C(p, d) - min_d C(p, d))`` over sampled pixels with at least two finite
+        costs; 1.0 when there is none or the median is zero.
+    """
+    c = _check_cost(cost)
+    n, h, w = c.shape
+    stride = max(1, int(math.ceil(math.sqrt(h * w / max_pixels))))
+    s = c[:, ::stride, ::stride].reshape(n, -1)
+    finite = np.isfinite(s)
+    ok = finite.sum(axis=0) >= 2
+    if not ok.any():
+        return 1.0
+    s = s[:, ok]
+    fin = finite[:, ok]
+    mean = np.where(fin, s, 0).sum(axis=0) / fin.sum(axis=0)
+    low = np.where(fin, s, np.inf).min(axis=0)
+    scale = float(np.median(mean - low))
+    return scale if scale > 0 and math.isfinite(scale) else 1.0
+
+
+def edge_penalty(guide_a, guide_b, *, p1: float, p2: float, edge_scale: float):
+    """The large-jump penalty between neighbouring pixels with guide values ``a`` and ``b``.
+
+    ``P2_eff = max(p1, p2 / (1 + |a - b| / edge_scale))``, in float32 like the kernels.
+    """
+    a = np.asarray(guide_a, np.float32)
+    b = np.asarray(guide_b, np.float32)
+    p1 = np.float32(p1)
+    p2 = np.float32(p2)
+    return np.maximum(p1, (p2 / (np.float32(1.0) + np.abs(a - b) / np.float32(edge_scale))).astype(np.float32))
+
+
+def sgm_aggregate(cost, *, guide=None, p1: float | None = None, p2: float | None = None, paths: int = 4,
+                  edge_scale: float | None = EDGE_SCALE, threads: int | None = None) -> np.ndarray:
+    """Semi-global aggregation of a cost volume along 4 or 8 scan paths.
+
+    Parameters
+    ----------
+    cost : (N, h, w) float array
+        Matching cost of N hypotheses evenly spaced in disparity (lower is better, >= 0 for the
+        confidence of :func:`select` to mean anything). NaN or inf marks an invalid entry; it is
+        replaced by the mean of the pixel's finite costs (0 where none is finite), a neutral value
+        that neither attracts nor repels the path minimum.
+    guide : (h, w) or (h, w, C) float array, optional
+        Reference image (luminance in [0, 1]). When given, the large-jump penalty is lowered
+        across its edges (see Notes), so depth edges may follow image edges.
+    p1, p2 : float, optional
+        Penalties for a change of one hypothesis and of more than one between neighbouring pixels
+        on a path, in cost units. Default: ``P1_SCALE`` and ``P2_SCALE`` times
+        :func:`cost_scale` of ``cost``. ``p2`` is raised to ``p1`` if smaller.
+    paths : {4, 8}
+        4: left-right, right-left, top-bottom, bottom-top; 8 adds the four diagonals.
+    edge_scale : float or None
+        Guide step that halves ``p2`` (ignored without a guide; None: no edge awareness).
+    threads : int, optional
+        numba threads for this call (default: numba's current setting).
+
+    Returns
+    -------
+    aggregated : (N, h, w) float32
+        ``S(p, d) = sum_r L_r(p, d)``, finite everywhere.
+
+    Notes
+    -----
+    Along a path r through pixel p with predecessor p - r:
+
+    .. math::
+
+        L_r(p, d) = C(p, d) + \\min\\big(L_r(p-r, d),\\ L_r(p-r, d\\pm 1) + P_1,\\
+                    \\min_k L_r(p-r, k) + P_2^{eff}(p)\\big) - \\min_k L_r(p-r, k)
+
+    with :math:`L_r = C` at the first pixel of a path, and the edge-aware large-jump penalty
+
+    .. math::
+
+        P_2^{eff}(p) = \\max\\big(P_1,\\ P_2 / (1 + |I(p) - I(p-r)| / s_{edge})\\big).
+
+    The subtraction keeps :math:`L_r - C` within [0, P_2], so float32 is exact enough for any
+    volume: values stay below ``paths * (max C + p2)``.
+
+    Memory: the result (N, h, w) float32 is the only volume allocated (the input is read, not
+    copied, when it is C-contiguous float32); the horizontal paths keep three (w, N) float32
+    rows per task (one image row), the others two (N, 64) buffers per task (64 lines). For 1060 x 1060 pixels that is 288 MB for 64
+    hypotheses and 575 MB for 128 (plus the caller's cost volume of the same size); a uint16
+    accumulator would halve it but needs integer costs and saturating sums, not worth the loss of
+    the float cost's resolution. Time grows as paths * N * h * w.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from lfring.depth.sgm import sgm_aggregate, select
+    >>> cost = np.ones((5, 3, 4), np.float32)
+    >>> cost[2] = 0.0
+    >>> cost[:, 1, 1] = 1.0                     # a pixel with no information
+    >>> index, confidence = select(sgm_aggregate(cost, p1=0.1, p2=0.5))
+    >>> index[1, 1]                             # filled in by its neighbours
+    np.float32(2.0)
+    """
+    c = _check_cost(cost)
+    if paths not in PATHS:
+        raise InvalidInputError(f"paths must be one of {sorted(PATHS)}, got {paths!r}")
+    n, h, w = c.shape
+    if p1 is None or p2 is None:
+        scale = cost_scale(c)
+        p1 = P1_SCALE * scale if p1 is None else p1
+        p2 = P2_SCALE * scale if p2 is None else p2
+    p1 = _check_positive(p1, "p1")
+    p2 = max(_check_positive(p2, "p2"), p1)
+    use_guide = guide is not None and edge_scale is not None
+    if use_guide:
+        edge_scale = _check_positive(edge_scale, "edge_scale", allow_zero=False)
+        g = _check_guide(guide, (h, w))
+    else:
+        g = np.zeros((1, 1), np.float32)
+        edge_scale = 1.0
+    if threads is not None and (not isinstance(threads, (int, np.integer)) or threads < 1):
+        raise InvalidInputError(f"threads must be a positive integer or None, got {threads!r}")
+    f32 = np.float32
+    out = np.zeros((n, h, w), np.float32)
+    with _threads(threads):
+        fill = np.empty((h, w), np.float32)
+        _kernel("fill")(c, fill)
+        directions = PATHS[paths]
+        _kernel("horizontal")(c, fill, g, use_guide, f32(p1), f32(p2), f32(edge_scale), out,
+                              (0, 1) in directions, (0, -1) in directions)
+        for dy, dx in directions:
+            if dy != 0:
+                _kernel("lines")(c, fill, g, use_guide, f32(p1), f32(p2), f32(edge_scale), out, dy, dx, _BLOCK)
+    return out
+
+
+def select(aggregated, raw=None, *, exclude: int = 1, threads: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Winner-take-all with a sub-hypothesis parabola and the distinctness confidence.
+
+    Parameters
+    ----------
+    aggregated : (N, h, w) float array
+        The cost to minimise (usually :func:`sgm_aggregate`'s result).
+    raw : (N, h, w) float array, optional
+        When given, the parabola is fitted to ``raw`` (the cost before SGM) at the aggregated
+        winner's index and its two neighbours; otherwise to ``aggregated`` (see Notes).
+    exclude : int
+        Hypotheses within ``exclude`` of the winner are not candidates for the second best.
+    threads : int, optional
+        numba threads for this call.
+
+    Returns
+    -------
+    index : (h, w) float32
+        Fractional hypothesis index ``k* + delta``, delta in [-0.5, 0.5]; NaN where the whole
+        curve is non-finite.
+    confidence : (h, w) float32 in [0, 1]
+        ``1 - S(k*) / min_{|k - k*| > exclude} S(k)``; 0 where undefined.
+
+    Notes
+    -----
+    With c_-, c_0, c_+ the costs at k* - 1, k*, k* + 1, ``delta = (c_- - c_+) / (2 (c_- - 2 c_0
+    + c_+))`` when the curvature is positive, else 0; at the first and last hypothesis delta = 0.
+    The aggregated curve is piecewise smooth in P1 steps around its minimum and biases delta
+    towards 0 ("pixel locking"); the raw curve keeps the sub-hypothesis information but is noisy.
+    Measured on a slanted plane (tests/depth/test_sgm.py) and Middlebury: see the report of
+    issue 15; the default (aggregated) is the one that measured better there.
+    """
+    agg = _check_cost(aggregated, "aggregated")
+    n, h, w = agg.shape
+    if raw is not None:
+        r = _check_cost(raw, "raw")
+        if r.shape != agg.shape:
+            raise InvalidInputError(f"raw must have the aggregated volume's shape {agg.shape}, got {r.shape}")
+    else:
+        r = np.zeros((1, 1, 1), np.float32)
+    if isinstance(exclude, bool) or not isinstance(exclude, (int, np.integer)) or exclude < 0:
+        raise InvalidInputError(f"exclude must be an integer >= 0, got {exclude!r}")
+    index = np.empty((h, w), np.float32)
+    conf = np.empty((h, w), np.float32)
+    with _threads(threads):
+        fill = np.empty((h, w), np.float32)
+        if raw is not None:
+            _kernel("fill")(r, fill)
+        _kernel("select")(agg, r, fill, raw is not None, int(exclude), index, conf)
+    return index, conf
+
+
+def combine_confidence(confidence, index, other_index, *, tolerance: float = 1.0) -> np.ndarray:
+    """Distinctness times agreement with a second, independent estimate of the same map.
+
+    Parameters
+    ----------
+    confidence : (h, w) float array in [0, 1]
+        Distinctness from :func:`select`.
+    index, other_index : (h, w) float arrays
+        Two estimates in the same units (for example the SGM result and the winner-take-all of
+        the raw cost, or the result seen from another reference view mapped back).
+    tolerance : float
+        Disagreement (in the units of ``index``) at which the agreement factor is exp(-1/2).
+
+    Returns
+    -------
+    (h, w) float32 in [0, 1]
+        ``confidence * exp(-(index - other_index)^2 / (2 tolerance^2))``; 0 where either estimate
+        is NaN.
+    """
+    c = np.asarray(confidence, np.float32)
+    a = np.asarray(index, np.float32)
+    b = np.asarray(other_index, np.float32)
+    if not (c.shape == a.shape == b.shape) or c.ndim != 2:
+        raise InvalidInputError(f"confidence, index and other_index must be (h, w) arrays of one shape, "
+                                f"got {c.shape}, {a.shape}, {b.shape}")
+    tol = _check_positive(tolerance, "tolerance", allow_zero=False)
+    diff = a - b
+    agree = np.exp(-0.5 * (diff / np.float32(tol)) ** 2)
+    out = np.where(np.isfinite(diff), np.clip(c, 0, 1) * agree, 0.0)
+    return out.astype(np.float32)
+
+
+class Sparsification(NamedTuple):
+    """Sparsification curves of an error map ranked by a confidence map.
+
+    Attributes
+    ----------
+    auc, oracle_auc, random_auc : float
+        Mean of the curve over the kept fractions, for the confidence ranking, for the ranking by
+        the error itself (the best possible), and for no ranking (the overall mean error).
+    fractions : (K,) float64
+        Fractions of the most confident pixels kept, ``1/K, 2/K, ..., 1``.
+    curve, oracle_curve : (K,) float64
+        Mean absolute error of the kept pixels.
+    """
+
+    auc: float
+    oracle_auc: float
+    random_auc: float
+    fractions: np.ndarray
+    curve: np.ndarray
+    oracle_curve: np.ndarray
+
+
+def sparsification_auc(error, confidence, *, mask=None, steps: int = 20) -> Sparsification:
+    """How well a confidence ranks errors: the area under the sparsification curve.
+
+    Parameters
+    ----------
+    error : (h, w) float array
+        Per-pixel error (its absolute value is used); NaN pixels are left out.
+    confidence : (h, w) float array
+        Higher means more trustworthy; NaN counts as the least confident.
+    mask : (h, w) bool array, optional
+        Pixels to evaluate.
+    steps : int
+        Number of kept fractions K.
+
+    Returns
+    -------
+    Sparsification
+        ``auc`` between ``oracle_auc`` (perfect ranking) and ``random_auc`` (no ranking) when the
+        confidence helps; smaller is better.
+
+    Notes
+    -----
+    For the kept fraction f, the curve is the mean |error| over the ceil(f M) most confident of
+    the M evaluated pixels (ties broken by a stable sort); the AUC is the mean over f = k/K.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> err = np.array([[0.0, 1.0], [2.0, 3.0]])
+    >>> s = sparsification_auc(err, -err, steps=4)
+    >>> float(s.auc) == float(s.oracle_auc)
+    True
+    """
+    e = np.abs(np.asarray(error, np.float64))
+    c = np.asarray(confidence, np.float64)
+    if e.shape != c.shape:
+        raise InvalidInputError(f"error and confidence must have one shape, got {e.shape} and {c.shape}")
+    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
+        raise InvalidInputError(f"steps must be a positive integer, got {steps!r}")
+    keep = np.isfinite(e)
+    if mask is not None:
+        m = np.asarray(mask, bool)
+        if m.shape != e.shape:
+            raise InvalidInputError(f"mask must have the error's shape {e.shape}, got {m.shape}")
+        keep &= m
+    e = e[keep]
+    c = np.nan_to_num(c[keep], nan=-np.inf)
+    if e.size == 0:
+        raise InvalidInputError("no pixel to evaluate: the mask is empty or every error is NaN")
+    fractions = np.arange(1, steps + 1) / steps
+    counts = np.maximum(1, np.ceil(fractions * e.size).astype(np.int64))
+
+    def curve_of(order):
+        cum = np.cumsum(e[order])
+        return cum[counts - 1] / counts
+
+    curve = curve_of(np.argsort(-c, kind="stable"))
+    oracle = curve_of(np.argsort(e, kind="stable"))
+    return Sparsification(float(curve.mean()), float(oracle.mean()), float(e.mean()), fractions, curve, oracle)

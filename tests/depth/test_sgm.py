@@ -1,0 +1,179 @@
+"""Semi-global aggregation, selection and confidence against constructions with known disparity."""
+
+import numpy as np
+import pytest
+from sgm_scenes import FAR_INDEX, NEAR_INDEX, reference_sgm, scene
+
+from lfring.depth.sgm import (
+    combine_confidence,
+    cost_scale,
+    select,
+    sgm_aggregate,
+    sparsification_auc,
+)
+from lfring.errors import InvalidInputError
+
+P1, P2 = 0.1, 1.0  # the scenes' cost rises by 1 per hypothesis near the truth, noise 0.05
+
+
+@pytest.mark.parametrize("paths", [4, 8])
+@pytest.mark.parametrize("edge_scale", [None, 0.05])
+def test_kernel_equals_brute_force_recursion(paths, edge_scale):
+    rng = np.random.default_rng(3)
+    cost = rng.random((6, 7, 9)).astype(np.float32)
+    cost[2, 3, 4] = np.nan  # invalid entries: replaced by the pixel's mean finite cost
+    cost[:, 5, 1] = np.inf  # a pixel with no finite cost at all
+    guide = rng.random((7, 9)).astype(np.float32)
+    got = sgm_aggregate(cost, guide=guide, p1=0.07, p2=0.4, paths=paths, edge_scale=edge_scale)
+    want = reference_sgm(cost, guide=guide, p1=0.07, p2=0.4, paths=paths, edge_scale=edge_scale)
+    assert got.dtype == np.float32 and got.shape == cost.shape
+    np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-6)
+
+
+def test_threads_do_not_change_the_result():
+    cost = np.random.default_rng(4).random((9, 40, 150)).astype(np.float32)
+    one = sgm_aggregate(cost, p1=0.05, p2=0.3, paths=8, threads=1)
+    two = sgm_aggregate(cost, p1=0.05, p2=0.3, paths=8, threads=2)
+    np.testing.assert_array_equal(one, two)
+
+
+def test_sgm_recovers_the_textureless_band():
+    s = scene(seed=0)
+    wta = s.cost.argmin(axis=0)
+    assert np.mean(np.abs(wta - s.truth)[s.flat] > 2) > 0.5  # raw winner-take-all: mostly wrong
+    index, _ = select(sgm_aggregate(s.cost, guide=s.guide, p1=P1, p2=P2))
+    err = np.abs(index - s.truth)
+    assert np.mean(err[s.flat] <= 2) > 0.95  # within 2 hypotheses in 95 % of the band
+    assert np.median(err[s.flat]) <= 1.0
+    assert np.mean(err[~s.flat] <= 0.5) > 0.99  # and textured pixels stay right
+
+
+@pytest.mark.parametrize("use_raw", [False, True])
+def test_subpixel_recovers_the_slanted_plane(use_raw):
+    s = scene(seed=1)
+    agg = sgm_aggregate(s.cost, guide=s.guide, p1=P1, p2=P2)
+    index, _ = select(agg, raw=s.cost if use_raw else None)
+    inner = s.slant.copy()
+    inner[:, :2] = inner[:, -2:] = False
+    inner[-2:] = False
+    rms = np.sqrt(np.mean((index - s.truth)[inner] ** 2))
+    assert rms < 0.1
+    integer_rms = np.sqrt(np.mean((np.round(index) - s.truth)[inner] ** 2))
+    assert rms < 0.5 * integer_rms  # the fraction is recovered, not just the nearest integer
+
+
+def _wrong_surface_per_row(index, truth, rows):
+    wrong = np.abs(index - truth) > 0.5 * (NEAR_INDEX - FAR_INDEX)
+    return wrong[rows].sum(axis=1)
+
+
+@pytest.mark.parametrize("paths", [4, 8])
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_edge_aware_penalty_keeps_the_step_edge_at_the_guide_edge(seed, paths):
+    # Textureless on both sides of the edge, off-centre: only the guide says where the edge is.
+    s = scene(seed=seed, flat_band=False, edge_band=True, slanted=False, flat_noise=0.01)
+    rows = slice(None)
+    guided, _ = select(sgm_aggregate(s.cost, guide=s.guide, p1=P1, p2=P2, paths=paths, edge_scale=0.04))
+    blind, _ = select(sgm_aggregate(s.cost, p1=P1, p2=P2, paths=paths))
+    band_guided = _wrong_surface_per_row(guided, s.truth, rows)
+    band_blind = _wrong_surface_per_row(blind, s.truth, rows)
+    assert band_guided.max() <= 2  # the depth edge is within 2 px of the image edge on every row
+    assert band_blind.max() > 2 * band_guided.max() + 4  # without the guide it lands elsewhere
+
+
+def test_confidence_ranks_errors():
+    s = scene(seed=2, noise=0.1)
+    index, conf = select(sgm_aggregate(s.cost, guide=s.guide, p1=P1, p2=P2))
+    sp = sparsification_auc(index - s.truth, conf)
+    assert sp.oracle_auc <= sp.auc < sp.random_auc
+    assert sp.auc - sp.oracle_auc < sp.random_auc - sp.auc  # closer to the oracle than to random
+    assert 0 <= conf.min() and conf.max() <= 1
+
+
+def test_confidence_combined_with_a_second_estimate_ranks_better():
+    s = scene(seed=2, noise=0.1)
+    agg = sgm_aggregate(s.cost, guide=s.guide, p1=P1, p2=P2)
+    index, conf = select(agg)
+    # A second, independent measurement of the same scene (another view pair: other noise).
+    other = scene(seed=12, noise=0.1)
+    other_index, _ = select(sgm_aggregate(other.cost, guide=other.guide, p1=P1, p2=P2))
+    combined = combine_confidence(conf, index, other_index, tolerance=1.0)
+    a = sparsification_auc(index - s.truth, conf).auc
+    b = sparsification_auc(index - s.truth, combined).auc
+    assert b < a
+    assert combined.dtype == np.float32 and np.all((combined >= 0) & (combined <= conf + 1e-7))
+
+
+def test_select_on_a_known_curve():
+    cost = np.full((7, 1, 3), 5.0, np.float32)
+    cost[:, 0, 0] = [4, 3, 1, 2, 4, 4, 0.5][::-1]  # minimum at 6 (edge): no parabola
+    cost[:, 0, 1] = [9, 4, 1, 2, 5, 6, 8]  # minimum at 2, parabola offset (4 - 2) / (2 (4 - 2 + 2))
+    cost[:, 0, 2] = np.nan  # nothing known
+    index, conf = select(cost, exclude=1)
+    assert index[0, 0] == pytest.approx(0.0)
+    assert index[0, 1] == pytest.approx(2 + 0.25)
+    assert conf[0, 1] == pytest.approx(1 - 1 / 5)  # second best away from 1..3 is 5 at index 4
+    assert np.isnan(index[0, 2]) and conf[0, 2] == 0
+
+
+def test_sparsification_auc_by_hand():
+    err = np.array([[1.0, 3.0], [0.0, 2.0]])
+    conf = np.array([[0.9, 0.1], [0.5, 0.2]])  # order: 1, 0, 2, 3
+    sp = sparsification_auc(err, conf, steps=4)
+    np.testing.assert_allclose(sp.curve, [1.0, 0.5, 1.0, 1.5])
+    np.testing.assert_allclose(sp.oracle_curve, [0.0, 0.5, 1.0, 1.5])
+    assert sp.auc == pytest.approx(1.0) and sp.oracle_auc == pytest.approx(0.75)
+    assert sp.random_auc == pytest.approx(1.5)
+    masked = sparsification_auc(err, conf, mask=np.array([[True, False], [True, True]]), steps=1)
+    assert masked.auc == pytest.approx(1.0)
+
+
+def test_default_penalties_follow_the_cost_scale():
+    s = scene(seed=0)
+    a = select(sgm_aggregate(s.cost, guide=s.guide))[0]
+    b = select(sgm_aggregate(10 * s.cost, guide=s.guide))[0]
+    np.testing.assert_allclose(a, b, atol=1e-4)
+    assert cost_scale(10 * s.cost) == pytest.approx(10 * cost_scale(s.cost), rel=1e-5)
+
+
+def test_importing_lfring_does_not_import_numba():
+    import subprocess
+    import sys
+
+    code = "import sys, lfring, lfring.depth, lfring.depth.sgm, lfring.depth.refine; print('numba' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"cost": np.zeros((4, 5))}, "(N, h, w)"),
+        ({"cost": np.zeros((4, 5, 6), np.int32)}, "floating point"),
+        ({"cost": np.zeros((0, 5, 6), np.float32)}, "empty"),
+        ({"paths": 6}, "paths must be one of"),
+        ({"p1": -1.0}, "p1 must be >= 0"),
+        ({"p2": float("nan")}, "p2 must be"),
+        ({"edge_scale": 0.0, "guide": np.zeros((5, 6))}, "edge_scale must be > 0"),
+        ({"guide": np.zeros((6, 5))}, "guide must be an"),
+        ({"threads": 0}, "threads must be"),
+    ],
+)
+def test_sgm_aggregate_rejects_bad_arguments(kwargs, match):
+    args = {"cost": np.zeros((4, 5, 6), np.float32), "p1": 0.1, "p2": 1.0}
+    args.update(kwargs)
+    with pytest.raises(InvalidInputError, match=match.replace("(", r"\(").replace(")", r"\)")):
+        sgm_aggregate(args.pop("cost"), **args)
+
+
+def test_select_and_metrics_reject_bad_arguments():
+    with pytest.raises(InvalidInputError, match="raw must have"):
+        select(np.zeros((4, 5, 6), np.float32), np.zeros((4, 5, 5), np.float32))
+    with pytest.raises(InvalidInputError, match="exclude"):
+        select(np.zeros((4, 5, 6), np.float32), exclude=-1)
+    with pytest.raises(InvalidInputError, match="one shape"):
+        sparsification_auc(np.zeros((2, 2)), np.zeros((2, 3)))
+    with pytest.raises(InvalidInputError, match="no pixel"):
+        sparsification_auc(np.full((2, 2), np.nan), np.zeros((2, 2)))
+    with pytest.raises(InvalidInputError, match="tolerance"):
+        combine_confidence(np.zeros((2, 2)), np.zeros((2, 2)), np.zeros((2, 2)), tolerance=0)
