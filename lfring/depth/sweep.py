@@ -188,6 +188,7 @@ def estimate_depth(
     if aggregate_px is None:
         aggregate_px = LCN_AGGREGATE_PX if cost == "lcn" else window_px
     arr = _check_views(views)
+    calibration.check_views(arr.shape)
     if not np.all(np.isfinite(arr)):
         raise InvalidInputError("views contain NaN or infinite values")
     if num_planes is not None and (isinstance(num_planes, bool) or not isinstance(num_planes, (int, np.integer)) or num_planes < 2):
