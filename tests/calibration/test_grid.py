@@ -245,3 +245,17 @@ def test_cli_grid_calib_positions(tmp_path):
     np.testing.assert_allclose(cal.homographies(1.0, reference=0)[:, :2, 2], [[0, 0], [3.0, 0], [1.5, 1.5]], atol=1e-12)
     assert main(["grid-calib", "--size", "30x20", "--positions", "0,0 1,0", "--grid", "2x1", "--disparity-scale", "2",
                  "-o", str(tmp_path / "h.json")]) == 2
+
+
+def test_ten_by_ten_grid_refocus_and_depth_of_a_plane():
+    shape = (40, 48)
+    pos = [(x, y) for y in range(10) for x in range(10)]
+    rng = np.random.default_rng(4)
+    tex = _texture(rng, *shape)
+    views = _render(pos, np.array([4.5, 4.5]), shape, [(2, None, tex)])  # odd whole-pixel shifts from the centre
+    cal = RingCalibration.from_grid(shape, pos, disparity_scale_px_m=SCALE_PX_M)
+    assert cal.num_views == 100 and cal.layout.raw_shape == (400, 480)
+    out = refocus(views, cal, SCALE_PX_M / 2, interpolation="linear")
+    np.testing.assert_allclose(out[10:-10, 10:-10], tex[PAD + 10 : PAD + shape[0] - 10, PAD + 10 : PAD + shape[1] - 10], atol=1e-5)
+    res = estimate_depth(views, cal, zmin_m=SCALE_PX_M / 3, zmax_m=SCALE_PX_M / 1)
+    np.testing.assert_allclose(SCALE_PX_M / res.depth_m[12:-12, 12:-12], 2.0, atol=0.1)
