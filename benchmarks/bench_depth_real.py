@@ -21,8 +21,9 @@ nearest valid disparities to the left and right on the row) before scoring; "inv
 fraction filled. Times: median of RUNS calls after a warm-up, every method timed one after the
 other; "/ SGBM" divides by SGBM's median on the same data. Peak memory: the rise of the
 process's peak resident set (VmHWM, reset through /proc/self/clear_refs after a warm-up call)
-over its resident set before the call, in a fresh process per method and dataset, so OpenCV's
-and every thread's allocations count.
+over its resident set before the call, in a fresh process per method and dataset with glibc's
+mmap threshold fixed at 64 KiB (so freed blocks go back to the system), so OpenCV's and every
+thread's allocations count.
 
 To add a method, append a ``Method`` to ``METHODS``: a name, the views it gets ('all' or
 'pair': views 0 and 1) and a function (views, calibration, data) -> disparity of view 0 in px
@@ -37,6 +38,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import subprocess
 import sys
 import tempfile
@@ -198,6 +200,11 @@ def score(est, data, region):
 
 
 # -- peak memory in a fresh process ------------------------------------------------------------
+# glibc otherwise keeps freed blocks (and raises its mmap threshold after frees), so a call after
+# the warm-up would reuse the warm-up's memory without the resident set rising: blocks of 64 KiB
+# and more are mapped for each allocation and unmapped when freed.
+MALLOC_ENV = {"MALLOC_MMAP_THRESHOLD_": "65536", "MALLOC_TRIM_THRESHOLD_": "131072"}
+
 def _status_kib(key: str) -> int:
     for line in Path("/proc/self/status").read_text().splitlines():
         if line.startswith(key + ":"):
@@ -224,7 +231,7 @@ def peak_memory_mib(data, index: int, folder: Path) -> float:
     (folder / "meta.json").write_text(json.dumps({"name": data.name, "zmin_m": data.zmin_m, "zmax_m": data.zmax_m,
                                                   "disparity_range_px": list(data.disparity_range_px)}))
     out = subprocess.run([sys.executable, __file__, "--child", str(folder), str(index)], capture_output=True, text=True,
-                         check=True)
+                         check=True, env={**os.environ, **MALLOC_ENV})
     return json.loads(out.stdout.strip().splitlines()[-1])["peak_rise_mib"]
 
 
