@@ -16,25 +16,18 @@ prototype's optics calibration with views valid everywhere) at exactly 64 planes
 
 from __future__ import annotations
 
-import os
-import platform
-
 import cv2
 import numpy as np
+from _common import ZMAX, ZMIN, machine_line, twin_scene
 from _timing import bench
 
 from lfring.calibration import RingCalibration
 from lfring.depth import estimate_depth
 from lfring.depth.metrics import evaluation_mask
-from lfring.io.demosaic import demosaic
-from lfring.io.raw import RawFrame
 from lfring.optics import load_device
 from lfring.focus import Refocuser
-from lfring.synth import render
-from lfring.synth.presets import three_depth_scene
-from lfring.views import layout_from_circles, split_views
+from lfring.views import layout_from_circles
 
-ZMIN, ZMAX = 0.27, 1.1
 RUNS = 9
 
 
@@ -61,12 +54,8 @@ def sgbm_depth(views, cal, zmin, zmax, block=5):
 
 
 def main() -> None:
-    dev = load_device("prototype")
-    r = render(dev, three_depth_scene(), binning=2, noise="realistic", seed=3)
-    cal = RingCalibration.from_optics(r.device, layout=r.layout)
-    frame = RawFrame(mosaic=r.raw, pattern="RGGB", black_level=r.black_level, white_level=r.white_level, bit_depth=12)
-    views = split_views(demosaic(frame), r.layout)
-    gt = r.depth_m[0]
+    t = twin_scene()
+    r, cal, views, gt = t.render, t.cal, t.views, t.gt
     # Non-occluded textured pixels: seen by all four views (at mid-range), away from depth edges.
     seen = Refocuser(cal, 0.5, reference=0).weight > 3.9
     usable = evaluation_mask(gt, r.views_sharp[0]) & seen
@@ -81,8 +70,7 @@ def main() -> None:
         "OpenCV StereoSGBM, views 0 and 1": lambda: sgbm_depth(views, cal, ZMIN, ZMAX)[0],
     }
     disp = lambda z: cal.model(np.asarray(z, np.float64))[..., 1, 0, 2] - cal.model(np.asarray(z, np.float64))[..., 0, 0, 2]
-    print(f"machine: {platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}, OpenCV {cv2.__version__}, "
-          f"load {os.getloadavg()[0]:.2f}")
+    print(machine_line())
     print(f"frame: twin three-depth scene, 2 x 2 binned, realistic noise; views {views.shape[2]} x {views.shape[1]} px; "
           f"depth range {ZMIN}-{ZMAX} m; SGBM disparities {sgbm_depth(views, cal, ZMIN, ZMAX)[1]}")
     print("| method | region | pixels | BadPix 0.3 px | MAE px | MAE mm | median rel. error | time s | time / SGBM |")

@@ -2,8 +2,9 @@
 
 A :class:`Layout` says where each view lies on the raw frame: one rectangle per view, all of the
 same size, in the frame *after* the optional 180-degree rotation (the frame the views are
-numbered in: 0 top-left, 1 top-right, 2 bottom-left, 3 bottom-right), plus an optional valid
-disc per view.
+numbered in: for the ring 0 top-left, 1 top-right, 2 bottom-left, 3 bottom-right), plus an
+optional valid disc per view. Any number of views from ``MIN_VIEWS`` to ``MAX_VIEWS`` is
+accepted: :func:`grid_layout` tiles the views of a stereo pair or a grid of cameras.
 """
 
 from __future__ import annotations
@@ -17,9 +18,14 @@ import numpy as np
 
 from lfring.errors import EstimationError, FileFormatError, InvalidInputError
 
-__all__ = ["Layout", "split_views", "layout_from_circles", "detect_layout", "DETECT_KINDS"]
+__all__ = ["Layout", "split_views", "read_views", "layout_from_circles", "grid_layout", "detect_layout", "DETECT_KINDS", "MIN_VIEWS",
+           "MAX_VIEWS"]
 
 LAYOUT_VERSION = 1
+# Views a layout (and so a calibration, refocusing and depth) may hold: two for any parallax,
+# at most a 10 x 10 grid (the cost of a sweep and its memory grow with the count).
+MIN_VIEWS = 2
+MAX_VIEWS = 100
 
 
 @dataclass(frozen=True, eq=False)
@@ -31,8 +37,9 @@ class Layout:
     raw_width_px, raw_height_px : int
         Size of the raw frame the layout belongs to.
     rects : tuple of (x, y, w, h)
-        One rectangle per view in pixels of the (rotated) raw frame; every view has the same
-        w and h. Pixel (x, y) is the view's pixel (0, 0).
+        One rectangle per view in pixels of the (rotated) raw frame, ``MIN_VIEWS`` to
+        ``MAX_VIEWS`` of them; every view has the same w and h. Pixel (x, y) is the view's
+        pixel (0, 0).
     rotate180 : bool
         Rotate the raw frame by 180 degrees before cutting (the ring's image is erect on the
         sensor, which many cameras then read out upside down).
@@ -55,6 +62,12 @@ class Layout:
         rects = tuple(tuple(int(x) for x in r) for r in self.rects)
         if not rects or any(len(r) != 4 for r in rects):
             raise InvalidInputError(f"layout rects must be a non-empty list of (x, y, w, h), got {self.rects!r}")
+        if not MIN_VIEWS <= len(rects) <= MAX_VIEWS:
+            raise InvalidInputError(
+                f"a layout holds {MIN_VIEWS} to {MAX_VIEWS} views, got {len(rects)}; "
+                + ("depth and refocusing need at least two viewpoints" if len(rects) < MIN_VIEWS
+                   else "use a subset of the views (e.g. every other one of a dense grid)")
+            )
         object.__setattr__(self, "rects", rects)
         sizes = {(r[2], r[3]) for r in rects}
         if len(sizes) != 1:
@@ -173,6 +186,34 @@ def split_views(image: np.ndarray, layout: Layout) -> np.ndarray:
     return out
 
 
+def read_views(paths) -> np.ndarray:
+    """Read separate view images (a stereo pair, the views of a camera array) into one stack.
+
+    Parameters
+    ----------
+    paths : sequence of str or Path
+        ``MIN_VIEWS`` to ``MAX_VIEWS`` image files of one size, in view order: RGB PNG/TIFF
+        (8 or 16 bits), or anything :func:`lfring.load_raw` reads (a Bayer file with its
+        sidecar), each demosaiced with its own black and white levels.
+
+    Returns
+    -------
+    ndarray, float32, (V, h, w, 3)
+    """
+    from lfring.io.demosaic import demosaic
+    from lfring.io.raw import load_raw
+
+    paths = [paths] if isinstance(paths, (str, Path)) else list(paths)
+    if not MIN_VIEWS <= len(paths) <= MAX_VIEWS:
+        raise InvalidInputError(f"give {MIN_VIEWS} to {MAX_VIEWS} view images, got {len(paths)}")
+    views = [demosaic(load_raw(p)) for p in paths]
+    shapes = {v.shape for v in views}
+    if len(shapes) != 1:
+        sizes = ", ".join(f"{p}: {v.shape[1]} x {v.shape[0]}" for p, v in zip(paths, views))
+        raise InvalidInputError(f"the view images must all have one size, got {sizes}")
+    return np.stack(views).astype(np.float32, copy=False)
+
+
 def layout_from_circles(
     circles_px, raw_width_px: int, raw_height_px: int, *, grid: tuple[int, int] = (2, 2), rotate180: bool = False
 ) -> Layout:
@@ -213,6 +254,54 @@ def layout_from_circles(
         rects.append((x0, y0, side, side))
         circles.append((cx - x0, cy - y0, r))
     return Layout(raw_width_px, raw_height_px, tuple(rects), rotate180, tuple(circles))
+
+
+def grid_layout(view_shape: tuple[int, int], grid_positions) -> Layout:
+    """The layout of separate views tiled into one mosaic frame.
+
+    Parameters
+    ----------
+    view_shape : (h, w)
+        Size of every view in pixels.
+    grid_positions : (V, 2) array_like
+        (x, y) of each view on its grid in grid units, x to the right, y down, in view order;
+        ``MIN_VIEWS`` to ``MAX_VIEWS`` distinct positions.
+
+    Returns
+    -------
+    Layout
+        Without discs (views valid everywhere). With integer positions every view is the cell
+        of a mosaic at its grid position (a 3 x 3 grid gives a 3 x 3 mosaic); otherwise the
+        views lie in one row in view order (also when the grid would have more than
+        ``MAX_VIEWS`` cells).
+
+    Examples
+    --------
+    >>> grid_layout((4, 6), [(0, 0), (1, 0), (0, 1)]).rects
+    ((0, 0, 6, 4), (6, 0, 6, 4), (0, 4, 6, 4))
+    """
+    shape = tuple(view_shape) if isinstance(view_shape, (tuple, list)) else ()
+    if len(shape) != 2 or any(isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1 for v in shape):
+        raise InvalidInputError(f"view_shape must be (h, w), two positive integers, got {view_shape!r}")
+    h, w = (int(v) for v in shape)
+    try:
+        pos = np.asarray(grid_positions, dtype=np.float64)
+    except (TypeError, ValueError):
+        pos = np.empty((0, 0))
+    if pos.ndim != 2 or pos.shape[1] != 2 or not np.all(np.isfinite(pos)):
+        raise InvalidInputError(f"grid_positions must be (V, 2) finite (x, y) grid positions, got shape {np.shape(grid_positions)}")
+    if not MIN_VIEWS <= len(pos) <= MAX_VIEWS:
+        raise InvalidInputError(f"a grid holds {MIN_VIEWS} to {MAX_VIEWS} views, got {len(pos)} positions")
+    if len(np.unique(pos, axis=0)) != len(pos):
+        raise InvalidInputError(f"grid positions must be distinct, got {pos.tolist()}")
+    cell = np.round(pos - pos.min(axis=0)).astype(np.int64)
+    cols, rows = (int(v) + 1 for v in cell.max(axis=0))
+    if np.all(pos == np.round(pos)) and cols * rows <= MAX_VIEWS:
+        rects = tuple((int(cx) * w, int(cy) * h, w, h) for cx, cy in cell)
+    else:
+        rects = tuple((k * w, 0, w, h) for k in range(len(pos)))
+        cols, rows = len(pos), 1
+    return Layout(cols * w, rows * h, rects)
 
 
 DETECT_KINDS = ("auto", "flat", "scene")

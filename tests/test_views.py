@@ -103,3 +103,35 @@ def test_layout_round_trip_and_bad_files(tmp_path, prototype):
         Layout.load(tmp_path / "none.json")
     with pytest.raises(InvalidInputError, match="same size"):
         Layout(100, 100, ((0, 0, 10, 10), (20, 0, 11, 10)))
+
+
+def test_layouts_hold_2_to_100_views():
+    from lfring.views import MAX_VIEWS, MIN_VIEWS
+
+    assert (MIN_VIEWS, MAX_VIEWS) == (2, 100)
+    lay = Layout(1000, 100, tuple((10 * k, 0, 10, 10) for k in range(100)))
+    assert lay.num_views == 100 and Layout.from_dict(json.loads(json.dumps(lay.to_dict()))).rects == lay.rects
+    for n in (1, 101):
+        with pytest.raises(InvalidInputError, match=f"2 to 100 views, got {n}"):
+            Layout(1010, 100, tuple((10 * k, 0, 10, 10) for k in range(n)))
+
+
+def test_read_views_stacks_separate_images(tmp_path):
+    import cv2
+
+    from lfring.views import read_views
+
+    rng = np.random.default_rng(0)
+    imgs = [rng.integers(0, 256, (12, 16, 3), dtype=np.uint8) for _ in range(3)]
+    paths = []
+    for k, im in enumerate(imgs):
+        paths.append(tmp_path / f"v{k}.png")
+        cv2.imwrite(str(paths[-1]), im[..., ::-1])
+    views = read_views(paths)
+    assert views.shape == (3, 12, 16, 3) and views.dtype == np.float32
+    np.testing.assert_allclose(views, np.stack(imgs) / 255.0, atol=1e-6)
+    cv2.imwrite(str(tmp_path / "small.png"), imgs[0][:10])
+    with pytest.raises(InvalidInputError, match="one size"):
+        read_views([paths[0], tmp_path / "small.png"])
+    with pytest.raises(InvalidInputError, match="2 to 100 view images, got 1"):
+        read_views(paths[:1])

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 import math
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -15,19 +15,20 @@ from lfring.errors import FileFormatError, InvalidInputError, LfringWarning
 from lfring.geometry import check_reference, to_reference
 from lfring.optics.device import RingDevice
 from lfring.optics.views import optical_homography_model, optical_layout, view_cameras
-from lfring.views import Layout
+from lfring.views import Layout, grid_layout
 
 __all__ = ["RingCalibration", "CALIBRATION_VERSION"]
 
 CALIBRATION_VERSION = 1
-SOURCES = ("planes", "optics")
+SOURCES = ("planes", "optics", "grid")
 
 
 @dataclass(frozen=True, eq=False)
 class RingCalibration:
     """Where every view's pixels land in the reference frame, for a plane at any depth.
 
-    Build one with :meth:`from_optics`, :meth:`from_plane_homographies` or
+    Build one with :meth:`from_optics`, :meth:`from_plane_homographies`, :meth:`from_grid`
+    (a rectified stereo pair or a regular grid of views, from its geometry) or
     :func:`lfring.calibrate`; read and write it with :meth:`load` / :meth:`save`.
 
     Attributes
@@ -42,7 +43,7 @@ class RingCalibration:
         Depths the calibration was measured or is meant for; requests outside warn.
     planes : tuple of PlaneFit
         The planes it was fitted to, with their residuals in pixels.
-    source : 'planes' or 'optics'
+    source : 'planes', 'optics' or 'grid'
     device : str or None
         Name of the device description it came from, if any.
     """
@@ -121,6 +122,47 @@ class RingCalibration:
                 "frames; use the calibration of this camera and binning"
             )
 
+    def check_fits(self, views_shape, *, what: str = "views") -> None:
+        """Raise unless a (V, h, w[, C]) stack of views holds this calibration's views: as many,
+        of its layout's size."""
+        v, h, w = (tuple(views_shape) + (0, 0, 0))[:3]
+        want_h, want_w = self.layout.view_shape
+        if (v, h, w) != (self.num_views, want_h, want_w):
+            raise InvalidInputError(
+                f"the calibration is for {self.num_views} views of {want_w} x {want_h} px but the {what} are "
+                f"{v} of {w} x {h} px; give the views cut with this calibration's layout, in its view order"
+            )
+
+    def select_views(self, views) -> RingCalibration:
+        """The calibration of a subset of the views (e.g. a horizontal pair of the ring's four),
+        in the order given. The subset must hold the model's base view (``model.reference``).
+
+        Examples
+        --------
+        >>> cal = RingCalibration.from_grid((8, 8), [(0, 0), (1, 0), (0, 1)], disparity_scale_px_m=1.0)
+        >>> cal.select_views([2, 0]).homographies(1.0, reference=1)[:, :2, 2]
+        array([[0., 1.],
+               [0., 0.]])
+        >>> cal.select_views([2, 0]).num_views
+        2
+        """
+        idx = list(views) if not isinstance(views, (int, np.integer)) else [views]
+        if any(isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 0 <= k < self.num_views for k in idx) or (
+            len(set(idx)) != len(idx)
+        ):
+            raise InvalidInputError(f"views must be distinct view indices 0..{self.num_views - 1}, got {views!r}")
+        lay = self.layout
+        layout = Layout(lay.raw_width_px, lay.raw_height_px, tuple(lay.rects[k] for k in idx), lay.rotate180,
+                        None if lay.circles is None else tuple(lay.circles[k] for k in idx))
+        m = self.model
+        if m.reference not in idx:
+            raise InvalidInputError(
+                f"select_views keeps the model's base view {m.reference} (its homographies map into it), got {views!r}"
+            )
+        a, b, base = m.A[idx], m.B[idx], idx.index(m.reference)
+        return replace(self, model=VariableHomography(a, b, m.depth_origin_m, base), layout=layout,
+                       provenance={**self.provenance, "views_selected": idx})
+
     # -- constructors ----------------------------------------------------------------------
     @classmethod
     def from_optics(cls, device: RingDevice, *, layout: Layout | None = None, rotate180: bool = False) -> RingCalibration:
@@ -163,6 +205,93 @@ class RingCalibration:
         return cls(
             model=model, layout=layout, valid_depth_range_m=(min(depths), max(depths)), pattern=pattern,
             planes=tuple(planes), source="planes", provenance=dict(provenance or {}),
+        )
+
+    @classmethod
+    def from_grid(
+        cls,
+        view_shape: tuple[int, int],
+        grid_positions,
+        *,
+        disparity_scale_px_m: float,
+        disparity_offset_px: float = 0.0,
+        depth_origin_m: float = 0.0,
+        valid_depth_range_m: tuple[float, float | None] | None = None,
+    ) -> RingCalibration:
+        """The calibration of views on a regular grid, built from its geometry: a rectified
+        stereo pair, a camera array, the sub-aperture views of a light-field camera.
+
+        Parameters
+        ----------
+        view_shape : (h, w)
+            Size of every view in pixels.
+        grid_positions : (V, 2) array_like
+            (x, y) of each view on the grid in grid units, x to the right, y down, in view
+            order; 2 to ``MAX_VIEWS`` distinct positions. A rectified stereo pair is
+            ``[(0, 0), (1, 0)]``, left view first.
+        disparity_scale_px_m, disparity_offset_px : float
+            The disparity per grid step of a point at depth Z, an affine function of
+            1 / (Z - z0): ``d(Z) = disparity_offset_px + disparity_scale_px_m / (Z - z0)``
+            pixels (for a stereo pair of focal length f px and baseline b m, ``f b`` and 0).
+        depth_origin_m : float
+            z0, the depth of the plane of the projection centres (0 for cameras whose depth
+            is measured from their centres).
+        valid_depth_range_m : (float, float or None), optional
+            Depths the calibration is meant for (others warn). By default from the depth at
+            which ``disparity_scale_px_m / (Z - z0)`` is one view's larger side (nearer than
+            that, neighbouring views no longer overlap) to infinity.
+
+        Returns
+        -------
+        RingCalibration
+            ``source='grid'``; the layout tiles the views as cells of a mosaic (at their grid
+            cell for integer positions, else in one row in view order) and the grid is kept
+            in ``provenance``.
+
+        Notes
+        -----
+        A point at depth Z lies at ``x_k = x_j - (p_k - p_j) d(Z)`` in view k for its position
+        ``x_j`` in view j (both axes; p the grid positions), so
+        ``H_ref_from_view_k(Z)`` is the translation by ``(p_k - p_ref) d(Z)``, with
+        ``p_ref`` the mean of the positions for reference 'center'. For a Middlebury pair
+        (left, right) at ``[(0, 0), (1, 0)]`` this is ``imL(x, y) = imR(x - d, y)``.
+
+        Examples
+        --------
+        >>> cal = RingCalibration.from_grid((375, 450), [(0, 0), (1, 0)], disparity_scale_px_m=100.0)
+        >>> cal.homographies(2.0)[:, 0, 2]  # 50 px of disparity, half of it each way from the centre
+        array([-25.,  25.])
+        """
+        pos = np.asarray(grid_positions, dtype=np.float64) if _is_numeric(grid_positions) else None
+        if pos is None or pos.ndim != 2 or pos.shape[1] != 2 or not np.all(np.isfinite(pos)):
+            raise InvalidInputError(
+                f"grid_positions must be (V, 2) finite (x, y) grid positions, got {np.shape(grid_positions)}; "
+                "a stereo pair is [(0, 0), (1, 0)]"
+            )
+        layout = grid_layout(view_shape, pos)
+        for name, value in (("disparity_scale_px_m", disparity_scale_px_m), ("disparity_offset_px", disparity_offset_px),
+                            ("depth_origin_m", depth_origin_m)):
+            if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) or not math.isfinite(value):
+                raise InvalidInputError(f"{name} must be a finite number, got {value!r}")
+        if disparity_scale_px_m == 0:
+            raise InvalidInputError("disparity_scale_px_m must not be 0: the views would not move with depth")
+        z0 = float(depth_origin_m)
+        if valid_depth_range_m is None:
+            valid_depth_range_m = (z0 + abs(float(disparity_scale_px_m)) / max(layout.view_shape), None)
+        rel = pos - pos[0]
+        a = np.repeat(np.eye(3)[None], len(pos), axis=0)
+        b = np.zeros_like(a)
+        a[:, :2, 2] = rel * float(disparity_offset_px)
+        b[:, :2, 2] = rel * float(disparity_scale_px_m)
+        return cls(
+            model=VariableHomography(a, b, z0, 0),
+            layout=layout,
+            valid_depth_range_m=tuple(valid_depth_range_m),
+            source="grid",
+            provenance={"grid_positions": pos.tolist(), "disparity_scale_px_m": float(disparity_scale_px_m),
+                        "disparity_offset_px": float(disparity_offset_px),
+                        "disparity": "d(Z) = disparity_offset_px + disparity_scale_px_m / (Z - depth_origin_m) px per "
+                                     "grid step; view k at grid position p_k: H_ref_from_view = translation by (p_k - p_ref) d(Z)"},
         )
 
     # -- files -----------------------------------------------------------------------------
@@ -249,6 +378,13 @@ class RingCalibration:
             )
         except InvalidInputError as exc:
             raise FileFormatError(f"{source_name}: {exc}") from None
+
+
+def _is_numeric(value) -> bool:
+    try:
+        return np.asarray(value).dtype.kind in "iuf"
+    except (TypeError, ValueError):
+        return False
 
 
 class _Validator:

@@ -55,15 +55,20 @@ def get_device(name: str) -> RingDevice:
     return load_device(name)
 
 
-def load_views(raw: str, calib: str | None):
+def load_views(raw, calib: str | None):
     """Load, demosaic and split a raw frame; the calibration from --calib or the built-in
-    default for the frame's size (logged)."""
+    default for the frame's size (logged). Several paths are separate view images instead
+    (see :func:`load_view_files`)."""
     from lfring.calibration import RingCalibration
     from lfring.calibration.defaults import default_calibration
     from lfring.io.demosaic import demosaic
     from lfring.io.raw import load_raw
     from lfring.views import split_views
 
+    if not isinstance(raw, str):
+        if len(raw) > 1:
+            return load_view_files(raw, calib)
+        raw = raw[0]
     frame = load_raw(raw)
     image = demosaic(frame)
     if calib:
@@ -74,3 +79,20 @@ def load_views(raw: str, calib: str | None):
                  name, "measured" if cal.source == "planes" else "from the optics", *cal.raw_size)
     cal.check_frame(image.shape, what=f"frame {raw}")
     return split_views(image, cal.layout), cal, name
+
+
+def load_view_files(paths, calib: str | None):
+    """Separate view images (a stereo pair, a camera array) in the view order of --calib, a
+    calibration of as many views (``lfring grid-calib`` writes one)."""
+    from lfring.calibration import RingCalibration
+    from lfring.views import read_views
+
+    if not calib:
+        raise click.UsageError(f"{len(paths)} images given: separate views need --calib FILE, a calibration of "
+                               f"{len(paths)} views in their order (lfring grid-calib writes one for a stereo pair or a grid)")
+    cal = RingCalibration.load(calib)
+    if cal.num_views != len(paths):
+        raise click.UsageError(f"{len(paths)} view images given but the calibration {calib} has {cal.num_views} views")
+    views = read_views(paths)
+    cal.check_fits(views.shape, what="view images")
+    return views, cal, calib

@@ -14,7 +14,7 @@ log = logging.getLogger("lfring.cli.depth")
 
 
 @click.command("depth")
-@click.argument("raw", type=click.Path(dir_okay=False))
+@click.argument("raw", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.option("--zmin", type=float, required=True, metavar="M", help="Nearest depth searched [m from the main lens].")
 @click.option("--zmax", type=float, required=True, metavar="M", help="Farthest depth searched [m].")
 @click.option("-o", "--output", "outdir", type=click.Path(file_okay=False), required=True, metavar="DIR", help="Output folder.")
@@ -22,7 +22,7 @@ log = logging.getLogger("lfring.cli.depth")
               help="Calibration JSON (default: the built-in one for the frame's size).")
 @click.option("--planes", type=int, default=None, metavar="N",
               help="Number of depth hypotheses (default: at most 1 px of view motion apart).")
-@click.option("--reference", default="center", show_default=True, metavar="center|0..3", help="Frame of the depth map.")
+@click.option("--reference", default="center", show_default=True, metavar="center|INDEX", help="Frame of the depth map.")
 @click.option("--cost", type=click.Choice(["lcn", "zncc", "sad", "ssd", "sad-occlusion"]), default="lcn", show_default=True,
               help="Photo-consistency cost (lcn: locally normalised luminances, the fastest and most accurate).")
 @click.option("--aggregation", type=click.Choice(["box", "guided"]), default="box", show_default=True,
@@ -36,7 +36,10 @@ log = logging.getLogger("lfring.cli.depth")
 @click.option("--overwrite", is_flag=True, help="Replace existing output files.")
 def command(raw, zmin, zmax, outdir, calib, planes, reference, cost, aggregation, backend, device, min_confidence,
             device_name, overwrite):
-    """Depth map of RAW in metres with confidence, by plane sweep over the four views.
+    """Depth map of RAW in metres with confidence, by plane sweep over the views.
+
+    RAW is one raw frame, or several images: separate views in the view order of --calib (a
+    stereo pair or a grid of views; lfring grid-calib writes such a calibration).
 
     Writes DIR/<name>_depth.tiff (float32 metres, NaN where unknown), _depth.pfm,
     _confidence.tiff (0..1), _depth_preview.png (colour bar in metres), _points.ply (metric
@@ -51,7 +54,7 @@ def command(raw, zmin, zmax, outdir, calib, planes, reference, cost, aggregation
     views, cal, cal_name = load_views(raw, calib)
     ref = check_reference(reference, cal.num_views)
     out = Path(outdir)
-    stem = Path(raw).stem
+    stem, raw = Path(raw[0]).stem, raw[0] if len(raw) == 1 else list(raw)  # several: separate view images
     paths = {k: out / f"{stem}_{k}" for k in ("depth.tiff", "depth.pfm", "confidence.tiff", "depth_preview.png", "points.ply", "depth.json")}
     check_writable(paths.values(), overwrite=overwrite)
     res = estimate_depth(views, cal, zmin_m=zmin, zmax_m=zmax, num_planes=planes, reference=ref, cost=cost,
@@ -77,7 +80,7 @@ def command(raw, zmin, zmax, outdir, calib, planes, reference, cost, aggregation
     else:
         log.warning("no device description matches %d x %d px frames: the point cloud is not written", *cal.raw_size)
     write_json(paths["depth.json"], {
-        "input": str(raw), "calibration": cal_name, "reference": ref, "zmin_m": zmin, "zmax_m": zmax,
+        "input": raw, "calibration": cal_name, "reference": ref, "zmin_m": zmin, "zmax_m": zmax,
         "hypotheses_m": res.depths_m, "step_px": res.step_px, "cost": cost, "aggregation": aggregation, "backend": backend,
         "units": "depth in metres from the main lens; NaN where unknown", "points": n_points,
         "confidence_median": float(np.median(res.confidence)),

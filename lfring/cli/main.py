@@ -18,6 +18,7 @@ COMMANDS = {
     "calibrate": "calibrate",
     "depth": "depth",
     "design": "design",
+    "grid-calib": "grid_calib",
     "inspect": "inspect",
     "raytrace": "raytrace",
     "refocus": "refocus",

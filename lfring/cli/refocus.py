@@ -39,7 +39,7 @@ def _depths(depth, depths, sweep) -> list[float]:
 
 
 @click.command("refocus")
-@click.argument("raw", type=click.Path(dir_okay=False))
+@click.argument("raw", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.option("--depth", type=float, default=None, metavar="M", help="Refocus distance from the main lens [m].")
 @click.option("--depths", default=None, metavar="Z1,Z2,...", help="Several depths [m]: a focal stack.")
 @click.option("--sweep", default=None, metavar="START:STOP:N", help="N depths from START to STOP [m]: a focal stack.")
@@ -47,7 +47,7 @@ def _depths(depth, depths, sweep) -> list[float]:
               help="Also write an all-in-focus image chosen over the stack's depths (or the calibrated range).")
 @click.option("--calib", type=click.Path(dir_okay=False), default=None, metavar="FILE",
               help="Calibration JSON (default: the built-in one for the frame's size).")
-@click.option("--reference", default="center", show_default=True, metavar="center|0..3", help="Frame of the result.")
+@click.option("--reference", default="center", show_default=True, metavar="center|INDEX", help="Frame of the result.")
 @click.option("-o", "--output", type=click.Path(dir_okay=False), default=None, metavar="FILE",
               help="Output image (.png/.tif); for stacks the numbered frames and the stack files take its name. "
                    "Default: RAW's name with _refocus_<depth>m in the current folder.")
@@ -60,6 +60,9 @@ def _depths(depth, depths, sweep) -> list[float]:
 def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolation, bit_depth, encoding, overwrite):
     """Refocus RAW at metric depth: lfring refocus raw.png --depth 0.5
 
+    RAW is one raw frame, or several images: separate views in the view order of --calib (a
+    stereo pair or a grid of views; lfring grid-calib writes such a calibration).
+
     A focal stack (--depths or --sweep) is written as numbered images, a multi-page TIFF and an
     animated GIF. Every output gets a JSON sidecar (OUTPUT.json) naming the calibration used.
     """
@@ -71,7 +74,7 @@ def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolat
     bits = int(bit_depth)
     views, cal, cal_name = load_views(raw, calib)
     ref = check_reference(reference, cal.num_views)
-    stem = Path(raw).stem
+    stem, raw = Path(raw[0]).stem, raw[0] if len(raw) == 1 else list(raw)  # several: separate view images
     if output is None:
         base = Path(f"{stem}_refocus_{zs[0]:g}m.png" if len(zs) == 1 else f"{stem}_stack.png")
     else:
@@ -90,7 +93,7 @@ def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolat
     check_writable([*outs, *extra, *sidecars, *([aif_path] if aif else [])], overwrite=overwrite)
 
     stack = focal_stack(views, cal, zs, reference=ref, interpolation=interpolation)
-    meta = {"input": str(raw), "calibration": cal_name, "calibration_source": cal.source, "reference": ref,
+    meta = {"input": raw, "calibration": cal_name, "calibration_source": cal.source, "reference": ref,
             "encoding": encoding, "bit_depth": bits, "interpolation": interpolation,
             "units": "depth in metres from the main lens"}
     for p, z, img in zip(outs, zs, stack):

@@ -121,6 +121,7 @@ def estimate_depth(
     _optional_count("threads", threads, 1, "")
     _optional_count("num_planes", num_planes, 2, " (or None for the default spacing)")
     arr = check_views(views)
+    calibration.check_fits(arr.shape)
     if not np.all(np.isfinite(arr)):
         raise InvalidInputError("views contain NaN or infinite values")
     plan = _plan(arr, calibration, zmin_m, zmax_m, num_planes, reference)

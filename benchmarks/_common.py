@@ -1,0 +1,76 @@
+"""Shared by the depth benchmarks: the twin's scene as bench_depth.py renders it, OpenCV's
+StereoSGBM with the Middlebury SDK's hole filling, and the machine line."""
+
+from __future__ import annotations
+
+import os
+import platform
+from types import SimpleNamespace
+
+import cv2
+import numpy as np
+
+ZMIN, ZMAX = 0.27, 1.1  # depth range of the twin's three-depth scene [m]
+
+
+def machine_line() -> str:
+    return (f"machine: {platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}, "
+            f"OpenCV {cv2.__version__}, load {os.getloadavg()[0]:.2f}")
+
+
+def twin_scene(seed: int = 3) -> SimpleNamespace:
+    """The twin's three-depth scene (2 x 2 binned, realistic noise): ``render`` (the RenderResult),
+    ``cal`` (the optics calibration), ``views`` (demosaiced, split), ``gt`` (view 0's depth [m])."""
+    from lfring.calibration import RingCalibration
+    from lfring.io.demosaic import demosaic
+    from lfring.io.raw import RawFrame
+    from lfring.optics import load_device
+    from lfring.synth import render
+    from lfring.synth.presets import three_depth_scene
+    from lfring.views import split_views
+
+    r = render(load_device("prototype"), three_depth_scene(), binning=2, noise="realistic", seed=seed)
+    cal = RingCalibration.from_optics(r.device, layout=r.layout)
+    frame = RawFrame(mosaic=r.raw, pattern="RGGB", black_level=r.black_level, white_level=r.white_level, bit_depth=12)
+    return SimpleNamespace(render=r, cal=cal, views=split_views(demosaic(frame), r.layout), gt=r.depth_m[0])
+
+
+def fill_invalid(disparity: np.ndarray) -> np.ndarray:
+    """Invalid (NaN) disparities replaced by the lower of the nearest valid values to their left
+    and right on the same row (the Middlebury SDK's filling, the background's side of an
+    occlusion); rows with no valid pixel stay NaN."""
+    d = np.asarray(disparity, np.float32)
+    out = d.copy()
+    w = d.shape[1]
+    cols = np.arange(w)
+    for y in range(d.shape[0]):
+        ok = np.isfinite(d[y])
+        if ok.all() or not ok.any():
+            continue
+        left = np.maximum.accumulate(np.where(ok, cols, -1))  # nearest valid at or left of x
+        right = np.minimum.accumulate(np.where(ok, cols, w)[::-1])[::-1]
+        lv = np.where(left >= 0, d[y, np.clip(left, 0, w - 1)], np.inf)
+        rv = np.where(right < w, d[y, np.clip(right, 0, w - 1)], np.inf)
+        fill = np.minimum(lv, rv)
+        out[y, ~ok] = fill[~ok]
+    return out
+
+
+def sgbm_disparity(left: np.ndarray, right: np.ndarray, min_disparity_px: float, max_disparity_px: float, *,
+                   block: int = 5) -> tuple[np.ndarray, dict]:
+    """OpenCV StereoSGBM on a rectified pair, colour, with P1 = 8 * 3 * block^2 and
+    P2 = 32 * 3 * block^2 (OpenCV's suggested penalties for 3 channels) and numDisparities
+    covering [min, max] rounded up to 16. ``left``, ``right``: (h, w, 3) uint8 (or floats in
+    [0, 1], scaled by their common maximum). Returns the left view's disparity (px; NaN where
+    SGBM finds none) and the settings."""
+    if left.dtype != np.uint8:
+        top = max(float(left.max()), float(right.max()), 1e-6)
+        left, right = (np.rint(np.clip(x / top, 0, 1) * 255).astype(np.uint8) for x in (left, right))
+    min_d = int(np.floor(min_disparity_px))
+    num = int(np.ceil((max_disparity_px - min_d + 1) / 16.0)) * 16
+    p1, p2 = 8 * 3 * block * block, 32 * 3 * block * block
+    sgbm = cv2.StereoSGBM_create(minDisparity=min_d, numDisparities=num, blockSize=block, P1=p1, P2=p2,
+                                 mode=cv2.STEREO_SGBM_MODE_SGBM)
+    d = sgbm.compute(left, right).astype(np.float32) / 16.0
+    d[d < min_d] = np.nan
+    return d, {"minDisparity": min_d, "numDisparities": num, "blockSize": block, "P1": p1, "P2": p2}
