@@ -1,0 +1,80 @@
+"""Edge-aware refinement and hole filling against constructions with known disparity."""
+
+import numpy as np
+import pytest
+from sgm_scenes import FAR_INDEX, NEAR_INDEX, STEP_COLUMN
+
+from lfring.depth.refine import refine_index
+from lfring.errors import InvalidInputError
+
+
+def _two_planes(seed=0, h=40, w=64):
+    rng = np.random.default_rng(seed)
+    x = np.arange(w)[None, :].repeat(h, 0)
+    truth = np.where(x < STEP_COLUMN, FAR_INDEX, NEAR_INDEX).astype(np.float32)
+    guide = np.where(x < STEP_COLUMN, 0.3, 0.7) + 0.01 * rng.standard_normal((h, w))
+    return truth, np.clip(guide, 0, 1).astype(np.float32), rng
+
+
+def test_weighted_median_removes_outliers_and_keeps_the_edge():
+    truth, guide, rng = _two_planes()
+    index = truth + 0.05 * rng.standard_normal(truth.shape).astype(np.float32)
+    outliers = rng.random(truth.shape) < 0.05
+    index[outliers] = rng.uniform(0, 31, outliers.sum())
+    confidence = np.full(truth.shape, 0.5, np.float32)
+    refined, filled = refine_index(index, confidence, guide)
+    assert np.mean(np.abs(index - truth) > 1) > 0.04
+    assert np.mean(np.abs(refined - truth) > 1) < 0.002  # outliers gone, edge columns included
+    edge = np.abs(refined - truth)[:, STEP_COLUMN - 2:STEP_COLUMN + 2]
+    assert edge.max() < 0.5  # the step stays within the guide's edge, no blur
+    np.testing.assert_array_equal(filled, refined)  # nothing to fill
+
+
+def test_holes_stay_nan_in_refined_and_are_filled_from_their_region():
+    truth, guide, rng = _two_planes(seed=1)
+    index = truth.copy()
+    confidence = np.full(truth.shape, 0.8, np.float32)
+    holes = np.zeros(truth.shape, bool)
+    holes[10:30, 24:31] = True  # a hole on the far side of the edge, touching it
+    holes[5:15, 40:50] = True  # a hole inside the near plane
+    confidence[holes] = 0.01
+    index[holes] = 0.0  # garbage where not confident
+    index[0, 0] = np.nan
+    refined, filled = refine_index(index, confidence, guide, min_confidence=0.05)
+    assert np.all(np.isnan(refined[holes])) and np.isnan(refined[0, 0])
+    assert np.all(np.isfinite(filled))
+    err = np.abs(filled - truth)[holes]
+    assert err.max() < 1.0  # every hole pixel takes its own surface's value
+    assert np.abs(filled[0, 0] - FAR_INDEX) < 0.5
+
+
+def test_no_confident_pixel_gives_all_nan():
+    truth, guide, _ = _two_planes()
+    refined, filled = refine_index(truth, np.zeros_like(truth), guide)
+    assert np.all(np.isnan(refined)) and np.all(np.isnan(filled))
+
+
+def test_accepts_uint8_and_colour_guides():
+    truth, guide, _ = _two_planes()
+    conf = np.ones_like(truth)
+    a = refine_index(truth, conf, guide)[0]
+    b = refine_index(truth, conf, (guide * 255).round().astype(np.uint8))[0]
+    c = refine_index(truth, conf, np.repeat(guide[..., None], 3, axis=2))[0]
+    np.testing.assert_array_equal(a, b)
+    np.testing.assert_allclose(c, truth, atol=1e-6)
+
+
+@pytest.mark.parametrize(
+    "args, kwargs, match",
+    [
+        ((np.zeros((3, 4, 5)), np.zeros((3, 4)), np.zeros((3, 4))), {}, "index must be an"),
+        ((np.zeros((3, 4), np.int32), np.zeros((3, 4)), np.zeros((3, 4))), {}, "floating point"),
+        ((np.zeros((3, 4)), np.zeros((3, 5)), np.zeros((3, 4))), {}, "confidence must have"),
+        ((np.zeros((3, 4)), np.zeros((3, 4)), np.zeros((4, 3))), {}, "guide must be an"),
+        ((np.zeros((3, 4)), np.zeros((3, 4)), np.zeros((3, 4))), {"radius_px": 0}, "radius_px"),
+        ((np.zeros((3, 4)), np.zeros((3, 4)), np.zeros((3, 4))), {"min_confidence": -1}, "min_confidence"),
+    ],
+)
+def test_errors(args, kwargs, match):
+    with pytest.raises(InvalidInputError, match=match):
+        refine_index(*args, **kwargs)
