@@ -198,7 +198,8 @@ def _chunk_size(n: int, v: int, h: int, w: int) -> int:
     return int(max(1, min(n, _CHUNK_BYTES // max(per, 1))))
 
 
-def sweep_torch(lum, masks, hs, *, cost, aggregation, window_px, guide, exclude=1, device=None, aggregate_px=None):
+def sweep_torch(lum, masks, hs, *, cost, aggregation, window_px, guide, exclude=1, device=None, aggregate_px=None,
+                volume=None):
     """Same contract as :func:`lfring.depth.stream.sweep_slices`, with kornia.
 
     Parameters
@@ -221,6 +222,9 @@ def sweep_torch(lum, masks, hs, *, cost, aggregation, window_px, guide, exclude=
     exclude : int
         The second minimum is looked for more than ``exclude`` hypotheses from the best.
     device : str or torch.device, optional
+    volume : (N, h, w) float32 ndarray, optional
+        Filled with every aggregated slice instead of keeping a running minimum; then only
+        ``nviews`` is returned (as :func:`lfring.depth.stream.sweep_slices`).
 
     Returns
     -------
@@ -267,7 +271,12 @@ def sweep_torch(lum, masks, hs, *, cost, aggregation, window_px, guide, exclude=
             filled = torch.where(finite, cst, 1.0)
             agg = guided(torch, filled) if guided is not None else box_agg(filled[:, None])[:, 0]
             agg = torch.where(finite, agg, float("inf"))
-            run.push_chunk(agg)
+            if volume is None:
+                run.push_chunk(agg)
+            else:
+                volume[i0:i1] = agg.cpu().numpy()
             torch.maximum(nviews, nv.amax(dim=0), out=nviews)
+    if volume is not None:
+        return nviews.cpu().numpy()
     out = (run.best, run.c_prev, run.c_next, run.second(), nviews)
     return (run.best_i.to(torch.int32).cpu().numpy(), *(x.cpu().numpy() for x in out))

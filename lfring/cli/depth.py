@@ -27,6 +27,9 @@ log = logging.getLogger("lfring.cli.depth")
               help="Photo-consistency cost (lcn: locally normalised luminances, the fastest and most accurate).")
 @click.option("--aggregation", type=click.Choice(["box", "guided"]), default="box", show_default=True,
               help="Spatial aggregation of the cost (guided: edge-aware, about 3x slower, more accurate on the twin).")
+@click.option("--method", type=click.Choice(["sgm", "local"]), default="sgm", show_default=True,
+              help="sgm: semi-global optimisation of the whole sweep (fills weak texture, rejects occlusions); "
+                   "local: each pixel's best hypothesis alone (several times faster).")
 @click.option("--backend", type=click.Choice(["numpy", "torch"]), default="numpy", show_default=True, help="Compute backend.")
 @click.option("--device", default=None, metavar="cpu|cuda", help="Torch device (default: cuda when present).")
 @click.option("--min-confidence", type=float, default=0.5, show_default=True,
@@ -34,7 +37,7 @@ log = logging.getLogger("lfring.cli.depth")
 @click.option("--device-file", "device_name", default=None, metavar="NAME|FILE",
               help="Device description for the point cloud (default: the calibration's, else prototype).")
 @click.option("--overwrite", is_flag=True, help="Replace existing output files.")
-def command(raw, zmin, zmax, outdir, calib, planes, reference, cost, aggregation, backend, device, min_confidence,
+def command(raw, zmin, zmax, outdir, calib, planes, reference, cost, aggregation, method, backend, device, min_confidence,
             device_name, overwrite):
     """Depth map of RAW in metres with confidence, by plane sweep over the views.
 
@@ -43,7 +46,9 @@ def command(raw, zmin, zmax, outdir, calib, planes, reference, cost, aggregation
 
     Writes DIR/<name>_depth.tiff (float32 metres, NaN where unknown), _depth.pfm,
     _confidence.tiff (0..1), _depth_preview.png (colour bar in metres), _points.ply (metric
-    camera coordinates) and _depth.json (settings, hypotheses, calibration used).
+    camera coordinates) and _depth.json (settings, hypotheses, calibration used); with the
+    default --method sgm also _depth_filled.tiff (the unknown pixels filled from their image
+    region: an estimate, not a measurement).
     """
     from lfring.depth import estimate_depth
     from lfring.depth.io import depth_to_points, write_depth_preview, write_depth_tiff, write_pfm, write_ply
@@ -55,12 +60,17 @@ def command(raw, zmin, zmax, outdir, calib, planes, reference, cost, aggregation
     ref = check_reference(reference, cal.num_views)
     out = Path(outdir)
     stem, raw = Path(raw[0]).stem, raw[0] if len(raw) == 1 else list(raw)  # several: separate view images
-    paths = {k: out / f"{stem}_{k}" for k in ("depth.tiff", "depth.pfm", "confidence.tiff", "depth_preview.png", "points.ply", "depth.json")}
+    names = ["depth.tiff", "depth.pfm", "confidence.tiff", "depth_preview.png", "points.ply", "depth.json"]
+    if method == "sgm":
+        names.append("depth_filled.tiff")
+    paths = {k: out / f"{stem}_{k}" for k in names}
     check_writable(paths.values(), overwrite=overwrite)
     res = estimate_depth(views, cal, zmin_m=zmin, zmax_m=zmax, num_planes=planes, reference=ref, cost=cost,
-                         aggregation=aggregation, backend=backend, device=device)
+                         aggregation=aggregation, method=method, backend=backend, device=device)
     out.mkdir(parents=True, exist_ok=True)
     write_depth_tiff(paths["depth.tiff"], res.depth_m)
+    if res.depth_filled_m is not None:
+        write_depth_tiff(paths["depth_filled.tiff"], res.depth_filled_m)
     write_pfm(paths["depth.pfm"], res.depth_m)
     write_float_tiff(paths["confidence.tiff"], res.confidence)
     write_depth_preview(paths["depth_preview.png"], res.depth_m, confidence=res.confidence, zmin_m=zmin, zmax_m=zmax,
@@ -81,7 +91,7 @@ def command(raw, zmin, zmax, outdir, calib, planes, reference, cost, aggregation
         log.warning("no device description matches %d x %d px frames: the point cloud is not written", *cal.raw_size)
     write_json(paths["depth.json"], {
         "input": raw, "calibration": cal_name, "reference": ref, "zmin_m": zmin, "zmax_m": zmax,
-        "hypotheses_m": res.depths_m, "step_px": res.step_px, "cost": cost, "aggregation": aggregation, "backend": backend,
+        "hypotheses_m": res.depths_m, "step_px": res.step_px, "cost": cost, "aggregation": aggregation, "method": method, "backend": backend,
         "units": "depth in metres from the main lens; NaN where unknown", "points": n_points,
         "confidence_median": float(np.median(res.confidence)),
     })

@@ -31,6 +31,12 @@ class DepthResult:
     step_px : float
         Largest motion of any view pixel between neighbouring hypotheses.
     reference : 'center' or int
+    cost, aggregation, method : str
+        The settings that made it (see :func:`lfring.estimate_depth`).
+    depth_filled_m : (h, w) float32 or None
+        The 'sgm' method's depth with the unconfident pixels filled from confident neighbours of
+        the same image region (an estimate, not a measurement); NaN where fewer than
+        ``min_views`` views see the pixel. None for the 'local' method.
     """
 
     depth_m: np.ndarray
@@ -41,6 +47,8 @@ class DepthResult:
     reference: object
     cost: str
     aggregation: str
+    method: str = "local"
+    depth_filled_m: np.ndarray | None = None
 
 
 class RunningMinimum:
@@ -146,6 +154,19 @@ class Finisher:
 
     def rows(self, r0, r1, idx, conf, c_best, nviews):
         """Rows r0 to r1 from fractional hypothesis indices and confidences."""
+        depth = self._depth(idx)
+        seen = (nviews >= self.min_views - 0.5) & np.isfinite(c_best)
+        self.depth[r0:r1] = np.where(seen, depth, np.float32(np.nan))
+        self.conf[r0:r1] = np.where(seen, conf, np.float32(0.0))
+        self.index[r0:r1] = np.where(seen, idx, np.float32(np.nan))
+
+    def depth_of(self, idx, nviews) -> np.ndarray:
+        """Depth in metres (float32) of a whole map of fractional indices; NaN where the index
+        is NaN or fewer than ``min_views`` views see the pixel."""
+        seen = nviews >= self.min_views - 0.5
+        return np.where(seen, self._depth(np.asarray(idx, np.float32)), np.float32(np.nan)).astype(np.float32)
+
+    def _depth(self, idx):
         if self.linear:
             inv_at = idx * np.float32(self.step)
             inv_at += np.float32(self.inv[0])
@@ -153,10 +174,7 @@ class Finisher:
             inv_at = np.interp(idx, np.arange(self.n), self.inv).astype(np.float32)
         depth = np.divide(np.float32(1.0), inv_at, out=inv_at)
         depth += np.float32(self.z0)
-        seen = (nviews >= self.min_views - 0.5) & np.isfinite(c_best)
-        self.depth[r0:r1] = np.where(seen, depth, np.float32(np.nan))
-        self.conf[r0:r1] = np.where(seen, conf, np.float32(0.0))
-        self.index[r0:r1] = np.where(seen, idx, np.float32(np.nan))
+        return depth
 
     def result(self, **record) -> DepthResult:
         return DepthResult(depth_m=self.depth, confidence=self.conf, hypothesis_index=self.index, **record)

@@ -178,7 +178,7 @@ def sweep_strips(sources: np.ndarray, masks: np.ndarray, hs: np.ndarray, *, aggr
     return None
 
 
-def sweep_slices(lum, masks, hs, cost, window_px, guide, exclude=1, aggregate_px=None):
+def sweep_slices(lum, masks, hs, cost, window_px, guide, exclude=1, aggregate_px=None, volume=None):
     """Any cost and aggregation over every hypothesis, a whole slice at a time.
 
     Parameters
@@ -195,6 +195,9 @@ def sweep_slices(lum, masks, hs, cost, window_px, guide, exclude=1, aggregate_px
         The guided aggregation, or None for a box over ``aggregate_px``.
     exclude : int
         As :class:`lfring.depth.selection.RunningMinimum`.
+    volume : (N, h, w) float32, optional
+        As in :func:`sweep_strips`: filled with every aggregated slice; then only ``nviews``
+        is returned.
 
     Returns
     -------
@@ -207,7 +210,7 @@ def sweep_slices(lum, masks, hs, cost, window_px, guide, exclude=1, aggregate_px
     n, v = hs.shape[:2]
     h, w = lum.shape[1:]
     aggregate_px = window_px if aggregate_px is None else aggregate_px
-    run = RunningMinimum((h, w), exclude)
+    run = RunningMinimum((h, w), exclude) if volume is None else None
     nviews = np.zeros((h, w), np.float32)
     src = lum * masks
     lum_w = np.empty((v, h, w), np.float32)
@@ -217,7 +220,10 @@ def sweep_slices(lum, masks, hs, cost, window_px, guide, exclude=1, aggregate_px
             warp_image(src[k], hs[i, k], (w, h), dst=lum_w[k])
             warp_image(masks[k], hs[i, k], (w, h), dst=wts[k])
         c, nv = slice_cost(lum_w, wts, cost, window_px)
-        np.copyto(run.slot(), aggregate(c, nv, guide, aggregate_px))
-        run.push()
+        np.copyto(run.slot() if run is not None else volume[i], aggregate(c, nv, guide, aggregate_px))
+        if run is not None:
+            run.push()
         np.maximum(nviews, nv, out=nviews)
+    if run is None:
+        return nviews
     return run.best_i, run.best, run.c_prev, run.c_next, run.second(), nviews

@@ -33,7 +33,7 @@ def _agreement(a, b):
 @pytest.mark.parametrize("cost", COSTS)
 def test_parity_with_numpy(twin, cost, aggregation, reference):
     views, cal = twin
-    kw = dict(zmin_m=0.28, zmax_m=1.1, reference=reference, cost=cost, aggregation=aggregation)
+    kw = dict(zmin_m=0.28, zmax_m=1.1, reference=reference, cost=cost, aggregation=aggregation, method="local")
     ref = estimate_depth(views, cal, **kw)
     got = estimate_depth(views, cal, backend="torch", device="cpu", **kw)
     assert got.depth_m.dtype == np.float32 and got.depth_m.shape == ref.depth_m.shape
@@ -46,13 +46,28 @@ def test_parity_with_numpy(twin, cost, aggregation, reference):
     assert conf_ok >= 0.99, conf_ok
 
 
+@pytest.mark.parametrize("reference", [0, "center"])
+def test_parity_of_the_semi_global_default(twin, reference):
+    """The default 'sgm' method with the torch backend: its cost volume and optimisation in
+    torch, the same depth as NumPy/numba nearly everywhere."""
+    views, cal = twin
+    kw = dict(zmin_m=0.28, zmax_m=1.1, reference=reference)
+    ref = estimate_depth(views, cal, **kw)
+    got = estimate_depth(views, cal, backend="torch", device="cpu", **kw)
+    assert ref.method == got.method == "sgm"
+    both, depth_ok, conf_ok = _agreement(ref, got)
+    assert both.mean() > 0.5
+    assert depth_ok >= 0.97, depth_ok
+    assert conf_ok >= 0.95, conf_ok
+
+
 def test_parity_over_many_chunks(twin, monkeypatch):
     """Chunks of three hypotheses: the streamed bookkeeping carries over chunk boundaries."""
     views, cal = twin
     h, w = views.shape[1:3]
     monkeypatch.setattr(torch_depth, "_CHUNK_BYTES", 3 * torch_depth._IMAGES_PER_HYPOTHESIS * 4 * h * w * 4)
     assert torch_depth._chunk_size(16, 4, h, w) == 3
-    kw = dict(zmin_m=0.28, zmax_m=1.1, num_planes=16, reference=1, cost="zncc", aggregation="guided")
+    kw = dict(zmin_m=0.28, zmax_m=1.1, num_planes=16, reference=1, cost="zncc", aggregation="guided", method="local")
     ref = estimate_depth(views, cal, **kw)
     got = estimate_depth(views, cal, backend="torch", device="cpu", **kw)
     _, depth_ok, conf_ok = _agreement(ref, got)

@@ -1,0 +1,197 @@
+"""The compiled kernels of :mod:`lfring.depth.sgm`: numba, cached on disk after the first compile.
+
+Importing this module imports numba (the functions compile on their first call, then load from
+numba's cache in later processes); :mod:`lfring.depth.sgm` imports it on first use only, so
+importing lfring does neither. Each kernel is self-contained.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+__all__ = ["fill_values", "horizontal", "lines", "select_index"]
+
+_JIT = dict(parallel=True, cache=True, fastmath=False, nogil=True)
+
+
+@njit(**_JIT)
+def fill_values(cost, out):
+    """Per pixel, the mean of its finite costs (0 where none is finite)."""
+    n, h, w = cost.shape
+    for y in prange(h):
+        acc = np.zeros(w, np.float64)
+        cnt = np.zeros(w, np.int64)
+        for d in range(n):
+            for x in range(w):
+                v = cost[d, y, x]
+                if np.isfinite(v):
+                    acc[x] += v
+                    cnt[x] += 1
+        for x in range(w):
+            out[y, x] = np.float32(acc[x] / cnt[x]) if cnt[x] > 0 else np.float32(0.0)
+
+
+@njit(**_JIT)
+def horizontal(cost, fill, guide, use_guide, p1, p2, edge_scale, out, do_lr, do_rl):
+    """Left-right and right-left paths, one row per parallel task; adds them into ``out``."""
+    n, h, w = cost.shape
+    for y in prange(h):
+        c = np.empty((w, n), np.float32)
+        for d in range(n):
+            for x in range(w):
+                v = cost[d, y, x]
+                c[x, d] = v if np.isfinite(v) else fill[y, x]
+        s = np.zeros((w, n), np.float32)
+        prev = np.empty(n, np.float32)
+        cur = np.empty(n, np.float32)
+        for pass_ in range(2):
+            if (pass_ == 0 and not do_lr) or (pass_ == 1 and not do_rl):
+                continue
+            pmin = np.float32(0.0)
+            for i in range(w):
+                x = i if pass_ == 0 else w - 1 - i
+                cmin = np.float32(np.inf)
+                if i == 0:
+                    for d in range(n):
+                        cur[d] = c[x, d]
+                        cmin = min(cmin, cur[d])
+                else:
+                    xp = x - 1 if pass_ == 0 else x + 1
+                    p2e = p2
+                    if use_guide:
+                        p2e = max(p1, np.float32(p2 / (np.float32(1.0) + abs(guide[y, x] - guide[y, xp]) / edge_scale)))
+                    jump = pmin + p2e
+                    for d in range(n):
+                        best = prev[d]
+                        if d > 0:
+                            best = min(best, prev[d - 1] + p1)
+                        if d < n - 1:
+                            best = min(best, prev[d + 1] + p1)
+                        best = min(best, jump)
+                        cur[d] = c[x, d] + (best - pmin)
+                        cmin = min(cmin, cur[d])
+                for d in range(n):
+                    s[x, d] += cur[d]
+                pmin = cmin
+                prev, cur = cur, prev
+        for d in range(n):
+            for x in range(w):
+                out[d, y, x] += s[x, d]
+
+
+@njit(**_JIT)
+def lines(cost, fill, guide, use_guide, p1, p2, edge_scale, out, dy, dx, block):
+    """One path with dy = +-1 (vertical or diagonal), one block of parallel lines per task.
+
+    The lines of a path (columns, or diagonals x -+ y = const) are independent; a block of
+    ``block`` neighbouring lines covers a contiguous run of columns on every row, so the task
+    reads the cost row by row and keeps its lines' state in (N, block) buffers.
+    """
+    n, h, w = cost.shape
+    s = dx * dy  # on a line, x = k + s * y
+    if s == 0:
+        kmin, kmax = 0, w - 1
+    elif s == 1:
+        kmin, kmax = -(h - 1), w - 1
+    else:
+        kmin, kmax = 0, w + h - 2
+    nblocks = (kmax - kmin + block) // block
+    for b in prange(nblocks):
+        k0 = kmin + b * block
+        nb = min(block, kmax + 1 - k0)
+        prev = np.empty((n, block), np.float32)
+        cur = np.empty((n, block), np.float32)
+        pmin = np.zeros(block, np.float32)
+        cmin = np.zeros(block, np.float32)
+        p2row = np.empty(block, np.float32)
+        started = np.zeros(block, np.bool_)
+        for i in range(h):
+            y = i if dy > 0 else h - 1 - i
+            xb = k0 + s * y
+            j0 = max(0, -xb)
+            j1 = min(nb, w - xb)
+            if j0 >= j1:
+                continue
+            for j in range(j0, j1):
+                x = xb + j
+                cmin[j] = np.float32(np.inf)
+                p2e = p2
+                if use_guide and started[j]:
+                    p2e = max(p1, np.float32(p2 / (np.float32(1.0) + abs(guide[y, x] - guide[y - dy, x - dx]) / edge_scale)))
+                p2row[j] = p2e
+            for d in range(n):
+                for j in range(j0, j1):
+                    x = xb + j
+                    v = cost[d, y, x]
+                    if not np.isfinite(v):
+                        v = fill[y, x]
+                    if not started[j]:
+                        L = v
+                    else:
+                        best = prev[d, j]
+                        if d > 0:
+                            best = min(best, prev[d - 1, j] + p1)
+                        if d < n - 1:
+                            best = min(best, prev[d + 1, j] + p1)
+                        best = min(best, pmin[j] + p2row[j])
+                        L = v + (best - pmin[j])
+                    cur[d, j] = L
+                    cmin[j] = min(cmin[j], L)
+                    out[d, y, x] += L
+            for j in range(j0, j1):
+                started[j] = True
+            # A line inside the image on this row was inside on the previous one (lines are
+            # contiguous), so swapping whole buffers never hands a line stale state.
+            prev, cur = cur, prev
+            pmin, cmin = cmin, pmin
+
+
+@njit(**_JIT)
+def select_index(agg, raw, fill, use_raw, exclude, index, conf):
+    """Winner-take-all, parabola sub-hypothesis offset, distinctness 1 - best / second."""
+    n, h, w = agg.shape
+    for y in prange(h):
+        best = np.full(w, np.inf, np.float32)
+        arg = np.zeros(w, np.int64)
+        for d in range(n):
+            for x in range(w):
+                v = agg[d, y, x]
+                if v < best[x]:
+                    best[x] = v
+                    arg[x] = d
+        second = np.full(w, np.inf, np.float32)
+        for d in range(n):
+            for x in range(w):
+                if abs(d - arg[x]) > exclude:
+                    second[x] = min(second[x], agg[d, y, x])
+        for x in range(w):
+            k = arg[x]
+            b = best[x]
+            if not np.isfinite(b):
+                index[y, x] = np.nan
+                conf[y, x] = 0.0
+                continue
+            off = 0.0
+            if 0 < k < n - 1:
+                if use_raw:
+                    cm = raw[k - 1, y, x]
+                    c0 = raw[k, y, x]
+                    cp = raw[k + 1, y, x]
+                    cm = cm if np.isfinite(cm) else fill[y, x]
+                    c0 = c0 if np.isfinite(c0) else fill[y, x]
+                    cp = cp if np.isfinite(cp) else fill[y, x]
+                else:
+                    cm = agg[k - 1, y, x]
+                    c0 = b
+                    cp = agg[k + 1, y, x]
+                den = np.float64(cm) - 2.0 * np.float64(c0) + np.float64(cp)
+                if den > 0.0:
+                    off = 0.5 * (np.float64(cm) - np.float64(cp)) / den
+                    off = min(0.5, max(-0.5, off))
+            index[y, x] = np.float32(k + off)
+            s = second[x]
+            if np.isfinite(s) and s > 0.0:
+                conf[y, x] = np.float32(min(1.0, max(0.0, 1.0 - np.float64(b) / np.float64(s))))
+            else:
+                conf[y, x] = 0.0
