@@ -101,7 +101,7 @@ def hard_scene() -> Scene:
       of the 2 x 2 binned prototype) in front of everything;
     - a speckled disc at 0.4 m and a diamond (a square turned by 30 degrees) at 0.75 m: depth
       edges at every orientation;
-    - a part at 0.45 m with a spherical cap (12 mm high) and a cylindrical ridge (8 mm):
+    - a part at 0.45 m with a spherical cap (12 mm high) and a cylindrical ridge (4 mm):
       curved surfaces, their depth exact;
     - a photograph on a plane at 0.55 m tilted about both axes, and a floor tilted by 55
       degrees from about 0.55 to 0.69 m: depth varying across surfaces;
@@ -115,7 +115,7 @@ def hard_scene() -> Scene:
     wire = Texture("constant", colors=((0.85, 0.8, 0.7),))
     dark_wire = Texture("constant", colors=((0.06, 0.06, 0.07),))
     cap = Bump(center_m=(0.045, 0.03), size_m=(0.04, 0.04), height_m=0.012, shape="sphere")
-    ridge = Bump(center_m=(0.012, 0.03), size_m=(0.016, 0.06), height_m=0.006, shape="cylinder")
+    ridge = Bump(center_m=(0.012, 0.03), size_m=(0.016, 0.06), height_m=0.004, shape="cylinder")
     part = HeightField(0.45, (0.07, 0.06), Texture("speckle", feature_m=0.0015, seed=11,
                                                    colors=((0.15, 0.12, 0.1), (0.75, 0.65, 0.5))),
                        center_m=(0.045, -0.035), bumps=(cap, ridge), name="curved part")

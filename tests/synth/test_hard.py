@@ -82,24 +82,25 @@ def test_hard_scene_depth_is_the_analytic_surfaces(hard):
         yy, xx = np.indices((h, w))
         o, d = cams.rays_m(k, paraxial.pixel_to_sensor(dev, np.stack([xx + x, yy + y], -1)))
         want, label = _analytic_depth(scene, o, d)
-        # Away from silhouettes (where coverage, not the surface, decides): pixels whose 5 x 5
+        # Away from silhouettes (where coverage, not the surface, decides): pixels whose 3 x 3
         # neighbourhood is on one surface.
-        pad = np.pad(label, 2, mode="edge")
+        pad = np.pad(label, 1, mode="edge")
         same = np.ones_like(label, bool)
-        for dy in range(5):
-            for dx in range(5):
+        for dy in range(3):
+            for dx in range(3):
                 same &= pad[dy : dy + h, dx : dx + w] == label
         inner = same & (label >= 0) & r.layout.masks()[k]
         got = r.depth_m[k]
         assert np.isfinite(got[inner]).all()
         err = np.abs(got[inner] - want[inner])
-        assert err.max() < 2e-6, (k, err.max())  # float32 depth, metres
+        assert err.max() < 1e-7, (k, err.max())  # float32 rounding of metres near 1 m
         seen |= set(np.unique(label[inner]).tolist())
-        # And pixels that see nothing analytically see nothing in the render.
+        # And pixels that see nothing analytically see nothing in the render, and back.
         assert not np.isfinite(got[(label < 0) & same]).any()
+        assert np.isfinite(got[(label >= 0) & same]).all()
     wires = {i for i, s in enumerate(scene.surfaces) if "wire" in s.name}
-    assert seen == set(range(len(scene.surfaces))) - wires  # every other surface is checked
-    # The wires are 2 px wide here: check their centre lines, where every view sees them.
+    assert seen >= set(range(len(scene.surfaces))) - wires  # every surface is checked, and
+    # the wires, 2 px wide here, on their centre lines too, where every view sees them.
     for i in wires:
         p0, u, v, _ = scene.surfaces[i].axes()
         along = u if scene.surfaces[i].size_m[0] > scene.surfaces[i].size_m[1] else v
