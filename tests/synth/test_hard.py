@@ -162,6 +162,11 @@ def test_per_view_falloff_multiplies_the_optical_vignetting(prototype):
     # Ground truth is the same: depth and sharp views do not see the vignetting.
     np.testing.assert_array_equal(fall.depth_m, plain.depth_m)
     np.testing.assert_array_equal(fall.views_sharp, plain.views_sharp)
+    # The fall-off belongs to the views, not to the frame: a rotated frame has the same views.
+    rot = render(prototype, scene, view_falloff=HARD_VIEW_FALLOFF, rotate180=True, **kw)
+    np.testing.assert_array_equal(rot.views, fall.views)
+    with pytest.raises(InvalidInputError, match="view_falloff"):
+        render(prototype, scene, view_falloff=((0.1, 0, 0),) * 3, **kw)
 
 
 def test_roll_turns_a_plane_in_its_own_plane():
