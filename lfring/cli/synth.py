@@ -28,7 +28,7 @@ def _parse_defects(text: str) -> tuple[float, ...]:
 
 
 @click.command("synth")
-@click.argument("preset", type=click.Choice(["flat", "target", "scene", "part", "file"]))
+@click.argument("preset", type=click.Choice(["flat", "target", "scene", "part", "hard", "file"]))
 @click.option("-o", "--output", "outdir", type=click.Path(file_okay=False), required=True, metavar="DIR",
               help="Output folder (created if missing).")
 @click.option("--depth", type=float, default=None, metavar="M", help="Target distance [m] (preset 'target').")
@@ -52,17 +52,30 @@ def _parse_defects(text: str) -> tuple[float, ...]:
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of textures, defect placement and noise.")
 @click.option("--format", "fmt", type=click.Choice(["png", "tiff"]), default="png", show_default=True,
               help="Raw frame file format.")
+@click.option("--conventional-focus", "conventional_focus", type=float, multiple=True, metavar="M",
+              help="Also write the conventional image focused at M metres (repeatable): ground truth for refocusing, "
+                   "in the views' 'center' frame, to NAME_truth/conventional_<M>m.tiff (float32 linear RGB) and .png.")
+@click.option("--f-number", type=float, default=None, metavar="N",
+              help="Conventional image: the main lens's aperture at f-number N (default its full aperture).")
+@click.option("--aperture-scale", type=float, default=None, metavar="A",
+              help="Conventional image: an aperture A times the radius the four viewpoints span (1: the views' span).")
+@click.option("--conventional-samples", type=int, default=None, metavar="N",
+              help="Conventional image: aperture samples (default: about one per 2 px of the largest blur).")
 @click.option("--name", default=None, help="Base name of the output files (default from the preset).")
 @click.option("--overwrite", is_flag=True, help="Replace existing output files.")
 def command(preset, outdir, depth, scene_file, defects, defect_size, part_depth, device_name, binning, pattern,
-            bit_depth, noise, gain, exposure, rotate180, seed, fmt, name, overwrite):
+            bit_depth, noise, gain, exposure, rotate180, seed, fmt, conventional_focus, f_number, aperture_scale,
+            conventional_samples, name, overwrite):
     """Render a raw frame of the synthetic twin and its ground truth.
 
     PRESET is 'flat' (white field), 'target' (speckle target at --depth), 'scene' (cup at 0.3 m,
-    book at 0.5 m, chessboard at 1.0 m, slanted floor), 'part' (inspection part with --defects)
-    or 'file' (--scene FILE). Writes DIR/NAME.png (or .tiff), its sidecar DIR/NAME.png.json
+    book at 0.5 m, chessboard at 1.0 m, slanted floor), 'part' (inspection part with --defects),
+    'hard' (thin wires, slanted, curved and textureless surfaces, edges at every orientation,
+    vignetting that differs per view) or 'file' (--scene FILE). Writes DIR/NAME.png (or .tiff), its sidecar DIR/NAME.png.json
     (pattern and levels, read back by lfring's loader) and DIR/NAME_truth/ (per-view depth in
     metres as float32 TIFF, layout.json, truth.json with settings, b, c and the exact homographies).
+    With --conventional-focus, NAME_truth/ also gets the conventional image at that focus
+    (conventional_<M>m[_f<N>|_a<A>].tiff, .png preview in sRGB, .json with the aperture).
     """
     from lfring.synth import presets
     from lfring.synth.renderer import RenderSettings, render
@@ -74,6 +87,10 @@ def command(preset, outdir, depth, scene_file, defects, defect_size, part_depth,
         raise click.UsageError("--depth is for preset 'target'")
     if (preset == "file") != (scene_file is not None):
         raise click.UsageError("--scene FILE goes with preset 'file' (and only with it)")
+    if not conventional_focus and (f_number is not None or aperture_scale is not None or conventional_samples is not None):
+        raise click.UsageError("--f-number, --aperture-scale and --conventional-samples go with --conventional-focus")
+    if f_number is not None and aperture_scale is not None:
+        raise click.UsageError("give --f-number or --aperture-scale, not both")
     settings = RenderSettings(
         binning=binning, pattern=None if pattern.lower() == "none" else pattern.upper(), bit_depth=int(bit_depth),
         noise=noise, gain=gain, exposure=exposure, rotate180=rotate180, seed=seed,
@@ -84,6 +101,9 @@ def command(preset, outdir, depth, scene_file, defects, defect_size, part_depth,
         scene, default_name = presets.target_scene(device, depth, seed=seed), f"target_{depth:g}m"
     elif preset == "scene":
         scene, default_name = presets.three_depth_scene(), "scene"
+    elif preset == "hard":
+        scene, default_name = presets.hard_scene(), "hard"
+        settings = dataclasses.replace(settings, view_falloff=presets.HARD_VIEW_FALLOFF)
     elif preset == "part":
         heights = _parse_defects(defects)
         scene = presets.part_scene(defect_heights_m=heights, defect_size_m=defect_size, depth_m=part_depth, seed=seed)
@@ -94,7 +114,16 @@ def command(preset, outdir, depth, scene_file, defects, defect_size, part_depth,
     name = name or default_name
     out = Path(outdir)
     raw_path = out / f"{name}.{'png' if fmt == 'png' else 'tiff'}"
-    written = write_render(render(device, scene, settings), raw_path, preset=preset, overwrite=overwrite)
+    result = render(device, scene, settings)
+    conv_paths = [conventional_paths(raw_path, z, f_number=f_number, aperture_scale=aperture_scale)
+                  for z in conventional_focus]
+    from lfring.io.writers import check_writable
+
+    check_writable([p for paths in conv_paths for p in paths], overwrite=overwrite)
+    written = write_render(result, raw_path, preset=preset, overwrite=overwrite)
+    for z, paths in zip(conventional_focus, conv_paths):
+        written += write_conventional(scene, device, z, paths, binning=binning, f_number=f_number,
+                                      aperture_scale=aperture_scale, samples=conventional_samples)
     for p in written:
         log.info("wrote %s", p)
     click.echo(str(raw_path))
@@ -116,6 +145,8 @@ def write_render(result, raw_path: Path, *, preset: str = "", overwrite: bool = 
     surfaces = []
     for s in result.scene.surfaces:
         d = dataclasses.asdict(s)
+        if d.get("roll_deg", None) == 0.0:  # a field added later: frames without it stay as they were
+            del d["roll_deg"]
         d["type"] = type(s).__name__
         surfaces.append(d)
     models = {}
@@ -151,3 +182,62 @@ def write_render(result, raw_path: Path, *, preset: str = "", overwrite: bool = 
     write_json(truth / "truth.json", truth_doc)
     result.layout.save(layout_path)
     return [raw_path, side, *depth_paths, truth / "truth.json", layout_path]
+
+
+def conventional_paths(raw_path: Path, focus_m: float, *, f_number=None, aperture_scale=None) -> tuple[Path, Path, Path]:
+    """TIFF, PNG preview and JSON of the conventional image at ``focus_m`` beside the frame's
+    ground truth: ``NAME_truth/conventional_<Z>m[_f<N>|_a<A>]``."""
+    raw_path = Path(raw_path)
+    stem = f"conventional_{focus_m:g}m"
+    if f_number is not None:
+        stem += f"_f{f_number:g}"
+    elif aperture_scale is not None:
+        stem += f"_a{aperture_scale:g}"
+    truth = raw_path.with_name(raw_path.stem + "_truth")
+    return truth / f"{stem}.tiff", truth / f"{stem}.png", truth / f"{stem}.json"
+
+
+def write_conventional(scene, device, focus_m: float, paths, *, binning: int, f_number=None, aperture_scale=None,
+                       samples=None) -> list[Path]:
+    """Render :func:`lfring.synth.render_conventional` and write it: float32 RGB TIFF (linear
+    radiance), 8-bit sRGB PNG preview, and JSON describing the aperture and frame."""
+    import tifffile
+
+    from lfring.io.atomic import atomic_path
+    from lfring.io.writers import encode_image, write_image, write_json
+    from lfring.optics.views import view_cameras
+    from lfring.synth import (
+        conventional_aperture_radius_m,
+        conventional_sample_count,
+        render_conventional,
+        viewpoint_radius_m,
+    )
+
+    tiff_path, png_path, json_path = paths
+    dev = device.binned(binning)
+    radius = conventional_aperture_radius_m(dev, f_number=f_number, aperture_scale=aperture_scale)
+    n = samples if samples is not None else conventional_sample_count(scene, dev, focus_m, radius)
+    image = render_conventional(scene, device, focus_m, f_number=f_number, aperture_scale=aperture_scale,
+                                samples=n if radius > 0 else None, binning=binning)
+    tiff_path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(tiff_path) as tmp:
+        tifffile.imwrite(tmp, image, photometric="rgb", compression="zlib")
+    write_image(png_path, encode_image(image, 8, "srgb"))
+    cams = view_cameras(dev)
+    write_json(json_path, {
+        "focus_m": focus_m,
+        "f_number": f_number,
+        "aperture_scale": aperture_scale,
+        "aperture_radius_m": radius,
+        "aperture_plane_m": cams.depth_origin_m,
+        "viewpoint_radius_m": viewpoint_radius_m(dev),
+        "samples": 1 if radius == 0 else int(n),
+        "reference": "center",
+        "shape": list(image.shape),
+        "units": "linear RGB radiance in [0, 1]; not scaled by the exposure, no noise, no vignetting",
+        "blur_diameter_px": "2 aperture_radius_m f |1/(focus_m - s) - 1/(Z - s)| / pixel pitch, "
+                            "s = aperture_plane_m, f = views' focal length",
+        "focal_m": cams.focal_m,
+        "pixel_pitch_m": dev.pixel_pitch_m,
+    })
+    return [tiff_path, png_path, json_path]

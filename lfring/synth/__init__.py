@@ -1,6 +1,18 @@
 """The synthetic twin of the ring camera: scenes, textures and the renderer (SPEC 3)."""
 
-from lfring.synth.renderer import NOISE_PRESETS, RenderResult, RenderSettings, render
+from lfring.synth.renderer import (
+    NOISE_PRESETS,
+    RenderResult,
+    RenderSettings,
+    aperture_samples,
+    conventional_aperture_radius_m,
+    conventional_blur_px,
+    conventional_sample_count,
+    render,
+    render_conventional,
+    view_falloff_map,
+    viewpoint_radius_m,
+)
 from lfring.synth.scene import Bump, HeightField, Plane, Scene
 from lfring.synth.textures import IMAGES, Texture
 
@@ -14,5 +26,12 @@ __all__ = [
     "RenderSettings",
     "Scene",
     "Texture",
+    "aperture_samples",
+    "conventional_aperture_radius_m",
+    "conventional_blur_px",
+    "conventional_sample_count",
     "render",
+    "render_conventional",
+    "view_falloff_map",
+    "viewpoint_radius_m",
 ]

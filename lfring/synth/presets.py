@@ -27,10 +27,17 @@ __all__ = [
     "target_scene",
     "three_depth_scene",
     "part_scene",
+    "hard_scene",
+    "HARD_VIEW_FALLOFF",
     "load_scene",
 ]
 
-PRESETS = ("flat", "target", "scene", "part")
+PRESETS = ("flat", "target", "scene", "part", "hard")
+
+#: The hard scene's extra per-view vignetting (``RenderSettings.view_falloff``): per view
+#: (strength, dx, dy), from a mild centred fall-off to one that leaves about 30 % at the disc's
+#: rim around a centre a quarter radius off, so the four views differ in brightness by place.
+HARD_VIEW_FALLOFF = ((0.15, 0.0, 0.0), (0.6, 0.3, -0.2), (0.35, -0.25, 0.3), (0.9, 0.1, 0.25))
 
 
 def field_radius_m(device: RingDevice, depth_m: float) -> float:
@@ -87,6 +94,55 @@ def three_depth_scene() -> Scene:
     )
 
 
+def hard_scene() -> Scene:
+    """A scene that does not favour one method: every surface kind the twin has, seen at once.
+
+    - three thin wires at 0.33 m (vertical, horizontal, diagonal; 3 to 5 px wide in the views
+      of the 2 x 2 binned prototype) in front of everything;
+    - a speckled disc at 0.4 m and a diamond (a square turned by 30 degrees) at 0.75 m: depth
+      edges at every orientation;
+    - a part at 0.45 m with a spherical cap (12 mm high) and a cylindrical ridge (4 mm):
+      curved surfaces, their depth exact;
+    - a photograph on a plane at 0.55 m tilted about both axes, and a floor tilted by 55
+      degrees from about 0.55 to 0.69 m: depth varying across surfaces;
+    - a flat grey-blue card at 0.5 m: a textureless patch, where depth is not observable;
+    - a low-contrast, fine speckle background turned by 20 degrees about the vertical, from
+      about 0.81 to 1.09 m.
+
+    Render it with ``RenderSettings(view_falloff=HARD_VIEW_FALLOFF)`` (``lfring synth hard``
+    does) for vignetting that differs per view.
+    """
+    wire = Texture("constant", colors=((0.85, 0.8, 0.7),))
+    dark_wire = Texture("constant", colors=((0.06, 0.06, 0.07),))
+    cap = Bump(center_m=(0.045, 0.03), size_m=(0.04, 0.04), height_m=0.012, shape="sphere")
+    ridge = Bump(center_m=(0.012, 0.03), size_m=(0.016, 0.06), height_m=0.004, shape="cylinder")
+    part = HeightField(0.45, (0.07, 0.06), Texture("speckle", feature_m=0.0015, seed=11,
+                                                   colors=((0.15, 0.12, 0.1), (0.75, 0.65, 0.5))),
+                       center_m=(0.045, -0.035), bumps=(cap, ridge), name="curved part")
+    return Scene(
+        (
+            Plane(0.33, (0.0006, 0.14), wire, center_m=(-0.02, 0.0), name="vertical wire"),
+            Plane(0.33, (0.14, 0.0007), dark_wire, center_m=(0.0, 0.036), name="horizontal wire"),
+            Plane(0.33, (0.12, 0.0005), wire, center_m=(0.012, -0.01), roll_deg=40.0, name="diagonal wire"),
+            Plane(0.4, (0.035, 0.035), Texture("speckle", feature_m=0.0012, seed=12), center_m=(0.0, 0.0),
+                  shape="disk", name="disc"),
+            part,
+            Plane(0.5, (0.04, 0.035), Texture("constant", colors=((0.35, 0.45, 0.6),)), center_m=(-0.05, 0.03),
+                  name="textureless card"),
+            Plane(0.55, (0.08, 0.08), Texture("image", name="astronaut"), center_m=(-0.06, -0.05),
+                  tilt_deg=(30.0, -35.0), name="slanted photo"),
+            Plane(0.62, (0.25, 0.16), Texture("image", name="gravel"), center_m=(0.0, 0.085), tilt_deg=(55.0, 0.0),
+                  name="floor"),
+            Plane(0.75, (0.06, 0.06), Texture("checker", square_m=0.01, colors=((0.1, 0.1, 0.35), (0.9, 0.85, 0.3))),
+                  center_m=(0.07, 0.04), roll_deg=30.0, name="diamond"),
+            Plane(0.95, (0.8, 0.8), Texture("speckle", feature_m=0.005, seed=13,
+                                            colors=((0.2, 0.22, 0.2), (0.5, 0.52, 0.48))),
+                  tilt_deg=(0.0, 20.0), name="background"),
+        ),
+        name="hard",
+    )
+
+
 def part_scene(
     *,
     defect_heights_m=(0.015, -0.015),
@@ -127,7 +183,7 @@ def part_scene(
 
 # -- TOML scenes ---------------------------------------------------------------------------------
 _TEXTURE_KEYS = {"kind", "name", "square_m", "feature_m", "seed", "colors"}
-_PLANE_KEYS = {"depth_m", "size_m", "texture", "center_m", "tilt_deg", "shape", "name"}
+_PLANE_KEYS = {"depth_m", "size_m", "texture", "center_m", "tilt_deg", "roll_deg", "shape", "name"}
 _PART_KEYS = {"depth_m", "size_m", "texture", "center_m", "bump", "shading", "name"}
 _BUMP_KEYS = {"center_m", "size_m", "height_m", "shape"}
 

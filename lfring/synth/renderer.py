@@ -38,7 +38,21 @@ from lfring.synth.scene import HeightField, Plane, Scene
 from lfring.synth.textures import raster_shape, rasterize
 from lfring.views import Layout, split_views
 
-__all__ = ["RenderSettings", "RenderResult", "render", "NOISE_PRESETS", "BIT_DEPTHS", "disc_kernel"]
+__all__ = [
+    "RenderSettings",
+    "RenderResult",
+    "render",
+    "render_conventional",
+    "conventional_aperture_radius_m",
+    "conventional_blur_px",
+    "conventional_sample_count",
+    "viewpoint_radius_m",
+    "aperture_samples",
+    "NOISE_PRESETS",
+    "BIT_DEPTHS",
+    "disc_kernel",
+    "view_falloff_map",
+]
 
 #: full well (electrons at full scale) and read noise (electrons rms) per output pixel.
 NOISE_PRESETS = {"none": None, "low": (30000.0, 1.5), "realistic": (8000.0, 3.0), "high": (2000.0, 6.0)}
@@ -59,6 +73,11 @@ class RenderSettings:
     exposure : fraction of full scale that a white (radiance 1), unvignetted surface reaches.
     rotate180 : output the frame rotated by 180 degrees, as cameras reading the erect image do.
     defocus, vignetting : physical effects, on by default (turn off only to isolate geometry).
+    view_falloff : None, or per view (strength, dx, dy): an extra radial fall-off
+        ``1 / (1 + strength rho**2)**2`` multiplying that view's optical vignetting, rho being
+        the distance from the view's valid-disc centre moved by (dx, dy) disc radii, in disc
+        radii. Different per view, it stands for lenses that are not quite alike (scenes that
+        should not favour methods assuming equal views); off with ``vignetting=False``.
     """
 
     binning: int = 1
@@ -72,8 +91,20 @@ class RenderSettings:
     seed: int = 0
     defocus: bool = True
     vignetting: bool = True
+    view_falloff: tuple | None = None
 
     def __post_init__(self) -> None:
+        if self.view_falloff is not None:
+            try:
+                fall = tuple(tuple(float(v) for v in t) for t in self.view_falloff)
+            except (TypeError, ValueError):
+                fall = ()
+            if len(fall) != 4 or any(len(t) != 3 or not all(np.isfinite(t)) or t[0] < 0 or max(abs(t[1]), abs(t[2])) > 1
+                                     for t in fall):
+                raise InvalidInputError(
+                    "view_falloff must be four (strength >= 0, dx, dy) triples, one per view, with |dx|, |dy| <= 1, "
+                    f"got {self.view_falloff!r}")
+            object.__setattr__(self, "view_falloff", fall)
         if isinstance(self.binning, bool) or not isinstance(self.binning, (int, np.integer)) or self.binning < 1:
             raise InvalidInputError(f"binning must be an integer >= 1, got {self.binning!r}")
         if self.pattern is not None:
@@ -142,12 +173,35 @@ class RenderResult:
             "ring_distance_m": self.device.ring_distance_m,
             "sensor_distance_m": self.device.sensor_distance_m,
             "entrance_pupil_m": self.device.entrance_pupil_m,
-            "settings": asdict(self.settings),
+            "settings": _settings_dict(self.settings),
             "black_level": self.black_level,
             "white_level": self.white_level,
             "pattern": self.settings.pattern,
             "layout": self.layout.to_dict(),
         }
+
+
+def _settings_dict(settings: RenderSettings) -> dict:
+    """The settings as a dict; ``view_falloff`` only when set (so frames without it are
+    described as before it existed)."""
+    d = asdict(settings)
+    if d["view_falloff"] is None:
+        del d["view_falloff"]
+    return d
+
+
+def view_falloff_map(layout: Layout, view: int, rect: tuple[int, int, int, int], falloff) -> np.ndarray:
+    """(h, w) float32 extra fall-off of ``RenderSettings.view_falloff`` for view ``view`` over the
+    raw-pixel rectangle ``rect`` (x, y, w, h) of the erect frame, around the view's valid disc
+    ``layout.circles[view]`` (an unrotated layout; circles are in view pixels)."""
+    strength, ox, oy = falloff[view]
+    lx, ly, r = layout.circles[view]
+    cx, cy = layout.rects[view][0] + lx, layout.rects[view][1] + ly
+    x, y, w, h = rect
+    xs = (np.arange(x, x + w) - (cx + ox * r)) / r
+    ys = (np.arange(y, y + h) - (cy + oy * r)) / r
+    rho2 = xs[None, :] ** 2 + ys[:, None] ** 2
+    return (1.0 / (1.0 + strength * rho2) ** 2).astype(np.float32)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -175,6 +229,11 @@ def _convolve(layer: np.ndarray, k: np.ndarray | None) -> np.ndarray:
     # filter2D correlates; the disc is symmetric, so this is the convolution. Zero outside.
     return cv2.filter2D(layer, -1, k, borderType=cv2.BORDER_CONSTANT)
 
+
+#: fixed-point steps along each chief ray on an analytic (curved) height field: each step
+#: shrinks the error by the surface slope times the ray's angle to the axis (the prototype's
+#: views reach about 0.2 rad), so 60 steps converge to double precision on slopes up to 3.
+_CURVED_ITERATIONS = 60
 
 #: rows per block of the memory-bound per-pixel passes: the temporaries stay in cache and are
 #: reused instead of being fresh (page-faulted) arrays the size of a layer.
@@ -229,6 +288,7 @@ class _Renderer:
         self.tp = device.pixel_pitch_m
         self._textures: dict[int, tuple] = {}
         self.regions = [lit_region(device, k) for k in range(4)]
+        self.erect_layout = optical_layout(device) if settings.view_falloff is not None else None
         self._vignetting: dict[int, np.ndarray] = {}
         self.vignetting_source = (
             _mirror_sources(device, self.regions) if settings.vignetting else [(k, 1, 1) for k in range(4)]
@@ -425,12 +485,22 @@ class _Renderer:
         s = self.cams.depth_origin_m
         ox, oy = self.cams.centres_m[view]
         left, top = cx - wm / 2, cy - hm / 2
-        z = np.full((h, w), part.depth_m, np.float64)
-        for _ in range(12):
+        if part.curved:
+            # Spheres and cylinders: walk the chief ray on the analytic surface, from the
+            # highest point down, so the depth is exact and the nearest crossing is the one
+            # found (a ray that meets a raised surface beyond the footprint's edge included).
+            z = np.full((h, w), zlo, np.float64)
+            for _ in range(_CURVED_ITERATIONS):
+                z = part.depth_m - part.height_at(ox + (z - s) * dx - left, oy + (z - s) * dy - top)
             mx = ((ox + (z - s) * dx - left) / tx - 0.5).astype(np.float32)
             my = ((oy + (z - s) * dy - top) / ty - 0.5).astype(np.float32)
-            hz = cv2.remap(heights, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
-            z = part.depth_m - hz.astype(np.float64)
+        else:
+            z = np.full((h, w), part.depth_m, np.float64)
+            for _ in range(12):
+                mx = ((ox + (z - s) * dx - left) / tx - 0.5).astype(np.float32)
+                my = ((oy + (z - s) * dy - top) / ty - 0.5).astype(np.float32)
+                hz = cv2.remap(heights, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+                z = part.depth_m - hz.astype(np.float64)
         acc = cv2.remap(rgba, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
         depth = np.where(acc[..., 3] > 1e-4, z, np.inf).astype(np.float32)
         return _Layer(x0, y0, acc, depth, zlo, part.name or f"surface {idx}")
@@ -496,6 +566,8 @@ class _Renderer:
         t2 = clock()
         exposure = np.float32(self.settings.exposure)
         vig = self.vignetting(view) if self.settings.vignetting else None
+        if vig is not None and self.settings.view_falloff is not None:
+            vig = vig * view_falloff_map(self.erect_layout, view, region, self.settings.view_falloff)
         for r in range(0, rh, _BLOCK_ROWS):
             out = image[ry + r : ry + min(rh, r + _BLOCK_ROWS), rx : rx + rw]
             rgb = cv2.cvtColor(blurred[r : r + _BLOCK_ROWS], cv2.COLOR_RGBA2RGB)
@@ -762,3 +834,276 @@ def _sensor(image: np.ndarray, settings: RenderSettings, *, noise: np.ndarray | 
     else:
         list(pool.map(stripe, rows))
     return out
+
+
+# -- the conventional image: ground truth for refocusing -----------------------------------------
+#: Aperture samples per pixel of blur: the default count puts the samples about
+#: ``CONVENTIONAL_SPACING_PX`` apart on the most defocused surface (see :func:`render_conventional`).
+CONVENTIONAL_SPACING_PX = 2.0
+#: Fewest aperture samples the default count takes for an aperture that is not a pinhole (the
+#: samples' union must look like a disc).
+CONVENTIONAL_MIN_SAMPLES = 32
+#: Most aperture samples the default count takes.
+CONVENTIONAL_MAX_SAMPLES = 2048
+_GOLDEN_ANGLE = np.pi * (3.0 - np.sqrt(5.0))
+
+
+def viewpoint_radius_m(device: RingDevice) -> float:
+    """Distance (metres) of the views' projection centres from their mean, in the plane of the
+    views' entrance pupil: the radius of the aperture the four viewpoints span
+    (``aperture_scale=1`` of :func:`render_conventional`)."""
+    cams = view_cameras(device)
+    c = cams.centres_m - cams.centres_m.mean(axis=0)
+    return float(np.hypot(c[:, 0], c[:, 1]).max())
+
+
+def conventional_aperture_radius_m(device: RingDevice, *, f_number=None, aperture_scale=None) -> float:
+    """Radius (metres) of the aperture disc :func:`render_conventional` integrates over.
+
+    ``f_number`` N gives the main lens's entrance pupil at N, ``FL / (2 N)`` (``inf`` gives a
+    pinhole); ``aperture_scale`` a gives ``a * viewpoint_radius_m(device)``; neither gives the
+    main lens's full aperture, ``device.effective_aperture_radius_m``. Not both.
+    """
+    if f_number is not None and aperture_scale is not None:
+        raise InvalidInputError("give f_number or aperture_scale, not both")
+    if f_number is not None:
+        try:
+            n = float(f_number)
+        except (TypeError, ValueError):
+            n = float("nan")
+        if not n > 0:
+            raise InvalidInputError(f"f_number must be a positive number (inf for a pinhole), got {f_number!r}")
+        return 0.0 if np.isinf(n) else device.main_focal_length_m / (2.0 * n)
+    if aperture_scale is not None:
+        try:
+            a = float(aperture_scale)
+        except (TypeError, ValueError):
+            a = float("nan")
+        if not (np.isfinite(a) and a >= 0):
+            raise InvalidInputError(f"aperture_scale must be a finite number >= 0, got {aperture_scale!r}")
+        return a * viewpoint_radius_m(device)
+    return float(device.effective_aperture_radius_m)
+
+
+def aperture_samples(n: int) -> np.ndarray:
+    """(n, 2) points on the unit disc: a Vogel (sunflower) spiral, equal area per point; one
+    point, the centre, for ``n = 1``."""
+    if n == 1:
+        return np.zeros((1, 2))
+    i = np.arange(n)
+    r = np.sqrt((i + 0.5) / n)
+    t = i * _GOLDEN_ANGLE
+    return np.column_stack([r * np.cos(t), r * np.sin(t)])
+
+
+def conventional_blur_px(device: RingDevice, depth_m, focus_m: float, aperture_radius_m: float) -> np.ndarray:
+    """Diameter (pixels of ``device``) of the blur disc of a point at ``depth_m`` in the
+    conventional image focused at ``focus_m`` through an aperture of ``aperture_radius_m`` in
+    the views' entrance-pupil plane: ``2 R f |1/(Zf - s) - 1/(Z - s)| / pitch``."""
+    cams = view_cameras(device)
+    s, f = cams.depth_origin_m, cams.focal_m
+    z = np.asarray(depth_m, dtype=np.float64)
+    return 2.0 * aperture_radius_m * f * np.abs(1.0 / (focus_m - s) - 1.0 / (z - s)) / device.pixel_pitch_m
+
+
+class _SubApertureRenderer(_Renderer):
+    """Renders the scene as seen from points of the aperture disc, each a small lens (one
+    sample's share of the disc) focused at the focus depth, into the central view's grid."""
+
+    def __init__(self, device: RingDevice, scene: Scene, focus_m: float, cell_radius_m: float, cams: ViewCameras):
+        super().__init__(device, scene, RenderSettings(binning=1, pattern=None, defocus=cell_radius_m > 0,
+                                                        vignetting=False))
+        self.focus_m = focus_m
+        self.cell_radius_m = cell_radius_m
+        self.cams = cams
+
+    def blur_px(self, z: np.ndarray) -> np.ndarray:
+        z = np.asarray(z, dtype=np.float64)
+        out = np.full(z.shape, np.nan)
+        finite = np.isfinite(z)
+        out[finite] = conventional_blur_px(self.dev, z[finite], self.focus_m, self.cell_radius_m)
+        return out
+
+    def sample(self, k: int, region) -> np.ndarray:
+        """(h, w, 3) float32 radiance of aperture sample ``k`` over ``region``."""
+        rx, ry, rw, rh = region
+        layers = []
+        for idx, surf in enumerate(self.scene.surfaces):
+            fn = self.plane_layer if isinstance(surf, Plane) else self.heightfield_layer
+            lay = fn(idx, surf, k, region)
+            if lay is not None:
+                layers.append(lay)
+        layers.sort(key=lambda la: la.zmin)
+        _check_order(layers)
+        acc = np.zeros((rh, rw, 4), np.float32)
+        for lay in layers:
+            rgba = self._defocus(lay) if self.settings.defocus else lay.rgba
+            h, w = lay.depth.shape
+            _over(acc[lay.y0 - ry : lay.y0 - ry + h, lay.x0 - rx : lay.x0 - rx + w], rgba)
+        bg = np.array(self.scene.background, np.float32)
+        if np.any(bg != 0):
+            acc[..., :3] += (1.0 - acc[..., 3:4]) * bg
+        return acc[..., :3]
+
+
+def render_conventional(scene: Scene, device: RingDevice, focus_m: float, *, f_number=None, aperture_scale=None,
+                        samples: int | None = None, binning: int = 1, workers: int | None = None) -> np.ndarray:
+    """The image a conventional camera focused at ``focus_m`` would record of ``scene``, in the
+    views' reference frame ``'center'``: ground truth for refocusing.
+
+    Every view of the ring is a pinhole camera (:func:`lfring.optics.views.view_cameras`) with
+    its projection centre ``C_k`` in the plane ``Z = s`` of the views' entrance pupil. The
+    conventional camera here has its aperture disc in that plane, centred on the central
+    viewpoint (the mean of the ``C_k``), and its image is in the pixel grid of the virtual
+    central view (the frame ``lfring.refocus`` renders into: view-sized, a point at the focus
+    depth lands where the central view sees it). A point at depth Z is spread over a disc of
+    ``2 R f |1/(Zf - s) - 1/(Z - s)|`` on the sensor (:func:`conventional_blur_px`), the
+    synthetic-aperture form of the thin-lens circle of confusion.
+
+    The image is the average of ``samples`` views from points of the disc (a Vogel spiral), each
+    shifted so that the focus plane stays put, occlusions resolved per viewpoint; each sample
+    is itself a small lens, its equal share of the disc (radius ``R / sqrt(samples)``), whose
+    defocus is rendered per surface as the raw frame's is. More samples converge on the exact
+    integral over the aperture (the small lenses shrink to pinholes).
+
+    Parameters
+    ----------
+    scene : Scene
+    device : RingDevice
+        With lens positions (the unbinned device; ``binning`` bins it as ``render`` does).
+    focus_m : float
+        Focus distance Zf from the main lens, metres, beyond the entrance pupil s.
+    f_number, aperture_scale : float, optional
+        The aperture (:func:`conventional_aperture_radius_m`): the main lens's entrance pupil at
+        f-number N (``inf``: a pinhole, the central view itself), or ``aperture_scale`` times the
+        radius the four viewpoints span (1: the aperture the views span); default the main
+        lens's full aperture.
+    samples : int, optional
+        Aperture samples; default about one per ``CONVENTIONAL_SPACING_PX`` of the largest blur
+        diameter in the scene (from ``CONVENTIONAL_MIN_SAMPLES`` to ``CONVENTIONAL_MAX_SAMPLES``),
+        one for a pinhole.
+    binning : int
+        Sensor binning, as :class:`RenderSettings` (the image has the views' shape at it).
+
+    Returns
+    -------
+    ndarray, (h, w, 3) float32
+        Linear RGB radiance in [0, 1] (not scaled by ``RenderSettings.exposure``), without noise
+        or vignetting; ``h, w`` the view shape of :func:`lfring.optics.views.optical_layout`.
+
+    Notes
+    -----
+    How the views' viewpoints relate to the main lens's aperture. The main lens images the ring
+    (at b behind it) to the plane ``s = b FL / (b - FL)`` in front of it, magnified by
+    ``FL / (b - FL)``: mini-lens k (centre m_k, radius Rml) becomes the pupil of view k,
+    centred at ``C_k = -m_k FL / (b - FL)`` with radius ``Rml FL / (b - FL)``, and the views
+    are focused where their sensor is conjugate (``paraxial.blur_diameter_m`` is zero). The
+    main lens's iris is not the views' pupil: it is their field stop (each view's valid disc
+    is its image). For the prototype (FL 16 mm, b 37.37 mm, Rml 1 mm, m_k at 1.05 mm on both
+    axes, iris radius 5 mm): s = 27.98 mm, |C_k| = 1.112 mm (``viewpoint_radius_m``, the
+    radius of ``aperture_scale=1``, f/7.2 in main-lens terms), each view's own pupil radius
+    0.749 mm (the conventional image with ``aperture_scale=0.673`` focused at 0.3 m has
+    exactly the views' defocus blur), so the views' pupils together reach 1.86 mm from the
+    axis, against the 5 mm (f/1.6) of the main lens's full aperture. An f-number puts the
+    main lens's pupil diameter FL / N in the plane s, which keeps every viewpoint a view-like
+    pinhole camera; the same pupil at the main lens itself (Z = 0) would take from a point at
+    Z a cone ``(Z - s) / Z`` times as wide (0.91 at 0.3 m, 0.97 at 1 m), and a perspective
+    from Z = 0 rather than from the views' plane.
+
+    Examples
+    --------
+    >>> from lfring.optics import load_device
+    >>> from lfring.synth import Plane, Scene, Texture
+    >>> dev = load_device("prototype")
+    >>> scene = Scene((Plane(0.5, (0.4, 0.3), Texture("checker", square_m=0.02)),))
+    >>> img = render_conventional(scene, dev, 0.5, f_number=8, binning=8)
+    >>> img.shape, img.dtype
+    ((176, 176, 3), dtype('float32'))
+    """
+    if not isinstance(scene, Scene):
+        raise InvalidInputError(f"scene must be a lfring.synth.Scene, got {type(scene).__name__}")
+    RenderSettings(binning=binning)  # validates the binning
+    dev = device.binned(binning)
+    dev.require_positions()
+    cams = view_cameras(dev)
+    s, f, tp = cams.depth_origin_m, cams.focal_m, dev.pixel_pitch_m
+    try:
+        zf = float(focus_m)
+    except (TypeError, ValueError):
+        zf = float("nan")
+    if not (np.isfinite(zf) and zf > s):
+        raise InvalidInputError(f"focus_m must be a distance in metres beyond the views' entrance pupil ({s:.4g} m), "
+                                f"got {focus_m!r}")
+    radius = conventional_aperture_radius_m(dev, f_number=f_number, aperture_scale=aperture_scale)
+    if radius == 0:
+        n = 1
+    elif samples is None:
+        n = conventional_sample_count(scene, dev, zf, radius)
+    else:
+        if isinstance(samples, bool) or not isinstance(samples, (int, np.integer)) or samples < 1:
+            raise InvalidInputError(f"samples must be an integer >= 1, got {samples!r}")
+        n = int(samples)
+    layout = optical_layout(dev)
+    vh, vw = layout.view_shape
+    corner = np.mean([(x, y) for x, y, _, _ in layout.rects], axis=0)
+    origin = np.floor(corner)
+    # The central view: centre mean(C_k), principal point mean(p0_k); its pixel (0, 0) is the
+    # raw pixel at the mean of the views' corners. Rendered on the integer grid at ``origin``,
+    # the fractional part moves the principal point instead.
+    c_mean = cams.centres_m.mean(axis=0)
+    p_mean = cams.principal_points_m.mean(axis=0) - (corner - origin) * tp
+    offsets = radius * aperture_samples(n)
+    sample_cams = ViewCameras(
+        centres_m=c_mean + offsets,
+        depth_origin_m=s,
+        focal_m=f,
+        principal_points_m=p_mean + f * offsets / (zf - s),
+    )
+    cell = radius / np.sqrt(n) if n > 1 else 0.0
+    rend = _SubApertureRenderer(dev, scene, zf, cell, sample_cams)
+    # Render a margin around the view as wide as the samples' own blur, so that the blur at the
+    # image's border sees the surfaces beyond it (a layer is zero outside its region).
+    margin = int(np.ceil(float(np.max(conventional_blur_px(dev, np.array(_scene_depth_range(scene)), zf, cell))) / 2)) + 2
+    region = (int(origin[0]) - margin, int(origin[1]) - margin, vw + 2 * margin, vh + 2 * margin)
+    inner = np.s_[margin : margin + vh, margin : margin + vw]
+    workers = _workers() if workers is None else max(1, int(workers))
+    # Fixed chunks summed in order: the image does not depend on the number of threads.
+    chunks = [range(i, n, 8) for i in range(min(8, n))]
+
+    def chunk_sum(ks) -> np.ndarray:
+        acc = np.zeros((vh, vw, 3), np.float64)
+        for k in ks:
+            acc += rend.sample(k, region)[inner]
+        return acc
+
+    with ThreadPoolExecutor(workers) as pool:
+        list(pool.map(rend.prepare_texture, range(len(scene.surfaces))))
+        sums = list(pool.map(chunk_sum, chunks))
+    total = sums[0]
+    for part in sums[1:]:
+        total += part
+    return np.clip(total / n, 0.0, 1.0).astype(np.float32)
+
+
+def conventional_sample_count(scene: Scene, device: RingDevice, focus_m: float, aperture_radius_m: float) -> int:
+    """The default aperture samples of :func:`render_conventional`: about one per
+    ``CONVENTIONAL_SPACING_PX`` pixels (of the binned ``device``) across the largest blur disc
+    of the scene's depth range, from ``CONVENTIONAL_MIN_SAMPLES`` to ``CONVENTIONAL_MAX_SAMPLES``
+    (1 for a pinhole)."""
+    if aperture_radius_m == 0:
+        return 1
+    d_max = float(np.max(conventional_blur_px(device, np.array(_scene_depth_range(scene)), focus_m, aperture_radius_m)))
+    return int(np.clip(np.ceil(np.pi / 4 * (d_max / CONVENTIONAL_SPACING_PX) ** 2), CONVENTIONAL_MIN_SAMPLES, CONVENTIONAL_MAX_SAMPLES))
+
+
+def _scene_depth_range(scene: Scene) -> tuple[float, float]:
+    """Nearest and farthest Z (metres) of the scene's surfaces."""
+    lo, hi = np.inf, -np.inf
+    for surf in scene.surfaces:
+        if isinstance(surf, Plane):
+            zs = surf.corners_m()[:, 2]
+            lo, hi = min(lo, zs.min()), max(hi, zs.max())
+        else:
+            lo = min(lo, surf.depth_m - max([b.height_m for b in surf.bumps if b.height_m > 0], default=0.0))
+            hi = max(hi, surf.depth_m - min([b.height_m for b in surf.bumps if b.height_m < 0], default=0.0))
+    return float(lo), float(hi)

@@ -5,7 +5,8 @@
 renders every sample with the ``lfring synth`` command recorded for it and writes
 ``manifest.json`` (command, seed and SHA-256 of every file). The flat frame is noise-free and
 the targets use the 'low' noise preset, standing for the averages of many exposures that
-calibration captures are; the scene and the parts use 'realistic' noise.
+calibration captures are; the scene and the parts use 'realistic' noise, the hard scene
+'low' (with 'realistic' noise its frame would take the folder past 30 MB).
 """
 
 from __future__ import annotations
@@ -30,6 +31,8 @@ SAMPLES = {
     "scene": f"scene {_COMMON} --noise realistic --seed 4",
     "part_good": f"part --defects none {_COMMON} --noise realistic --seed 5",
     "part_defects": f"part --defects 0.015,-0.015 {_COMMON} --noise realistic --seed 6",
+    # 'low' noise: with 'realistic' noise the frame would take data/synthetic past 30 MB.
+    "hard": f"hard {_COMMON} --noise low --seed 7",
 }
 
 

@@ -1,5 +1,6 @@
-"""Scenes for the synthetic twin: textured planes (fronto-parallel or slanted, rectangles or
-discs) and height-field parts with bumps and dents of known height.
+"""Scenes for the synthetic twin: textured planes (fronto-parallel or slanted, turned in their
+own plane, rectangles or discs) and height-field parts with bumps and dents of known height,
+among them curved surfaces (spherical caps, cylindrical ridges) whose depth is exact.
 
 World coordinates: X right, Y down, Z forward, metres from the main lens.
 """
@@ -13,10 +14,12 @@ import numpy as np
 from lfring.errors import InvalidInputError
 from lfring.synth.textures import Texture
 
-__all__ = ["Plane", "Bump", "HeightField", "Scene", "SHAPES", "BUMP_SHAPES"]
+__all__ = ["Plane", "Bump", "HeightField", "Scene", "SHAPES", "BUMP_SHAPES", "CURVED_SHAPES"]
 
 SHAPES = ("rect", "disk")
-BUMP_SHAPES = ("dome", "box", "gaussian")
+BUMP_SHAPES = ("dome", "box", "gaussian", "sphere", "cylinder")
+#: bump shapes whose surface is analytic: the renderer's depth lies on it exactly.
+CURVED_SHAPES = ("sphere", "cylinder")
 
 
 def _pair(value, name: str, *, positive: bool) -> tuple[float, float]:
@@ -47,6 +50,9 @@ class Plane:
     center_m : (X, Y) of the centre. tilt_deg : (about X, about Y); a positive tilt about X
     pushes the top edge (smaller Y) farther away, like a table seen from above its edge.
     shape : 'rect' or 'disk' (an ellipse inscribed in the rectangle).
+    roll_deg : turn of the patch about its own normal, applied before the tilts; positive turns
+        its right axis towards its down axis (clockwise as seen by the camera). 45 degrees makes
+        a square a diamond, a thin bar a diagonal wire.
     """
 
     depth_m: float
@@ -56,9 +62,17 @@ class Plane:
     tilt_deg: tuple[float, float] = (0.0, 0.0)
     shape: str = "rect"
     name: str = ""
+    roll_deg: float = 0.0
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "depth_m", _positive(self.depth_m, "plane depth_m"))
+        try:
+            roll = float(self.roll_deg)
+        except (TypeError, ValueError):
+            raise InvalidInputError(f"plane roll_deg must be a number of degrees, got {self.roll_deg!r}") from None
+        if not np.isfinite(roll):
+            raise InvalidInputError(f"plane roll_deg must be finite, got {self.roll_deg!r}")
+        object.__setattr__(self, "roll_deg", roll)
         object.__setattr__(self, "size_m", _pair(self.size_m, "plane size_m", positive=True))
         object.__setattr__(self, "center_m", _pair(self.center_m, "plane center_m", positive=False))
         tilt = _pair(self.tilt_deg, "plane tilt_deg", positive=False)
@@ -76,6 +90,9 @@ class Plane:
         rx = np.array([[1, 0, 0], [0, np.cos(ax), -np.sin(ax)], [0, np.sin(ax), np.cos(ax)]])
         ry = np.array([[np.cos(ay), 0, np.sin(ay)], [0, 1, 0], [-np.sin(ay), 0, np.cos(ay)]])
         r = ry @ rx
+        if self.roll_deg != 0.0:  # (without a roll the axes stay bit for bit what they were)
+            az = np.radians(self.roll_deg)
+            r = r @ np.array([[np.cos(az), -np.sin(az), 0], [np.sin(az), np.cos(az), 0], [0, 0, 1]])
         p0 = np.array([self.center_m[0], self.center_m[1], self.depth_m])
         return p0, r[:, 0], r[:, 1], r[:, 2]
 
@@ -84,17 +101,17 @@ class Plane:
         w, h = self.size_m
         return np.array([p0 + su * w / 2 * u + sv * h / 2 * v for su in (-1, 1) for sv in (-1, 1)])
 
-    @property
-    def fronto_parallel(self) -> bool:
-        return self.tilt_deg == (0.0, 0.0)
-
 
 @dataclass(frozen=True)
 class Bump:
     """A bump (height > 0, towards the camera) or dent (height < 0) on a part.
 
     center_m : (x, y) from the part's top-left corner. size_m : (width, height) of its footprint.
-    shape : 'dome' (smooth cap), 'box' (flat top, short ramps) or 'gaussian' (sigma = size / 4).
+    shape : 'dome' (smooth cap), 'box' (flat top, short ramps), 'gaussian' (sigma = size / 4),
+        'sphere' (a spherical cap whose rim is the footprint's circle: width and height equal;
+        radius of the sphere ``(a**2 + H**2) / (2 H)`` for rim radius a and height H) or
+        'cylinder' (a circular-arc ridge across the width, its axis along y, over the whole
+        footprint height).
     """
 
     center_m: tuple[float, float]
@@ -111,6 +128,17 @@ class Bump:
         object.__setattr__(self, "height_m", h)
         if self.shape not in BUMP_SHAPES:
             raise InvalidInputError(f"bump shape must be one of {', '.join(BUMP_SHAPES)}, got {self.shape!r}")
+        if self.shape == "sphere" and self.size_m[0] != self.size_m[1]:
+            raise InvalidInputError(f"a 'sphere' bump has a circular footprint: give equal width and height, got {self.size_m}")
+        if self.shape in CURVED_SHAPES and abs(h) > self.size_m[0] / 2:
+            raise InvalidInputError(f"a '{self.shape}' bump is at most a half sphere/cylinder: |height_m| <= width / 2, "
+                                    f"got {h} m on {self.size_m[0]} m")
+
+    @property
+    def radius_m(self) -> float:
+        """Radius of the sphere or cylinder of a curved bump: (a**2 + H**2) / (2 |H|), a = width / 2."""
+        a, hh = self.size_m[0] / 2, abs(self.height_m)
+        return (a * a + hh * hh) / (2 * hh)
 
 
 @dataclass(frozen=True)
@@ -127,6 +155,12 @@ class HeightField:
     bumps: tuple[Bump, ...] = ()
     shading: bool = True
     name: str = ""
+
+    @property
+    def curved(self) -> bool:
+        """True when a bump is a sphere or cylinder: the renderer then puts the depth on the
+        analytic surface (:meth:`height_at`) rather than on the sampled height map."""
+        return any(b.shape in CURVED_SHAPES for b in self.bumps)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "depth_m", _positive(self.depth_m, "part depth_m"))
@@ -145,10 +179,24 @@ class HeightField:
         rows, cols = shape
         x = (np.arange(cols) + 0.5) * texel_m[0]
         y = (np.arange(rows) + 0.5) * texel_m[1]
-        out = np.zeros((rows, cols), dtype=np.float64)
+        return self.height_at(x[None, :], y[:, None]).astype(np.float32)
+
+    def height_at(self, x_m, y_m) -> np.ndarray:
+        """The analytic height (metres, float64) at points ``(x_m, y_m)`` from the part's
+        top-left corner (arrays that broadcast together)."""
+        x = np.asarray(x_m, dtype=np.float64)
+        y = np.asarray(y_m, dtype=np.float64)
+        out = np.zeros(np.broadcast(x, y).shape, dtype=np.float64)
         for b in self.bumps:
-            dx = (x[None, :] - b.center_m[0]) / (b.size_m[0] / 2)
-            dy = (y[:, None] - b.center_m[1]) / (b.size_m[1] / 2)
+            dx = (x - b.center_m[0]) / (b.size_m[0] / 2)
+            dy = (y - b.center_m[1]) / (b.size_m[1] / 2)
+            if b.shape in CURVED_SHAPES:
+                a, big = b.size_m[0] / 2, b.radius_m
+                r2 = (dx * dx + (dy * dy if b.shape == "sphere" else 0.0)) * a * a
+                inside = (r2 < a * a) & (np.abs(dy) < 1)
+                cap = np.sqrt(np.maximum(big * big - r2, 0.0)) - (big - abs(b.height_m))
+                out += np.where(inside, np.copysign(np.maximum(cap, 0.0), b.height_m), 0.0)
+                continue
             if b.shape == "dome":
                 r2 = dx * dx + dy * dy
                 prof = np.where(r2 < 1, np.cos(np.sqrt(np.minimum(r2, 1)) * np.pi / 2) ** 2, 0.0)
@@ -160,7 +208,7 @@ class HeightField:
                 fy = np.clip((1 - np.abs(dy)) / ramp, 0, 1)
                 prof = fx * fy
             out += b.height_m * prof
-        return out.astype(np.float32)
+        return out
 
     def shading_map(self, heights: np.ndarray, texel_m: tuple[float, float]) -> np.ndarray:
         """Lambertian shading in (0, 1] of the height field lit from the upper left."""

@@ -62,6 +62,30 @@ def test_synth_part_and_scene_file(tmp_path, capsys):
     assert np.nanmin(depth) == pytest.approx(0.347, abs=1e-4)  # the bump top at 0.35 - 0.003
 
 
+def test_synth_hard_with_conventional_images(tmp_path):
+    args = ["synth", "hard", "--binning", "8", "--noise", "none", "-o", str(tmp_path),
+            "--conventional-focus", "0.5", "--conventional-focus", "1", "--f-number", "4"]
+    assert main(args) == 0
+    truth = tmp_path / "hard_truth"
+    doc = json.loads((truth / "truth.json").read_text())
+    assert doc["settings"]["view_falloff"][3] == [0.9, 0.1, 0.25]
+    assert {s["name"] for s in doc["scene"]["surfaces"]} >= {"diagonal wire", "curved part", "textureless card"}
+    from lfring.synth import render_conventional
+    from lfring.synth.presets import hard_scene
+
+    for z in ("0.5", "1"):
+        img = tifffile.imread(truth / f"conventional_{z}m_f4.tiff")
+        meta = json.loads((truth / f"conventional_{z}m_f4.json").read_text())
+        assert img.dtype == np.float32 and img.shape == (176, 176, 3)
+        assert meta["aperture_radius_m"] == pytest.approx(0.002) and meta["reference"] == "center"
+        want = render_conventional(hard_scene(), load_device("prototype"), float(z), f_number=4, binning=8,
+                                   samples=meta["samples"])
+        np.testing.assert_array_equal(img, want)
+        assert (truth / f"conventional_{z}m_f4.png").stat().st_size > 1000
+    # Without the options, nothing conventional is written; a second run refuses to overwrite.
+    assert main(args) == 2
+
+
 @pytest.mark.parametrize(
     "text, match",
     [
@@ -91,6 +115,10 @@ def test_bad_scene_files(tmp_path, capsys, text, match):
         ["part", "--defects", "abc"],
         ["file"],
         ["scene", "--binning", "0"],
+        ["scene", "--f-number", "4"],
+        ["scene", "--conventional-focus", "0.5", "--f-number", "4", "--aperture-scale", "1"],
+        ["scene", "--conventional-focus", "0.01"],
+        ["scene", "--conventional-focus", "0.5", "--f-number", "-2"],
     ],
 )
 def test_synth_usage_errors(tmp_path, capsys, args):
