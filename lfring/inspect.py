@@ -347,9 +347,9 @@ def _target(plane_m: float, reference_depth) -> np.ndarray | float:
 
 # The plane sweep's settings here. On benchmarks/bench_inspect.py's 24 parts, pixels seen by only
 # two views gave 4 confident false defects (near the frame's edges) when judged like the others
-# (confidence >= 0.6), and none when they must be more confident (MIN_CONFIDENCE_TWO_VIEWS; the
-# same parts with 0.8, 0.9 or 0.97: 0 false, 0 missed): they are a ring around the part (15 % of
-# it), and judging them raised the checked share of the good parts from 85 % to 98 %. ZNCC with
+# (confidence >= 0.6), and none when they must be more confident (MIN_CONFIDENCE_TWO_VIEWS: 0.9
+# and 0.97 gave 0 false and 0 missed on all 24): they are a ring around the part (15 % of it), and
+# judging them raised the checked share of the good parts from 85 % to 98 %. ZNCC with
 # guided aggregation also found 31 of 31 but took 3x as long.
 SWEEP_COST = "lcn"
 SWEEP_AGGREGATION = "box"
@@ -463,9 +463,43 @@ def _roi_mask(box, shape_hw) -> np.ndarray:
     return in_roi
 
 
-def _find_defects(dev, smooth, reliable, confidence, *, tol, min_area_px, opening_px, percentile,
+def _measure(chk: _Checked, calibration, zmin_m: float, zmax_m: float, num_planes: int, backend: str):
+    """Depth step of :func:`inspect_frame`: the sweep over the band, the views refocused at the
+    plane, and the photo-consistency there (with the local contrast and the views that see each
+    pixel)."""
+    from lfring.depth import estimate_depth
+    from lfring.refocus import Refocuser
+
+    arr, ref = chk.views, chk.reference
+    # The band may reach past the calibrated range around a plane at its edge: a small, smooth
+    # extrapolation of the model, not worth a warning of its own (the plane's was given).
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", LfringWarning)
+        depth = estimate_depth(arr, calibration, zmin_m=zmin_m, zmax_m=zmax_m, num_planes=num_planes, reference=ref,
+                               backend=backend, cost=SWEEP_COST, aggregation=SWEEP_AGGREGATION, min_views=SWEEP_MIN_VIEWS)
+        refocused = Refocuser(calibration, chk.plane_m, reference=ref, view_shape=arr.shape[1:3])(arr)
+    consistency, contrast, num_views = _consistency(arr, calibration, chk.plane_m, reference=ref)
+    return depth, refocused, consistency, contrast, num_views
+
+
+def _checked_pixels(depth, num_views, in_roi, target, *, min_confidence: float):
+    """The deviation from the target (NaN out of band), the in-band pixels, and the reliable
+    (checked) ones, as :func:`inspect_frame`'s Notes define them."""
+    n = len(depth.depths_m)
+    idx = depth.hypothesis_index
+    with np.errstate(invalid="ignore"):
+        in_band = np.isfinite(depth.depth_m) & (idx > 1.0) & (idx < n - 2.0)
+    dev = (target - depth.depth_m).astype(np.float32)
+    dev[~in_band] = np.nan
+    confident = np.where(num_views >= 3, depth.confidence >= min_confidence,
+                         (num_views == 2) & (depth.confidence >= max(min_confidence, MIN_CONFIDENCE_TWO_VIEWS)))
+    return dev, in_band, in_band & confident & in_roi & np.isfinite(dev)
+
+
+def _find_defects(dev, reliable, confidence, *, tol, min_area_px, opening_px, percentile,
                   footprint_mm) -> tuple[list, np.ndarray]:
     """Deviation step of :func:`inspect_frame`: the defects (largest deviation first) and their pixels."""
+    smooth = cv2.medianBlur(np.where(reliable, dev, 0.0).astype(np.float32), 5)
     deviating = np.zeros(dev.shape, bool)
     defects = []
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * opening_px + 1,) * 2) if opening_px else None
@@ -682,52 +716,35 @@ def inspect_frame(
                         min_confidence=min_confidence, percentile=percentile, opening_px=opening_px,
                         consistency_threshold=consistency_threshold, min_coverage=min_coverage)
     zlo, zhi, num_planes = _plan_band(calibration, chk, zmin_m, zmax_m, num_planes)
-    arr, plane, ref, shape = chk.views, chk.plane_m, chk.reference, chk.views.shape[1:3]
+    footprint_mm = _footprint_mm(device, calibration, chk.plane_m)  # checks the device before the work
 
-    # Depth step. The band may reach past the calibrated range around a plane at its edge: a
-    # small, smooth extrapolation of the model, not worth a warning of its own (the plane's was given).
-    from lfring.depth import estimate_depth
-    from lfring.refocus import Refocuser
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", LfringWarning)
-        depth = estimate_depth(arr, calibration, zmin_m=zlo, zmax_m=zhi, num_planes=num_planes, reference=ref,
-                               backend=backend, cost=SWEEP_COST, aggregation=SWEEP_AGGREGATION, min_views=SWEEP_MIN_VIEWS)
-        refocused = Refocuser(calibration, plane, reference=ref, view_shape=shape)(arr)
-    consistency, contrast, num_views = _consistency(arr, calibration, plane, reference=ref)
+    depth, refocused, consistency, contrast, num_views = _measure(chk, calibration, zlo, zhi, num_planes, backend)
     with np.errstate(invalid="ignore"):
         plane_mask = consistency < chk.consistency_threshold
 
     # Deviation step.
-    n = len(depth.depths_m)
-    idx = depth.hypothesis_index
-    with np.errstate(invalid="ignore"):
-        in_band = np.isfinite(depth.depth_m) & (idx > 1.0) & (idx < n - 2.0)
+    shape = chk.views.shape[1:3]
     in_roi = _roi_mask(chk.box, shape)
-    dev = (_target(plane, chk.target) - depth.depth_m).astype(np.float32)
-    dev[~in_band] = np.nan
-    confident = np.where(num_views >= 3, depth.confidence >= min_confidence,
-                         (num_views == 2) & (depth.confidence >= max(min_confidence, MIN_CONFIDENCE_TWO_VIEWS)))
-    reliable = in_band & confident & in_roi & np.isfinite(dev)
-    smooth = cv2.medianBlur(np.where(reliable, dev, 0.0).astype(np.float32), 5)
-    footprint_mm = _footprint_mm(device, calibration, plane)
-    defects, deviating = _find_defects(dev, smooth, reliable, depth.confidence, tol=chk.tolerance_m,
+    dev, in_band, reliable = _checked_pixels(depth, num_views, in_roi, _target(chk.plane_m, chk.target),
+                                             min_confidence=min_confidence)
+    defects, deviating = _find_defects(dev, reliable, depth.confidence, tol=chk.tolerance_m,
                                        min_area_px=min_area_px, opening_px=opening_px, percentile=percentile,
                                        footprint_mm=footprint_mm)
 
     # Coverage and verdict step.
     part = _find_part(plane_mask, reliable, chk.box, min_area_px=int(min_area_px))
     verdict, coverage, reason, judged = _judge(
-        arr, in_roi=in_roi, seen=num_views >= 2, textured=contrast >= PHOTO_MIN_CONTRAST, part=part, reliable=reliable,
+        chk.views, in_roi=in_roi, seen=num_views >= 2, textured=contrast >= PHOTO_MIN_CONTRAST, part=part, reliable=reliable,
         num_defects=len(defects), min_coverage=chk.min_coverage)
     if verdict == "cannot_judge" and defects:  # no part they could belong to
         defects, deviating = [], np.zeros(shape, bool)
 
+    # Report step.
     roi_px = max(int(in_roi.sum()), 1)
     settings = {
-        "plane_m": plane, "tolerance_m": chk.tolerance_m, "roi_px": None if chk.box is None else list(chk.box),
-        "reference_depth": chk.target is not None, "reference": ref, "zmin_m": zlo, "zmax_m": zhi, "num_planes": n,
-        "step_px": depth.step_px, "min_area_px": int(min_area_px), "min_confidence": float(min_confidence),
+        "plane_m": chk.plane_m, "tolerance_m": chk.tolerance_m, "roi_px": None if chk.box is None else list(chk.box),
+        "reference_depth": chk.target is not None, "reference": chk.reference, "zmin_m": zlo, "zmax_m": zhi,
+        "num_planes": len(depth.depths_m), "step_px": depth.step_px, "min_area_px": int(min_area_px), "min_confidence": float(min_confidence),
         "min_coverage": chk.min_coverage, "percentile": float(percentile), "opening_px": int(opening_px),
         "consistency_threshold": chk.consistency_threshold, "pixel_footprint_mm": footprint_mm, "backend": backend,
     }
