@@ -2,10 +2,10 @@
 
 Every raw frame is split into the ring's four views, swept over a narrow band of depths around
 the working plane, and checked: regions of confident pixels whose depth leaves the plane by
-more than the tolerance are defects. A part passes only when at least 80 % of it (the pixels
-whose surface lies near the plane) was checked with confident depth; a frame that is too dark,
-too flat, shows nothing at the plane or was not checked enough cannot be judged, and never
-passes. One line per part, a JSON report and an annotated PNG per part in the output folder
+more than the tolerance are defects. A part passes only when at least --min-coverage (80 %) of
+it (the pixels whose surface lies near the plane) was checked with confident depth; a frame that
+is too dark, too flat, shows nothing at the plane or was not checked enough cannot be judged, and
+never passes. One line per part, a JSON report and an annotated PNG per part in the output folder
 (the unchecked area hatched), and an exit code for a shell loop or a CI job: 0 when every part
 passed, 1 when any part has defects, else 2 when a file or value was bad, else 3 when a part
 cannot be judged.
@@ -24,7 +24,7 @@ from pathlib import Path
 
 import lfring
 from lfring.calibration.defaults import default_calibration
-from lfring.inspect import inspect_frame, write_report
+from lfring.inspect import MIN_COVERAGE, inspect_frame, write_report
 from lfring.optics import load_device
 
 
@@ -35,8 +35,8 @@ def main(argv=None) -> int:
     ap.add_argument("--tolerance", type=float, required=True, help="largest accepted deviation, metres")
     ap.add_argument("--calib", type=Path, help="calibration JSON (default: the built-in one for the frame size)")
     ap.add_argument("-o", "--output", type=Path, required=True, help="folder for the reports")
-    ap.add_argument("--min-coverage", type=float, default=0.8,
-                    help="smallest fraction of the part checked with confident depth for a pass")
+    ap.add_argument("--min-coverage", type=float, default=MIN_COVERAGE,
+                    help=f"smallest fraction of the part checked with confident depth for a pass (default {MIN_COVERAGE})")
     ap.add_argument("--overwrite", action="store_true", help="replace reports from an earlier run")
     args = ap.parse_args(argv)
 

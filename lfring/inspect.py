@@ -106,7 +106,8 @@ class InspectionResult:
         'fail': defects were found; 'cannot_judge': the frame is too dark or too flat, no
         surface lies near the plane, or too little of the part was checked (see ``reason``).
     coverage : float in [0, 1]
-        Fraction of the part (``part``) checked with confident depth.
+        Fraction of the part (``part``) checked with confident depth; 0 when no part was found
+        (the frame too dark or too flat, or nothing near the plane).
     reason : str or None
         Why the frame cannot be judged (None otherwise); it starts with one of 'frame too
         dark', 'frame too flat', 'no surface found at the working plane' or 'too few confident
@@ -567,23 +568,24 @@ def _judge(views, *, in_roi, seen, textured, part, reliable, num_defects, min_co
     seen_px = int((seen & in_roi).sum())
     textured_fraction = float((textured & seen & in_roi).sum() / max(seen_px, 1))
     part_px = int(part.sum())
-    coverage = float((reliable & part).sum() / part_px) if part_px else 0.0
-    stats = {"coverage": coverage, "part_fraction": part_px / region, "textured_fraction": textured_fraction,
+    stats = {"coverage": 0.0, "part_fraction": part_px / region, "textured_fraction": textured_fraction,
              "luminance_p99": bright}
     where = "the region of interest" if not in_roi.all() else "the frame"
+    # Until a part is found, none of it is checked: the coverage is 0.
     if bright < DARK_LEVEL:
-        return "cannot_judge", coverage, (
+        return "cannot_judge", 0.0, (
             f"frame too dark: the views' 99th percentile of luminance is {bright:.4f} of the white level "
             f"(at least {DARK_LEVEL} needed); is the lens cap on, the light off, or are the black and white "
             "levels wrong?"), stats
     if textured_fraction < MIN_TEXTURED_FRACTION:
-        return "cannot_judge", coverage, (
+        return "cannot_judge", 0.0, (
             f"frame too flat: {textured_fraction:.1%} of {where} has texture (at least {MIN_TEXTURED_FRACTION:.0%} "
             "needed); depth cannot be measured on a uniform surface"), stats
     if part_px < MIN_PART_FRACTION * region:
-        return "cannot_judge", coverage, (
+        return "cannot_judge", 0.0, (
             f"no surface found at the working plane: {part_px / region:.1%} of {where} lies near it (at least "
             f"{MIN_PART_FRACTION:.0%} needed); check the plane's distance, the calibration and that a part is in view"), stats
+    coverage = stats["coverage"] = float((reliable & part).sum() / part_px)
     if num_defects:
         return "fail", coverage, None, stats
     if coverage < min_coverage:
@@ -707,8 +709,8 @@ def inspect_frame(
     two views carry no evidence and are never part of P. The verdict, in order: the frame is
     too dark (99th percentile of the views' luminance below :data:`DARK_LEVEL`), too flat
     (textured pixels on less than :data:`MIN_TEXTURED_FRACTION` of the pixels two views see)
-    or ``|P|`` is below :data:`MIN_PART_FRACTION` of the region: ``'cannot_judge'`` (and no
-    defect is reported: there is no part they could belong to); else defects give ``'fail'``;
+    or ``|P|`` is below :data:`MIN_PART_FRACTION` of the region: ``'cannot_judge'`` with coverage
+    0 (no part was found, and no defect is reported: there is no part it could belong to); else defects give ``'fail'``;
     else ``coverage < min_coverage`` gives ``'cannot_judge'``; else ``'pass'``.
     """
     chk = _check_inputs(views, calibration, plane_m=plane_m, tolerance_m=tolerance_m, roi=roi,
@@ -855,10 +857,9 @@ def annotate(result: InspectionResult, *, tint: float = 0.35, scale: int = 1) ->
     else:
         verdict, colour = f"CANNOT JUDGE: {(result.reason or '').split(':')[0]}", _JUDGE_RGB
     line = int(22 * font / 0.4)
-    _text(out, f"{verdict}  plane {s['plane_m']:.3f} m  tolerance {s['tolerance_m'] * 1e3:.1f} mm", (8, line),
-          font * 1.2, colour, thick)
-    _text(out, f"checked {result.coverage * 100:.0f} % of the part (unchecked: hatched)", (8, 2 * line + 4),
-          font * 1.2, colour, thick)
+    for i, text in enumerate((verdict, f"checked {result.coverage * 100:.0f} % of the part (unchecked: hatched)",
+                              f"plane {s['plane_m']:.3f} m  tolerance {s['tolerance_m'] * 1e3:.1f} mm")):
+        _text(out, text, (8, (i + 1) * line + 4 * i), font * 1.2, colour, thick)
     return out
 
 

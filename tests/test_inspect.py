@@ -263,6 +263,7 @@ def test_wrong_plane_cannot_be_judged(parts):
     # Only specks of the belt 10 cm nearer (in the band at 0.5 m, where a pixel of disparity is
     # 67 mm) lie near the plane: too little to be a part.
     assert res.stats["part_fraction"] < 0.02 and res.defects == () and not res.deviating.any()
+    assert res.coverage == 0.0 and res.stats["coverage"] == 0.0  # no part found: none of it checked
 
 
 @pytest.mark.parametrize("level", [0.0, 0.003])

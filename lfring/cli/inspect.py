@@ -8,6 +8,7 @@ from pathlib import Path
 import click
 
 from lfring.cli._options import load_views
+from lfring.inspect import MIN_COVERAGE
 
 log = logging.getLogger("lfring.cli.inspect")
 
@@ -68,9 +69,9 @@ def _read_depth(path: str):
 @click.option("--min-area", type=int, default=150, show_default=True, metavar="PX", help="Smallest defect [px].")
 @click.option("--min-confidence", type=float, default=0.6, show_default=True,
               help="Less confident pixels (untextured, occluded) never raise an alarm and count as unchecked.")
-@click.option("--min-coverage", type=float, default=None, metavar="FRACTION",
-              help="Smallest fraction of the part checked with confident depth for a pass, in [0, 1] "
-                   "(default: lfring.inspect.MIN_COVERAGE, 0.8); below it the exit code is 3.")
+@click.option("--min-coverage", type=float, default=MIN_COVERAGE, show_default=True, metavar="FRACTION",
+              help="Smallest fraction of the part checked with confident depth for a pass, in [0, 1]; below it the "
+                   "exit code is 3.")
 @click.option("--zmin", type=float, default=None, metavar="M", help="Nearest depth searched (default: a band around the plane).")
 @click.option("--zmax", type=float, default=None, metavar="M", help="Farthest depth searched.")
 @click.option("--reference", default="center", show_default=True, metavar="center|0..3", help="Frame of the maps and boxes.")
@@ -93,7 +94,7 @@ def command(ctx, raw, plane, tolerance, outdir, calib, roi, reference_depth, min
     """
     from lfring.errors import LfringError
     from lfring.geometry import check_reference
-    from lfring.inspect import MIN_COVERAGE, annotate, inspect_frame, report
+    from lfring.inspect import annotate, inspect_frame, report
     from lfring.io.writers import check_writable, write_image, write_json
     from lfring.optics.device import load_device
 
@@ -120,7 +121,7 @@ def command(ctx, raw, plane, tolerance, outdir, calib, roi, reference_depth, min
         log.warning("the calibration's device %r is unknown: defect areas in px only", cal.device)
     res = inspect_frame(views, cal, plane_m=plane, tolerance_m=tolerance, roi=roi, reference_depth_m=target,
                         reference=ref, min_area_px=min_area, min_confidence=min_confidence,
-                        min_coverage=MIN_COVERAGE if min_coverage is None else min_coverage, zmin_m=zmin, zmax_m=zmax,
+                        min_coverage=min_coverage, zmin_m=zmin, zmax_m=zmax,
                         device=dev, backend=backend)
     out.mkdir(parents=True, exist_ok=True)
     write_image(png, annotate(res))
