@@ -375,7 +375,7 @@ PART_OPENING_PX = 3
 VERDICTS = ("pass", "fail", "cannot_judge")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class _Checked:
     """The validated arguments of :func:`inspect_frame`."""
 
