@@ -8,6 +8,11 @@ warped into the reference (central) frame; a planted defect is its connected reg
 from the plane by more than half the tolerance, its deviation the extreme there. A detection
 matches a planted defect when their boxes overlap and the signs agree.
 
+Coverage of the good parts: the share of the part that ``inspect_frame`` found (its ``coverage``:
+pixels near the plane, see its Notes) and of the true plate (ground truth within 5 cm of the
+plane) that was checked with confident depth, and the share of the true plate that only one view
+sees (no depth can be measured there: the limit of the second figure).
+
     python benchmarks/bench_inspect.py            # 24 parts (12 good, 12 with defects)
     python benchmarks/bench_inspect.py --parts 6  # quicker
 """
@@ -28,6 +33,7 @@ from lfring.inspect import inspect_frame
 from lfring.io.demosaic import demosaic
 from lfring.io.raw import RawFrame
 from lfring.optics import load_device
+from lfring.warp import view_masks, warp_views
 from lfring.synth import render
 from lfring.synth.presets import part_scene
 from lfring.views import split_views
@@ -54,6 +60,16 @@ def truth_deviation(r, cal, plane_m, reference="center"):
         cnt += wo
     with np.errstate(invalid="ignore"):
         return np.where(cnt > 0, acc / np.maximum(cnt, 1), np.nan)
+
+
+def views_seeing(cal, plane_m, reference="center"):
+    """Number of views whose usable area (the calibration's view masks) sees each reference
+    pixel at the plane."""
+    h, w = cal.layout.view_shape
+    masks = view_masks(cal, (h, w))
+    _, weights = warp_views(np.ones((cal.num_views, h, w, 1), np.float32), cal.homographies(plane_m, reference=reference),
+                            masks=masks)
+    return (weights > 0.5).sum(axis=0)
 
 
 def truth_defects(dev_m, tol_m, max_m=0.05):
@@ -93,7 +109,7 @@ def main() -> None:
     args = ap.parse_args()
     dev = load_device("prototype")
     print(f"machine: {platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}, OpenCV {cv2.__version__}")
-    rows, times, errs = [], [], []
+    rows, times, errs, cover = [], [], [], []
     det = miss = false = planted = 0
     min_disp, min_side = np.inf, np.inf
     for i in range(args.parts):
@@ -102,7 +118,12 @@ def main() -> None:
         t = time.perf_counter()
         res = inspect_frame(views, cal, plane_m=PLANE, tolerance_m=TOL, device=r.device)
         times.append(time.perf_counter() - t)
-        truth = truth_defects(truth_deviation(r, cal, PLANE), TOL)
+        tdev, nviews = truth_deviation(r, cal, PLANE), views_seeing(cal, PLANE)
+        truth = truth_defects(tdev, TOL)
+        plate = np.isfinite(tdev) & (np.abs(tdev) < 0.05)
+        plate_checked = float((res.reliable & plate).sum() / plate.sum())
+        if not defects:
+            cover.append((res.coverage, plate_checked, float((plate & (nviews < 2)).sum() / plate.sum())))
         for b in r.scene.surfaces[0].bumps:
             d = float(np.ptp(depth_to_disparity_px(np.array([PLANE, PLANE - b.height_m]), cal, signed=True)))
             min_disp = min(min_disp, d)
@@ -121,17 +142,23 @@ def main() -> None:
         false += len(res.defects) - len(used)
         planted_mm = ", ".join(f"{tr['deviation_m'] * 1e3:+.1f}" for tr in truth) or "-"
         found_mm = ", ".join(f"{d.deviation_m * 1e3:+.1f}" for d in res.defects) or "-"
-        rows.append(f"| {i} | {'defects' if defects else 'good'} | {planted_mm} | {found_mm} | "
-                    f"{'pass' if res.passed else 'fail'} | {times[-1]:.2f} |")
+        rows.append(f"| {i} | {'defects' if defects else 'good'} | {planted_mm} | {found_mm} | {res.verdict} | "
+                    f"{res.coverage:.1%} | {plate_checked:.1%} | {times[-1]:.2f} |")
     print(f"{args.parts} parts at {PLANE} m, tolerance {TOL * 1e3:g} mm; planted defects down to {min_disp:.2f} px of "
           f"disparity (views 0-1) and footprints (> tol/2) at least {min_side} px wide")
-    print("| part | kind | planted max deviation mm | found mm | verdict | time s |")
-    print("|---|---|---|---|---|---|")
+    print("| part | kind | planted max deviation mm | found mm | verdict | coverage (part found) | true plate checked | time s |")
+    print("|---|---|---|---|---|---|---|---|")
     print("\n".join(rows))
     e = np.abs(np.array(errs)) * 1e3
     print(f"\nplanted {planted}: detected {det}, missed {miss}; false defects {false}; "
           f"deviation error |found - truth| median {np.median(e):.2f} mm, max {e.max():.2f} mm; "
           f"inspect_frame median {np.median(times):.2f} s per frame (min {min(times):.2f}, max {max(times):.2f})")
+    if cover:
+        c = np.array(cover)
+        print(f"good parts ({len(c)}): coverage of the part found min {c[:, 0].min():.1%}, median {np.median(c[:, 0]):.1%}; "
+              f"true plate checked min {c[:, 1].min():.1%}, median {np.median(c[:, 1]):.1%}; "
+              f"true plate seen by one view only (unmeasurable) median {np.median(c[:, 2]):.1%}; "
+              f"verdicts: {sum(1 for row in rows if '| good |' in row and '| pass |' in row)} pass")
 
 
 if __name__ == "__main__":

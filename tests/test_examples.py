@@ -36,3 +36,28 @@ def test_live_refocus_rejects_bad_depth(tmp_path):
     proc = subprocess.run([sys.executable, str(ROOT / "examples" / "live_refocus.py"), str(DATA / "part_good.png"),
                            "--depth", "-1"], check=False, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2 and "--depth must be positive" in proc.stderr
+
+
+def test_defect_check_example(tmp_path):
+    """The inspection example: one line per part, exit 1 when a part has defects, 3 when one
+    cannot be judged (and none failed), 0 when all passed."""
+    def run(*frames):
+        return subprocess.run([sys.executable, str(ROOT / "examples" / "defect_check.py"), *map(str, frames), "--plane",
+                               "0.3", "--tolerance", "0.008", "-o", str(tmp_path / "out"), "--overwrite"],
+                              capture_output=True, text=True, timeout=300, cwd=ROOT)
+
+    good, bad, flat = DATA / "part_good.png", DATA / "part_defects.png", DATA / "flat.png"
+    proc = run(good, bad, flat)
+    assert proc.returncode == 1, proc.stderr
+    lines = proc.stdout.strip().splitlines()
+    assert lines[0].startswith("PASS") and "part_good.png" in lines[0] and "of the part)" in lines[0]
+    assert lines[1].startswith("FAIL") and "part_defects.png" in lines[1] and "2 defects" in lines[1]
+    assert lines[2].startswith("CANNOT JUDGE") and "flat.png: frame too flat" in lines[2]
+    assert lines[-1] == "1 of 3 parts failed, 1 cannot be judged, 0 could not be read"
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == [
+        "flat_inspect.json", "flat_inspect.png", "part_defects_inspect.json", "part_defects_inspect.png",
+        "part_good_inspect.json", "part_good_inspect.png"]
+    proc = run(flat)
+    assert proc.returncode == 3 and proc.stdout.strip().splitlines()[-1] == "0 of 1 parts failed, 1 cannot be judged, 0 could not be read"
+    proc = run(good)
+    assert proc.returncode == 0 and proc.stdout.strip().splitlines()[-1] == "all 1 parts passed"

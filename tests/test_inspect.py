@@ -3,6 +3,7 @@ shipped calibration): every planted bump and dent is found with its sign and siz
 pass, and bad inputs are refused with the bad value named."""
 
 import json
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -217,3 +218,110 @@ def test_plane_outside_calibrated_range_warns(parts):
     lo, hi = cal.valid_depth_range_m
     with pytest.warns(LfringWarning, match="outside the calibrated range"):
         inspect_frame(views, cal, plane_m=hi + 0.2, tolerance_m=0.05, min_area_px=400)
+
+
+# -- verdicts and coverage: nothing passes that was not checked -----------------------------------
+def _views_of(path):
+    import lfring
+
+    image = lfring.demosaic(lfring.load_raw(path))
+    cal = default_calibration((image.shape[1], image.shape[0]))[0]
+    return lfring.split_views(image, cal.layout), cal
+
+
+DATA = Path(__file__).resolve().parents[1] / "data" / "synthetic"
+
+
+def test_good_part_is_checked_and_passes(parts):
+    r, cal, views, truth, res = parts["good"]
+    assert res.verdict == "pass" and res.passed and res.reason is None
+    assert 0.95 <= res.coverage < 1.0 and res.stats["coverage"] == res.coverage
+    # The part is found from evidence that does not need confident depth: it is the true part
+    # (the plate within 5 cm of the plane) wherever two views or more see it, and not the belt.
+    dev = _truth_deviation(r, cal, PLANE)
+    plate, belt = np.abs(np.nan_to_num(dev, nan=1.0)) < 0.05, np.nan_to_num(dev) < -0.05
+    seen = np.isfinite(res.depth.depth_m)
+    assert res.part[plate & seen].mean() > 0.97 and res.part[belt].mean() < 0.02
+    # Coverage is the checked share of that part, which holds unchecked pixels too.
+    assert res.coverage == pytest.approx((res.reliable & res.part).sum() / res.part.sum())
+    assert (res.part & ~res.reliable).sum() > 500
+    # Of the true plate, only the corners that a single view sees (about 9 %) stay unchecked.
+    assert (res.reliable & plate).sum() / plate.sum() > 0.85
+
+
+def test_defective_part_fails_with_its_coverage(parts):
+    res = parts["two"][4]
+    assert res.verdict == "fail" and not res.passed and res.reason is None and len(res.defects) == 2
+    assert 0.8 <= res.coverage <= 1.0
+
+
+def test_wrong_plane_cannot_be_judged(parts):
+    r, cal, views, truth, _ = parts["two"]
+    res = inspect_frame(views, cal, plane_m=0.5, tolerance_m=TOL)
+    assert res.verdict == "cannot_judge" and not res.passed
+    assert res.reason.startswith("no surface found at the working plane")
+    # Only specks of the belt 10 cm nearer (in the band at 0.5 m, where a pixel of disparity is
+    # 67 mm) lie near the plane: too little to be a part.
+    assert res.stats["part_fraction"] < 0.02 and res.defects == () and not res.deviating.any()
+    assert res.coverage == 0.0 and res.stats["coverage"] == 0.0  # no part found: none of it checked
+
+
+@pytest.mark.parametrize("level", [0.0, 0.003])
+def test_lens_cap_cannot_be_judged(parts, level):
+    r, cal, views, *_ = parts["good"]
+    rng = np.random.default_rng(5)
+    dark = np.clip(level + 0.001 * rng.standard_normal(views.shape), 0, 1).astype(np.float32) if level else np.zeros_like(views)
+    res = inspect_frame(dark, cal, plane_m=PLANE, tolerance_m=TOL)
+    assert res.verdict == "cannot_judge" and res.reason.startswith("frame too dark") and res.defects == ()
+    assert res.coverage == 0.0 and res.stats["luminance_p99"] < 0.01
+
+
+def test_flat_frame_cannot_be_judged():
+    views, cal = _views_of(DATA / "flat.png")
+    res = inspect_frame(views, cal, plane_m=PLANE, tolerance_m=TOL)
+    assert res.verdict == "cannot_judge" and res.reason.startswith("frame too flat") and res.defects == ()
+    assert res.stats["textured_fraction"] < 0.02
+
+
+def test_unrelated_photo_cannot_be_judged():
+    """An ordinary picture at the sensor's size (no ring behind it): its four 'views' are
+    different parts of one image, consistent at no depth."""
+    from lfring.synth.textures import Texture, rasterize
+
+    cal = default_calibration((2456, 1842))[0]
+    image = np.ascontiguousarray(rasterize(Texture("image", name="coffee"), (2456, 1842), 1.0))
+    assert image.shape == (1842, 2456, 3)
+    res = inspect_frame(split_views(image, cal.layout), cal, plane_m=PLANE, tolerance_m=TOL)
+    assert res.verdict == "cannot_judge" and res.reason.startswith("no surface found at the working plane")
+    assert res.stats["textured_fraction"] > 0.5 and res.stats["part_fraction"] < 0.02
+
+
+def test_min_coverage_decides_between_pass_and_cannot_judge(parts):
+    r, cal, views, truth, res = parts["good"]
+    strict = inspect_frame(views, cal, plane_m=PLANE, tolerance_m=TOL, min_coverage=0.99)
+    assert strict.verdict == "cannot_judge" and strict.reason.startswith("too few confident pixels")
+    assert f"checked {res.coverage:.1%} of the part" in strict.reason and strict.coverage == pytest.approx(res.coverage)
+    assert strict.settings["min_coverage"] == 0.99 and res.settings["min_coverage"] == 0.8
+    # A part inside an ROI that only the four views see is checked almost entirely.
+    inner = inspect_frame(views, cal, plane_m=PLANE, tolerance_m=TOL, roi=(200, 200, 300, 300), min_coverage=0.95)
+    assert inner.verdict == "pass" and inner.coverage > 0.95
+    assert not inner.part[:200].any() and inner.part[250:450, 250:450].all()
+    with pytest.raises(InvalidInputError, match=r"min_coverage must be a number in \[0, 1\], got 1.5"):
+        inspect_frame(views, cal, plane_m=PLANE, tolerance_m=TOL, min_coverage=1.5)
+
+
+def test_cannot_judge_report_and_drawing(parts, tmp_path):
+    r, cal, views, *_ = parts["good"]
+    res = inspect_frame(np.zeros_like(views), cal, plane_m=PLANE, tolerance_m=TOL)
+    back = json.loads(json.dumps(report(res), allow_nan=False))
+    assert back["verdict"] == "cannot_judge" and back["passed"] is False and back["coverage"] == 0.0
+    assert back["reason"].startswith("frame too dark") and back["num_defects"] == 0
+    paths = write_report(res, tmp_path / "c.json", image_path=tmp_path / "c.png")
+    assert [p.name for p in paths] == ["c.json", "c.png"]
+    # A good part: its unchecked pixels are hatched in magenta, its checked ones never.
+    good = parts["good"][4]
+    img = annotate(good)
+    hatch = (img == (255, 0, 255)).all(axis=-1)
+    unchecked = good.part & ~good.reliable
+    assert hatch[unchecked].mean() > 0.15 and hatch[good.reliable & good.part].sum() == 0
+    assert json.loads(json.dumps(report(good)))["coverage"] == pytest.approx(good.coverage, abs=1e-4)

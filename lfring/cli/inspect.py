@@ -1,4 +1,4 @@
-"""``lfring inspect``: check a part against the working plane; exit 0 pass, 1 defects, 2 error."""
+"""``lfring inspect``: check a part against the working plane; exit 0 pass, 1 defects, 2 error, 3 cannot judge."""
 
 from __future__ import annotations
 
@@ -8,8 +8,12 @@ from pathlib import Path
 import click
 
 from lfring.cli._options import load_views
+from lfring.inspect import MIN_COVERAGE
 
 log = logging.getLogger("lfring.cli.inspect")
+
+#: Exit code of a frame that cannot be judged (0 pass, 1 defects, 2 bad input or a failed step).
+EXIT_CANNOT_JUDGE = 3
 
 
 def _parse_roi(ctx, param, text):
@@ -64,7 +68,10 @@ def _read_depth(path: str):
               help="Expected depth per pixel (float32 TIFF or PFM, metres, the reference frame) instead of the plane.")
 @click.option("--min-area", type=int, default=150, show_default=True, metavar="PX", help="Smallest defect [px].")
 @click.option("--min-confidence", type=float, default=0.6, show_default=True,
-              help="Less confident pixels (untextured, occluded) never raise an alarm.")
+              help="Less confident pixels (untextured, occluded) never raise an alarm and count as unchecked.")
+@click.option("--min-coverage", type=float, default=MIN_COVERAGE, show_default=True, metavar="FRACTION",
+              help="Smallest fraction of the part checked with confident depth for a pass, in [0, 1]; below it the "
+                   "exit code is 3.")
 @click.option("--zmin", type=float, default=None, metavar="M", help="Nearest depth searched (default: a band around the plane).")
 @click.option("--zmax", type=float, default=None, metavar="M", help="Farthest depth searched.")
 @click.option("--reference", default="center", show_default=True, metavar="center|0..3", help="Frame of the maps and boxes.")
@@ -73,14 +80,17 @@ def _read_depth(path: str):
               help="Device description for areas in mm^2 (default: the calibration's, else prototype).")
 @click.option("--overwrite", is_flag=True, help="Replace existing output files.")
 @click.pass_context
-def command(ctx, raw, plane, tolerance, outdir, calib, roi, reference_depth, min_area, min_confidence, zmin, zmax, reference,
-            backend, device_name, overwrite):
+def command(ctx, raw, plane, tolerance, outdir, calib, roi, reference_depth, min_area, min_confidence, min_coverage, zmin,
+            zmax, reference, backend, device_name, overwrite):
     """Check that the part in RAW lies on the working plane within the tolerance.
 
     Writes DIR/<name>_inspect.png (refocused at the plane, the plane tinted green, defect boxes:
-    bumps red, dents blue) and DIR/<name>_inspect.json (verdict, settings, each defect's box in
-    reference-frame pixels, area in px and mm^2, maximum deviation in mm: + towards the camera,
-    - away). Exit code 0: pass; 1: defects found; 2: bad input or a failed step.
+    bumps red, dents blue, the part's unchecked pixels hatched) and DIR/<name>_inspect.json
+    (verdict, coverage, the reason when the part cannot be judged, settings, each defect's box
+    in reference-frame pixels, area in px and mm^2, maximum deviation in mm: + towards the
+    camera, - away). Exit code 0: pass; 1: defects found; 2: bad input or a failed step
+    (nothing written); 3: cannot judge (frame too dark or too flat, no surface at the plane, or
+    less than --min-coverage of the part checked; the report is written).
     """
     from lfring.errors import LfringError
     from lfring.geometry import check_reference
@@ -110,7 +120,8 @@ def command(ctx, raw, plane, tolerance, outdir, calib, roi, reference_depth, min
             raise
         log.warning("the calibration's device %r is unknown: defect areas in px only", cal.device)
     res = inspect_frame(views, cal, plane_m=plane, tolerance_m=tolerance, roi=roi, reference_depth_m=target,
-                        reference=ref, min_area_px=min_area, min_confidence=min_confidence, zmin_m=zmin, zmax_m=zmax,
+                        reference=ref, min_area_px=min_area, min_confidence=min_confidence,
+                        min_coverage=min_coverage, zmin_m=zmin, zmax_m=zmax,
                         device=dev, backend=backend)
     out.mkdir(parents=True, exist_ok=True)
     write_image(png, annotate(res))
@@ -120,8 +131,16 @@ def command(ctx, raw, plane, tolerance, outdir, calib, roi, reference_depth, min
         x, y, w, h = d.bbox_px
         log.info("defect %d: %s %+.1f mm at x=%d y=%d (%d x %d px), %d px, confidence %.2f", i, d.kind, d.deviation_m * 1e3,
                  x, y, w, h, d.area_px, d.mean_confidence)
-    verdict = "pass" if res.passed else f"fail ({len(res.defects)} defect{'s' if len(res.defects) != 1 else ''})"
+    checked = f"checked {res.coverage:.0%} of the part"
+    if res.verdict == "pass":
+        verdict = f"pass ({checked})"
+    elif res.verdict == "fail":
+        verdict = f"fail ({len(res.defects)} defect{'s' if len(res.defects) != 1 else ''}, {checked})"
+    else:
+        verdict = f"cannot judge ({res.reason})"
     log.info("%s: %s at %.3f m +- %.1f mm", raw, verdict, plane, tolerance * 1e3)
     click.echo(f"{js}: {verdict}")
-    if not res.passed:
+    if res.verdict == "fail":
         ctx.exit(1)
+    if res.verdict == "cannot_judge":
+        ctx.exit(EXIT_CANNOT_JUDGE)

@@ -1,6 +1,7 @@
-"""``lfring inspect`` and examples/defect_check.py on the sample parts: exit 0 for the good part,
-1 for the part with a bump and a dent, 2 for bad input; outputs written atomically, never
-overwritten without --overwrite."""
+"""``lfring inspect`` on the sample parts: exit 0 for the good part, 1 for the part with a bump and
+a dent, 2 for bad input (nothing written), 3 for a frame that cannot be judged (wrong plane, lens
+cap, flat or unrelated frame, too little of the part checked: report written); outputs written
+atomically, never overwritten without --overwrite."""
 
 import json
 import subprocess
@@ -32,9 +33,10 @@ def test_good_part_passes_and_defects_fail(tmp_path, capsys):
     out = tmp_path / "report"
     assert _run(GOOD, "--plane", "0.3", "--tolerance", "0.008", "-o", out) == 0
     rep = json.loads((out / "part_good_inspect.json").read_text())
-    assert rep["passed"] is True and rep["verdict"] == "pass" and rep["defects"] == []
+    assert rep["passed"] is True and rep["verdict"] == "pass" and rep["defects"] == [] and rep["reason"] is None
+    assert 0.8 <= rep["coverage"] <= 1 and rep["settings"]["min_coverage"] == 0.8
     assert (out / "part_good_inspect.png").read_bytes()[:4] == b"\x89PNG"
-    assert "pass" in capsys.readouterr().out
+    assert f"pass (checked {rep['coverage']:.0%} of the part)" in capsys.readouterr().out
 
     assert _run(BAD, "--plane", "0.3", "--tolerance", "0.008", "-o", out) == 1
     rep = json.loads((out / "part_defects_inspect.json").read_text())
@@ -48,7 +50,8 @@ def test_good_part_passes_and_defects_fail(tmp_path, capsys):
     s = rep["settings"]
     assert s["plane_m"] == 0.3 and s["tolerance_m"] == 0.008 and s["zmin_m"] < 0.3 < s["zmax_m"] and s["roi_px"] is None
     assert rep["input"]["calibration"] == "twin_binned2" and rep["input"]["raw"] == str(BAD)
-    assert "fail (2 defects)" in capsys.readouterr().out
+    assert rep["verdict"] == "fail" and rep["reason"] is None and rep["coverage"] > 0.8
+    assert "fail (2 defects, checked" in capsys.readouterr().out
 
     # No overwrite without --overwrite (exit 2, nothing replaced); with it, an ROI around the
     # first defect finds only that one.
@@ -73,6 +76,8 @@ def test_good_part_passes_and_defects_fail(tmp_path, capsys):
         (["--tolerance", "0.01", "--reference", "7"], "reference"),
         (["--tolerance", "0.01", "--reference-depth", "missing.pfm"], "not found"),
         (["--tolerance", "ten"], "not a valid float"),
+        (["--tolerance", "0.01", "--min-coverage", "1.5"], "min_coverage must be a number in [0, 1], got 1.5"),
+        (["--tolerance", "0.01", "--min-coverage", "-0.1"], "min_coverage must be a number in [0, 1]"),
     ],
 )
 def test_bad_input_exits_2(tmp_path, capsys, args, text):
@@ -97,17 +102,59 @@ def test_missing_raw(tmp_path, capsys):
     assert "nope.png" in capsys.readouterr().err
 
 
-def test_defect_check_example(tmp_path):
-    """The example an engineer starts from: one line per part, non-zero exit when one fails."""
-    proc = subprocess.run(
-        [sys.executable, str(ROOT / "examples" / "defect_check.py"), str(GOOD), str(BAD), "--plane", "0.3",
-         "--tolerance", "0.008", "-o", str(tmp_path / "out")],
-        capture_output=True, text=True, timeout=300, cwd=ROOT,
-    )
-    assert proc.returncode == 1, proc.stderr
-    lines = proc.stdout.strip().splitlines()
-    assert lines[0].startswith("PASS") and "part_good.png" in lines[0]
-    assert lines[1].startswith("FAIL") and "part_defects.png" in lines[1] and "2 defects" in lines[1]
-    assert "1 of 2 parts failed" in lines[-1]
-    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == [
-        "part_defects_inspect.json", "part_defects_inspect.png", "part_good_inspect.json", "part_good_inspect.png"]
+def _lens_cap(tmp_path):
+    """An all-black frame (the black level and read noise) with part_good's sidecar."""
+    import cv2
+
+    rng = np.random.default_rng(3)
+    raw = np.clip(64 + 2.0 * rng.standard_normal((1842, 2456)), 0, 4095).astype(np.uint16)
+    path = tmp_path / "cap.png"
+    cv2.imwrite(str(path), raw)
+    (tmp_path / "cap.png.json").write_text((DATA / "part_good.png.json").read_text())
+    return path
+
+
+def _photo(tmp_path):
+    """An ordinary RGB picture at the sensor's size, no ring behind it."""
+    import cv2
+
+    from lfring.synth.textures import Texture, rasterize
+
+    rgb = rasterize(Texture("image", name="coffee"), (2456, 1842), 1.0)
+    path = tmp_path / "photo.png"
+    cv2.imwrite(str(path), cv2.cvtColor(np.rint(np.clip(rgb, 0, 1) ** (1 / 2.2) * 255).astype(np.uint8), cv2.COLOR_RGB2BGR))
+    return path
+
+
+@pytest.mark.parametrize(
+    "frame, plane, reason",
+    [
+        (BAD, "0.5", "no surface found at the working plane"),  # the wrong plane
+        ("cap", "0.3", "frame too dark"),
+        (DATA / "flat.png", "0.3", "frame too flat"),
+        ("photo", "0.3", "no surface found at the working plane"),
+        (DATA / "scene.png", "0.3", "too few confident pixels"),  # a cup at 0.3 m, not a part
+    ],
+)
+def test_cannot_judge_exits_3_with_the_reason(tmp_path, capsys, frame, plane, reason):
+    frame = {"cap": _lens_cap, "photo": _photo}[frame](tmp_path) if isinstance(frame, str) else frame
+    out = tmp_path / "report"
+    assert _run(frame, "--plane", plane, "--tolerance", "0.008", "-o", out) == 3
+    cap = capsys.readouterr()
+    assert f"cannot judge ({reason}" in cap.out and "Traceback" not in cap.out + cap.err
+    stem = Path(frame).stem
+    rep = json.loads((out / f"{stem}_inspect.json").read_text())
+    assert rep["verdict"] == "cannot_judge" and rep["passed"] is False and rep["reason"].startswith(reason)
+    assert rep["num_defects"] == 0 and rep["settings"]["min_coverage"] == 0.8
+    # No part found: none of it checked; a part found but too little checked: below min_coverage.
+    assert rep["coverage"] == 0.0 if reason != "too few confident pixels" else 0.5 < rep["coverage"] < 0.8
+    assert (out / f"{stem}_inspect.png").read_bytes()[:4] == b"\x89PNG"
+    assert sorted(p.name for p in out.iterdir()) == [f"{stem}_inspect.json", f"{stem}_inspect.png"]
+
+
+def test_min_coverage_option(tmp_path, capsys):
+    out = tmp_path / "report"
+    assert _run(GOOD, "--plane", "0.3", "--tolerance", "0.008", "--min-coverage", "0.99", "-o", out) == 3
+    assert "cannot judge (too few confident pixels: checked" in capsys.readouterr().out
+    rep = json.loads((out / "part_good_inspect.json").read_text())
+    assert rep["verdict"] == "cannot_judge" and rep["settings"]["min_coverage"] == 0.99 and rep["coverage"] < 0.99
