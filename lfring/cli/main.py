@@ -23,6 +23,7 @@ COMMANDS = {
     "refocus": "refocus",
     "split": "split",
     "synth": "synth",
+    "view": "view",
 }
 
 
