@@ -269,3 +269,22 @@ def test_toggles_and_no_network_requests(opened, page, tmp_path_factory):
     assert [u for u in urls if u != page_url and not u.startswith("data:")] == []
     resources = opened.execute_script("return performance.getEntriesByType('resource').map(e => e.name)")
     assert [u for u in resources if not u.startswith("data:")] == []
+
+
+def test_phone_sized_screen(opened, page):
+    """On a 390 x 844 px screen the image and the controls fit the width, and a tap refocuses."""
+    d = _data(page)
+    opened.set_window_size(390, 844)
+    try:
+        opened.execute_script("window.dispatchEvent(new Event('resize'))")
+        inner_w, scroll_w = opened.execute_script("return [window.innerWidth, document.documentElement.scrollWidth]")
+        assert inner_w <= 400 and scroll_w <= inner_w
+        for el_id in ("lf-view", "lf-slider", "lf-toggle-depth", "lf-focus-depth"):
+            el = opened.find_element("id", el_id)
+            assert el.is_displayed(), el_id
+            right = opened.execute_script("return arguments[0].getBoundingClientRect().right", el)
+            assert right <= inner_w, el_id
+        _pointer_at(opened, *object_points((d["height"], d["width"]))["chessboard"], click=True)
+        assert abs(float(opened.find_element("id", "lf-focus-depth").text) - 1.0) <= _step_around(d["depths_m"], 1.0)
+    finally:
+        opened.set_window_size(900, 1000)
