@@ -288,3 +288,22 @@ def test_phone_sized_screen(opened, page):
         assert abs(float(opened.find_element("id", "lf-focus-depth").text) - 1.0) <= _step_around(d["depths_m"], 1.0)
     finally:
         opened.set_window_size(900, 1000)
+
+
+# -- batch and inspect write viewers -------------------------------------------------------------
+def test_batch_viewer_reuses_the_frames_depth_map(tmp_path):
+    from lfring.cli.main import main
+
+    out = tmp_path / "b"
+    assert main(["batch", str(DATA / "scene.png"), "-o", str(out), "--depth", "--zmin", "0.3", "--zmax", "1.0",
+                 "--viewer", "--workers", "1", "--no-progress"]) == 0
+    page = out / "scene_viewer.html"
+    d = _data(page)
+    assert page.stat().st_size <= MAX_BYTES and d["metadata"]["input"].endswith("scene.png")
+    depth = tifffile.imread(out / "scene_depth.tiff")
+    depth_mm = np.frombuffer(base64.b64decode(d["depth_mm_u16le"]), "<u2").reshape(depth.shape)
+    known = np.isfinite(depth)
+    assert np.array_equal(depth_mm > 0, known)
+    assert np.array_equal(depth_mm[known], np.rint(depth[known].astype(np.float64) * 1e3))
+    record = json.loads((out / "scene.lfring.json").read_text())
+    assert "scene_viewer.html" in json.dumps(record)
