@@ -10,6 +10,6 @@ DOM contract (stable, for tests and scripts): the image element has id ``lf-view
 depth under the cursor (``512 mm``, or ``-`` where unknown).
 """
 
-from lfring.viewer.page import viewer_html, write_viewer
+from lfring.viewer.page import inspection_overlays, viewer_html, write_viewer
 
-__all__ = ["viewer_html", "write_viewer"]
+__all__ = ["inspection_overlays", "viewer_html", "write_viewer"]

@@ -94,7 +94,7 @@ def _depth_range(calibration, zmin_m, zmax_m) -> tuple[float, float]:
 
 def viewer_data(views, calibration, *, zmin_m=None, zmax_m=None, num_planes=None, reference="center", depth=None,
                 min_confidence: float = 0.5, boxes=None, unchecked_mask=None, image_format: str = "jpeg",
-                quality: int = 85, metadata=None) -> dict:
+                quality: int = 85, metadata=None, focus_m=None) -> dict:
     """Everything the page shows, as a JSON-ready dict (images as data: URIs); see :func:`viewer_html`."""
     from lfring.depth import estimate_depth
     from lfring.depth.io import colorize_depth
@@ -106,6 +106,8 @@ def viewer_data(views, calibration, *, zmin_m=None, zmax_m=None, num_planes=None
     shape_hw = tuple(np.shape(views)[1:3])
     unchecked = None if unchecked_mask is None else _overlay_png(unchecked_mask, shape_hw)
     lo, hi = _depth_range(calibration, zmin_m, zmax_m)
+    if focus_m is not None and (isinstance(focus_m, bool) or not isinstance(focus_m, numbers.Real) or not lo <= focus_m <= hi):
+        raise InvalidInputError(f"focus_m must be a depth in metres within {lo:g}..{hi:g}, got {focus_m!r}")
     zs = depth_hypotheses(calibration, lo, hi, num=num_planes)
     stack = focal_stack(views, calibration, zs, reference=reference)
     h, w = stack.shape[1:3]
@@ -134,6 +136,7 @@ def viewer_data(views, calibration, *, zmin_m=None, zmax_m=None, num_planes=None
         "depths_m": [float(z) for z in zs],
         "depth_origin_m": float(calibration.depth_origin_m),
         "zmin_m": lo, "zmax_m": hi,
+        "focus_m": None if focus_m is None else float(focus_m),
         "min_confidence": float(min_confidence),
         "shade_alpha": SHADE_ALPHA,
         "frames": frames,
@@ -159,7 +162,7 @@ def viewer_data(views, calibration, *, zmin_m=None, zmax_m=None, num_planes=None
 
 def viewer_html(views, calibration, *, zmin_m=None, zmax_m=None, num_planes=None, reference="center", depth=None,
                 min_confidence: float = 0.5, boxes=None, unchecked_mask=None, image_format: str = "jpeg",
-                quality: int = 85, title: str = "lfring viewer", metadata=None) -> str:
+                quality: int = 85, title: str = "lfring viewer", metadata=None, focus_m=None) -> str:
     """The viewer of one frame as a self-contained HTML page.
 
     Parameters
@@ -188,6 +191,8 @@ def viewer_html(views, calibration, *, zmin_m=None, zmax_m=None, num_planes=None
     quality : int
         Encoder quality, 1-100.
     title : str
+    focus_m : float, optional
+        Depth the page opens focused at (its nearest frame); default: the middle of the range.
     metadata : dict, optional
         JSON-ready entries shown in the page's metadata panel (input file, calibration name...).
 
@@ -198,7 +203,7 @@ def viewer_html(views, calibration, *, zmin_m=None, zmax_m=None, num_planes=None
     """
     data = viewer_data(views, calibration, zmin_m=zmin_m, zmax_m=zmax_m, num_planes=num_planes, reference=reference,
                        depth=depth, min_confidence=min_confidence, boxes=boxes, unchecked_mask=unchecked_mask,
-                       image_format=image_format, quality=quality, metadata=metadata)
+                       image_format=image_format, quality=quality, metadata=metadata, focus_m=focus_m)
     # "<" escaped so that no string in the data can close the script element.
     payload = json.dumps(data, separators=(",", ":"), default=_json_default).replace("<", "\\u003c")
     return _template().replace("__LF_TITLE__", html.escape(str(title))).replace("__LF_DATA__", payload)
@@ -212,6 +217,21 @@ def _json_default(o):
     if isinstance(o, Path):
         return str(o)
     raise TypeError(f"{type(o).__name__} is not JSON serialisable")
+
+
+def inspection_overlays(result) -> dict:
+    """Keywords of :func:`viewer_html` for an :class:`lfring.InspectionResult`: its defect boxes
+    (labelled with kind and deviation), the area it could not check (pixels that cannot raise an
+    alarm), its depth map, the depth band it searched and, as the first focus, the working plane.
+
+    Examples
+    --------
+    ``write_viewer("part_viewer.html", views, calibration, **inspection_overlays(result))``
+    """
+    boxes = [(*d.bbox_px, f"{i} {d.kind} {d.deviation_m * 1e3:+.1f} mm") for i, d in enumerate(result.defects, 1)]
+    zs = np.asarray(result.depth.depths_m, dtype=np.float64)
+    return {"boxes": boxes, "unchecked_mask": ~np.asarray(result.reliable, dtype=bool), "depth": result.depth,
+            "zmin_m": float(zs.min()), "zmax_m": float(zs.max()), "focus_m": float(result.settings["plane_m"])}
 
 
 def write_viewer(path, views, calibration, *, overwrite: bool = False, **options) -> Path:
