@@ -135,7 +135,7 @@ def test_overlays_and_bad_options(scene):
     assert np.array_equal(rgba[..., 3] > 0, mask)
     assert d["frames"][0].startswith("data:image/webp;base64,")
     bad = [dict(num_planes=1), dict(boxes=[(0, 0, -1, 2)]), dict(unchecked_mask=mask[:5]), dict(image_format="gif"),
-           dict(quality=0), dict(min_confidence=2.0)]
+           dict(quality=0), dict(min_confidence=2.0), dict(focus_m=5.0)]
     for kw in bad:
         with pytest.raises(InvalidInputError):
             viewer_html(views, cal, **kw)
@@ -307,3 +307,41 @@ def test_batch_viewer_reuses_the_frames_depth_map(tmp_path):
     assert np.array_equal(depth_mm[known], np.rint(depth[known].astype(np.float64) * 1e3))
     record = json.loads((out / "scene.lfring.json").read_text())
     assert "scene_viewer.html" in json.dumps(record)
+
+
+def test_inspect_viewer_shows_the_defects_and_the_unchecked_area(tmp_path, browser):
+    from lfring.cli.main import main
+
+    out = tmp_path / "i"
+    code = main(["inspect", str(DATA / "part_defects.png"), "--plane", "0.3", "--tolerance", "0.008", "-o", str(out),
+                 "--viewer"])
+    assert code == 1  # the part has a bump and a dent
+    report = json.loads((out / "part_defects_inspect.json").read_text())
+    page = out / "part_defects_viewer.html"
+    d = _data(page)
+    assert len(d["boxes"]) == report["num_defects"] == 2
+    for box, defect in zip(d["boxes"], report["defects"]):
+        b = defect["bbox_px"]
+        assert (box["x"], box["y"], box["w"], box["h"]) == (b["x"], b["y"], b["w"], b["h"])
+        assert box["label"].startswith(f"{defect['id']} {defect['kind']}")
+    # The unchecked area is what the inspection could not judge: 1 - its reliable fraction.
+    png = base64.b64decode(d["unchecked"].split(",", 1)[1])
+    alpha = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_UNCHANGED)[..., 3]
+    assert (alpha > 0).mean() == pytest.approx(1 - report["stats"]["reliable_fraction"], abs=1e-9)
+    # The stack spans the inspection's depth band.
+    assert d["depths_m"][0] == pytest.approx(report["settings"]["zmin_m"])
+    assert d["depths_m"][-1] == pytest.approx(report["settings"]["zmax_m"])
+    # In the browser: the boxes are drawn over the image, and a click on a box refocuses near the plane.
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    browser.get(page.as_uri())
+    WebDriverWait(browser, 30).until(lambda drv: drv.execute_script("return document.documentElement.dataset.lfReady === '1'"))
+    assert browser.find_element("id", "lf-boxes-layer").is_displayed()
+    assert browser.find_element("id", "lf-unchecked-layer").is_displayed()
+    assert len(browser.find_elements("css selector", "#lf-boxes-layer rect")) == 2
+    # It opens focused at the working plane (the frame nearest it in disparity).
+    inv = [1 / (z - d["depth_origin_m"]) for z in d["depths_m"]]
+    k = int(np.argmin(np.abs(np.array(inv) - 1 / (0.3 - d["depth_origin_m"]))))
+    assert browser.find_element("id", "lf-focus-depth").text == f"{d['depths_m'][k]:.3f}"
+    shot_dir = Path(os.environ.get(SCREENSHOT_DIR_ENV) or tmp_path)
+    assert browser.save_screenshot(str(shot_dir / "viewer_inspect.png"))
