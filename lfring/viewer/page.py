@@ -156,6 +156,7 @@ def viewer_data(views, calibration, *, zmin_m=None, zmax_m=None, num_planes=None
             "depth_step_px": float(depth.step_px),
             "units": "depth in metres from the main lens (readout in millimetres); confidence in [0, 1]",
             **(metadata or {}),
+            "calibration_model": calibration.to_dict(),
         },
     }
 
@@ -201,22 +202,14 @@ def viewer_html(views, calibration, *, zmin_m=None, zmax_m=None, num_planes=None
     str
         The HTML page; it loads nothing from the network (its Content-Security-Policy forbids it).
     """
+    from lfring.io.writers import json_default
+
     data = viewer_data(views, calibration, zmin_m=zmin_m, zmax_m=zmax_m, num_planes=num_planes, reference=reference,
                        depth=depth, min_confidence=min_confidence, boxes=boxes, unchecked_mask=unchecked_mask,
                        image_format=image_format, quality=quality, metadata=metadata, focus_m=focus_m)
     # "<" escaped so that no string in the data can close the script element.
-    payload = json.dumps(data, separators=(",", ":"), default=_json_default).replace("<", "\\u003c")
+    payload = json.dumps(data, separators=(",", ":"), default=json_default).replace("<", "\\u003c")
     return _template().replace("__LF_TITLE__", html.escape(str(title))).replace("__LF_DATA__", payload)
-
-
-def _json_default(o):
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, Path):
-        return str(o)
-    raise TypeError(f"{type(o).__name__} is not JSON serialisable")
 
 
 def inspection_overlays(result) -> dict:

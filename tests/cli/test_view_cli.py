@@ -27,6 +27,7 @@ def test_view_writes_one_page_with_the_requested_stack(tmp_path, capsys):
     assert max(inv[i] - inv[i + 1] for i in range(4)) == pytest.approx(min(inv[i] - inv[i + 1] for i in range(4)))
     assert d["metadata"]["input"] == str(SCENE) and d["metadata"]["calibration"]
     assert d["metadata"]["units"].startswith("depth in metres")
+    assert d["metadata"]["calibration_model"]["depth_origin_m"] == pytest.approx(d["depth_origin_m"])
     assert main(["view", str(SCENE), "-o", str(out)]) == 2  # no overwrite
     assert "exists" in capsys.readouterr().err
 
