@@ -135,7 +135,7 @@ def test_overlays_and_bad_options(scene):
     assert np.array_equal(rgba[..., 3] > 0, mask)
     assert d["frames"][0].startswith("data:image/webp;base64,")
     bad = [dict(num_planes=1), dict(boxes=[(0, 0, -1, 2)]), dict(unchecked_mask=mask[:5]), dict(image_format="gif"),
-           dict(quality=0), dict(min_confidence=2.0), dict(focus_m=5.0)]
+           dict(quality=0), dict(min_confidence=2.0), dict(focus_m=5.0), dict(num_planes=3, depth=object())]
     for kw in bad:
         with pytest.raises(InvalidInputError):
             viewer_html(views, cal, **kw)

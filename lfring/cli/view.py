@@ -19,7 +19,7 @@ log = logging.getLogger("lfring.cli.view")
 @click.option("--zmin", type=float, default=None, metavar="M", help="Nearest depth [m] (default: the calibration's range).")
 @click.option("--zmax", type=float, default=None, metavar="M", help="Farthest depth [m] (default: the calibration's range).")
 @click.option("--planes", type=int, default=None, metavar="N",
-              help="Frames of the focal stack (default: one pixel of view motion apart).")
+              help="Depth hypotheses, one stack frame each (default: one pixel of view motion apart).")
 @click.option("--reference", default="center", show_default=True, metavar="center|0..3", help="Frame of the viewer.")
 @click.option("--min-confidence", type=float, default=0.5, show_default=True,
               help="Below this the depth is shaded as unreliable and skipped when a click picks the focus.")

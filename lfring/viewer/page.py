@@ -96,23 +96,31 @@ def viewer_data(views, calibration, *, zmin_m=None, zmax_m=None, num_planes=None
                 min_confidence: float = 0.5, boxes=None, unchecked_mask=None, image_format: str = "jpeg",
                 quality: int = 85, metadata=None, focus_m=None) -> dict:
     """Everything the page shows, as a JSON-ready dict (images as data: URIs); see :func:`viewer_html`."""
-    from lfring.depth import estimate_depth
+    from lfring import all_in_focus, estimate_depth, focal_stack
     from lfring.depth.io import colorize_depth
     from lfring.io.writers import encode_image
-    from lfring.refocus import all_in_focus, depth_hypotheses, focal_stack
 
     _check_options(num_planes, min_confidence, image_format, quality)
     box_list = _check_boxes(boxes)
     shape_hw = tuple(np.shape(views)[1:3])
     unchecked = None if unchecked_mask is None else _overlay_png(unchecked_mask, shape_hw)
+    if depth is not None and num_planes is not None:
+        raise InvalidInputError("the stack's planes are the given depth result's hypotheses: give num_planes or depth, not both")
+    if depth is not None and zmin_m is None and zmax_m is None:
+        zmin_m, zmax_m = float(np.min(depth.depths_m)), float(np.max(depth.depths_m))
     lo, hi = _depth_range(calibration, zmin_m, zmax_m)
     if focus_m is not None and (isinstance(focus_m, bool) or not isinstance(focus_m, numbers.Real) or not lo <= focus_m <= hi):
         raise InvalidInputError(f"focus_m must be a depth in metres within {lo:g}..{hi:g}, got {focus_m!r}")
-    zs = depth_hypotheses(calibration, lo, hi, num=num_planes)
+    if depth is None:
+        depth = estimate_depth(views, calibration, zmin_m=lo, zmax_m=hi, num_planes=num_planes, reference=reference)
+    # One stack frame per depth hypothesis (evenly spaced in disparity): a click on any depth
+    # the map holds lands on its own frame.
+    zs = np.sort(np.asarray(depth.depths_m, dtype=np.float64))
+    zs = zs[(zs >= lo - 1e-9) & (zs <= hi + 1e-9)]
+    if zs.size < 2:
+        raise InvalidInputError(f"the depth result's hypotheses hold fewer than two depths within {lo:g}..{hi:g} m")
     stack = focal_stack(views, calibration, zs, reference=reference)
     h, w = stack.shape[1:3]
-    if depth is None:
-        depth = estimate_depth(views, calibration, zmin_m=lo, zmax_m=hi, reference=reference)
     depth_m = np.asarray(depth.depth_m, dtype=np.float64)
     conf = np.asarray(depth.confidence, dtype=np.float64)
     if depth_m.shape != (h, w) or conf.shape != (h, w):
@@ -172,14 +180,15 @@ def viewer_html(views, calibration, *, zmin_m=None, zmax_m=None, num_planes=None
     calibration : RingCalibration
     zmin_m, zmax_m : float, optional
         Depth range of the focal stack and of the depth sweep [m from the main lens]. Default:
-        the calibration's valid range.
+        the range of ``depth``'s hypotheses when given, else the calibration's valid range.
     num_planes : int, optional
-        Frames of the focal stack, evenly spaced in disparity (default: one pixel of view
-        motion apart).
+        Depth hypotheses of the sweep, evenly spaced in disparity (default: one pixel of view
+        motion apart); the focal stack has a frame at each.
     reference : 'center' or int
     depth : DepthResult, optional
         A depth map already estimated in the same reference frame (default: estimated here
-        over the depth range with :func:`lfring.estimate_depth`'s defaults).
+        over the depth range with :func:`lfring.estimate_depth`); the stack then has a frame at
+        each of its hypotheses within the depth range (default: all of them).
     min_confidence : float
         Pixels below this confidence are shaded by the low-confidence toggle and skipped when a
         click looks for the depth to focus at.
