@@ -448,7 +448,8 @@ def _process(input_path, settings: BatchSettings, outputs, timings) -> tuple[dic
 
         t = time.perf_counter()
         files["viewer"] = viewer_html(views, cal, zmin_m=settings.zmin_m, zmax_m=settings.zmax_m, reference=settings.reference,
-                                      depth=depth_res, min_confidence=settings.min_confidence, title=Path(input_path).name,
+                                      depth=depth_res, num_planes=None if depth_res is not None else settings.planes,
+                                      min_confidence=settings.min_confidence, title=Path(input_path).name,
                                       metadata={"input": str(input_path), "calibration": cal_name}).encode("utf-8")
         timings["viewer"] = time.perf_counter() - t
     missing = set(outputs) - set(files)
