@@ -17,6 +17,7 @@ import json
 import os
 import platform
 import re
+import shutil
 import statistics
 import sys
 import tempfile
@@ -87,6 +88,7 @@ def main() -> None:
             _screenshot(driver, page, data, Path(args.screenshot))
     finally:
         driver.quit()
+        shutil.rmtree(tmp, ignore_errors=True)
 
     mib = page.stat().st_size / 2**20
     med = statistics.median
