@@ -77,6 +77,7 @@ def main() -> None:
                     'document.getElementById("i").decode().then(function () { window.peerMs = performance.now(); });'
                     '</script></body></html>')
 
+    mib = page.stat().st_size / 2**20
     driver = _driver(900, 1000)
     try:
         inter, ready, peer_ms = [], [], []
@@ -90,7 +91,6 @@ def main() -> None:
         driver.quit()
         shutil.rmtree(tmp, ignore_errors=True)
 
-    mib = page.stat().st_size / 2**20
     med = statistics.median
     print(f"machine: {platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}, "
           f"numpy {np.__version__}, OpenCV {cv2.__version__}, load {os.getloadavg()[0]:.2f}")
