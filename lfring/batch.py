@@ -99,6 +99,9 @@ class BatchSettings:
         Number of depth hypotheses (default: at most 1 px of view motion apart).
     min_confidence : float
         Depth preview: pixels below it are black.
+    viewer : bool
+        Also write an interactive HTML viewer (:mod:`lfring.viewer`), its depth range
+        ``zmin_m``..``zmax_m`` or the calibrated range.
     """
 
     refocus_m: tuple[float, ...] = ()
@@ -114,6 +117,7 @@ class BatchSettings:
     encoding: str = "srgb"
     planes: int | None = None
     min_confidence: float = 0.5
+    viewer: bool = False
 
     def __post_init__(self):
         zs = tuple(float(z) for z in self.refocus_m)
@@ -123,8 +127,8 @@ class BatchSettings:
                 raise InvalidInputError(f"refocus depths must be positive, finite metres, got {z!r}")
         if len(set(zs)) != len(zs):
             raise InvalidInputError(f"refocus depths repeat: {list(zs)}")
-        if not (zs or self.depth or self.all_in_focus):
-            raise InvalidInputError("nothing to do: ask for refocus depths, a depth map or an all-in-focus image")
+        if not (zs or self.depth or self.all_in_focus or self.viewer):
+            raise InvalidInputError("nothing to do: ask for refocus depths, a depth map, an all-in-focus image or a viewer")
         if self.depth:
             if self.zmin_m is None or self.zmax_m is None:
                 raise InvalidInputError("a depth map needs zmin_m and zmax_m (--zmin, --zmax)")
@@ -154,12 +158,16 @@ class BatchSettings:
             out["depth"] = f"{stem}_depth.tiff"
             out["confidence"] = f"{stem}_confidence.tiff"
             out["depth_preview"] = f"{stem}_depth_preview.png"
+        if self.viewer:
+            out["viewer"] = f"{stem}_viewer.html"
         return out
 
     def describe(self) -> dict:
         """The settings as JSON-ready values (the calibration by name and content hash)."""
         d = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "calibration"}
         d["refocus_m"] = list(self.refocus_m)
+        if not self.viewer:  # keeps the keys of folders made before the viewer existed
+            del d["viewer"]
         d["calibration_sha256"] = None
         if self.calibration is not None:
             blob = json.dumps(self.calibration.to_dict(), sort_keys=True, default=json_default).encode()
@@ -435,6 +443,15 @@ def _process(input_path, settings: BatchSettings, outputs, timings) -> tuple[dic
             for k, p in paths.items():
                 files[k] = p.read_bytes()
     timings["encode"] = time.perf_counter() - t
+    if settings.viewer:
+        from lfring.viewer import viewer_html
+
+        t = time.perf_counter()
+        files["viewer"] = viewer_html(views, cal, zmin_m=settings.zmin_m, zmax_m=settings.zmax_m, reference=settings.reference,
+                                      depth=depth_res, num_planes=None if depth_res is not None else settings.planes,
+                                      min_confidence=settings.min_confidence, title=Path(input_path).name,
+                                      metadata={"input": str(input_path), "calibration": cal_name}).encode("utf-8")
+        timings["viewer"] = time.perf_counter() - t
     missing = set(outputs) - set(files)
     if missing:  # pragma: no cover - a programming error, not a bad frame
         raise RuntimeError(f"outputs not produced: {sorted(missing)}")

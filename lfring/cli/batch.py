@@ -23,6 +23,7 @@ log = logging.getLogger("lfring.cli.batch")
 @click.option("--zmax", type=float, default=None, metavar="M", help="Farthest depth searched [m], with --depth.")
 @click.option("--planes", type=int, default=None, metavar="N", help="Depth hypotheses (default: 1 px of view motion apart).")
 @click.option("--all-in-focus", "aif", is_flag=True, help="All-in-focus image of every frame.")
+@click.option("--viewer", is_flag=True, help="Interactive HTML viewer of every frame, NAME_viewer.html (see lfring view).")
 @click.option("--reference", default="center", show_default=True, metavar="center|0..3", help="Frame of the results.")
 @click.option("--interpolation", type=click.Choice(["cubic", "linear"]), default="cubic", show_default=True,
               help="Resampling of the views for refocusing.")
@@ -38,7 +39,7 @@ log = logging.getLogger("lfring.cli.batch")
 @click.option("--progress/--no-progress", default=None, help="Progress bar (default: when stderr is a terminal).")
 @click.option("--overwrite", is_flag=True, help="Redo frames already done and replace existing files.")
 @click.pass_context
-def command(ctx, inputs, outdir, calib, refocus_m, depth_map, zmin, zmax, planes, aif, reference, interpolation,
+def command(ctx, inputs, outdir, calib, refocus_m, depth_map, zmin, zmax, planes, aif, viewer, reference, interpolation,
             bit_depth, encoding, workers, executor, scheduler, exclude, progress, overwrite):
     """Process every frame of INPUT... (files, folders searched recursively, glob patterns).
 
@@ -52,10 +53,10 @@ def command(ctx, inputs, outdir, calib, refocus_m, depth_map, zmin, zmax, planes
     from lfring.geometry import check_reference
 
     zs = parse_depths(refocus_m, param_hint="--refocus") if refocus_m is not None else ()
-    if not (zs or depth_map or aif):
-        raise click.UsageError("nothing to do: give --refocus Z1,Z2,..., --depth (with --zmin/--zmax) or --all-in-focus")
-    if (zmin is not None or zmax is not None) and not depth_map:
-        raise click.UsageError("--zmin/--zmax go with --depth")
+    if not (zs or depth_map or aif or viewer):
+        raise click.UsageError("nothing to do: give --refocus Z1,Z2,..., --depth (with --zmin/--zmax), --all-in-focus or --viewer")
+    if (zmin is not None or zmax is not None) and not (depth_map or viewer):
+        raise click.UsageError("--zmin/--zmax go with --depth or --viewer")
     if depth_map and (zmin is None or zmax is None):
         raise click.UsageError("--depth needs --zmin and --zmax (metres)")
     if scheduler and executor != "dask":
@@ -71,7 +72,7 @@ def command(ctx, inputs, outdir, calib, refocus_m, depth_map, zmin, zmax, planes
         ref = check_reference(reference, 4)
     settings = BatchSettings(refocus_m=zs, depth=depth_map, zmin_m=zmin, zmax_m=zmax, all_in_focus=aif, calibration=cal,
                              calibration_name=cal_name, reference=ref, interpolation=interpolation, bit_depth=int(bit_depth),
-                             encoding=encoding, planes=planes)
+                             encoding=encoding, planes=planes, viewer=viewer)
     report = run_batch(list(inputs), outdir, settings, workers=workers, executor=executor, scheduler=scheduler,
                        overwrite=overwrite, exclude=exclude, progress=progress)
     for path in report.failed:

@@ -78,10 +78,12 @@ def _read_depth(path: str):
 @click.option("--backend", type=click.Choice(["numpy", "torch"]), default="numpy", show_default=True, help="Plane-sweep backend.")
 @click.option("--device-file", "device_name", default=None, metavar="NAME|FILE",
               help="Device description for areas in mm^2 (default: the calibration's, else prototype).")
+@click.option("--viewer", is_flag=True, help="Also write DIR/<name>_viewer.html: the interactive viewer with the defect "
+              "boxes and the unchecked area as overlays (see lfring view).")
 @click.option("--overwrite", is_flag=True, help="Replace existing output files.")
 @click.pass_context
 def command(ctx, raw, plane, tolerance, outdir, calib, roi, reference_depth, min_area, min_confidence, min_coverage, zmin,
-            zmax, reference, backend, device_name, overwrite):
+            zmax, reference, backend, device_name, viewer, overwrite):
     """Check that the part in RAW lies on the working plane within the tolerance.
 
     Writes DIR/<name>_inspect.png (refocused at the plane, the plane tinted green, defect boxes:
@@ -103,7 +105,8 @@ def command(ctx, raw, plane, tolerance, outdir, calib, roi, reference_depth, min
     out = Path(outdir)
     stem = Path(raw).stem
     png, js = out / f"{stem}_inspect.png", out / f"{stem}_inspect.json"
-    check_writable([png, js], overwrite=overwrite)
+    html = out / f"{stem}_viewer.html"
+    check_writable([png, js, *([html] if viewer else [])], overwrite=overwrite)
     target = _read_depth(reference_depth) if reference_depth else None
     # The optics give areas in mm^2: the calibration's device, else the prototype, binned to
     # the frame's size when that matches; without a match areas are left in pixels.
@@ -127,6 +130,17 @@ def command(ctx, raw, plane, tolerance, outdir, calib, roi, reference_depth, min
     write_image(png, annotate(res))
     write_json(js, report(res, raw=str(raw), calibration=cal_name, reference_depth=reference_depth,
                           annotated_image=str(png)))
+    if viewer:
+        import warnings
+
+        from lfring.errors import LfringWarning
+        from lfring.viewer import inspection_overlays, write_viewer
+
+        with warnings.catch_warnings():  # the band's range was warned about by the inspection
+            warnings.simplefilter("ignore", LfringWarning)
+            write_viewer(html, views, cal, reference=ref, min_confidence=min_confidence, overwrite=True, title=Path(raw).name,
+                         metadata={"input": str(raw), "calibration": cal_name, "plane_m": plane, "tolerance_m": tolerance},
+                         **inspection_overlays(res))
     for i, d in enumerate(res.defects, 1):
         x, y, w, h = d.bbox_px
         log.info("defect %d: %s %+.1f mm at x=%d y=%d (%d x %d px), %d px, confidence %.2f", i, d.kind, d.deviation_m * 1e3,

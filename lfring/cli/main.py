@@ -24,6 +24,7 @@ COMMANDS = {
     "refocus": "refocus",
     "split": "split",
     "synth": "synth",
+    "view": "view",
 }
 
 

@@ -1,0 +1,49 @@
+import json
+import re
+from pathlib import Path
+
+import pytest
+
+from lfring.cli.main import main
+
+SCENE = Path(__file__).resolve().parents[2] / "data" / "synthetic" / "scene.png"
+
+
+def _data(path: Path) -> dict:
+    text = path.read_text()
+    return json.loads(re.search(r'<script id="lf-data" type="application/json">(.*?)</script>', text, re.S).group(1))
+
+
+def test_view_writes_one_page_with_the_requested_stack(tmp_path, capsys):
+    out = tmp_path / "v" / "scene.html"
+    assert main(["view", str(SCENE), "--zmin", "0.3", "--zmax", "1.0", "--planes", "5", "--format", "webp",
+                 "-o", str(out)]) == 0
+    assert capsys.readouterr().out.strip() == str(out)
+    d = _data(out)
+    assert len(d["frames"]) == 5 and d["frames"][0].startswith("data:image/webp;base64,")
+    assert d["depths_m"][0] == pytest.approx(0.3) and d["depths_m"][-1] == pytest.approx(1.0)
+    # Evenly spaced in disparity 1/(Z - z0).
+    inv = [1 / (z - d["depth_origin_m"]) for z in d["depths_m"]]
+    assert max(inv[i] - inv[i + 1] for i in range(4)) == pytest.approx(min(inv[i] - inv[i + 1] for i in range(4)))
+    assert d["metadata"]["input"] == str(SCENE) and d["metadata"]["calibration"]
+    assert d["metadata"]["units"].startswith("depth in metres")
+    assert d["metadata"]["calibration_model"]["depth_origin_m"] == pytest.approx(d["depth_origin_m"])
+    assert main(["view", str(SCENE), "-o", str(out)]) == 2  # no overwrite
+    assert "exists" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "args, text",
+    [
+        (["--zmin", "1.0", "--zmax", "0.5"], "smaller than zmax"),
+        (["--planes", "1"], "num_planes"),
+        (["--reference", "9"], "reference"),
+        (["--min-confidence", "3"], "min_confidence"),
+        (["-o", "x.png"], ".html"),
+    ],
+)
+def test_view_bad_options_are_one_line(tmp_path, capsys, args, text):
+    args = args if "-o" in args else [*args, "-o", str(tmp_path / "v.html")]
+    assert main(["view", str(SCENE), *args]) == 2
+    err = capsys.readouterr().err
+    assert text in err and "Traceback" not in err
