@@ -18,18 +18,21 @@ def machine_line() -> str:
             f"OpenCV {cv2.__version__}, load {os.getloadavg()[0]:.2f}")
 
 
-def twin_scene(seed: int = 3) -> SimpleNamespace:
-    """The twin's three-depth scene (2 x 2 binned, realistic noise): ``render`` (the RenderResult),
-    ``cal`` (the optics calibration), ``views`` (demosaiced, split), ``gt`` (view 0's depth [m])."""
+def twin_scene(seed: int = 3, *, scene: str = "three_depth") -> SimpleNamespace:
+    """The twin's three-depth scene, or with ``scene='hard'`` the hard one (slants, curves, thin
+    wires, a blank card, per-view vignetting), 2 x 2 binned with realistic noise: ``render`` (the
+    RenderResult), ``cal`` (the optics calibration), ``views`` (demosaiced, split), ``gt``
+    (view 0's depth [m])."""
     from lfring.calibration import RingCalibration
     from lfring.io.demosaic import demosaic
     from lfring.io.raw import RawFrame
     from lfring.optics import load_device
     from lfring.synth import render
-    from lfring.synth.presets import three_depth_scene
+    from lfring.synth.presets import hard_scene, three_depth_scene
     from lfring.views import split_views
 
-    r = render(load_device("prototype"), three_depth_scene(), binning=2, noise="realistic", seed=seed)
+    scenes = {"three_depth": three_depth_scene, "hard": hard_scene}
+    r = render(load_device("prototype"), scenes[scene](), binning=2, noise="realistic", seed=seed)
     cal = RingCalibration.from_optics(r.device, layout=r.layout)
     frame = RawFrame(mosaic=r.raw, pattern="RGGB", black_level=r.black_level, white_level=r.white_level, bit_depth=12)
     return SimpleNamespace(render=r, cal=cal, views=split_views(demosaic(frame), r.layout), gt=r.depth_m[0])

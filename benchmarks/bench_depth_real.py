@@ -153,12 +153,12 @@ def seen_by(cal, gt, depth_views, masks) -> np.ndarray:
     return seen
 
 
-def twin():
+def twin(scene: str = "three_depth"):
     from lfring.depth.metrics import evaluation_mask
     from lfring.focus import Refocuser
 
-    t = twin_scene()
-    data = make_data("twin three-depth scene", t.views, t.cal, zmin_m=ZMIN, zmax_m=ZMAX)
+    t = twin_scene(scene=scene)
+    data = make_data(f"twin {scene.replace('_', '-')} scene", t.views, t.cal, zmin_m=ZMIN, zmax_m=ZMAX)
     r = t.render
     data.gt_depth = t.gt
     data.gt_disparity = np.where(np.isfinite(t.gt), data.disparity(np.where(np.isfinite(t.gt), t.gt, 1.0)), np.nan)
@@ -251,7 +251,7 @@ def main() -> None:
     print(machine_line())
     print(f"times: median of {runs} run(s) after a warm-up; memory: rise of the peak resident set (VmHWM) over the "
           "resident set before one call, in a fresh process after a warm-up call")
-    datasets = [middlebury(s, args.data) for s in (SCENES[:1] if args.quick else SCENES)] + [twin()]
+    datasets = [middlebury(s, args.data) for s in (SCENES[:1] if args.quick else SCENES)] + [twin(), twin("hard")]
     print("| data | method | views | region | pixels | invalid | bad 0.3 px | bad 1 px | bad 2 px | median rel. depth error "
           "| time s | / SGBM | peak memory MiB |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
