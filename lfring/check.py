@@ -24,7 +24,7 @@ AGREEMENT_THRESHOLD = 0.3
 """Smallest view agreement (mean pairwise ZNCC of the views' high-passed luminance, warped at
 the best of the depths tried) of a frame that is taken as a ring frame.
 
-Measured with the built-in calibration (``python benchmarks/check_agreement.py``): the bundled
+Measured with the built-in calibration (tests/test_check.py asserts these): the bundled
 frames of the twin score 0.81 (target_0.3m), 0.83 (scene), 0.87 (part_good, part_defects) and
 0.94 (target_1m); ordinary RGB photographs scaled to the sensor's size (scikit-image's
 astronaut, coffee and chelsea) score 0.009 to 0.023, and the untextured flat frame 0.04.

@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import functools
 import logging
+from pathlib import Path
 
 import click
 
+from lfring.errors import InvalidInputError
 from lfring.optics.device import RingDevice, load_device
 
 
@@ -55,22 +58,172 @@ def get_device(name: str) -> RingDevice:
     return load_device(name)
 
 
-def load_views(raw: str, calib: str | None):
+class RawLevels:
+    """--pattern, --black-level, --white-level as given on the command line (None: not given)."""
+
+    def __init__(self, pattern=None, black_level=None, white_level=None):
+        self.pattern = pattern.upper() if pattern else None
+        self.black_level = black_level
+        self.white_level = white_level
+
+    def as_kwargs(self) -> dict:
+        return {"pattern": self.pattern, "black_level": self.black_level, "white_level": self.white_level}
+
+
+def _parse_black(ctx, param, text):
+    if text is None:
+        return None
+    import re
+
+    try:
+        values = [float(t) for t in re.split(r"[,\s]+", text.strip()) if t]
+    except ValueError:
+        raise click.BadParameter(f"expected a number of counts or four (one per CFA position), got {text!r}") from None
+    if len(values) not in (1, 4):
+        raise click.BadParameter(f"expected one number of counts or four (one per CFA position), got {len(values)}")
+    return values[0] if len(values) == 1 else tuple(values)
+
+
+def raw_options(fn):
+    """Adds --pattern, --black-level and --white-level to a command that reads raw frames; the
+    command receives them as one ``levels`` argument (a :class:`RawLevels`)."""
+    from lfring.io.bayer import PATTERNS
+
+    @functools.wraps(fn)
+    def wrapper(*args, pattern=None, black_level=None, white_level=None, **kwargs):
+        return fn(*args, levels=RawLevels(pattern, black_level, white_level), **kwargs)
+
+    opts = [
+        click.option("--pattern", type=click.Choice(PATTERNS, case_sensitive=False), default=None,
+                     help="Bayer pattern of the frames (overrides a sidecar or the calibration's)."),
+        click.option("--black-level", callback=_parse_black, default=None, metavar="COUNTS",
+                     help="Black level in counts, one number or four in CFA order (overrides a sidecar or the calibration's)."),
+        click.option("--white-level", type=float, default=None, metavar="COUNTS",
+                     help="White (saturation) level in counts (overrides a sidecar or the calibration's)."),
+    ]
+    for opt in reversed(opts):
+        wrapper = opt(wrapper)
+    return wrapper
+
+
+def check_option(fn):
+    """Adds --no-check: skip the check that a frame is a ring frame for the calibration."""
+    return click.option("--no-check", "no_check", is_flag=True,
+                        help="Process frames that do not look like ring frames for the calibration (see lfring check).")(fn)
+
+
+LOW_PEAK_FRACTION = 1 / 16
+"""A frame whose brightest count is below this fraction of its white level gets a warning: its
+data likely has fewer bits than its container (10-bit counts in a 16-bit PNG read as 1/64 of
+full scale)."""
+
+
+def read_frame(raw: str, levels: RawLevels | None = None, calibration=None):
+    """Load a raw frame: options first, then its sidecar or metadata, then the calibration's
+    pattern and levels (said at info level), then defaults (said at warning level).
+
+    Returns the RawFrame; warns when its levels are assumed or its data look like fewer bits
+    than its white level says.
+    """
+    from lfring.io.raw import RAW_SUFFIXES, load_raw, sidecar_path
+
+    levels = levels or RawLevels()
+    given = levels.as_kwargs()
+    p = Path(raw)
+    from_file: set = set()
+    is_camera_raw = p.suffix.lower() in RAW_SUFFIXES
+    if not is_camera_raw:
+        side = sidecar_path(p)
+        if side.is_file():
+            import json
+
+            try:
+                content = json.loads(side.read_text(encoding="utf-8"))
+            except (OSError, ValueError):
+                content = {}  # load_raw reports a broken sidecar by name
+            if isinstance(content, dict):
+                from_file = {k for k in ("pattern", "black_level", "white_level") if content.get(k) is not None}
+    log = logging.getLogger("lfring.cli")
+    from_cal = {}
+    if calibration is not None and not is_camera_raw:
+        cal_values = {"pattern": calibration.pattern, "black_level": getattr(calibration, "black_level", None),
+                      "white_level": getattr(calibration, "white_level", None)}
+        for k, v in cal_values.items():
+            if given[k] is None and k not in from_file and v is not None:
+                from_cal[k] = v
+    overrides = {**given, **from_cal}
+    try:
+        frame = load_raw(raw, **overrides)
+    except InvalidInputError as exc:
+        if from_cal.get("pattern") and "Bayer pattern" in str(exc) and "already RGB" in str(exc):
+            # An RGB frame: the calibration's pattern does not apply to it.
+            from_cal.pop("pattern")
+            overrides["pattern"] = given["pattern"]
+            frame = load_raw(raw, **overrides)
+        else:
+            raise
+    if from_cal:
+        log.info("%s has no %s of its own: using the calibration's (%s)", raw, " or ".join(k.replace("_", " ") for k in from_cal),
+                 ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in from_cal.items()))
+    if not is_camera_raw:
+        assumed = [k for k in ("black_level", "white_level") if given[k] is None and k not in from_file and k not in from_cal]
+        raw_data = frame.mosaic is not None or frame.bit_depth > 8
+        if assumed and raw_data:
+            what = {"black_level": f"black {frame.black_level:g}", "white_level": f"white {frame.white_level:g}"}
+            log.warning("%s: levels assumed (%s): no %s in a sidecar, the options or the calibration; pass %s "
+                        "(or write them in %s) if the frame looks too dark or too bright", raw,
+                        ", ".join(what[k] for k in assumed), " or ".join(k.replace("_", " ") for k in assumed),
+                        " and ".join("--" + k.replace("_", "-") for k in assumed), sidecar_path(p).name)
+    data = frame.mosaic if frame.mosaic is not None else frame.image
+    peak = int(data.max()) if data.size else 0
+    if given["white_level"] is None and peak < LOW_PEAK_FRACTION * frame.white_level:
+        bits = max(1, int(peak).bit_length())
+        log.warning("%s: the brightest count is %d, far below the white level %g: if the data have fewer bits than "
+                    "the file (e.g. %d-bit counts in a %d-bit file), pass --white-level %d", raw, peak, frame.white_level,
+                    bits, data.dtype.itemsize * 8, 2 ** bits - 1)
+    return frame
+
+
+def load_views(raw: str, calib: str | None, levels: RawLevels | None = None, *, check: bool = True):
     """Load, demosaic and split a raw frame; the calibration from --calib or the built-in
-    default for the frame's size (logged)."""
+    default for the frame's size (logged). Unless ``check`` is False, refuse a frame that does
+    not look like a ring frame for the calibration (:func:`lfring.check.check_frame`)."""
     from lfring.calibration import RingCalibration
     from lfring.calibration.defaults import default_calibration
     from lfring.io.demosaic import demosaic
-    from lfring.io.raw import load_raw
     from lfring.views import split_views
 
-    frame = load_raw(raw)
+    cal = RingCalibration.load(calib) if calib else None
+    frame = read_frame(raw, levels, cal)
     image = demosaic(frame)
-    if calib:
-        cal, name = RingCalibration.load(calib), calib
+    if cal is not None:
+        name = calib
     else:
         cal, name = default_calibration((image.shape[1], image.shape[0]))
         logging.getLogger("lfring.cli").info("no --calib given: using the built-in calibration '%s' (%s, %d x %d px frames)",
                  name, "measured" if cal.source == "planes" else "from the optics", *cal.raw_size)
     cal.check_frame(image.shape, what=f"frame {raw}")
+    if check:
+        require_ring_frame(image, cal, raw)
     return split_views(image, cal.layout), cal, name
+
+
+def require_ring_frame(image, cal, raw) -> None:
+    """Raise (an InvalidInputError naming ``raw``) unless the frame's views agree as a ring
+    frame's do for ``cal``."""
+    from lfring.check import check_frame
+
+    res = check_frame(image, cal)
+    logging.getLogger("lfring.cli").debug("%s: %s", raw, res.message)
+    if not res.ok:
+        raise InvalidInputError(f"{raw}: {res.message}")
+
+
+def progress_bar(total: int, desc: str, unit: str):
+    """A tqdm bar on stderr, shown only when stderr is a terminal and lfring is not quiet."""
+    import sys
+
+    from tqdm import tqdm
+
+    quiet = not logging.getLogger("lfring").isEnabledFor(logging.INFO)
+    return tqdm(total=total, desc=desc, unit=unit, disable=quiet or not sys.stderr.isatty(), leave=False, dynamic_ncols=True)

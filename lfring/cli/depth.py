@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from lfring.cli._options import load_views
+from lfring.cli._options import check_option, load_views, raw_options
 
 log = logging.getLogger("lfring.cli.depth")
 
@@ -34,8 +34,10 @@ log = logging.getLogger("lfring.cli.depth")
 @click.option("--device-file", "device_name", default=None, metavar="NAME|FILE",
               help="Device description for the point cloud (default: the calibration's, else prototype).")
 @click.option("--overwrite", is_flag=True, help="Replace existing output files.")
+@raw_options
+@check_option
 def command(raw, zmin, zmax, outdir, calib, planes, reference, cost, aggregation, backend, device, min_confidence,
-            device_name, overwrite):
+            device_name, overwrite, levels, no_check):
     """Depth map of RAW in metres with confidence, by plane sweep over the four views.
 
     Writes DIR/<name>_depth.tiff (float32 metres, NaN where unknown), _depth.pfm,
@@ -48,12 +50,12 @@ def command(raw, zmin, zmax, outdir, calib, planes, reference, cost, aggregation
     from lfring.io.writers import check_writable, write_float_tiff, write_json
     from lfring.optics.device import load_device
 
-    views, cal, cal_name = load_views(raw, calib)
-    ref = check_reference(reference, cal.num_views)
     out = Path(outdir)
     stem = Path(raw).stem
     paths = {k: out / f"{stem}_{k}" for k in ("depth.tiff", "depth.pfm", "confidence.tiff", "depth_preview.png", "points.ply", "depth.json")}
     check_writable(paths.values(), overwrite=overwrite)
+    views, cal, cal_name = load_views(raw, calib, levels, check=not no_check)
+    ref = check_reference(reference, cal.num_views)
     res = estimate_depth(views, cal, zmin_m=zmin, zmax_m=zmax, num_planes=planes, reference=ref, cost=cost,
                          aggregation=aggregation, backend=backend, device=device)
     out.mkdir(parents=True, exist_ok=True)

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from lfring.cli._options import load_views
+from lfring.cli._options import check_option, load_views, raw_options
 
 log = logging.getLogger("lfring.cli.inspect")
 
@@ -72,9 +72,11 @@ def _read_depth(path: str):
 @click.option("--device-file", "device_name", default=None, metavar="NAME|FILE",
               help="Device description for areas in mm^2 (default: the calibration's, else prototype).")
 @click.option("--overwrite", is_flag=True, help="Replace existing output files.")
+@raw_options
+@check_option
 @click.pass_context
 def command(ctx, raw, plane, tolerance, outdir, calib, roi, reference_depth, min_area, min_confidence, zmin, zmax, reference,
-            backend, device_name, overwrite):
+            backend, device_name, overwrite, levels, no_check):
     """Check that the part in RAW lies on the working plane within the tolerance.
 
     Writes DIR/<name>_inspect.png (refocused at the plane, the plane tinted green, defect boxes:
@@ -88,7 +90,7 @@ def command(ctx, raw, plane, tolerance, outdir, calib, roi, reference_depth, min
     from lfring.io.writers import check_writable, write_image, write_json
     from lfring.optics.device import load_device
 
-    views, cal, cal_name = load_views(raw, calib)
+    views, cal, cal_name = load_views(raw, calib, levels, check=not no_check)
     ref = check_reference(reference, cal.num_views)
     out = Path(outdir)
     stem = Path(raw).stem
