@@ -112,75 +112,16 @@ def check_option(fn):
                         help="Process frames that do not look like ring frames for the calibration (see lfring check).")(fn)
 
 
-LOW_PEAK_FRACTION = 1 / 16
-"""A frame whose brightest count is below this fraction of its white level gets a warning: its
-data likely has fewer bits than its container (10-bit counts in a 16-bit PNG read as 1/64 of
-full scale)."""
-
-
 def read_frame(raw: str, levels: RawLevels | None = None, calibration=None):
     """Load a raw frame: options first, then its sidecar or metadata, then the calibration's
-    pattern and levels (said at info level), then defaults (said at warning level).
+    pattern and levels (said at info level), then defaults (said at warning level); see
+    :func:`lfring.io.levels.load_frame`."""
+    from lfring.io.levels import load_frame
 
-    Returns the RawFrame; warns when its levels are assumed or its data look like fewer bits
-    than its white level says.
-    """
-    from lfring.io.raw import RAW_SUFFIXES, load_raw, sidecar_path
-
-    levels = levels or RawLevels()
-    given = levels.as_kwargs()
-    p = Path(raw)
-    from_file: set = set()
-    is_camera_raw = p.suffix.lower() in RAW_SUFFIXES
-    if not is_camera_raw:
-        side = sidecar_path(p)
-        if side.is_file():
-            import json
-
-            try:
-                content = json.loads(side.read_text(encoding="utf-8"))
-            except (OSError, ValueError):
-                content = {}  # load_raw reports a broken sidecar by name
-            if isinstance(content, dict):
-                from_file = {k for k in ("pattern", "black_level", "white_level") if content.get(k) is not None}
+    frame, notes = load_frame(raw, **(levels or RawLevels()).as_kwargs(), calibration=calibration)
     log = logging.getLogger("lfring.cli")
-    from_cal = {}
-    if calibration is not None and not is_camera_raw:
-        cal_values = {"pattern": calibration.pattern, "black_level": getattr(calibration, "black_level", None),
-                      "white_level": getattr(calibration, "white_level", None)}
-        for k, v in cal_values.items():
-            if given[k] is None and k not in from_file and v is not None:
-                from_cal[k] = v
-    overrides = {**given, **from_cal}
-    try:
-        frame = load_raw(raw, **overrides)
-    except InvalidInputError as exc:
-        if from_cal.get("pattern") and "Bayer pattern" in str(exc) and "already RGB" in str(exc):
-            # An RGB frame: the calibration's pattern does not apply to it.
-            from_cal.pop("pattern")
-            overrides["pattern"] = given["pattern"]
-            frame = load_raw(raw, **overrides)
-        else:
-            raise
-    if from_cal:
-        log.info("%s has no %s of its own: using the calibration's (%s)", raw, " or ".join(k.replace("_", " ") for k in from_cal),
-                 ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in from_cal.items()))
-    if not is_camera_raw:
-        assumed = [k for k in ("black_level", "white_level") if given[k] is None and k not in from_file and k not in from_cal]
-        raw_data = frame.mosaic is not None or frame.bit_depth > 8
-        if assumed and raw_data:
-            what = {"black_level": f"black {frame.black_level:g}", "white_level": f"white {frame.white_level:g}"}
-            log.warning("%s: levels assumed (%s): no %s in a sidecar, the options or the calibration; pass %s "
-                        "(or write them in %s) if the frame looks too dark or too bright", raw,
-                        ", ".join(what[k] for k in assumed), " or ".join(k.replace("_", " ") for k in assumed),
-                        " and ".join("--" + k.replace("_", "-") for k in assumed), sidecar_path(p).name)
-    data = frame.mosaic if frame.mosaic is not None else frame.image
-    peak = int(data.max()) if data.size else 0
-    if given["white_level"] is None and peak < LOW_PEAK_FRACTION * frame.white_level:
-        bits = max(1, int(peak).bit_length())
-        log.warning("%s: the brightest count is %d, far below the white level %g: if the data have fewer bits than "
-                    "the file (e.g. %d-bit counts in a %d-bit file), pass --white-level %d", raw, peak, frame.white_level,
-                    bits, data.dtype.itemsize * 8, 2 ** bits - 1)
+    for level, message in notes:
+        log.log(level, "%s", message)
     return frame
 
 

@@ -6,7 +6,7 @@ import logging
 
 import click
 
-from lfring.cli._options import parse_depths
+from lfring.cli._options import check_option, parse_depths, raw_options
 
 log = logging.getLogger("lfring.cli.batch")
 
@@ -37,15 +37,20 @@ log = logging.getLogger("lfring.cli.batch")
 @click.option("--exclude", multiple=True, metavar="GLOB", help="Leave out files matching this pattern (repeatable).")
 @click.option("--progress/--no-progress", default=None, help="Progress bar (default: when stderr is a terminal).")
 @click.option("--overwrite", is_flag=True, help="Redo frames already done and replace existing files.")
+@raw_options
+@check_option
 @click.pass_context
 def command(ctx, inputs, outdir, calib, refocus_m, depth_map, zmin, zmax, planes, aif, reference, interpolation,
-            bit_depth, encoding, workers, executor, scheduler, exclude, progress, overwrite):
+            bit_depth, encoding, workers, executor, scheduler, exclude, progress, overwrite, levels, no_check):
     """Process every frame of INPUT... (files, folders searched recursively, glob patterns).
 
     Each frame gets its outputs in OUTDIR (refocused images NAME_refocus_<Z>m.png, depth maps
     NAME_depth.tiff with NAME_confidence.tiff and NAME_depth_preview.png, NAME_all_in_focus.png)
     and a record NAME.lfring.json; OUTDIR/manifest.jsonl gets a line per frame. Frames already
-    done with the same settings are skipped; a bad frame is reported by name and the rest go on.
+    done with the same settings are skipped, and a rerun that adds an output (another --refocus
+    depth, --depth) computes only what is missing; a bad frame is reported by name and the rest
+    go on. Folder walks leave out files that are not frames (sidecars, *_truth/ folders, images
+    of a size no calibration fits): one line says how many, -v lists them.
     Exit code: 0 all frames done or skipped, 1 some failed, 2 bad usage.
     """
     from lfring.batch import BatchSettings, run_batch
@@ -71,11 +76,14 @@ def command(ctx, inputs, outdir, calib, refocus_m, depth_map, zmin, zmax, planes
         ref = check_reference(reference, 4)
     settings = BatchSettings(refocus_m=zs, depth=depth_map, zmin_m=zmin, zmax_m=zmax, all_in_focus=aif, calibration=cal,
                              calibration_name=cal_name, reference=ref, interpolation=interpolation, bit_depth=int(bit_depth),
-                             encoding=encoding, planes=planes)
+                             encoding=encoding, planes=planes, check_frames=not no_check, **levels.as_kwargs())
     report = run_batch(list(inputs), outdir, settings, workers=workers, executor=executor, scheduler=scheduler,
                        overwrite=overwrite, exclude=exclude, progress=progress)
-    for path in report.failed:
-        click.echo(f"failed: {path}: {report.errors[path]}", err=True)
-    click.echo(report.summary())
+    # Each failure was logged once as it happened (lfring.batch); the summary counts them.
+    verbose = ctx.find_root().params.get("verbose", 0)
+    if report.not_frames and verbose:
+        for path, why in report.not_frames:
+            click.echo(f"not a frame: {path}: {why}", err=True)
+    click.echo(report.summary() + ("" if not report.not_frames or verbose else " (-v lists them)"))
     if report.exit_code:
         ctx.exit(report.exit_code)
