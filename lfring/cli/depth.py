@@ -67,6 +67,8 @@ def command(raw, zmin, zmax, outdir, calib, planes, reference, cost, aggregation
     # The point cloud needs the optics: the calibration's device, else the prototype, binned to
     # the frame's size when that matches.
     n_points = 0
+    if not (device_name or cal.device):
+        log.info("the calibration names no device and no --device-file was given: the point cloud uses the prototype's optics")
     dev = load_device(device_name or cal.device or "prototype")
     scale = dev.sensor_width_px // cal.raw_size[0]
     dev = dev.binned(scale) if scale > 1 else dev
