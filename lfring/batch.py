@@ -204,6 +204,15 @@ class BatchSettings:
             d["calibration_sha256"] = hashlib.sha256(blob).hexdigest()
         return d
 
+    def legacy_key(self) -> str | None:
+        """:meth:`key` as lfring computed it before raw levels and the frame check were settings
+        (records of that time carry it), or None when those settings are not at their defaults."""
+        new = ("pattern", "black_level", "white_level", "check_frames")
+        if any(getattr(self, n) is not None for n in new[:3]) or not self.check_frames:
+            return None
+        d = {k: v for k, v in self.describe().items() if k not in new}
+        return hashlib.sha256(json.dumps(d, sort_keys=True, default=json_default).encode()).hexdigest()[:16]
+
     def key(self) -> str:
         """A short hash of everything that changes the outputs (computed once per instance)."""
         k = self.__dict__.get("_key")
@@ -811,7 +820,7 @@ def decide_resume(planned: dict[str, str], planned_keys: dict[str, str], record:
         A file stands where the record goes (even one that is not a record).
     overwrite : bool
     settings_key : str
-        :meth:`BatchSettings.key`, for records written before per-output keys.
+        :meth:`BatchSettings.legacy_key`, for records written before per-output keys.
 
     Returns
     -------
@@ -957,7 +966,7 @@ def _decide_jobs(run: _Run, jobs: Sequence[BatchJob], overwrite: bool) -> list[B
             continue
         existing = {rel for rel in outs.values() if (run.out / rel).exists()}
         d = decide_resume(outs, planned_keys, rec, ident, existing, record_exists=rec_path.exists(), overwrite=overwrite,
-                          settings_key=run.settings.key())
+                          settings_key=run.settings.legacy_key() or "")
         if d.action == "refuse":
             run.fail(job, d.reason)
             continue

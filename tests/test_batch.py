@@ -427,3 +427,10 @@ def test_scan_inputs_leaves_out_what_is_not_a_frame(tmp_path):
                        "small.png": "6 x 4 px, a size no calibration fits", "map.tiff": "float samples (a map, not raw counts)"}
     # A file named explicitly is always taken.
     assert [Path(j.input).name for j in scan_inputs([str(root / "small.png")], frame_sizes={(10, 8)})[0]] == ["small.png"]
+
+
+def test_legacy_key_is_the_key_of_records_before_output_keys():
+    # 6e76e9ced5695793 is what BatchSettings(refocus_m=(0.5,)).key() returned before per-output
+    # keys (commit 188722c): folders made then resume instead of being refused.
+    assert BatchSettings(refocus_m=(0.5,)).legacy_key() == "6e76e9ced5695793"
+    assert BatchSettings(refocus_m=(0.5,), pattern="RGGB").legacy_key() is None
