@@ -4,13 +4,15 @@ A frame of the ring camera holds four views of one scene: warped into the refere
 the depth of the scene they agree. An ordinary photograph at the sensor's size, a frame of
 another camera or binning, or a frame read with the wrong layout has four unrelated quadrants
 that agree at no depth. :func:`check_frame` measures that agreement on downsampled views at a
-few depths (about a tenth of the time of one refocus), with the frame's exposure and how well
-the layout's discs fit its light.
+few depths, with the frame's exposure and how well the layout's discs fit its light. On the
+binned twin it takes 0.10-0.15 s, about one refocus at one depth (0.08-0.13 s) and a third of
+reading and demosaicing the frame (0.3-0.5 s); measured under a load average of 7 on 2 cores.
 """
 
 from __future__ import annotations
 
 import warnings
+import weakref
 from dataclasses import dataclass, field
 
 import cv2
@@ -25,11 +27,11 @@ AGREEMENT_THRESHOLD = 0.3
 luminance, warped at the best of the depths tried) of a frame that is taken as a ring frame.
 
 Measured with the built-in calibration (tests/test_check.py asserts these): the bundled frames
-of the twin score 0.72 (target_0.3m), 0.77 (scene), 0.79 (part_good, part_defects), 0.91
+of the twin score 0.72 (target_0.3m), 0.76 (scene), 0.80 (part_good, part_defects), 0.91
 (target_1m) and 0.96 (target_0.5m); ordinary RGB photographs scaled to the sensor's size
-(scikit-image's astronaut, coffee and chelsea) -0.013 to -0.005, the untextured flat frame
--0.05; the scene with its views in the wrong places (left and right or top and bottom
-exchanged, or transposed) -0.01 to 0.04, and with every view turned by 180 degrees 0.014.
+(scikit-image's astronaut, coffee and chelsea) -0.021 to -0.004, the untextured flat frame
+-0.04; the scene with its views in the wrong places (left and right or top and bottom
+exchanged, or transposed) -0.02 to 0.04, and with every view turned by 180 degrees 0.015.
 0.3 lies 2.4x below the lowest ring frame and 7.5x above the highest of the others. (A whole
 frame turned by 180 degrees scores as the upright one on the twin: its ring is symmetric, so the
 turned views agree as well and refocus to the turned image.)"""
@@ -145,6 +147,41 @@ def _agreement(hp: np.ndarray, masks: np.ndarray, h_small: np.ndarray) -> float:
     return float(c[iu].min())
 
 
+def _discs(layout, f: int) -> np.ndarray:
+    """(V, h // f, w // f) bool: pixels inside each view's valid disc (all True without discs)."""
+    h, w = layout.view_shape
+    hs, ws = h // f, w // f
+    if layout.circles is None:
+        return np.ones((layout.num_views, hs, ws), bool)
+    yy, xx = np.mgrid[0:hs, 0:ws].astype(np.float32)
+    yy, xx = (yy + 0.5) * f - 0.5, (xx + 0.5) * f - 0.5  # centres of the reduced pixels, in view pixels
+    return np.stack([(xx - cx) ** 2 + (yy - cy) ** 2 <= r * r for cx, cy, r in layout.circles])
+
+
+def _soft_discs(layout, f: int) -> np.ndarray:
+    """Reduced valid weights: the discs shrunk by the taper of :func:`lfring.refocus.view_masks`
+    (its weight is 1 only there), as float32."""
+    from lfring.refocus import TAPER
+
+    if layout.circles is None:
+        return _discs(layout, f).astype(np.float32)
+    shrunk = type(layout)(raw_width_px=layout.raw_width_px, raw_height_px=layout.raw_height_px, rects=layout.rects,
+                          rotate180=layout.rotate180,
+                          circles=tuple((cx, cy, r * (1 - TAPER)) for cx, cy, r in layout.circles))
+    return _discs(shrunk, f).astype(np.float32)
+
+
+_NEAREST: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+
+
+def _nearest_overlap(calibration) -> float:
+    """The calibration's nearest overlap depth, computed once per calibration object."""
+    z = _NEAREST.get(calibration)
+    if z is None:
+        z = _NEAREST[calibration] = calibration.overlap_depth_range()[0]
+    return z
+
+
 def check_frame(frame, calibration, *, threshold: float = AGREEMENT_THRESHOLD, downsample: int = CHECK_DOWNSAMPLE) -> FrameCheck:
     """Check that ``frame`` is a ring frame of the camera ``calibration`` describes.
 
@@ -174,7 +211,7 @@ def check_frame(frame, calibration, *, threshold: float = AGREEMENT_THRESHOLD, d
     depth (no nearer than where the views stop overlapping) to twice its farthest, about
     ``downsample`` pixels of view motion apart: 7 depths for the built-in calibration.
     """
-    from lfring.refocus import depth_hypotheses, view_masks
+    from lfring.refocus import depth_hypotheses
     from lfring.views import split_views
 
     if isinstance(downsample, bool) or not isinstance(downsample, int) or downsample < 1:
@@ -192,8 +229,7 @@ def check_frame(frame, calibration, *, threshold: float = AGREEMENT_THRESHOLD, d
                                     f"{layout.view_shape[1]} x {layout.view_shape[0]} px views")
         size = calibration.raw_size
         lum = _luminance(views)
-    masks_full = view_masks(calibration, layout.view_shape)
-    inside = masks_full > 0.5
+    inside = layout.masks()
     n_in = int(np.count_nonzero(inside))
     clipped = np.count_nonzero((lum >= CLIPPED_LEVEL) & inside) / n_in if n_in else float("nan")
     dark = np.count_nonzero((lum <= DARK_LEVEL) & inside) / n_in if n_in else float("nan")
@@ -210,11 +246,11 @@ def check_frame(frame, calibration, *, threshold: float = AGREEMENT_THRESHOLD, d
     h, w = layout.view_shape
     small = _small(lum, f)
     hp = np.stack([s - cv2.GaussianBlur(s, (0, 0), _HIGHPASS_SIGMA_PX) for s in small]).astype(np.float32)
-    masks = np.stack([cv2.resize(m, (w // f, h // f), interpolation=cv2.INTER_AREA) for m in masks_full])
+    masks = _soft_discs(layout, f)
     scale = np.diag([(w // f) / w, (h // f) / h, 1.0])
     lo, hi = calibration.valid_depth_range_m
     hi = 4 * lo if hi is None else hi
-    nearest, _ = calibration.overlap_depth_range()
+    nearest = _nearest_overlap(calibration)
     zmin = max(lo / 2, nearest * 1.2)
     zmax = max(hi * 2, zmin * 1.5)
     with warnings.catch_warnings():
