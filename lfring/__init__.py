@@ -1,7 +1,7 @@
 """lfring: light-field processing for a camera fitted with a ring of four mini-lenses.
 
 The pipeline: ``load_raw`` -> ``demosaic`` -> ``detect_layout`` / ``split_views`` -> views
-(V, h, w, C) -> ``calibrate`` / ``RingCalibration`` -> ``refocus`` / ``estimate_depth`` -> ``inspect_frame`` /
+(V, h, w, C) -> ``calibrate`` / ``RingCalibration`` -> ``check_frame`` -> ``refocus`` / ``estimate_depth`` -> ``inspect_frame`` /
 :mod:`lfring.batch`. The optics (device design, ray tracing, the views' exact geometry) live in
 :mod:`lfring.optics`, the synthetic twin in :mod:`lfring.synth`.
 
@@ -18,6 +18,7 @@ from lfring.errors import (
     LfringFileNotFoundError,
 )
 from lfring.calibration import RingCalibration, calibrate
+from lfring.check import FrameCheck, check_frame
 from lfring.depth import DepthResult, estimate_depth
 from lfring.io.demosaic import demosaic
 from lfring.inspect import Defect, InspectionResult, inspect_frame
@@ -34,6 +35,7 @@ __all__ = [
     "DeviceError",
     "EstimationError",
     "FileFormatError",
+    "FrameCheck",
     "InspectionResult",
     "InvalidInputError",
     "Layout",
@@ -45,6 +47,7 @@ __all__ = [
     "__version__",
     "all_in_focus",
     "calibrate",
+    "check_frame",
     "demosaic",
     "detect_layout",
     "estimate_depth",

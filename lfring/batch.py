@@ -32,6 +32,7 @@ import shutil
 import socket
 import tempfile
 import time
+import warnings
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass, field, fields
@@ -39,7 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lfring.errors import InvalidInputError, LfringError
+from lfring.errors import InvalidInputError, LfringError, LfringWarning
 from lfring.io.atomic import atomic_write_bytes
 from lfring.io.writers import json_default
 
@@ -49,7 +50,11 @@ __all__ = [
     "BatchReport",
     "BatchSettings",
     "FrameResult",
+    "ResumeDecision",
+    "decide_resume",
     "find_inputs",
+    "frame_size",
+    "scan_inputs",
     "plan_jobs",
     "process_frame",
     "read_manifest",
@@ -97,11 +102,19 @@ class BatchSettings:
     encoding : {'srgb', 'linear'}
     planes : int, optional
         Number of depth hypotheses (default: at most 1 px of view motion apart).
+    depth_method : {'sgm', 'local'}
+        ``method`` of :func:`lfring.estimate_depth` for the depth maps.
     min_confidence : float
         Depth preview: pixels below it are black.
     viewer : bool
         Also write an interactive HTML viewer (:mod:`lfring.viewer`), its depth range
         ``zmin_m``..``zmax_m`` or the calibrated range.
+    pattern, black_level, white_level : optional
+        Bayer pattern and levels in counts for frames that lack them (they win over sidecars;
+        see :func:`lfring.io.levels.load_frame`).
+    check_frames : bool
+        Refuse frames that do not look like ring frames for the calibration
+        (:func:`lfring.check.check_frame`).
     """
 
     refocus_m: tuple[float, ...] = ()
@@ -116,8 +129,13 @@ class BatchSettings:
     bit_depth: int = 8
     encoding: str = "srgb"
     planes: int | None = None
+    depth_method: str = "sgm"
     min_confidence: float = 0.5
     viewer: bool = False
+    pattern: str | None = None
+    black_level: object = None
+    white_level: float | None = None
+    check_frames: bool = True
 
     def __post_init__(self):
         zs = tuple(float(z) for z in self.refocus_m)
@@ -146,6 +164,8 @@ class BatchSettings:
             raise InvalidInputError(f"encoding must be 'srgb' or 'linear', got {self.encoding!r}")
         if self.planes is not None and (isinstance(self.planes, bool) or not isinstance(self.planes, int) or self.planes < 2):
             raise InvalidInputError(f"planes must be an integer >= 2, got {self.planes!r}")
+        if self.depth_method not in ("sgm", "local"):
+            raise InvalidInputError(f"depth_method must be 'sgm' or 'local', got {self.depth_method!r}")
         if not (0.0 <= self.min_confidence <= 1.0):
             raise InvalidInputError(f"min_confidence must lie in [0, 1], got {self.min_confidence!r}")
 
@@ -162,17 +182,53 @@ class BatchSettings:
             out["viewer"] = f"{stem}_viewer.html"
         return out
 
+    def output_keys(self) -> dict[str, str]:
+        """Kind -> a short hash of every setting that changes that output: a rerun that adds an
+        output (another refocus depth, a depth map) recomputes only the outputs whose key is new."""
+        d = self.describe()
+        common = {k: d[k] for k in ("calibration_name", "calibration_sha256", "reference", "bit_depth", "encoding", "pattern",
+                                    "black_level", "white_level")}
+        depth_part = {k: d[k] for k in ("zmin_m", "zmax_m", "planes", "min_confidence", "depth_method")}
+
+        def h(obj) -> str:
+            return hashlib.sha256(json.dumps(obj, sort_keys=True, default=json_default).encode()).hexdigest()[:16]
+
+        keys = {f"refocus_{z:g}m": h({**common, "refocus_m": z, "interpolation": self.interpolation}) for z in self.refocus_m}
+        if self.all_in_focus:
+            source = ({"depth": depth_part} if self.depth
+                      else {"depths_m": list(self.refocus_m)} if len(self.refocus_m) > 1 else {"depths_m": "calibrated range"})
+            keys["all_in_focus"] = h({**common, "all_in_focus": source})
+        if self.depth:
+            for kind in ("depth", "confidence", "depth_preview"):
+                keys[kind] = h({**common, **depth_part, "kind": kind})
+        if self.viewer:
+            keys["viewer"] = h({**common, **depth_part, "kind": "viewer", "depth": self.depth})
+        return keys
+
     def describe(self) -> dict:
         """The settings as JSON-ready values (the calibration by name and content hash)."""
         d = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "calibration"}
         d["refocus_m"] = list(self.refocus_m)
         if not self.viewer:  # keeps the keys of folders made before the viewer existed
             del d["viewer"]
+        if isinstance(self.black_level, tuple):
+            d["black_level"] = list(self.black_level)
         d["calibration_sha256"] = None
         if self.calibration is not None:
             blob = json.dumps(self.calibration.to_dict(), sort_keys=True, default=json_default).encode()
             d["calibration_sha256"] = hashlib.sha256(blob).hexdigest()
         return d
+
+    def legacy_key(self) -> str | None:
+        """:meth:`key` as lfring computed it before raw levels and the frame check were settings
+        (records of that time carry it), or None when those settings are not at their defaults."""
+        new = ("pattern", "black_level", "white_level", "check_frames", "depth_method")
+        if any(getattr(self, n) is not None for n in new[:3]) or not self.check_frames:
+            return None
+        if self.depth and self.depth_method != "local":  # that version's depth maps came from the local sweep
+            return None
+        d = {k: v for k, v in self.describe().items() if k not in new}
+        return hashlib.sha256(json.dumps(d, sort_keys=True, default=json_default).encode()).hexdigest()[:16]
 
     def key(self) -> str:
         """A short hash of everything that changes the outputs (computed once per instance)."""
@@ -202,6 +258,64 @@ def _is_under(path: Path, folder: Path) -> bool:
 
 
 def find_inputs(inputs: Sequence[str], *, outdir: str | Path | None = None, exclude: Sequence[str] = ()) -> list[BatchJob]:
+    """Expand files, folders (recursively) and glob patterns into jobs; see :func:`scan_inputs`
+    (this keeps every file with a frame suffix)."""
+    return scan_inputs(inputs, outdir=outdir, exclude=exclude)[0]
+
+
+TRUTH_SUFFIX = "_truth"
+"""Folders whose name ends so hold a frame's ground truth (the synthetic twin writes them): never
+frames."""
+
+
+def frame_size(path: str | Path) -> tuple[int, int] | None:
+    """(width, height) of a PNG or TIFF read from its header (no pixels), None when it cannot
+    be told cheaply (camera RAW, unreadable files: the frame's own error says why later) or the
+    file holds float samples (a map, not raw counts: size (0, 0))."""
+    p = Path(path)
+    suffix = p.suffix.lower()
+    try:
+        if suffix == ".png":
+            with open(p, "rb") as f:
+                head = f.read(24)
+            if len(head) == 24 and head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR":
+                return int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
+            return None
+        if suffix in (".tif", ".tiff"):
+            import tifffile
+
+            with tifffile.TiffFile(p) as tf:
+                page = tf.pages[0]
+                if np.dtype(page.dtype).kind == "f":
+                    return (0, 0)
+                return int(page.imagewidth), int(page.imagelength)
+    except Exception:  # noqa: BLE001 - any unreadable header: not decided here
+        return None
+    return None
+
+
+def scan_inputs(inputs: Sequence[str], *, outdir: str | Path | None = None, exclude: Sequence[str] = (),
+                frame_sizes=None) -> tuple[list[BatchJob], list[tuple[str, str]]]:
+    """Expand files, folders (recursively) and glob patterns into jobs, and list the files of
+    folders that are not frames.
+
+    Folder walks leave out, besides hidden files and suffixes that are not frames, ground-truth
+    folders (``*_truth/``) and, when ``frame_sizes`` (a collection of (width, height)) is given,
+    PNG/TIFF files whose header says another size or float samples. Files named explicitly or
+    matched by a glob are always taken.
+
+    Returns
+    -------
+    jobs : list of BatchJob
+    skipped : list of (path, reason)
+    """
+    skipped: list[tuple[str, str]] = []
+    sizes = None if frame_sizes is None else {tuple(s) for s in frame_sizes}
+    jobs = _expand_inputs(inputs, outdir=outdir, exclude=exclude, skipped=skipped, sizes=sizes)
+    return jobs, skipped
+
+
+def _expand_inputs(inputs, *, outdir, exclude, skipped, sizes) -> list[BatchJob]:
     """Expand files, folders (recursively) and glob patterns into jobs.
 
     Folders yield the files with a raw-frame suffix (camera RAW, PNG, TIFF), hidden files and
@@ -236,12 +350,27 @@ def find_inputs(inputs: Sequence[str], *, outdir: str | Path | None = None, excl
         if p.is_dir():
             n0 = len(found)
             for root, dirs, files in os.walk(p):
-                dirs[:] = sorted(d for d in dirs if not d.startswith(".") and keep(Path(root, d)))
+                for d in sorted(dirs):
+                    if d.endswith(TRUTH_SUFFIX) and not d.startswith("."):
+                        skipped.append((str(Path(root, d)) + os.sep, "a ground-truth folder"))
+                dirs[:] = sorted(d for d in dirs if not d.startswith(".") and not d.endswith(TRUTH_SUFFIX) and keep(Path(root, d)))
                 for name in sorted(files):
                     f = Path(root, name)
                     rel = f.relative_to(p).as_posix()
-                    if name.startswith(".") or f.suffix.lower() not in suffixes or excluded(rel) or not keep(f):
+                    if name.startswith(".") or excluded(rel) or not keep(f):
                         continue
+                    if f.suffix.lower() not in suffixes:
+                        if f.suffix.lower() == ".json":
+                            skipped.append((str(f), "a sidecar or record (JSON)"))
+                        continue
+                    if sizes is not None:
+                        size = frame_size(f)
+                        if size == (0, 0):
+                            skipped.append((str(f), "float samples (a map, not raw counts)"))
+                            continue
+                        if size is not None and size not in sizes:
+                            skipped.append((str(f), f"{size[0]} x {size[1]} px, a size no calibration fits"))
+                            continue
                     found.append((f, rel))
             if len(found) == n0:
                 log.warning("%s: no frames found (suffixes %s)", arg, ", ".join(sorted(suffixes)))
@@ -342,7 +471,7 @@ def process_frame(input_path: str, settings: BatchSettings, outputs: dict[str, s
     :meth:`BatchSettings.outputs` to the encoded file's bytes; on failure ``ok`` is False and
     ``error`` says why in one line.
     """
-    import warnings
+
 
     t_start = time.perf_counter()
     timings: dict[str, float] = {}
@@ -372,16 +501,26 @@ def process_frame(input_path: str, settings: BatchSettings, outputs: dict[str, s
 
 def _process(input_path, settings: BatchSettings, outputs, timings) -> tuple[dict[str, bytes], dict]:
     from lfring.io.demosaic import demosaic
-    from lfring.io.raw import load_raw
-    from lfring.io.writers import encode_image, write_image
+    from lfring.io.levels import load_frame
+    from lfring.io.writers import encode_file, encode_float_tiff, encode_image
     from lfring.focus import all_in_focus
     from lfring.views import split_views
 
     t = time.perf_counter()
-    frame = load_raw(input_path)
+    frame, notes = load_frame(input_path, pattern=settings.pattern, black_level=settings.black_level,
+                              white_level=settings.white_level, calibration=settings.calibration)
+    for level, message in notes:
+        if level >= logging.WARNING:
+            warnings.warn(message, LfringWarning, stacklevel=2)
     image = demosaic(frame)
     cal, cal_name = _worker_calibration(settings, (image.shape[1], image.shape[0]))
     cal.check_frame(image.shape, what=f"frame {input_path}")
+    if settings.check_frames:
+        from lfring.check import check_frame
+
+        checked = check_frame(image, cal)
+        if not checked.ok:
+            raise InvalidInputError(f"{input_path}: {checked.message}")
     views = split_views(image, cal.layout)
     if not np.all(np.isfinite(views)):
         raise InvalidInputError(f"{input_path}: the frame holds NaN or infinite values")
@@ -391,17 +530,19 @@ def _process(input_path, settings: BatchSettings, outputs, timings) -> tuple[dic
 
     t = time.perf_counter()
     for z in settings.refocus_m:
+        if f"refocus_{z:g}m" not in outputs:
+            continue
         r = _refocuser(cal, cal_name, z, settings, views.shape[1:3])
         arrays[f"refocus_{z:g}m"] = r(views)
     timings["refocus"] = time.perf_counter() - t
 
     depth_res = None
-    if settings.depth:
+    if settings.depth and ({"depth", "confidence", "depth_preview"} & set(outputs) or "all_in_focus" in outputs):
         from lfring.depth import estimate_depth
 
         t = time.perf_counter()
         depth_res = estimate_depth(views, cal, zmin_m=settings.zmin_m, zmax_m=settings.zmax_m, num_planes=settings.planes,
-                                   reference=settings.reference)
+                                   reference=settings.reference, method=settings.depth_method)
         timings["depth"] = time.perf_counter() - t
         info["depth_hypotheses"] = len(depth_res.depths_m)
         info["depth_step_px"] = float(depth_res.step_px)
@@ -410,7 +551,7 @@ def _process(input_path, settings: BatchSettings, outputs, timings) -> tuple[dic
         if ok.any():
             info["depth_median_m"] = float(np.median(depth_res.depth_m[ok]))
 
-    if settings.all_in_focus:
+    if "all_in_focus" in outputs:
         t = time.perf_counter()
         if depth_res is not None:
             zs = depth_res.depths_m
@@ -421,27 +562,19 @@ def _process(input_path, settings: BatchSettings, outputs, timings) -> tuple[dic
         arrays["all_in_focus"] = img
         timings["all_in_focus"] = time.perf_counter() - t
 
-    # Encode through the library's writers into a private folder, then hand back bytes: the
-    # caller (maybe on another machine) does the only writes into OUTDIR.
+    # Encode in memory and hand back bytes: the caller (maybe on another machine) does the only
+    # writes into OUTDIR.
     t = time.perf_counter()
     files: dict[str, bytes] = {}
-    with tempfile.TemporaryDirectory(prefix="lfring-batch-") as tmp:
-        for kind, img in arrays.items():
-            p = Path(tmp, kind + Path(outputs[kind]).suffix)
-            write_image(p, encode_image(img, settings.bit_depth, settings.encoding))
-            files[kind] = p.read_bytes()
-        if depth_res is not None:
-            from lfring.depth.io import write_depth_preview, write_depth_tiff
-            from lfring.io.writers import write_float_tiff
-
-            paths = {k: Path(tmp, k + Path(outputs[k]).suffix) for k in ("depth", "confidence", "depth_preview")}
-            write_depth_tiff(paths["depth"], depth_res.depth_m)
-            write_float_tiff(paths["confidence"], depth_res.confidence)
-            write_depth_preview(paths["depth_preview"], depth_res.depth_m, confidence=depth_res.confidence,
-                                zmin_m=settings.zmin_m, zmax_m=settings.zmax_m, title=f"{Path(input_path).name}: depth (m)",
-                                min_confidence=settings.min_confidence)
-            for k, p in paths.items():
-                files[k] = p.read_bytes()
+    for kind, img in arrays.items():
+        files[kind] = encode_file(encode_image(img, settings.bit_depth, settings.encoding), Path(outputs[kind]).suffix)
+    if depth_res is not None:
+        if "depth" in outputs:
+            files["depth"] = encode_float_tiff(depth_res.depth_m)
+        if "confidence" in outputs:
+            files["confidence"] = encode_float_tiff(depth_res.confidence)
+        if "depth_preview" in outputs:
+            files["depth_preview"] = _depth_preview_png(depth_res, settings, Path(input_path).name)
     timings["encode"] = time.perf_counter() - t
     if settings.viewer:
         from lfring.viewer import viewer_html
@@ -458,13 +591,26 @@ def _process(input_path, settings: BatchSettings, outputs, timings) -> tuple[dic
     return files, info
 
 
+def _depth_preview_png(depth_res, settings: BatchSettings, name: str) -> bytes:
+    """The depth preview's PNG bytes (lfring.depth.io writes it to a file only: a private
+    temporary folder, never OUTDIR)."""
+    from lfring.depth.io import write_depth_preview
+
+    with tempfile.TemporaryDirectory(prefix="lfring-batch-") as tmp:
+        p = Path(tmp, "depth_preview.png")
+        write_depth_preview(p, depth_res.depth_m, confidence=depth_res.confidence, zmin_m=settings.zmin_m,
+                            zmax_m=settings.zmax_m, title=f"{name}: depth (m)", min_confidence=settings.min_confidence)
+        return p.read_bytes()
+
+
 # -- the run -------------------------------------------------------------------------------------
 @dataclass
 class BatchReport:
     """The outcome of :func:`run_batch`.
 
     ``done``, ``skipped`` and ``failed`` are input paths; ``errors`` maps each failed input to
-    its one-line error; ``elapsed_s`` is the wall time; ``frames_per_s`` counts processed
+    its one-line error; ``not_frames`` lists (path, reason) of files in folder inputs left out
+    because they are not frames; ``elapsed_s`` is the wall time; ``frames_per_s`` counts processed
     (not skipped) frames.
     """
 
@@ -475,6 +621,7 @@ class BatchReport:
     errors: dict[str, str] = field(default_factory=dict)
     elapsed_s: float = 0.0
     manifest: str = ""
+    not_frames: list = field(default_factory=list)
 
     @property
     def ok(self) -> bool:
@@ -492,8 +639,9 @@ class BatchReport:
     def summary(self) -> str:
         n = len(self.done) + len(self.skipped) + len(self.failed)
         rate = f", {self.frames_per_s:.2f} frames/s" if self.done else ""
+        left = f"; {len(self.not_frames)} files that are not frames left out" if self.not_frames else ""
         return (f"{n} frames: {len(self.done)} done, {len(self.skipped)} skipped (already done), "
-                f"{len(self.failed)} failed in {self.elapsed_s:.1f} s{rate}; outputs in {self.outdir}")
+                f"{len(self.failed)} failed in {self.elapsed_s:.1f} s{rate}; outputs in {self.outdir}{left}")
 
 
 def _file_identity(path: str) -> dict:
@@ -668,6 +816,296 @@ def _dask_wait(futures, return_when=FIRST_COMPLETED):
     return res.done, res.not_done
 
 
+@dataclass(frozen=True)
+class ResumeDecision:
+    """What to do with one frame of a run: ``action`` 'run' (compute ``kinds``), 'skip'
+    (everything asked for is done) or 'refuse' (``reason`` says why and how to go on)."""
+
+    action: str
+    kinds: tuple[str, ...] = ()
+    reason: str = ""
+
+
+def decide_resume(planned: dict[str, str], planned_keys: dict[str, str], record: dict | None, identity: dict,
+                  existing: frozenset | set, *, record_exists: bool, overwrite: bool, settings_key: str = "") -> ResumeDecision:
+    """Decide, without touching any file, what a run does with one frame.
+
+    Parameters
+    ----------
+    planned : {kind: relative path}
+        The outputs this run asks for.
+    planned_keys : {kind: key}
+        :meth:`BatchSettings.output_keys` of this run.
+    record : dict or None
+        The frame's record from an earlier run (None: none, or unreadable).
+    identity : dict
+        The input's size and modification time now.
+    existing : set of str
+        Relative paths in OUTDIR that exist.
+    record_exists : bool
+        A file stands where the record goes (even one that is not a record).
+    overwrite : bool
+    settings_key : str
+        :meth:`BatchSettings.legacy_key`, for records written before per-output keys.
+
+    Returns
+    -------
+    ResumeDecision
+        'run' with only the outputs that are missing or made with other settings by a run that
+        was cut short; 'skip' when all are done with these settings on this input; 'refuse'
+        for files this tool did not make, files made with other settings, or a changed input
+        (unless ``overwrite``).
+
+    Examples
+    --------
+    >>> done = {"outputs": {"refocus_0.5m": "a_refocus_0.5m.png"}, "output_keys": {"refocus_0.5m": "k5"},
+    ...         "input_identity": {"size_bytes": 1}, "status": "done"}
+    >>> decide_resume({"refocus_0.5m": "a_refocus_0.5m.png", "refocus_1m": "a_refocus_1m.png"},
+    ...               {"refocus_0.5m": "k5", "refocus_1m": "k1"}, done, {"size_bytes": 1}, {"a_refocus_0.5m.png"},
+    ...               record_exists=True, overwrite=False)
+    ResumeDecision(action='run', kinds=('refocus_1m',), reason='')
+    """
+    kinds = tuple(planned)
+    if overwrite:
+        return ResumeDecision("run", kinds)
+    present = [rel for rel in planned.values() if rel in existing]
+    if record is None:
+        if present or record_exists:
+            what = present[0] if present else "its record"
+            return ResumeDecision("refuse", reason=f"{what} exists and was not made by lfring batch; pass --overwrite to replace it")
+        return ResumeDecision("run", kinds)
+    ours = dict(record.get("outputs") or {})
+    done_keys = dict(record.get("output_keys") or {})
+    pending_keys = dict(record.get("pending_keys") or {})
+    if "output_keys" not in record and record.get("settings_key") == settings_key:
+        # A record from before per-output keys: its outputs were made with one settings key.
+        same = {k: planned_keys[k] for k in ours if k in planned_keys}
+        done_keys, pending_keys = (same, {}) if record.get("status") == "done" else ({}, same)
+    if record.get("input_identity") != identity:
+        if present:
+            return ResumeDecision("refuse", reason=f"outputs exist ({present[0]}...) and the input changed since; "
+                                                   "pass --overwrite to replace them")
+        return ResumeDecision("run", kinds)
+    todo = tuple(k for k in kinds if not (done_keys.get(k) == planned_keys[k] and ours.get(k) == planned[k]
+                                          and planned[k] in existing))
+    if not todo:
+        return ResumeDecision("skip")
+    owner = {rel: k for k, rel in ours.items()}
+    for k in todo:
+        rel = planned[k]
+        if rel not in existing:
+            continue
+        if rel not in owner:
+            return ResumeDecision("refuse", reason=f"{rel} exists and was not made by lfring batch; pass --overwrite to replace it")
+        if pending_keys.get(owner[rel]) != planned_keys[k]:
+            return ResumeDecision("refuse", reason=f"outputs exist ({rel}...) and other settings made them; "
+                                                   "pass --overwrite to replace them")
+        # else: our own run with these settings, cut short: its file may be replaced
+    return ResumeDecision("run", todo)
+
+
+@dataclass
+class _Run:
+    """The state of one run shared by its steps."""
+
+    out: Path
+    settings: BatchSettings
+    plan: dict
+    report: BatchReport
+    run_id: str
+    writer: _Writer
+    on_result: Callable[[dict], None] | None
+    identity: dict = field(default_factory=dict)
+    todo_kinds: dict = field(default_factory=dict)  # input -> kinds computed this run
+    carried: dict = field(default_factory=dict)  # input -> (outputs, output_keys) of earlier runs still valid
+
+    def entry(self, job: BatchJob, status: str, **kw) -> dict:
+        kinds = self.todo_kinds.get(job.input, tuple(self.plan[job.input]))
+        e = {"run": self.run_id, "input": job.input, "status": status,
+             "outputs": [self.plan[job.input][k] for k in kinds], "record": job.stem + RECORD_SUFFIX,
+             "settings_key": self.settings.key(), **kw}
+        _append_manifest(self.out / MANIFEST, e)
+        if self.on_result is not None:
+            self.on_result(e)
+        return e
+
+    def record(self, job: BatchJob, status: str, **extra) -> None:
+        outputs, keys = self.carried.get(job.input, ({}, {}))
+        kinds = self.todo_kinds.get(job.input, tuple(self.plan[job.input]))
+        planned_keys = self.settings.output_keys()
+        new = {k: planned_keys[k] for k in kinds}
+        self.writer.write_json(job.stem + RECORD_SUFFIX, {
+            "lfring_batch_record": RECORD_VERSION, "status": status, "run": self.run_id, "input": job.input,
+            "input_identity": self.identity[job.input], "settings_key": self.settings.key(),
+            "settings": self.settings.describe(), "outputs": {**outputs, **self.plan[job.input]},
+            "output_keys": {**keys, **new} if status == "done" else keys,
+            "pending_keys": {} if status == "done" else new, "lfring_version": _version(), **extra})
+
+    def fail(self, job: BatchJob, error: str, record_it: bool = False, **kw) -> None:
+        self.report.failed.append(job.input)
+        self.report.errors[job.input] = error
+        log.error("%s", error if error.startswith(job.input) else f"{job.input}: {error}")
+        if record_it:  # our pending record becomes a failed one (a rerun tries the frame again)
+            with contextlib.suppress(OSError):
+                self.record(job, "failed", error=error)
+        self.entry(job, "failed", error=error, **kw)
+
+
+def _check_run_args(executor, scheduler, workers, settings, out: Path) -> int:
+    if executor not in EXECUTORS:
+        raise InvalidInputError(f"executor must be one of {', '.join(EXECUTORS)}, got {executor!r}")
+    if scheduler and executor != "dask":
+        raise InvalidInputError("a scheduler address goes with executor='dask' (--executor dask)")
+    if workers is None:
+        workers = os.cpu_count() or 1
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise InvalidInputError(f"workers must be an integer >= 1, got {workers!r}")
+    if not isinstance(settings, BatchSettings):
+        raise InvalidInputError(f"settings must be a BatchSettings, got {type(settings).__name__}")
+    if out.exists() and not out.is_dir():
+        raise InvalidInputError(f"{out} exists and is not a folder")
+    return workers
+
+
+def _frame_sizes(settings: BatchSettings):
+    """Sizes (width, height) a frame may have: the calibration's, or those of the built-in ones."""
+    if settings.calibration is not None:
+        return {tuple(settings.calibration.raw_size)}
+    from lfring.calibration.defaults import builtin_calibrations
+
+    return {tuple(s) for s in builtin_calibrations().values()}
+
+
+def _decide_jobs(run: _Run, jobs: Sequence[BatchJob], overwrite: bool) -> list[BatchJob]:
+    """Apply :func:`decide_resume` to every frame: skipped and refused frames are reported, the
+    rest returned with the outputs each must compute in ``run.todo_kinds``."""
+    planned_keys = run.settings.output_keys()
+    todo: list[BatchJob] = []
+    for job in jobs:
+        outs = run.plan[job.input]
+        rec_path = run.out / (job.stem + RECORD_SUFFIX)
+        rec = _read_record(rec_path)
+        try:
+            ident = run.identity[job.input] = _file_identity(job.input)
+        except OSError as exc:
+            run.fail(job, f"cannot read the input: {exc.strerror or exc}")
+            continue
+        existing = {rel for rel in outs.values() if (run.out / rel).exists()}
+        d = decide_resume(outs, planned_keys, rec, ident, existing, record_exists=rec_path.exists(), overwrite=overwrite,
+                          settings_key=run.settings.legacy_key() or "")
+        if d.action == "refuse":
+            run.fail(job, d.reason)
+            continue
+        if d.action == "skip":
+            run.report.skipped.append(job.input)
+            run.todo_kinds[job.input] = ()
+            run.entry(job, "skipped")
+            continue
+        run.todo_kinds[job.input] = d.kinds
+        if rec is not None and rec.get("input_identity") == ident:
+            keep = {k: v for k, v in (rec.get("output_keys") or {}).items() if k not in d.kinds}
+            run.carried[job.input] = ({k: v for k, v in (rec.get("outputs") or {}).items() if k in keep}, keep)
+        todo.append(job)
+    return todo
+
+
+def _progress(todo, progress):
+    if not todo:
+        return None
+    try:
+        from tqdm import tqdm
+    except ImportError:  # pragma: no cover - tqdm is a dependency
+        return None
+    return tqdm(total=len(todo), unit="frame", desc="lfring batch", disable=(None if progress is None else not progress),
+                dynamic_ncols=True, smoothing=0.1)
+
+
+def _finish(run: _Run, job: BatchJob, res: FrameResult) -> None:
+    """Write a worker's files for one frame, then its record and manifest line."""
+    if not res.ok:
+        run.fail(job, res.error, record_it=True, timings_s=res.timings_s, worker=res.worker)
+        return
+    t_w = time.perf_counter()
+    try:
+        for kind in run.todo_kinds[job.input]:
+            run.writer.write(run.plan[job.input][kind], res.files[kind])
+        run.record(job, "done", info=res.info, timings_s=res.timings_s)
+    except OSError as exc:
+        run.fail(job, f"cannot write its outputs: {exc.strerror or exc}", record_it=True)
+        return
+    res.timings_s["write"] = time.perf_counter() - t_w
+    run.report.done.append(job.input)
+    run.entry(job, "done", timings_s=res.timings_s, worker=res.worker, info=res.info)
+    for w in res.info.get("warnings", []):
+        log.warning("%s: %s", job.input, w)
+
+
+def _execute(run: _Run, todo: list[BatchJob], *, workers: int, executor: str, scheduler, progress) -> None:
+    """Process the frames on the executor, a window of them at a time; a lost local worker's
+    frames are retried once on a fresh pool."""
+    bar = _progress(todo, progress)
+    cluster = client = None
+    pool = None
+    try:
+        if todo:
+            if executor == "dask":
+                client, cluster = _dask_client(workers, scheduler)
+                pool, waiter = _DaskExecutor(client), _dask_wait
+            else:
+                pool, waiter = _local_executor(min(workers, len(todo)))
+        window = max(2, 2 * workers)
+        pending: dict = {}
+        queue = list(todo)
+        retried: set[str] = set()
+
+        def submit(job: BatchJob) -> None:
+            run.record(job, "pending")
+            outputs = {k: run.plan[job.input][k] for k in run.todo_kinds[job.input]}
+            pending[pool.submit(process_frame, job.input, run.settings, outputs)] = job
+
+        while queue or pending:
+            while queue and len(pending) < window:
+                job = queue.pop(0)
+                try:
+                    submit(job)
+                except OSError as exc:
+                    run.fail(job, f"cannot write its record: {exc}")
+            if not pending:
+                continue
+            done_set, _ = waiter(list(pending), return_when=FIRST_COMPLETED)
+            for fut in done_set:
+                job = pending.pop(fut)
+                try:
+                    res: FrameResult = fut.result()
+                except Exception as exc:  # noqa: BLE001 - a worker died (crash, killed): retry once elsewhere
+                    if job.input not in retried and executor == "local" and not isinstance(pool, _InProcess):
+                        retried.add(job.input)
+                        log.warning("%s: worker lost (%s); retrying once", job.input, type(exc).__name__)
+                        pool.shutdown(wait=False, cancel_futures=True)
+                        requeue = [job, *pending.values()]
+                        pending.clear()
+                        pool, waiter = _local_executor(min(workers, len(requeue) + len(queue)))
+                        queue[:0] = requeue
+                        break
+                    run.fail(job, f"the worker processing it was lost: {type(exc).__name__}: {exc}", record_it=True)
+                    if bar is not None:
+                        bar.update(1)
+                    continue
+                _finish(run, job, res)
+                if bar is not None:
+                    bar.update(1)
+                    bar.set_postfix(failed=len(run.report.failed), refresh=False)
+    finally:
+        if bar is not None:
+            bar.close()
+        if pool is not None:
+            pool.shutdown(wait=True, cancel_futures=True)
+        if client is not None:
+            client.close()
+        if cluster is not None:
+            cluster.close()
+
+
 def run_batch(
     inputs: Sequence[str],
     outdir: str | Path,
@@ -720,174 +1158,24 @@ def run_batch(
     can deadlock), so a script that calls this with ``workers > 1`` must do so under
     ``if __name__ == "__main__":``, as with any spawning process pool.
     """
-    if executor not in EXECUTORS:
-        raise InvalidInputError(f"executor must be one of {', '.join(EXECUTORS)}, got {executor!r}")
-    if scheduler and executor != "dask":
-        raise InvalidInputError("a scheduler address goes with executor='dask' (--executor dask)")
-    if workers is None:
-        workers = os.cpu_count() or 1
-    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-        raise InvalidInputError(f"workers must be an integer >= 1, got {workers!r}")
-    if not isinstance(settings, BatchSettings):
-        raise InvalidInputError(f"settings must be a BatchSettings, got {type(settings).__name__}")
     out = Path(outdir)
-    if out.exists() and not out.is_dir():
-        raise InvalidInputError(f"{out} exists and is not a folder")
-    jobs = find_inputs(inputs, outdir=out, exclude=exclude)
+    workers = _check_run_args(executor, scheduler, workers, settings, out)
+    jobs, not_frames = scan_inputs(inputs, outdir=out, exclude=exclude, frame_sizes=_frame_sizes(settings))
     plan = plan_jobs(jobs, settings, out)
     out.mkdir(parents=True, exist_ok=True)
-    key = settings.key()
-    desc = settings.describe()
-    report = BatchReport(str(out), manifest=str(out / MANIFEST))
+    report = BatchReport(str(out), manifest=str(out / MANIFEST), not_frames=not_frames)
     t0 = time.perf_counter()
     run_id = time.strftime("%Y%m%dT%H%M%S") + f"-{os.getpid()}"
-
     with _outdir_lock(out):
         writer = _Writer(out)
         # Temporary files left by a killed run are never outputs; clear them.
         if writer.tmp.exists():
             shutil.rmtree(writer.tmp, ignore_errors=True)
-
-        def entry(job: BatchJob, status: str, **kw) -> dict:
-            e = {"run": run_id, "input": job.input, "status": status, "outputs": list(plan[job.input].values()),
-                 "record": job.stem + RECORD_SUFFIX, "settings_key": key, **kw}
-            _append_manifest(out / MANIFEST, e)
-            if on_result is not None:
-                on_result(e)
-            return e
-
-        # The inputs' size and mtime as planned: a frame changed while it was processed reads as
-        # changed on the next run.
-        identity: dict[str, dict] = {}
-
-        def record(job: BatchJob, status: str, **extra) -> None:
-            writer.write_json(job.stem + RECORD_SUFFIX, {
-                "lfring_batch_record": RECORD_VERSION, "status": status, "run": run_id, "input": job.input,
-                "input_identity": identity[job.input], "settings_key": key, "settings": desc,
-                "outputs": plan[job.input], "lfring_version": _version(), **extra})
-
-        def fail(job: BatchJob, error: str, record_it: bool = False, **kw) -> None:
-            report.failed.append(job.input)
-            report.errors[job.input] = error
-            log.error("%s: %s", job.input, error)
-            if record_it:  # our pending record becomes a failed one (a rerun tries the frame again)
-                with contextlib.suppress(OSError):
-                    record(job, "failed", error=error)
-            entry(job, "failed", error=error, **kw)
-
-        todo: list[BatchJob] = []
-        for job in jobs:
-            outs = plan[job.input]
-            rec_path = out / (job.stem + RECORD_SUFFIX)
-            rec = _read_record(rec_path)
-            try:
-                ident = identity[job.input] = _file_identity(job.input)
-            except OSError as exc:
-                fail(job, f"cannot read the input: {exc.strerror or exc}")
-                continue
-            existing = [rel for rel in outs.values() if (out / rel).exists()]
-            if overwrite:
-                todo.append(job)
-                continue
-            if rec is not None and rec.get("settings_key") == key and rec.get("input_identity") == ident:
-                if rec.get("status") == "done" and not set(outs.values()) - set(existing):
-                    report.skipped.append(job.input)
-                    entry(job, "skipped")
-                    continue
-                todo.append(job)  # our own run, cut short: its files may be replaced
-                continue
-            if rec is not None and existing:
-                why = ("the input changed since" if rec.get("settings_key") == key else "other settings made them")
-                fail(job, f"outputs exist ({existing[0]}...) and {why}; pass --overwrite to replace them")
-                continue
-            if existing or (rec is None and rec_path.exists()):
-                fail(job, f"{existing[0] if existing else rec_path.name} exists and was not made by lfring batch; "
-                          "pass --overwrite to replace it")
-                continue
-            todo.append(job)
-
-        bar = None
-        if todo:
-            try:
-                from tqdm import tqdm
-
-                bar = tqdm(total=len(todo), unit="frame", desc="lfring batch", disable=(None if progress is None else not progress),
-                           dynamic_ncols=True, smoothing=0.1)
-            except ImportError:  # pragma: no cover - tqdm is a dependency
-                bar = None
-
-        cluster = client = None
-        pool = None
+        run = _Run(out, settings, plan, report, run_id, writer, on_result)
         try:
-            if todo:
-                if executor == "dask":
-                    client, cluster = _dask_client(workers, scheduler)
-                    pool, waiter = _DaskExecutor(client), _dask_wait
-                else:
-                    pool, waiter = _local_executor(min(workers, len(todo)))
-            window = max(2, 2 * workers)
-            pending: dict = {}
-            queue = list(todo)
-            retried: set[str] = set()
-
-            def submit(job: BatchJob) -> None:
-                record(job, "pending")
-                pending[pool.submit(process_frame, job.input, settings, plan[job.input])] = job
-
-            while queue or pending:
-                while queue and len(pending) < window:
-                    job = queue.pop(0)
-                    try:
-                        submit(job)
-                    except OSError as exc:
-                        fail(job, f"cannot write its record: {exc}")
-                done_set, _ = waiter(list(pending), return_when=FIRST_COMPLETED)
-                for fut in done_set:
-                    job = pending.pop(fut)
-                    try:
-                        res: FrameResult = fut.result()
-                    except Exception as exc:  # noqa: BLE001 - a worker died (crash, killed): retry once elsewhere
-                        if job.input not in retried and executor == "local" and not isinstance(pool, _InProcess):
-                            retried.add(job.input)
-                            log.warning("%s: worker lost (%s); retrying once", job.input, type(exc).__name__)
-                            pool.shutdown(wait=False, cancel_futures=True)
-                            requeue = [job, *pending.values()]
-                            pending.clear()
-                            pool, waiter = _local_executor(min(workers, len(requeue) + len(queue)))
-                            queue[:0] = requeue
-                            break
-                        fail(job, f"the worker processing it was lost: {type(exc).__name__}: {exc}", record_it=True)
-                        if bar is not None:
-                            bar.update(1)
-                        continue
-                    if not res.ok:
-                        fail(job, res.error, record_it=True, timings_s=res.timings_s, worker=res.worker)
-                    else:
-                        t_w = time.perf_counter()
-                        try:
-                            for kind, rel in plan[job.input].items():
-                                writer.write(rel, res.files[kind])
-                            record(job, "done", info=res.info, timings_s=res.timings_s)
-                        except OSError as exc:
-                            fail(job, f"cannot write its outputs: {exc.strerror or exc}", record_it=True)
-                        else:
-                            res.timings_s["write"] = time.perf_counter() - t_w
-                            report.done.append(job.input)
-                            entry(job, "done", timings_s=res.timings_s, worker=res.worker, info=res.info)
-                            for w in res.info.get("warnings", []):
-                                log.warning("%s: %s", job.input, w)
-                    if bar is not None:
-                        bar.update(1)
-                        bar.set_postfix(failed=len(report.failed), refresh=False)
+            todo = _decide_jobs(run, jobs, overwrite)
+            _execute(run, todo, workers=workers, executor=executor, scheduler=scheduler, progress=progress)
         finally:
-            if bar is not None:
-                bar.close()
-            if pool is not None:
-                pool.shutdown(wait=True, cancel_futures=True)
-            if client is not None:
-                client.close()
-            if cluster is not None:
-                cluster.close()
             shutil.rmtree(writer.tmp, ignore_errors=True)
     report.elapsed_s = time.perf_counter() - t0
     return report

@@ -130,8 +130,11 @@ def test_cli_batch_names_failures_and_exits_1(frames, folder, tmp_path, capsys):
                  "--interpolation", "linear", "--no-progress"])
     assert code == 1
     captured = capsys.readouterr()
-    failed = [line for line in captured.err.splitlines() if line.startswith("failed: ")]
-    assert sorted(line.split(": ")[1] for line in failed) == sorted(str(root / c) for c in CORRUPT)
+    # Each failure is printed once, as it happens: "lfring: ERROR: PATH: why".
+    failed = [line for line in captured.err.splitlines() if line.startswith("lfring: ERROR: ")]
+    assert sorted(line.split(": ")[2] for line in failed) == sorted(str(root / c) for c in CORRUPT)
+    for c in CORRUPT:
+        assert captured.err.count(str(root / c)) == 1
     assert f"{N_FRAMES} frames: {N_FRAMES - 3} done, 0 skipped (already done), 3 failed" in captured.out
     # Rerun: all good frames skipped, exit 1 again for the corrupt ones.
     assert main(["batch", str(root), "-o", str(out), "--refocus", "0.5", "--calib", str(cal_path), "--workers", "1",
@@ -343,3 +346,91 @@ def test_progress_bar_shows_rate_and_eta(frames, tmp_path, capsys):
     assert rep.exit_code == 0
     err = capsys.readouterr().err
     assert "lfring batch" in err and "2/2" in err and "frame/s" in err and "<00:00" in err
+
+
+# -- the resume decision (a pure function) -------------------------------------------------------
+def _decide(planned, keys, record, existing, *, identity=None, overwrite=False, record_exists=None, settings_key=""):
+    from lfring.batch import decide_resume
+
+    identity = identity or {"size_bytes": 10, "mtime_ns": 1}
+    return decide_resume(planned, keys, record, identity, set(existing),
+                         record_exists=record is not None if record_exists is None else record_exists,
+                         overwrite=overwrite, settings_key=settings_key)
+
+
+P5, P7 = {"refocus_0.5m": "a_refocus_0.5m.png"}, {"refocus_0.7m": "a_refocus_0.7m.png"}
+K5, K7 = {"refocus_0.5m": "k5"}, {"refocus_0.7m": "k7"}
+SAME = {"size_bytes": 10, "mtime_ns": 1}
+
+
+def _record(outputs, keys, status="done", identity=SAME, pending=None):
+    return {"outputs": outputs, "output_keys": keys if status == "done" else {}, "pending_keys": pending or {},
+            "input_identity": identity, "status": status}
+
+
+def test_resume_fresh_and_foreign_files():
+    assert _decide(P5, K5, None, []).action == "run"
+    d = _decide(P5, K5, None, ["a_refocus_0.5m.png"])
+    assert d.action == "refuse" and "not made by lfring batch" in d.reason
+    assert _decide(P5, K5, None, [], record_exists=True).action == "refuse"
+    assert _decide(P5, K5, None, ["a_refocus_0.5m.png"], overwrite=True).kinds == ("refocus_0.5m",)
+
+
+def test_resume_skips_done_and_computes_only_what_is_added():
+    rec = _record(P5, K5)
+    assert _decide(P5, K5, rec, ["a_refocus_0.5m.png"]).action == "skip"
+    d = _decide({**P5, **P7}, {**K5, **K7}, rec, ["a_refocus_0.5m.png"])
+    assert (d.action, d.kinds) == ("run", ("refocus_0.7m",))
+    # A done output deleted by hand is made again, alone.
+    assert _decide(P5, K5, rec, []).kinds == ("refocus_0.5m",)
+
+
+def test_resume_refuses_other_settings_and_changed_inputs():
+    rec = _record(P5, {"refocus_0.5m": "linear"})
+    d = _decide(P5, K5, rec, ["a_refocus_0.5m.png"])
+    assert d.action == "refuse" and "other settings" in d.reason
+    d = _decide(P5, K5, _record(P5, K5, identity={"size_bytes": 11, "mtime_ns": 2}), ["a_refocus_0.5m.png"])
+    assert d.action == "refuse" and "input changed" in d.reason
+    assert _decide(P5, K5, _record(P5, K5, identity={"size_bytes": 11}), []).action == "run"
+
+
+def test_resume_replaces_files_of_its_own_cut_short_run():
+    rec = _record(P5, {}, status="pending", pending=K5)
+    assert _decide(P5, K5, rec, ["a_refocus_0.5m.png"]).kinds == ("refocus_0.5m",)
+    rec = _record(P5, {}, status="pending", pending={"refocus_0.5m": "other"})
+    assert _decide(P5, K5, rec, ["a_refocus_0.5m.png"]).action == "refuse"
+
+
+def test_resume_reads_records_from_before_output_keys():
+    old = {"outputs": P5, "settings_key": "s1", "input_identity": SAME, "status": "done"}
+    assert _decide(P5, K5, old, ["a_refocus_0.5m.png"], settings_key="s1").action == "skip"
+    assert _decide(P5, K5, old, ["a_refocus_0.5m.png"], settings_key="s2").action == "refuse"
+
+
+def test_scan_inputs_leaves_out_what_is_not_a_frame(tmp_path):
+    import tifffile
+
+    from lfring.batch import scan_inputs
+
+    root = tmp_path / "in"
+    (root / "x_truth").mkdir(parents=True)
+    cv2.imwrite(str(root / "a.png"), np.zeros((8, 10), np.uint16))
+    (root / "a.png.json").write_text("{}")
+    cv2.imwrite(str(root / "small.png"), np.zeros((4, 6), np.uint16))
+    tifffile.imwrite(root / "map.tiff", np.zeros((8, 10), np.float32))
+    (root / "x_truth" / "depth.tiff").write_bytes(b"")
+    (root / "broken.png").write_bytes(b"")  # unreadable: kept, its own error says why
+    jobs, skipped = scan_inputs([str(root)], frame_sizes={(10, 8)})
+    assert sorted(Path(j.input).name for j in jobs) == ["a.png", "broken.png"]
+    reasons = {Path(p).name: why for p, why in skipped}
+    assert reasons == {"x_truth": "a ground-truth folder", "a.png.json": "a sidecar or record (JSON)",
+                       "small.png": "6 x 4 px, a size no calibration fits", "map.tiff": "float samples (a map, not raw counts)"}
+    # A file named explicitly is always taken.
+    assert [Path(j.input).name for j in scan_inputs([str(root / "small.png")], frame_sizes={(10, 8)})[0]] == ["small.png"]
+
+
+def test_legacy_key_is_the_key_of_records_before_output_keys():
+    # 6e76e9ced5695793 is what BatchSettings(refocus_m=(0.5,)).key() returned before per-output
+    # keys (commit 188722c): folders made then resume instead of being refused.
+    assert BatchSettings(refocus_m=(0.5,)).legacy_key() == "6e76e9ced5695793"
+    assert BatchSettings(refocus_m=(0.5,), pattern="RGGB").legacy_key() is None

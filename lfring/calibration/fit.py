@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from pathlib import Path
 
@@ -11,7 +12,7 @@ from lfring.calibration.ring import RingCalibration
 from lfring.errors import InvalidInputError
 from lfring.views import Layout, detect_layout, split_views
 
-__all__ = ["calibrate", "load_image"]
+__all__ = ["calibrate", "check_disparity_sign", "load_image"]
 
 log = logging.getLogger("lfring.calibration")
 
@@ -91,9 +92,12 @@ def calibrate(
         raise InvalidInputError(f"target depths must be distinct, got {depths}")
     levels = dict(pattern=pattern, black_level=black_level, white_level=white_level)
     images = {}
+    raws = []
     shape = None
     for d, f in frames_by_depth.items():
-        img, name = load_image(f, **levels)
+        img, name, raw = _load_frame(f, levels)
+        if raw is not None:
+            raws.append(raw)
         if shape is None:
             shape = img.shape[:2]
         elif img.shape[:2] != shape:
@@ -104,7 +108,7 @@ def calibrate(
         images[float(d)] = (img, name)
     flat_img = None
     if flat is not None:
-        flat_img, flat_name = load_image(flat, **levels)
+        flat_img, flat_name, _ = _load_frame(flat, levels)
         if flat_img.shape[:2] != shape:
             raise InvalidInputError(f"the flat frame {flat_name} is {flat_img.shape[1]} x {flat_img.shape[0]} px, the targets {shape[1]} x {shape[0]} px")
     if layout is None:
@@ -135,19 +139,67 @@ def calibrate(
             log.warning("two planes and no device: assuming z0 = 0; give the device (or a third plane) for z0 = s")
     elif z0 is None:
         how = "fitted"
-    return RingCalibration.from_plane_homographies(
-        measured, reference=reference, depth_origin_m=z0, layout=layout, pattern=_pattern_of(frames_by_depth, pattern),
+    check_disparity_sign(measured, {d: images[d][1] for d in images}, layout.view_shape)
+    cal = RingCalibration.from_plane_homographies(
+        measured, reference=reference, depth_origin_m=z0, layout=layout, pattern=_common(raws, "pattern", pattern),
         rank1=rank1, provenance={"method": method, "flat": None if flat is None else str(flat), "planes": diag,
                                  "depth_origin": how},
     )
+    return dataclasses.replace(cal, device=None if device is None else device.name,
+                               black_level=_common(raws, "black_level", black_level),
+                               white_level=_common(raws, "white_level", white_level))
 
 
-def _pattern_of(frames_by_depth, pattern):
-    if pattern is not None:
-        return pattern
-    from lfring.io.raw import RawFrame
+def check_disparity_sign(h_by_depth: dict, names: dict, view_shape_hw) -> None:
+    """Refuse planes whose views lie farther apart than those of a nearer plane.
 
-    for f in frames_by_depth.values():
-        if isinstance(f, RawFrame):
-            return f.pattern
-    return None
+    The ring's physics fixes the sign of the model: views of nearer planes lie farther apart
+    (SPEC: d(Z) falls with Z). Measured homographies that say otherwise come from depths given
+    in the wrong order (or frames given in the wrong order).
+
+    Parameters
+    ----------
+    h_by_depth : {depth_m: (V, 3, 3)}
+        Measured ``H_ref_from_view`` of each plane.
+    names : {depth_m: str}
+        The frame of each plane, for the message.
+    view_shape_hw : (h, w)
+
+    Raises
+    ------
+    InvalidInputError
+        Naming the two planes whose order contradicts the physics.
+    """
+    from lfring.calibration.overlap import disparity_spread_px
+
+    zs = sorted(h_by_depth)
+    spread = {z: disparity_spread_px(h_by_depth[z], view_shape_hw) for z in zs}
+    for near, far in zip(zs, zs[1:]):
+        if spread[near] <= spread[far]:
+            raise InvalidInputError(
+                f"the views of the plane given as {near:g} m ({names.get(near, '?')}) lie {spread[near]:.1f} px apart, "
+                f"closer than those of the plane given as {far:g} m ({names.get(far, '?')}, {spread[far]:.1f} px); "
+                "views of nearer planes lie farther apart, so these depths look swapped: give each frame's depth "
+                "in the order of the frames"
+            )
+
+
+def _load_frame(frame, levels: dict):
+    """(float image, name, RawFrame or None) of a frame given as a path, a RawFrame or an array."""
+    from lfring.io.raw import RawFrame, load_raw
+
+    if isinstance(frame, (str, Path)):
+        frame = load_raw(frame, **levels)
+    if isinstance(frame, RawFrame):
+        img, name = load_image(frame)
+        return img, name, frame
+    img, name = load_image(frame)
+    return img, name, None
+
+
+def _common(raws, attr: str, given):
+    """The value every frame shares (None when they differ or none is a raw frame)."""
+    if given is not None:
+        return given
+    values = {repr(getattr(r, attr)) for r in raws}
+    return getattr(raws[0], attr) if len(values) == 1 else None

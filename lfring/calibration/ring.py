@@ -46,6 +46,9 @@ class RingCalibration:
     source : 'planes', 'optics' or 'grid'
     device : str or None
         Name of the device description it came from, if any.
+    black_level, white_level : float or None
+        Levels in counts of the frames it was made from, when known: frames without their own
+        (no sidecar, no option) are read with them.
     """
 
     model: VariableHomography
@@ -56,6 +59,8 @@ class RingCalibration:
     source: str = "planes"
     device: str | None = None
     provenance: dict = field(default_factory=dict)
+    black_level: float | tuple[float, float, float, float] | None = None
+    white_level: float | None = None
 
     def __post_init__(self) -> None:
         if self.source not in SOURCES:
@@ -112,6 +117,14 @@ class RingCalibration:
         if np.ndim(depth_m) != 0:
             raise InvalidInputError("homography() takes one depth; use homographies() for several")
         return self.homographies(depth_m, reference=reference)[view]
+
+    def overlap_depth_range(self, *, reference="center") -> tuple[float, float]:
+        """(nearest, inf): the depths in metres at which every view still covers
+        :data:`lfring.calibration.overlap.MIN_OVERLAP_FRACTION` of the reference frame; nearer
+        than that a refocused image is mostly black."""
+        from lfring.calibration.overlap import nearest_overlap_depth_m
+
+        return nearest_overlap_depth_m(self, reference=reference), float("inf")
 
     def check_frame(self, shape_hw, *, what: str = "frame") -> None:
         """Raise if a raw frame of ``shape_hw`` does not belong to this calibration."""
@@ -303,6 +316,8 @@ class RingCalibration:
             "raw_width_px": self.raw_size[0],
             "raw_height_px": self.raw_size[1],
             "bayer_pattern": self.pattern,
+            "black_level": list(self.black_level) if isinstance(self.black_level, tuple) else self.black_level,
+            "white_level": self.white_level,
             "layout": self.layout.to_dict(),
             "reference_view": self.model.reference,
             "depth_origin_m": self.depth_origin_m,
@@ -338,7 +353,8 @@ class RingCalibration:
         v.require(version == CALIBRATION_VERSION,
                   f"'lfring_calibration_version' is {version!r}; this lfring reads version {CALIBRATION_VERSION}")
         keys = {"lfring_calibration_version", "source", "device", "raw_width_px", "raw_height_px", "bayer_pattern",
-                "layout", "reference_view", "depth_origin_m", "model", "A", "B", "valid_depth_range_m", "planes", "provenance"}
+                "layout", "reference_view", "depth_origin_m", "model", "A", "B", "valid_depth_range_m", "planes", "provenance",
+                "black_level", "white_level"}
         v.require(not (set(data) - keys), f"unknown key(s) {sorted(set(data) - keys)}")
         for k in ("source", "layout", "reference_view", "depth_origin_m", "A", "B", "valid_depth_range_m", "raw_width_px", "raw_height_px"):
             v.require(k in data, f"missing key '{k}'")
@@ -362,6 +378,13 @@ class RingCalibration:
             from lfring.io.bayer import PATTERNS
 
             v.require(pattern in PATTERNS, f"'bayer_pattern' must be one of {PATTERNS} or null, got {pattern!r}")
+        levels = {"white_level": None if data.get("white_level") is None else v.number(data["white_level"], "white_level")}
+        black = data.get("black_level")
+        if isinstance(black, list):
+            v.require(len(black) == 4, "'black_level' must be a number or four numbers (one per CFA position)")
+            levels["black_level"] = tuple(v.number(b, f"black_level[{i}]") for i, b in enumerate(black))
+        else:
+            levels["black_level"] = None if black is None else v.number(black, "black_level")
         planes = []
         v.require(isinstance(data.get("planes", []), list), "'planes' must be a list")
         for i, p in enumerate(data.get("planes", [])):
@@ -374,7 +397,7 @@ class RingCalibration:
             return cls(
                 model=VariableHomography(a, b, z0, ref), layout=layout, valid_depth_range_m=(lo, hi), pattern=pattern,
                 planes=tuple(planes), source=data["source"], device=data.get("device"),
-                provenance=data.get("provenance") or {},
+                provenance=data.get("provenance") or {}, **levels,
             )
         except InvalidInputError as exc:
             raise FileFormatError(f"{source_name}: {exc}") from None

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import functools
 import logging
 
 import click
 
+from lfring.errors import InvalidInputError
 from lfring.optics.device import RingDevice, load_device
 
 
@@ -55,29 +57,99 @@ def get_device(name: str) -> RingDevice:
     return load_device(name)
 
 
-def load_views(raw, calib: str | None):
+class RawLevels:
+    """--pattern, --black-level, --white-level as given on the command line (None: not given)."""
+
+    def __init__(self, pattern=None, black_level=None, white_level=None):
+        self.pattern = pattern.upper() if pattern else None
+        self.black_level = black_level
+        self.white_level = white_level
+
+    def as_kwargs(self) -> dict:
+        return {"pattern": self.pattern, "black_level": self.black_level, "white_level": self.white_level}
+
+
+def _parse_black(ctx, param, text):
+    if text is None:
+        return None
+    import re
+
+    try:
+        values = [float(t) for t in re.split(r"[,\s]+", text.strip()) if t]
+    except ValueError:
+        raise click.BadParameter(f"expected a number of counts or four (one per CFA position), got {text!r}") from None
+    if len(values) not in (1, 4):
+        raise click.BadParameter(f"expected one number of counts or four (one per CFA position), got {len(values)}")
+    return values[0] if len(values) == 1 else tuple(values)
+
+
+def raw_options(fn):
+    """Adds --pattern, --black-level and --white-level to a command that reads raw frames; the
+    command receives them as one ``levels`` argument (a :class:`RawLevels`)."""
+    from lfring.io.bayer import PATTERNS
+
+    @functools.wraps(fn)
+    def wrapper(*args, pattern=None, black_level=None, white_level=None, **kwargs):
+        return fn(*args, levels=RawLevels(pattern, black_level, white_level), **kwargs)
+
+    opts = [
+        click.option("--pattern", type=click.Choice(PATTERNS, case_sensitive=False), default=None,
+                     help="Bayer pattern of the frames (overrides a sidecar or the calibration's)."),
+        click.option("--black-level", callback=_parse_black, default=None, metavar="COUNTS",
+                     help="Black level in counts, one number or four in CFA order (overrides a sidecar or the calibration's)."),
+        click.option("--white-level", type=float, default=None, metavar="COUNTS",
+                     help="White (saturation) level in counts (overrides a sidecar or the calibration's)."),
+    ]
+    for opt in reversed(opts):
+        wrapper = opt(wrapper)
+    return wrapper
+
+
+def check_option(fn):
+    """Adds --no-check: skip the check that a frame is a ring frame for the calibration."""
+    return click.option("--no-check", "no_check", is_flag=True,
+                        help="Process frames that do not look like ring frames for the calibration (see lfring check).")(fn)
+
+
+def read_frame(raw: str, levels: RawLevels | None = None, calibration=None):
+    """Load a raw frame: options first, then its sidecar or metadata, then the calibration's
+    pattern and levels (said at info level), then defaults (said at warning level); see
+    :func:`lfring.io.levels.load_frame`."""
+    from lfring.io.levels import load_frame
+
+    frame, notes = load_frame(raw, **(levels or RawLevels()).as_kwargs(), calibration=calibration)
+    log = logging.getLogger("lfring.cli")
+    for level, message in notes:
+        log.log(level, "%s", message)
+    return frame
+
+
+def load_views(raw, calib: str | None, levels: RawLevels | None = None, *, check: bool = True):
     """Load, demosaic and split a raw frame; the calibration from --calib or the built-in
-    default for the frame's size (logged). Several paths are separate view images instead
-    (see :func:`load_view_files`)."""
+    default for the frame's size (logged). Unless ``check`` is False, refuse a frame that does
+    not look like a ring frame for the calibration (:func:`lfring.check.check_frame`). Several
+    paths are separate view images instead (see :func:`load_view_files`)."""
     from lfring.calibration import RingCalibration
     from lfring.calibration.defaults import default_calibration
     from lfring.io.demosaic import demosaic
-    from lfring.io.raw import load_raw
     from lfring.views import split_views
 
     if not isinstance(raw, str):
         if len(raw) > 1:
             return load_view_files(raw, calib)
         raw = raw[0]
-    frame = load_raw(raw)
+    cal = RingCalibration.load(calib) if calib else None
+    frame = read_frame(raw, levels, cal)
     image = demosaic(frame)
-    if calib:
-        cal, name = RingCalibration.load(calib), calib
+    if cal is not None:
+        name = calib
     else:
         cal, name = default_calibration((image.shape[1], image.shape[0]))
         logging.getLogger("lfring.cli").info("no --calib given: using the built-in calibration '%s' (%s, %d x %d px frames)",
                  name, "measured" if cal.source == "planes" else "from the optics", *cal.raw_size)
     cal.check_frame(image.shape, what=f"frame {raw}")
+    if check:
+        require_ring_frame(image, cal, raw)
     return split_views(image, cal.layout), cal, name
 
 
@@ -96,3 +168,22 @@ def load_view_files(paths, calib: str | None):
     views = read_views(paths)
     cal.check_fits(views.shape, what="view images")
     return views, cal, calib
+def require_ring_frame(image, cal, raw) -> None:
+    """Raise (an InvalidInputError naming ``raw``) unless the frame's views agree as a ring
+    frame's do for ``cal``."""
+    from lfring.check import check_frame
+
+    res = check_frame(image, cal)
+    logging.getLogger("lfring.cli").debug("%s: %s", raw, res.message)
+    if not res.ok:
+        raise InvalidInputError(f"{raw}: {res.message}")
+
+
+def progress_bar(total: int, desc: str, unit: str):
+    """A tqdm bar on stderr, shown only when stderr is a terminal and lfring is not quiet."""
+    import sys
+
+    from tqdm import tqdm
+
+    quiet = not logging.getLogger("lfring").isEnabledFor(logging.INFO)
+    return tqdm(total=total, desc=desc, unit=unit, disable=quiet or not sys.stderr.isatty(), leave=False, dynamic_ncols=True)

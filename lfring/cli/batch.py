@@ -6,7 +6,7 @@ import logging
 
 import click
 
-from lfring.cli._options import parse_depths
+from lfring.cli._options import check_option, parse_depths, raw_options
 
 log = logging.getLogger("lfring.cli.batch")
 
@@ -22,6 +22,8 @@ log = logging.getLogger("lfring.cli.batch")
 @click.option("--zmin", type=float, default=None, metavar="M", help="Nearest depth searched [m], with --depth.")
 @click.option("--zmax", type=float, default=None, metavar="M", help="Farthest depth searched [m], with --depth.")
 @click.option("--planes", type=int, default=None, metavar="N", help="Depth hypotheses (default: 1 px of view motion apart).")
+@click.option("--depth-method", type=click.Choice(["sgm", "local"]), default="sgm", show_default=True,
+              help="Depth maps by semi-global optimisation, or by the faster local sweep (see lfring depth --method).")
 @click.option("--all-in-focus", "aif", is_flag=True, help="All-in-focus image of every frame.")
 @click.option("--viewer", is_flag=True, help="Interactive HTML viewer of every frame, NAME_viewer.html (see lfring view).")
 @click.option("--reference", default="center", show_default=True, metavar="center|0..3", help="Frame of the results.")
@@ -38,15 +40,20 @@ log = logging.getLogger("lfring.cli.batch")
 @click.option("--exclude", multiple=True, metavar="GLOB", help="Leave out files matching this pattern (repeatable).")
 @click.option("--progress/--no-progress", default=None, help="Progress bar (default: when stderr is a terminal).")
 @click.option("--overwrite", is_flag=True, help="Redo frames already done and replace existing files.")
+@raw_options
+@check_option
 @click.pass_context
-def command(ctx, inputs, outdir, calib, refocus_m, depth_map, zmin, zmax, planes, aif, viewer, reference, interpolation,
-            bit_depth, encoding, workers, executor, scheduler, exclude, progress, overwrite):
+def command(ctx, inputs, outdir, calib, refocus_m, depth_map, zmin, zmax, planes, depth_method, aif, viewer, reference, interpolation,
+            bit_depth, encoding, workers, executor, scheduler, exclude, progress, overwrite, levels, no_check):
     """Process every frame of INPUT... (files, folders searched recursively, glob patterns).
 
     Each frame gets its outputs in OUTDIR (refocused images NAME_refocus_<Z>m.png, depth maps
     NAME_depth.tiff with NAME_confidence.tiff and NAME_depth_preview.png, NAME_all_in_focus.png)
     and a record NAME.lfring.json; OUTDIR/manifest.jsonl gets a line per frame. Frames already
-    done with the same settings are skipped; a bad frame is reported by name and the rest go on.
+    done with the same settings are skipped, and a rerun that adds an output (another --refocus
+    depth, --depth) computes only what is missing; a bad frame is reported by name and the rest
+    go on. Folder walks leave out files that are not frames (sidecars, *_truth/ folders, images
+    of a size no calibration fits): one line says how many, -v lists them.
     Exit code: 0 all frames done or skipped, 1 some failed, 2 bad usage.
     """
     from lfring.batch import BatchSettings, run_batch
@@ -72,11 +79,16 @@ def command(ctx, inputs, outdir, calib, refocus_m, depth_map, zmin, zmax, planes
         ref = check_reference(reference, 4)
     settings = BatchSettings(refocus_m=zs, depth=depth_map, zmin_m=zmin, zmax_m=zmax, all_in_focus=aif, calibration=cal,
                              calibration_name=cal_name, reference=ref, interpolation=interpolation, bit_depth=int(bit_depth),
-                             encoding=encoding, planes=planes, viewer=viewer)
+                             encoding=encoding, planes=planes, depth_method=depth_method, viewer=viewer,
+                             check_frames=not no_check,
+                             **levels.as_kwargs())
     report = run_batch(list(inputs), outdir, settings, workers=workers, executor=executor, scheduler=scheduler,
                        overwrite=overwrite, exclude=exclude, progress=progress)
-    for path in report.failed:
-        click.echo(f"failed: {path}: {report.errors[path]}", err=True)
-    click.echo(report.summary())
+    # Each failure was logged once as it happened (lfring.batch); the summary counts them.
+    verbose = ctx.find_root().params.get("verbose", 0)
+    if report.not_frames and verbose:
+        for path, why in report.not_frames:
+            click.echo(f"not a frame: {path}: {why}", err=True)
+    click.echo(report.summary() + ("" if not report.not_frames or verbose else " (-v lists them)"))
     if report.exit_code:
         ctx.exit(report.exit_code)

@@ -10,8 +10,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from lfring.cli._options import get_device
-from lfring.io.bayer import PATTERNS
+from lfring.cli._options import get_device, raw_options
 
 log = logging.getLogger("lfring.cli.calibrate")
 WARN_PX = 0.3
@@ -42,14 +41,17 @@ def _floaty(text: str) -> bool:
 @click.option("--method", type=click.Choice(["ecc", "sift"]), default="ecc", show_default=True,
               help="Per-plane homographies: direct alignment (ECC) or SIFT + RANSAC.")
 @click.option("--rank1", is_flag=True, help="Constrain each B_k to rank 1.")
-@click.option("--pattern", type=click.Choice(PATTERNS, case_sensitive=False), default=None, help="Bayer pattern override.")
 @click.option("--overwrite", is_flag=True, help="Replace an existing output file.")
-def command(frames, depths, output, flat, layout_file, depth_origin, device_name, method, rank1, pattern, overwrite):
+@raw_options
+def command(frames, depths, output, flat, layout_file, depth_origin, device_name, method, rank1, overwrite, levels):
     """Calibrate refocusing in metric depth from FRAMES of a textured planar target.
 
     Example: lfring calibrate near.png far.png --depths 0.3 1.0 --flat white.png -o calib/mycam.json
 
-    Prints the residual of every view and plane in pixels and warns above 0.3 px.
+    Prints the residual of every view and plane in pixels and warns above 0.3 px. Refuses
+    depths whose order contradicts the ring (views of nearer planes lie farther apart). The
+    calibration records the device and the frames' Bayer pattern and levels: later commands
+    read frames without a sidecar with them.
     """
     from lfring.calibration import calibrate
     from lfring.io.writers import check_writable
@@ -89,7 +91,7 @@ def command(frames, depths, output, flat, layout_file, depth_origin, device_name
     check_writable([output], overwrite=overwrite)
     layout = Layout.load(layout_file) if layout_file else None
     cal = calibrate(dict(zip(zs, frames)), flat=flat, layout=layout, depth_origin_m=z0, method=method, rank1=rank1,
-                    pattern=pattern.upper() if pattern else None, device=device)
+                    device=device, **levels.as_kwargs())
     click.echo(f"z0 = {cal.depth_origin_m:.6f} m ({cal.provenance.get('depth_origin')}); valid depth range "
                f"{cal.valid_depth_range_m[0]:g} to {cal.valid_depth_range_m[1]:g} m; reference view {cal.model.reference}")
     click.echo(f"{'plane [m]':>10} " + " ".join(f"{'view ' + str(k) + ' px':>10}" for k in range(cal.num_views))

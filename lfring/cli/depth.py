@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from lfring.cli._options import load_views
+from lfring.cli._options import check_option, load_views, raw_options
 
 log = logging.getLogger("lfring.cli.depth")
 
@@ -37,8 +37,10 @@ log = logging.getLogger("lfring.cli.depth")
 @click.option("--device-file", "device_name", default=None, metavar="NAME|FILE",
               help="Device description for the point cloud (default: the calibration's, else prototype).")
 @click.option("--overwrite", is_flag=True, help="Replace existing output files.")
+@raw_options
+@check_option
 def command(raw, zmin, zmax, outdir, calib, planes, reference, cost, aggregation, method, backend, device, min_confidence,
-            device_name, overwrite):
+            device_name, overwrite, levels, no_check):
     """Depth map of RAW in metres with confidence, by plane sweep over the views.
 
     RAW is one raw frame, or several images: separate views in the view order of --calib (a
@@ -56,8 +58,6 @@ def command(raw, zmin, zmax, outdir, calib, planes, reference, cost, aggregation
     from lfring.io.writers import check_writable, write_float_tiff, write_json
     from lfring.optics.device import load_device
 
-    views, cal, cal_name = load_views(raw, calib)
-    ref = check_reference(reference, cal.num_views)
     out = Path(outdir)
     stem, raw = Path(raw[0]).stem, raw[0] if len(raw) == 1 else list(raw)  # several: separate view images
     names = ["depth.tiff", "depth.pfm", "confidence.tiff", "depth_preview.png", "points.ply", "depth.json"]
@@ -65,6 +65,8 @@ def command(raw, zmin, zmax, outdir, calib, planes, reference, cost, aggregation
         names.append("depth_filled.tiff")
     paths = {k: out / f"{stem}_{k}" for k in names}
     check_writable(paths.values(), overwrite=overwrite)
+    views, cal, cal_name = load_views(raw, calib, levels, check=not no_check)
+    ref = check_reference(reference, cal.num_views)
     res = estimate_depth(views, cal, zmin_m=zmin, zmax_m=zmax, num_planes=planes, reference=ref, cost=cost,
                          aggregation=aggregation, method=method, backend=backend, device=device)
     out.mkdir(parents=True, exist_ok=True)
@@ -78,6 +80,8 @@ def command(raw, zmin, zmax, outdir, calib, planes, reference, cost, aggregation
     # The point cloud needs the optics: the calibration's device, else the prototype, binned to
     # the frame's size when that matches.
     n_points = 0
+    if not (device_name or cal.device):
+        log.info("the calibration names no device and no --device-file was given: the point cloud uses the prototype's optics")
     dev = load_device(device_name or cal.device or "prototype")
     scale = dev.sensor_width_px // cal.raw_size[0]
     dev = dev.binned(scale) if scale > 1 else dev

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from lfring.cli._options import load_views
+from lfring.cli._options import check_option, load_views, raw_options
 from lfring.inspect import MIN_COVERAGE
 
 log = logging.getLogger("lfring.cli.inspect")
@@ -81,9 +81,11 @@ def _read_depth(path: str):
 @click.option("--viewer", is_flag=True, help="Also write DIR/<name>_viewer.html: the interactive viewer with the defect "
               "boxes and the unchecked area as overlays (see lfring view).")
 @click.option("--overwrite", is_flag=True, help="Replace existing output files.")
+@raw_options
+@check_option
 @click.pass_context
 def command(ctx, raw, plane, tolerance, outdir, calib, roi, reference_depth, min_area, min_confidence, min_coverage, zmin,
-            zmax, reference, backend, device_name, viewer, overwrite):
+            zmax, reference, backend, device_name, viewer, overwrite, levels, no_check):
     """Check that the part in RAW lies on the working plane within the tolerance.
 
     Writes DIR/<name>_inspect.png (refocused at the plane, the plane tinted green, defect boxes:
@@ -100,7 +102,7 @@ def command(ctx, raw, plane, tolerance, outdir, calib, roi, reference_depth, min
     from lfring.io.writers import check_writable, write_image, write_json
     from lfring.optics.device import load_device
 
-    views, cal, cal_name = load_views(raw, calib)
+    views, cal, cal_name = load_views(raw, calib, levels, check=not no_check)
     ref = check_reference(reference, cal.num_views)
     out = Path(outdir)
     stem = Path(raw).stem

@@ -16,6 +16,7 @@ from lfring.errors import LfringError
 COMMANDS = {
     "batch": "batch",
     "calibrate": "calibrate",
+    "check": "check",
     "depth": "depth",
     "design": "design",
     "grid-calib": "grid_calib",
@@ -45,8 +46,9 @@ class _LfringGroup(click.Group):
             return super().invoke(ctx)
         except LfringError as exc:
             raise CliError(str(exc)) from None
-        except (FileNotFoundError, PermissionError, IsADirectoryError) as exc:
-            raise CliError(f"{exc.strerror or exc}: {exc.filename}") from None
+        except OSError as exc:  # any file-system failure: one line naming the path, never a traceback
+            where = f": {exc.filename}" if exc.filename else ""
+            raise CliError(f"{exc.strerror or exc}{where}") from None
 
 
 class CliError(click.ClickException):
@@ -76,10 +78,32 @@ def cli(verbose: int, quiet: bool) -> None:
     warnings.showwarning = lambda message, category, *args, **kwargs: warn_log.warning("%s", message)
 
 
+_VERBOSITY = {"-q", "--quiet", "-v", "-vv", "-vvv", "--verbose"}
+
+
+def hoist_verbosity(args: list[str]) -> list[str]:
+    """Move -q/-v given after the subcommand in front of it, where the group reads them
+    (``lfring refocus x.png --depth 0.5 -q`` is ``lfring -q refocus x.png --depth 0.5``).
+    Tokens after ``--`` stay.
+
+    >>> hoist_verbosity(["refocus", "a.png", "-q", "--depth", "0.5"])
+    ['-q', 'refocus', 'a.png', '--depth', '0.5']
+    """
+    args = list(args)
+    cmd = next((i for i, a in enumerate(args) if a in COMMANDS), None)
+    if cmd is None:
+        return args
+    end = args.index("--") if "--" in args[cmd:] else len(args)
+    moved = [a for a in args[cmd + 1:end] if a in _VERBOSITY]
+    rest = [a for a in args[cmd + 1:end] if a not in _VERBOSITY]
+    return [*args[:cmd], *moved, args[cmd], *rest, *args[end:]]
+
+
 def main(argv=None) -> int:
     """Entry point of the ``lfring`` script; returns the exit code."""
+    args = hoist_verbosity(sys.argv[1:] if argv is None else argv)
     try:
-        rv = cli.main(args=argv, prog_name="lfring", standalone_mode=False)
+        rv = cli.main(args=args, prog_name="lfring", standalone_mode=False)
     except click.exceptions.Exit as exc:
         return exc.exit_code
     except click.Abort:

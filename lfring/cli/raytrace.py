@@ -12,6 +12,7 @@ import numpy as np
 from lfring.cli._options import device_option, get_device
 from lfring.errors import DeviceError, InvalidInputError
 from lfring.io.atomic import atomic_write_text
+from lfring.io.writers import check_writable
 from lfring.optics.positions import METHODS, design, evaluate
 from lfring.optics.raytrace import APERTURES, LOWER, MISSED_RING, STOPPED_MAIN, UPPER, bundle_stats, trace
 
@@ -27,10 +28,7 @@ def _check_outputs(output: Path, overwrite: bool) -> Path:
             f"the figure file must end in {', '.join(_FIGURE_SUFFIXES)}; got {output.name!r}"
         )
     sidecar = output.with_suffix(".json")
-    if not overwrite:
-        for path in (output, sidecar):
-            if path.exists():
-                raise InvalidInputError(f"{path} exists; pass --overwrite to replace it")
+    check_writable([output, sidecar], overwrite=overwrite)
     return sidecar
 
 

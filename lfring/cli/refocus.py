@@ -9,7 +9,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from lfring.cli._options import load_views, parse_depths, parse_range
+from lfring.cli._options import check_option, load_views, parse_depths, parse_range, progress_bar, raw_options
 
 log = logging.getLogger("lfring.cli.refocus")
 
@@ -33,14 +33,28 @@ def _depths(depth, depths, sweep) -> list[float]:
         start, stop, n = parse_range(sweep, with_count=True)
         zs = list(np.linspace(start, stop, n))
     for z in zs:
-        if not (math.isfinite(z) and z > 0):
-            raise click.BadParameter(f"depths must be positive, finite metres, got {z!r}", param_hint="depth")
+        if not (z > 0 and not math.isnan(z)):
+            raise click.BadParameter(f"depths must be positive metres (or inf), got {z!r}", param_hint="depth")
     return [float(z) for z in zs]
+
+
+def check_renderable(cal, zs, reference) -> None:
+    """Refuse depths nearer than where the views still overlap in the reference frame."""
+    from lfring.calibration.overlap import MIN_OVERLAP_FRACTION
+    from lfring.errors import InvalidInputError
+
+    nearest, _ = cal.overlap_depth_range(reference=reference)
+    bad = [z for z in zs if z < nearest]
+    if bad:
+        raise InvalidInputError(
+            f"depth {bad[0]:g} m cannot be rendered: the views no longer overlap in the reference frame there "
+            f"(less than {MIN_OVERLAP_FRACTION:.0%} of it is seen by every view, so the image would be black or "
+            f"ghosted); the nearest depth that works with this calibration is {math.ceil(nearest * 1e4) / 1e4:g} m")
 
 
 @click.command("refocus")
 @click.argument("raw", nargs=-1, required=True, type=click.Path(dir_okay=False))
-@click.option("--depth", type=float, default=None, metavar="M", help="Refocus distance from the main lens [m].")
+@click.option("--depth", type=float, default=None, metavar="M", help="Refocus distance from the main lens [m]; inf for infinity.")
 @click.option("--depths", default=None, metavar="Z1,Z2,...", help="Several depths [m]: a focal stack.")
 @click.option("--sweep", default=None, metavar="START:STOP:N", help="N depths from START to STOP [m]: a focal stack.")
 @click.option("--all-in-focus", "aif", is_flag=True,
@@ -57,7 +71,10 @@ def _depths(depth, depths, sweep) -> list[float]:
 @click.option("--encoding", type=click.Choice(["srgb", "linear"]), default="srgb", show_default=True,
               help="Write display-ready sRGB values, or linear light.")
 @click.option("--overwrite", is_flag=True, help="Replace existing output files.")
-def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolation, bit_depth, encoding, overwrite):
+@raw_options
+@check_option
+def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolation, bit_depth, encoding, overwrite, levels,
+            no_check):
     """Refocus RAW at metric depth: lfring refocus raw.png --depth 0.5
 
     RAW is one raw frame, or several images: separate views in the view order of --calib (a
@@ -65,15 +82,19 @@ def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolat
 
     A focal stack (--depths or --sweep) is written as numbered images, a multi-page TIFF and an
     animated GIF. Every output gets a JSON sidecar (OUTPUT.json) naming the calibration used.
+    Depths nearer than where the views overlap are refused (the error names the nearest that
+    works); frames that are not ring frames for the calibration are refused unless --no-check.
     """
+    import warnings
+
+    from lfring.calibration.overlap import INFINITE_DEPTH_M
+    from lfring.errors import LfringWarning
     from lfring.geometry import check_reference
-    from lfring.io.writers import check_writable, write_image, write_json
-    from lfring.focus import all_in_focus, focal_stack
+    from lfring.io.writers import check_writable, write_gif, write_image, write_json, write_tiff_stack
+    from lfring.focus import Refocuser, all_in_focus
 
     zs = _depths(depth, depths, sweep)
     bits = int(bit_depth)
-    views, cal, cal_name = load_views(raw, calib)
-    ref = check_reference(reference, cal.num_views)
     stem, raw = Path(raw[0]).stem, raw[0] if len(raw) == 1 else list(raw)  # several: separate view images
     if output is None:
         base = Path(f"{stem}_refocus_{zs[0]:g}m.png" if len(zs) == 1 else f"{stem}_stack.png")
@@ -90,31 +111,41 @@ def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolat
         extra = [base.with_name(base.stem + "_stack.tif"), base.with_name(base.stem + "_stack.gif")]
     aif_path = base.with_name(base.stem + "_all_in_focus" + base.suffix) if aif else None
     sidecars = [Path(str(p) + ".json") for p in outs + ([aif_path] if aif else [])]
-    check_writable([*outs, *extra, *sidecars, *([aif_path] if aif else [])], overwrite=overwrite)
+    all_outputs = [*outs, *extra, *sidecars, *([aif_path] if aif else [])]
+    check_writable(all_outputs, overwrite=overwrite)
+    views, cal, cal_name = load_views(raw, calib, levels, check=not no_check)
+    ref = check_reference(reference, cal.num_views)
+    check_renderable(cal, zs, ref)
+    check_writable(all_outputs, overwrite=overwrite)  # again: loading took a while
 
-    stack = focal_stack(views, cal, zs, reference=ref, interpolation=interpolation)
+    # inf renders as the model's limit H = A (see INFINITE_DEPTH_M).
+    render_zs = [INFINITE_DEPTH_M if math.isinf(z) else z for z in zs]
+    # Validates and warns once for the whole stack (inf by name: the model is extrapolated there).
+    cal.check_depth([z for z in zs if math.isfinite(z)] or [cal.valid_depth_range_m[0]])
+    if any(math.isinf(z) for z in zs) and cal.valid_depth_range_m[1] is not None:
+        warnings.warn(f"depth inf is outside the calibrated range ({cal.valid_depth_range_m[0]:g} to "
+                      f"{cal.valid_depth_range_m[1]:g} m); the model is extrapolated", LfringWarning, stacklevel=2)
     meta = {"input": raw, "calibration": cal_name, "calibration_source": cal.source, "reference": ref,
             "encoding": encoding, "bit_depth": bits, "interpolation": interpolation,
             "units": "depth in metres from the main lens"}
-    for p, z, img in zip(outs, zs, stack):
-        write_image(p, encode(img, bits, encoding))
-        write_json(str(p) + ".json", {**meta, "depth_m": z})
-        log.info("wrote %s (%.4g m)", p, z)
+    stack = []
+    with warnings.catch_warnings(), progress_bar(len(zs), "refocus", "depth") as bar:
+        warnings.simplefilter("ignore", LfringWarning)
+        for p, z, zr in zip(outs, zs, render_zs):
+            img = Refocuser(cal, zr, reference=ref, view_shape=views.shape[1:3], interpolation=interpolation)(views)
+            write_image(p, encode(img, bits, encoding))
+            write_json(str(p) + ".json", {**meta, "depth_m": z if math.isfinite(z) else "inf"})
+            log.info("wrote %s (%.4g m)", p, z)
+            if len(zs) > 1:
+                stack.append(img)
+            bar.update(1)
     if len(zs) > 1:
-        import imageio.v3 as iio
-        import tifffile
-
-        from lfring.io.atomic import atomic_path
-
-        with atomic_path(extra[0]) as tmp:
-            tifffile.imwrite(tmp, np.stack([encode(s, bits, encoding) for s in stack]),
-                             photometric="rgb" if stack.shape[-1] == 3 else "minisblack",
-                             metadata={"depths_m": zs})
-        with atomic_path(extra[1]) as tmp:
-            iio.imwrite(tmp, np.stack([encode(s, 8, "srgb") for s in stack]), extension=".gif", duration=250, loop=0)
+        write_tiff_stack(extra[0], np.stack([encode(s, bits, encoding) for s in stack]),
+                         metadata={"depths_m": [z if math.isfinite(z) else "inf" for z in zs]})
+        write_gif(extra[1], np.stack([encode(s, 8, "srgb") for s in stack]), frame_ms=250)
         log.info("wrote %s and %s", *extra)
     if aif:
-        img, chosen = all_in_focus(views, cal, zs if len(zs) > 1 else None, reference=ref)
+        img, chosen = all_in_focus(views, cal, render_zs if len(zs) > 1 else None, reference=ref)
         write_image(aif_path, encode(img, bits, encoding))
         write_json(str(aif_path) + ".json", {**meta, "all_in_focus_depths_m": zs if len(zs) > 1 else "calibrated range",
                                               "chosen_depth_range_m": [float(np.nanmin(chosen)), float(np.nanmax(chosen))]})

@@ -10,7 +10,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from lfring.io.bayer import PATTERNS
+from lfring.cli._options import raw_options, read_frame
 
 log = logging.getLogger("lfring.cli.split")
 
@@ -26,15 +26,12 @@ _METHODS = ("bilinear", "edge-aware", "vng", "rawpy", "kornia")
 @click.option("--flat", "flat_file", type=click.Path(dir_okay=False), default=None, metavar="FILE",
               help="Flat (white) frame to detect the layout from.")
 @click.option("--rotate180", is_flag=True, help="The camera outputs the frame rotated by 180 degrees (with --flat or detection).")
-@click.option("--pattern", type=click.Choice(PATTERNS, case_sensitive=False), default=None,
-              help="Bayer pattern (overrides the file's metadata or sidecar).")
-@click.option("--black-level", type=float, default=None, help="Black level [counts] (overrides metadata).")
-@click.option("--white-level", type=float, default=None, help="White level [counts] (overrides metadata).")
 @click.option("--method", type=click.Choice(_METHODS), default="edge-aware", show_default=True, help="Demosaicing method.")
 @click.option("--format", "fmt", type=click.Choice(["png", "tiff"]), default="png", show_default=True,
               help="View files: 16-bit PNG or 16-bit TIFF.")
 @click.option("--overwrite", is_flag=True, help="Replace existing output files.")
-def command(raw, outdir, layout_file, flat_file, rotate180, pattern, black_level, white_level, method, fmt, overwrite):
+@raw_options
+def command(raw, outdir, layout_file, flat_file, rotate180, method, fmt, overwrite, levels):
     """Cut RAW into its views: DIR/<name>_view<k>.png (k = 0 top-left, 1 top-right, 2
     bottom-left, 3 bottom-right), the layout DIR/<name>_layout.json and a sidecar
     DIR/<name>_views.json.
@@ -51,13 +48,12 @@ def command(raw, outdir, layout_file, flat_file, rotate180, pattern, black_level
         raise click.UsageError("give --layout or --flat, not both")
     if layout_file and rotate180:
         raise click.UsageError("--rotate180 goes with --flat or detection; a layout file records its own rotation")
-    levels = dict(pattern=pattern.upper() if pattern else None, black_level=black_level, white_level=white_level)
-    frame = load_raw(raw, **levels)
+    frame = read_frame(raw, levels)
     image = demosaic(frame, method=method)
     if layout_file:
         layout, source = Layout.load(layout_file), f"layout file {layout_file}"
     elif flat_file:
-        flat = demosaic(load_raw(flat_file, **levels), method="bilinear")
+        flat = demosaic(load_raw(flat_file, **levels.as_kwargs()), method="bilinear")
         if flat.shape != image.shape:
             raise click.UsageError(f"the flat frame is {flat.shape[1]} x {flat.shape[0]} px, the raw frame {image.shape[1]} x {image.shape[0]} px")
         layout, source = detect_layout(flat, kind="flat", rotate180=rotate180), f"detected on flat {flat_file}"

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import cv2
@@ -12,14 +13,35 @@ import tifffile
 from lfring.errors import FileFormatError, InvalidInputError
 from lfring.io.atomic import atomic_path, atomic_write_text
 
-__all__ = ["IMAGE_SUFFIXES", "check_writable", "encode_image", "write_float_tiff", "write_image", "write_json"]
+__all__ = [
+    "IMAGE_SUFFIXES", "check_writable", "encode_file", "encode_float_tiff", "encode_image", "write_float_tiff", "write_gif",
+    "write_image", "write_json", "write_tiff_stack",
+]
 
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff")
 
 
 def check_writable(paths, *, overwrite: bool) -> None:
-    """Refuse, before anything is written, to replace existing files unless ``overwrite``."""
-    existing = [str(p) for p in paths if Path(p).exists()]
+    """Refuse, before anything is written, outputs that cannot be written: a file that exists
+    (unless ``overwrite``), a path whose parent is a file, a folder that is not writable.
+
+    Raises
+    ------
+    InvalidInputError
+        Naming the first path that fails and why.
+    """
+    paths = [Path(p) for p in paths]
+    for p in paths:
+        if p.is_dir():
+            raise InvalidInputError(f"cannot write {p}: it is a folder")
+        parent = p.parent
+        while not parent.exists() and parent != parent.parent:
+            parent = parent.parent
+        if not parent.is_dir():
+            raise InvalidInputError(f"cannot write {p}: {parent} is a file, not a folder")
+        if not os.access(parent, os.W_OK | os.X_OK):
+            raise InvalidInputError(f"cannot write {p}: the folder {parent} is not writable")
+    existing = [str(p) for p in paths if p.exists()]
     if existing and not overwrite:
         more = f" (and {len(existing) - 1} more)" if len(existing) > 1 else ""
         raise InvalidInputError(f"{existing[0]}{more} exists; pass --overwrite (overwrite=True) to replace")
@@ -94,3 +116,67 @@ def json_default(o):
 def write_json(path: str | Path, obj) -> Path:
     """Write ``obj`` as indented JSON (NumPy arrays and scalars converted)."""
     return atomic_write_text(path, json.dumps(obj, indent=2, default=json_default, allow_nan=True) + "\n")
+
+
+def write_tiff_stack(path: str | Path, frames: np.ndarray, *, metadata: dict | None = None) -> Path:
+    """Write (N, H, W) or (N, H, W, 3) uint8/uint16 frames as one multi-page TIFF, atomically.
+
+    ``metadata`` (JSON-ready values, e.g. ``{"depths_m": [...]}``) goes into the TIFF's
+    ImageDescription, as tifffile writes it.
+    """
+    arr = np.asarray(frames)
+    if arr.dtype not in (np.uint8, np.uint16):
+        raise InvalidInputError(f"write_tiff_stack takes uint8 or uint16 frames, got {arr.dtype}")
+    if not (arr.ndim == 3 or (arr.ndim == 4 and arr.shape[3] == 3)) or arr.shape[0] < 1:
+        raise InvalidInputError(f"write_tiff_stack takes (N, H, W) or (N, H, W, 3) frames, got shape {arr.shape}")
+    with atomic_path(path) as tmp:
+        tifffile.imwrite(tmp, arr, photometric="rgb" if arr.ndim == 4 else "minisblack", metadata=metadata or {})
+    return Path(path)
+
+
+def write_gif(path: str | Path, frames: np.ndarray, *, frame_ms: int = 250, loop: int = 0) -> Path:
+    """Write (N, H, W) or (N, H, W, 3) uint8 frames as an animated GIF (``loop=0``: forever),
+    atomically."""
+    import imageio.v3 as iio
+
+    arr = np.asarray(frames)
+    if arr.dtype != np.uint8:
+        raise InvalidInputError(f"write_gif takes uint8 frames (GIF has 8 bits per sample), got {arr.dtype}")
+    if not (arr.ndim == 3 or (arr.ndim == 4 and arr.shape[3] == 3)) or arr.shape[0] < 1:
+        raise InvalidInputError(f"write_gif takes (N, H, W) or (N, H, W, 3) frames, got shape {arr.shape}")
+    with atomic_path(path) as tmp:
+        iio.imwrite(tmp, arr, extension=".gif", duration=int(frame_ms), loop=int(loop))
+    return Path(path)
+
+
+def encode_file(image: np.ndarray, suffix: str, *, png_compression: int = 1) -> bytes:
+    """A uint8/uint16 image, (H, W) or (H, W, 3) RGB, encoded in memory as PNG or TIFF (by
+    ``suffix``): the bytes :func:`write_image` would write."""
+    import io
+
+    arr = np.asarray(image)
+    if arr.dtype not in (np.uint8, np.uint16):
+        raise InvalidInputError(f"encode_file takes uint8 or uint16 images, got {arr.dtype}")
+    if not (arr.ndim == 2 or (arr.ndim == 3 and arr.shape[2] == 3)):
+        raise InvalidInputError(f"encode_file takes (H, W) or (H, W, 3) images, got shape {arr.shape}")
+    suffix = suffix.lower()
+    if suffix == ".png":
+        out = arr if arr.ndim == 2 else cv2.cvtColor(arr, cv2.COLOR_RGB2BGR)
+        ok, buf = cv2.imencode(".png", out, [cv2.IMWRITE_PNG_COMPRESSION, int(png_compression)])
+        if not ok:
+            raise FileFormatError("could not encode a PNG")
+        return buf.tobytes()
+    if suffix in (".tif", ".tiff"):
+        bio = io.BytesIO()
+        tifffile.imwrite(bio, arr, photometric="rgb" if arr.ndim == 3 else "minisblack")
+        return bio.getvalue()
+    raise InvalidInputError(f"images are encoded as {', '.join(IMAGE_SUFFIXES)}, got {suffix!r}")
+
+
+def encode_float_tiff(data: np.ndarray) -> bytes:
+    """A float32 map encoded in memory as :func:`write_float_tiff` writes it."""
+    import io
+
+    bio = io.BytesIO()
+    tifffile.imwrite(bio, np.asarray(data, dtype=np.float32), photometric="minisblack", compression="zlib")
+    return bio.getvalue()

@@ -1,0 +1,70 @@
+"""``lfring check``: is FRAME a ring frame for the calibration? Size, pattern, levels, exposure,
+layout fit and view agreement, with an overlay of the layout on the frame."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import click
+
+from lfring.cli._options import raw_options, read_frame
+
+log = logging.getLogger("lfring.cli.check")
+
+
+@click.command("check")
+@click.argument("frame", type=click.Path(dir_okay=False))
+@click.option("--calib", type=click.Path(dir_okay=False), default=None, metavar="FILE",
+              help="Calibration JSON (default: the built-in one for the frame's size).")
+@click.option("-o", "--output", type=click.Path(dir_okay=False), default=None, metavar="FILE",
+              help="Overlay of the layout on the frame (.png). Default: FRAME's name with _check.png in the current folder.")
+@click.option("--overwrite", is_flag=True, help="Replace an existing overlay.")
+@raw_options
+@click.pass_context
+def command(ctx, frame, calib, output, overwrite, levels):
+    """Check that FRAME is a ring frame for the calibration: lfring check raw.png
+
+    Prints the frame's size, Bayer pattern and levels, its exposure (fractions of pixels
+    clipped and dark inside the views' discs), how well the layout's discs fit its light, and
+    how well the four views agree at the best of a few depths. Writes an overlay PNG of the
+    layout on the frame. Exit code 0: a ring frame; 1: not one; 2: bad input.
+    """
+    from lfring.calibration import RingCalibration
+    from lfring.calibration.defaults import default_calibration
+    from lfring.check import check_frame, draw_layout
+    from lfring.io.demosaic import demosaic
+    from lfring.io.writers import check_writable, write_image
+
+    out = Path(output) if output else Path(f"{Path(frame).stem}_check.png")
+    if out.suffix.lower() != ".png":
+        raise click.BadParameter(f"the overlay must end in .png, got {out.name!r}", param_hint="-o")
+    check_writable([out], overwrite=overwrite)
+    cal = RingCalibration.load(calib) if calib else None
+    raw = read_frame(frame, levels, cal)
+    image = demosaic(raw, method="bilinear")
+    size = (image.shape[1], image.shape[0])
+    if cal is None:
+        cal, cal_name = default_calibration(size)
+    else:
+        cal_name = calib
+    res = check_frame(image, cal)
+    black = raw.black_level if not isinstance(raw.black_level, tuple) else ",".join(f"{b:g}" for b in raw.black_level)
+    lines = [
+        f"frame        {frame}: {size[0]} x {size[1]} px, "
+        + (f"Bayer {raw.pattern}" if raw.pattern else "RGB") + f", {raw.bit_depth} bits",
+        f"levels       black {black:g} white {raw.white_level:g} counts" if not isinstance(black, str)
+        else f"levels       black {black} white {raw.white_level:g} counts",
+        f"exposure     {res.clipped_fraction:.2%} clipped, {res.dark_fraction:.2%} dark (inside the views' discs)",
+        f"calibration  {cal_name} ({cal.raw_size[0]} x {cal.raw_size[1]} px, {cal.num_views} views)",
+        f"layout fit   disc contrast {res.disc_contrast:.2f} (1: dark between the discs, 0: light everywhere)",
+        f"agreement    {res.agreement:.2f} at {res.best_depth_m:.3g} m (ring frames score above {res.threshold:g})"
+        if res.best_depth_m is not None else f"agreement    none measurable (threshold {res.threshold:g})",
+        f"verdict      {'ring frame' if res.ok else 'NOT a ring frame for this calibration'}: {res.message}",
+    ]
+    write_image(out, draw_layout(image, cal.layout))
+    for line in lines:
+        click.echo(line)
+    click.echo(f"overlay      {out}")
+    if not res.ok:
+        ctx.exit(1)

@@ -1,0 +1,104 @@
+"""Reading a raw frame with its levels from the best source, and saying which source that was.
+
+For each of the Bayer pattern, the black level and the white level the first of these wins:
+the caller's value (a command-line option), the frame's own metadata or sidecar, the
+calibration the frame is processed with (which records the frames it was made from), and last
+the defaults (black 0, white 2**bits - 1), which are only assumptions: the frame then gets a
+warning that names them. A frame whose brightest count is far below its white level (10-bit
+counts in a 16-bit PNG) gets a warning that names the white level to pass.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+
+from lfring.errors import InvalidInputError
+
+__all__ = ["LEVEL_KEYS", "LOW_PEAK_FRACTION", "load_frame"]
+
+LEVEL_KEYS = ("pattern", "black_level", "white_level")
+
+LOW_PEAK_FRACTION = 1 / 16
+"""A frame whose brightest count is below this fraction of its white level gets a warning: its
+data likely have fewer bits than its container (10-bit counts in a 16-bit PNG reach 1/64 of
+full scale)."""
+
+_OPTION = {"pattern": "--pattern", "black_level": "--black-level", "white_level": "--white-level"}
+
+
+def _sidecar_keys(p: Path) -> set:
+    from lfring.io.raw import sidecar_path
+
+    side = sidecar_path(p)
+    if not side.is_file():
+        return set()
+    try:
+        content = json.loads(side.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return set()  # load_raw reports a broken sidecar by name
+    return {k for k in LEVEL_KEYS if isinstance(content, dict) and content.get(k) is not None}
+
+
+def load_frame(path, *, pattern=None, black_level=None, white_level=None, calibration=None):
+    """Read a raw frame, its pattern and levels from the best source (see the module).
+
+    Parameters
+    ----------
+    path : str or Path
+    pattern, black_level, white_level : optional
+        Given values (they win); as for :func:`lfring.io.raw.load_raw`.
+    calibration : RingCalibration, optional
+        Its ``pattern``, ``black_level`` and ``white_level``, when recorded, stand in for
+        values that neither the caller nor the frame's sidecar gives.
+
+    Returns
+    -------
+    frame : RawFrame
+    notes : list of (int, str)
+        Logging level and message: INFO for values taken from the calibration, WARNING for
+        assumed levels and for data far below the white level.
+    """
+    from lfring.io.raw import RAW_SUFFIXES, load_raw, sidecar_path
+
+    p = Path(path)
+    given = {"pattern": pattern.upper() if isinstance(pattern, str) else pattern, "black_level": black_level,
+             "white_level": white_level}
+    camera_raw = p.suffix.lower() in RAW_SUFFIXES
+    from_file = set() if camera_raw else _sidecar_keys(p)
+    from_cal = {}
+    if calibration is not None and not camera_raw:
+        for k in LEVEL_KEYS:
+            v = getattr(calibration, k, None)
+            if given[k] is None and k not in from_file and v is not None:
+                from_cal[k] = v
+    try:
+        frame = load_raw(p, **{**given, **from_cal})
+    except InvalidInputError as exc:
+        if "pattern" not in from_cal or "already RGB" not in str(exc):
+            raise
+        del from_cal["pattern"]  # an RGB frame: the calibration's Bayer pattern does not apply
+        frame = load_raw(p, **{**given, **from_cal})
+    notes = []
+    if from_cal:
+        names = " or ".join(k.replace("_", " ") for k in from_cal)
+        values = ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in from_cal.items())
+        notes.append((logging.INFO, f"{path}: no {names} of its own; using the calibration's ({values})"))
+    if not camera_raw:
+        assumed = [k for k in ("black_level", "white_level") if given[k] is None and k not in from_file and k not in from_cal]
+        if assumed and (frame.mosaic is not None or frame.bit_depth > 8):
+            what = {"black_level": f"black {frame.black_level:g}", "white_level": f"white {frame.white_level:g}"}
+            notes.append((logging.WARNING,
+                          f"{path}: levels assumed ({', '.join(what[k] for k in assumed)}): no sidecar, option or "
+                          f"calibration gives them; pass {' and '.join(_OPTION[k] for k in assumed)} (or write them in "
+                          f"{sidecar_path(p).name}) if the result looks too dark or too bright"))
+    data = frame.mosaic if frame.mosaic is not None else frame.image
+    peak = int(data.max()) if data.size else 0
+    if given["white_level"] is None and peak < LOW_PEAK_FRACTION * frame.white_level:
+        bits = max(1, peak.bit_length())
+        notes.append((logging.WARNING,
+                      f"{path}: the brightest count is {peak}, far below the white level {frame.white_level:g}: if the data "
+                      f"have fewer bits than the file (e.g. {bits}-bit counts in a {data.dtype.itemsize * 8}-bit file), "
+                      f"pass --white-level {2 ** bits - 1}"))
+    return frame, notes

@@ -1,0 +1,227 @@
+"""Issue 13: verdicts and outputs a user can trust. Each test names the finding it pins: the
+command refuses or warns, with its exit code, one line and no traceback, and writes nothing
+where it refuses."""
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from lfring.cli.main import main
+
+DATA = Path(__file__).resolve().parents[2] / "data" / "synthetic"
+SCENE = DATA / "scene.png"
+
+
+def _photo(path: Path) -> Path:
+    """An ordinary RGB photograph at the sensor's size (scikit-image's astronaut, scaled)."""
+    from skimage import data
+
+    img = cv2.resize(data.astronaut(), (2456, 1842), interpolation=cv2.INTER_CUBIC)
+    cv2.imwrite(str(path), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+    return path
+
+
+def _one_error(err: str, text: str) -> None:
+    assert "Traceback" not in err
+    lines = [line for line in err.splitlines() if line.startswith("lfring: error:")]
+    assert len(lines) == 1 and text in lines[0], err
+
+
+def test_photograph_refused_not_ghosted(tmp_path, capsys):
+    photo = _photo(tmp_path / "photo.png")
+    out = tmp_path / "out.png"
+    assert main(["refocus", str(photo), "--depth", "0.5", "-o", str(out)]) == 2
+    _one_error(capsys.readouterr().err, "do not agree")
+    assert not out.exists() and not Path(str(out) + ".json").exists()
+    # --no-check processes it anyway (the user's call).
+    assert main(["refocus", str(photo), "--depth", "0.5", "-o", str(out), "--no-check"]) == 0
+    assert out.exists()
+
+
+@pytest.mark.parametrize("command", [["depth", "--zmin", "0.3", "--zmax", "1.0", "-o", "{out}"],
+                                     ["inspect", "--plane", "0.3", "--tolerance", "0.01", "-o", "{out}"]])
+def test_photograph_refused_by_depth_and_inspect(tmp_path, capsys, command):
+    photo = _photo(tmp_path / "photo.png")
+    out = tmp_path / "o"
+    args = [a.replace("{out}", str(out)) for a in command]
+    assert main([args[0], str(photo), *args[1:]]) == 2
+    _one_error(capsys.readouterr().err, "do not agree")
+    assert not out.exists()
+
+
+def test_check_command(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert main(["check", str(SCENE)]) == 0
+    text = capsys.readouterr().out
+    assert "2456 x 1842 px, Bayer RGGB, 12 bits" in text and "black 64 white 4095" in text
+    assert "verdict      ring frame" in text
+    overlay = cv2.imread(str(tmp_path / "scene_check.png"))
+    assert overlay.shape == (1842, 2456, 3)
+    photo = _photo(tmp_path / "photo.png")
+    assert main(["check", str(photo)]) == 1
+    assert "NOT a ring frame" in capsys.readouterr().out
+
+
+@pytest.mark.filterwarnings("always::lfring.errors.LfringWarning")
+def test_depth_beyond_overlap_refused_with_nearest_that_works(tmp_path, capsys):
+    out = tmp_path / "z.png"
+    assert main(["refocus", str(SCENE), "--depth", "0.028", "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    _one_error(err, "cannot be rendered")
+    assert "nearest depth that works with this calibration is 0.0369 m" in err
+    assert not out.exists()
+    # The depth it names renders: most of the image is lit, not black.
+    assert main(["refocus", str(SCENE), "--depth", "0.0369", "-o", str(out)]) == 0
+    img = cv2.imread(str(out))
+    assert (img.max(axis=2) > 10).mean() > 0.2
+
+
+@pytest.mark.filterwarnings("always::lfring.errors.LfringWarning")
+def test_depth_inf_and_stack(tmp_path, capsys):
+    out = tmp_path / "inf.png"
+    assert main(["refocus", str(SCENE), "--depth", "inf", "-o", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "depth inf is outside the calibrated range" in err
+    assert json.loads(Path(str(out) + ".json").read_text())["depth_m"] == "inf"
+    # At infinity the model is H = A: the same image as a very far depth.
+    far = tmp_path / "far.png"
+    assert main(["refocus", str(SCENE), "--depth", "1e6", "-o", str(far)]) == 0
+    a, b = cv2.imread(str(out)).astype(int), cv2.imread(str(far)).astype(int)
+    assert np.abs(a - b).max() <= 1
+
+
+def test_sidecar_with_only_pattern_warns_levels_assumed(tmp_path, capsys):
+    frame = tmp_path / "s.png"
+    shutil.copyfile(SCENE, frame)
+    (tmp_path / "s.png.json").write_text(json.dumps({"pattern": "RGGB"}))
+    assert main(["refocus", str(frame), "--depth", "0.5", "-o", str(tmp_path / "o.png")]) == 0
+    err = capsys.readouterr().err
+    assert "levels assumed (black 0, white 65535)" in err and "--black-level and --white-level" in err
+    assert "pass --white-level 4095" in err  # 12-bit counts in a 16-bit PNG
+    # The options fix it: the same image as with the full sidecar, and no warning.
+    assert main(["refocus", str(frame), "--depth", "0.5", "-o", str(tmp_path / "p.png"), "--black-level", "64",
+                 "--white-level", "4095"]) == 0
+    assert "WARNING" not in capsys.readouterr().err
+    assert main(["refocus", str(SCENE), "--depth", "0.5", "-o", str(tmp_path / "q.png")]) == 0
+    np.testing.assert_array_equal(cv2.imread(str(tmp_path / "p.png")), cv2.imread(str(tmp_path / "q.png")))
+
+
+def test_sidecarless_bayer_tiff_with_raw_options(tmp_path, capsys):
+    import tifffile
+
+    mosaic = cv2.imread(str(SCENE), cv2.IMREAD_UNCHANGED)
+    tif = tmp_path / "bare.tiff"
+    tifffile.imwrite(tif, mosaic)
+    assert main(["refocus", str(tif), "--depth", "0.5", "-o", str(tmp_path / "a.png")]) == 2
+    _one_error(capsys.readouterr().err, "no Bayer pattern")
+    assert main(["refocus", str(tif), "--depth", "0.5", "-o", str(tmp_path / "a.png"), "--pattern", "rggb",
+                 "--black-level", "64", "--white-level", "4095"]) == 0
+    assert main(["refocus", str(SCENE), "--depth", "0.5", "-o", str(tmp_path / "b.png")]) == 0
+    np.testing.assert_array_equal(cv2.imread(str(tmp_path / "a.png")), cv2.imread(str(tmp_path / "b.png")))
+
+
+@pytest.mark.parametrize("name", ["refocus", "depth", "inspect", "batch", "check", "split", "calibrate"])
+def test_every_frame_reader_has_raw_options(name):
+    import importlib
+
+    cmd = importlib.import_module(f"lfring.cli.{name}").command
+    opts = {o for p in cmd.params for o in p.opts}
+    assert {"--pattern", "--black-level", "--white-level"} <= opts
+    if name in ("refocus", "depth", "inspect", "batch"):
+        assert "--no-check" in opts
+
+
+def test_output_parent_is_a_file(tmp_path, capsys):
+    blocker = tmp_path / "hostname"
+    blocker.write_text("x\n")
+    assert main(["refocus", str(SCENE), "--depth", "0.5", "-o", str(blocker / "out.png")]) == 2
+    _one_error(capsys.readouterr().err, f"cannot write {blocker / 'out.png'}: {blocker} is a file, not a folder")
+    assert blocker.read_text() == "x\n"
+
+
+def test_unwritable_folder_names_the_users_path(tmp_path, capsys, monkeypatch):
+    import tempfile
+
+    def denied(*args, dir=None, **kwargs):
+        raise PermissionError(13, "Permission denied", str(Path(dir) / ".out.abc.part.png"))
+
+    monkeypatch.setattr(tempfile, "mkstemp", denied)
+    out = tmp_path / "ro" / "out.png"
+    assert main(["refocus", str(SCENE), "--depth", "0.5", "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    _one_error(err, f"Permission denied: {out}")
+    assert ".part" not in err
+
+
+def test_calibrate_refuses_swapped_depths_and_remembers_device_and_levels(tmp_path, capsys):
+    t03, t1 = DATA / "target_0.3m.png", DATA / "target_1m.png"
+    out = tmp_path / "cal.json"
+    common = ["--flat", str(DATA / "flat.png"), "--device", "prototype", "-o", str(out)]
+    assert main(["calibrate", str(t03), str(t1), "--depths", "1.0", "0.3", *common]) == 2
+    err = capsys.readouterr().err
+    _one_error(err, "look swapped")
+    assert "target_1m.png" in err and not out.exists()
+    assert main(["calibrate", str(t03), str(t1), "--depths", "0.3", "1.0", *common]) == 0
+    data = json.loads(out.read_text())
+    assert data["device"] == "prototype" and data["bayer_pattern"] == "RGGB"
+    assert data["black_level"] == 64 and data["white_level"] == 4095
+    # A frame without a sidecar is read with the calibration's pattern and levels, and says so.
+    bare = tmp_path / "bare.png"
+    shutil.copyfile(SCENE, bare)
+    capsys.readouterr()
+    assert main(["refocus", str(bare), "--depth", "0.5", "--calib", str(out), "-o", str(tmp_path / "a.png")]) == 0
+    err = capsys.readouterr().err
+    assert "using the calibration's (pattern RGGB, black level 64.0, white level 4095.0)" in err
+    assert "WARNING" not in err
+    assert main(["refocus", str(SCENE), "--depth", "0.5", "--calib", str(out), "-o", str(tmp_path / "b.png")]) == 0
+    np.testing.assert_array_equal(cv2.imread(str(tmp_path / "a.png")), cv2.imread(str(tmp_path / "b.png")))
+
+
+def test_batch_over_the_sample_folder_skips_what_is_not_a_frame_and_adds_outputs(tmp_path, capsys):
+    out = tmp_path / "x"
+    args = ["batch", str(DATA), "-o", str(out), "--exclude", "flat*", "--workers", "1"]
+    assert main([*args, "--refocus", "0.5"]) == 0
+    cap = capsys.readouterr()
+    assert "6 frames: 6 done, 0 skipped (already done), 0 failed" in cap.out
+    assert "14 files that are not frames left out (-v lists them)" in cap.out
+    assert "Traceback" not in cap.err and "ERROR" not in cap.err
+    before = {p.name: p.read_bytes() for p in out.glob("*_refocus_0.5m.png")}
+    assert len(before) == 6
+    # Another depth on the finished run: only the new outputs are computed.
+    assert main(["-v", *args, "--refocus", "0.5,0.7"]) == 0
+    cap = capsys.readouterr()
+    assert "6 frames: 6 done" in cap.out and "not a frame: " in cap.err and "scene_truth" in cap.err
+    lines = [json.loads(x) for x in (out / "manifest.jsonl").read_text().splitlines()]
+    assert {tuple(e["outputs"]) for e in lines[-6:]} == {(f"{p.stem}_refocus_0.7m.png",) for p in DATA.glob("*.png")
+                                                         if not p.name.startswith("flat")}
+    assert {p.name: p.read_bytes() for p in out.glob("*_refocus_0.5m.png")} == before
+    assert main([*args, "--refocus", "0.7", "-q"]) == 0
+    assert "6 skipped" in capsys.readouterr().out
+
+
+def test_batch_failure_printed_once(tmp_path, capsys):
+    root = tmp_path / "in"
+    root.mkdir()
+    (root / "bad.png").write_bytes(b"not a png")
+    assert main(["batch", str(root), "-o", str(tmp_path / "out"), "--refocus", "0.5", "--workers", "1"]) == 1
+    cap = capsys.readouterr()
+    assert cap.err.count("bad.png") == 1 and "Traceback" not in cap.err
+    assert "1 failed" in cap.out
+
+
+def test_quiet_after_the_subcommand(tmp_path, capsys):
+    assert main(["refocus", str(SCENE), "--depth", "0.5", "-o", str(tmp_path / "a.png"), "-q"]) == 0
+    assert "INFO" not in capsys.readouterr().err
+    assert main(["refocus", str(SCENE), "--depth", "0.5", "-o", str(tmp_path / "b.png"), "-v"]) == 0
+    assert "INFO" in capsys.readouterr().err
+
+
+def test_python_m_lfring():
+    res = subprocess.run([sys.executable, "-m", "lfring", "--version"], capture_output=True, text=True)
+    assert res.returncode == 0 and "lfring, version" in res.stdout
