@@ -4,8 +4,6 @@ cap, flat or unrelated frame, too little of the part checked: report written); o
 atomically, never overwritten without --overwrite."""
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
