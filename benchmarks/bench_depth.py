@@ -9,12 +9,18 @@ without an estimate count as failures; disparities between views 0 and 1. Times 
 runs, every method timed first, one after the other; the last column divides by SGBM's median.
 
 A second table times 4 views of 1060 x 1060 (the paper's sub-aperture size; random texture, the
-prototype's optics calibration with views valid everywhere) at exactly 64 planes, medians of 3 runs.
+prototype's optics calibration with views valid everywhere) at exactly 64 planes, medians of 3 runs,
+and gives the peak memory of one call at 128 planes (in a fresh process).
 
     python benchmarks/bench_depth.py
 """
 
 from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -62,11 +68,11 @@ def main() -> None:
     near_edges = evaluation_mask(gt, r.views_sharp[0], margin_px=3) & seen & ~usable
     est = lambda **kw: (lambda: estimate_depth(views, cal, zmin_m=ZMIN, zmax_m=ZMAX, reference=0, **kw).depth_m)
     runs = {
-        "lfring, defaults (lcn, box 15 px, 1 px spacing)": est(),
+        "lfring, defaults (sgm over lcn, 1 px spacing)": est(),
         "lfring, defaults, threads=1": est(threads=1),
-        "lfring, aggregation='guided'": est(aggregation="guided"),
-        "lfring, cost='zncc', aggregation='guided' (the former defaults)": est(cost="zncc", aggregation="guided"),
-        "lfring, 0.25 px spacing": est(num_planes=41),
+        "lfring, method='local' (lcn, box 15 px: the former defaults)": est(method="local"),
+        "lfring, method='local', aggregation='guided'": est(method="local", aggregation="guided"),
+        "lfring, method='local', 0.25 px spacing": est(method="local", num_planes=41),
         "OpenCV StereoSGBM, views 0 and 1": lambda: sgbm_depth(views, cal, ZMIN, ZMAX)[0],
     }
     disp = lambda z: cal.model(np.asarray(z, np.float64))[..., 1, 0, 2] - cal.model(np.asarray(z, np.float64))[..., 0, 0, 2]
@@ -97,8 +103,7 @@ def main() -> None:
     big_views()
 
 
-def big_views(side: int = 1060, planes: int = 64, runs: int = 3) -> None:
-    """4 views of side x side px at exactly ``planes`` hypotheses (reference 'center', defaults)."""
+def _big(side: int):
     dev = load_device("prototype")
     w, h = dev.sensor_width_px, dev.sensor_height_px
     circles = [(1228.0 + dx, 921.0 + dy, side / 2) for dy in (0, h / 2) for dx in (0, w / 2)]
@@ -107,14 +112,50 @@ def big_views(side: int = 1060, planes: int = 64, runs: int = 3) -> None:
     cal = RingCalibration.from_optics(dev, layout=square)
     rng = np.random.default_rng(0)
     views = cv2.GaussianBlur(rng.random((4 * side, side, 3), dtype=np.float32), (0, 0), 1.5).reshape(4, side, side, 3)
+    return views, cal
+
+
+def big_views(side: int = 1060, planes: int = 64, runs: int = 3) -> None:
+    """4 views of side x side px at exactly ``planes`` hypotheses (reference 'center'), and the
+    peak memory at 128 planes."""
+    views, cal = _big(side)
     print(f"\n4 views of {side} x {side} x 3 float32, {planes} planes, depth range {ZMIN}-{ZMAX} m; median of {runs} runs")
     print("| what | median s | min s | max s |")
     print("|---|---|---|---|")
-    for name, kw in (("estimate_depth, defaults", {}), ("estimate_depth, defaults, threads=1", {"threads": 1}),
-                     ("estimate_depth, cost='zncc', aggregation='guided' (the former defaults)", {"cost": "zncc", "aggregation": "guided"})):
+    for name, kw in (("estimate_depth, defaults (sgm)", {}), ("estimate_depth, defaults, threads=1", {"threads": 1}),
+                     ("estimate_depth, method='local'", {"method": "local"}),
+                     ("estimate_depth, method='local', cost='zncc', aggregation='guided'",
+                      {"method": "local", "cost": "zncc", "aggregation": "guided"})):
         med, lo, hi = bench(lambda kw=kw: estimate_depth(views, cal, zmin_m=ZMIN, zmax_m=ZMAX, num_planes=planes, **kw), runs)
         print(f"| {name} | {med:.2f} | {lo:.2f} | {hi:.2f} |")
+    print("\npeak memory of one call at 128 planes (rise of VmHWM over the resident set before it, fresh process):")
+    for method in ("sgm", "local"):
+        out = subprocess.run([sys.executable, __file__, "--memory", str(side), "128", method], capture_output=True, text=True,
+                             check=True, env={**os.environ, "MALLOC_MMAP_THRESHOLD_": "65536"})
+        print(f"- method={method!r}: {out.stdout.strip()} MiB")
+
+
+def _status_kib(field: str) -> int:
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith(field + ":"):
+            return int(line.split()[1])
+    raise RuntimeError(field)
+
+
+def memory(side: int, planes: int, method: str) -> None:
+    """Print the rise of the peak resident set of one estimate_depth call (after a warm-up on a
+    small frame, so that numba's compiled kernels are loaded)."""
+    views, cal = _big(side)
+    small, small_cal = _big(64)
+    estimate_depth(small, small_cal, zmin_m=ZMIN, zmax_m=ZMAX, num_planes=8, method=method)
+    before = _status_kib("VmRSS")
+    Path("/proc/self/clear_refs").write_text("5")  # resets VmHWM to the current resident set
+    estimate_depth(views, cal, zmin_m=ZMIN, zmax_m=ZMAX, num_planes=planes, method=method)
+    print(f"{(_status_kib('VmHWM') - before) / 1024.0:.0f}")
 
 
 if __name__ == "__main__":
-    main()
+    if len(sys.argv) > 1 and sys.argv[1] == "--memory":
+        memory(int(sys.argv[2]), int(sys.argv[3]), sys.argv[4])
+    else:
+        main()

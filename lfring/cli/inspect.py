@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import logging
 from pathlib import Path
 
@@ -93,16 +95,21 @@ def command(ctx, raw, plane, tolerance, outdir, calib, roi, reference_depth, min
     (verdict, coverage, the reason when the part cannot be judged, settings, each defect's box
     in reference-frame pixels, area in px and mm^2, maximum deviation in mm: + towards the
     camera, - away). Exit code 0: pass; 1: defects found; 2: bad input or a failed step
-    (nothing written); 3: cannot judge (frame too dark or too flat, no surface at the plane, or
+    (nothing written); 3: cannot judge (frame too dark or too flat, not a ring frame for the
+    calibration (unless --no-check), no surface at the plane, or
     less than --min-coverage of the part checked; the report is written).
     """
+    from lfring.check import check_frame
     from lfring.errors import LfringError
     from lfring.geometry import check_reference
     from lfring.inspect import annotate, inspect_frame, report
     from lfring.io.writers import check_writable, write_image, write_json
     from lfring.optics.device import load_device
 
-    views, cal, cal_name = load_views(raw, calib, levels, check=not no_check)
+    # A frame that is not a ring frame for the calibration cannot be judged (exit 3 with the
+    # check's reason), rather than refused as bad input: the line needs a verdict for every part.
+    views, cal, cal_name = load_views(raw, calib, levels, check=False)
+    frame_check = None if no_check else check_frame(views, cal)
     ref = check_reference(reference, cal.num_views)
     out = Path(outdir)
     stem = Path(raw).stem
@@ -128,6 +135,9 @@ def command(ctx, raw, plane, tolerance, outdir, calib, roi, reference_depth, min
                         reference=ref, min_area_px=min_area, min_confidence=min_confidence,
                         min_coverage=min_coverage, zmin_m=zmin, zmax_m=zmax,
                         device=dev, backend=backend)
+    if frame_check is not None and not frame_check.ok and res.verdict != "cannot_judge":
+        res = dataclasses.replace(res, verdict="cannot_judge", defects=(),
+                                  reason=f"not a ring frame for this calibration: {frame_check.message}")
     out.mkdir(parents=True, exist_ok=True)
     write_image(png, annotate(res))
     write_json(js, report(res, raw=str(raw), calibration=cal_name, reference_depth=reference_depth,
