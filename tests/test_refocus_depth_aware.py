@@ -1,0 +1,196 @@
+"""Depth-aware refocusing (lfring.dof) against exact constructions: two fronto-parallel textured
+planes, a near one partly covering a far one, rendered as four views by shifting them with
+occlusion; the exact depth map is given."""
+
+import math
+
+import numpy as np
+import pytest
+
+from lfring.calibration import RingCalibration
+from lfring.dof import aperture_from_f_number, aperture_radius_px, coc_radius_px
+from lfring.errors import InvalidInputError
+from lfring.focus import all_in_focus, depth_of_field, focal_stack, refocus, resolve_aperture
+from lfring.optics import load_device
+from lfring.views import Layout
+
+N = 96  # view side
+FAR_M, NEAR_M = 2.0, 0.5  # x = 1/Z: 0.5 and 2 (z0 = 0)
+GAIN = 4.0  # view motion per unit x along each axis: shifts of 2 px (far) and 8 px (near)
+DIRS = np.array([[-1, -1], [1, -1], [-1, 1], [1, 1]])  # where each view sits in the aperture
+NEAR_BOX = (slice(30, 70), slice(20, 60))  # rows, cols of the near plane in the reference frame
+
+
+def _calibration():
+    lay = Layout(2 * N + 10, 2 * N + 10, ((0, 0, N, N), (N + 10, 0, N, N), (0, N + 10, N, N), (N + 10, N + 10, N, N)))
+
+    def hs(z):
+        t = -GAIN / z * DIRS  # H_center_from_k: view pixel u lands on reference u + t_k
+        out = np.repeat(np.eye(3)[None], 4, axis=0)
+        out[:, :2, 2] = t - t[0]  # into view 0
+        return out
+
+    return RingCalibration.from_plane_homographies({0.4: hs(0.4), 3.0: hs(3.0)}, layout=lay, depth_origin_m=0.0)
+
+
+def _scene(far_tex, near_tex, *, with_near=True):
+    """Views and the exact depth map: view k shows reference point X of a plane at depth Z at
+    view pixel X + (GAIN / Z) d_k; the near plane hides the far one."""
+    yy, xx = np.mgrid[0:N, 0:N]
+    near_mask = np.zeros((N, N), bool)
+    near_mask[NEAR_BOX] = with_near
+    views = []
+    for d in DIRS:
+        gf, gn = (GAIN / FAR_M * d).astype(int), (GAIN / NEAR_M * d).astype(int)
+        # Reference point seen at view pixel u: X = u - g d (textures are padded by 16 px).
+        far = far_tex[yy - gf[1] + 16, xx - gf[0] + 16]
+        ny, nx = yy - gn[1], xx - gn[0]
+        inside = (ny >= 0) & (ny < N) & (nx >= 0) & (nx < N)
+        hit = np.zeros((N, N), bool)
+        hit[inside] = near_mask[ny[inside], nx[inside]]
+        v = far.copy()
+        v[hit] = near_tex[ny[hit] + 16, nx[hit] + 16]
+        views.append(v)
+    depth = np.where(near_mask, NEAR_M, FAR_M)
+    return np.stack(views).astype(np.float32), depth, near_mask
+
+
+@pytest.fixture(scope="module")
+def textured():
+    rng = np.random.default_rng(3)
+    far = (0.05 + 0.3 * rng.random((N + 32, N + 32, 3))).astype(np.float32)  # dark
+    near = (0.65 + 0.3 * rng.random((N + 32, N + 32, 3))).astype(np.float32)  # bright: every occlusion is visible
+    views, depth, mask = _scene(far, near)
+    return _calibration(), views, depth, mask, far[16:-16, 16:-16], near[16:-16, 16:-16]
+
+
+def test_the_blur_scale_is_the_views_radius_in_the_aperture():
+    cal = _calibration()
+    assert aperture_radius_px(cal) == pytest.approx(GAIN * math.sqrt(2), rel=1e-9)
+    assert aperture_radius_px(cal, reference=2) == pytest.approx(GAIN * math.sqrt(2), rel=1e-9)
+    assert coc_radius_px(cal, NEAR_M, FAR_M, aperture=0.5) == pytest.approx(0.5 * GAIN * math.sqrt(2) * 1.5)
+
+
+def test_focused_on_the_far_plane_its_interior_is_shift_and_add(textured):
+    cal, views, depth, mask, far, near = textured
+    sa = refocus(views, cal, FAR_M)
+    out = refocus(views, cal, FAR_M, method="depth-aware", depth=depth)
+    # Away from the near plane's blur (radius 8.5 px) and the frame's edge.
+    far_inside = np.ones((N, N), bool)
+    far_inside[30 - 12:70 + 12, 20 - 12:60 + 12] = False
+    far_inside[:4] = far_inside[-4:] = False
+    far_inside[:, :4] = far_inside[:, -4:] = False
+    np.testing.assert_allclose(out[far_inside], sa[far_inside], atol=1e-5)
+    np.testing.assert_allclose(out[far_inside], far[far_inside], atol=1e-5)
+
+
+def test_near_edge_blurs_over_the_far_plane_and_far_never_bleeds_over_a_sharp_near(textured):
+    cal, views, depth, mask, far, near = textured
+    # Focused far: just outside the near plane's left edge, its light spreads over the far plane.
+    out = refocus(views, cal, FAR_M, method="depth-aware", depth=depth)
+    rows = slice(40, 60)
+    just_outside = out[rows, 17:20].mean()  # 1-3 px left of the edge at column 20
+    assert just_outside > far[rows, 17:20].mean() + 0.15  # the bright near plane's blur
+    excess = (out - far)[rows, 8:20].mean(axis=(0, 2))  # the near plane's light over the far plane
+    assert np.all(np.diff(excess[2:]) > 0) and excess[0] < 0.01  # a smooth ramp from 9 px out, no step
+    # Shift-and-add leaves a hard step (a ghost copy 6 px out) instead.
+    sa_excess = (refocus(views, cal, FAR_M) - far)[rows, 8:20].mean(axis=(0, 2))
+    assert np.abs(np.diff(sa_excess)).max() > 4 * np.abs(np.diff(excess)).max()
+    # Focused near: every near pixel is the near texture (the blurred far plane stays outside).
+    out_near = refocus(views, cal, NEAR_M, method="depth-aware", depth=depth)
+    np.testing.assert_allclose(out_near[mask], near[mask], atol=1e-5)
+    # ... and the far plane is blurred, not doubled: next to the near plane, still dark.
+    assert out_near[rows, 12:19].max() < 0.45
+
+
+def test_aperture_zero_is_all_in_focus(textured):
+    cal, views, depth, mask, far, near = textured
+    truth = np.where(mask[..., None], near, far)
+    inner = (slice(8, N - 8), slice(8, N - 8))  # every view sees these points
+    for focus in (FAR_M, NEAR_M, 1.0):
+        out = refocus(views, cal, focus, method="depth-aware", depth=depth, aperture=0.0)
+        np.testing.assert_allclose(out[inner], truth[inner], atol=1e-5)
+    # all_in_focus with the depth map is the same renderer (values the nearest of depths_m).
+    img, chosen = all_in_focus(views, cal, [FAR_M, NEAR_M], depth_map_m=depth)
+    np.testing.assert_allclose(img[inner], truth[inner], atol=1e-5)
+    assert np.all(chosen[mask] == np.float32(NEAR_M))
+
+
+def _edge_width(profile):
+    """Distance between the 10 % and 90 % crossings of a rising step profile (px, linear)."""
+    p = (profile - profile[0]) / (profile[-1] - profile[0])
+    return float(np.interp(0.9, p, np.arange(len(p))) - np.interp(0.1, p, np.arange(len(p))))
+
+
+def _disc_edge_width(r):
+    """10-90 % width of the edge of a disc of radius r: the disc's area beyond a chord."""
+    d = np.linspace(-r, r, 20001)
+    frac = 1 - (r * r * np.arccos(d / r) - d * np.sqrt(r * r - d * d)) / (np.pi * r * r)
+    return float(np.interp(0.9, frac, d) - np.interp(0.1, frac, d))
+
+
+@pytest.mark.parametrize("aperture", [0.5, 1.0])
+def test_blur_radius_matches_the_circle_of_confusion(aperture):
+    """A step on the far plane (no near plane) focused at the near depth: its edge spreads as a
+    disc of radius r(Z) = aperture * R * |1/Z - 1/Z_f|."""
+    cal = _calibration()
+    step = np.full((N + 32, N + 32, 1), 0.2, np.float32)
+    step[:, (N + 32) // 2:] = 0.8
+    flat = np.full_like(step, 0.9)
+    views, _, _ = _scene(step, flat, with_near=False)
+    depth = np.full((N, N), FAR_M)
+    out = refocus(views, cal, NEAR_M, method="depth-aware", depth=depth, aperture=aperture)[..., 0]
+    r = coc_radius_px(cal, FAR_M, NEAR_M, aperture=aperture)
+    profile = out[20:76, N // 2 - 20:N // 2 + 20].mean(axis=0)
+    width = _edge_width(profile)
+    assert width == pytest.approx(_disc_edge_width(r), abs=0.6), (r, width)
+    assert abs(width - _disc_edge_width(1.25 * r)) > 0.6 and abs(width - _disc_edge_width(0.8 * r)) > 0.6
+
+
+def test_f_number_and_aperture_agree():
+    dev = load_device("prototype")
+    cal = RingCalibration.from_optics(dev)
+    a = resolve_aperture(cal, f_number=4.0)
+    assert a == pytest.approx(aperture_from_f_number(4.0, dev))
+    assert resolve_aperture(cal, f_number=2.0) == pytest.approx(2 * a)  # aperture ~ 1 / N
+    # The relation: the lens's pupil radius FL / (2 N) over the views' radius in it.
+    from lfring.optics.views import view_cameras
+
+    c = view_cameras(dev).centres_m
+    assert a * np.linalg.norm(c - c.mean(axis=0), axis=1).mean() == pytest.approx(dev.main_focal_length_m / 8.0)
+    # Rendering with one or the other gives the same image.
+    small = _calibration()
+    rng = np.random.default_rng(0)
+    views = rng.random((4, N, N, 1)).astype(np.float32)
+    depth = np.full((N, N), FAR_M)
+    a2 = resolve_aperture(small, f_number=4.0, ring_device=dev)
+    np.testing.assert_array_equal(refocus(views, small, NEAR_M, method="depth-aware", depth=depth, aperture=a2),
+                                  refocus(views, small, NEAR_M, method="depth-aware", depth=depth, f_number=4.0, ring_device=dev))
+
+
+def test_focal_stack_reuses_one_depth_map(textured):
+    cal, views, depth, mask, far, near = textured
+    stack = focal_stack(views, cal, [FAR_M, NEAR_M], method="depth-aware", depth=depth)
+    np.testing.assert_array_equal(stack[1], refocus(views, cal, NEAR_M, method="depth-aware", depth=depth))
+    dof = depth_of_field(views, cal, depth=depth)
+    np.testing.assert_array_equal(stack[0], dof.render(FAR_M, 1.0, refocus(views, cal, FAR_M)))
+
+
+def test_bad_inputs(textured):
+    cal, views, depth, mask, far, near = textured
+    with pytest.raises(InvalidInputError, match="aperture must be"):
+        refocus(views, cal, FAR_M, method="depth-aware", depth=depth, aperture=-1.0)
+    with pytest.raises(InvalidInputError, match="depth map must be"):
+        refocus(views, cal, FAR_M, method="depth-aware", depth=depth[:-1])
+    with pytest.raises(InvalidInputError, match="method must be one of"):
+        refocus(views, cal, FAR_M, method="bokeh")
+    with pytest.raises(InvalidInputError, match="not both"):
+        refocus(views, cal, FAR_M, method="depth-aware", depth=depth, aperture=1.0, f_number=2.8)
+    with pytest.raises(InvalidInputError, match="f_number needs the device"):
+        refocus(views, cal, FAR_M, method="depth-aware", depth=depth, f_number=2.8)
+    with pytest.raises(InvalidInputError, match="for method='depth-aware'"):
+        refocus(views, cal, FAR_M, aperture=0.5)
+    with pytest.raises(InvalidInputError, match="not both"):
+        refocus(views, cal, FAR_M, method="depth-aware", depth=depth, zmin_m=0.5, zmax_m=2.5)
+    with pytest.raises(InvalidInputError, match="depth"):
+        refocus(views, cal, -1.0, method="depth-aware", depth=depth)
