@@ -53,7 +53,7 @@ SHARP_RAMP_PX = 1.0
 # A view whose luminance at a pixel's own depth differs from the views' median by more than
 # AGREE_TOL (linear [0, 1] units) loses weight linearly, and none is left by twice that.
 AGREE_TOL = 0.04
-# The ladder of blur radii of the layers: 1 px apart up to LINEAR_UNTIL_PX, then each
+# The ladder of blur radii of the layers: 0.5 px apart up to 2 px, 1 px apart up to LINEAR_UNTIL_PX, then each
 # GEOMETRIC_STEP times the last (the eye does not tell a disc of radius r from one of 1.2 r).
 LINEAR_UNTIL_PX = 6.0
 GEOMETRIC_STEP = 1.2
@@ -183,10 +183,11 @@ def _blur(layer: np.ndarray, radius_px: float) -> np.ndarray:
 
 
 def _radius_ladder(max_px: float) -> np.ndarray:
-    """Signed layer radii, ascending (far to near): 0, +-1, ... +-LINEAR_UNTIL_PX, then geometric."""
-    r = list(np.arange(1.0, min(LINEAR_UNTIL_PX, max_px + 1.0) + 0.5))
-    while r and r[-1] < max_px:
-        r.append(r[-1] * GEOMETRIC_STEP if r[-1] >= LINEAR_UNTIL_PX else r[-1] + 1.0)
+    """Signed layer radii, ascending (far to near): 0, +-0.5, +-1, +-1.5, +-2, +-3, ...
+    +-LINEAR_UNTIL_PX, then geometric."""
+    r = [0.5]
+    while r[-1] < max_px:
+        r.append(r[-1] * GEOMETRIC_STEP if r[-1] >= LINEAR_UNTIL_PX else r[-1] + (0.5 if r[-1] < 2.0 else 1.0))
     r = np.array(r)
     return np.concatenate([-r[::-1], [0.0], r])
 
@@ -354,11 +355,14 @@ class DepthOfField:
             raise InvalidInputError(f"aperture must be a finite number >= 0, got {aperture!r}")
         disp = self.signed_radius_px(focus_m)
         colour = self.colour
+        rho = disp * np.float32(aperture)
         if shift_and_add is not None:
             sa = np.asarray(shift_and_add, dtype=np.float32).reshape(colour.shape)
             s = np.clip((SHARP_PX + SHARP_RAMP_PX - np.abs(disp)) / SHARP_RAMP_PX, 0.0, 1.0) * self.agree
             colour = colour + s[..., None] * (sa - colour)
-        rho = disp * np.float32(aperture)
+            # Shift-and-add is already spread over its V copies at radius |disp| (second moment
+            # disp^2); a disc of radius r has r^2 / 2: blur its share only by the remainder.
+            rho = np.sign(rho) * np.sqrt(np.maximum(rho * rho - 2.0 * s * disp * disp, 0.0))
         rmax = float(np.abs(rho).max())
         if rmax < 0.5:
             return np.where(self.seen[..., None], colour, 0.0).astype(np.float32)
@@ -367,44 +371,35 @@ class DepthOfField:
     def _composite(self, colour: np.ndarray, rho: np.ndarray, rmax: float) -> np.ndarray:
         h, w, c = colour.shape
         ladder = _radius_ladder(rmax)
-        q = np.interp(rho.ravel(), ladder, np.arange(len(ladder), dtype=np.float64)).astype(np.float32)
-        j0 = np.minimum(np.floor(q).astype(np.int32), len(ladder) - 2)
-        t = q - j0
-        seen = self.seen.ravel()
-        order = np.argsort(j0, kind="stable")
-        bounds = np.searchsorted(j0[order], np.arange(len(ladder) + 1))
-        ys, xs = np.divmod(order, w)
-        prem = np.concatenate([colour.reshape(-1, c), np.ones((h * w, 1), np.float32)], axis=1)
-        prem[~seen] = 0.0
+        # Fractional rung of every pixel: layer j takes the tent max(0, 1 - |q - j|).
+        q = np.interp(rho.ravel(), ladder, np.arange(len(ladder), dtype=np.float64)).astype(np.float32).reshape(h, w)
+        row_lo, row_hi = q.min(axis=1), q.max(axis=1)
+        col_lo, col_hi = q.min(axis=0), q.max(axis=0)
+        prem = cv2.merge([*cv2.split(colour), self.seen.astype(np.float32)])
+        if not np.all(self.seen):
+            prem[~self.seen] = 0.0
         acc = np.zeros((h, w, c + 1), np.float32)
         for j, radius in enumerate(ladder):
-            # Pixels with j0 == j take 1 - t, those with j0 == j - 1 take t.
-            parts = []
-            if j < len(ladder) - 1 and bounds[j + 1] > bounds[j]:
-                sl = slice(bounds[j], bounds[j + 1])
-                parts.append((sl, 1.0 - t[order[sl]]))
-            if j >= 1 and bounds[j] > bounds[j - 1]:
-                sl = slice(bounds[j - 1], bounds[j])
-                parts.append((sl, t[order[sl]]))
-            if not parts:
+            rows = np.flatnonzero((row_lo < j + 1) & (row_hi > j - 1))
+            cols = np.flatnonzero((col_lo < j + 1) & (col_hi > j - 1))
+            if rows.size == 0 or cols.size == 0:
                 continue
             pad = int(math.ceil(abs(radius))) + 1
-            y0 = max(0, min(int(ys[sl].min()) for sl, _ in parts) - pad)
-            y1 = min(h, max(int(ys[sl].max()) for sl, _ in parts) + pad + 1)
-            x0 = max(0, min(int(xs[sl].min()) for sl, _ in parts) - pad)
-            x1 = min(w, max(int(xs[sl].max()) for sl, _ in parts) + pad + 1)
-            layer = np.zeros((y1 - y0, x1 - x0, c + 1), np.float32)
-            for sl, wt in parts:
-                idx = order[sl]
-                layer[ys[sl] - y0, xs[sl] - x0] += prem[idx] * wt[:, None]
+            y0, y1 = max(0, rows[0] - pad), min(h, rows[-1] + pad + 1)
+            x0, x1 = max(0, cols[0] - pad), min(w, cols[-1] + pad + 1)
+            tent = np.float32(1.0) - np.abs(q[y0:y1, x0:x1] - np.float32(j))
+            np.maximum(tent, 0.0, out=tent)
+            if not tent.any():
+                continue
+            layer = prem[y0:y1, x0:x1] * tent[..., None]
             layer = _blur(layer, abs(float(radius)))
             region = acc[y0:y1, x0:x1]
-            # "over": near layers (later) cover what is already there by their coverage.
-            cover = 1.0 - layer[..., c:]
+            # "over": a nearer layer (later) covers what is already there by its coverage.
+            cover = np.float32(1.0) - layer[..., c:]
             np.multiply(region, cover, out=region)
             np.add(region, layer, out=region)
         alpha = acc[..., c]
         out = np.zeros((h, w, c), np.float32)
         ok = alpha > WEIGHT_FLOOR
-        out[ok] = acc[ok][:, :c] / alpha[ok][:, None]
+        np.divide(acc[..., :c], alpha[..., None], out=out, where=ok[..., None])
         return out
