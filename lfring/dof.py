@@ -318,21 +318,21 @@ class DepthOfField:
         visible = np.stack(self._visible(maps)) & present
         # Where every view that sees the pixel is occluded by the depth map, trust the photometry alone.
         visible |= present & ~visible.any(axis=0)
-        lum = luminance(warped) / np.where(present, weight, 1.0)
-        lum[~visible] = np.nan
-        # Median over the visible views (NaN sorts last).
-        srt = np.sort(lum, axis=0)
+        lum = luminance(warped)
+        np.divide(lum, weight, out=lum, where=present)
+        # The visible views' median (for up to four views: their mean without the extremes).
         n = visible.sum(axis=0)
-        lo = np.clip((n - 1) // 2, 0, v - 1)[None]
-        hi = np.clip(n // 2, 0, v - 1)[None]
-        med = 0.5 * (np.take_along_axis(srt, lo, 0) + np.take_along_axis(srt, hi, 0))[0]
-        dev = np.where(visible, np.abs(lum - med), np.inf)
+        total = np.where(visible, lum, 0.0).sum(axis=0)
+        trim = n >= 3
+        top = np.where(trim, np.where(visible, lum, -np.inf).max(axis=0), 0.0)
+        bottom = np.where(trim, np.where(visible, lum, np.inf).min(axis=0), 0.0)
+        med = np.where(trim, (total - top - bottom) / np.maximum(n - 2, 1), total / np.maximum(n, 1)).astype(np.float32)
+        dev = np.abs(lum - med)
         # The view nearest the median always counts (two groups of two: all of them).
-        tol = np.maximum(np.float32(AGREE_TOL), np.where(n > 0, dev.min(axis=0), 0.0))
-        phi = np.clip(2.0 - dev / tol, 0.0, 1.0).astype(np.float32)
+        tol = np.maximum(np.float32(AGREE_TOL), np.where(visible, dev, np.inf).min(axis=0))
+        phi = np.where(visible, np.clip(2.0 - dev / tol, 0.0, 1.0), 0.0).astype(np.float32)
         # Agreement for the in-focus blend: every view that sees the pixel, occluded or not.
-        dev_all = np.where(present, np.abs(np.where(present, luminance(warped) / np.where(present, weight, 1.0), 0.0) - med), 0.0)
-        agree = np.clip(2.0 - dev_all / np.float32(AGREE_TOL), 0.0, 1.0).min(axis=0)
+        agree = np.where(present, np.clip(2.0 - dev / np.float32(AGREE_TOL), 0.0, 1.0), 1.0).min(axis=0)
         num = np.einsum("vhw,vhwc->hwc", phi, warped, optimize=True)
         den = (phi * weight).sum(axis=0)
         seen = den > WEIGHT_FLOOR
@@ -375,10 +375,14 @@ class DepthOfField:
         q = np.interp(rho.ravel(), ladder, np.arange(len(ladder), dtype=np.float64)).astype(np.float32).reshape(h, w)
         row_lo, row_hi = q.min(axis=1), q.max(axis=1)
         col_lo, col_hi = q.min(axis=0), q.max(axis=0)
-        prem = cv2.merge([*cv2.split(colour), self.seen.astype(np.float32)])
+        # Planar (C + 1, h, w) premultiplied colour and coverage: per-plane operations are the fastest.
+        prem = np.empty((c + 1, h, w), np.float32)
+        for i, plane in enumerate(cv2.split(colour)):
+            prem[i] = plane
+        prem[c] = self.seen
         if not np.all(self.seen):
-            prem[~self.seen] = 0.0
-        acc = np.zeros((h, w, c + 1), np.float32)
+            prem[:c, ~self.seen] = 0.0
+        acc = np.zeros((c + 1, h, w), np.float32)
         for j, radius in enumerate(ladder):
             rows = np.flatnonzero((row_lo < j + 1) & (row_hi > j - 1))
             cols = np.flatnonzero((col_lo < j + 1) & (col_hi > j - 1))
@@ -387,19 +391,19 @@ class DepthOfField:
             pad = int(math.ceil(abs(radius))) + 1
             y0, y1 = max(0, rows[0] - pad), min(h, rows[-1] + pad + 1)
             x0, x1 = max(0, cols[0] - pad), min(w, cols[-1] + pad + 1)
-            tent = np.float32(1.0) - np.abs(q[y0:y1, x0:x1] - np.float32(j))
+            tent = np.abs(q[y0:y1, x0:x1] - np.float32(j))
+            np.subtract(np.float32(1.0), tent, out=tent)
             np.maximum(tent, 0.0, out=tent)
-            if not tent.any():
-                continue
-            layer = prem[y0:y1, x0:x1] * tent[..., None]
-            layer = _blur(layer, abs(float(radius)))
-            region = acc[y0:y1, x0:x1]
+            layer = prem[:, y0:y1, x0:x1] * tent
+            layer = [_blur(plane, abs(float(radius))) for plane in layer]
             # "over": a nearer layer (later) covers what is already there by its coverage.
-            cover = np.float32(1.0) - layer[..., c:]
-            np.multiply(region, cover, out=region)
-            np.add(region, layer, out=region)
-        alpha = acc[..., c]
-        out = np.zeros((h, w, c), np.float32)
-        ok = alpha > WEIGHT_FLOOR
-        np.divide(acc[..., :c], alpha[..., None], out=out, where=ok[..., None])
-        return out
+            cover = np.float32(1.0) - layer[c]
+            for i in range(c + 1):
+                region = acc[i, y0:y1, x0:x1]
+                cv2.multiply(region, cover, dst=region)
+                cv2.add(region, layer[i], dst=region)
+        alpha = acc[c]
+        inv = np.zeros((h, w), np.float32)
+        np.divide(np.float32(1.0), alpha, out=inv, where=alpha > WEIGHT_FLOOR)
+        planes = [acc[i] * inv for i in range(c)]
+        return planes[0][..., None] if c == 1 else cv2.merge(planes)
