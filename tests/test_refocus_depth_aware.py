@@ -194,3 +194,29 @@ def test_bad_inputs(textured):
         refocus(views, cal, FAR_M, method="depth-aware", depth=depth, zmin_m=0.5, zmax_m=2.5)
     with pytest.raises(InvalidInputError, match="depth"):
         refocus(views, cal, -1.0, method="depth-aware", depth=depth)
+
+
+def test_cli_depth_aware_stack_is_labelled(tmp_path, capsys):
+    import json
+    from pathlib import Path
+
+    import imageio.v3 as iio
+    import tifffile
+
+    from lfring.cli.main import main
+
+    scene = Path(__file__).resolve().parents[1] / "data" / "synthetic" / "scene.png"
+    out = tmp_path / "s.png"
+    assert main(["refocus", str(scene), "--depths", "0.3,0.6", "--method", "depth-aware", "--aperture", "0.5",
+                 "--zmin", "0.3", "--zmax", "0.9", "-o", str(out)]) == 0
+    side = json.loads((tmp_path / "s_000_0.3m.png.json").read_text())
+    assert side["method"] == "depth-aware" and side["aperture"] == 0.5 and side["zmax_m"] == 0.9
+    with tifffile.TiffFile(tmp_path / "s_stack.tif") as tif:
+        assert "0.6" in tif.pages[0].description  # the depths in the TIFF's metadata
+    gif = iio.imread(tmp_path / "s_stack.gif")
+    corner = gif[:, :40, :120].astype(int)
+    assert gif.shape[0] == 2 and corner.max() >= 200  # the caption's white text
+    # Depth-of-field options need the depth-aware method.
+    assert main(["refocus", str(scene), "--depth", "0.5", "--method", "shift-and-add", "--aperture", "0.5",
+                 "-o", str(tmp_path / "o.png")]) == 2
+    assert "--method depth-aware" in capsys.readouterr().err

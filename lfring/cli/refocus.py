@@ -21,6 +21,20 @@ def encode(image: np.ndarray, bit_depth: int, encoding: str) -> np.ndarray:
     return encode_image(image, bit_depth, encoding)
 
 
+def caption(frame: np.ndarray, text: str) -> np.ndarray:
+    """An 8-bit frame with ``text`` drawn in its top-left corner (white on a dark box)."""
+    import cv2
+
+    out = np.ascontiguousarray(frame).copy()
+    scale = max(0.4, out.shape[0] / 600)
+    (tw, th), base = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, 1)
+    pad = max(2, th // 3)
+    out[: th + base + 2 * pad, : tw + 2 * pad] //= 3
+    white = (255,) * (out.shape[2] if out.ndim == 3 else 1)
+    cv2.putText(out, text, (pad, th + pad), cv2.FONT_HERSHEY_SIMPLEX, scale, white, 1, cv2.LINE_AA)
+    return out
+
+
 def _depths(depth, depths, sweep) -> list[float]:
     given = [x is not None for x in (depth, depths, sweep)]
     if sum(given) != 1:
@@ -53,15 +67,33 @@ def _depths(depth, depths, sweep) -> list[float]:
                    "Default: RAW's name with _refocus_<depth>m in the current folder.")
 @click.option("--interpolation", type=click.Choice(["cubic", "linear"]), default="cubic", show_default=True,
               help="Resampling of the views: bicubic keeps more detail, bilinear is faster.")
+@click.option("--method", type=click.Choice(["depth-aware", "shift-and-add"]), default="depth-aware", show_default=True,
+              help="depth-aware: what the lens's whole aperture would record (smooth, occlusion-correct blur from a "
+                   "depth map estimated over --zmin..--zmax; +7.5 dB PSNR out of focus on a real light field, the same "
+                   "in focus, several times slower); shift-and-add: the views' average (out-of-focus objects as "
+                   "four copies).")
+@click.option("--aperture", type=float, default=None, metavar="A",
+              help="depth-aware: aperture radius, 1 = the aperture the four views span (default), 0 = all in focus.")
+@click.option("--f-number", "f_number", type=float, default=None, metavar="N",
+              help="depth-aware: the main lens's f-number instead of --aperture (needs a calibration made from a "
+                   "described device).")
+@click.option("--zmin", type=float, default=None, metavar="M", help="depth-aware: nearest depth of the depth estimation [m] "
+              "(default: the calibration's valid range).")
+@click.option("--zmax", type=float, default=None, metavar="M", help="depth-aware: farthest depth of the depth estimation [m].")
 @click.option("--bit-depth", type=click.Choice(["8", "16"]), default="8", show_default=True, help="Bits per sample.")
 @click.option("--encoding", type=click.Choice(["srgb", "linear"]), default="srgb", show_default=True,
               help="Write display-ready sRGB values, or linear light.")
 @click.option("--overwrite", is_flag=True, help="Replace existing output files.")
-def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolation, bit_depth, encoding, overwrite):
+def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolation, method, aperture, f_number, zmin, zmax,
+            bit_depth, encoding, overwrite):
     """Refocus RAW at metric depth: lfring refocus raw.png --depth 0.5
 
-    A focal stack (--depths or --sweep) is written as numbered images, a multi-page TIFF and an
-    animated GIF. Every output gets a JSON sidecar (OUTPUT.json) naming the calibration used.
+    By default (--method depth-aware) a depth map is estimated and every out-of-focus pixel is
+    blurred by its own circle of confusion, as a lens of --aperture (or --f-number) would;
+    --method shift-and-add averages the views instead. A focal stack (--depths or --sweep) is
+    written as numbered images, a multi-page TIFF (depths in its metadata) and an animated GIF
+    (each frame captioned with its depth); the depth map is estimated once for the stack.
+    Every output gets a JSON sidecar (OUTPUT.json) naming the calibration used.
     """
     from lfring.geometry import check_reference
     from lfring.io.writers import check_writable, write_image, write_json
@@ -89,10 +121,20 @@ def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolat
     sidecars = [Path(str(p) + ".json") for p in outs + ([aif_path] if aif else [])]
     check_writable([*outs, *extra, *sidecars, *([aif_path] if aif else [])], overwrite=overwrite)
 
-    stack = focal_stack(views, cal, zs, reference=ref, interpolation=interpolation)
+    dof = {}
+    if method == "depth-aware":
+        if zmax is None and cal.valid_depth_range_m[1] is None:
+            raise click.UsageError("the calibration has no upper depth bound: give --zmax for the depth estimation "
+                                   "(or --method shift-and-add)")
+        dof = {"aperture": aperture, "f_number": f_number, "zmin_m": zmin, "zmax_m": zmax}
+    elif any(v is not None for v in (aperture, f_number, zmin, zmax)):
+        raise click.UsageError("--aperture, --f-number, --zmin and --zmax are for --method depth-aware")
+    stack = focal_stack(views, cal, zs, reference=ref, interpolation=interpolation, method=method, **dof)
     meta = {"input": str(raw), "calibration": cal_name, "calibration_source": cal.source, "reference": ref,
-            "encoding": encoding, "bit_depth": bits, "interpolation": interpolation,
+            "encoding": encoding, "bit_depth": bits, "interpolation": interpolation, "method": method,
             "units": "depth in metres from the main lens"}
+    if method == "depth-aware":
+        meta.update({k: v for k, v in dof.items() if v is not None})
     for p, z, img in zip(outs, zs, stack):
         write_image(p, encode(img, bits, encoding))
         write_json(str(p) + ".json", {**meta, "depth_m": z})
@@ -108,7 +150,8 @@ def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolat
                              photometric="rgb" if stack.shape[-1] == 3 else "minisblack",
                              metadata={"depths_m": zs})
         with atomic_path(extra[1]) as tmp:
-            iio.imwrite(tmp, np.stack([encode(s, 8, "srgb") for s in stack]), extension=".gif", duration=250, loop=0)
+            iio.imwrite(tmp, np.stack([caption(encode(s, 8, "srgb"), f"{z:.4g} m") for s, z in zip(stack, zs)]),
+                        extension=".gif", duration=250, loop=0)
         log.info("wrote %s and %s", *extra)
     if aif:
         img, chosen = all_in_focus(views, cal, zs if len(zs) > 1 else None, reference=ref)
