@@ -39,7 +39,7 @@ import numpy as np
 
 from lfring.errors import InvalidInputError
 from lfring.geometry import apply_homography, check_reference, to_reference
-from lfring.warp import WEIGHT_FLOOR, cached_view_masks, check_views, luminance, translations
+from lfring.warp import WEIGHT_FLOOR, cached_view_masks, check_views, luminance, run_threads, translations
 
 __all__ = [
     "AGREE_TOL", "FULL_RES_BLUR_PX", "GEOMETRIC_STEP", "LINEAR_UNTIL_PX", "OCCLUSION_PX", "SHARP_PX", "SHARP_RAMP_PX", "DepthOfField",
@@ -59,7 +59,7 @@ LINEAR_UNTIL_PX = 6.0
 GEOMETRIC_STEP = 1.2
 # Discs larger than this radius are applied on a grid reduced by an integer factor (INTER_AREA
 # down, bilinear up) so that the disc there is at most this radius.
-FULL_RES_BLUR_PX = 6.0
+FULL_RES_BLUR_PX = 4.0
 # A view is occluded at a reference pixel when the depth map puts a surface nearer by more than
 # this many pixels of view motion onto the same view pixel.
 OCCLUSION_PX = 1.0
@@ -177,7 +177,8 @@ def _blur(layer: np.ndarray, radius_px: float) -> np.ndarray:
     if (hp, wp) != (h, w):
         layer = cv2.copyMakeBorder(layer, 0, hp - h, 0, wp - w, cv2.BORDER_CONSTANT, value=0)
     small = cv2.resize(layer, (wp // f, hp // f), interpolation=cv2.INTER_AREA)
-    small = cv2.filter2D(small, -1, disc_kernel(radius_px / f), borderType=cv2.BORDER_CONSTANT)
+    # Area averaging down and bilinear up blur by f^2 / 4 px^2 per axis; a disc of radius r by r^2 / 4.
+    small = cv2.filter2D(small, -1, disc_kernel(math.sqrt(radius_px**2 - f * f) / f), borderType=cv2.BORDER_CONSTANT)
     big = cv2.resize(small, (wp, hp), interpolation=cv2.INTER_LINEAR)
     return big[:h, :w]
 
@@ -383,6 +384,7 @@ class DepthOfField:
         if not np.all(self.seen):
             prem[:c, ~self.seen] = 0.0
         acc = np.zeros((c + 1, h, w), np.float32)
+        threads = cv2.getNumThreads()
         for j, radius in enumerate(ladder):
             rows = np.flatnonzero((row_lo < j + 1) & (row_hi > j - 1))
             cols = np.flatnonzero((col_lo < j + 1) & (col_hi > j - 1))
@@ -394,14 +396,20 @@ class DepthOfField:
             tent = np.abs(q[y0:y1, x0:x1] - np.float32(j))
             np.subtract(np.float32(1.0), tent, out=tent)
             np.maximum(tent, 0.0, out=tent)
-            layer = prem[:, y0:y1, x0:x1] * tent
-            layer = [_blur(plane, abs(float(radius))) for plane in layer]
-            # "over": a nearer layer (later) covers what is already there by its coverage.
-            cover = np.float32(1.0) - layer[c]
-            for i in range(c + 1):
+            layer = [None] * (c + 1)
+
+            def blur(i, y0=y0, y1=y1, x0=x0, x1=x1, tent=tent, radius=abs(float(radius))):
+                layer[i] = _blur(cv2.multiply(prem[i, y0:y1, x0:x1], tent), radius)
+
+            def over(i, y0=y0, y1=y1, x0=x0, x1=x1):
+                # "over": a nearer layer (later) covers what is already there by its coverage.
                 region = acc[i, y0:y1, x0:x1]
                 cv2.multiply(region, cover, dst=region)
                 cv2.add(region, layer[i], dst=region)
+
+            run_threads([lambda i=i: blur(i) for i in range(c + 1)], threads)
+            cover = np.float32(1.0) - layer[c]
+            run_threads([lambda i=i: over(i) for i in range(c + 1)], threads)
         alpha = acc[c]
         inv = np.zeros((h, w), np.float32)
         np.divide(np.float32(1.0), alpha, out=inv, where=alpha > WEIGHT_FLOOR)
