@@ -146,7 +146,7 @@ def compare(name, views, calibration, depth_m, truth, focus_m, aperture, *, bord
     r = coc_radius_px(calibration, depth_m, focus_m, aperture=aperture)
     inner = np.zeros(truth.shape[:2], bool)
     inner[border_px:-border_px, border_px:-border_px] = True
-    regions = {"in focus": inner & (r <= IN_FOCUS_PX), "out of focus": inner & (r > OUT_OF_FOCUS_PX)}
+    regions = {"in focus": inner & (r <= IN_FOCUS_PX), "out of focus": inner & (r > OUT_OF_FOCUS_PX), "all": inner}
     rows = []
     for method, kw in (("shift-and-add", {}), ("depth-aware", {"aperture": aperture, "depth": depth_m})):
         t = time.perf_counter()
@@ -178,12 +178,13 @@ def lytro_cases(folder):
 
 
 def print_quality(rows):
-    print("| case | focus (m) | method | in focus PSNR / SSIM (% px) | out of focus PSNR / SSIM (% px) | s/frame |")
-    print("|---|---|---|---|---|---|")
+    print("| case | focus (m) | method | in focus PSNR / SSIM (% px) | out of focus PSNR / SSIM (% px) | all PSNR / SSIM | s/frame |")
+    print("|---|---|---|---|---|---|---|")
     for r in rows:
         fi, fo = r["fraction"]["in focus"], r["fraction"]["out of focus"]
         print(f"| {r['case']} | {r['focus_m']:.3f} | {r['method']} | {r['in focus'][0]:.2f} / {r['in focus'][1]:.4f} ({100 * fi:.0f}) "
-              f"| {r['out of focus'][0]:.2f} / {r['out of focus'][1]:.4f} ({100 * fo:.0f}) | {r['seconds']:.3f} |")
+              f"| {r['out of focus'][0]:.2f} / {r['out of focus'][1]:.4f} ({100 * fo:.0f}) "
+              f"| {r['all'][0]:.2f} / {r['all'][1]:.4f} | {r['seconds']:.3f} |")
     gains_out, gains_in = [], []
     for sa, da in zip(rows[::2], rows[1::2]):
         gains_out.append(da["out of focus"][0] - sa["out of focus"][0])
