@@ -21,8 +21,9 @@ DIRS = np.array([[-1, -1], [1, -1], [-1, 1], [1, 1]])  # where each view sits in
 NEAR_BOX = (slice(30, 70), slice(20, 60))  # rows, cols of the near plane in the reference frame
 
 
-def _calibration():
-    lay = Layout(2 * N + 10, 2 * N + 10, ((0, 0, N, N), (N + 10, 0, N, N), (0, N + 10, N, N), (N + 10, N + 10, N, N)))
+def _calibration(circles=None):
+    lay = Layout(2 * N + 10, 2 * N + 10, ((0, 0, N, N), (N + 10, 0, N, N), (0, N + 10, N, N), (N + 10, N + 10, N, N)),
+                 False, circles)
 
     def hs(z):
         t = -GAIN / z * DIRS  # H_center_from_k: view pixel u lands on reference u + t_k
@@ -166,6 +167,19 @@ def test_f_number_and_aperture_agree():
     a2 = resolve_aperture(small, f_number=4.0, ring_device=dev)
     np.testing.assert_array_equal(refocus(views, small, NEAR_M, method="depth-aware", depth=depth, aperture=a2),
                                   refocus(views, small, NEAR_M, method="depth-aware", depth=depth, f_number=4.0, ring_device=dev))
+
+
+def test_no_seams_where_the_number_of_valid_views_changes(textured):
+    """Views valid only inside discs (tapered weights): a uniform scene stays uniform wherever
+    any view sees it, in focus and out, although one to four views see each pixel."""
+    _, _, depth, _, _, _ = textured
+    cal = _calibration(tuple((N / 2, N / 2, N / 2 - 6) for _ in range(4)))
+    views = np.full((4, N, N, 3), 0.6, np.float32)
+    seen = refocus(views, cal, FAR_M) > 0.3  # where shift-and-add sees anything
+    for focus, aperture in ((FAR_M, 1.0), (NEAR_M, 1.0), (NEAR_M, 2.5), (1.0, 0.0)):
+        out = refocus(views, cal, focus, method="depth-aware", depth=depth, aperture=aperture)
+        np.testing.assert_allclose(out[seen], 0.6, atol=1e-5)
+    assert seen.mean() > 0.6 and not seen.all()  # the discs do leave part of the frame unseen
 
 
 def test_focal_stack_reuses_one_depth_map(textured):
