@@ -4,6 +4,7 @@ occlusion; the exact depth map is given."""
 
 import math
 
+import cv2
 import numpy as np
 import pytest
 
@@ -234,3 +235,32 @@ def test_cli_depth_aware_stack_is_labelled(tmp_path, capsys):
     assert main(["refocus", str(scene), "--depth", "0.5", "--method", "shift-and-add", "--aperture", "0.5",
                  "-o", str(tmp_path / "o.png")]) == 2
     assert "--method depth-aware" in capsys.readouterr().err
+
+
+def test_homographies_that_are_not_translations():
+    """A calibration whose views also scale with depth takes the general sampling path
+    (interpolated between depths): at one depth everywhere, aperture 0 is shift-and-add there."""
+    lay = _calibration().layout
+
+    def hs(z):
+        out = np.repeat(np.eye(3)[None], 4, axis=0)
+        for k, d in enumerate(DIRS):
+            s = 1.0 + 0.02 * k / z
+            out[k, :2, :2] *= s
+            out[k, :2, 2] = -GAIN / z * d - (s - 1) * N / 2
+        return out
+
+    cal = RingCalibration.from_plane_homographies({0.4: hs(0.4), 3.0: hs(3.0)}, layout=lay, depth_origin_m=0.0)
+    rng = np.random.default_rng(1)
+    texture = cv2.GaussianBlur(rng.random((N, N, 3), dtype=np.float32), (0, 0), 2.0)
+    z = 0.8
+    # Views of a plane at z: view k's pixel u shows the reference point H_k(z) u.
+    views = np.stack([cv2.warpPerspective(texture, np.linalg.inv(hk), (N, N), flags=cv2.INTER_LINEAR)
+                      for hk in cal.homographies(z)])
+    depth = np.full((N, N), z)
+    depth[0, 0] = 2.0  # a second depth, so the sampling positions are interpolated between knots
+    dof = depth_of_field(views, cal, depth=depth)
+    inner = (slice(12, N - 12), slice(12, N - 12))
+    # The all-in-focus colour samples the views where shift-and-add does (the general warp).
+    np.testing.assert_allclose(dof.colour[inner], refocus(views, cal, z)[inner], atol=2e-3)
+    np.testing.assert_allclose(dof.colour[inner], texture[inner], atol=2e-2)
