@@ -373,7 +373,8 @@ def focal_stack(views, calibration, depths_m, *, reference="center", interpolati
 
 
 def all_in_focus(views, calibration, depths_m=None, *, depth_map_m=None, reference="center", window_px: int = 7):
-    """An all-in-focus image: every pixel from the refocused image where it is sharpest.
+    """An all-in-focus image: every pixel from the views aligned at the depth where it is sharpest
+    (the depth-aware renderer at aperture 0).
 
     Parameters
     ----------
