@@ -14,14 +14,17 @@ depth map in the reference frame, :class:`DepthOfField` renders that:
    to the all-in-focus colour by :data:`SHARP_PX` + :data:`SHARP_RAMP_PX`: in-focus regions are
    what shift-and-add gives.
 3. **Layers.** Each pixel's signed circle-of-confusion radius ``rho = aperture * R * (x - x_f)``,
-   with ``x = 1/(Z - z0)``, ``x_f`` the focus depth's and R from :func:`aperture_radius_px`, is
-   split linearly between the two nearest of a ladder of radii (1 px apart up to
+   with ``x = 1/(Z - z0)``, ``x_f`` the focus depth's and R from :func:`aperture_radius_px`, goes
+   to the nearest of a ladder of radii (0.5 px apart up to 2 px, 1 px apart up to
    :data:`LINEAR_UNTIL_PX`, then growing by :data:`GEOMETRIC_STEP`). Every rung is one layer of
    premultiplied colour and coverage, blurred by a disc of its radius (large radii on a grid
    reduced so that the disc is at most :data:`FULL_RES_BLUR_PX` px) and composited far to near
-   with the "over" operator; the result is divided by the accumulated coverage. A near object's
-   blur therefore spreads over what lies behind it, and what lies behind never covers a nearer
-   object's sharp pixels.
+   with the "over" operator; the result is divided by the accumulated coverage. Before a
+   blurred layer is composited, what lies behind is extended under it and under every nearer
+   pixel (a normalised blur of the farther layers, out to the layer's radius): through a near
+   object's soft edge the lens sees the background continue, not a hole. A near object's blur
+   therefore spreads symmetrically over its edge and what lies behind it, and what lies behind
+   never covers a nearer object's sharp pixels.
 
 The physics: view k's sampling shift at depth Z is (for the ring's translation model) affine in
 x = 1/(Z - z0); a virtual viewpoint at aperture position u (the views sitting at their own
@@ -181,6 +184,37 @@ def _blur(layer: np.ndarray, radius_px: float) -> np.ndarray:
     small = cv2.filter2D(small, -1, disc_kernel(math.sqrt(radius_px**2 - f * f) / f), borderType=cv2.BORDER_CONSTANT)
     big = cv2.resize(small, (wp, hp), interpolation=cv2.INTER_LINEAR)
     return big[:h, :w]
+
+
+def _extend_under(region: np.ndarray, nearer: np.ndarray, radius_px: float, threads: int = 1) -> None:
+    """Fill the holes of premultiplied planes (C + 1, h, w) where ``nearer`` surfaces sit
+    (coverage below 1 there) with the colour around them, out to about ``radius_px``: a blurred
+    layer composited next shows, through its soft edge, the surface behind extended under it,
+    as a lens looking past the edge sees it."""
+    alpha = region[-1]
+    hole = np.float32(1.0) - alpha
+    np.maximum(hole, 0.0, out=hole)
+    hole *= nearer
+    if float(hole.max()) < 1e-3:
+        return
+    h, w = alpha.shape
+    f = max(1, int(radius_px // 2))
+    size = (max(1, w // f), max(1, h // f))
+    k = 2 * int(math.ceil(radius_px / f)) + 1
+
+    def spread(plane):
+        return cv2.blur(cv2.resize(plane, size, interpolation=cv2.INTER_AREA), (k, k), borderType=cv2.BORDER_CONSTANT)
+
+    weight = spread(alpha)
+    inv = np.zeros_like(weight)
+    np.divide(np.float32(1.0), weight, out=inv, where=weight > WEIGHT_FLOOR)
+    hole *= cv2.resize((weight > WEIGHT_FLOOR).astype(np.float32), (w, h), interpolation=cv2.INTER_LINEAR)
+
+    def fill(i):
+        region[i] += hole * cv2.resize(spread(region[i]) * inv, (w, h), interpolation=cv2.INTER_LINEAR)
+
+    run_threads([lambda i=i: fill(i) for i in range(len(region) - 1)], threads)
+    region[-1] += hole
 
 
 def _radius_ladder(max_px: float) -> np.ndarray:
@@ -372,7 +406,7 @@ class DepthOfField:
     def _composite(self, colour: np.ndarray, rho: np.ndarray, rmax: float) -> np.ndarray:
         h, w, c = colour.shape
         ladder = _radius_ladder(rmax)
-        # Fractional rung of every pixel: layer j takes the tent max(0, 1 - |q - j|).
+        # Fractional rung of every pixel; layer j takes the pixels nearest to it (|q - j| < 1/2).
         q = np.interp(rho.ravel(), ladder, np.arange(len(ladder), dtype=np.float64)).astype(np.float32).reshape(h, w)
         row_lo, row_hi = q.min(axis=1), q.max(axis=1)
         col_lo, col_hi = q.min(axis=0), q.max(axis=0)
@@ -393,9 +427,10 @@ class DepthOfField:
             pad = int(math.ceil(abs(radius))) + 1
             y0, y1 = max(0, rows[0] - pad), min(h, rows[-1] + pad + 1)
             x0, x1 = max(0, cols[0] - pad), min(w, cols[-1] + pad + 1)
-            tent = np.abs(q[y0:y1, x0:x1] - np.float32(j))
-            np.subtract(np.float32(1.0), tent, out=tent)
-            np.maximum(tent, 0.0, out=tent)
+            qq = q[y0:y1, x0:x1]
+            tent = ((qq >= j - 0.5) & (qq < j + 0.5)).astype(np.float32)  # the layer's own pixels
+            if abs(radius) >= 1.0:  # a soft edge: what lies behind must reach under this layer and nearer ones
+                _extend_under(acc[:, y0:y1, x0:x1], (qq >= j - 0.5).astype(np.float32), abs(float(radius)), threads)
             layer = [None] * (c + 1)
 
             def blur(i, y0=y0, y1=y1, x0=x0, x1=x1, tent=tent, radius=abs(float(radius))):

@@ -105,6 +105,22 @@ def test_near_edge_blurs_over_the_far_plane_and_far_never_bleeds_over_a_sharp_ne
     assert out_near[rows, 12:19].max() < 0.45
 
 
+def test_a_blurred_near_edge_is_a_ramp_on_both_sides():
+    """Focused far, a uniform near plane's edge over a uniform far plane spreads over the disc's
+    width on both sides of the edge (the far plane continues under the near one's soft edge),
+    with no step anywhere; shift-and-add has steps."""
+    cal = _calibration()
+    views, depth, _ = _scene(np.full((N + 32, N + 32, 1), 0.2, np.float32), np.full((N + 32, N + 32, 1), 0.8, np.float32))
+    r = coc_radius_px(cal, NEAR_M, FAR_M)  # 8.5 px
+    profile = refocus(views, cal, FAR_M, method="depth-aware", depth=depth)[40:60, 4:36, 0].mean(axis=0)  # edge at column 20
+    # No step: at most 1.5 x the steepest slope of a disc's edge, contrast * 2 / (pi r) per px.
+    assert np.abs(np.diff(profile)).max() < 1.5 * 0.6 * 2 / (np.pi * r)
+    assert profile[20 - 4 - 4] > 0.3 and profile[20 + 4 - 4] < 0.7  # light spreads 4 px out and 4 px in
+    assert profile[0] == pytest.approx(0.2, abs=1e-3) and profile[-1] == pytest.approx(0.8, abs=1e-3)
+    sa = refocus(views, cal, FAR_M)[40:60, 4:36, 0].mean(axis=0)
+    assert np.abs(np.diff(sa)).max() > 0.1
+
+
 def test_aperture_zero_is_all_in_focus(textured):
     cal, views, depth, mask, far, near = textured
     truth = np.where(mask[..., None], near, far)
