@@ -38,7 +38,6 @@ from __future__ import annotations
 import argparse
 import itertools
 import os
-import statistics
 import sys
 import time
 import warnings
@@ -216,7 +215,6 @@ def speed(runs: int):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", LfringWarning)
         dof = depth_of_field(views, cal, depth=depth)
-        sa = refocus(views, cal, 0.45)
         stack_z = np.linspace(0.3, 1.0, 15)
         rows = [
             ("shift-and-add one-shot refocus, a new depth every call", runs, lambda: refocus(views, cal, next(new_depth))),
@@ -242,7 +240,6 @@ def speed(runs: int):
         t = time.perf_counter()
         estimate_depth(views, cal, zmin_m=0.3, zmax_m=1.0)
         print(f"estimate_depth 0.3..1.0 m (once, for comparison with the stacks): {1e3 * (time.perf_counter() - t):.0f} ms")
-    del sa
 
 
 def main() -> None:
