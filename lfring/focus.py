@@ -2,7 +2,10 @@
 
 Refocusing at depth Z warps every view into the reference frame with ``H_ref_from_view(Z)``
 and averages them, each pixel weighted by how many views are valid there, so the borders are
-not darkened. Objects at Z line up and are sharp; others appear as displaced copies.
+not darkened. Objects at Z line up and are sharp; others appear as displaced copies
+(``method='shift-and-add'``). With a depth map, ``method='depth-aware'`` renders what a lens
+whose aperture spans the views would record instead: smooth, occlusion-correct blur of any
+aperture (:mod:`lfring.dof`).
 """
 
 from __future__ import annotations
@@ -13,7 +16,10 @@ import cv2
 import numpy as np
 
 from lfring.depth.hypotheses import depth_hypotheses
+from lfring.depth.selection import DepthResult
+from lfring.dof import DepthOfField, aperture_from_f_number
 from lfring.errors import InvalidInputError, LfringWarning
+from lfring.geometry import check_reference
 from lfring.warp import (
     WEIGHT_FLOOR,
     ShiftEngine,
@@ -26,7 +32,10 @@ from lfring.warp import (
     warp_views,
 )
 
-__all__ = ["Refocuser", "refocus", "focal_stack", "all_in_focus"]
+__all__ = ["METHODS", "Refocuser", "refocus", "focal_stack", "all_in_focus", "depth_of_field", "resolve_aperture"]
+
+# Refocusing methods: the views' plain average at the focus depth, or a lens's blur from a depth map.
+METHODS = ("shift-and-add", "depth-aware")
 
 
 def _all_valid(masks) -> bool:
@@ -188,8 +197,79 @@ class Refocuser:
         return acc[..., None] if c == 1 else acc
 
 
+def _check_method(method: str) -> None:
+    if method not in METHODS:
+        raise InvalidInputError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
+
+
+def resolve_aperture(calibration, aperture=None, f_number=None, ring_device=None) -> float:
+    """The depth-aware ``aperture`` (1: the disc through the views, 0: a pinhole) from either
+    ``aperture`` or ``f_number`` (1.0 when neither is given).
+
+    ``f_number`` needs the device: ``ring_device`` (a :class:`lfring.optics.RingDevice` with
+    its positions), or else the built-in device the calibration was made from (calibrations
+    from the optics name it), set to the positions the calibration records. See
+    :func:`lfring.dof.aperture_from_f_number` for the relation.
+    """
+    if aperture is not None and f_number is not None:
+        raise InvalidInputError("give the depth of field as aperture or as f_number, not both")
+    if f_number is None:
+        a = 1.0 if aperture is None else aperture
+        if isinstance(a, bool) or not isinstance(a, (int, float, np.integer, np.floating)) or not (np.isfinite(a) and a >= 0):
+            raise InvalidInputError(f"aperture must be a finite number >= 0 (1: the views' aperture, 0: a pinhole), got {aperture!r}")
+        return float(a)
+    if ring_device is None:
+        if calibration.device is None:
+            raise InvalidInputError(
+                "f_number needs the device (its main lens's focal length and where the views sit in its aperture): "
+                "pass ring_device=, or use aperture= (1 is the aperture the views span)"
+            )
+        from lfring.optics.device import load_device
+
+        ring_device = load_device(calibration.device)
+        prov = calibration.provenance
+        if prov.get("ring_distance_m") is not None and prov.get("sensor_distance_m") is not None:
+            ring_device = ring_device.with_positions(prov["ring_distance_m"], prov["sensor_distance_m"])
+    return aperture_from_f_number(f_number, ring_device)
+
+
+def _depth_map(arr, calibration, depth, zmin_m, zmax_m, reference) -> np.ndarray:
+    """The depth map of the views in the reference frame: given, or estimated."""
+    from lfring.depth.sweep import estimate_depth
+
+    h, w = arr.shape[1:3]
+    if depth is None:
+        lo, hi = calibration.valid_depth_range_m
+        zmin_m = lo if zmin_m is None else zmin_m
+        zmax_m = hi if zmax_m is None else zmax_m
+        if zmax_m is None:
+            raise InvalidInputError("the calibration has no upper depth bound: give zmax_m (or a depth map as depth=)")
+        depth = estimate_depth(arr, calibration, zmin_m=float(zmin_m), zmax_m=float(zmax_m), reference=reference)
+    elif zmin_m is not None or zmax_m is not None:
+        raise InvalidInputError("zmin_m/zmax_m set the range of the depth estimation: give them or a depth map, not both")
+    if isinstance(depth, DepthResult):
+        if depth.reference != reference:
+            raise InvalidInputError(f"the depth map is in the frame of reference {depth.reference!r}, the refocusing in {reference!r}")
+        depth = depth.depth_m
+    dm = np.asarray(depth, dtype=np.float64)
+    if dm.shape != (h, w):
+        raise InvalidInputError(f"the depth map must be (h, w) = ({h}, {w}) metres like the views, got shape {dm.shape}")
+    return dm
+
+
+def depth_of_field(views, calibration, *, depth=None, zmin_m=None, zmax_m=None, reference="center") -> DepthOfField:
+    """A :class:`lfring.dof.DepthOfField` renderer of the views: from a depth map (``depth``, a
+    :class:`lfring.DepthResult` or (h, w) metres in the reference frame), or one estimated over
+    ``zmin_m``..``zmax_m`` (by default the calibration's valid range). Reuse it to render many
+    focus depths and apertures from one depth map."""
+    arr = check_views(views)
+    ref = check_reference(reference, calibration.num_views)
+    return DepthOfField(arr, calibration, _depth_map(arr, calibration, depth, zmin_m, zmax_m, ref), reference=ref)
+
+
 def refocus(views, calibration, depth_m: float, *, reference="center", interpolation: str = "linear",
-            backend: str = "numpy", device=None) -> np.ndarray:
+            backend: str = "numpy", device=None, method: str = "shift-and-add", aperture=None, f_number=None,
+            ring_device=None, depth=None, zmin_m=None, zmax_m=None) -> np.ndarray:
     """Refocus the views at ``depth_m`` metres from the main lens.
 
     Parameters
@@ -208,6 +288,25 @@ def refocus(views, calibration, depth_m: float, *, reference="center", interpola
         takes batches (B, V, h, w, C); see :func:`lfring.backends.torch_refocus.refocus_torch`.
     device : str, optional
         For the torch backend, e.g. 'cuda' or 'cpu'.
+    method : {'shift-and-add', 'depth-aware'}
+        'shift-and-add' averages the views aligned at ``depth_m``: objects elsewhere appear as V
+        displaced copies. 'depth-aware' renders what a lens whose aperture spans the views
+        would record (numpy backend): in focus as shift-and-add, elsewhere a disc of blur of the
+        circle-of-confusion radius, occlusion-correct (:mod:`lfring.dof`).
+    aperture : float, optional
+        'depth-aware': the lens's aperture radius in units of the views' distance from their
+        centre: 1 (default) the aperture the views span, 0 a pinhole (all in focus); any value
+        >= 0 scales the blur.
+    f_number : float, optional
+        'depth-aware': instead of ``aperture``, the main lens's f-number (needs the device:
+        ``ring_device`` or a calibration made from a built-in device; see
+        :func:`resolve_aperture`).
+    ring_device : RingDevice, optional
+    depth : DepthResult or (h, w) array of metres, optional
+        'depth-aware': the depth map in the reference frame (e.g. from
+        :func:`lfring.estimate_depth`); estimated over ``zmin_m``..``zmax_m`` when not given.
+    zmin_m, zmax_m : float, optional
+        'depth-aware': the range of the depth estimation (default: the calibration's valid range).
 
     Returns
     -------
@@ -215,14 +314,28 @@ def refocus(views, calibration, depth_m: float, *, reference="center", interpola
 
     Notes
     -----
-    ``out(x) = sum_k m_k(H_k^-1 x) v_k(H_k^-1 x) / sum_k m_k(H_k^-1 x)`` with ``H_k =
-    H_ref_from_k(Z)`` and ``m_k`` the valid disc of view k, bilinear interpolation.
-    For many frames at one depth, build a :class:`Refocuser` once.
+    Shift-and-add: ``out(x) = sum_k m_k(H_k^-1 x) v_k(H_k^-1 x) / sum_k m_k(H_k^-1 x)`` with
+    ``H_k = H_ref_from_k(Z)`` and ``m_k`` the valid disc of view k, bilinear interpolation.
+    For many frames at one depth, build a :class:`Refocuser` once. Depth-aware: the circle of
+    confusion of a point at depth Z is ``aperture * R * |1/(Z - z0) - 1/(Z_f - z0)|`` px, R from
+    the calibration's model (:func:`lfring.dof.aperture_radius_px`); for many depths from one
+    depth map use :func:`focal_stack` or :func:`depth_of_field`.
     """
     from lfring.backends import BACKENDS
 
+    _check_method(method)
     if backend not in BACKENDS:
         raise InvalidInputError(f"backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
+    if method == "depth-aware":
+        if backend != "numpy":
+            raise InvalidInputError("method='depth-aware' runs on the numpy backend only")
+        a = resolve_aperture(calibration, aperture, f_number, ring_device)
+        arr = check_views(views)
+        sharp = Refocuser(calibration, depth_m, reference=reference, view_shape=arr.shape[1:3], interpolation=interpolation)(arr)
+        dof = depth_of_field(arr, calibration, depth=depth, zmin_m=zmin_m, zmax_m=zmax_m, reference=reference)
+        return dof.render(float(depth_m), a, sharp)
+    if any(v is not None for v in (aperture, f_number, ring_device, depth, zmin_m, zmax_m)):
+        raise InvalidInputError("aperture, f_number, ring_device, depth, zmin_m and zmax_m are for method='depth-aware'")
     if backend == "torch":
         from lfring.backends.torch_refocus import refocus_torch
 
@@ -231,20 +344,37 @@ def refocus(views, calibration, depth_m: float, *, reference="center", interpola
     return Refocuser(calibration, depth_m, reference=reference, view_shape=arr.shape[1:3], interpolation=interpolation)(arr)
 
 
-def focal_stack(views, calibration, depths_m, *, reference="center", interpolation: str = "linear") -> np.ndarray:
-    """Refocus at every depth of ``depths_m``: (N, h, w, C) float32."""
+def focal_stack(views, calibration, depths_m, *, reference="center", interpolation: str = "linear",
+                method: str = "shift-and-add", aperture=None, f_number=None, ring_device=None, depth=None,
+                zmin_m=None, zmax_m=None) -> np.ndarray:
+    """Refocus at every depth of ``depths_m``: (N, h, w, C) float32.
+
+    The arguments are :func:`refocus`'s; with ``method='depth-aware'`` the depth map (given or
+    estimated) and the all-in-focus colour are made once for the whole stack."""
+    _check_method(method)
     z = np.atleast_1d(np.asarray(depths_m, dtype=np.float64))
     if z.ndim != 1 or z.size == 0:
         raise InvalidInputError(f"depths_m must be a non-empty list of depths, got {depths_m!r}")
     arr = check_views(views)
     calibration.check_depth(z)  # validates and warns once for the whole stack
+    dof, a = None, None
+    if method == "depth-aware":
+        a = resolve_aperture(calibration, aperture, f_number, ring_device)
+        dof = depth_of_field(arr, calibration, depth=depth, zmin_m=zmin_m, zmax_m=zmax_m, reference=reference)
+    elif any(v is not None for v in (aperture, f_number, ring_device, depth, zmin_m, zmax_m)):
+        raise InvalidInputError("aperture, f_number, ring_device, depth, zmin_m and zmax_m are for method='depth-aware'")
+    out = []
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", LfringWarning)
-        return np.stack([refocus(arr, calibration, float(d), reference=reference, interpolation=interpolation) for d in z])
+        for d in z:
+            img = refocus(arr, calibration, float(d), reference=reference, interpolation=interpolation)
+            out.append(img if dof is None else dof.render(float(d), a, img))
+    return np.stack(out)
 
 
 def all_in_focus(views, calibration, depths_m=None, *, depth_map_m=None, reference="center", window_px: int = 7):
-    """An all-in-focus image: every pixel from the refocused image where it is sharpest.
+    """An all-in-focus image: every pixel from the views aligned at the depth where it is sharpest
+    (the depth-aware renderer at aperture 0).
 
     Parameters
     ----------
@@ -269,7 +399,10 @@ def all_in_focus(views, calibration, depths_m=None, *, depth_map_m=None, referen
     -----
     Without a depth map, the focus measure is photo-consistency: at the right depth the
     warped views agree, so their weighted variance, averaged over a small window, is least.
-    The sweep is streamed: memory does not grow with the number of depths.
+    The sweep is streamed: memory does not grow with the number of depths. The image is then
+    the depth-aware renderer's at aperture 0 (:class:`lfring.dof.DepthOfField`) with the
+    chosen depths: every pixel from the views that see it at its depth, occluded views left
+    out.
     """
     arr = check_views(views)
     h, w = arr.shape[1:3]
@@ -296,10 +429,10 @@ def all_in_focus(views, calibration, depths_m=None, *, depth_map_m=None, referen
         warped, weights = warp_views(arr, hd, masks=masks)
         wsum = weights.sum(axis=0)
         ok = wsum > WEIGHT_FLOOR
-        mean = warped.sum(axis=0) / np.where(ok, wsum, 1.0)[..., None]
         if depth_map_m is not None:
             cost = np.abs(1.0 / (target - calibration.depth_origin_m) - 1.0 / (d - calibration.depth_origin_m)).astype(np.float32)
         else:
+            mean = warped.sum(axis=0) / np.where(ok, wsum, 1.0)[..., None]
             # Weighted variance across views (warped values are premultiplied by the weights).
             second = (warped**2 / np.maximum(weights, WEIGHT_FLOOR)[..., None]).sum(axis=0) / np.where(ok, wsum, 1.0)[..., None]
             var = np.maximum(second - mean**2, 0).mean(axis=2)
@@ -307,6 +440,9 @@ def all_in_focus(views, calibration, depths_m=None, *, depth_map_m=None, referen
             cost = cv2.boxFilter(np.where(np.isfinite(var), var, 1e3).astype(np.float32), -1, (window_px, window_px))
         better = (cost < best_cost) & ok
         best_cost[better] = cost[better]
-        out[better] = mean[better]
         chosen[better] = d
+    if np.all(np.isnan(chosen)):
+        return out, chosen
+    out = DepthOfField(arr, calibration, chosen, reference=reference).render(float(z[0]), 0.0)
+    out[np.isnan(chosen)] = 0.0
     return out, chosen

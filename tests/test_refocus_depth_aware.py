@@ -1,0 +1,282 @@
+"""Depth-aware refocusing (lfring.dof) against exact constructions: two fronto-parallel textured
+planes, a near one partly covering a far one, rendered as four views by shifting them with
+occlusion; the exact depth map is given."""
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+from lfring.calibration import RingCalibration
+from lfring.dof import aperture_from_f_number, aperture_radius_px, coc_radius_px
+from lfring.errors import InvalidInputError
+from lfring.focus import all_in_focus, depth_of_field, focal_stack, refocus, resolve_aperture
+from lfring.optics import load_device
+from lfring.views import Layout
+
+N = 96  # view side
+FAR_M, NEAR_M = 2.0, 0.5  # x = 1/Z: 0.5 and 2 (z0 = 0)
+GAIN = 4.0  # view motion per unit x along each axis: shifts of 2 px (far) and 8 px (near)
+DIRS = np.array([[-1, -1], [1, -1], [-1, 1], [1, 1]])  # where each view sits in the aperture
+NEAR_BOX = (slice(30, 70), slice(20, 60))  # rows, cols of the near plane in the reference frame
+
+
+def _calibration(circles=None):
+    lay = Layout(2 * N + 10, 2 * N + 10, ((0, 0, N, N), (N + 10, 0, N, N), (0, N + 10, N, N), (N + 10, N + 10, N, N)),
+                 False, circles)
+
+    def hs(z):
+        t = -GAIN / z * DIRS  # H_center_from_k: view pixel u lands on reference u + t_k
+        out = np.repeat(np.eye(3)[None], 4, axis=0)
+        out[:, :2, 2] = t - t[0]  # into view 0
+        return out
+
+    return RingCalibration.from_plane_homographies({0.4: hs(0.4), 3.0: hs(3.0)}, layout=lay, depth_origin_m=0.0)
+
+
+def _scene(far_tex, near_tex, *, with_near=True):
+    """Views and the exact depth map: view k shows reference point X of a plane at depth Z at
+    view pixel X + (GAIN / Z) d_k; the near plane hides the far one."""
+    yy, xx = np.mgrid[0:N, 0:N]
+    near_mask = np.zeros((N, N), bool)
+    near_mask[NEAR_BOX] = with_near
+    views = []
+    for d in DIRS:
+        gf, gn = (GAIN / FAR_M * d).astype(int), (GAIN / NEAR_M * d).astype(int)
+        # Reference point seen at view pixel u: X = u - g d (textures are padded by 16 px).
+        far = far_tex[yy - gf[1] + 16, xx - gf[0] + 16]
+        ny, nx = yy - gn[1], xx - gn[0]
+        inside = (ny >= 0) & (ny < N) & (nx >= 0) & (nx < N)
+        hit = np.zeros((N, N), bool)
+        hit[inside] = near_mask[ny[inside], nx[inside]]
+        v = far.copy()
+        v[hit] = near_tex[ny[hit] + 16, nx[hit] + 16]
+        views.append(v)
+    depth = np.where(near_mask, NEAR_M, FAR_M)
+    return np.stack(views).astype(np.float32), depth, near_mask
+
+
+@pytest.fixture(scope="module")
+def textured():
+    rng = np.random.default_rng(3)
+    far = (0.05 + 0.3 * rng.random((N + 32, N + 32, 3))).astype(np.float32)  # dark
+    near = (0.65 + 0.3 * rng.random((N + 32, N + 32, 3))).astype(np.float32)  # bright: every occlusion is visible
+    views, depth, mask = _scene(far, near)
+    return _calibration(), views, depth, mask, far[16:-16, 16:-16], near[16:-16, 16:-16]
+
+
+def test_the_blur_scale_is_the_views_radius_in_the_aperture():
+    cal = _calibration()
+    assert aperture_radius_px(cal) == pytest.approx(GAIN * math.sqrt(2), rel=1e-9)
+    assert aperture_radius_px(cal, reference=2) == pytest.approx(GAIN * math.sqrt(2), rel=1e-9)
+    assert coc_radius_px(cal, NEAR_M, FAR_M, aperture=0.5) == pytest.approx(0.5 * GAIN * math.sqrt(2) * 1.5)
+
+
+def test_focused_on_the_far_plane_its_interior_is_shift_and_add(textured):
+    cal, views, depth, mask, far, near = textured
+    sa = refocus(views, cal, FAR_M)
+    out = refocus(views, cal, FAR_M, method="depth-aware", depth=depth)
+    # Away from the near plane's blur (radius 8.5 px) and the frame's edge.
+    far_inside = np.ones((N, N), bool)
+    far_inside[30 - 12:70 + 12, 20 - 12:60 + 12] = False
+    far_inside[:4] = far_inside[-4:] = False
+    far_inside[:, :4] = far_inside[:, -4:] = False
+    np.testing.assert_allclose(out[far_inside], sa[far_inside], atol=1e-5)
+    np.testing.assert_allclose(out[far_inside], far[far_inside], atol=1e-5)
+
+
+def test_near_edge_blurs_over_the_far_plane_and_far_never_bleeds_over_a_sharp_near(textured):
+    cal, views, depth, mask, far, near = textured
+    # Focused far: just outside the near plane's left edge, its light spreads over the far plane.
+    out = refocus(views, cal, FAR_M, method="depth-aware", depth=depth)
+    rows = slice(40, 60)
+    just_outside = out[rows, 17:20].mean()  # 1-3 px left of the edge at column 20
+    assert just_outside > far[rows, 17:20].mean() + 0.15  # the bright near plane's blur
+    excess = (out - far)[rows, 8:20].mean(axis=(0, 2))  # the near plane's light over the far plane
+    assert np.all(np.diff(excess[2:]) > 0) and excess[0] < 0.01  # a smooth ramp from 9 px out, no step
+    # Shift-and-add leaves a hard step (a ghost copy 6 px out) instead.
+    sa_excess = (refocus(views, cal, FAR_M) - far)[rows, 8:20].mean(axis=(0, 2))
+    assert np.abs(np.diff(sa_excess)).max() > 4 * np.abs(np.diff(excess)).max()
+    # Focused near: every near pixel is the near texture (the blurred far plane stays outside).
+    out_near = refocus(views, cal, NEAR_M, method="depth-aware", depth=depth)
+    np.testing.assert_allclose(out_near[mask], near[mask], atol=1e-5)
+    # ... and the far plane is blurred, not doubled: next to the near plane, still dark.
+    assert out_near[rows, 12:19].max() < 0.45
+
+
+def test_a_blurred_near_edge_is_a_ramp_on_both_sides():
+    """Focused far, a uniform near plane's edge over a uniform far plane spreads over the disc's
+    width on both sides of the edge (the far plane continues under the near one's soft edge),
+    with no step anywhere; shift-and-add has steps."""
+    cal = _calibration()
+    views, depth, _ = _scene(np.full((N + 32, N + 32, 1), 0.2, np.float32), np.full((N + 32, N + 32, 1), 0.8, np.float32))
+    r = coc_radius_px(cal, NEAR_M, FAR_M)  # 8.5 px
+    profile = refocus(views, cal, FAR_M, method="depth-aware", depth=depth)[40:60, 4:36, 0].mean(axis=0)  # edge at column 20
+    # No step: at most 1.5 x the steepest slope of a disc's edge, contrast * 2 / (pi r) per px.
+    assert np.abs(np.diff(profile)).max() < 1.5 * 0.6 * 2 / (np.pi * r)
+    assert profile[20 - 4 - 4] > 0.3 and profile[20 + 4 - 4] < 0.7  # light spreads 4 px out and 4 px in
+    assert profile[0] == pytest.approx(0.2, abs=1e-3) and profile[-1] == pytest.approx(0.8, abs=1e-3)
+    sa = refocus(views, cal, FAR_M)[40:60, 4:36, 0].mean(axis=0)
+    assert np.abs(np.diff(sa)).max() > 0.1
+
+
+def test_aperture_zero_is_all_in_focus(textured):
+    cal, views, depth, mask, far, near = textured
+    truth = np.where(mask[..., None], near, far)
+    inner = (slice(8, N - 8), slice(8, N - 8))  # every view sees these points
+    for focus in (FAR_M, NEAR_M, 1.0):
+        out = refocus(views, cal, focus, method="depth-aware", depth=depth, aperture=0.0)
+        np.testing.assert_allclose(out[inner], truth[inner], atol=1e-5)
+    # all_in_focus with the depth map is the same renderer (values the nearest of depths_m).
+    img, chosen = all_in_focus(views, cal, [FAR_M, NEAR_M], depth_map_m=depth)
+    np.testing.assert_allclose(img[inner], truth[inner], atol=1e-5)
+    assert np.all(chosen[mask] == np.float32(NEAR_M))
+
+
+def _edge_width(profile):
+    """Distance between the 10 % and 90 % crossings of a rising step profile (px, linear)."""
+    p = (profile - profile[0]) / (profile[-1] - profile[0])
+    return float(np.interp(0.9, p, np.arange(len(p))) - np.interp(0.1, p, np.arange(len(p))))
+
+
+def _disc_edge_width(r):
+    """10-90 % width of the edge of a disc of radius r: the disc's area beyond a chord."""
+    d = np.linspace(-r, r, 20001)
+    frac = 1 - (r * r * np.arccos(d / r) - d * np.sqrt(r * r - d * d)) / (np.pi * r * r)
+    return float(np.interp(0.9, frac, d) - np.interp(0.1, frac, d))
+
+
+@pytest.mark.parametrize("aperture", [0.5, 1.0])
+def test_blur_radius_matches_the_circle_of_confusion(aperture):
+    """A step on the far plane (no near plane) focused at the near depth: its edge spreads as a
+    disc of radius r(Z) = aperture * R * |1/Z - 1/Z_f|."""
+    cal = _calibration()
+    step = np.full((N + 32, N + 32, 1), 0.2, np.float32)
+    step[:, (N + 32) // 2:] = 0.8
+    flat = np.full_like(step, 0.9)
+    views, _, _ = _scene(step, flat, with_near=False)
+    depth = np.full((N, N), FAR_M)
+    out = refocus(views, cal, NEAR_M, method="depth-aware", depth=depth, aperture=aperture)[..., 0]
+    r = coc_radius_px(cal, FAR_M, NEAR_M, aperture=aperture)
+    profile = out[20:76, N // 2 - 20:N // 2 + 20].mean(axis=0)
+    width = _edge_width(profile)
+    assert width == pytest.approx(_disc_edge_width(r), abs=0.6), (r, width)
+    assert abs(width - _disc_edge_width(1.25 * r)) > 0.6 and abs(width - _disc_edge_width(0.8 * r)) > 0.6
+
+
+def test_f_number_and_aperture_agree():
+    dev = load_device("prototype")
+    cal = RingCalibration.from_optics(dev)
+    a = resolve_aperture(cal, f_number=4.0)
+    assert a == pytest.approx(aperture_from_f_number(4.0, dev))
+    assert resolve_aperture(cal, f_number=2.0) == pytest.approx(2 * a)  # aperture ~ 1 / N
+    # The relation: the lens's pupil radius FL / (2 N) over the views' radius in it.
+    from lfring.optics.views import view_cameras
+
+    c = view_cameras(dev).centres_m
+    assert a * np.linalg.norm(c - c.mean(axis=0), axis=1).mean() == pytest.approx(dev.main_focal_length_m / 8.0)
+    # Rendering with one or the other gives the same image.
+    small = _calibration()
+    rng = np.random.default_rng(0)
+    views = rng.random((4, N, N, 1)).astype(np.float32)
+    depth = np.full((N, N), FAR_M)
+    a2 = resolve_aperture(small, f_number=4.0, ring_device=dev)
+    np.testing.assert_array_equal(refocus(views, small, NEAR_M, method="depth-aware", depth=depth, aperture=a2),
+                                  refocus(views, small, NEAR_M, method="depth-aware", depth=depth, f_number=4.0, ring_device=dev))
+
+
+def test_no_seams_where_the_number_of_valid_views_changes(textured):
+    """Views valid only inside discs (tapered weights): a uniform scene stays uniform wherever
+    any view sees it, in focus and out, although one to four views see each pixel."""
+    _, _, depth, _, _, _ = textured
+    cal = _calibration(tuple((N / 2, N / 2, N / 2 - 6) for _ in range(4)))
+    views = np.full((4, N, N, 3), 0.6, np.float32)
+    seen = refocus(views, cal, FAR_M) > 0.3  # where shift-and-add sees anything
+    for focus, aperture in ((FAR_M, 1.0), (NEAR_M, 1.0), (NEAR_M, 2.5), (1.0, 0.0)):
+        out = refocus(views, cal, focus, method="depth-aware", depth=depth, aperture=aperture)
+        np.testing.assert_allclose(out[seen], 0.6, atol=1e-5)
+    assert seen.mean() > 0.6 and not seen.all()  # the discs do leave part of the frame unseen
+
+
+def test_focal_stack_reuses_one_depth_map(textured):
+    cal, views, depth, mask, far, near = textured
+    stack = focal_stack(views, cal, [FAR_M, NEAR_M], method="depth-aware", depth=depth)
+    np.testing.assert_array_equal(stack[1], refocus(views, cal, NEAR_M, method="depth-aware", depth=depth))
+    dof = depth_of_field(views, cal, depth=depth)
+    np.testing.assert_array_equal(stack[0], dof.render(FAR_M, 1.0, refocus(views, cal, FAR_M)))
+
+
+def test_bad_inputs(textured):
+    cal, views, depth, mask, far, near = textured
+    with pytest.raises(InvalidInputError, match="aperture must be"):
+        refocus(views, cal, FAR_M, method="depth-aware", depth=depth, aperture=-1.0)
+    with pytest.raises(InvalidInputError, match="depth map must be"):
+        refocus(views, cal, FAR_M, method="depth-aware", depth=depth[:-1])
+    with pytest.raises(InvalidInputError, match="method must be one of"):
+        refocus(views, cal, FAR_M, method="bokeh")
+    with pytest.raises(InvalidInputError, match="not both"):
+        refocus(views, cal, FAR_M, method="depth-aware", depth=depth, aperture=1.0, f_number=2.8)
+    with pytest.raises(InvalidInputError, match="f_number needs the device"):
+        refocus(views, cal, FAR_M, method="depth-aware", depth=depth, f_number=2.8)
+    with pytest.raises(InvalidInputError, match="for method='depth-aware'"):
+        refocus(views, cal, FAR_M, aperture=0.5)
+    with pytest.raises(InvalidInputError, match="not both"):
+        refocus(views, cal, FAR_M, method="depth-aware", depth=depth, zmin_m=0.5, zmax_m=2.5)
+    with pytest.raises(InvalidInputError, match="depth"):
+        refocus(views, cal, -1.0, method="depth-aware", depth=depth)
+
+
+def test_cli_depth_aware_stack_is_labelled(tmp_path, capsys):
+    import json
+    from pathlib import Path
+
+    import imageio.v3 as iio
+    import tifffile
+
+    from lfring.cli.main import main
+
+    scene = Path(__file__).resolve().parents[1] / "data" / "synthetic" / "scene.png"
+    out = tmp_path / "s.png"
+    assert main(["refocus", str(scene), "--depths", "0.3,0.6", "--method", "depth-aware", "--aperture", "0.5",
+                 "--zmin", "0.3", "--zmax", "0.9", "-o", str(out)]) == 0
+    side = json.loads((tmp_path / "s_000_0.3m.png.json").read_text())
+    assert side["method"] == "depth-aware" and side["aperture"] == 0.5 and side["zmax_m"] == 0.9
+    with tifffile.TiffFile(tmp_path / "s_stack.tif") as tif:
+        assert "0.6" in tif.pages[0].description  # the depths in the TIFF's metadata
+    gif = iio.imread(tmp_path / "s_stack.gif")
+    corner = gif[:, :40, :120].astype(int)
+    assert gif.shape[0] == 2 and corner.max() >= 200  # the caption's white text
+    # Depth-of-field options need the depth-aware method.
+    assert main(["refocus", str(scene), "--depth", "0.5", "--method", "shift-and-add", "--aperture", "0.5",
+                 "-o", str(tmp_path / "o.png")]) == 2
+    assert "--method depth-aware" in capsys.readouterr().err
+
+
+def test_homographies_that_are_not_translations():
+    """A calibration whose views also scale with depth takes the general sampling path
+    (interpolated between depths): at one depth everywhere, aperture 0 is shift-and-add there."""
+    lay = _calibration().layout
+
+    def hs(z):
+        out = np.repeat(np.eye(3)[None], 4, axis=0)
+        for k, d in enumerate(DIRS):
+            s = 1.0 + 0.02 * k / z
+            out[k, :2, :2] *= s
+            out[k, :2, 2] = -GAIN / z * d - (s - 1) * N / 2
+        return out
+
+    cal = RingCalibration.from_plane_homographies({0.4: hs(0.4), 3.0: hs(3.0)}, layout=lay, depth_origin_m=0.0)
+    rng = np.random.default_rng(1)
+    texture = cv2.GaussianBlur(rng.random((N, N, 3), dtype=np.float32), (0, 0), 2.0)
+    z = 0.8
+    # Views of a plane at z: view k's pixel u shows the reference point H_k(z) u.
+    views = np.stack([cv2.warpPerspective(texture, np.linalg.inv(hk), (N, N), flags=cv2.INTER_LINEAR)
+                      for hk in cal.homographies(z)])
+    depth = np.full((N, N), z)
+    depth[0, 0] = 2.0  # a second depth, so the sampling positions are interpolated between knots
+    dof = depth_of_field(views, cal, depth=depth)
+    inner = (slice(12, N - 12), slice(12, N - 12))
+    # The all-in-focus colour samples the views where shift-and-add does (the general warp).
+    np.testing.assert_allclose(dof.colour[inner], refocus(views, cal, z)[inner], atol=2e-3)
+    np.testing.assert_allclose(dof.colour[inner], texture[inner], atol=2e-2)
