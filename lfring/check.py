@@ -12,7 +12,6 @@ reading and demosaicing the frame (0.3-0.5 s); measured under a load average of 
 from __future__ import annotations
 
 import warnings
-import weakref
 from dataclasses import dataclass, field
 
 import cv2
@@ -171,15 +170,11 @@ def _soft_discs(layout, f: int) -> np.ndarray:
     return _discs(shrunk, f).astype(np.float32)
 
 
-_NEAREST: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
-
-
 def _nearest_overlap(calibration) -> float:
     """The calibration's nearest overlap depth, computed once per calibration object."""
-    z = _NEAREST.get(calibration)
-    if z is None:
-        z = _NEAREST[calibration] = calibration.overlap_depth_range()[0]
-    return z
+    from lfring.calibration.overlap import nearest_renderable_depth_m
+
+    return nearest_renderable_depth_m(calibration)
 
 
 def check_frame(frame, calibration, *, threshold: float = AGREEMENT_THRESHOLD, downsample: int = CHECK_DOWNSAMPLE) -> FrameCheck:

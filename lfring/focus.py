@@ -15,6 +15,7 @@ import warnings
 import cv2
 import numpy as np
 
+from lfring.calibration.overlap import check_renderable
 from lfring.depth.hypotheses import depth_hypotheses
 from lfring.depth.selection import DepthResult
 from lfring.dof import DepthOfField, aperture_from_f_number
@@ -97,6 +98,7 @@ class Refocuser:
         self.depth_m = float(depth_m)
         self.reference = reference
         self._flag = interpolation_flag(interpolation)
+        check_renderable(calibration, self.depth_m, reference=reference)
         self.view_shape = tuple(view_shape or calibration.layout.view_shape)
         self.threads = threads
         self.H = calibration.homographies(self.depth_m, reference=reference)
@@ -279,7 +281,8 @@ def refocus(views, calibration, depth_m: float, *, reference="center", interpola
     calibration : RingCalibration
     depth_m : float
         Must be positive and beyond the calibration's depth origin; outside its valid range it
-        warns (:class:`lfring.LfringWarning`).
+        warns (:class:`lfring.LfringWarning`). Nearer than where every view still covers part
+        of the reference frame (``calibration.overlap_depth_range``) it is refused.
     reference : 'center' or int
         Frame of the result: the virtual central view (default) or a view index.
     interpolation : {'linear', 'cubic'}
@@ -357,6 +360,7 @@ def focal_stack(views, calibration, depths_m, *, reference="center", interpolati
         raise InvalidInputError(f"depths_m must be a non-empty list of depths, got {depths_m!r}")
     arr = check_views(views)
     calibration.check_depth(z)  # validates and warns once for the whole stack
+    check_renderable(calibration, z, reference=reference)
     dof, a = None, None
     if method == "depth-aware":
         a = resolve_aperture(calibration, aperture, f_number, ring_device)

@@ -2,7 +2,7 @@
 
 Every stage that compares or averages views does the same few things: check a view stack, weigh
 each view pixel by its valid disc (:func:`view_masks`, made once per calibration and view shape
-by :func:`cached_view_masks`), bring the views into the reference frame (:func:`warp_views`, or
+by :func:`cached_view_masks`, in the one per-calibration cache :func:`calibration_cache`), bring the views into the reference frame (:func:`warp_views`, or
 for pure translations the cheaper :class:`ShiftEngine`, chosen by the one translation test
 :func:`translation_of`), normalise by the summed weights (:func:`inverse_weight` with the one
 :data:`WEIGHT_FLOOR`), and work in row strips on several threads (:func:`run_threads`). The
@@ -24,7 +24,7 @@ from lfring.errors import InvalidInputError
 
 __all__ = [
     "INTERPOLATIONS", "STRIP_BYTES", "TAPER", "TRANSLATION_TOL_PX", "WEIGHT_FLOOR", "ShiftEngine", "box_filter",
-    "cached_view_masks", "check_views", "interpolation_flag", "inverse_weight", "luminance", "normalised_luminance",
+    "cached_view_masks", "calibration_cache", "check_views", "interpolation_flag", "inverse_weight", "luminance", "normalised_luminance",
     "run_threads", "translation_of", "translations", "view_masks", "warp_image", "warp_views",
 ]
 
@@ -119,9 +119,26 @@ def view_masks(calibration, view_shape, *, taper: float = TAPER) -> np.ndarray:
     return np.stack(out).astype(np.float32)
 
 
-# The one cache of view masks and of what is derived from them, per calibration object (weakly
-# held: it goes with the calibration) and view shape.
-_MASK_CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+# The one cache of what is derived from a calibration object (its view masks and what is made
+# from them, its nearest renderable depth...): weakly held, it goes with the calibration.
+_CALIBRATION_CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def calibration_cache(calibration, key, make):
+    """``make()`` computed once per calibration object and hashable ``key`` (calibrations are
+    immutable: what is derived from one stays true while it lives).
+
+    Examples
+    --------
+    >>> from lfring.calibration.defaults import default_calibration
+    >>> cal, _ = default_calibration((2456, 1842))
+    >>> calibration_cache(cal, "answer", lambda: 42), calibration_cache(cal, "answer", lambda: 0)
+    (42, 42)
+    """
+    per_cal = _CALIBRATION_CACHE.setdefault(calibration, {})
+    if key not in per_cal:
+        per_cal[key] = make()
+    return per_cal[key]
 
 
 def cached_view_masks(calibration, view_shape, derived=None, make=None):
@@ -136,19 +153,17 @@ def cached_view_masks(calibration, view_shape, derived=None, make=None):
     >>> cached_view_masks(cal, cal.layout.view_shape) is cached_view_masks(cal, cal.layout.view_shape)
     True
     """
-    per_cal = _MASK_CACHE.setdefault(calibration, {})
     shape = tuple(int(n) for n in view_shape)
-    masks = per_cal.get(shape)
-    if masks is None:
+
+    def make_masks():
         masks = view_masks(calibration, shape)
         masks.setflags(write=False)
-        per_cal[shape] = masks
+        return masks
+
+    masks = calibration_cache(calibration, ("view_masks", shape), make_masks)
     if derived is None:
         return masks
-    key = (shape, derived)
-    if key not in per_cal:
-        per_cal[key] = make(masks)
-    return per_cal[key]
+    return calibration_cache(calibration, ("view_masks", shape, derived), lambda: make(masks))
 
 
 def inverse_weight(weight: np.ndarray) -> np.ndarray:

@@ -171,3 +171,23 @@ def test_bad_inputs_and_warnings(scene):
         refocus(views, cal, 0.5, interpolation="nearest")
     with pytest.raises(InvalidInputError, match="reference"):
         refocus(views, cal, 0.5, reference=7)
+
+
+def test_depths_where_the_views_no_longer_overlap_are_refused():
+    """Just beyond z0 the views slide off the reference frame: the library refuses, naming the
+    nearest depth that works, rather than returning a black image."""
+    from lfring.calibration.defaults import default_calibration
+
+    cal, _ = default_calibration((2456, 1842))
+    views = np.zeros((4, *cal.layout.view_shape, 3), np.float32)
+    nearest = cal.overlap_depth_range()[0]
+    assert cal.depth_origin_m < nearest < 0.05
+    for fn in (lambda: refocus(views, cal, 0.0285), lambda: Refocuser(cal, 0.03),
+               lambda: focal_stack(views, cal, [0.5, 0.03])):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", LfringWarning)  # outside the calibrated range, too
+            with pytest.raises(InvalidInputError, match=f"nearest depth that works with this calibration is {nearest:.4f}"[:-1]):
+                fn()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", LfringWarning)
+        assert refocus(views, cal, nearest * 1.01).shape == views.shape[1:]

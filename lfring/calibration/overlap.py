@@ -18,6 +18,8 @@ __all__ = [
     "MIN_OVERLAP_FRACTION",
     "disparity_spread_px",
     "nearest_overlap_depth_m",
+    "nearest_renderable_depth_m",
+    "check_renderable",
     "overlap_fraction",
 ]
 
@@ -128,3 +130,23 @@ def disparity_spread_px(h_ref_from_view: np.ndarray, view_shape_hw) -> float:
     q = np.einsum("vij,j->vi", np.asarray(h_ref_from_view, dtype=np.float64), c)
     xy = q[:, :2] / q[:, 2:3]
     return float(np.sqrt(np.mean(np.sum((xy - xy.mean(axis=0)) ** 2, axis=1))))
+
+
+def nearest_renderable_depth_m(calibration, *, reference="center") -> float:
+    """:func:`nearest_overlap_depth_m`, computed once per calibration object and reference."""
+    from lfring.warp import calibration_cache
+
+    return calibration_cache(calibration, ("nearest_overlap_depth_m", reference),
+                             lambda: nearest_overlap_depth_m(calibration, reference=reference))
+
+
+def check_renderable(calibration, depths_m, *, reference="center") -> None:
+    """Refuse depths nearer than where the views still overlap in the reference frame (a
+    refocused image there is black or ghosted), naming the nearest depth that works."""
+    nearest = nearest_renderable_depth_m(calibration, reference=reference)
+    bad = [float(z) for z in np.atleast_1d(np.asarray(depths_m, dtype=np.float64)) if z < nearest]
+    if bad:
+        raise InvalidInputError(
+            f"depth {bad[0]:g} m cannot be rendered: the views no longer overlap in the reference frame there "
+            f"(less than {MIN_OVERLAP_FRACTION:.0%} of it is seen by every view, so the image would be black or "
+            f"ghosted); the nearest depth that works with this calibration is {np.ceil(nearest * 1e4) / 1e4:g} m")

@@ -52,20 +52,6 @@ def _depths(depth, depths, sweep) -> list[float]:
     return [float(z) for z in zs]
 
 
-def check_renderable(cal, zs, reference) -> None:
-    """Refuse depths nearer than where the views still overlap in the reference frame."""
-    from lfring.calibration.overlap import MIN_OVERLAP_FRACTION
-    from lfring.errors import InvalidInputError
-
-    nearest, _ = cal.overlap_depth_range(reference=reference)
-    bad = [z for z in zs if z < nearest]
-    if bad:
-        raise InvalidInputError(
-            f"depth {bad[0]:g} m cannot be rendered: the views no longer overlap in the reference frame there "
-            f"(less than {MIN_OVERLAP_FRACTION:.0%} of it is seen by every view, so the image would be black or "
-            f"ghosted); the nearest depth that works with this calibration is {math.ceil(nearest * 1e4) / 1e4:g} m")
-
-
 @click.command("refocus")
 @click.argument("raw", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.option("--depth", type=float, default=None, metavar="M", help="Refocus distance from the main lens [m]; inf for infinity.")
@@ -118,7 +104,7 @@ def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolat
     """
     import warnings
 
-    from lfring.calibration.overlap import INFINITE_DEPTH_M
+    from lfring.calibration.overlap import INFINITE_DEPTH_M, check_renderable
     from lfring.errors import LfringWarning
     from lfring.geometry import check_reference
     from lfring.io.writers import check_writable, write_gif, write_image, write_json, write_tiff_stack
@@ -154,7 +140,7 @@ def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolat
             raise click.UsageError("the calibration has no upper depth bound: give --zmax for the depth estimation "
                                    "(or --method shift-and-add)")
         dof = {"aperture": aperture, "f_number": f_number, "zmin_m": zmin, "zmax_m": zmax}
-    check_renderable(cal, zs, ref)
+    check_renderable(cal, zs, reference=ref)
     check_writable(all_outputs, overwrite=overwrite)  # again: loading took a while
 
     # inf renders as the model's limit H = A (see INFINITE_DEPTH_M).
