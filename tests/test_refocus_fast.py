@@ -93,13 +93,21 @@ def test_threads_split_strips_without_changing_the_result(monkeypatch):
 
 
 def test_shift_larger_than_the_view_and_integer_shifts(strips):
+    """The shift engine itself (a Refocuser refuses such a depth: the views do not overlap)."""
+    from lfring.errors import InvalidInputError
+    from lfring.warp import ShiftEngine
+
     shifts = [(0.0, 0.0), (W_PX + 5.5, 0.25), (-3.0, 2.0), (0.5, -H_PX - 1.0)]
     cal = _calibration(shifts)
     views = _views(3)
-    r = Refocuser(cal, 0.5, reference=0)
-    assert r.shift_path
+    with pytest.raises(InvalidInputError, match="cannot be rendered"):
+        Refocuser(cal, 0.5, reference=0)
+    hs = cal.homographies(0.5, reference=0)
+    engine = ShiftEngine(np.array([translation_of(h, (H_PX, W_PX)) for h in hs]), (H_PX, W_PX))
+    out = np.empty(views.shape[1:], np.float32)
+    engine.run(np.ascontiguousarray(views), out, inv_rows=[np.repeat(row[:, None], 3, axis=1) for *_, row in engine.inv_bands()])
     ref, _ = _general(views, cal, 0.5)
-    np.testing.assert_allclose(r(views), ref, atol=1e-5, rtol=0)
+    np.testing.assert_allclose(out, ref, atol=1e-5, rtol=0)
 
 
 @pytest.mark.parametrize("circles", [None, DISCS], ids=["valid-everywhere", "discs"])

@@ -212,7 +212,11 @@ def test_cli_grid_calib_then_depth_and_refocus_of_separate_views(tmp_path):
     m = _plane_masks(gt, rect, margin=12)[10.0]
     assert np.mean(np.abs(SCALE_PX_M / depth[m] - 10.0) < 0.5) > 0.95
     assert json.loads((tmp_path / "out" / "v0_depth.json").read_text())["input"] == paths
-    assert main(["refocus", *paths, "--calib", str(cal_path), "--depth", "12", "-o", str(tmp_path / "r.png")]) == 0
+    # A grid's calibration reaches infinity: the depth-aware default needs the depth range.
+    assert main(["refocus", *paths, "--calib", str(cal_path), "--depth", "12", "-o", str(tmp_path / "r.png")]) == 2
+    assert not (tmp_path / "r.png").exists()
+    assert main(["refocus", *paths, "--calib", str(cal_path), "--depth", "12", "--method", "shift-and-add",
+                 "-o", str(tmp_path / "r.png")]) == 0
     assert cv2.imread(str(tmp_path / "r.png")).shape == (64, 96, 3)
     # Separate views need a calibration of as many views.
     assert main(["depth", *paths, "--zmin", "1", "--zmax", "5", "-o", str(tmp_path / "o2")]) == 2
