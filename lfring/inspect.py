@@ -38,6 +38,7 @@ import numpy as np
 from lfring.errors import InvalidInputError, LfringWarning
 from lfring.depth.hypotheses import depth_hypotheses, view_motion_px
 from lfring.geometry import check_reference
+from lfring.records import record_repr
 from lfring.warp import WEIGHT_FLOOR, cached_view_masks, check_views, normalised_luminance, warp_views
 
 __all__ = [
@@ -160,6 +161,8 @@ class InspectionResult:
     refocused: np.ndarray
     settings: dict = field(default_factory=dict)
     stats: dict = field(default_factory=dict)
+
+    __repr__ = record_repr
 
     @property
     def passed(self) -> bool:

@@ -10,6 +10,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from lfring.records import record_repr
+
 __all__ = ["DepthResult", "Finisher", "RunningMinimum", "parabola", "refine"]
 
 
@@ -49,6 +51,8 @@ class DepthResult:
     aggregation: str
     method: str = "local"
     depth_filled_m: np.ndarray | None = None
+
+    __repr__ = record_repr
 
 
 class RunningMinimum:

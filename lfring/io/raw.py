@@ -47,6 +47,7 @@ import numpy as np
 
 from lfring.errors import FileFormatError, InvalidInputError, LfringError, LfringFileNotFoundError
 from lfring.io.bayer import PATTERNS, validate_pattern
+from lfring.records import record_repr
 
 __all__ = ["RawFrame", "load_raw", "write_dng", "RAW_SUFFIXES", "FILE_FORMATS", "sidecar_path"]
 
@@ -126,6 +127,8 @@ class RawFrame:
     bit_depth: int | None = None
     path: Path | None = None
     file_format: str | None = None
+
+    __repr__ = record_repr
 
     def __post_init__(self) -> None:
         path = None if self.path is None else Path(self.path)

@@ -34,6 +34,7 @@ from lfring.optics.views import (
     view_cameras,
     vignetting_region,
 )
+from lfring.records import record_repr
 from lfring.synth.scene import HeightField, Plane, Scene
 from lfring.synth.textures import raster_shape, rasterize
 from lfring.views import Layout, split_views
@@ -153,6 +154,8 @@ class RenderResult:
     device: RingDevice
     settings: RenderSettings
     scene: Scene
+
+    __repr__ = record_repr
 
     def homographies(self, depth_m, *, reference="center") -> np.ndarray:
         """Exact ``H_ref_from_view`` of a fronto-parallel plane at ``depth_m`` (SPEC 4)."""
