@@ -625,6 +625,7 @@ class BatchReport:
 
     @property
     def ok(self) -> bool:
+        """True when no frame failed (every frame done or skipped)."""
         return not self.failed
 
     @property
@@ -634,9 +635,17 @@ class BatchReport:
 
     @property
     def frames_per_s(self) -> float:
+        """Frames processed (not skipped) per second of wall time; 0 when none was processed."""
         return len(self.done) / self.elapsed_s if self.elapsed_s > 0 and self.done else 0.0
 
     def summary(self) -> str:
+        """One line for the end of a run: counts of done, skipped and failed frames, the time,
+        the rate, the output folder and the files left out as not frames.
+
+        Returns
+        -------
+        str
+        """
         n = len(self.done) + len(self.skipped) + len(self.failed)
         rate = f", {self.frames_per_s:.2f} frames/s" if self.done else ""
         left = f"; {len(self.not_frames)} files that are not frames left out" if self.not_frames else ""

@@ -86,6 +86,15 @@ class Defect:
     mean_confidence: float
 
     def to_dict(self) -> dict:
+        """The defect as written in the inspection's JSON report.
+
+        Returns
+        -------
+        dict
+            ``kind``, ``bbox_px`` (x, y, w, h), ``centroid_px``, ``area_px``, ``area_mm2`` (None
+            without a pixel footprint), ``max_deviation_mm`` (+ towards the camera) and
+            ``mean_confidence``, rounded for reading.
+        """
         x, y, w, h = self.bbox_px
         return {
             "kind": self.kind,

@@ -87,6 +87,7 @@ class Layout:
 
     @property
     def num_views(self) -> int:
+        """Number of views V."""
         return len(self.rects)
 
     @property
@@ -108,6 +109,12 @@ class Layout:
         return np.stack([(xx - cx) ** 2 + (yy - cy) ** 2 <= r * r for cx, cy, r in self.circles])
 
     def to_dict(self) -> dict:
+        """The JSON form of the layout (what :meth:`save` writes and :meth:`from_dict` reads).
+
+        Returns
+        -------
+        dict
+        """
         return {
             "lfring_layout_version": LAYOUT_VERSION,
             "raw_width_px": int(self.raw_width_px),
@@ -119,6 +126,24 @@ class Layout:
 
     @classmethod
     def from_dict(cls, data: dict, *, source: str = "layout") -> Layout:
+        """Build a layout from its JSON form.
+
+        Parameters
+        ----------
+        data : dict
+            As made by :meth:`to_dict`.
+        source : str
+            Names the data in error messages (a file name).
+
+        Returns
+        -------
+        Layout
+
+        Raises
+        ------
+        FileFormatError
+            A key is missing or malformed, or the version is not supported.
+        """
         try:
             version = data["lfring_layout_version"]
             if version != LAYOUT_VERSION:
@@ -136,12 +161,37 @@ class Layout:
             raise FileFormatError(f"{source}: {exc}") from None
 
     def save(self, path: str | Path) -> Path:
+        """Write the layout as JSON, atomically.
+
+        Parameters
+        ----------
+        path : str or Path
+
+        Returns
+        -------
+        Path
+            The file written.
+        """
         from lfring.io.atomic import atomic_write_text
 
         return atomic_write_text(path, json.dumps(self.to_dict(), indent=2) + "\n")
 
     @classmethod
     def load(cls, path: str | Path) -> Layout:
+        """Read a layout written by :meth:`save`.
+
+        Parameters
+        ----------
+        path : str or Path
+
+        Returns
+        -------
+        Layout
+
+        Raises
+        ------
+        LfringFileNotFoundError, FileFormatError
+        """
         from lfring.io.readers import read_json_object
 
         return cls.from_dict(read_json_object(path, "layout"), source=str(path))

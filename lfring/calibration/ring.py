@@ -77,10 +77,12 @@ class RingCalibration:
     # -- queries ---------------------------------------------------------------------------
     @property
     def depth_origin_m(self) -> float:
+        """The depth origin z0 of ``H(Z) = A + B / (Z - z0)``, metres from the main lens."""
         return self.model.depth_origin_m
 
     @property
     def num_views(self) -> int:
+        """Number of views V the calibration maps (the layout's)."""
         return self.layout.num_views
 
     @property
@@ -311,6 +313,14 @@ class RingCalibration:
 
     # -- files -----------------------------------------------------------------------------
     def to_dict(self) -> dict:
+        """The JSON form of the calibration (what :meth:`save` writes and :meth:`from_dict` reads).
+
+        Returns
+        -------
+        dict
+            JSON-ready: plain numbers, lists and strings, with the file version
+            ``lfring_calibration_version``.
+        """
         return {
             "lfring_calibration_version": CALIBRATION_VERSION,
             "source": self.source,

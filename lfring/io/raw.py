@@ -510,6 +510,28 @@ def visible_cfa_indices(raw: Any, p: Path) -> np.ndarray:
 
 
 def cfa_letters(raw: Any, indices: np.ndarray, p: Path) -> str:
+    """The Bayer pattern of a camera RAW file as letters, e.g. 'RGGB'.
+
+    Parameters
+    ----------
+    raw : rawpy.RawPy
+        The open file.
+    indices : (2, 2) ndarray of int
+        Colour indices of the top-left 2 x 2 block of the visible mosaic (into LibRaw's colour
+        description).
+    p : Path
+        The file, for error messages.
+
+    Returns
+    -------
+    str
+        One of :data:`lfring.io.bayer.PATTERNS`.
+
+    Raises
+    ------
+    FileFormatError
+        The colours are not an R/G/B Bayer pattern.
+    """
     desc = raw.color_desc.decode("ascii", "replace")
     try:
         letters = "".join(desc[i] for i in indices.ravel())

@@ -123,10 +123,12 @@ class RenderSettings:
 
     @property
     def white_level(self) -> int:
+        """Counts at saturation: ``2**bit_depth - 1``."""
         return 2**self.bit_depth - 1
 
     @property
     def effective_black_level(self) -> int:
+        """The black level in counts: ``black_level``, or the default for ``bit_depth`` when None."""
         return _DEFAULT_BLACK[self.bit_depth] if self.black_level is None else int(self.black_level)
 
 
@@ -163,10 +165,12 @@ class RenderResult:
 
     @property
     def black_level(self) -> int:
+        """Black level of ``raw`` in counts."""
         return self.settings.effective_black_level
 
     @property
     def white_level(self) -> int:
+        """White level (saturation) of ``raw`` in counts."""
         return self.settings.white_level
 
     def metadata(self) -> dict:
