@@ -1166,6 +1166,21 @@ def run_batch(
     The worker processes are started with ``spawn`` (forking a process whose OpenCV threads run
     can deadlock), so a script that calls this with ``workers > 1`` must do so under
     ``if __name__ == "__main__":``, as with any spawning process pool.
+
+    Examples
+    --------
+    The bundled scene (data/synthetic, paths relative to the repository root) refocused at
+    0.5 m into a temporary folder, then the same run again, which finds it done:
+
+    >>> import os, tempfile
+    >>> with tempfile.TemporaryDirectory() as out:
+    ...     first = run_batch(["data/synthetic/scene.png"], out, BatchSettings(refocus_m=(0.5,)), workers=1, progress=False)
+    ...     again = run_batch(["data/synthetic/scene.png"], out, BatchSettings(refocus_m=(0.5,)), workers=1, progress=False)
+    ...     files = sorted(os.listdir(out))
+    >>> first.exit_code, len(first.done), len(again.done), len(again.skipped)
+    (0, 1, 0, 1)
+    >>> files
+    ['manifest.jsonl', 'scene.lfring.json', 'scene_refocus_0.5m.png']
     """
     out = Path(outdir)
     workers = _check_run_args(executor, scheduler, workers, settings, out)

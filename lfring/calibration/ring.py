@@ -51,6 +51,21 @@ class RingCalibration:
     black_level, white_level : float or None
         Levels in counts of the frames it was made from, when known: frames without their own
         (no sidecar, no option) are read with them.
+
+    Examples
+    --------
+    The built-in calibration of the twin's 2 x 2 binned frames (:func:`builtin_calibrations`
+    lists the others):
+
+    >>> import numpy as np
+    >>> cal = RingCalibration.load("twin_binned2")
+    >>> cal.raw_size, cal.layout.view_shape, cal.valid_depth_range_m
+    ((2456, 1842), (705, 705), (0.3, 1.0))
+    >>> H = cal.homographies([0.3, 0.5, 1.0])  # H_ref_from_view into the centre frame
+    >>> H.shape
+    (3, 4, 3, 3)
+    >>> np.round(H[:, 0, 0, 2], 1).tolist()  # view 0's shift in x, px: the nearer, the larger
+    [61.3, 58.8, 57.1]
     """
 
     model: VariableHomography

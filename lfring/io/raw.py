@@ -325,6 +325,13 @@ def load_raw(
     >>> from lfring.io.demosaic import demosaic
     >>> round(float(demosaic(frame, method="bilinear")[2, 3, 1]), 4)  # (2079 - 64) / (4095 - 64)
     0.4999
+
+    A frame of the synthetic twin bundled in data/synthetic (paths relative to the repository
+    root), its levels read from its sidecar ``scene.png.json``:
+
+    >>> frame = load_raw("data/synthetic/scene.png")
+    >>> frame.shape, frame.pattern, frame.black_level, frame.white_level, frame.bit_depth
+    ((1842, 2456), 'RGGB', 64.0, 4095.0, 12)
     """
     if isinstance(path, bytes) or not isinstance(path, (str, PathLike)):
         raise InvalidInputError(
