@@ -51,3 +51,14 @@ def test_an_existing_file_wins_over_the_builtin_name(tmp_path, monkeypatch):
     other.save(tmp_path / "twin_binned2")
     cal = RingCalibration.load("twin_binned2")
     assert cal.raw_size == other.raw_size == (4912, 3684)
+
+
+def test_cli_calib_option_takes_a_builtin_name(tmp_path, monkeypatch, capsys):
+    from lfring.cli.main import main
+
+    scene = CALIB.parent / "data" / "synthetic" / "scene.png"
+    monkeypatch.chdir(tmp_path)
+    assert main(["check", str(scene), "--calib", "twin_binned2"]) == 0
+    assert "calibration  twin_binned2 (2456 x 1842 px, 4 views)" in capsys.readouterr().out
+    assert main(["check", str(scene), "--calib", "twin_binned9", "--overwrite"]) == 2
+    assert "built-in: prototype_optics, twin_binned2" in capsys.readouterr().err
