@@ -504,8 +504,9 @@ def builtin_calibrations() -> dict[str, tuple[int, int]]:
 
     Examples
     --------
-    >>> builtin_calibrations()
-    {'prototype_optics': (4912, 3684), 'twin_binned2': (2456, 1842)}
+    >>> names = builtin_calibrations()
+    >>> names["twin_binned2"], names["prototype_optics"]
+    ((2456, 1842), (4912, 3684))
     """
     out = {}
     for entry in sorted(calib_dir().iterdir(), key=lambda e: e.name):

@@ -16,7 +16,7 @@ CALIB = Path(__file__).resolve().parents[2] / "calib"
 def test_builtin_calibrations_lists_the_shipped_json_files():
     shipped = {p.stem: p for p in CALIB.glob("*.json")}
     names = builtin_calibrations()
-    assert set(names) == set(shipped) == {"prototype_optics", "twin_binned2"}
+    assert set(names) == set(shipped) and {"prototype_optics", "twin_binned2"} <= set(names)
     for name, path in shipped.items():
         data = json.loads(path.read_text())
         assert names[name] == (data["raw_width_px"], data["raw_height_px"])
