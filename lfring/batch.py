@@ -625,6 +625,7 @@ class BatchReport:
 
     @property
     def ok(self) -> bool:
+        """True when no frame failed (every frame done or skipped)."""
         return not self.failed
 
     @property
@@ -634,9 +635,17 @@ class BatchReport:
 
     @property
     def frames_per_s(self) -> float:
+        """Frames processed (not skipped) per second of wall time; 0 when none was processed."""
         return len(self.done) / self.elapsed_s if self.elapsed_s > 0 and self.done else 0.0
 
     def summary(self) -> str:
+        """One line for the end of a run: counts of done, skipped and failed frames, the time,
+        the rate, the output folder and the files left out as not frames.
+
+        Returns
+        -------
+        str
+        """
         n = len(self.done) + len(self.skipped) + len(self.failed)
         rate = f", {self.frames_per_s:.2f} frames/s" if self.done else ""
         left = f"; {len(self.not_frames)} files that are not frames left out" if self.not_frames else ""
@@ -1157,6 +1166,21 @@ def run_batch(
     The worker processes are started with ``spawn`` (forking a process whose OpenCV threads run
     can deadlock), so a script that calls this with ``workers > 1`` must do so under
     ``if __name__ == "__main__":``, as with any spawning process pool.
+
+    Examples
+    --------
+    The bundled scene (data/synthetic, paths relative to the repository root) refocused at
+    0.5 m into a temporary folder, then the same run again, which finds it done:
+
+    >>> import os, tempfile
+    >>> with tempfile.TemporaryDirectory() as out:
+    ...     first = run_batch(["data/synthetic/scene.png"], out, BatchSettings(refocus_m=(0.5,)), workers=1, progress=False)
+    ...     again = run_batch(["data/synthetic/scene.png"], out, BatchSettings(refocus_m=(0.5,)), workers=1, progress=False)
+    ...     files = sorted(os.listdir(out))
+    >>> first.exit_code, len(first.done), len(again.done), len(again.skipped)
+    (0, 1, 0, 1)
+    >>> files
+    ['manifest.jsonl', 'scene.lfring.json', 'scene_refocus_0.5m.png']
     """
     out = Path(outdir)
     workers = _check_run_args(executor, scheduler, workers, settings, out)

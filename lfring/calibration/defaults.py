@@ -5,21 +5,10 @@ from __future__ import annotations
 import json
 
 from lfring._resources import calib_dir
-from lfring.calibration.ring import RingCalibration
+from lfring.calibration.ring import RingCalibration, builtin_calibrations
 from lfring.errors import LfringFileNotFoundError
 
 __all__ = ["builtin_calibrations", "default_calibration"]
-
-
-def builtin_calibrations() -> dict[str, tuple[int, int]]:
-    """Name -> raw size (width, height) of every calibration file shipped with lfring."""
-    out = {}
-    for entry in sorted(calib_dir().iterdir(), key=lambda e: e.name):
-        if entry.name.endswith(".json"):
-            data = json.loads(entry.read_text(encoding="utf-8"))
-            if "lfring_calibration_version" in data:
-                out[entry.name[: -len(".json")]] = (data["raw_width_px"], data["raw_height_px"])
-    return out
 
 
 def default_calibration(raw_size: tuple[int, int]) -> tuple[RingCalibration, str]:
@@ -34,6 +23,7 @@ def default_calibration(raw_size: tuple[int, int]) -> tuple[RingCalibration, str
             f"no built-in calibration for {raw_size[0]} x {raw_size[1]} px frames (built-in: {known}); "
             "make one with lfring calibrate and pass it with --calib"
         )
+    # Read from the package even when the working folder holds a file of the same name.
     cals = [(RingCalibration.from_dict(json.loads((calib_dir() / f"{n}.json").read_text()), source_name=n), n) for n in matches]
     cals.sort(key=lambda c: c[0].source != "planes")
     return cals[0]

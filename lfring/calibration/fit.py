@@ -80,6 +80,25 @@ def calibrate(
     RingCalibration
         With per-plane residuals (model vs measurement) in pixels, leave-one-out errors for
         three or more planes, and the alignment diagnostics in ``provenance``.
+
+    Examples
+    --------
+    The twin's targets at 0.3 m and 1 m and its flat frame (data/synthetic, paths relative to
+    the repository root), z0 from the prototype's optics: the command that made the built-in
+    calibration ``twin_binned2`` (calib/README.md), which this reproduces:
+
+    >>> import numpy as np
+    >>> from lfring.calibration.ring import RingCalibration
+    >>> from lfring.optics import load_device
+    >>> cal = calibrate({0.3: "data/synthetic/target_0.3m.png", 1.0: "data/synthetic/target_1m.png"},
+    ...                 flat="data/synthetic/flat.png", device=load_device("prototype"))
+    >>> round(cal.depth_origin_m, 4), cal.num_views, cal.source
+    (0.028, 4, 'planes')
+    >>> np.round(cal.homographies(0.5)[:, :2, 2], 1).tolist()  # view shifts at 0.5 m, px
+    [[58.8, 58.8], [-58.8, 58.8], [58.8, -58.8], [-58.8, -58.8]]
+    >>> shipped = RingCalibration.load("twin_binned2")
+    >>> float(np.abs(cal.homographies(0.5) - shipped.homographies(0.5)).max()) < 1e-3
+    True
     """
     from lfring.calibration.planes import estimate_plane_homographies
 

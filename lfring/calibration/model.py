@@ -49,6 +49,7 @@ class VariableHomography:
 
     @property
     def num_views(self) -> int:
+        """Number of views V (the first axis of ``A`` and ``B``)."""
         return self.A.shape[0]
 
     def __call__(self, depth_m) -> np.ndarray:

@@ -102,6 +102,7 @@ class PlaneHomographies:
 
     @property
     def num_views(self) -> int:
+        """Number of views V (one homography each)."""
         return len(self.H_ref_from_view)
 
 

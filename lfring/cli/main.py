@@ -57,6 +57,13 @@ class CliError(click.ClickException):
     exit_code = 2
 
     def show(self, file=None):
+        """Print the error as one line, ``lfring: error: MESSAGE``, on stderr (no usage text).
+
+        Parameters
+        ----------
+        file : file object, optional
+            Ignored (click's signature); the line always goes to stderr.
+        """
         click.echo(f"lfring: error: {self.format_message()}", err=True)
 
 

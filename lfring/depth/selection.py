@@ -10,6 +10,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from lfring.records import record_repr
+
 __all__ = ["DepthResult", "Finisher", "RunningMinimum", "parabola", "refine"]
 
 
@@ -50,6 +52,8 @@ class DepthResult:
     method: str = "local"
     depth_filled_m: np.ndarray | None = None
 
+    __repr__ = record_repr
+
 
 class RunningMinimum:
     """Streamed argmin over hypotheses with what refinement and confidence need, per pixel:
@@ -78,6 +82,9 @@ class RunningMinimum:
         return self.ring[self.i % len(self.ring)]
 
     def push(self) -> None:
+        """Take in the slice written into :meth:`slot`: update the best cost and its index, its
+        neighbours' costs and the minimum away from the best.
+        """
         i, e, ring = self.i, self.exclude, self.ring
         cur = ring[i % len(ring)]
         if i >= e + 1:
@@ -101,6 +108,12 @@ class RunningMinimum:
         self.i += 1
 
     def second(self) -> np.ndarray:
+        """The best cost more than ``exclude`` hypotheses away from the best, per pixel.
+
+        Returns
+        -------
+        (h, w) float32
+        """
         return np.minimum(self.far_lo, self.far_hi)
 
 
@@ -177,4 +190,16 @@ class Finisher:
         return depth
 
     def result(self, **record) -> DepthResult:
+        """The finished :class:`DepthResult`: this finisher's depth, confidence and index.
+
+        Parameters
+        ----------
+        **record
+            The other fields of :class:`DepthResult` (``depths_m``, ``step_px``, ``reference``,
+            ``cost``, ``aggregation``, ...).
+
+        Returns
+        -------
+        DepthResult
+        """
         return DepthResult(depth_m=self.depth, confidence=self.conf, hypothesis_index=self.index, **record)

@@ -139,6 +139,22 @@ def estimate_depth(
     the refined index is ``i* + (c(i*-1) - c(i*+1)) / (2 (c(i*-1) - 2 c(i*) + c(i*+1)))``; the
     depth follows from linear interpolation in 1/(Z - z0). The confidence is
     ``1 - c(i*) / c2`` with c2 the lowest cost more than one pixel of view motion from i*.
+
+    Examples
+    --------
+    The bundled scene of the twin (data/synthetic, paths relative to the repository root): a
+    cup at 0.3 m, a book at 0.5 m, a chessboard at 1 m. The fast 'local' method; the rows
+    300:400, columns 450:550 of the centre frame lie on the book:
+
+    >>> import numpy as np
+    >>> import lfring
+    >>> cal = lfring.RingCalibration.load("twin_binned2")
+    >>> views = lfring.split_views(lfring.demosaic(lfring.load_raw("data/synthetic/scene.png")), cal.layout)
+    >>> result = estimate_depth(views, cal, zmin_m=0.3, zmax_m=1.0, method="local")
+    >>> result.depth_m.shape, result.depth_m.dtype
+    ((705, 705), dtype('float32'))
+    >>> round(float(np.nanmedian(result.depth_m[300:400, 450:550])), 2)  # the book, metres
+    0.5
     """
     from lfring.backends import BACKENDS
 

@@ -52,10 +52,37 @@ def _naming(exc: OSError, path: Path) -> OSError:
 
 
 def atomic_write_bytes(path: str | Path, data: bytes, *, tmp_dir: str | Path | None = None) -> Path:
+    """Write ``data`` to ``path`` atomically: readers see the old file or the whole new one.
+
+    Parameters
+    ----------
+    path : str or Path
+        The file to write; its folder must exist.
+    data : bytes
+    tmp_dir : str or Path, optional
+        Where the temporary file is made (default: beside ``path``, on the same file system).
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
     with atomic_path(path, tmp_dir=tmp_dir) as tmp:
         tmp.write_bytes(data)
     return Path(path)
 
 
 def atomic_write_text(path: str | Path, text: str) -> Path:
+    """Write ``text`` to ``path`` atomically, UTF-8 encoded (see :func:`atomic_write_bytes`).
+
+    Parameters
+    ----------
+    path : str or Path
+    text : str
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
     return atomic_write_bytes(path, text.encode("utf-8"))

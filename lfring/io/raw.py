@@ -47,6 +47,7 @@ import numpy as np
 
 from lfring.errors import FileFormatError, InvalidInputError, LfringError, LfringFileNotFoundError
 from lfring.io.bayer import PATTERNS, validate_pattern
+from lfring.records import record_repr
 
 __all__ = ["RawFrame", "load_raw", "write_dng", "RAW_SUFFIXES", "FILE_FORMATS", "sidecar_path"]
 
@@ -126,6 +127,8 @@ class RawFrame:
     bit_depth: int | None = None
     path: Path | None = None
     file_format: str | None = None
+
+    __repr__ = record_repr
 
     def __post_init__(self) -> None:
         path = None if self.path is None else Path(self.path)
@@ -322,6 +325,13 @@ def load_raw(
     >>> from lfring.io.demosaic import demosaic
     >>> round(float(demosaic(frame, method="bilinear")[2, 3, 1]), 4)  # (2079 - 64) / (4095 - 64)
     0.4999
+
+    A frame of the synthetic twin bundled in data/synthetic (paths relative to the repository
+    root), its levels read from its sidecar ``scene.png.json``:
+
+    >>> frame = load_raw("data/synthetic/scene.png")
+    >>> frame.shape, frame.pattern, frame.black_level, frame.white_level, frame.bit_depth
+    ((1842, 2456), 'RGGB', 64.0, 4095.0, 12)
     """
     if isinstance(path, bytes) or not isinstance(path, (str, PathLike)):
         raise InvalidInputError(
@@ -507,6 +517,28 @@ def visible_cfa_indices(raw: Any, p: Path) -> np.ndarray:
 
 
 def cfa_letters(raw: Any, indices: np.ndarray, p: Path) -> str:
+    """The Bayer pattern of a camera RAW file as letters, e.g. 'RGGB'.
+
+    Parameters
+    ----------
+    raw : rawpy.RawPy
+        The open file.
+    indices : (2, 2) ndarray of int
+        Colour indices of the top-left 2 x 2 block of the visible mosaic (into LibRaw's colour
+        description).
+    p : Path
+        The file, for error messages.
+
+    Returns
+    -------
+    str
+        One of :data:`lfring.io.bayer.PATTERNS`.
+
+    Raises
+    ------
+    FileFormatError
+        The colours are not an R/G/B Bayer pattern.
+    """
     desc = raw.color_desc.decode("ascii", "replace")
     try:
         letters = "".join(desc[i] for i in indices.ravel())

@@ -159,6 +159,7 @@ class RingDevice:
 
     @property
     def has_positions(self) -> bool:
+        """True when the lens positions (``ring_distance_m`` b, ``sensor_distance_m`` c) are set."""
         return self.ring_distance_m is not None
 
     def require_positions(self) -> tuple[float, float]:

@@ -60,9 +60,16 @@ class Design:
 
     @property
     def valid(self) -> bool:
+        """True when the design has no problems (``problems`` is empty)."""
         return not self.problems
 
     def to_dict(self) -> dict:
+        """The design as a JSON-ready dict, with ``problems`` as a list and ``valid``.
+
+        Returns
+        -------
+        dict
+        """
         out = asdict(self)
         out["problems"] = list(self.problems)
         out["valid"] = self.valid
@@ -94,6 +101,7 @@ class Sweep:
 
     @property
     def valid(self) -> np.ndarray:
+        """(N,) bool: True at the sweep's points that have no problem."""
         return np.array([not p for p in self.problems], dtype=bool)
 
     def points(self) -> list[dict]:
@@ -128,6 +136,9 @@ class WorkingRange:
 
     @property
     def problems(self) -> tuple[str, ...]:
+        """The kinds of problem met anywhere over the range, each once (the sweep's problems
+        without their 'at Z=...' position).
+        """
         seen: dict[str, None] = {}
         for p in self.sweep.problems:
             for item in p:

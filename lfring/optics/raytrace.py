@@ -119,10 +119,12 @@ class RayTrace:
 
     @property
     def num_rays(self) -> int:
+        """Number of rays N traced."""
         return int(self.lens.size)
 
     @property
     def num_points(self) -> int:
+        """Number of object points P the rays start from."""
         return int(self.source_heights_m.size)
 
     @property

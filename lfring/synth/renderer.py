@@ -34,6 +34,7 @@ from lfring.optics.views import (
     view_cameras,
     vignetting_region,
 )
+from lfring.records import record_repr
 from lfring.synth.scene import HeightField, Plane, Scene
 from lfring.synth.textures import raster_shape, rasterize
 from lfring.views import Layout, split_views
@@ -122,10 +123,12 @@ class RenderSettings:
 
     @property
     def white_level(self) -> int:
+        """Counts at saturation: ``2**bit_depth - 1``."""
         return 2**self.bit_depth - 1
 
     @property
     def effective_black_level(self) -> int:
+        """The black level in counts: ``black_level``, or the default for ``bit_depth`` when None."""
         return _DEFAULT_BLACK[self.bit_depth] if self.black_level is None else int(self.black_level)
 
 
@@ -154,16 +157,20 @@ class RenderResult:
     settings: RenderSettings
     scene: Scene
 
+    __repr__ = record_repr
+
     def homographies(self, depth_m, *, reference="center") -> np.ndarray:
         """Exact ``H_ref_from_view`` of a fronto-parallel plane at ``depth_m`` (SPEC 4)."""
         return optical_homographies(self.device, self.layout, depth_m, reference=reference)
 
     @property
     def black_level(self) -> int:
+        """Black level of ``raw`` in counts."""
         return self.settings.effective_black_level
 
     @property
     def white_level(self) -> int:
+        """White level (saturation) of ``raw`` in counts."""
         return self.settings.white_level
 
     def metadata(self) -> dict:

@@ -37,6 +37,17 @@ SAMPLES = {
 
 
 def sha256(path: Path) -> str:
+    """SHA-256 of a file's bytes, as recorded in data/synthetic/manifest.json.
+
+    Parameters
+    ----------
+    path : str or Path
+
+    Returns
+    -------
+    str
+        64 hexadecimal digits.
+    """
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 

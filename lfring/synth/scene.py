@@ -97,6 +97,13 @@ class Plane:
         return p0, r[:, 0], r[:, 1], r[:, 2]
 
     def corners_m(self) -> np.ndarray:
+        """The plane's four corners in camera coordinates.
+
+        Returns
+        -------
+        (4, 3) ndarray
+            Metres; in the order (-u, -v), (-u, +v), (+u, -v), (+u, +v) of :meth:`axes`.
+        """
         p0, u, v, _ = self.axes()
         w, h = self.size_m
         return np.array([p0 + su * w / 2 * u + sv * h / 2 * v for su in (-1, 1) for sv in (-1, 1)])
