@@ -21,6 +21,7 @@ import cv2
 import numpy as np
 
 from lfring.errors import EstimationError, InvalidInputError
+from lfring.records import record_repr
 
 __all__ = [
     "METHODS",
@@ -91,6 +92,8 @@ class PlaneHomographies:
         starting point of ECC (and the gate of SIFT matching).
     method, model : str
     """
+
+    __repr__ = record_repr
 
     H_ref_from_view: np.ndarray
     reference: int

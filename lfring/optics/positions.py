@@ -12,6 +12,7 @@ from scipy.optimize import brentq
 
 from lfring.errors import DesignError, InvalidInputError
 from lfring.optics.device import RingDevice
+from lfring.records import record_repr
 
 __all__ = [
     "METHODS",
@@ -84,6 +85,8 @@ class Sweep:
     every point (False). ``problems[i]`` lists what is wrong at point i; ``valid`` is the mask of
     points with no problem.
     """
+
+    __repr__ = record_repr
 
     method: str
     fixed: bool

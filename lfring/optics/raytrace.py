@@ -24,6 +24,7 @@ import numpy as np
 
 from lfring.errors import InvalidInputError
 from lfring.optics.device import RingDevice
+from lfring.records import record_repr
 
 __all__ = [
     "APERTURES",
@@ -101,6 +102,8 @@ class RayTrace:
     sensor (``|y| > hs/2``); see :attr:`on_sensor`.
     """
 
+    __repr__ = record_repr
+
     device: RingDevice
     object_size_m: float
     distance_m: float
@@ -162,6 +165,8 @@ class BundleStats:
         The chief-ray image height of SPEC 2, ``m_k + (m_k - y1) c / b2`` with ``y1 = -y0 b1 / Z``
         (H2,a and H2,b for the source at +h0).
     """
+
+    __repr__ = record_repr
 
     source_heights_m: np.ndarray
     count: np.ndarray
