@@ -43,6 +43,7 @@ import numpy as np
 from lfring.errors import InvalidInputError, LfringError, LfringWarning
 from lfring.io.atomic import atomic_write_bytes
 from lfring.io.writers import json_default
+from lfring.warp import DEFAULT_INTERPOLATION
 
 __all__ = [
     "EXECUTORS",
@@ -125,7 +126,7 @@ class BatchSettings:
     calibration: object = None
     calibration_name: str = "built-in"
     reference: object = "center"
-    interpolation: str = "cubic"
+    interpolation: str = DEFAULT_INTERPOLATION
     bit_depth: int = 8
     encoding: str = "srgb"
     planes: int | None = None

@@ -22,6 +22,7 @@ from lfring.dof import DepthOfField, aperture_from_f_number
 from lfring.errors import InvalidInputError, LfringWarning
 from lfring.geometry import check_reference
 from lfring.warp import (
+    DEFAULT_INTERPOLATION,
     WEIGHT_FLOOR,
     ShiftEngine,
     cached_view_masks,
@@ -89,7 +90,7 @@ class Refocuser:
     ((705, 705, 3), 0.5)
     """
 
-    def __init__(self, calibration, depth_m: float, *, reference="center", view_shape=None, interpolation: str = "linear",
+    def __init__(self, calibration, depth_m: float, *, reference="center", view_shape=None, interpolation: str = DEFAULT_INTERPOLATION,
                  threads: int | None = None):
         if np.ndim(depth_m) != 0:
             raise InvalidInputError("Refocuser takes one depth; use focal_stack for several")
@@ -269,7 +270,7 @@ def depth_of_field(views, calibration, *, depth=None, zmin_m=None, zmax_m=None, 
     return DepthOfField(arr, calibration, _depth_map(arr, calibration, depth, zmin_m, zmax_m, ref), reference=ref)
 
 
-def refocus(views, calibration, depth_m: float, *, reference="center", interpolation: str = "linear",
+def refocus(views, calibration, depth_m: float, *, reference="center", interpolation: str = DEFAULT_INTERPOLATION,
             backend: str = "numpy", device=None, method: str = "shift-and-add", aperture=None, f_number=None,
             ring_device=None, depth=None, zmin_m=None, zmax_m=None) -> np.ndarray:
     """Refocus the views at ``depth_m`` metres from the main lens.
@@ -347,7 +348,7 @@ def refocus(views, calibration, depth_m: float, *, reference="center", interpola
     return Refocuser(calibration, depth_m, reference=reference, view_shape=arr.shape[1:3], interpolation=interpolation)(arr)
 
 
-def focal_stack(views, calibration, depths_m, *, reference="center", interpolation: str = "linear",
+def focal_stack(views, calibration, depths_m, *, reference="center", interpolation: str = DEFAULT_INTERPOLATION,
                 method: str = "shift-and-add", aperture=None, f_number=None, ring_device=None, depth=None,
                 zmin_m=None, zmax_m=None) -> np.ndarray:
     """Refocus at every depth of ``depths_m``: (N, h, w, C) float32.

@@ -23,7 +23,7 @@ import numpy as np
 from lfring.errors import InvalidInputError
 
 __all__ = [
-    "INTERPOLATIONS", "STRIP_BYTES", "TAPER", "TRANSLATION_TOL_PX", "WEIGHT_FLOOR", "ShiftEngine", "box_filter",
+    "DEFAULT_INTERPOLATION", "INTERPOLATIONS", "STRIP_BYTES", "TAPER", "TRANSLATION_TOL_PX", "WEIGHT_FLOOR", "ShiftEngine", "box_filter",
     "cached_view_masks", "calibration_cache", "check_views", "interpolation_flag", "inverse_weight", "luminance", "normalised_luminance",
     "run_threads", "translation_of", "translations", "view_masks", "warp_image", "warp_views",
 ]
@@ -34,6 +34,9 @@ WEIGHT_FLOOR = 1e-3
 # Fraction of a valid disc's radius over which a view's weight rises from 0 to 1 (view_masks).
 TAPER = 0.15
 INTERPOLATIONS = {"linear": cv2.INTER_LINEAR, "cubic": cv2.INTER_CUBIC}
+# The one default of the library, the CLI and batches: bilinear takes the shift engine (and the
+# torch backend has it); bicubic keeps a little more detail at several times the cost.
+DEFAULT_INTERPOLATION = "linear"
 # A homography is treated as a translation when it is one to within this many pixels over the
 # whole reference frame (translation_of proves the bound); refocusing and depth both ask this.
 TRANSLATION_TOL_PX = 1e-3
@@ -182,7 +185,7 @@ def warp_image(src: np.ndarray, H: np.ndarray, size_wh, dst=None, *, interpolati
     return cv2.warpPerspective(src, H, size_wh, dst=dst, flags=interpolation, borderMode=cv2.BORDER_CONSTANT)
 
 
-def warp_views(views, H_ref_from_view, *, masks=None, out_shape=None, interpolation: str = "linear"):
+def warp_views(views, H_ref_from_view, *, masks=None, out_shape=None, interpolation: str = DEFAULT_INTERPOLATION):
     """Warp every view into the reference frame.
 
     Parameters
@@ -420,8 +423,9 @@ class ShiftEngine:
 
     - :meth:`run` accumulates slot k of a view stack ``views[k]`` strip by strip and normalises
       the sum (refocusing: one slot per view); strips are shared among threads.
-    - :meth:`render` draws rows of one source shifted by one slot's shift (the depth sweep: one
-      engine per view, one slot per hypothesis).
+    - :meth:`render_padded` draws rows of one source shifted by one slot's shift, from a
+      zero-padded copy made once by :meth:`padded` (the depth sweep: one engine per view, one
+      slot per hypothesis).
 
     Parameters
     ----------
@@ -532,27 +536,44 @@ class ShiftEngine:
         return self._inv_bands
 
     # -- rendering -----------------------------------------------------------------------
-    def render(self, k: int, src: np.ndarray, s0: int, s1: int, out: np.ndarray, tv: np.ndarray) -> np.ndarray:
-        """Rows [s0, s1) of ``src`` (h, w) shifted by slot k's shift, written to and returned as
-        ``out[:s1 - s0]``; ``tv`` is a scratch buffer of at least (s1 - s0, w + 2) whose first
-        and last columns are zero (this never writes them)."""
-        n = s1 - s0
-        dst = out[:n]
-        columns = self._columns[k]
-        vertical = None if columns is None else self._row_plan(k, s0, s1, False)
-        if vertical is None:
-            dst[...] = 0
-            return dst
-        _, _, _, ha, hb, _, dcols, clear = columns
-        _vertical(src, tv, *vertical[2:])
-        fx = self.geometry[k][2]
-        if fx == 0.0:  # a whole-column shift: a copy
-            np.copyto(dst[:, dcols], tv[:n, ha])
+    def padded(self, src: np.ndarray, slot) -> tuple[np.ndarray, int]:
+        """``src`` (h, w) copied into this thread's zero-padded buffer ``slot`` (reused from call
+        to call: fresh pages every frame cost more than the copy), with a margin wider than
+        every slot's shift; for :meth:`render_padded`, which then needs no edge cases."""
+        h, w = self.view_shape
+        p = int(np.ceil(np.abs(self.shifts).max(initial=0.0))) + 2
+        cache = getattr(_SCRATCH, "padded", None)
+        if cache is None:
+            cache = _SCRATCH.padded = {}
+        buf = cache.get(slot)
+        if buf is None or buf.shape != (h + 2 * p, w + 2 * p):
+            buf = cache[slot] = np.zeros((h + 2 * p, w + 2 * p), np.float32)
+        buf[:p] = 0
+        buf[p + h:] = 0
+        buf[p:p + h, :p] = 0
+        buf[p:p + h, p + w:] = 0
+        buf[p:p + h, p:p + w] = src
+        return buf, p
+
+    def render_padded(self, k: int, padded, s0: int, s1: int, out: np.ndarray, tmp: np.ndarray) -> np.ndarray:
+        """Rows [s0, s1) of the source shifted by slot k's shift, written to and returned as
+        ``out[:s1 - s0]`` (a view of the copy for a whole-pixel shift), from :meth:`padded`'s
+        copy: two weighted adds (one for a whole-row or whole-column shift). The sweep renders
+        every hypothesis of a view from one copy, so the copy pays for itself; ``tmp`` is a
+        scratch of at least (s1 - s0, w + 1)."""
+        buf, p = padded
+        ix, iy, fx, fy = self.geometry[k]
+        rows, w = s1 - s0, self.view_shape[1]
+        r, c0 = s0 + iy + p, ix + p
+        cols = w if fx == 0.0 else w + 1
+        if fy == 0.0:
+            t = buf[r:r + rows, c0:c0 + cols]
         else:
-            cv2.addWeighted(tv[:n, ha], 1.0 - fx, tv[:n, hb], fx, 0.0, dst=dst[:, dcols])
-        for c in clear:
-            dst[:, c] = 0
-        return dst
+            t = tmp[:rows, :cols] if fx != 0.0 else out[:rows]
+            cv2.addWeighted(buf[r:r + rows, c0:c0 + cols], 1.0 - fy, buf[r + 1:r + 1 + rows, c0:c0 + cols], fy, 0.0, dst=t)
+        if fx == 0.0:
+            return t
+        return cv2.addWeighted(t[:, :w], 1.0 - fx, t[:, 1:], fx, 0.0, dst=out[:rows])
 
     def run(self, views: np.ndarray, out: np.ndarray, *, masks=None, inv=None, inv_rows=None, threads: int = 1):
         """Accumulate the shifted views (V, h, w[, C]) into ``out`` (h, w[, C]) and normalise it

@@ -7,6 +7,7 @@ import logging
 import click
 
 from lfring.cli._options import check_option, parse_depths, raw_options
+from lfring.warp import DEFAULT_INTERPOLATION
 
 log = logging.getLogger("lfring.cli.batch")
 
@@ -27,7 +28,7 @@ log = logging.getLogger("lfring.cli.batch")
 @click.option("--all-in-focus", "aif", is_flag=True, help="All-in-focus image of every frame.")
 @click.option("--viewer", is_flag=True, help="Interactive HTML viewer of every frame, NAME_viewer.html (see lfring view).")
 @click.option("--reference", default="center", show_default=True, metavar="center|0..3", help="Frame of the results.")
-@click.option("--interpolation", type=click.Choice(["cubic", "linear"]), default="cubic", show_default=True,
+@click.option("--interpolation", type=click.Choice(["cubic", "linear"]), default=DEFAULT_INTERPOLATION, show_default=True,
               help="Resampling of the views for refocusing.")
 @click.option("--bit-depth", type=click.Choice(["8", "16"]), default="8", show_default=True, help="Bits per sample of images.")
 @click.option("--encoding", type=click.Choice(["srgb", "linear"]), default="srgb", show_default=True,

@@ -10,6 +10,7 @@ import click
 import numpy as np
 
 from lfring.cli._options import check_option, load_views, parse_depths, parse_range, progress_bar, raw_options
+from lfring.warp import DEFAULT_INTERPOLATION
 
 log = logging.getLogger("lfring.cli.refocus")
 
@@ -65,7 +66,7 @@ def _depths(depth, depths, sweep) -> list[float]:
 @click.option("-o", "--output", type=click.Path(dir_okay=False), default=None, metavar="FILE",
               help="Output image (.png/.tif); for stacks the numbered frames and the stack files take its name. "
                    "Default: RAW's name with _refocus_<depth>m in the current folder.")
-@click.option("--interpolation", type=click.Choice(["cubic", "linear"]), default="cubic", show_default=True,
+@click.option("--interpolation", type=click.Choice(["cubic", "linear"]), default=DEFAULT_INTERPOLATION, show_default=True,
               help="Resampling of the views: bicubic keeps more detail, bilinear is faster.")
 @click.option("--method", type=click.Choice(["depth-aware", "shift-and-add"]), default="depth-aware", show_default=True,
               help="depth-aware: what the lens's whole aperture would record (smooth, occlusion-correct blur from a "

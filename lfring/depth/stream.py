@@ -71,8 +71,9 @@ def sweep_strips(sources: np.ndarray, masks: np.ndarray, hs: np.ndarray, *, aggr
     identity = [bool(np.all(hs[:, k] == np.eye(3))) for k in range(v)]
     moving = [k for k in range(v) if not identity[k]]
     shifts = translations(hs, (h, w))
-    if shifts is not None:  # one engine per view, one slot per hypothesis
+    if shifts is not None:  # one engine per view, one slot per hypothesis, from padded copies
         engines = {k: ShiftEngine(shifts[:, k], (h, w)) for k in moving}
+        padded = {k: (engines[k].padded(weighted[k], (k, 0)), engines[k].padded(masks[k], (k, 1))) for k in moving}
     else:
         inverse = np.linalg.inv(hs)  # view from reference
     # As many strips as fit STRIP_PIXELS, rounded up to a multiple of the threads, of equal height.
@@ -104,7 +105,7 @@ def sweep_strips(sources: np.ndarray, masks: np.ndarray, hs: np.ndarray, *, aggr
         q0, q1 = max(0, r0 - pad), min(h, r1 + pad)
         big = q1 - q0
         o0, m = r0 - q0, r1 - r0
-        s1, s2, cnt, a_buf, wt_buf, t, agg, ones, tmp, bad, tv = (b[:big] for b in bufs)
+        s1, s2, cnt, a_buf, wt_buf, t, agg, ones, tmp, bad = (b[:big] for b in bufs)
         static = [k for k in range(v) if identity[k]]
         base = None
         if static:
@@ -119,8 +120,8 @@ def sweep_strips(sources: np.ndarray, masks: np.ndarray, hs: np.ndarray, *, aggr
             first = True
             for k in moving:
                 if shifts is not None:
-                    a = engines[k].render(i, weighted[k], q0, q1, a_buf, tv)
-                    wt = engines[k].render(i, masks[k], q0, q1, wt_buf, tv)
+                    a = engines[k].render_padded(i, padded[k][0], q0, q1, a_buf, tmp)
+                    wt = engines[k].render_padded(i, padded[k][1], q0, q1, wt_buf, tmp)
                 else:
                     g = inverse[i, k] @ shift_rows
                     flags = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
@@ -166,8 +167,7 @@ def sweep_strips(sources: np.ndarray, masks: np.ndarray, hs: np.ndarray, *, aggr
         if not hasattr(local, "bufs"):  # this thread's strip buffers
             big = min(h, rows + 2 * pad)
             local.bufs = [np.empty((big, w), np.float32) for _ in range(7)]
-            local.bufs += [np.ones((big, w), np.float32), np.empty((big, w + 1), np.float32), np.empty((big, w), np.uint8),
-                           np.zeros((big, w + 2), np.float32)]  # the engine's vertical pass (zero pad columns)
+            local.bufs += [np.ones((big, w), np.float32), np.empty((big, w + 1), np.float32), np.empty((big, w), np.uint8)]
         strip(r0, r1, local.bufs)
 
     run_threads([lambda s=s: task(*s) for s in strips], threads)
