@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from lfring.backends import require_torch, resolve_device
-from lfring.depth.costs import AGGREGATIONS, COSTS, GUIDED_EPS
+from lfring.depth.costs import AGGREGATIONS, COSTS, GUIDED_EPS, MIN_VIEWS_TO_LEAVE_ONE_OUT
 from lfring.errors import InvalidInputError
 from lfring.warp import WEIGHT_FLOOR
 
@@ -92,6 +92,15 @@ def _slice_cost(torch, lum_w, wts, cost: str, box):
     elif cost == "lcn":  # lum_w: the warped locally normalised luminances times their masks
         c = (lum_w * lum_w).sum(dim=1) - lum_w.sum(dim=1) ** 2 / nview.clamp_min(WEIGHT_FLOOR)
         c = c / (nview - 1.0).clamp_min(0.5)
+    elif cost == "lcn-occlusion":  # as lfring.depth.costs.lcn_occlusion_cost
+        s1 = lum_w.sum(dim=1)
+        dev = (lum_w - wts * (s1 / nview.clamp_min(WEIGHT_FLOOR))[:, None]).abs()
+        j = dev.argmax(dim=1, keepdim=True)
+        keep = (nview > MIN_VIEWS_TO_LEAVE_ONE_OUT - 0.5).to(lum_w.dtype)
+        a_j = lum_w.gather(1, j)[:, 0] * keep
+        w_j = wts.gather(1, j)[:, 0] * keep
+        s1, count = s1 - a_j, nview - w_j
+        c = ((lum_w * lum_w).sum(dim=1) - a_j * a_j - s1**2 / count.clamp_min(WEIGHT_FLOOR)) / (count - 1.0).clamp_min(0.5)
     elif cost == "ssd":
         c = ((vals - mean[:, None]) ** 2 * valid).sum(dim=1) / nvalid.clamp_min(1)
     else:  # zncc of every view with the mean, over the window

@@ -8,6 +8,7 @@ from pathlib import Path
 import click
 import numpy as np
 
+from lfring.depth.costs import COSTS
 from lfring.cli._options import check_option, load_views, raw_options
 
 log = logging.getLogger("lfring.cli.depth")
@@ -23,7 +24,7 @@ log = logging.getLogger("lfring.cli.depth")
 @click.option("--planes", type=int, default=None, metavar="N",
               help="Number of depth hypotheses (default: at most 1 px of view motion apart).")
 @click.option("--reference", default="center", show_default=True, metavar="center|INDEX", help="Frame of the depth map.")
-@click.option("--cost", type=click.Choice(["lcn", "zncc", "sad", "ssd", "sad-occlusion"]), default="lcn", show_default=True,
+@click.option("--cost", type=click.Choice(list(COSTS)), default="lcn", show_default=True,
               help="Photo-consistency cost (lcn: locally normalised luminances, the fastest and most accurate).")
 @click.option("--aggregation", type=click.Choice(["box", "guided"]), default="box", show_default=True,
               help="Spatial aggregation of the cost (guided: edge-aware, about 3x slower, more accurate on the twin).")

@@ -20,10 +20,13 @@ import numpy as np
 
 from lfring.warp import WEIGHT_FLOOR, box_filter, cached_view_masks, luminance, run_threads
 
-__all__ = ["AGGREGATIONS", "COSTS", "GUIDED_EPS", "LCN_AGGREGATE_PX", "LCN_EPS", "LCN_FLOOR", "STRIP_PIXELS", "aggregate", "lcn_cost",
+__all__ = ["AGGREGATIONS", "COSTS", "GUIDED_EPS", "MIN_VIEWS_TO_LEAVE_ONE_OUT", "lcn_occlusion_cost", "LCN_AGGREGATE_PX", "LCN_EPS", "LCN_FLOOR", "STRIP_PIXELS", "aggregate", "lcn_cost",
            "lcn_sources", "slice_cost", "window_weights"]
 
-COSTS = ("lcn", "zncc", "sad", "ssd", "sad-occlusion")
+COSTS = ("lcn", "lcn-occlusion", "zncc", "sad", "ssd", "sad-occlusion")
+# The occlusion-aware costs leave out the view that deviates most where at least this many
+# views see the pixel (with two, neither can be told to be the occluded one).
+MIN_VIEWS_TO_LEAVE_ONE_OUT = 3
 AGGREGATIONS = ("box", "guided")
 # Regularisation of the guided aggregation (cv2.ximgproc.createGuidedFilter's eps; the torch twin the same).
 GUIDED_EPS = 1e-3
@@ -92,6 +95,33 @@ def lcn_cost(s1: np.ndarray, s2: np.ndarray, count: np.ndarray) -> np.ndarray:
     return c.astype(np.float32, copy=False)
 
 
+def lcn_occlusion_cost(lum_w: np.ndarray, wts: np.ndarray) -> np.ndarray:
+    """The 'lcn-occlusion' cost of one hypothesis: :func:`lcn_cost` of the views without the one
+    that deviates most from their mean, where :data:`MIN_VIEWS_TO_LEAVE_ONE_OUT` or more see the
+    pixel (an occluded view disagrees with the others at the true depth; leaving it out keeps
+    the true depth's cost low next to a depth edge).
+
+    Parameters
+    ----------
+    lum_w, wts : (V, h, w) float32
+        The warped locally normalised luminances times their warped masks, and the masks.
+
+    Notes
+    -----
+    With a_k = w_k x_k, S1 = sum a_k, S2 = sum a_k^2, C = sum w_k and the mean mu = S1 / C, the
+    view j = argmax_k |a_k - w_k mu| is taken out: S1 - a_j, S2 - a_j^2, C - w_j.
+    """
+    s1 = lum_w.sum(axis=0)
+    count = wts.sum(axis=0)
+    mean = s1 / np.maximum(count, WEIGHT_FLOOR)
+    dev = np.abs(lum_w - wts * mean)
+    j = np.argmax(dev, axis=0)[None]
+    keep = (count > MIN_VIEWS_TO_LEAVE_ONE_OUT - 0.5).astype(np.float32)
+    a_j = np.take_along_axis(lum_w, j, axis=0)[0] * keep
+    w_j = np.take_along_axis(wts, j, axis=0)[0] * keep
+    return lcn_cost(s1 - a_j, np.square(lum_w).sum(axis=0) - a_j * a_j, count - w_j)
+
+
 def slice_cost(lum_w: np.ndarray, wts: np.ndarray, cost: str, window_px: int) -> tuple[np.ndarray, np.ndarray]:
     """Per-pixel cost of one hypothesis from warped luminances (V, h, w) premultiplied by their
     warped masks ``wts`` (V, h, w); returns (cost before aggregation, number of views)."""
@@ -100,6 +130,8 @@ def slice_cost(lum_w: np.ndarray, wts: np.ndarray, cost: str, window_px: int) ->
         return zncc_cost(lum_w, wts, nview, window_px), nview
     if cost == "lcn":  # lum_w: the warped locally normalised luminances (lcn_sources) times their masks
         return lcn_cost(lum_w.sum(axis=0), np.square(lum_w).sum(axis=0), nview), nview
+    if cost == "lcn-occlusion":
+        return lcn_occlusion_cost(lum_w, wts), nview
     safe = np.maximum(nview, WEIGHT_FLOOR)
     vals = lum_w / np.maximum(wts, WEIGHT_FLOOR)
     valid = wts > 0.5

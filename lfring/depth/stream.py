@@ -20,15 +20,15 @@ import threading
 import cv2
 import numpy as np
 
-from lfring.depth.costs import STRIP_PIXELS, aggregate, slice_cost
+from lfring.depth.costs import MIN_VIEWS_TO_LEAVE_ONE_OUT, STRIP_PIXELS, aggregate, slice_cost
 from lfring.depth.selection import RunningMinimum
-from lfring.warp import ShiftEngine, run_threads, translations, warp_image
+from lfring.warp import WEIGHT_FLOOR, ShiftEngine, run_threads, translations, warp_image
 
 __all__ = ["sweep_slices", "sweep_strips"]
 
 
 def sweep_strips(sources: np.ndarray, masks: np.ndarray, hs: np.ndarray, *, aggregate_px: int, exclude: int = 1,
-                 threads: int = 1, on_strip=None, volume=None):
+                 threads: int = 1, on_strip=None, volume=None, occlusion: bool = False):
     """The 'lcn' cost with box aggregation over every hypothesis, strip by strip.
 
     Parameters
@@ -54,6 +54,9 @@ def sweep_strips(sources: np.ndarray, masks: np.ndarray, hs: np.ndarray, *, aggr
         pixel) instead of keeping a running minimum: for an optimisation over the whole volume
         (:mod:`lfring.depth.sgm`). Then ``on_strip`` is called as ``on_strip(r0, r1, nviews)``
         and, without it, ``nviews`` is returned.
+    occlusion : bool
+        The 'lcn-occlusion' cost: where three views or more see a pixel, the view that deviates
+        most from their mean is left out (:func:`lfring.depth.costs.lcn_occlusion_cost`).
 
     Returns
     -------
@@ -105,7 +108,8 @@ def sweep_strips(sources: np.ndarray, masks: np.ndarray, hs: np.ndarray, *, aggr
         q0, q1 = max(0, r0 - pad), min(h, r1 + pad)
         big = q1 - q0
         o0, m = r0 - q0, r1 - r0
-        s1, s2, cnt, a_buf, wt_buf, t, agg, ones, tmp, bad = (b[:big] for b in bufs)
+        s1, s2, cnt, a_buf, wt_buf, t, agg, ones, tmp, bad = (b[:big] for b in bufs[:10])
+        per_view = [(b[0][:big], b[1][:big]) for b in bufs[10]]  # occlusion: every view's rendering
         static = [k for k in range(v) if identity[k]]
         base = None
         if static:
@@ -118,7 +122,10 @@ def sweep_strips(sources: np.ndarray, masks: np.ndarray, hs: np.ndarray, *, aggr
             shift_rows = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, q0], [0.0, 0.0, 1.0]])
         for i in range(n):
             first = True
-            for k in moving:
+            rendered = [(weighted[k][q0:q1], masks[k][q0:q1]) for k in static] if occlusion else None
+            for j, k in enumerate(moving):
+                if occlusion:
+                    a_buf, wt_buf = per_view[j]
                 if shifts is not None:
                     a = engines[k].render_padded(i, padded[k][0], q0, q1, a_buf, tmp)
                     wt = engines[k].render_padded(i, padded[k][1], q0, q1, wt_buf, tmp)
@@ -141,6 +148,11 @@ def sweep_strips(sources: np.ndarray, masks: np.ndarray, hs: np.ndarray, *, aggr
                     cv2.add(s1, a, dst=s1)
                     cv2.accumulateSquare(a, s2)
                     cv2.add(cnt, wt, dst=cnt)
+                if occlusion:
+                    rendered.append((a, wt))
+            if occlusion:  # the views seen count before one is left out
+                cv2.max(nviews, cnt[o0:o0 + m], dst=nviews)
+                _leave_out_worst(rendered, s1, s2, cnt, [b[:big] for b in bufs[11]])
             # c = (S2 - S1^2 / C) / (C - 1); 1 where fewer than 1.5 views are valid.
             cv2.multiply(s1, s1, dst=t)
             cv2.divide(t, cnt, dst=t)
@@ -153,7 +165,8 @@ def sweep_strips(sources: np.ndarray, masks: np.ndarray, hs: np.ndarray, *, aggr
             cur = run.slot() if volume is None else volume[i, r0:r1]
             np.copyto(cur, agg[o0:o0 + m])
             cv2.copyTo(missing, bad[o0:o0 + m], dst=cur)
-            cv2.max(nviews, cnt[o0:o0 + m], dst=nviews)
+            if not occlusion:
+                cv2.max(nviews, cnt[o0:o0 + m], dst=nviews)
             if run is not None:
                 run.push()
         if run is None:
@@ -168,6 +181,9 @@ def sweep_strips(sources: np.ndarray, masks: np.ndarray, hs: np.ndarray, *, aggr
             big = min(h, rows + 2 * pad)
             local.bufs = [np.empty((big, w), np.float32) for _ in range(7)]
             local.bufs += [np.ones((big, w), np.float32), np.empty((big, w + 1), np.float32), np.empty((big, w), np.uint8)]
+            local.bufs.append([(np.empty((big, w), np.float32), np.empty((big, w), np.float32)) for _ in moving]
+                              if occlusion else [])
+            local.bufs.append(np.empty((6, big, w), np.float32) if occlusion else None)
         strip(r0, r1, local.bufs)
 
     run_threads([lambda s=s: task(*s) for s in strips], threads)
@@ -227,3 +243,27 @@ def sweep_slices(lum, masks, hs, cost, window_px, guide, exclude=1, aggregate_px
     if run is None:
         return nviews
     return run.best_i, run.best, run.c_prev, run.c_next, run.second(), nviews
+
+
+def _leave_out_worst(rendered, s1, s2, cnt, scratch) -> None:
+    """Take out of the sums S1, S2, C the view that deviates most from the views' mean, where
+    three views or more see the pixel: the 'lcn-occlusion' cost's best subset (in place)."""
+    mu, dev, worst, a_w, w_w, keep = scratch
+    cv2.max(cnt, WEIGHT_FLOOR, dst=mu)
+    cv2.divide(s1, mu, dst=mu)
+    worst.fill(-1.0)
+    mask = np.empty(mu.shape, np.uint8)
+    for a, wt in rendered:
+        cv2.multiply(wt, mu, dst=dev)
+        cv2.absdiff(a, dev, dst=dev)  # w_k |x_k - mean| (the values are premultiplied)
+        cv2.compare(dev, worst, cv2.CMP_GT, dst=mask)
+        cv2.copyTo(dev, mask, dst=worst)
+        cv2.copyTo(a, mask, dst=a_w)
+        cv2.copyTo(wt, mask, dst=w_w)
+    cv2.threshold(cnt, MIN_VIEWS_TO_LEAVE_ONE_OUT - 0.5, 1.0, cv2.THRESH_BINARY, dst=keep)
+    cv2.multiply(a_w, keep, dst=a_w)
+    cv2.multiply(w_w, keep, dst=w_w)
+    cv2.subtract(s1, a_w, dst=s1)
+    cv2.multiply(a_w, a_w, dst=a_w)
+    cv2.subtract(s2, a_w, dst=s2)
+    cv2.subtract(cnt, w_w, dst=cnt)

@@ -34,6 +34,8 @@ from lfring.warp import WEIGHT_FLOOR, box_filter, cached_view_masks, check_views
 __all__ = ["AGGREGATIONS", "COSTS", "METHODS", "DepthResult", "estimate_depth"]
 
 METHODS = ("sgm", "local")
+# The costs that compare the views' locally normalised luminances (lcn_sources), in strips.
+LCN_COSTS = ("lcn", "lcn-occlusion")
 # The box over which the 'lcn' cost is aggregated before the semi-global optimisation (which does
 # the rest of the smoothing); 'local' aggregates over LCN_AGGREGATE_PX.
 SGM_AGGREGATE_PX = 5
@@ -90,11 +92,12 @@ def estimate_depth(
         Frame of the depth map.
     backend : {'numpy', 'torch'}, device : str, optional
         The torch backend runs the same algorithm with kornia (GPU-ready).
-    cost : {'lcn', 'zncc', 'sad', 'ssd', 'sad-occlusion'}
+    cost : {'lcn', 'lcn-occlusion', 'zncc', 'sad', 'ssd', 'sad-occlusion'}
         Photo-consistency. 'lcn': the variance across views of their luminances normalised by
         the local mean and contrast over ``window_px`` (normalised once per view, before the
         sweep: the fastest, and the most accurate on the twin with box aggregation; see
-        :mod:`lfring.depth.costs`). The others compare the warped luminances divided by their
+        :mod:`lfring.depth.costs`); 'lcn-occlusion' the same without the view that deviates
+        most where three or more see the pixel (the best subset, against occlusions). The others compare the warped luminances divided by their
         wide local mean: absolute or squared deviation from their mean, one minus their mean
         zero-normalised cross-correlation with the mean over ``window_px``, or the absolute
         deviation of the best subset (the view deviating most is left out, against occlusions).
@@ -179,7 +182,7 @@ def estimate_depth(
         raise InvalidInputError("views contain NaN or infinite values")
     plan = _plan(arr, calibration, zmin_m, zmax_m, num_planes, reference)
     if aggregate_px is None:
-        aggregate_px = (SGM_AGGREGATE_PX if method == "sgm" else LCN_AGGREGATE_PX) if cost == "lcn" else window_px
+        aggregate_px = (SGM_AGGREGATE_PX if method == "sgm" else LCN_AGGREGATE_PX) if cost in LCN_COSTS else window_px
     threads = max(1, cv2.getNumThreads()) if threads is None else int(threads)
     fin = Finisher(plan.depths, calibration.depth_origin_m, arr.shape[1:3], min_views)
     record = dict(depths_m=plan.depths, step_px=plan.step_px, reference=plan.reference, cost=cost, aggregation=aggregation,
@@ -189,9 +192,10 @@ def estimate_depth(
         filled = _optimise(arr, calibration, plan, fin, backend, device, cost, aggregation, window_px, aggregate_px, threads,
                            paths, consistency=check)
         return fin.result(depth_filled_m=filled, **record)
-    if cost == "lcn" and aggregation == "box" and backend == "numpy":
+    if cost in LCN_COSTS and aggregation == "box" and backend == "numpy":
         sweep_strips(lcn_sources(arr, calibration, window_px, threads=threads), plan.masks, plan.hs,
-                     aggregate_px=aggregate_px, exclude=plan.exclude, threads=threads, on_strip=fin)
+                     aggregate_px=aggregate_px, exclude=plan.exclude, threads=threads, on_strip=fin,
+                     occlusion=cost == "lcn-occlusion")
     else:
         out = _sweep_whole(arr, calibration, plan, backend, device, cost, aggregation, window_px, aggregate_px, threads)
         fin(0, arr.shape[1], *out)
@@ -302,9 +306,9 @@ def _sgm_index(views, calibration, plan, backend, device, cost, aggregation, win
     """Fractional hypothesis index, confidence, views seen and guide of one reference frame."""
     h, w = views.shape[1:3]
     volume = np.empty((len(plan.depths), h, w), np.float32)
-    if cost == "lcn" and aggregation == "box" and backend == "numpy":
+    if cost in LCN_COSTS and aggregation == "box" and backend == "numpy":
         nviews = sweep_strips(lcn_sources(views, calibration, window_px, threads=threads), plan.masks, plan.hs,
-                              aggregate_px=aggregate_px, threads=threads, volume=volume)
+                              aggregate_px=aggregate_px, threads=threads, volume=volume, occlusion=cost == "lcn-occlusion")
     else:
         nviews = _sweep_whole(views, calibration, plan, backend, device, cost, aggregation, window_px, aggregate_px,
                               threads, volume=volume)
@@ -337,7 +341,7 @@ def _sweep_whole(views, calibration, plan, backend, device, cost, aggregation, w
     h, w = views.shape[1:3]
     masks, hs = plan.masks, plan.hs
     lum = None
-    if cost != "lcn" or aggregation == "guided":
+    if cost not in LCN_COSTS or aggregation == "guided":
         lum = normalised_luminance(views, masks, sigma=max(8.0, min(h, w) / 40.0))
     guide_image = None
     if aggregation == "guided":
@@ -352,7 +356,7 @@ def _sweep_whole(views, calibration, plan, backend, device, cost, aggregation, w
         else:
             g = lum[plan.reference]
         guide_image = np.clip(g / max(float(g.max()), 1e-6), 0, 1).astype(np.float32)
-    if cost == "lcn":  # the sweep compares the locally normalised luminances instead
+    if cost in LCN_COSTS:  # the sweep compares the locally normalised luminances instead
         lum = lcn_sources(views, calibration, window_px, threads=threads)
     if backend == "torch":
         from lfring.backends.torch_depth import sweep_torch

@@ -159,9 +159,10 @@ def test_default_settings_meet_the_issue_targets(twin):
         assert bad_k <= 0.05 and rel_k <= 0.005, (kw, bad_k, rel_k)
 
 
+@pytest.mark.parametrize("cost", ["lcn", "lcn-occlusion"])
 @pytest.mark.parametrize("reference", [0, "center"])
 @pytest.mark.parametrize("warp", ["translation", "perspective"])
-def test_strips_equal_whole_slices(prototype, reference, warp):
+def test_strips_equal_whole_slices(prototype, reference, warp, cost):
     """The default sweep, strip by strip on threads (two weighted adds per shift, or
     warpPerspective per strip), gives what the whole-slice sweep gives for the same cost."""
     import warnings
@@ -182,9 +183,10 @@ def test_strips_equal_whole_slices(prototype, reference, warp):
     if warp == "perspective":  # a slight tilt: no longer translations
         tilt = np.array([[1.0, 0.002, 0.3], [-0.001, 1.0, -0.2], [2e-6, -1e-6, 1.0]])
         hs = np.where(np.all(hs == np.eye(3), axis=(-2, -1))[..., None, None], hs, tilt @ hs)
-    want = sweep_slices(src, masks, hs, "lcn", 9, None, 2, 15)
+    want = sweep_slices(src, masks, hs, cost, 9, None, 2, 15)
+    occlusion = cost == "lcn-occlusion"
     for threads in (1, 3):
-        got = sweep_strips(src, masks, hs, aggregate_px=15, exclude=2, threads=threads)
+        got = sweep_strips(src, masks, hs, aggregate_px=15, exclude=2, threads=threads, occlusion=occlusion)
         ok = np.isfinite(want[1])
         np.testing.assert_array_equal(np.isfinite(got[1]), ok)
         assert np.mean(got[0][ok] == want[0][ok]) > 0.999
@@ -195,7 +197,7 @@ def test_strips_equal_whole_slices(prototype, reference, warp):
         np.testing.assert_allclose(got[5], want[5], atol=1e-4)
     # The whole volume instead of the running minimum: the same best hypothesis and costs.
     volume = np.empty((len(hs), h, w), np.float32)
-    nviews = sweep_strips(src, masks, hs, aggregate_px=15, exclude=2, threads=3, volume=volume)
+    nviews = sweep_strips(src, masks, hs, aggregate_px=15, exclude=2, threads=3, volume=volume, occlusion=occlusion)
     np.testing.assert_allclose(nviews, want[5], atol=1e-4)
     ok = np.isfinite(want[1])
     np.testing.assert_array_equal(np.isfinite(volume).any(axis=0), ok)
@@ -279,3 +281,17 @@ def test_bad_method_options_are_refused(twin, bad, match):
     r, cal, views, gt, usable, res = twin
     with pytest.raises(InvalidInputError, match=match):
         estimate_depth(views, cal, zmin_m=0.27, zmax_m=1.1, **bad)
+
+
+def test_occlusion_aware_cost_leaves_out_the_view_that_disagrees():
+    """Three views agree and one (occluded) does not: 'lcn-occlusion' is the three's variance
+    (0), 'lcn' is not; with two views seen nothing is left out."""
+    from lfring.depth.costs import lcn_cost, lcn_occlusion_cost
+
+    x = np.array([0.3, 0.3, 0.3, 2.0], np.float32)[:, None, None] * np.ones((4, 2, 3), np.float32)
+    wts = np.ones_like(x)
+    assert np.allclose(lcn_occlusion_cost(x, wts), 0.0, atol=1e-6)
+    assert np.all(lcn_cost(x.sum(0), (x * x).sum(0), wts.sum(0)) > 0.5)
+    wts[2:] = 0.0  # only two views see it
+    pair = x * wts
+    np.testing.assert_allclose(lcn_occlusion_cost(pair, wts), lcn_cost(pair.sum(0), (pair * pair).sum(0), wts.sum(0)))
