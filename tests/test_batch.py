@@ -81,7 +81,9 @@ def _expected_refocus(frame: Path, cal_path: Path, depth_m: float) -> np.ndarray
 
     cal = RingCalibration.load(cal_path)
     views = split_views(demosaic(load_raw(frame)), cal.layout)
-    return encode_image(refocus(views, cal, depth_m, interpolation="cubic"), 8, "srgb")
+    from lfring.warp import DEFAULT_INTERPOLATION  # the batch's default, as the library's
+
+    return encode_image(refocus(views, cal, depth_m, interpolation=DEFAULT_INTERPOLATION), 8, "srgb")
 
 
 def test_fifty_frames_three_corrupt_then_resume(frames, folder, tmp_path):
@@ -202,7 +204,7 @@ def test_never_replaces_files_it_did_not_make(frames, tmp_path):
     assert "not made by lfring batch" in rep.errors[str(root / "a.png")]
     assert (out / "a_refocus_0.5m.png").read_bytes() == b"somebody else's file"
     # Other settings for the same names: refused, then replaced with overwrite.
-    other = BatchSettings(refocus_m=(0.5,), calibration=_load(cal_path), interpolation="linear")
+    other = BatchSettings(refocus_m=(0.5,), calibration=_load(cal_path), interpolation="cubic")
     rep = run_batch([str(root / "b.png")], out, other, workers=1)
     assert rep.failed == [str(root / "b.png")] and "other settings" in rep.errors[str(root / "b.png")]
     rep = run_batch([str(root)], out, other, workers=1, overwrite=True)
