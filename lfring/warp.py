@@ -253,37 +253,37 @@ def translation_of(H: np.ndarray, out_shape, *, tol_px: float = TRANSLATION_TOL_
     >>> translation_of(np.array([[1.01, 0, 2.5], [0, 1, -1], [0, 0, 1]]), (10, 20)) is None
     True
     """
+    s = translations(np.asarray(H, dtype=np.float64)[None], out_shape, tol_px=tol_px)
+    return None if s is None else s[0]
+
+
+def translations(hs, out_shape, *, tol_px: float = TRANSLATION_TOL_PX):
+    """(..., 2) sampling shifts of a stack of homographies (..., 3, 3), each as
+    :func:`translation_of` defines it (the bound of its Notes, vectorised over the stack), or
+    None when any of them is not a translation."""
+    hs = np.asarray(hs, dtype=np.float64)
+    lead = hs.shape[:-2]
     try:
-        g = np.linalg.inv(np.asarray(H, dtype=np.float64))
+        g = np.linalg.inv(hs.reshape(-1, 3, 3))
     except np.linalg.LinAlgError:
         return None
-    if not np.all(np.isfinite(g)) or g[2, 2] == 0:
+    if not np.all(np.isfinite(g)) or np.any(g[:, 2, 2] == 0):
         return None
-    g = g / g[2, 2]
+    g = g / g[:, 2:3, 2:3]
     rows, cols = out_shape
     corners = np.array([[0, 0], [cols - 1, 0], [0, rows - 1], [cols - 1, rows - 1]], dtype=np.float64)
-    gx = corners @ g[2, :2]
+    gx = corners @ g[:, 2, :2].T  # (4, M)
     q = gx + 1.0
     if q.min() <= 0:
         return None
     centre = np.array([(cols - 1) / 2, (rows - 1) / 2])
-    s = (g[:2, :2] @ centre + g[:2, 2]) / (g[2, :2] @ centre + 1.0) - centre
-    lin = corners @ (g[:2, :2] - np.eye(2) - np.outer(s, g[2, :2])).T + (g[:2, 2] - s)
-    bound = (np.abs(lin).max(axis=0) + corners.max(axis=0) * np.abs(gx).max()) / q.min()
-    return s if bound.max() <= tol_px else None
-
-
-def translations(hs, out_shape, *, tol_px: float = TRANSLATION_TOL_PX):
-    """(..., 2) sampling shifts of a stack of homographies (..., 3, 3), as :func:`translation_of`
-    gives them, or None when any of them is not a translation."""
-    hs = np.asarray(hs, dtype=np.float64)
-    out = np.empty((*hs.shape[:-2], 2))
-    for idx in np.ndindex(*hs.shape[:-2]):
-        s = translation_of(hs[idx], out_shape, tol_px=tol_px)
-        if s is None:
-            return None
-        out[idx] = s
-    return out
+    s = (g[:, :2, :2] @ centre + g[:, :2, 2]) / (g[:, 2, :2] @ centre + 1.0)[:, None] - centre  # (M, 2)
+    lin_mat = g[:, :2, :2] - np.eye(2) - s[:, :, None] * g[:, None, 2, :2]  # (M, 2, 2)
+    lin = np.einsum("cj,mij->mci", corners, lin_mat) + (g[:, :2, 2] - s)[:, None, :]  # (M, 4, 2)
+    bound = (np.abs(lin).max(axis=1) + corners.max(axis=0) * np.abs(gx).max(axis=0)[:, None]) / q.min(axis=0)[:, None]
+    if bound.max() > tol_px:
+        return None
+    return s.reshape(*lead, 2)
 
 
 # -- threads ----------------------------------------------------------------------------------------
