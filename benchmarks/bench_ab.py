@@ -13,22 +13,16 @@ from __future__ import annotations
 
 import json
 import os
-import statistics
 import subprocess
 import sys
-import time
 import warnings
 from pathlib import Path
 
 
 def _median(fn, n):
-    fn()
-    ts = []
-    for _ in range(n):
-        t = time.perf_counter()
-        fn()
-        ts.append(time.perf_counter() - t)
-    return statistics.median(ts)
+    from _timing import bench
+
+    return bench(fn, n)[0]
 
 
 def probe() -> None:

@@ -264,6 +264,20 @@ class _Layer:
     name: str
 
 
+def _sorted_layers(renderer, key, region) -> list:
+    """Every surface's layer over ``region`` seen from ``key`` (a view, or an aperture sample),
+    near to far, checked for a consistent occlusion order."""
+    layers = []
+    for idx, surf in enumerate(renderer.scene.surfaces):
+        fn = renderer.plane_layer if isinstance(surf, Plane) else renderer.heightfield_layer
+        lay = fn(idx, surf, key, region)
+        if lay is not None:
+            layers.append(lay)
+    layers.sort(key=lambda la: la.zmin)
+    _check_order(layers)
+    return layers
+
+
 def _check_order(layers: list[_Layer]) -> None:
     """Layers are composited in order of their nearest point. Refuse scenes where that order
     is wrong somewhere (a later layer in front of an earlier one on the same pixel), since the
@@ -526,14 +540,7 @@ class _Renderer:
         t0 = clock()
         region = self.regions[view]
         rx, ry, rw, rh = region
-        layers = []
-        for idx, surf in enumerate(self.scene.surfaces):
-            fn = self.plane_layer if isinstance(surf, Plane) else self.heightfield_layer
-            lay = fn(idx, surf, view, region)
-            if lay is not None:
-                layers.append(lay)
-        layers.sort(key=lambda la: la.zmin)
-        _check_order(layers)
+        layers = _sorted_layers(self, view, region)
         t1 = clock()
         # Sharp colour and depth are only output inside the view rectangles: composite them
         # over the box that the rectangles' parts in this region span, not the whole region.
@@ -934,14 +941,7 @@ class _SubApertureRenderer(_Renderer):
     def sample(self, k: int, region) -> np.ndarray:
         """(h, w, 3) float32 radiance of aperture sample ``k`` over ``region``."""
         rx, ry, rw, rh = region
-        layers = []
-        for idx, surf in enumerate(self.scene.surfaces):
-            fn = self.plane_layer if isinstance(surf, Plane) else self.heightfield_layer
-            lay = fn(idx, surf, k, region)
-            if lay is not None:
-                layers.append(lay)
-        layers.sort(key=lambda la: la.zmin)
-        _check_order(layers)
+        layers = _sorted_layers(self, k, region)
         acc = np.zeros((rh, rw, 4), np.float32)
         for lay in layers:
             rgba = self._defocus(lay) if self.settings.defocus else lay.rgba
