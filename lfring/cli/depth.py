@@ -9,7 +9,7 @@ import click
 import numpy as np
 
 from lfring.depth.costs import COSTS
-from lfring.cli._options import check_option, load_views, raw_options
+from lfring.cli._options import check_option, load_views, progress_bar, raw_options
 
 log = logging.getLogger("lfring.cli.depth")
 
@@ -68,8 +68,10 @@ def command(raw, zmin, zmax, outdir, calib, planes, reference, cost, aggregation
     check_writable(paths.values(), overwrite=overwrite)
     views, cal, cal_name = load_views(raw, calib, levels, check=not no_check)
     ref = check_reference(reference, cal.num_views)
-    res = estimate_depth(views, cal, zmin_m=zmin, zmax_m=zmax, num_planes=planes, reference=ref, cost=cost,
-                         aggregation=aggregation, method=method, backend=backend, device=device)
+    with progress_bar(100, "depth", "%") as bar:
+        res = estimate_depth(views, cal, zmin_m=zmin, zmax_m=zmax, num_planes=planes, reference=ref, cost=cost,
+                             aggregation=aggregation, method=method, backend=backend, device=device,
+                             progress=lambda f: bar.update(max(0, round(100 * f) - bar.n)))
     out.mkdir(parents=True, exist_ok=True)
     write_depth_tiff(paths["depth.tiff"], res.depth_m)
     if res.depth_filled_m is not None:

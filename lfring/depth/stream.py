@@ -28,7 +28,7 @@ __all__ = ["sweep_slices", "sweep_strips"]
 
 
 def sweep_strips(sources: np.ndarray, masks: np.ndarray, hs: np.ndarray, *, aggregate_px: int, exclude: int = 1,
-                 threads: int = 1, on_strip=None, volume=None, occlusion: bool = False):
+                 threads: int = 1, on_strip=None, volume=None, occlusion: bool = False, on_rows=None):
     """The 'lcn' cost with box aggregation over every hypothesis, strip by strip.
 
     Parameters
@@ -54,6 +54,9 @@ def sweep_strips(sources: np.ndarray, masks: np.ndarray, hs: np.ndarray, *, aggr
         pixel) instead of keeping a running minimum: for an optimisation over the whole volume
         (:mod:`lfring.depth.sgm`). Then ``on_strip`` is called as ``on_strip(r0, r1, nviews)``
         and, without it, ``nviews`` is returned.
+    on_rows : callable, optional
+        Called as ``on_rows(r0, r1)`` when the rows r0 to r1 are done (from the thread that swept
+        them): for progress reports.
     occlusion : bool
         The 'lcn-occlusion' cost: where three views or more see a pixel, the view that deviates
         most from their mean is left out (:func:`lfring.depth.costs.lcn_occlusion_cost`).
@@ -173,6 +176,8 @@ def sweep_strips(sources: np.ndarray, masks: np.ndarray, hs: np.ndarray, *, aggr
             on_strip(r0, r1, nviews)
         else:
             on_strip(r0, r1, run.best_i, run.best, run.c_prev, run.c_next, run.second(), nviews)
+        if on_rows is not None:
+            on_rows(r0, r1)
 
     local = threading.local()
 

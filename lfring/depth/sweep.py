@@ -15,6 +15,7 @@ confidence. The default cost ('lcn' with box aggregation) runs strip by strip on
 from __future__ import annotations
 
 import dataclasses
+import threading
 import warnings
 from dataclasses import dataclass
 
@@ -75,6 +76,7 @@ def estimate_depth(
     method: str = "sgm",
     paths: int = 4,
     consistency: bool | None = None,
+    progress=None,
 ) -> DepthResult:
     """Metric depth and confidence by plane sweep over the views.
 
@@ -131,6 +133,9 @@ def estimate_depth(
         doubles the time. By default on for two views (a pixel occluded in the other view has no
         information at all) and off for more (a pixel hidden from one view is still measured by
         the others, and a single second frame would reject it).
+    progress : callable, optional
+        Called as ``progress(fraction)`` (0 to 1) as the work advances, possibly from worker
+        threads (the calls are serialised): for a progress bar.
 
     Returns
     -------
@@ -185,20 +190,23 @@ def estimate_depth(
         aggregate_px = (SGM_AGGREGATE_PX if method == "sgm" else LCN_AGGREGATE_PX) if cost in LCN_COSTS else window_px
     threads = max(1, cv2.getNumThreads()) if threads is None else int(threads)
     fin = Finisher(plan.depths, calibration.depth_origin_m, arr.shape[1:3], min_views)
+    report = _Progress(progress, arr.shape[1])
     record = dict(depths_m=plan.depths, step_px=plan.step_px, reference=plan.reference, cost=cost, aggregation=aggregation,
                   method=method)
     if method == "sgm":
         check = arr.shape[0] == 2 if consistency is None else bool(consistency)
         filled = _optimise(arr, calibration, plan, fin, backend, device, cost, aggregation, window_px, aggregate_px, threads,
-                           paths, consistency=check)
+                           paths, consistency=check, report=report)
+        report.done()
         return fin.result(depth_filled_m=filled, **record)
     if cost in LCN_COSTS and aggregation == "box" and backend == "numpy":
         sweep_strips(lcn_sources(arr, calibration, window_px, threads=threads), plan.masks, plan.hs,
                      aggregate_px=aggregate_px, exclude=plan.exclude, threads=threads, on_strip=fin,
-                     occlusion=cost == "lcn-occlusion")
+                     occlusion=cost == "lcn-occlusion", on_rows=report.rows(0.0, 1.0))
     else:
         out = _sweep_whole(arr, calibration, plan, backend, device, cost, aggregation, window_px, aggregate_px, threads)
         fin(0, arr.shape[1], *out)
+    report.done()
     return fin.result(**record)
 
 
@@ -226,6 +234,41 @@ def _plan(views, calibration, zmin_m, zmax_m, num_planes, reference) -> _Plan:
     # The second minimum is looked for more than one pixel of motion away from the best.
     exclude = max(1, int(np.ceil(1.0 / max(step, 1e-6))))
     return _Plan(depths, hs, cached_view_masks(calibration, shape), ref, step, exclude)
+
+
+# The share of the semi-global method's time that the sweep into the volume takes (for progress).
+SWEEP_SHARE = 0.3
+
+
+class _Progress:
+    """Serialises ``progress(fraction)`` calls from the sweep's threads; rows done map onto a
+    span of the fraction."""
+
+    def __init__(self, callback, height: int):
+        self.callback, self.height = callback, height
+        self.lock = threading.Lock()
+        self.rows_done = 0
+
+    def at(self, fraction: float) -> None:
+        if self.callback is not None:
+            with self.lock:
+                self.callback(min(1.0, max(0.0, float(fraction))))
+
+    def rows(self, start: float, end: float):
+        """An ``on_rows`` callback for one sweep advancing the fraction from start to end."""
+        if self.callback is None:
+            return None
+        counted = [0]
+
+        def on_rows(r0, r1):
+            with self.lock:
+                counted[0] += r1 - r0
+                self.callback(start + (end - start) * counted[0] / self.height)
+
+        return on_rows
+
+    def done(self) -> None:
+        self.at(1.0)
 
 
 def _guide(views, plan) -> np.ndarray:
@@ -278,21 +321,22 @@ def _consistent(calibration, plan, index, other_plan, other_index, tolerance: fl
 
 
 def _optimise(views, calibration, plan, fin, backend, device, cost, aggregation, window_px, aggregate_px, threads, paths,
-              consistency=True):
+              consistency=True, report=None):
     """The 'sgm' method: fill the cost volume, optimise it, select and refine; with
     ``consistency``, the same from a second reference frame, and pixels whose two answers
     disagree become unknown. The finisher gets the depth and confidence; the hole-filled depth
     is returned."""
     h, w = views.shape[1:3]
+    share = 0.5 if consistency else 1.0  # of the work, per reference frame
     index, confidence, nviews, guide = _sgm_index(views, calibration, plan, backend, device, cost, aggregation, window_px,
-                                                  aggregate_px, threads, paths)
+                                                  aggregate_px, threads, paths, report, 0.0, share)
     if consistency:
         other = dataclasses.replace(plan, reference=_other_reference(plan))
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", LfringWarning)
             other = dataclasses.replace(other, hs=calibration.homographies(plan.depths, reference=other.reference))
         other_index = _sgm_index(views, calibration, other, backend, device, cost, aggregation, window_px, aggregate_px,
-                                 threads, paths)[0]
+                                 threads, paths, report, share, 1.0)[0]
         keep = _consistent(calibration, plan, index, other, other_index, CONSISTENCY_STEPS * plan.exclude)
         confidence = np.where(keep, confidence, np.float32(0.0))
     refined, filled = refine_index(index, confidence, guide)
@@ -302,13 +346,19 @@ def _optimise(views, calibration, plan, fin, backend, device, cost, aggregation,
     return fin.depth_of(filled, nviews)
 
 
-def _sgm_index(views, calibration, plan, backend, device, cost, aggregation, window_px, aggregate_px, threads, paths):
-    """Fractional hypothesis index, confidence, views seen and guide of one reference frame."""
+def _sgm_index(views, calibration, plan, backend, device, cost, aggregation, window_px, aggregate_px, threads, paths,
+               report=None, start=0.0, end=1.0):
+    """Fractional hypothesis index, confidence, views seen and guide of one reference frame
+    (``report`` advanced from ``start`` to ``end``: the sweep about a third, the optimisation
+    the rest)."""
     h, w = views.shape[1:3]
     volume = np.empty((len(plan.depths), h, w), np.float32)
+    swept = start + (end - start) * SWEEP_SHARE
+    on_rows = None if report is None else report.rows(start, swept)
     if cost in LCN_COSTS and aggregation == "box" and backend == "numpy":
         nviews = sweep_strips(lcn_sources(views, calibration, window_px, threads=threads), plan.masks, plan.hs,
-                              aggregate_px=aggregate_px, threads=threads, volume=volume, occlusion=cost == "lcn-occlusion")
+                              aggregate_px=aggregate_px, threads=threads, volume=volume, occlusion=cost == "lcn-occlusion",
+                              on_rows=on_rows)
     else:
         nviews = _sweep_whole(views, calibration, plan, backend, device, cost, aggregation, window_px, aggregate_px,
                               threads, volume=volume)
@@ -319,6 +369,8 @@ def _sgm_index(views, calibration, plan, backend, device, cost, aggregation, win
         optimised = sgm_aggregate_torch(volume, guide=guide, paths=paths, device=device)
     else:
         optimised = sgm_aggregate(volume, guide=guide, paths=paths, threads=threads)
+    if report is not None:
+        report.at(start + (end - start) * (SWEEP_SHARE + 1.0) / 2.0)
     finite = np.isfinite(volume)
     # The sub-hypothesis parabola is fitted to the cost aggregated over the local method's wider
     # box: the optimised curve is flat-bottomed in P1 steps and the small box's is noisy.
@@ -332,6 +384,8 @@ def _sgm_index(views, calibration, plan, backend, device, cost, aggregation, win
     # distinctness times the local curve's ranks errors better than either (sparsification AUC
     # on the twin 0.156 against 0.157 and 0.225, on Teddy 0.588 against 0.644 and 0.713).
     confidence *= select(volume, exclude=plan.exclude, threads=threads)[1]
+    if report is not None:
+        report.at(end)
     return index, confidence, nviews, guide
 
 

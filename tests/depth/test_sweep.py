@@ -295,3 +295,12 @@ def test_occlusion_aware_cost_leaves_out_the_view_that_disagrees():
     wts[2:] = 0.0  # only two views see it
     pair = x * wts
     np.testing.assert_allclose(lcn_occlusion_cost(pair, wts), lcn_cost(pair.sum(0), (pair * pair).sum(0), wts.sum(0)))
+
+
+@pytest.mark.parametrize("method", ["sgm", "local"])
+def test_progress_reports_rise_to_one(twin, method):
+    r, cal, views, *_ = twin
+    seen = []
+    estimate_depth(views, cal, zmin_m=0.3, zmax_m=1.0, num_planes=6, method=method, progress=seen.append)
+    assert len(seen) >= 3 and seen[-1] == 1.0
+    assert all(0.0 <= a <= b <= 1.0 for a, b in zip(seen, seen[1:]))
