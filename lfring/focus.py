@@ -324,6 +324,20 @@ def refocus(views, calibration, depth_m: float, *, reference="center", interpola
     confusion of a point at depth Z is ``aperture * R * |1/(Z - z0) - 1/(Z_f - z0)|`` px, R from
     the calibration's model (:func:`lfring.dof.aperture_radius_px`); for many depths from one
     depth map use :func:`focal_stack` or :func:`depth_of_field`.
+
+    Examples
+    --------
+    The bundled scene refocused on the book (0.5 m): the book is sharper than when refocused on
+    the cup (0.3 m).
+
+    >>> import cv2, lfring
+    >>> cal = lfring.RingCalibration.load("twin_binned2")
+    >>> views = lfring.split_views(lfring.demosaic(lfring.load_raw("data/synthetic/scene.png")), cal.layout)
+    >>> sharpness = lambda img: cv2.Laplacian(img.mean(axis=2), cv2.CV_32F).var()
+    >>> book = (slice(250, 450), slice(420, 600))  # rows, columns of the book in the centre frame
+    >>> at_book, at_cup = refocus(views, cal, 0.5), refocus(views, cal, 0.3)
+    >>> at_book.shape, bool(sharpness(at_book[book]) > 3 * sharpness(at_cup[book]))
+    ((705, 705, 3), True)
     """
     from lfring.backends import BACKENDS
 
@@ -354,7 +368,18 @@ def focal_stack(views, calibration, depths_m, *, reference="center", interpolati
     """Refocus at every depth of ``depths_m``: (N, h, w, C) float32.
 
     The arguments are :func:`refocus`'s; with ``method='depth-aware'`` the depth map (given or
-    estimated) and the all-in-focus colour are made once for the whole stack."""
+    estimated) and the all-in-focus colour are made once for the whole stack.
+
+    Examples
+    --------
+    >>> import cv2, numpy as np, lfring
+    >>> cal = lfring.RingCalibration.load("twin_binned2")
+    >>> views = lfring.split_views(lfring.demosaic(lfring.load_raw("data/synthetic/scene.png")), cal.layout)
+    >>> stack = focal_stack(views, cal, [0.3, 0.5, 1.0])
+    >>> book = (slice(250, 450), slice(420, 600))
+    >>> stack.shape, int(np.argmax([cv2.Laplacian(s[book].mean(axis=2), cv2.CV_32F).var() for s in stack]))
+    ((3, 705, 705, 3), 1)
+    """
     _check_method(method)
     z = np.atleast_1d(np.asarray(depths_m, dtype=np.float64))
     if z.ndim != 1 or z.size == 0:
@@ -408,6 +433,18 @@ def all_in_focus(views, calibration, depths_m=None, *, depth_map_m=None, referen
     the depth-aware renderer's at aperture 0 (:class:`lfring.dof.DepthOfField`) with the
     chosen depths: every pixel from the views that see it at its depth, occluded views left
     out.
+
+    Examples
+    --------
+    Each pixel comes from the depth where the views agree: the book at 0.5 m, the cup at 0.3 m.
+
+    >>> import numpy as np, lfring
+    >>> cal = lfring.RingCalibration.load("twin_binned2")
+    >>> views = lfring.split_views(lfring.demosaic(lfring.load_raw("data/synthetic/scene.png")), cal.layout)
+    >>> image, depth_m = all_in_focus(views, cal)
+    >>> book, cup = (slice(250, 450), slice(420, 600)), (slice(150, 350), slice(80, 280))
+    >>> round(float(np.nanmedian(depth_m[book])), 1), round(float(np.nanmedian(depth_m[cup])), 1)
+    (0.5, 0.3)
     """
     arr = check_views(views)
     h, w = arr.shape[1:3]
