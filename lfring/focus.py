@@ -357,6 +357,7 @@ def refocus(views, calibration, depth_m: float, *, reference="center", interpola
     if backend == "torch":
         from lfring.backends.torch_refocus import refocus_torch
 
+        check_renderable(calibration, depth_m, reference=reference)  # as the Refocuser does
         return refocus_torch(views, calibration, depth_m, reference=reference, device=device, interpolation=interpolation)
     arr = check_views(views)
     return Refocuser(calibration, depth_m, reference=reference, view_shape=arr.shape[1:3], interpolation=interpolation)(arr)
