@@ -62,15 +62,15 @@ def horizontal(cost, fill, guide, use_guide, p1, p2, edge_scale, out, do_lr, do_
                     if use_guide:
                         p2e = max(p1, np.float32(p2 / (np.float32(1.0) + abs(guide[y, x] - guide[y, xp]) / edge_scale)))
                     jump = pmin + p2e
-                    for d in range(n):
-                        best = prev[d]
-                        if d > 0:
-                            best = min(best, prev[d - 1] + p1)
-                        if d < n - 1:
-                            best = min(best, prev[d + 1] + p1)
-                        best = min(best, jump)
-                        cur[d] = c[x, d] + (best - pmin)
+                    # The ends' missing neighbour is the hypothesis itself: min(a, a + p1) = a.
+                    cur[0] = c[x, 0] + (min(prev[0], prev[min(1, n - 1)] + p1, jump) - pmin)
+                    cmin = min(cmin, cur[0])
+                    for d in range(1, n - 1):
+                        cur[d] = c[x, d] + (min(prev[d], prev[d - 1] + p1, prev[d + 1] + p1, jump) - pmin)
                         cmin = min(cmin, cur[d])
+                    if n > 1:
+                        cur[n - 1] = c[x, n - 1] + (min(prev[n - 1], prev[n - 2] + p1, jump) - pmin)
+                        cmin = min(cmin, cur[n - 1])
                 for d in range(n):
                     s[x, d] += cur[d]
                 pmin = cmin
@@ -100,11 +100,13 @@ def lines(cost, fill, guide, use_guide, p1, p2, edge_scale, out, dy, dx, block):
     for b in prange(nblocks):
         k0 = kmin + b * block
         nb = min(block, kmax + 1 - k0)
-        prev = np.empty((n, block), np.float32)
-        cur = np.empty((n, block), np.float32)
+        # Zero state makes a line's first pixel take its cost alone (best = 0 = pmin below),
+        # so the recursion needs no branch for it: a line's columns stay zero until it starts.
+        prev = np.zeros((n, block), np.float32)
+        cur = np.zeros((n, block), np.float32)
         pmin = np.zeros(block, np.float32)
         cmin = np.zeros(block, np.float32)
-        p2row = np.empty(block, np.float32)
+        jump = np.empty(block, np.float32)
         started = np.zeros(block, np.bool_)
         for i in range(h):
             y = i if dy > 0 else h - 1 - i
@@ -119,23 +121,18 @@ def lines(cost, fill, guide, use_guide, p1, p2, edge_scale, out, dy, dx, block):
                 p2e = p2
                 if use_guide and started[j]:
                     p2e = max(p1, np.float32(p2 / (np.float32(1.0) + abs(guide[y, x] - guide[y - dy, x - dx]) / edge_scale)))
-                p2row[j] = p2e
+                jump[j] = pmin[j] + p2e
             for d in range(n):
+                # At the ends the missing neighbour is the hypothesis itself: min(a, a + p1) = a.
+                dm = d - 1 if d > 0 else d
+                dp = d + 1 if d < n - 1 else d
                 for j in range(j0, j1):
                     x = xb + j
                     v = cost[d, y, x]
                     if not np.isfinite(v):
                         v = fill[y, x]
-                    if not started[j]:
-                        L = v
-                    else:
-                        best = prev[d, j]
-                        if d > 0:
-                            best = min(best, prev[d - 1, j] + p1)
-                        if d < n - 1:
-                            best = min(best, prev[d + 1, j] + p1)
-                        best = min(best, pmin[j] + p2row[j])
-                        L = v + (best - pmin[j])
+                    best = min(prev[d, j], prev[dm, j] + p1, prev[dp, j] + p1, jump[j])
+                    L = v + (best - pmin[j])
                     cur[d, j] = L
                     cmin[j] = min(cmin[j], L)
                     out[d, y, x] += L
