@@ -271,21 +271,25 @@ class _Progress:
         self.at(1.0)
 
 
+def _in_reference_frame(lum, plan) -> np.ndarray:
+    """(h, w) float32 image of the reference frame from per-view images (V, h, w): the reference
+    view's own, or for 'center' the views' weighted mean at the middle hypothesis."""
+    if plan.reference != "center":
+        return lum[plan.reference]
+    h, w = lum.shape[1:3]
+    mid = len(plan.depths) // 2
+    acc = np.zeros((h, w), np.float32)
+    wsum = np.zeros((h, w), np.float32)
+    for k in range(len(lum)):
+        acc += warp_image(lum[k] * plan.masks[k], plan.hs[mid, k], (w, h))
+        wsum += warp_image(plan.masks[k], plan.hs[mid, k], (w, h))
+    return acc / np.maximum(wsum, WEIGHT_FLOOR)
+
+
 def _guide(views, plan) -> np.ndarray:
     """(h, w) float32 luminance of the reference frame in [0, 1] (for 'center', the views' mean
     at the middle hypothesis), for the edge-aware optimisation and refinement."""
-    h, w = views.shape[1:3]
-    lum = luminance(views)
-    if plan.reference == "center":
-        mid = len(plan.depths) // 2
-        acc = np.zeros((h, w), np.float32)
-        wsum = np.zeros((h, w), np.float32)
-        for k in range(len(lum)):
-            acc += warp_image(lum[k] * plan.masks[k], plan.hs[mid, k], (w, h))
-            wsum += warp_image(plan.masks[k], plan.hs[mid, k], (w, h))
-        g = acc / np.maximum(wsum, WEIGHT_FLOOR)
-    else:
-        g = lum[plan.reference]
+    g = _in_reference_frame(luminance(views), plan)
     top = float(np.percentile(g, 99.5))
     return np.clip(g / max(top, 1e-6), 0, 1).astype(np.float32)
 
@@ -399,16 +403,7 @@ def _sweep_whole(views, calibration, plan, backend, device, cost, aggregation, w
         lum = normalised_luminance(views, masks, sigma=max(8.0, min(h, w) / 40.0))
     guide_image = None
     if aggregation == "guided":
-        if plan.reference == "center":
-            mid = len(plan.depths) // 2
-            acc = np.zeros((h, w), np.float32)
-            wsum = np.zeros((h, w), np.float32)
-            for k in range(len(lum)):
-                acc += warp_image(lum[k] * masks[k], hs[mid, k], (w, h))
-                wsum += warp_image(masks[k], hs[mid, k], (w, h))
-            g = acc / np.maximum(wsum, WEIGHT_FLOOR)
-        else:
-            g = lum[plan.reference]
+        g = _in_reference_frame(lum, plan)
         guide_image = np.clip(g / max(float(g.max()), 1e-6), 0, 1).astype(np.float32)
     if cost in LCN_COSTS:  # the sweep compares the locally normalised luminances instead
         lum = lcn_sources(views, calibration, window_px, threads=threads)
