@@ -17,7 +17,9 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from lfring.calibration.overlap import nearest_renderable_depth_m
 from lfring.errors import InvalidInputError, LfringWarning
+from lfring.warp import luminance
 
 __all__ = ["AGREEMENT_THRESHOLD", "CHECK_DOWNSAMPLE", "FrameCheck", "check_frame", "draw_layout"]
 
@@ -113,17 +115,6 @@ def _image_of(frame):
     raise InvalidInputError(f"check_frame takes (H, W[, C]) images or (V, h, w, C) views, got shape {arr.shape}")
 
 
-def _luminance(x: np.ndarray) -> np.ndarray:
-    """Mean of the channels of (..., C) float32 (a sum of slices: a reduction over the short last
-    axis is several times slower)."""
-    out = x[..., 0].copy()
-    for c in range(1, x.shape[-1]):
-        out += x[..., c]
-    if x.shape[-1] > 1:
-        out *= np.float32(1.0 / x.shape[-1])
-    return out
-
-
 def _small(lum: np.ndarray, f: int) -> np.ndarray:
     h, w = lum.shape[1:3]
     return np.stack([cv2.resize(x, (w // f, h // f), interpolation=cv2.INTER_AREA) for x in lum])
@@ -170,13 +161,6 @@ def _soft_discs(layout, f: int) -> np.ndarray:
     return _discs(shrunk, f).astype(np.float32)
 
 
-def _nearest_overlap(calibration) -> float:
-    """The calibration's nearest overlap depth, computed once per calibration object."""
-    from lfring.calibration.overlap import nearest_renderable_depth_m
-
-    return nearest_renderable_depth_m(calibration)
-
-
 def check_frame(frame, calibration, *, threshold: float = AGREEMENT_THRESHOLD, downsample: int = CHECK_DOWNSAMPLE) -> FrameCheck:
     """Check that ``frame`` is a ring frame of the camera ``calibration`` describes.
 
@@ -215,7 +199,7 @@ def check_frame(frame, calibration, *, threshold: float = AGREEMENT_THRESHOLD, d
     layout = calibration.layout
     if image is not None:
         calibration.check_frame(image.shape)
-        lum_img = _luminance(image)
+        lum_img = luminance(np.ascontiguousarray(np.atleast_3d(image), dtype=np.float32)[None])[0]
         lum = split_views(lum_img[..., None], layout)[..., 0]
         size = (int(image.shape[1]), int(image.shape[0]))
     else:
@@ -223,7 +207,7 @@ def check_frame(frame, calibration, *, threshold: float = AGREEMENT_THRESHOLD, d
             raise InvalidInputError(f"views are {views.shape[2]} x {views.shape[1]} px, the calibration's layout cuts "
                                     f"{layout.view_shape[1]} x {layout.view_shape[0]} px views")
         size = calibration.raw_size
-        lum = _luminance(views)
+        lum = luminance(np.ascontiguousarray(views, dtype=np.float32))
     inside = layout.masks()
     n_in = int(np.count_nonzero(inside))
     clipped = np.count_nonzero((lum >= CLIPPED_LEVEL) & inside) / n_in if n_in else float("nan")
@@ -245,7 +229,7 @@ def check_frame(frame, calibration, *, threshold: float = AGREEMENT_THRESHOLD, d
     scale = np.diag([(w // f) / w, (h // f) / h, 1.0])
     lo, hi = calibration.valid_depth_range_m
     hi = 4 * lo if hi is None else hi
-    nearest = _nearest_overlap(calibration)
+    nearest = nearest_renderable_depth_m(calibration)
     zmin = max(lo / 2, nearest * 1.2)
     zmax = max(hi * 2, zmin * 1.5)
     with warnings.catch_warnings():
