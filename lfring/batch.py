@@ -30,7 +30,6 @@ import logging
 import os
 import shutil
 import socket
-import tempfile
 import time
 import warnings
 from collections.abc import Callable, Iterator, Sequence
@@ -593,15 +592,11 @@ def _process(input_path, settings: BatchSettings, outputs, timings) -> tuple[dic
 
 
 def _depth_preview_png(depth_res, settings: BatchSettings, name: str) -> bytes:
-    """The depth preview's PNG bytes (lfring.depth.io writes it to a file only: a private
-    temporary folder, never OUTDIR)."""
-    from lfring.depth.io import write_depth_preview
+    """The depth preview's PNG bytes, made in memory."""
+    from lfring.depth.io import depth_preview_png
 
-    with tempfile.TemporaryDirectory(prefix="lfring-batch-") as tmp:
-        p = Path(tmp, "depth_preview.png")
-        write_depth_preview(p, depth_res.depth_m, confidence=depth_res.confidence, zmin_m=settings.zmin_m,
-                            zmax_m=settings.zmax_m, title=f"{name}: depth (m)", min_confidence=settings.min_confidence)
-        return p.read_bytes()
+    return depth_preview_png(depth_res.depth_m, confidence=depth_res.confidence, zmin_m=settings.zmin_m,
+                             zmax_m=settings.zmax_m, title=f"{name}: depth (m)", min_confidence=settings.min_confidence)
 
 
 # -- the run -------------------------------------------------------------------------------------

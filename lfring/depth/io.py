@@ -6,6 +6,7 @@ Every writer is atomic (a killed run leaves no partial file) and raises the erro
 
 from __future__ import annotations
 
+import io
 import numbers
 import re
 from pathlib import Path
@@ -13,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from lfring.errors import FileFormatError, InvalidInputError, LfringFileNotFoundError
-from lfring.io.atomic import atomic_path, atomic_write_bytes
+from lfring.io.atomic import atomic_write_bytes
 from lfring.io.writers import write_float_tiff
 from lfring.optics.device import RingDevice
 from lfring.optics.paraxial import pixel_to_sensor
@@ -25,7 +26,7 @@ __all__ = [
     "depth_to_points",
     "read_pfm",
     "read_ply",
-    "write_depth_preview",
+    "depth_preview_png", "write_depth_preview",
     "write_depth_tiff",
     "write_pfm",
     "write_ply",
@@ -211,8 +212,17 @@ def colorize_depth(depth_m, *, zmin_m=None, zmax_m=None, confidence=None, min_co
     return _colorize(depth_m, zmin_m, zmax_m, confidence, min_confidence, cmap)[0]
 
 
-def write_depth_preview(
-    path: str | Path,
+def write_depth_preview(path: str | Path, depth_m, **options) -> Path:
+    """Write :func:`depth_preview_png` (``options`` are its keywords) to ``path``, which ends in
+    .png, atomically."""
+    path = Path(path)
+    if path.suffix.lower() != ".png":
+        raise InvalidInputError(f"a depth preview is a PNG file ending in .png, got {path.name!r}")
+    atomic_write_bytes(path, depth_preview_png(depth_m, **options))
+    return path
+
+
+def depth_preview_png(
     depth_m,
     *,
     confidence=None,
@@ -222,13 +232,11 @@ def write_depth_preview(
     min_confidence: float = 0.0,
     cmap: str = "turbo",
     dpi: int = 100,
-) -> Path:
-    """Write a PNG of :func:`colorize_depth` beside a colour bar labelled in metres.
+) -> bytes:
+    """PNG bytes of :func:`colorize_depth` beside a colour bar labelled in metres.
 
     Parameters
     ----------
-    path : str or Path
-        Ends in .png; written atomically.
     depth_m, confidence, zmin_m, zmax_m, min_confidence, cmap
         As for :func:`colorize_depth`.
     title : str, optional
@@ -244,9 +252,6 @@ def write_depth_preview(
     from matplotlib.colors import ListedColormap, Normalize
     from matplotlib.figure import Figure
 
-    path = Path(path)
-    if path.suffix.lower() != ".png":
-        raise InvalidInputError(f"a depth preview is a PNG file ending in .png, got {path.name!r}")
     rgb, shown, (lo, hi), table = _colorize(depth_m, zmin_m, zmax_m, confidence, min_confidence, cmap)
     h, w = shown.shape
     shown_w = min(max(w, 320), 1000)  # display width in pixels: small maps enlarged, large ones reduced
@@ -269,9 +274,9 @@ def write_depth_preview(
     cb = fig.colorbar(bar, ax=ax, extend=extend, fraction=0.08, pad=0.02)
     cb.set_label("depth from the main lens (m)", fontsize=9)
     cb.ax.tick_params(labelsize=8)
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=dpi)
-    return path
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi)
+    return buf.getvalue()
 
 
 # -- 3D points -----------------------------------------------------------------------------------
