@@ -10,7 +10,8 @@ from __future__ import annotations
 import numpy as np
 
 from lfring.backends import require_torch, resolve_device
-from lfring.depth.costs import AGGREGATIONS, COSTS, GUIDED_EPS, MIN_VIEWS_TO_LEAVE_ONE_OUT
+from lfring.depth.costs import (AGGREGATIONS, COSTS, GUIDED_EPS, MIN_VIEWS_TO_LEAVE_ONE_OUT,
+                                OCCLUSION_PENALTY, leavable_views)
 from lfring.errors import InvalidInputError
 from lfring.warp import WEIGHT_FLOOR
 
@@ -74,6 +75,17 @@ class _Box:
         return self.torch.nn.functional.avg_pool2d(y, (1, self.k), stride=1).mul_(1.0 / self.k)
 
 
+def _lcn(s1, s2, count):
+    """:func:`lfring.depth.costs.lcn_cost` of torch sums."""
+    return (s2 - s1 * s1 / count.clamp_min(WEIGHT_FLOOR)) / (count - 1.0).clamp_min(0.5)
+
+
+def _leave_one_out(torch, lum_w, wts, nview, k: int):
+    """:func:`lfring.depth.costs.lcn_leave_one_out` of view k for a chunk (C, V, h, w) -> (C, h, w)."""
+    a_k = lum_w[:, k]
+    return _lcn(lum_w.sum(dim=1) - a_k, (lum_w * lum_w).sum(dim=1) - a_k * a_k, nview - wts[:, k])
+
+
 def _slice_cost(torch, lum_w, wts, cost: str, box):
     """:func:`lfring.depth.costs.slice_cost` for a chunk: lum_w, wts (C, V, h, w) -> (C, h, w) twice."""
     nview = wts.sum(dim=1)
@@ -89,18 +101,8 @@ def _slice_cost(torch, lum_w, wts, cost: str, box):
             c = (dev.sum(dim=1) - torch.where(more, dev.amax(dim=1), 0.0)) / (nvalid - more.to(nvalid.dtype)).clamp_min(1)
         else:
             c = dev.sum(dim=1) / nvalid.clamp_min(1)
-    elif cost == "lcn":  # lum_w: the warped locally normalised luminances times their masks
-        c = (lum_w * lum_w).sum(dim=1) - lum_w.sum(dim=1) ** 2 / nview.clamp_min(WEIGHT_FLOOR)
-        c = c / (nview - 1.0).clamp_min(0.5)
-    elif cost == "lcn-occlusion":  # as lfring.depth.costs.lcn_occlusion_cost
-        s1 = lum_w.sum(dim=1)
-        dev = (lum_w - wts * (s1 / nview.clamp_min(WEIGHT_FLOOR))[:, None]).abs()
-        j = dev.argmax(dim=1, keepdim=True)
-        keep = (nview > MIN_VIEWS_TO_LEAVE_ONE_OUT - 0.5).to(lum_w.dtype)
-        a_j = lum_w.gather(1, j)[:, 0] * keep
-        w_j = wts.gather(1, j)[:, 0] * keep
-        s1, count = s1 - a_j, nview - w_j
-        c = ((lum_w * lum_w).sum(dim=1) - a_j * a_j - s1**2 / count.clamp_min(WEIGHT_FLOOR)) / (count - 1.0).clamp_min(0.5)
+    elif cost in ("lcn", "lcn-occlusion"):  # lum_w: the warped locally normalised luminances times their masks
+        c = _lcn(lum_w.sum(dim=1), (lum_w * lum_w).sum(dim=1), nview)
     elif cost == "ssd":
         c = ((vals - mean[:, None]) ** 2 * valid).sum(dim=1) / nvalid.clamp_min(1)
     else:  # zncc of every view with the mean, over the window
@@ -219,7 +221,7 @@ def sweep_torch(lum, masks, hs, *, cost, aggregation, window_px, guide, exclude=
         Valid weight of every view pixel.
     hs : (N, V, 3, 3) float64
         H_ref_from_view for every hypothesis and view.
-    cost : {'lcn', 'zncc', 'sad', 'ssd', 'sad-occlusion'}
+    cost : {'lcn', 'lcn-occlusion', 'zncc', 'sad', 'ssd', 'sad-occlusion'}
         For 'lcn', ``lum`` holds the locally normalised luminances (:func:`lfring.depth.costs.lcn_sources`).
     aggregation : {'box', 'guided'}
     window_px : int
@@ -266,6 +268,7 @@ def sweep_torch(lum, masks, hs, *, cost, aggregation, window_px, guide, exclude=
 
     run = _RunningMinimum(torch, (h, w), exclude, dev)
     nviews = full(0.0)
+    leavable = leavable_views(hs) if cost == "lcn-occlusion" else []
     chunk = _chunk_size(n, v, h, w)
     with torch.no_grad():
         for i0 in range(0, n, chunk):
@@ -275,10 +278,15 @@ def sweep_torch(lum, masks, hs, *, cost, aggregation, window_px, guide, exclude=
                                       mode="bilinear", padding_mode="zeros", align_corners=True)
             warped = warped.reshape(c, v, 2, h, w)
             cst, nv = _slice_cost(torch, warped[:, :, 0], warped[:, :, 1], cost, box_cost)
-            del warped
             finite = (nv >= 1.5) & torch.isfinite(cst)
-            filled = torch.where(finite, cst, 1.0)
-            agg = guided(torch, filled) if guided is not None else box_agg(filled[:, None])[:, 0]
+            aggregate = lambda x: guided(torch, x) if guided is not None else box_agg(x[:, None])[:, 0]
+            agg = aggregate(torch.where(finite, cst, 1.0))
+            agg_count = aggregate(nv) if leavable else None
+            for k in leavable:  # as lfring.depth.costs.occlusion_aggregate
+                allowed = agg_count - aggregate(warped[:, k, 1]) > MIN_VIEWS_TO_LEAVE_ONE_OUT - 1.5
+                one = aggregate(torch.where(finite, _leave_one_out(torch, warped[:, :, 0], warped[:, :, 1], nv, k), 1.0))
+                agg = torch.where(allowed, torch.minimum(agg, OCCLUSION_PENALTY * one), agg)
+            del warped
             agg = torch.where(finite, agg, float("inf"))
             if volume is None:
                 run.push_chunk(agg)

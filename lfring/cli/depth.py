@@ -24,8 +24,9 @@ log = logging.getLogger("lfring.cli.depth")
 @click.option("--planes", type=int, default=None, metavar="N",
               help="Number of depth hypotheses (default: at most 1 px of view motion apart).")
 @click.option("--reference", default="center", show_default=True, metavar="center|INDEX", help="Frame of the depth map.")
-@click.option("--cost", type=click.Choice(list(COSTS)), default="lcn", show_default=True,
-              help="Photo-consistency cost (lcn: locally normalised luminances, the fastest and most accurate).")
+@click.option("--cost", type=click.Choice(list(COSTS)), default=None,
+              help="Photo-consistency cost [default: lcn-occlusion for --method sgm, lcn for local]. lcn: locally "
+                   "normalised luminances, the fastest; lcn-occlusion: the same, leaving out a view that disagrees.")
 @click.option("--aggregation", type=click.Choice(["box", "guided"]), default="box", show_default=True,
               help="Spatial aggregation of the cost (guided: edge-aware, about 3x slower, more accurate on the twin).")
 @click.option("--method", type=click.Choice(["sgm", "local"]), default="sgm", show_default=True,
@@ -98,7 +99,7 @@ def command(raw, zmin, zmax, outdir, calib, planes, reference, cost, aggregation
         log.warning("no device description matches %d x %d px frames: the point cloud is not written", *cal.raw_size)
     write_json(paths["depth.json"], {
         "input": raw, "calibration": cal_name, "reference": ref, "zmin_m": zmin, "zmax_m": zmax,
-        "hypotheses_m": res.depths_m, "step_px": res.step_px, "cost": cost, "aggregation": aggregation, "method": method, "backend": backend,
+        "hypotheses_m": res.depths_m, "step_px": res.step_px, "cost": res.cost, "aggregation": aggregation, "method": method, "backend": backend,
         "units": "depth in metres from the main lens; NaN where unknown", "points": n_points,
         "confidence_median": float(np.median(res.confidence)),
     })

@@ -20,9 +20,9 @@ import threading
 import cv2
 import numpy as np
 
-from lfring.depth.costs import MIN_VIEWS_TO_LEAVE_ONE_OUT, STRIP_PIXELS, aggregate, slice_cost
+from lfring.depth.costs import STRIP_PIXELS, aggregate, lcn_leave_one_out, leavable_views, occlusion_aggregate, slice_cost
 from lfring.depth.selection import RunningMinimum
-from lfring.warp import WEIGHT_FLOOR, ShiftEngine, run_threads, translations, warp_image
+from lfring.warp import WEIGHT_FLOOR, ShiftEngine, box_filter, run_threads, translations, warp_image
 
 __all__ = ["sweep_slices", "sweep_strips"]
 
@@ -58,8 +58,8 @@ def sweep_strips(sources: np.ndarray, masks: np.ndarray, hs: np.ndarray, *, aggr
         Called as ``on_rows(r0, r1)`` when the rows r0 to r1 are done (from the thread that swept
         them): for progress reports.
     occlusion : bool
-        The 'lcn-occlusion' cost: where three views or more see a pixel, the view that deviates
-        most from their mean is left out (:func:`lfring.depth.costs.lcn_occlusion_cost`).
+        The 'lcn-occlusion' cost: over each window, the least of all views' cost and the costs
+        without one view (:func:`lfring.depth.costs.occlusion_aggregate`).
 
     Returns
     -------
@@ -74,8 +74,8 @@ def sweep_strips(sources: np.ndarray, masks: np.ndarray, hs: np.ndarray, *, aggr
     pad = aggregate_px // 2
     weighted = np.ascontiguousarray(sources * masks, dtype=np.float32)
     masks = np.ascontiguousarray(masks, dtype=np.float32)
-    identity = [bool(np.all(hs[:, k] == np.eye(3))) for k in range(v)]
-    moving = [k for k in range(v) if not identity[k]]
+    moving = leavable_views(hs)
+    identity = [k not in moving for k in range(v)]
     shifts = translations(hs, (h, w))
     if shifts is not None:  # one engine per view, one slot per hypothesis, from padded copies
         engines = {k: ShiftEngine(shifts[:, k], (h, w)) for k in moving}
@@ -125,7 +125,7 @@ def sweep_strips(sources: np.ndarray, masks: np.ndarray, hs: np.ndarray, *, aggr
             shift_rows = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, q0], [0.0, 0.0, 1.0]])
         for i in range(n):
             first = True
-            rendered = [(weighted[k][q0:q1], masks[k][q0:q1]) for k in static] if occlusion else None
+            rendered = [] if occlusion else None  # the moving views' renderings, for leaving one out
             for j, k in enumerate(moving):
                 if occlusion:
                     a_buf, wt_buf = per_view[j]
@@ -153,9 +153,6 @@ def sweep_strips(sources: np.ndarray, masks: np.ndarray, hs: np.ndarray, *, aggr
                     cv2.add(cnt, wt, dst=cnt)
                 if occlusion:
                     rendered.append((a, wt))
-            if occlusion:  # the views seen count before one is left out
-                cv2.max(nviews, cnt[o0:o0 + m], dst=nviews)
-                _leave_out_worst(rendered, s1, s2, cnt, [b[:big] for b in bufs[11]])
             # c = (S2 - S1^2 / C) / (C - 1); 1 where fewer than 1.5 views are valid.
             cv2.multiply(s1, s1, dst=t)
             cv2.divide(t, cnt, dst=t)
@@ -165,11 +162,20 @@ def sweep_strips(sources: np.ndarray, masks: np.ndarray, hs: np.ndarray, *, aggr
             cv2.compare(cnt, 1.5, cv2.CMP_LT, dst=bad)
             cv2.copyTo(ones, bad, dst=t)
             cv2.boxFilter(t, cv2.CV_32F, (aggregate_px, aggregate_px), dst=agg, borderType=cv2.BORDER_REFLECT_101)
+            if occlusion:
+                one = bufs[11][:big]
+
+                def leave_out(a_k, w_k):
+                    lcn_leave_one_out(s1, s2, cnt, a_k, w_k, out=one)
+                    cv2.copyTo(ones, bad, dst=one)
+                    return one, w_k
+
+                box = lambda c: cv2.boxFilter(c, cv2.CV_32F, (aggregate_px, aggregate_px), borderType=cv2.BORDER_REFLECT_101)
+                occlusion_aggregate(agg, cnt, (leave_out(a_k, w_k) for a_k, w_k in rendered), box, box)
             cur = run.slot() if volume is None else volume[i, r0:r1]
             np.copyto(cur, agg[o0:o0 + m])
             cv2.copyTo(missing, bad[o0:o0 + m], dst=cur)
-            if not occlusion:
-                cv2.max(nviews, cnt[o0:o0 + m], dst=nviews)
+            cv2.max(nviews, cnt[o0:o0 + m], dst=nviews)
             if run is not None:
                 run.push()
         if run is None:
@@ -188,7 +194,7 @@ def sweep_strips(sources: np.ndarray, masks: np.ndarray, hs: np.ndarray, *, aggr
             local.bufs += [np.ones((big, w), np.float32), np.empty((big, w + 1), np.float32), np.empty((big, w), np.uint8)]
             local.bufs.append([(np.empty((big, w), np.float32), np.empty((big, w), np.float32)) for _ in moving]
                               if occlusion else [])
-            local.bufs.append(np.empty((6, big, w), np.float32) if occlusion else None)
+            local.bufs.append(np.empty((big, w), np.float32) if occlusion else None)
         strip(r0, r1, local.bufs)
 
     run_threads([lambda s=s: task(*s) for s in strips], threads)
@@ -236,39 +242,22 @@ def sweep_slices(lum, masks, hs, cost, window_px, guide, exclude=1, aggregate_px
     src = lum * masks
     lum_w = np.empty((v, h, w), np.float32)
     wts = np.empty((v, h, w), np.float32)
+    leavable = leavable_views(hs) if cost == "lcn-occlusion" else []
     for i in range(n):
         for k in range(v):
             warp_image(src[k], hs[i, k], (w, h), dst=lum_w[k])
             warp_image(masks[k], hs[i, k], (w, h), dst=wts[k])
         c, nv = slice_cost(lum_w, wts, cost, window_px)
-        np.copyto(run.slot() if run is not None else volume[i], aggregate(c, nv, guide, aggregate_px))
+        agg = aggregate(c, nv, guide, aggregate_px)
+        if leavable:
+            s1, s2 = lum_w.sum(axis=0), np.square(lum_w).sum(axis=0)
+            occlusion_aggregate(agg, nv, ((lcn_leave_one_out(s1, s2, nv, lum_w[k], wts[k]), wts[k]) for k in leavable),
+                                lambda one: aggregate(one, nv, guide, aggregate_px),
+                                lambda x: guide.filter(x) if guide is not None else box_filter(x, aggregate_px))
+        np.copyto(run.slot() if run is not None else volume[i], agg)
         if run is not None:
             run.push()
         np.maximum(nviews, nv, out=nviews)
     if run is None:
         return nviews
     return run.best_i, run.best, run.c_prev, run.c_next, run.second(), nviews
-
-
-def _leave_out_worst(rendered, s1, s2, cnt, scratch) -> None:
-    """Take out of the sums S1, S2, C the view that deviates most from the views' mean, where
-    three views or more see the pixel: the 'lcn-occlusion' cost's best subset (in place)."""
-    mu, dev, worst, a_w, w_w, keep = scratch
-    cv2.max(cnt, WEIGHT_FLOOR, dst=mu)
-    cv2.divide(s1, mu, dst=mu)
-    worst.fill(-1.0)
-    mask = np.empty(mu.shape, np.uint8)
-    for a, wt in rendered:
-        cv2.multiply(wt, mu, dst=dev)
-        cv2.absdiff(a, dev, dst=dev)  # w_k |x_k - mean| (the values are premultiplied)
-        cv2.compare(dev, worst, cv2.CMP_GT, dst=mask)
-        cv2.copyTo(dev, mask, dst=worst)
-        cv2.copyTo(a, mask, dst=a_w)
-        cv2.copyTo(wt, mask, dst=w_w)
-    cv2.threshold(cnt, MIN_VIEWS_TO_LEAVE_ONE_OUT - 0.5, 1.0, cv2.THRESH_BINARY, dst=keep)
-    cv2.multiply(a_w, keep, dst=a_w)
-    cv2.multiply(w_w, keep, dst=w_w)
-    cv2.subtract(s1, a_w, dst=s1)
-    cv2.multiply(a_w, a_w, dst=a_w)
-    cv2.subtract(s2, a_w, dst=s2)
-    cv2.subtract(cnt, w_w, dst=cnt)
