@@ -279,12 +279,14 @@ def sweep_torch(lum, masks, hs, *, cost, aggregation, window_px, guide, exclude=
             warped = warped.reshape(c, v, 2, h, w)
             cst, nv = _slice_cost(torch, warped[:, :, 0], warped[:, :, 1], cost, box_cost)
             finite = (nv >= 1.5) & torch.isfinite(cst)
-            aggregate = lambda x: guided(torch, x) if guided is not None else box_agg(x[:, None])[:, 0]
-            agg = aggregate(torch.where(finite, cst, 1.0))
-            agg_count = aggregate(nv) if leavable else None
+            plain = lambda x: guided(torch, x) if guided is not None else box_agg(x[:, None])[:, 0]
+            support = plain(finite.to(cst.dtype)).clamp_min(WEIGHT_FLOOR)  # as lfring.depth.costs.aggregate
+            aggregate = lambda x: plain(torch.where(finite, x, 0.0)) / support
+            agg = aggregate(cst)
+            agg_count = plain(nv) if leavable else None
             for k in leavable:  # as lfring.depth.costs.occlusion_aggregate
-                allowed = agg_count - aggregate(warped[:, k, 1]) > MIN_VIEWS_TO_LEAVE_ONE_OUT - 1.5
-                one = aggregate(torch.where(finite, _leave_one_out(torch, warped[:, :, 0], warped[:, :, 1], nv, k), 1.0))
+                allowed = agg_count - plain(warped[:, k, 1]) > MIN_VIEWS_TO_LEAVE_ONE_OUT - 1.5
+                one = aggregate(_leave_one_out(torch, warped[:, :, 0], warped[:, :, 1], nv, k))
                 agg = torch.where(allowed, torch.minimum(agg, OCCLUSION_PENALTY * one), agg)
             del warped
             agg = torch.where(finite, agg, float("inf"))

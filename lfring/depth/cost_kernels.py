@@ -12,7 +12,7 @@ from numba import njit
 
 __all__ = ["leave_one_out", "take_least"]
 
-_JIT = dict(cache=True, nogil=True, fastmath=False)
+_JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")  # numpy: no zero-division checks, so loops vectorise
 
 
 @njit(**_JIT)

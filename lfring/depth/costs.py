@@ -133,9 +133,11 @@ def lcn_leave_one_out(s1: np.ndarray, s2: np.ndarray, count: np.ndarray, a_k: np
 
 def leavable_views(hs: np.ndarray) -> list[int]:
     """The views 'lcn-occlusion' may leave out: all but the reference view (whose homography is
-    the identity at every hypothesis; it sees its own pixel by definition). For the 'center'
-    reference, every view."""
+    the identity at every hypothesis; it sees its own pixel by definition), for the 'center'
+    reference every view; none with fewer than :data:`MIN_VIEWS_TO_LEAVE_ONE_OUT` views."""
     hs = np.asarray(hs)
+    if hs.shape[1] < MIN_VIEWS_TO_LEAVE_ONE_OUT:
+        return []
     return [k for k in range(hs.shape[1]) if not np.all(hs[:, k] == np.eye(3))]
 
 
@@ -158,12 +160,11 @@ def occlusion_aggregate(agg_all: np.ndarray, count: np.ndarray, leave_outs, aggr
     count : (h, w) float32
         The views that see each pixel (the sum of their warped masks).
     leave_outs : iterable of ((h, w), (h, w)) float32
-        Per view that may be left out, its per-pixel :func:`lcn_leave_one_out` cost (1 where
-        fewer than 1.5 views see the pixel, as for all views' cost) and warped mask ``w_k`` (the
-        cost may share a buffer: each is aggregated before the next is made).
+        Per view that may be left out, its per-pixel :func:`lcn_leave_one_out` cost and warped
+        mask ``w_k`` (the cost may share a buffer: each is aggregated before the next is made).
     aggregate_cost, aggregate_count : callable
-        ``agg_all``'s spatial aggregation, (h, w) -> (h, w), for the costs and, without
-        marking any pixel, for the counts.
+        ``agg_all``'s spatial aggregation, (h, w) -> (h, w), for the costs (over the same pixels
+        as ``agg_all``'s, :func:`aggregate`) and, plain, for the counts.
     """
     agg_count = aggregate_count(count)
     least_rest = MIN_VIEWS_TO_LEAVE_ONE_OUT - 1.5
@@ -254,9 +255,15 @@ def zncc_cost(lum_w: np.ndarray, wts: np.ndarray, nview: np.ndarray, window_px: 
 
 def aggregate(c, nv, guide, window_px):
     """Aggregate one cost slice over ``window_px`` (box) or with ``guide`` (a guided filter),
-    inf where fewer than 1.5 views are valid or the cost is not finite."""
+    over the pixels that at least 1.5 views see: ``filter(c v) / filter(v)`` with v = 1 there and
+    0 elsewhere (a normalised convolution, so a window at the edge of what the views see is not
+    pulled towards an arbitrary value); inf where fewer than 1.5 views see the pixel or the cost
+    is not finite."""
     finite = (nv >= 1.5) & np.isfinite(c)
-    filled = np.where(finite, c, np.float32(1.0)).astype(np.float32)
-    agg = guide.filter(filled) if guide is not None else box_filter(filled, window_px)
+    filled = np.where(finite, c, np.float32(0.0)).astype(np.float32)
+    one = (lambda x: guide.filter(x)) if guide is not None else (lambda x: box_filter(x, window_px))
+    agg = one(filled)
+    if not finite.all():
+        agg /= np.maximum(one(finite.astype(np.float32)), np.float32(WEIGHT_FLOOR))
     agg[~finite] = np.inf
     return agg

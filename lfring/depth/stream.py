@@ -74,8 +74,9 @@ def sweep_strips(sources: np.ndarray, masks: np.ndarray, hs: np.ndarray, *, aggr
     pad = aggregate_px // 2
     weighted = np.ascontiguousarray(sources * masks, dtype=np.float32)
     masks = np.ascontiguousarray(masks, dtype=np.float32)
-    moving = leavable_views(hs)
-    identity = [k not in moving for k in range(v)]
+    identity = [bool(np.all(hs[:, k] == np.eye(3))) for k in range(v)]
+    moving = [k for k in range(v) if not identity[k]]
+    occlusion = occlusion and bool(leavable_views(hs))  # nothing to leave out of a pair
     shifts = translations(hs, (h, w))
     if shifts is not None:  # one engine per view, one slot per hypothesis, from padded copies
         engines = {k: ShiftEngine(shifts[:, k], (h, w)) for k in moving}
@@ -111,7 +112,7 @@ def sweep_strips(sources: np.ndarray, masks: np.ndarray, hs: np.ndarray, *, aggr
         q0, q1 = max(0, r0 - pad), min(h, r1 + pad)
         big = q1 - q0
         o0, m = r0 - q0, r1 - r0
-        s1, s2, cnt, a_buf, wt_buf, t, agg, ones, tmp, bad = (b[:big] for b in bufs[:10])
+        s1, s2, cnt, a_buf, wt_buf, t, agg, zeros, tmp, bad = (b[:big] for b in bufs[:10])
         per_view = [(b[0][:big], b[1][:big]) for b in bufs[10]]  # occlusion: every view's rendering
         static = [k for k in range(v) if identity[k]]
         base = None
@@ -153,25 +154,35 @@ def sweep_strips(sources: np.ndarray, masks: np.ndarray, hs: np.ndarray, *, aggr
                     cv2.add(cnt, wt, dst=cnt)
                 if occlusion:
                     rendered.append((a, wt))
-            # c = (S2 - S1^2 / C) / (C - 1); 1 where fewer than 1.5 views are valid.
+            # c = (S2 - S1^2 / C) / (C - 1), aggregated over the pixels 1.5 views or more see.
             cv2.multiply(s1, s1, dst=t)
             cv2.divide(t, cnt, dst=t)
             cv2.subtract(s2, t, dst=t)
             cv2.subtract(cnt, 1.0, dst=tmp[:, :w])
             cv2.divide(t, tmp[:, :w], dst=t)  # C - 1 >= 0.5 wherever the result is kept:
             cv2.compare(cnt, 1.5, cv2.CMP_LT, dst=bad)
-            cv2.copyTo(ones, bad, dst=t)
-            cv2.boxFilter(t, cv2.CV_32F, (aggregate_px, aggregate_px), dst=agg, borderType=cv2.BORDER_REFLECT_101)
+            box = lambda c, dst=None: cv2.boxFilter(c, cv2.CV_32F, (aggregate_px, aggregate_px), dst=dst,
+                                                    borderType=cv2.BORDER_REFLECT_101)
+            support = None  # as costs.aggregate: the window's mean over the pixels 1.5 views see
+            if cv2.countNonZero(bad):
+                cv2.copyTo(zeros, bad, dst=t)
+                support = box(cv2.bitwise_not(bad))  # 255 where seen
+                cv2.max(support, 255.0 * WEIGHT_FLOOR, dst=support)
+                cv2.multiply(support, 1.0 / 255.0, dst=support)
+            box(t, dst=agg)
+            if support is not None:
+                cv2.divide(agg, support, dst=agg)
             if occlusion:
                 one = bufs[11][:big]
 
                 def leave_out(a_k, w_k):
                     lcn_leave_one_out(s1, s2, cnt, a_k, w_k, out=one)
-                    cv2.copyTo(ones, bad, dst=one)
+                    if support is not None:
+                        cv2.copyTo(zeros, bad, dst=one)
                     return one, w_k
 
-                box = lambda c: cv2.boxFilter(c, cv2.CV_32F, (aggregate_px, aggregate_px), borderType=cv2.BORDER_REFLECT_101)
-                occlusion_aggregate(agg, cnt, (leave_out(a_k, w_k) for a_k, w_k in rendered), box, box)
+                seen_box = box if support is None else (lambda c: cv2.divide(box(c), support))
+                occlusion_aggregate(agg, cnt, (leave_out(a_k, w_k) for a_k, w_k in rendered), seen_box, box)
             cur = run.slot() if volume is None else volume[i, r0:r1]
             np.copyto(cur, agg[o0:o0 + m])
             cv2.copyTo(missing, bad[o0:o0 + m], dst=cur)
@@ -191,7 +202,7 @@ def sweep_strips(sources: np.ndarray, masks: np.ndarray, hs: np.ndarray, *, aggr
         if not hasattr(local, "bufs"):  # this thread's strip buffers
             big = min(h, rows + 2 * pad)
             local.bufs = [np.empty((big, w), np.float32) for _ in range(7)]
-            local.bufs += [np.ones((big, w), np.float32), np.empty((big, w + 1), np.float32), np.empty((big, w), np.uint8)]
+            local.bufs += [np.zeros((big, w), np.float32), np.empty((big, w + 1), np.float32), np.empty((big, w), np.uint8)]
             local.bufs.append([(np.empty((big, w), np.float32), np.empty((big, w), np.float32)) for _ in moving]
                               if occlusion else [])
             local.bufs.append(np.empty((big, w), np.float32) if occlusion else None)
