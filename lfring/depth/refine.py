@@ -2,16 +2,18 @@
 
 Two outputs, so that nothing guessed passes for measured:
 
-* ``refined``: a weighted median (``cv2.ximgproc.weightedMedianFilter``, Zhang et al. 2014) of the
-  confident pixels, weighted by their similarity to the centre in the guide image. It removes
-  isolated outliers and snaps depth edges to image edges; pixels that were not confident stay NaN.
+* ``refined``: a weighted median of the confident pixels over a small window, weighted by their
+  similarity to the centre in the guide image (as ``cv2.ximgproc.weightedMedianFilter``, Zhang et
+  al. 2014, with its exponential weight; :mod:`lfring.depth.refine_kernels`, a histogram per
+  pixel, several times faster). It removes isolated outliers and snaps depth edges to image
+  edges; pixels that were not confident stay NaN.
 * ``filled``: ``refined`` where known, elsewhere a confidence-weighted edge-aware interpolation by
   the fast global smoother (``cv2.ximgproc.createFastGlobalSmootherFilter``, Min et al. 2014) used
   as a normalised convolution: ``FGS(c * d) / FGS(c)``. Holes take the values of the surface
   they share an image region with.
 
-Both filters come from opencv-contrib's ximgproc; their guides are 8-bit, so the float guide
-(values in [0, 1]) is quantised to 256 levels.
+The fast global smoother comes from opencv-contrib's ximgproc. Both guides are 8-bit: the float
+guide (values in [0, 1]) is quantised to 256 levels.
 """
 
 from __future__ import annotations
@@ -35,6 +37,33 @@ FGS_LAMBDA = 200.0
 FGS_SIGMA = 8.0
 # Normalised convolution: below this smoothed weight a pixel has no support at all.
 _FILL_WEIGHT_FLOOR = 1e-6
+# The weighted median bins the values: at most this many coarse bins over their range (one per
+# unit, i.e. per hypothesis, when the range allows), each split into MEDIAN_FINE_BINS; the answer
+# is the weighted mean of the values in the median's fine bin.
+MEDIAN_COARSE_BINS = 256
+MEDIAN_FINE_BINS = 8
+
+
+def weighted_median(values: np.ndarray, known: np.ndarray, guide8: np.ndarray, radius_px: int, sigma: float) -> np.ndarray:
+    """(h, w) float32 weighted median of the ``known`` ``values`` over (2 radius + 1)^2 windows,
+    weighted by ``exp(-|I_p - I_q|^2 / (2 sigma^2))`` of the uint8 guide; NaN where not known."""
+    from lfring.depth.refine_kernels import weighted_median as kernel
+
+    out = np.empty(values.shape, np.float32)
+    v = np.ascontiguousarray(values, np.float32)
+    k = np.ascontiguousarray(known, np.bool_)
+    if not k.any():
+        out.fill(np.nan)
+        return out
+    lo, hi = float(v[k].min()), float(v[k].max())
+    coarse = int(min(MEDIAN_COARSE_BINS, math.ceil(hi - lo) + 1))
+    fine_width = max((hi - lo) / max(coarse - 1, 1), 1e-6) / MEDIAN_FINE_BINS
+    fine = coarse * MEDIAN_FINE_BINS
+    bins = np.clip(np.floor((np.where(k, v, lo) - lo) / fine_width), 0, fine - 1).astype(np.int32)
+    bins[~k] = -1
+    lut = np.exp(-np.arange(256, dtype=np.float64) ** 2 / (2.0 * max(float(sigma), 1e-6) ** 2))
+    kernel(v, bins, np.ascontiguousarray(guide8, np.uint8), int(radius_px), lut, MEDIAN_FINE_BINS, fine, out)
+    return out
 
 
 def _guide8(guide, shape) -> np.ndarray:
@@ -85,7 +114,9 @@ def refine_index(index, confidence, guide, *, min_confidence: float = MIN_CONFID
     Notes
     -----
     The weighted median minimises ``sum_q w(p, q) |d - d_q|`` over the known pixels q of the
-    window, with ``w = exp(-|I_p - I_q|^2 / (2 sigma^2))`` (``WMF_EXP``).
+    window, with ``w = exp(-|I_p - I_q|^2 / (2 sigma^2))`` (OpenCV's ``WMF_EXP``; a colour guide
+    is turned grey first), to the resolution of :data:`MEDIAN_FINE_BINS` bins per unit of the
+    values; within that bin the answer is the bin's weighted mean.
 
     Examples
     --------
@@ -115,10 +146,8 @@ def refine_index(index, confidence, guide, *, min_confidence: float = MIN_CONFID
         raise InvalidInputError(f"radius_px must be a positive integer, got {radius_px!r}")
     d = d.astype(np.float32)
     known = np.isfinite(d) & np.isfinite(c) & (c >= min_confidence)
-    src = np.where(known, d, 0).astype(np.float32)
-    refined = cv2.ximgproc.weightedMedianFilter(g8, src, int(radius_px), sigma=float(sigma),
-                                                weightType=int(cv2.ximgproc.WMF_EXP), mask=known.astype(np.uint8))
-    refined = np.where(known, refined, np.nan).astype(np.float32)
+    refined = weighted_median(np.where(known, d, 0), known, g8 if g8.ndim == 2 else cv2.cvtColor(g8, cv2.COLOR_RGB2GRAY),
+                              radius_px, sigma)
     if not known.any():
         return refined, refined.copy()
     weight = np.where(known, np.maximum(c, _FILL_WEIGHT_FLOOR), 0).astype(np.float32)
