@@ -42,8 +42,13 @@ def take_least(agg, candidate, penalty, agg_count, agg_w, use_w, least_rest):
     least_rest = np.float32(least_rest)
     one = np.float32(1.0)
     for y in range(h):
-        for x in range(w):
-            rest = agg_count[y, x] - (agg_w[y, x] if use_w else one)
-            c = penalty * candidate[y, x]
-            if rest > least_rest and c < agg[y, x]:
-                agg[y, x] = c
+        if use_w:
+            for x in range(w):
+                c = penalty * candidate[y, x]
+                a = agg[y, x]
+                agg[y, x] = c if (agg_count[y, x] - agg_w[y, x] > least_rest) & (c < a) else a  # selects vectorise
+        else:
+            for x in range(w):
+                c = penalty * candidate[y, x]
+                a = agg[y, x]
+                agg[y, x] = c if (agg_count[y, x] - one > least_rest) & (c < a) else a
