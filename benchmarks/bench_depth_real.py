@@ -88,7 +88,7 @@ def sgbm_method(views, cal, data):
 METHODS = [
     Method("lfring estimate_depth, defaults", "all", lfring_method()),
     Method("lfring estimate_depth, defaults", "pair", lfring_method()),
-    Method("lfring estimate_depth, cost='lcn'", "all", lfring_method(cost="lcn")),
+    Method("lfring estimate_depth, cost='lcn-occlusion'", "all", lfring_method(cost="lcn-occlusion")),
     Method("lfring estimate_depth, method='local'", "all", lfring_method(method="local")),
     Method("lfring estimate_depth, method='local'", "pair", lfring_method(method="local")),
     Method("OpenCV StereoSGBM (block 5)", "pair", sgbm_method),

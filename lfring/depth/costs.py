@@ -1,6 +1,6 @@
 """Photo-consistency costs of one depth hypothesis and their spatial aggregation.
 
-The default cost ('lcn') of a hypothesis at a pixel is the variance across the views of their
+The 'lcn' cost of a hypothesis at a pixel is the variance across the views of their
 locally normalised luminances, ``n = (L - mu) / sqrt(var + LCN_EPS mu^2 + LCN_FLOOR)`` with
 ``mu`` and ``var`` the masked local mean and variance of the luminance ``L`` over ``window_px``.
 The normalisation is done once per view, before the sweep (:func:`lcn_sources`), so a hypothesis
@@ -8,6 +8,13 @@ only has to shift the views and sum: with S1, S2 the sums over views of the (mas
 normalised values and their squares and C the sum of the views' weights,
 ``c = (S2 - S1^2 / C) / max(C - 1, 0.5)`` (:func:`lcn_cost`). Dividing by the local mean makes
 it blind to the views' different vignetting and exposure.
+
+'lcn-occlusion' is the same cost with one view left out where that is cheaper over the
+aggregation window (:func:`occlusion_aggregate`): next to a depth edge
+a view that sees the occluding surface no longer spoils the true depth's cost.
+
+Every cost is aggregated over the pixels that at least 1.5 views see (:func:`aggregate`, a
+normalised convolution); pixels seen by fewer are inf.
 
 The other costs (:func:`slice_cost`) compare warped luminances divided by their wide local mean
 (:func:`lfring.warp.normalised_luminance`).

@@ -37,11 +37,6 @@ __all__ = ["AGGREGATIONS", "COSTS", "METHODS", "DepthResult", "estimate_depth"]
 METHODS = ("sgm", "local")
 # The costs that compare the views' locally normalised luminances (lcn_sources), in strips.
 LCN_COSTS = ("lcn", "lcn-occlusion")
-# The cost each method uses unless told otherwise. The semi-global method leaves a view out where
-# it disagrees (twin hard scene, four views, every pixel two views see: bad 1 px 12.7 % against
-# 15.1 % with 'lcn'; stereo pairs are unchanged, there is no view to leave out); the local method
-# stays the fast option.
-DEFAULT_COST = {"sgm": "lcn-occlusion", "local": "lcn"}
 # The box over which the 'lcn' cost is aggregated before the semi-global optimisation (which does
 # the rest of the smoothing); 'local' aggregates over LCN_AGGREGATE_PX.
 SGM_AGGREGATE_PX = 5
@@ -72,7 +67,7 @@ def estimate_depth(
     reference="center",
     backend: str = "numpy",
     device=None,
-    cost: str | None = None,
+    cost: str = "lcn",
     aggregation: str = "box",
     window_px: int = 9,
     aggregate_px: int | None = None,
@@ -99,14 +94,16 @@ def estimate_depth(
         Frame of the depth map.
     backend : {'numpy', 'torch'}, device : str, optional
         The torch backend runs the same algorithm with kornia (GPU-ready).
-    cost : {'lcn', 'lcn-occlusion', 'zncc', 'sad', 'ssd', 'sad-occlusion'}, optional
-        Photo-consistency; by default 'lcn-occlusion' for ``method='sgm'`` and 'lcn' for
-        'local' (:data:`DEFAULT_COST`). 'lcn': the variance across views of their luminances
+    cost : {'lcn', 'lcn-occlusion', 'zncc', 'sad', 'ssd', 'sad-occlusion'}
+        Photo-consistency. 'lcn' (default): the variance across views of their luminances
         normalised by the local mean and contrast over ``window_px`` (normalised once per view,
-        before the sweep: the fastest; see :mod:`lfring.depth.costs`). 'lcn-occlusion': over
-        each aggregation window, the least of that cost and the costs without one view (a view
-        that sees an occluding surface, or the dark rim of its disc, is left out; from three
-        views on; :func:`lfring.depth.costs.occlusion_aggregate`). The others compare the warped
+        before the sweep: the fastest, and blind to each view's vignetting; see
+        :mod:`lfring.depth.costs`). 'lcn-occlusion': over each aggregation window, the least of
+        that cost and the costs without one view (a view that sees an occluding surface, or the
+        dark rim of its disc, is left out; from three views on;
+        :func:`lfring.depth.costs.occlusion_aggregate`): fewer gross errors next to depth edges
+        on the twin's hard scene, but more on the three-depth scene, a larger median error and
+        about 25 % more time (``benchmarks/RESULTS.md``). The others compare the warped
         luminances divided by their wide local mean: absolute or squared deviation from their
         mean, one minus their mean zero-normalised cross-correlation with the mean over
         ``window_px``, or the absolute deviation without the view deviating most per pixel.
@@ -177,7 +174,6 @@ def estimate_depth(
         raise InvalidInputError(f"backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
     if method not in METHODS:
         raise InvalidInputError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
-    cost = DEFAULT_COST[method] if cost is None else cost
     if cost not in COSTS:
         raise InvalidInputError(f"cost must be one of {', '.join(COSTS)}, got {cost!r}")
     if aggregation not in AGGREGATIONS:
