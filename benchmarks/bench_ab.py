@@ -1,12 +1,15 @@
-"""Two checkouts of lfring side by side: the refocus fast path, a one-shot refocus and the local
-depth sweep (the default before the semi-global one) timed in each, alternately, in fresh
-processes, so that a change of the machine's load falls on both alike.
+"""Two checkouts of lfring side by side: the refocus fast path, a one-shot refocus, the local
+depth sweep and (where the checkout has it) the semi-global default, timed in each, alternately,
+in fresh processes, so that a change of the machine's load falls on both alike; OpenCV's
+StereoSGBM on the twin's views 0 and 1 in the same processes, the peer for the time ratio.
 
     git worktree add /tmp/lfring-old 188722c          # the commit before the warping core
     python benchmarks/bench_ab.py /tmp/lfring-old .   # old, new, old, new, ... (3 rounds)
+    python benchmarks/bench_ab.py /tmp/lfring-old . --rounds 5
 
 Times are medians within each process (21 frames, 3 sweeps at 1060 x 1060 x 64 planes, 7 at the
-twin's 704 x 704 views); each round prints one line per checkout.
+twin's 704 x 704 views and on the twin's three-depth scene); each round prints one line per
+checkout, and the last lines the medians over the rounds.
 """
 
 from __future__ import annotations
@@ -56,18 +59,43 @@ def probe() -> None:
     cal2 = RingCalibration.from_optics(dev, layout=lay)
     out["depth_704_local_s"] = _median(
         lambda: lfring.estimate_depth(small, cal2, zmin_m=0.27, zmax_m=1.1, reference=0, **local), 7)
+    if local:  # the semi-global default exists
+        from _common import ZMAX, ZMIN, twin_scene
+        from bench_depth import sgbm_depth
+
+        out["depth_1060x64_default_s"] = _median(
+            lambda: lfring.estimate_depth(views, cal, zmin_m=0.3, zmax_m=1.0, num_planes=64), 3)
+        t = twin_scene()
+        out["depth_twin_default_s"] = _median(
+            lambda: lfring.estimate_depth(t.views, t.cal, zmin_m=ZMIN, zmax_m=ZMAX, reference=0), 7)
+        out["sgbm_twin_s"] = _median(lambda: sgbm_depth(t.views, t.cal, ZMIN, ZMAX), 7)
     print(json.dumps({k: round(v, 4) for k, v in out.items()}))
 
 
 def main() -> None:
-    trees = [str(Path(p).resolve()) for p in sys.argv[1:3]]
+    import argparse
+
+    import numpy as np
+
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("old")
+    parser.add_argument("new")
+    parser.add_argument("--rounds", type=int, default=3)
+    args = parser.parse_args()
+    trees = [str(Path(p).resolve()) for p in (args.old, args.new)]
     print(f"load {os.getloadavg()[0]:.2f}")
-    for _ in range(3):
+    results = {tree: [] for tree in trees}
+    for _ in range(args.rounds):
         for tree in trees:
             env = {**os.environ, "PYTHONPATH": tree}
             res = subprocess.run([sys.executable, __file__, "--probe"], env=env, capture_output=True, text=True, check=True)
             print(Path(tree).name, res.stdout.strip(), flush=True)
+            results[tree].append(json.loads(res.stdout.strip().splitlines()[-1]))
     print(f"load {os.getloadavg()[0]:.2f}")
+    for tree in trees:
+        keys = results[tree][0].keys()
+        print("median over rounds", Path(tree).name, json.dumps({k: round(float(np.median([r[k] for r in results[tree]])), 4)
+                                                                for k in keys}))
 
 
 if __name__ == "__main__":
