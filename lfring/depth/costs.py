@@ -13,8 +13,8 @@ it blind to the views' different vignetting and exposure.
 aggregation window (:func:`occlusion_aggregate`): next to a depth edge
 a view that sees the occluding surface no longer spoils the true depth's cost.
 
-Every cost is aggregated over the pixels that at least 1.5 views see (:func:`aggregate`, a
-normalised convolution); pixels seen by fewer are inf.
+Every cost is aggregated over the pixels that at least 1.5 views see (:func:`aggregate`,
+:func:`seen_mean`: a normalised convolution); pixels seen by fewer are inf.
 
 The other costs (:func:`slice_cost`) compare warped luminances divided by their wide local mean
 (:func:`lfring.warp.normalised_luminance`).
@@ -29,7 +29,7 @@ from lfring.warp import WEIGHT_FLOOR, box_filter, cached_view_masks, luminance, 
 
 __all__ = ["AGGREGATIONS", "COSTS", "GUIDED_EPS", "MIN_VIEWS_TO_LEAVE_ONE_OUT", "OCCLUSION_PENALTY",
            "LCN_AGGREGATE_PX", "LCN_EPS", "LCN_FLOOR", "STRIP_PIXELS", "aggregate", "lcn_cost", "lcn_leave_one_out",
-           "leavable_views", "lcn_sources", "occlusion_aggregate", "slice_cost", "window_weights"]
+           "leavable_views", "lcn_sources", "occlusion_aggregate", "seen_mean", "slice_cost", "window_weights"]
 
 COSTS = ("lcn", "lcn-occlusion", "zncc", "sad", "ssd", "sad-occlusion")
 # A view may be left out of a window where on average at least this many views see its pixels
@@ -260,17 +260,36 @@ def zncc_cost(lum_w: np.ndarray, wts: np.ndarray, nview: np.ndarray, window_px: 
     return acc
 
 
+def seen_mean(c: np.ndarray, seen: np.ndarray, window) -> np.ndarray:
+    """The mean of ``c`` over the ``seen`` pixels of each window: ``window(c s) / window(s)`` with
+    s = 1 where ``seen`` and 0 elsewhere (a normalised convolution, so a window at the edge of
+    what the views see is not pulled towards an arbitrary value); inf where not ``seen``.
+
+    Parameters
+    ----------
+    c : (h, w) float array
+    seen : (h, w) bool array
+    window : callable
+        A linear window filter (h, w) float32 -> (h, w) float32: a box, a guided filter.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from lfring.warp import box_filter
+    >>> c = np.array([[1.0, 1.0, 9.0]], np.float32)
+    >>> seen_mean(c, np.array([[True, True, False]]), lambda x: box_filter(x, 3)).tolist()
+    [[1.0, 1.0, inf]]
+    """
+    out = window(np.where(seen, c, np.float32(0.0)).astype(np.float32))
+    if not seen.all():
+        out /= np.maximum(window(seen.astype(np.float32)), np.float32(WEIGHT_FLOOR))
+        out[~seen] = np.inf
+    return out
+
+
 def aggregate(c, nv, guide, window_px):
     """Aggregate one cost slice over ``window_px`` (box) or with ``guide`` (a guided filter),
-    over the pixels that at least 1.5 views see: ``filter(c v) / filter(v)`` with v = 1 there and
-    0 elsewhere (a normalised convolution, so a window at the edge of what the views see is not
-    pulled towards an arbitrary value); inf where fewer than 1.5 views see the pixel or the cost
-    is not finite."""
-    finite = (nv >= 1.5) & np.isfinite(c)
-    filled = np.where(finite, c, np.float32(0.0)).astype(np.float32)
-    one = (lambda x: guide.filter(x)) if guide is not None else (lambda x: box_filter(x, window_px))
-    agg = one(filled)
-    if not finite.all():
-        agg /= np.maximum(one(finite.astype(np.float32)), np.float32(WEIGHT_FLOOR))
-    agg[~finite] = np.inf
-    return agg
+    over the pixels that at least 1.5 views see and whose cost is finite (:func:`seen_mean`);
+    inf at the others."""
+    window = (lambda x: guide.filter(x)) if guide is not None else (lambda x: box_filter(x, window_px))
+    return seen_mean(c, (nv >= 1.5) & np.isfinite(c), window)

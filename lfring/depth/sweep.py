@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from lfring.depth.costs import AGGREGATIONS, COSTS, GUIDED_EPS, LCN_AGGREGATE_PX, lcn_sources
+from lfring.depth.costs import AGGREGATIONS, COSTS, GUIDED_EPS, LCN_AGGREGATE_PX, lcn_sources, seen_mean
 from lfring.depth.refine import refine_index
 from lfring.depth.sgm import PATHS, select, sgm_aggregate
 from lfring.depth.hypotheses import depth_hypotheses, view_motion_px
@@ -379,14 +379,11 @@ def _sgm_index(views, calibration, plan, backend, device, cost, aggregation, win
         optimised = sgm_aggregate(volume, guide=guide, paths=paths, threads=threads)
     if report is not None:
         report.at(start + (end - start) * (SWEEP_SHARE + 1.0) / 2.0)
-    finite = np.isfinite(volume)
     # The sub-hypothesis parabola is fitted to the cost aggregated over the local method's wider
-    # box: the optimised curve is flat-bottomed in P1 steps and the small box's is noisy.
-    for slice_, ok in zip(volume, finite):
-        np.copyto(slice_, np.float32(1.0), where=~ok)
-        box_filter(slice_, SUBPIXEL_BOX_PX, dst=slice_)
-        np.copyto(slice_, np.float32(np.inf), where=~ok)
-    del finite
+    # box (over the seen pixels, as every aggregation): the optimised curve is flat-bottomed in P1
+    # steps and the small box's is noisy.
+    for slice_ in volume:
+        slice_[...] = seen_mean(slice_, np.isfinite(slice_), lambda x: box_filter(x, SUBPIXEL_BOX_PX))
     index, confidence = select(optimised, raw=volume, exclude=plan.exclude, threads=threads)
     # The optimised curve is distinct wherever the neighbours decided, textured or not; its
     # distinctness times the local curve's ranks errors better than either (sparsification AUC
