@@ -34,21 +34,13 @@ def leave_one_out(s1, s2, count, a_k, w_k, floor, out):
 
 
 @njit(**_JIT)
-def take_least(agg, candidate, penalty, agg_count, agg_w, use_w, least_rest):
-    """``agg = min(agg, penalty * candidate)`` where ``agg_count - agg_w > least_rest`` (without
-    ``use_w``: where ``agg_count - 1 > least_rest``), in place."""
+def take_least(agg, candidate, penalty, agg_count, agg_w, least_rest):
+    """``agg = min(agg, penalty * candidate)`` where ``agg_count - agg_w > least_rest``, in place."""
     h, w = agg.shape
     penalty = np.float32(penalty)
     least_rest = np.float32(least_rest)
-    one = np.float32(1.0)
     for y in range(h):
-        if use_w:
-            for x in range(w):
-                c = penalty * candidate[y, x]
-                a = agg[y, x]
-                agg[y, x] = c if (agg_count[y, x] - agg_w[y, x] > least_rest) & (c < a) else a  # selects vectorise
-        else:
-            for x in range(w):
-                c = penalty * candidate[y, x]
-                a = agg[y, x]
-                agg[y, x] = c if (agg_count[y, x] - one > least_rest) & (c < a) else a
+        for x in range(w):
+            c = penalty * candidate[y, x]
+            a = agg[y, x]
+            agg[y, x] = c if (agg_count[y, x] - agg_w[y, x] > least_rest) & (c < a) else a  # selects vectorise

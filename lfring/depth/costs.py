@@ -178,9 +178,10 @@ def occlusion_aggregate(agg_all: np.ndarray, count: np.ndarray, leave_outs, aggr
     # An aggregated mask lies in [0, 1]: only where the count is within 1 of the bound does the
     # left-out view's own share decide (the rims of the views' discs); elsewhere the count alone.
     rim = bool(np.any((agg_count > least_rest) & (agg_count <= least_rest + 1.0)))
+    whole = None if rim else np.ones_like(agg_count)  # the most a view's aggregated mask can be
     for c, w_k in leave_outs:
-        agg_w = aggregate_count(w_k) if rim else agg_count
-        _kernels().take_least(agg_all, aggregate_cost(c), OCCLUSION_PENALTY, agg_count, agg_w, rim, least_rest)
+        agg_w = aggregate_count(w_k) if rim else whole
+        _kernels().take_least(agg_all, aggregate_cost(c), OCCLUSION_PENALTY, agg_count, agg_w, least_rest)
     return agg_all
 
 

@@ -46,7 +46,8 @@ MEDIAN_FINE_BINS = 8
 
 def weighted_median(values: np.ndarray, known: np.ndarray, guide8: np.ndarray, radius_px: int, sigma: float) -> np.ndarray:
     """(h, w) float32 weighted median of the ``known`` ``values`` over (2 radius + 1)^2 windows,
-    weighted by ``exp(-|I_p - I_q|^2 / (2 sigma^2))`` of the uint8 guide; NaN where not known."""
+    weighted by ``exp(-|I_p - I_q|^2 / (2 sigma^2))`` of the uint8 guide; NaN where not known
+    (the values there are never read)."""
     from lfring.depth.refine_kernels import weighted_median as kernel
 
     out = np.empty(values.shape, np.float32)
@@ -146,8 +147,7 @@ def refine_index(index, confidence, guide, *, min_confidence: float = MIN_CONFID
         raise InvalidInputError(f"radius_px must be a positive integer, got {radius_px!r}")
     d = d.astype(np.float32)
     known = np.isfinite(d) & np.isfinite(c) & (c >= min_confidence)
-    refined = weighted_median(np.where(known, d, 0), known, g8 if g8.ndim == 2 else cv2.cvtColor(g8, cv2.COLOR_RGB2GRAY),
-                              radius_px, sigma)
+    refined = weighted_median(d, known, g8 if g8.ndim == 2 else cv2.cvtColor(g8, cv2.COLOR_RGB2GRAY), radius_px, sigma)
     if not known.any():
         return refined, refined.copy()
     weight = np.where(known, np.maximum(c, _FILL_WEIGHT_FLOOR), 0).astype(np.float32)
