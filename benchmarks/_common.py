@@ -38,11 +38,17 @@ def twin_scene(seed: int = 3, *, scene: str = "three_depth") -> SimpleNamespace:
     return SimpleNamespace(render=r, cal=cal, views=split_views(demosaic(frame), r.layout), gt=r.depth_m[0])
 
 
-def fill_invalid(disparity: np.ndarray) -> np.ndarray:
-    """Invalid (NaN) disparities replaced by the lower of the nearest valid values to their left
-    and right on the same row (the Middlebury SDK's filling, the background's side of an
-    occlusion); rows with no valid pixel stay NaN."""
+def fill_invalid(disparity: np.ndarray, *, far_is_lower: bool = True) -> np.ndarray:
+    """Invalid (NaN) disparities replaced by the farther of the nearest valid values to their
+    left and right on the same row (the Middlebury SDK's filling: an occlusion's hole belongs to
+    the background); rows with no valid pixel stay NaN.
+
+    The SDK takes the lower disparity, which is the farther one for a left view's disparity
+    x_left - x_right > 0. Where the disparity grows with depth instead (the twin's x0 - x1 is
+    negative and rises towards the far plane), ``far_is_lower=False`` takes the higher one.
+    """
     d = np.asarray(disparity, np.float32)
+    sign = np.float32(1.0 if far_is_lower else -1.0)
     out = d.copy()
     w = d.shape[1]
     cols = np.arange(w)
@@ -52,9 +58,9 @@ def fill_invalid(disparity: np.ndarray) -> np.ndarray:
             continue
         left = np.maximum.accumulate(np.where(ok, cols, -1))  # nearest valid at or left of x
         right = np.minimum.accumulate(np.where(ok, cols, w)[::-1])[::-1]
-        lv = np.where(left >= 0, d[y, np.clip(left, 0, w - 1)], np.inf)
-        rv = np.where(right < w, d[y, np.clip(right, 0, w - 1)], np.inf)
-        fill = np.minimum(lv, rv)
+        lv = np.where(left >= 0, sign * d[y, np.clip(left, 0, w - 1)], np.inf)
+        rv = np.where(right < w, sign * d[y, np.clip(right, 0, w - 1)], np.inf)
+        fill = sign * np.minimum(lv, rv)
         out[y, ~ok] = fill[~ok]
     return out
 

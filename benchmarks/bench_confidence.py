@@ -36,7 +36,7 @@ def main() -> None:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", LfringWarning)
                 res = estimate_depth(data.views, data.cal, zmin_m=data.zmin_m, zmax_m=data.zmax_m, reference=0, method=method)
-            disparity = fill_invalid(data.disparity(res.depth_m))
+            disparity = fill_invalid(data.disparity(res.depth_m), far_is_lower=data.far_is_lower)
             error = np.where(region, np.abs(disparity - data.gt_disparity), np.nan)
             confidence = np.where(np.isfinite(res.depth_m), res.confidence, 0.0)
             s = sparsification_auc(error, confidence)

@@ -16,9 +16,10 @@ ground truth), on every pixel that views 0 and 1 both see (the pair's fair share
 bench_depth.py's mask (textured pixels all four views see, away from depth
 edges).
 
-Every method's invalid pixels (NaN) are filled as the Middlebury SDK does (the lower of the
-nearest valid disparities to the left and right on the row) before scoring; "invalid" is the
-fraction filled. Times: median of RUNS calls after a warm-up, every method timed one after the
+Every method's invalid pixels (NaN) are filled as the Middlebury SDK does (the farther of the
+nearest valid disparities to the left and right on the row: the lower on Middlebury, the higher
+on the twin, whose disparity x0 - x1 is negative and rises with depth) before scoring; "invalid"
+is the fraction filled. Times: median of RUNS calls after a warm-up, every method timed one after the
 other; "/ SGBM" divides by SGBM's median on the same data. Peak memory: the rise of the
 process's peak resident set (VmHWM, reset through /proc/self/clear_refs after a warm-up call)
 over its resident set before the call, in a fresh process per method and dataset with glibc's
@@ -114,8 +115,11 @@ def make_data(name, views, cal, *, zmin_m=None, zmax_m=None, disparity_range_px=
     else:
         zs = sorted(z0 + b / (d - a) for d in disparity_range_px)
         zmin_m, zmax_m = zs
+    # The far side of a hole is the lower disparity where it falls with depth (b > 0: Middlebury's
+    # x_left - x_right), the higher where it rises (the twin's x0 - x1).
     return SimpleNamespace(name=name, views=views, cal=cal, zmin_m=float(zmin_m), zmax_m=float(zmax_m),
-                           disparity_range_px=disparity_range_px, disparity=disparity, regions={})
+                           disparity_range_px=disparity_range_px, disparity=disparity, far_is_lower=bool(b > 0),
+                           regions={})
 
 
 def middlebury(scene: str, root: Path = DATA):
@@ -187,7 +191,7 @@ def applicable(method, data) -> bool:
 def score(est, data, region):
     m = data.regions[region]
     invalid = ~np.isfinite(est[m])
-    filled = fill_invalid(est)[m]
+    filled = fill_invalid(est, far_is_lower=data.far_is_lower)[m]
     err = np.abs(filled - data.gt_disparity[m])
     err = np.where(np.isfinite(err), err, np.inf)
     row = {"pixels": int(m.sum()), "invalid": float(invalid.mean()), "bad0.3": float(np.mean(err > 0.3)),
