@@ -144,10 +144,11 @@ def calibration_cache(calibration, key, make):
     return per_cal[key]
 
 
-def cached_view_masks(calibration, view_shape, derived=None, make=None):
-    """:func:`view_masks` made once per calibration object and view shape (read-only), or with
-    ``derived`` (a hashable key) and ``make`` (a function of the masks), what ``make`` derives
-    from them, also made once (e.g. the masks repeated over channels, or their box sums).
+def cached_view_masks(calibration, view_shape, derived=None, make=None, *, taper: float = TAPER):
+    """:func:`view_masks` (with ``taper``) made once per calibration object, view shape and taper
+    (read-only), or with ``derived`` (a hashable key) and ``make`` (a function of the masks), what
+    ``make`` derives from them, also made once (e.g. the masks repeated over channels, or their
+    box sums).
 
     Examples
     --------
@@ -157,16 +158,17 @@ def cached_view_masks(calibration, view_shape, derived=None, make=None):
     True
     """
     shape = tuple(int(n) for n in view_shape)
+    taper = float(taper)
 
     def make_masks():
-        masks = view_masks(calibration, shape)
+        masks = view_masks(calibration, shape, taper=taper)
         masks.setflags(write=False)
         return masks
 
-    masks = calibration_cache(calibration, ("view_masks", shape), make_masks)
+    masks = calibration_cache(calibration, ("view_masks", shape, taper), make_masks)
     if derived is None:
         return masks
-    return calibration_cache(calibration, ("view_masks", shape, derived), lambda: make(masks))
+    return calibration_cache(calibration, ("view_masks", shape, taper, derived), lambda: make(masks))
 
 
 def inverse_weight(weight: np.ndarray) -> np.ndarray:

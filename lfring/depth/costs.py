@@ -27,10 +27,20 @@ import numpy as np
 
 from lfring.warp import WEIGHT_FLOOR, box_filter, cached_view_masks, luminance, run_threads
 
-__all__ = ["AGGREGATIONS", "COSTS", "GUIDED_EPS", "MIN_VIEWS_TO_LEAVE_ONE_OUT", "OCCLUSION_PENALTY",
+__all__ = ["AGGREGATIONS", "COSTS", "DEPTH_TAPER", "GUIDED_EPS", "MIN_VIEWS_TO_LEAVE_ONE_OUT", "OCCLUSION_PENALTY",
            "LCN_AGGREGATE_PX", "LCN_EPS", "LCN_FLOOR", "STRIP_PIXELS", "aggregate", "lcn_cost", "lcn_leave_one_out",
-           "leavable_views", "lcn_sources", "occlusion_aggregate", "seen_mean", "slice_cost", "window_weights"]
+           "leavable_views", "lcn_sources", "occlusion_aggregate", "seen_mean", "slice_cost", "sweep_masks",
+           "window_weights"]
 
+# Fraction of a view's disc radius over which its weight rises from 0 to 1 in the sweep
+# (lfring.warp.view_masks). The refocusing taper (lfring.warp.TAPER, 15 %) hides seams in an image;
+# in the sweep it counted a view that sees a pixel as a fraction of a view over the outer 15 % of
+# its disc, so pixels two views see came out unseen (min_views) and their costs were weighted
+# down. Twin, every pixel two views see, bad 1 px, taper 15 / 5 / 2 %: hard scene 13.1 / 10.9 /
+# 11.0 % (4 views) and 15.0 / 11.5 / 10.7 % (views 0 and 1); three-depth 8.0 / 6.3 / 5.7 % and
+# 7.3 / 5.2 / 4.7 %. At 3 % and below the darkest, noisiest rim pixels of the inspection sample
+# (data/synthetic/part_good.png) made a confident false dent at the bottom of the frame.
+DEPTH_TAPER = 0.05
 COSTS = ("lcn", "lcn-occlusion", "zncc", "sad", "ssd", "sad-occlusion")
 # A view may be left out of a window where on average at least this many views see its pixels
 # (with two, neither can be told to be the occluded one). Judged over the window, not per pixel: a
@@ -57,10 +67,16 @@ LCN_FLOOR = 1e-6
 STRIP_PIXELS = 1 << 17
 
 
+def sweep_masks(calibration, view_shape) -> np.ndarray:
+    """(V, h, w) float32 weight of every view pixel in the sweep: :func:`lfring.warp.view_masks`
+    with the :data:`DEPTH_TAPER`, made once per calibration and view shape (read-only)."""
+    return cached_view_masks(calibration, view_shape, taper=DEPTH_TAPER)
+
+
 def lcn_sources(views: np.ndarray, calibration, window_px: int, *, threads: int = 1) -> np.ndarray:
     """(V, h, w) float32 locally normalised luminance of every view, to be multiplied by the
     mask before warping; views are shared among ``threads`` threads."""
-    masks = cached_view_masks(calibration, views.shape[1:3])
+    masks = sweep_masks(calibration, views.shape[1:3])
     lum = luminance(views)
     out = np.empty(lum.shape, np.float32)
 
@@ -100,7 +116,7 @@ def window_weights(calibration, view_shape, window_px: int) -> np.ndarray:
     ``window_px``: made once per calibration, view shape and window."""
     return cached_view_masks(
         calibration, view_shape, ("window_weights", int(window_px)),
-        lambda masks: np.stack([1.0 / np.maximum(box_filter(m, window_px), WEIGHT_FLOOR) for m in masks]).astype(np.float32),
+        taper=DEPTH_TAPER, make=lambda masks: np.stack([1.0 / np.maximum(box_filter(m, window_px), WEIGHT_FLOOR) for m in masks]).astype(np.float32),
     )
 
 

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from lfring.depth.costs import AGGREGATIONS, COSTS, GUIDED_EPS, LCN_AGGREGATE_PX, lcn_sources, seen_mean
+from lfring.depth.costs import AGGREGATIONS, COSTS, GUIDED_EPS, LCN_AGGREGATE_PX, lcn_sources, seen_mean, sweep_masks
 from lfring.depth.refine import refine_index
 from lfring.depth.sgm import PATHS, select, sgm_aggregate
 from lfring.depth.hypotheses import depth_hypotheses, view_motion_px
@@ -30,7 +30,7 @@ from lfring.depth.selection import DepthResult, Finisher
 from lfring.depth.stream import sweep_slices, sweep_strips
 from lfring.errors import InvalidInputError, LfringWarning
 from lfring.geometry import check_reference
-from lfring.warp import WEIGHT_FLOOR, box_filter, cached_view_masks, check_views, luminance, normalised_luminance, warp_image
+from lfring.warp import WEIGHT_FLOOR, box_filter, check_views, luminance, normalised_luminance, warp_image
 
 __all__ = ["AGGREGATIONS", "COSTS", "METHODS", "DepthResult", "estimate_depth"]
 
@@ -237,7 +237,7 @@ def _plan(views, calibration, zmin_m, zmax_m, num_planes, reference) -> _Plan:
     step = view_motion_px(calibration, depths, shape)
     # The second minimum is looked for more than one pixel of motion away from the best.
     exclude = max(1, int(np.ceil(1.0 / max(step, 1e-6))))
-    return _Plan(depths, hs, cached_view_masks(calibration, shape), ref, step, exclude)
+    return _Plan(depths, hs, sweep_masks(calibration, shape), ref, step, exclude)
 
 
 # The share of the semi-global method's time that the sweep into the volume takes (for progress).
