@@ -36,11 +36,10 @@ import cv2
 import numpy as np
 
 from lfring.errors import InvalidInputError, LfringWarning
-from lfring.depth.costs import sweep_masks
 from lfring.depth.hypotheses import depth_hypotheses, view_motion_px
 from lfring.geometry import check_reference
 from lfring.records import record_repr
-from lfring.warp import WEIGHT_FLOOR, check_views, normalised_luminance, warp_views
+from lfring.warp import TAPER, WEIGHT_FLOOR, cached_view_masks, check_views, normalised_luminance, warp_views
 
 __all__ = [
     "DARK_LEVEL", "MIN_COVERAGE", "MIN_PART_FRACTION", "MIN_TEXTURED_FRACTION", "VERDICTS", "Defect", "InspectionResult",
@@ -322,7 +321,7 @@ def _consistency(views, calibration, depth_m: float, *, reference="center", wind
     """:func:`photo_consistency`, the local contrast ((h, w) float32) and the number of views
     that see each pixel at ``depth_m`` ((h, w) int)."""
     arr = np.asarray(views)
-    masks = sweep_masks(calibration, arr.shape[1:3])  # the views that see a pixel, as the depth sweep counts them
+    masks = cached_view_masks(calibration, arr.shape[1:3], taper=SWEEP_RIM_TAPER)  # as the sweep counts views
     lum = normalised_luminance(arr, masks, sigma=max(8.0, min(arr.shape[1:3]) / 40.0))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", LfringWarning)
@@ -359,6 +358,10 @@ SWEEP_AGGREGATION = "box"
 # fastest; its confidence says where a pixel's own cost curve is distinct.
 SWEEP_METHOD = "local"
 SWEEP_MIN_VIEWS = 2
+# Each view's weight rises over the outer 15 % of its disc (the refocusing taper), not the depth
+# default's 5 %: with 5 %, the dark, noisy periphery of the frame gave 6 confident false defects on
+# the 12 good parts (0 with 15 %), for 3 points more of the true plate checked.
+SWEEP_RIM_TAPER = TAPER
 #: Smallest sweep confidence of a pixel that only two views see for it to be checked (pixels
 #: that three views or more see need ``min_confidence``).
 MIN_CONFIDENCE_TWO_VIEWS = 0.9
@@ -480,7 +483,7 @@ def _measure(chk: _Checked, calibration, zmin_m: float, zmax_m: float, num_plane
         warnings.simplefilter("ignore", LfringWarning)
         depth = estimate_depth(arr, calibration, zmin_m=zmin_m, zmax_m=zmax_m, num_planes=num_planes, reference=ref,
                                method=SWEEP_METHOD, backend=backend, cost=SWEEP_COST, aggregation=SWEEP_AGGREGATION,
-                               min_views=SWEEP_MIN_VIEWS)
+                               min_views=SWEEP_MIN_VIEWS, rim_taper=SWEEP_RIM_TAPER)
         refocused = Refocuser(calibration, chk.plane_m, reference=ref, view_shape=arr.shape[1:3])(arr)
     consistency, contrast, num_views = _consistency(arr, calibration, chk.plane_m, reference=ref)
     return depth, refocused, consistency, contrast, num_views

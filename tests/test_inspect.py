@@ -298,10 +298,10 @@ def test_unrelated_photo_cannot_be_judged():
 
 def test_min_coverage_decides_between_pass_and_cannot_judge(parts):
     r, cal, views, truth, res = parts["good"]
-    strict = inspect_frame(views, cal, plane_m=PLANE, tolerance_m=TOL, min_coverage=0.999)
+    strict = inspect_frame(views, cal, plane_m=PLANE, tolerance_m=TOL, min_coverage=0.99)
     assert strict.verdict == "cannot_judge" and strict.reason.startswith("too few confident pixels")
     assert f"checked {res.coverage:.1%} of the part" in strict.reason and strict.coverage == pytest.approx(res.coverage)
-    assert strict.settings["min_coverage"] == 0.999 and res.settings["min_coverage"] == 0.8
+    assert strict.settings["min_coverage"] == 0.99 and res.settings["min_coverage"] == 0.8
     # A part inside an ROI that only the four views see is checked almost entirely.
     inner = inspect_frame(views, cal, plane_m=PLANE, tolerance_m=TOL, roi=(200, 200, 300, 300), min_coverage=0.95)
     assert inner.verdict == "pass" and inner.coverage > 0.95

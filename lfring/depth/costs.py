@@ -67,20 +67,22 @@ LCN_FLOOR = 1e-6
 STRIP_PIXELS = 1 << 17
 
 
-def sweep_masks(calibration, view_shape) -> np.ndarray:
+def sweep_masks(calibration, view_shape, taper: float = DEPTH_TAPER) -> np.ndarray:
     """(V, h, w) float32 weight of every view pixel in the sweep: :func:`lfring.warp.view_masks`
-    with the :data:`DEPTH_TAPER`, made once per calibration and view shape (read-only)."""
-    return cached_view_masks(calibration, view_shape, taper=DEPTH_TAPER)
+    with the rim ``taper`` (by default :data:`DEPTH_TAPER`), made once per calibration, view
+    shape and taper (read-only)."""
+    return cached_view_masks(calibration, view_shape, taper=taper)
 
 
-def lcn_sources(views: np.ndarray, calibration, window_px: int, *, threads: int = 1) -> np.ndarray:
-    """(V, h, w) float32 locally normalised luminance of every view, to be multiplied by the
-    mask before warping; views are shared among ``threads`` threads."""
-    masks = sweep_masks(calibration, views.shape[1:3])
+def lcn_sources(views: np.ndarray, calibration, window_px: int, *, threads: int = 1, taper: float = DEPTH_TAPER) -> np.ndarray:
+    """(V, h, w) float32 locally normalised luminance of every view (masked by
+    :func:`sweep_masks` with ``taper``), to be multiplied by the mask before warping; views are
+    shared among ``threads`` threads."""
+    masks = sweep_masks(calibration, views.shape[1:3], taper)
     lum = luminance(views)
     out = np.empty(lum.shape, np.float32)
 
-    weights = window_weights(calibration, views.shape[1:3], window_px)
+    weights = window_weights(calibration, views.shape[1:3], window_px, taper)
     v, h, w = lum.shape
     pad = window_px // 2
     rows = max(8, STRIP_PIXELS // (2 * max(w, 1)))  # row strips of every view, in the cache
@@ -111,12 +113,12 @@ def lcn_sources(views: np.ndarray, calibration, window_px: int, *, threads: int 
     return out
 
 
-def window_weights(calibration, view_shape, window_px: int) -> np.ndarray:
-    """(V, h, w) float32 ``1 / max(box(mask), WEIGHT_FLOOR)`` of every view's mask over
-    ``window_px``: made once per calibration, view shape and window."""
+def window_weights(calibration, view_shape, window_px: int, taper: float = DEPTH_TAPER) -> np.ndarray:
+    """(V, h, w) float32 ``1 / max(box(mask), WEIGHT_FLOOR)`` of every view's
+    :func:`sweep_masks` over ``window_px``: made once per calibration, view shape, window and taper."""
     return cached_view_masks(
         calibration, view_shape, ("window_weights", int(window_px)),
-        taper=DEPTH_TAPER, make=lambda masks: np.stack([1.0 / np.maximum(box_filter(m, window_px), WEIGHT_FLOOR) for m in masks]).astype(np.float32),
+        taper=taper, make=lambda masks: np.stack([1.0 / np.maximum(box_filter(m, window_px), WEIGHT_FLOOR) for m in masks]).astype(np.float32),
     )
 
 

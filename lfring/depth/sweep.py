@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from lfring.depth.costs import AGGREGATIONS, COSTS, GUIDED_EPS, LCN_AGGREGATE_PX, lcn_sources, seen_mean, sweep_masks
+from lfring.depth.costs import AGGREGATIONS, COSTS, DEPTH_TAPER, GUIDED_EPS, LCN_AGGREGATE_PX, lcn_sources, seen_mean, sweep_masks
 from lfring.depth.refine import refine_index
 from lfring.depth.sgm import PATHS, select, sgm_aggregate
 from lfring.depth.hypotheses import depth_hypotheses, view_motion_px
@@ -72,6 +72,7 @@ def estimate_depth(
     window_px: int = 9,
     aggregate_px: int | None = None,
     min_views: int = 2,
+    rim_taper: float = DEPTH_TAPER,
     threads: int | None = None,
     method: str = "sgm",
     paths: int = 4,
@@ -118,6 +119,12 @@ def estimate_depth(
         ``window_px`` for the other costs.
     min_views : int
         Pixels seen by fewer views get NaN.
+    rim_taper : float
+        Fraction of each view's disc radius, in [0, 1], over which its weight rises from 0 to 1
+        (:func:`lfring.warp.view_masks`); a view counts as the sum of its weights towards
+        ``min_views``. The default (5 %, ``lfring.depth.costs.DEPTH_TAPER``) measures every pixel
+        that two views see; the refocusing taper (``lfring.warp.TAPER``, 15 %) trusts the dark
+        periphery of the discs less, as inspection does.
     threads : int, optional
         Threads of the sweep and of the optimisation; by default OpenCV's thread count.
     method : {'sgm', 'local'}
@@ -185,11 +192,14 @@ def estimate_depth(
         _odd_positive("aggregate_px", aggregate_px)
     _optional_count("threads", threads, 1, "")
     _optional_count("num_planes", num_planes, 2, " (or None for the default spacing)")
+    if isinstance(rim_taper, bool) or not isinstance(rim_taper, (int, float, np.integer, np.floating)) \
+            or not 0.0 <= float(rim_taper) <= 1.0:
+        raise InvalidInputError(f"rim_taper must be a fraction of the disc radius in [0, 1], got {rim_taper!r}")
     arr = check_views(views)
     calibration.check_fits(arr.shape)
     if not np.all(np.isfinite(arr)):
         raise InvalidInputError("views contain NaN or infinite values")
-    plan = _plan(arr, calibration, zmin_m, zmax_m, num_planes, reference)
+    plan = _plan(arr, calibration, zmin_m, zmax_m, num_planes, reference, float(rim_taper))
     if aggregate_px is None:
         aggregate_px = (SGM_AGGREGATE_PX if method == "sgm" else LCN_AGGREGATE_PX) if cost in LCN_COSTS else window_px
     threads = max(1, cv2.getNumThreads()) if threads is None else int(threads)
@@ -204,7 +214,7 @@ def estimate_depth(
         report.done()
         return fin.result(depth_filled_m=filled, **record)
     if cost in LCN_COSTS and aggregation == "box" and backend == "numpy":
-        sweep_strips(lcn_sources(arr, calibration, window_px, threads=threads), plan.masks, plan.hs,
+        sweep_strips(lcn_sources(arr, calibration, window_px, threads=threads, taper=plan.taper), plan.masks, plan.hs,
                      aggregate_px=aggregate_px, exclude=plan.exclude, threads=threads, on_strip=fin,
                      occlusion=cost == "lcn-occlusion", on_rows=report.rows(0.0, 1.0))
     else:
@@ -224,9 +234,10 @@ class _Plan:
     reference: object
     step_px: float  # largest view motion between neighbouring hypotheses
     exclude: int  # the second minimum is looked for more than this many hypotheses away
+    taper: float  # rim taper of the masks (sweep_masks)
 
 
-def _plan(views, calibration, zmin_m, zmax_m, num_planes, reference) -> _Plan:
+def _plan(views, calibration, zmin_m, zmax_m, num_planes, reference, taper) -> _Plan:
     ref = check_reference(reference, calibration.num_views)
     depths = depth_hypotheses(calibration, zmin_m, zmax_m, num=num_planes)
     calibration.check_depth(np.array([zmin_m, zmax_m]))  # warns once if outside the calibrated range
@@ -237,7 +248,7 @@ def _plan(views, calibration, zmin_m, zmax_m, num_planes, reference) -> _Plan:
     step = view_motion_px(calibration, depths, shape)
     # The second minimum is looked for more than one pixel of motion away from the best.
     exclude = max(1, int(np.ceil(1.0 / max(step, 1e-6))))
-    return _Plan(depths, hs, sweep_masks(calibration, shape), ref, step, exclude)
+    return _Plan(depths, hs, sweep_masks(calibration, shape, taper), ref, step, exclude, taper)
 
 
 # The share of the semi-global method's time that the sweep into the volume takes (for progress).
@@ -364,7 +375,7 @@ def _sgm_index(views, calibration, plan, backend, device, cost, aggregation, win
     swept = start + (end - start) * SWEEP_SHARE
     on_rows = None if report is None else report.rows(start, swept)
     if cost in LCN_COSTS and aggregation == "box" and backend == "numpy":
-        nviews = sweep_strips(lcn_sources(views, calibration, window_px, threads=threads), plan.masks, plan.hs,
+        nviews = sweep_strips(lcn_sources(views, calibration, window_px, threads=threads, taper=plan.taper), plan.masks, plan.hs,
                               aggregate_px=aggregate_px, threads=threads, volume=volume, occlusion=cost == "lcn-occlusion",
                               on_rows=on_rows)
     else:
@@ -407,7 +418,7 @@ def _sweep_whole(views, calibration, plan, backend, device, cost, aggregation, w
         g = _in_reference_frame(lum, plan)
         guide_image = np.clip(g / max(float(g.max()), 1e-6), 0, 1).astype(np.float32)
     if cost in LCN_COSTS:  # the sweep compares the locally normalised luminances instead
-        lum = lcn_sources(views, calibration, window_px, threads=threads)
+        lum = lcn_sources(views, calibration, window_px, threads=threads, taper=plan.taper)
     if backend == "torch":
         from lfring.backends.torch_depth import sweep_torch
 

@@ -276,7 +276,10 @@ def test_pair_consistency_makes_occluded_pixels_unknown():
     assert np.mean(err < 0.5) >= 0.95
 
 
-@pytest.mark.parametrize("bad, match", [(dict(method="global"), "method"), (dict(paths=6), "paths")])
+@pytest.mark.parametrize("bad, match", [(dict(method="global"), "method"), (dict(paths=6), "paths"),
+                                        (dict(rim_taper=-0.1), "rim_taper"), (dict(rim_taper=1.5), "rim_taper"),
+                                        (dict(rim_taper=float("nan")), "rim_taper"), (dict(rim_taper="5 %"), "rim_taper"),
+                                        (dict(rim_taper=True), "rim_taper")])
 def test_bad_method_options_are_refused(twin, bad, match):
     r, cal, views, gt, usable, res = twin
     with pytest.raises(InvalidInputError, match=match):
@@ -359,6 +362,8 @@ def test_a_pair_measures_every_pixel_both_views_see_up_to_their_rims(hard_twin):
     used to count such a pixel as fewer than two views and leave it unknown), and the depth is
     no worse there (measured: 4.3 % unknown and 10.7 % of the known off by more than 1 px of
     disparity; with the refocusing taper 15.5 % and 11.5 %)."""
+    from lfring.warp import TAPER
+
     r, cal = hard_twin
     pair = cal.select_views([0, 1])
     gt = r.depth_m[0]
@@ -378,3 +383,6 @@ def test_a_pair_measures_every_pixel_both_views_see_up_to_their_rims(hard_twin):
     assert seen.sum() > 0.3 * h * w
     assert np.mean(~known) <= 0.06, np.mean(~known)
     assert np.mean(~(err[known] <= 1.0)) <= 0.115, np.mean(~(err[known] <= 1.0))
+    # Inspection's choice, the refocusing taper, counts the periphery's views as less than two.
+    cautious = estimate_depth(r.views[:2], pair, zmin_m=0.27, zmax_m=1.1, reference=0, consistency=False, rim_taper=TAPER)
+    assert np.mean(np.isnan(cautious.depth_m[seen])) >= 0.12
