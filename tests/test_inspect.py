@@ -74,6 +74,18 @@ def parts(prototype):
     return out
 
 
+def test_edge_of_two_views_coverage_makes_no_false_defect(prototype):
+    """A good part (seed 100 of benchmarks/bench_inspect.py) whose belt, 10 cm behind the plane,
+    meets the edge of what two views see near the bottom of the frame: there the sweep's window
+    averaged its few seen pixels into a confident false 55 mm dent, until only pixels whose whole
+    window two views see are checked."""
+    cal = default_calibration((2456, 1842))[0]
+    r = render(prototype, part_scene(defect_heights_m=(), depth_m=PLANE, seed=100), binning=2, noise="realistic", seed=100)
+    frame = RawFrame(mosaic=r.raw, pattern="RGGB", black_level=r.black_level, white_level=r.white_level, bit_depth=12)
+    res = inspect_frame(split_views(demosaic(frame), cal.layout), cal, plane_m=PLANE, tolerance_m=TOL, device=r.device)
+    assert res.verdict == "pass" and res.defects == () and res.coverage > 0.95
+
+
 def test_good_part_passes(parts):
     r, cal, views, truth, res = parts["good"]
     assert truth == []
