@@ -36,11 +36,11 @@ import cv2
 import numpy as np
 
 from lfring.errors import InvalidInputError, LfringWarning
-from lfring.depth.costs import LCN_AGGREGATE_PX
+from lfring.depth.costs import LCN_AGGREGATE_PX, sweep_masks
 from lfring.depth.hypotheses import depth_hypotheses, view_motion_px
 from lfring.geometry import check_reference
 from lfring.records import record_repr
-from lfring.warp import TAPER, WEIGHT_FLOOR, cached_view_masks, check_views, normalised_luminance, warp_views
+from lfring.warp import TAPER, WEIGHT_FLOOR, check_views, normalised_luminance, warp_views
 
 __all__ = [
     "DARK_LEVEL", "MIN_COVERAGE", "MIN_PART_FRACTION", "MIN_TEXTURED_FRACTION", "VERDICTS", "Defect", "InspectionResult",
@@ -322,7 +322,7 @@ def _consistency(views, calibration, depth_m: float, *, reference="center", wind
     """:func:`photo_consistency`, the local contrast ((h, w) float32) and the number of views
     that see each pixel at ``depth_m`` ((h, w) int)."""
     arr = np.asarray(views)
-    masks = cached_view_masks(calibration, arr.shape[1:3], taper=SWEEP_RIM_TAPER)  # as the sweep counts views
+    masks = sweep_masks(calibration, arr.shape[1:3], SWEEP_RIM_TAPER)  # the views that see a pixel, as the sweep counts them
     lum = normalised_luminance(arr, masks, sigma=max(8.0, min(arr.shape[1:3]) / 40.0))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", LfringWarning)
