@@ -10,8 +10,8 @@ from __future__ import annotations
 import numpy as np
 
 from lfring.backends import require_torch, resolve_device
-from lfring.depth.costs import (AGGREGATIONS, COSTS, GUIDED_EPS, MIN_VIEWS_TO_LEAVE_ONE_OUT,
-                                OCCLUSION_PENALTY, leavable_views)
+from lfring.depth.costs import (AGGREGATIONS, COSTS, GUIDED_EPS, HALVES_MIN_SUPPORT, MIN_VIEWS_TO_LEAVE_ONE_OUT,
+                                OCCLUSION_PENALTY, leavable_views, view_halves)
 from lfring.errors import InvalidInputError
 from lfring.warp import WEIGHT_FLOOR
 
@@ -101,7 +101,7 @@ def _slice_cost(torch, lum_w, wts, cost: str, box):
             c = (dev.sum(dim=1) - torch.where(more, dev.amax(dim=1), 0.0)) / (nvalid - more.to(nvalid.dtype)).clamp_min(1)
         else:
             c = dev.sum(dim=1) / nvalid.clamp_min(1)
-    elif cost in ("lcn", "lcn-occlusion"):  # lum_w: the warped locally normalised luminances times their masks
+    elif cost in ("lcn", "lcn-halves", "lcn-occlusion"):  # lum_w: the warped locally normalised luminances times their masks
         c = _lcn(lum_w.sum(dim=1), (lum_w * lum_w).sum(dim=1), nview)
     elif cost == "ssd":
         c = ((vals - mean[:, None]) ** 2 * valid).sum(dim=1) / nvalid.clamp_min(1)
@@ -210,7 +210,7 @@ def _chunk_size(n: int, v: int, h: int, w: int) -> int:
 
 
 def sweep_torch(lum, masks, hs, *, cost, aggregation, window_px, guide, exclude=1, device=None, aggregate_px=None,
-                volume=None):
+                volume=None, halves=None):
     """Same contract as :func:`lfring.depth.stream.sweep_slices`, with kornia.
 
     Parameters
@@ -221,7 +221,7 @@ def sweep_torch(lum, masks, hs, *, cost, aggregation, window_px, guide, exclude=
         Valid weight of every view pixel.
     hs : (N, V, 3, 3) float64
         H_ref_from_view for every hypothesis and view.
-    cost : {'lcn', 'lcn-occlusion', 'zncc', 'sad', 'ssd', 'sad-occlusion'}
+    cost : {'lcn', 'lcn-halves', 'lcn-occlusion', 'zncc', 'sad', 'ssd', 'sad-occlusion'}
         For 'lcn', ``lum`` holds the locally normalised luminances (:func:`lfring.depth.costs.lcn_sources`).
     aggregation : {'box', 'guided'}
     window_px : int
@@ -236,6 +236,9 @@ def sweep_torch(lum, masks, hs, *, cost, aggregation, window_px, guide, exclude=
     volume : (N, h, w) float32 ndarray, optional
         Filled with every aggregated slice instead of keeping a running minimum; then only
         ``nviews`` is returned (as :func:`lfring.depth.stream.sweep_slices`).
+    halves : (N, h, w) float32 ndarray, optional
+        With ``volume``: every hypothesis's least cost of a half of the views, as
+        :func:`lfring.depth.stream.sweep_slices` fills it.
 
     Returns
     -------
@@ -269,6 +272,9 @@ def sweep_torch(lum, masks, hs, *, cost, aggregation, window_px, guide, exclude=
     run = _RunningMinimum(torch, (h, w), exclude, dev)
     nviews = full(0.0)
     leavable = leavable_views(hs) if cost == "lcn-occlusion" else []
+    halves_of = view_halves(hs, (h, w)) if halves is not None else []
+    if halves is not None and not halves_of:
+        halves.fill(np.inf)
     chunk = _chunk_size(n, v, h, w)
     with torch.no_grad():
         for i0 in range(0, n, chunk):
@@ -288,6 +294,18 @@ def sweep_torch(lum, masks, hs, *, cost, aggregation, window_px, guide, exclude=
                 allowed = agg_count - plain(warped[:, k, 1]) > MIN_VIEWS_TO_LEAVE_ONE_OUT - 1.5
                 one = aggregate(_leave_one_out(torch, warped[:, :, 0], warped[:, :, 1], nv, k))
                 agg = torch.where(allowed, torch.minimum(agg, OCCLUSION_PENALTY * one), agg)
+            if halves_of:  # as lfring.depth.costs.half_aggregate
+                least = torch.full_like(agg, float("inf"))
+                for half in halves_of:
+                    a_h, w_h = warped[:, list(half), 0], warped[:, list(half), 1]
+                    count = w_h.sum(dim=1)
+                    own = (nv >= 1.5) & (count >= 1.5)
+                    support = plain(own.to(cst.dtype))
+                    ok = own & (support >= HALVES_MIN_SUPPORT)
+                    cand = plain(torch.where(own, _lcn(a_h.sum(dim=1), (a_h * a_h).sum(dim=1), count), 0.0))
+                    cand = OCCLUSION_PENALTY * cand / torch.where(ok, support, 1.0)
+                    least = torch.where(ok & (cand < least), cand, least)
+                halves[i0:i1] = least.cpu().numpy()
             del warped
             agg = torch.where(finite, agg, float("inf"))
             if volume is None:

@@ -24,9 +24,11 @@ log = logging.getLogger("lfring.cli.depth")
 @click.option("--planes", type=int, default=None, metavar="N",
               help="Number of depth hypotheses (default: at most 1 px of view motion apart).")
 @click.option("--reference", default="center", show_default=True, metavar="center|INDEX", help="Frame of the depth map.")
-@click.option("--cost", type=click.Choice(list(COSTS)), default="lcn", show_default=True,
-              help="Photo-consistency cost (lcn: locally normalised luminances, the fastest; lcn-occlusion: the same, "
-                   "leaving out a view hidden behind an occluder where that is cheaper).")
+@click.option("--cost", type=click.Choice(list(COSTS)), default=None,
+              help="Photo-consistency cost (default: lcn-halves for --method sgm, lcn for local). lcn: locally "
+                   "normalised luminances, the fastest; lcn-halves (sgm only): the same, and where no depth suits "
+                   "all views, the views on one side of the reference if they agree (next to depth edges); "
+                   "lcn-occlusion: the same, leaving out a view hidden behind an occluder where that is cheaper.")
 @click.option("--aggregation", type=click.Choice(["box", "guided"]), default="box", show_default=True,
               help="Spatial aggregation of the cost (guided: edge-aware, about 3x slower, more accurate on the twin).")
 @click.option("--method", type=click.Choice(["sgm", "local"]), default="sgm", show_default=True,

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["leave_one_out", "take_least"]
+__all__ = ["fold_half", "half_terms", "leave_one_out", "pair_terms", "take_least"]
 
 _JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")  # numpy: no zero-division checks, so loops vectorise
 
@@ -44,3 +44,77 @@ def take_least(agg, candidate, penalty, agg_count, agg_w, least_rest):
             c = penalty * candidate[y, x]
             a = agg[y, x]
             agg[y, x] = c if (agg_count[y, x] - agg_w[y, x] > least_rest) & (c < a) else a  # selects vectorise
+
+
+@njit(**_JIT)
+def half_terms(s1, s2, count, seen, floor, cost, own):
+    """A half's 'lcn' cost where the pixel is ``seen`` and two of the half's views see it (``own``
+    = 1), else 0 and ``own`` = 0: the terms its seen-pixel mean over a window is made of.
+    Returns the number of pixels ``own``."""
+    h, w = s1.shape
+    floor = np.float32(floor)
+    one = np.float32(1.0)
+    half = np.float32(0.5)
+    zero = np.float32(0.0)
+    lo = np.float32(1.5)
+    total = 0
+    for y in range(h):
+        for x in range(w):
+            c = count[y, x]
+            r = c if c > floor else floor
+            d = c - one
+            d = d if d > half else half
+            v = s1[y, x]
+            ok = seen[y, x] & (c >= lo)
+            cost[y, x] = (s2[y, x] - v * v / r) / d if ok else zero
+            own[y, x] = one if ok else zero
+            total += 1 if ok else 0
+    return total
+
+
+@njit(**_JIT)
+def pair_terms(a0, w0, a1, w1, seen, floor, cost, own):
+    """:func:`half_terms` of a half of two views, from their warped values (premultiplied by their
+    masks) and masks, without forming the sums first."""
+    h, w = a0.shape
+    floor = np.float32(floor)
+    one = np.float32(1.0)
+    half = np.float32(0.5)
+    zero = np.float32(0.0)
+    lo = np.float32(1.5)
+    total = 0
+    for y in range(h):
+        for x in range(w):
+            p = a0[y, x]
+            q = a1[y, x]
+            c = w0[y, x] + w1[y, x]
+            r = c if c > floor else floor
+            d = c - one
+            d = d if d > half else half
+            v = p + q
+            ok = seen[y, x] & (c >= lo)
+            cost[y, x] = (p * p + q * q - v * v / r) / d if ok else zero
+            own[y, x] = one if ok else zero
+            total += 1 if ok else 0
+    return total
+
+
+@njit(**_JIT)
+def fold_half(box_cost, box_own, own, full, penalty, min_support, least):
+    """``least = min(least, penalty * box_cost / box_own)`` at the pixels ``own`` whose window is
+    ``own`` over at least ``min_support`` of its pixels, in place; with ``full`` (every pixel
+    ``own``: each window's mean is its box) ``box_own`` is not read."""
+    h, w = least.shape
+    penalty = np.float32(penalty)
+    min_support = np.float32(min_support)
+    for y in range(h):
+        for x in range(w):
+            a = least[y, x]
+            if full:
+                c = penalty * box_cost[y, x]
+                least[y, x] = c if c < a else a
+            else:
+                b = box_own[y, x]
+                ok = (own[y, x] > 0) & (b >= min_support)
+                c = penalty * box_cost[y, x] / (b if ok else np.float32(1.0))
+                least[y, x] = c if ok & (c < a) else a

@@ -20,7 +20,8 @@ import threading
 import cv2
 import numpy as np
 
-from lfring.depth.costs import STRIP_PIXELS, aggregate, lcn_leave_one_out, leavable_views, occlusion_aggregate, slice_cost
+from lfring.depth.costs import (STRIP_PIXELS, aggregate, half_aggregate, lcn_leave_one_out, leavable_views, occlusion_aggregate,
+                                slice_cost, view_halves)
 from lfring.depth.selection import RunningMinimum
 from lfring.warp import WEIGHT_FLOOR, ShiftEngine, box_filter, run_threads, translations, warp_image
 
@@ -28,7 +29,7 @@ __all__ = ["sweep_slices", "sweep_strips"]
 
 
 def sweep_strips(sources: np.ndarray, masks: np.ndarray, hs: np.ndarray, *, aggregate_px: int, exclude: int = 1,
-                 threads: int = 1, on_strip=None, volume=None, occlusion: bool = False, on_rows=None):
+                 threads: int = 1, on_strip=None, volume=None, occlusion: bool = False, on_rows=None, halves=None):
     """The 'lcn' cost with box aggregation over every hypothesis, strip by strip.
 
     Parameters
@@ -60,6 +61,10 @@ def sweep_strips(sources: np.ndarray, masks: np.ndarray, hs: np.ndarray, *, aggr
     occlusion : bool
         The 'lcn-occlusion' cost: over each window, the least of all views' cost and the costs
         without one view (:func:`lfring.depth.costs.occlusion_aggregate`).
+    halves : (N, h, w) float32, optional
+        With ``volume``: filled with every hypothesis's least aggregated cost of a half of the
+        views (:func:`lfring.depth.costs.view_halves`, :func:`lfring.depth.costs.half_aggregate`;
+        inf where no half counts), for :func:`lfring.depth.costs.take_halves`.
 
     Returns
     -------
@@ -77,6 +82,12 @@ def sweep_strips(sources: np.ndarray, masks: np.ndarray, hs: np.ndarray, *, aggr
     identity = [bool(np.all(hs[:, k] == np.eye(3))) for k in range(v)]
     moving = [k for k in range(v) if not identity[k]]
     occlusion = occlusion and bool(leavable_views(hs))  # nothing to leave out of a pair
+    if halves is not None and (volume is None or halves.shape != (n, h, w) or halves.dtype != np.float32):
+        raise ValueError(f"halves needs a volume and must be float32 {(n, h, w)}, got {halves.dtype} {halves.shape}")
+    halves_of = view_halves(hs, (h, w)) if halves is not None else []
+    if halves is not None and not halves_of:
+        halves.fill(np.inf)
+    keep = occlusion or bool(halves_of)  # every view's rendering is kept for the other subsets
     shifts = translations(hs, (h, w))
     if shifts is not None:  # one engine per view, one slot per hypothesis, from padded copies
         engines = {k: ShiftEngine(shifts[:, k], (h, w)) for k in moving}
@@ -113,7 +124,7 @@ def sweep_strips(sources: np.ndarray, masks: np.ndarray, hs: np.ndarray, *, aggr
         big = q1 - q0
         o0, m = r0 - q0, r1 - r0
         s1, s2, cnt, a_buf, wt_buf, t, agg, zeros, tmp, bad = (b[:big] for b in bufs[:10])
-        per_view = [(b[0][:big], b[1][:big]) for b in bufs[10]]  # occlusion: every view's rendering
+        per_view = [(b[0][:big], b[1][:big]) for b in bufs[10]]  # occlusion, halves: every view's rendering
         static = [k for k in range(v) if identity[k]]
         base = None
         if static:
@@ -126,9 +137,9 @@ def sweep_strips(sources: np.ndarray, masks: np.ndarray, hs: np.ndarray, *, aggr
             shift_rows = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, q0], [0.0, 0.0, 1.0]])
         for i in range(n):
             first = True
-            rendered = [] if occlusion else None  # the moving views' renderings, for leaving one out
+            rendered = {} if keep else None  # the moving views' renderings, for the other subsets
             for j, k in enumerate(moving):
-                if occlusion:
+                if keep:
                     a_buf, wt_buf = per_view[j]
                 if shifts is not None:
                     a = engines[k].render_padded(i, padded[k][0], q0, q1, a_buf, tmp)
@@ -152,8 +163,8 @@ def sweep_strips(sources: np.ndarray, masks: np.ndarray, hs: np.ndarray, *, aggr
                     cv2.add(s1, a, dst=s1)
                     cv2.accumulateSquare(a, s2)
                     cv2.add(cnt, wt, dst=cnt)
-                if occlusion:
-                    rendered.append((a, wt))
+                if keep:
+                    rendered[k] = (a, wt)
             # c = (S2 - S1^2 / C) / (C - 1), aggregated over the pixels 1.5 views or more see.
             cv2.multiply(s1, s1, dst=t)
             cv2.divide(t, cnt, dst=t)
@@ -172,6 +183,14 @@ def sweep_strips(sources: np.ndarray, masks: np.ndarray, hs: np.ndarray, *, aggr
             box(t, dst=agg)
             if support is not None:
                 cv2.divide(agg, support, dst=agg)
+            if halves_of:
+                least = bufs[12][:big]
+                least.fill(np.inf)
+                seen = bad == 0
+                for half in halves_of:
+                    parts = [rendered[k] if k in rendered else (weighted[k][q0:q1], masks[k][q0:q1]) for k in half]
+                    half_aggregate(parts, seen, box, least, [b[:big] for b in bufs[13]])
+                np.copyto(halves[i, r0:r1], least[o0:o0 + m])
             if occlusion:
                 one = bufs[11][:big]
 
@@ -182,7 +201,7 @@ def sweep_strips(sources: np.ndarray, masks: np.ndarray, hs: np.ndarray, *, aggr
                     return one, w_k
 
                 seen_box = box if support is None else (lambda c: cv2.divide(box(c), support))
-                occlusion_aggregate(agg, cnt, (leave_out(a_k, w_k) for a_k, w_k in rendered), seen_box, box)
+                occlusion_aggregate(agg, cnt, (leave_out(a_k, w_k) for a_k, w_k in rendered.values()), seen_box, box)
             cur = run.slot() if volume is None else volume[i, r0:r1]
             np.copyto(cur, agg[o0:o0 + m])
             cv2.copyTo(missing, bad[o0:o0 + m], dst=cur)
@@ -204,8 +223,10 @@ def sweep_strips(sources: np.ndarray, masks: np.ndarray, hs: np.ndarray, *, aggr
             local.bufs = [np.empty((big, w), np.float32) for _ in range(7)]
             local.bufs += [np.zeros((big, w), np.float32), np.empty((big, w + 1), np.float32), np.empty((big, w), np.uint8)]
             local.bufs.append([(np.empty((big, w), np.float32), np.empty((big, w), np.float32)) for _ in moving]
-                              if occlusion else [])
+                              if keep else [])
             local.bufs.append(np.empty((big, w), np.float32) if occlusion else None)
+            local.bufs.append(np.empty((big, w), np.float32) if halves_of else None)
+            local.bufs.append([np.empty((big, w), np.float32) for _ in range(5)] if halves_of else None)
         strip(r0, r1, local.bufs)
 
     run_threads([lambda s=s: task(*s) for s in strips], threads)
@@ -216,7 +237,7 @@ def sweep_strips(sources: np.ndarray, masks: np.ndarray, hs: np.ndarray, *, aggr
     return None
 
 
-def sweep_slices(lum, masks, hs, cost, window_px, guide, exclude=1, aggregate_px=None, volume=None):
+def sweep_slices(lum, masks, hs, cost, window_px, guide, exclude=1, aggregate_px=None, volume=None, halves=None):
     """Any cost and aggregation over every hypothesis, a whole slice at a time.
 
     Parameters
@@ -236,6 +257,8 @@ def sweep_slices(lum, masks, hs, cost, window_px, guide, exclude=1, aggregate_px
     volume : (N, h, w) float32, optional
         As in :func:`sweep_strips`: filled with every aggregated slice; then only ``nviews``
         is returned.
+    halves : (N, h, w) float32, optional
+        As in :func:`sweep_strips` (with ``volume``; the 'lcn' costs).
 
     Returns
     -------
@@ -254,6 +277,10 @@ def sweep_slices(lum, masks, hs, cost, window_px, guide, exclude=1, aggregate_px
     lum_w = np.empty((v, h, w), np.float32)
     wts = np.empty((v, h, w), np.float32)
     leavable = leavable_views(hs) if cost == "lcn-occlusion" else []
+    halves_of = view_halves(hs, (h, w)) if halves is not None else []
+    if halves is not None and not halves_of:
+        halves.fill(np.inf)
+    window = (lambda x: guide.filter(x)) if guide is not None else (lambda x: box_filter(x, aggregate_px))
     for i in range(n):
         for k in range(v):
             warp_image(src[k], hs[i, k], (w, h), dst=lum_w[k])
@@ -263,8 +290,12 @@ def sweep_slices(lum, masks, hs, cost, window_px, guide, exclude=1, aggregate_px
         if leavable:
             s1, s2 = lum_w.sum(axis=0), np.square(lum_w).sum(axis=0)
             occlusion_aggregate(agg, nv, ((lcn_leave_one_out(s1, s2, nv, lum_w[k], wts[k]), wts[k]) for k in leavable),
-                                lambda one: aggregate(one, nv, guide, aggregate_px),
-                                lambda x: guide.filter(x) if guide is not None else box_filter(x, aggregate_px))
+                                lambda one: aggregate(one, nv, guide, aggregate_px), window)
+        if halves_of:
+            least = np.full((h, w), np.inf, np.float32)
+            for half in halves_of:
+                half_aggregate([(lum_w[k], wts[k]) for k in half], nv >= 1.5, window, least)
+            halves[i] = least
         np.copyto(run.slot() if run is not None else volume[i], agg)
         if run is not None:
             run.push()

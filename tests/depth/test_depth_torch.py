@@ -32,6 +32,8 @@ def _agreement(a, b):
 @pytest.mark.parametrize("aggregation", ["box", "guided"])
 @pytest.mark.parametrize("cost", COSTS)
 def test_parity_with_numpy(twin, cost, aggregation, reference):
+    if cost == "lcn-halves":  # the whole volume and the halves' volume beside it
+        return _halves_parity(twin, aggregation, reference)
     views, cal = twin
     kw = dict(zmin_m=0.28, zmax_m=1.1, reference=reference, cost=cost, aggregation=aggregation, method="local")
     ref = estimate_depth(views, cal, **kw)
@@ -44,6 +46,37 @@ def test_parity_with_numpy(twin, cost, aggregation, reference):
     assert both.mean() > 0.5
     assert depth_ok >= 0.99, depth_ok
     assert conf_ok >= 0.99, conf_ok
+
+
+def _halves_parity(twin, aggregation, reference):
+    """'lcn-halves': the torch sweep fills the volume and the halves' volume as the NumPy one."""
+    import warnings
+
+    from lfring.depth.costs import lcn_sources, sweep_masks
+    from lfring.depth.hypotheses import depth_hypotheses
+    from lfring.depth.stream import sweep_slices
+    from lfring.errors import LfringWarning
+
+    views, cal = twin
+    h, w = views.shape[1:3]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", LfringWarning)
+        hs = cal.homographies(depth_hypotheses(cal, 0.28, 1.1), reference=reference)
+    masks = sweep_masks(cal, (h, w))
+    src = lcn_sources(views, cal, 9)
+    guide = np.ascontiguousarray(np.clip(views[0].mean(axis=-1), 0, 1), np.float32) if aggregation == "guided" else None
+    n = len(hs)
+    want_v, want_h, got_v, got_h = (np.empty((n, h, w), np.float32) for _ in range(4))
+    filt = None if guide is None else cv2.ximgproc.createGuidedFilter(guide, 5 // 2, 1e-3)
+    sweep_slices(src, masks, hs, "lcn-halves", 9, filt, 1, 5, volume=want_v, halves=want_h)
+    torch_depth.sweep_torch(src, masks, hs, cost="lcn-halves", aggregation=aggregation, window_px=9, aggregate_px=5,
+                            guide=guide, device="cpu", volume=got_v, halves=got_h)
+    for got, want in ((got_v, want_v), (got_h, want_h)):
+        fin = np.isfinite(want)
+        assert np.mean(np.isfinite(got) == fin) > 0.999
+        both = fin & np.isfinite(got)
+        assert np.mean(np.isclose(got[both], want[both], rtol=1e-3, atol=1e-4)) > 0.995
+    assert np.isfinite(want_h).mean() > 0.3
 
 
 @pytest.mark.parametrize("reference", [0, "center"])

@@ -89,6 +89,7 @@ def test_default_spacing_and_costs(twin):
         (dict(zmin_m=0.01, zmax_m=0.5), "beyond the depth origin"),
         (dict(zmin_m=0.3, zmax_m=0.5, num_planes=0), "num_planes"),
         (dict(zmin_m=0.3, zmax_m=0.5, cost="census9"), "cost must be one of"),
+        (dict(zmin_m=0.3, zmax_m=0.5, cost="lcn-halves", method="local"), "needs method='sgm'"),
         (dict(zmin_m=0.3, zmax_m=0.5, aggregation="sgm"), "aggregation must be one of"),
         (dict(zmin_m=0.3, zmax_m=0.5, window_px=4), "odd"),
         (dict(zmin_m=0.3, zmax_m=0.5, aggregate_px=0), "aggregate_px must be an odd"),
@@ -139,7 +140,7 @@ def _issue_errors(cal, res, gt, m):
 
 
 def test_default_settings_meet_the_issue_targets(twin):
-    """At the default settings ('sgm' over 'lcn', box aggregation, 1 px spacing, strips on threads)
+    """At the default settings ('sgm' over 'lcn-halves', box aggregation, 1 px spacing, strips on threads)
     and with the slower, edge-aware options, on pixels all four views see: at most 5 % off by
     more than 0.3 px and a median relative error of at most 0.5 %; threads change nothing."""
     from lfring.focus import Refocuser
@@ -147,7 +148,7 @@ def test_default_settings_meet_the_issue_targets(twin):
     _, cal, views, gt, usable, _ = twin
     m = usable & (Refocuser(cal, 0.5, reference=0).weight > 3.9) & np.isfinite(gt)
     res = estimate_depth(views, cal, zmin_m=0.27, zmax_m=1.1, reference=0)
-    assert (res.method, res.cost, res.aggregation) == ("sgm", "lcn", "box") and len(res.depths_m) == 11
+    assert (res.method, res.cost, res.aggregation) == ("sgm", "lcn-halves", "box") and len(res.depths_m) == 11
     bad, rel = _issue_errors(cal, res, gt, m)
     assert bad <= 0.05 and rel <= 0.005, (bad, rel)
     assert np.median(res.confidence[m]) > 0.5
@@ -159,7 +160,7 @@ def test_default_settings_meet_the_issue_targets(twin):
         assert bad_k <= 0.05 and rel_k <= 0.005, (kw, bad_k, rel_k)
 
 
-@pytest.mark.parametrize("cost", ["lcn", "lcn-occlusion"])
+@pytest.mark.parametrize("cost", ["lcn", "lcn-occlusion", "lcn-halves"])
 @pytest.mark.parametrize("reference", [0, "center"])
 @pytest.mark.parametrize("warp", ["translation", "perspective"])
 def test_strips_equal_whole_slices(prototype, reference, warp, cost):
@@ -183,6 +184,17 @@ def test_strips_equal_whole_slices(prototype, reference, warp, cost):
     if warp == "perspective":  # a slight tilt: no longer translations
         tilt = np.array([[1.0, 0.002, 0.3], [-0.001, 1.0, -0.2], [2e-6, -1e-6, 1.0]])
         hs = np.where(np.all(hs == np.eye(3), axis=(-2, -1))[..., None, None], hs, tilt @ hs)
+    if cost == "lcn-halves":  # a volume beside the volume: both sweeps fill the same numbers
+        n = len(hs)
+        want_v, want_h, got_v, got_h = (np.empty((n, h, w), np.float32) for _ in range(4))
+        sweep_slices(src, masks, hs, cost, 9, None, 2, 15, volume=want_v, halves=want_h)
+        sweep_strips(src, masks, hs, aggregate_px=15, exclude=2, threads=3, volume=got_v, halves=got_h)
+        for got, want in ((got_v, want_v), (got_h, want_h)):
+            np.testing.assert_array_equal(np.isfinite(got), np.isfinite(want))
+            fin = np.isfinite(want)
+            np.testing.assert_allclose(got[fin], want[fin], rtol=1e-3, atol=1e-4)
+        assert 0.3 < np.isfinite(want_h).mean() < np.isfinite(want_v).mean()  # the halves see less
+        return
     want = sweep_slices(src, masks, hs, cost, 9, None, 2, 15)
     occlusion = cost == "lcn-occlusion"
     for threads in (1, 3):
@@ -339,20 +351,46 @@ def hard_twin(prototype):
     return r, RingCalibration.from_optics(r.device, layout=r.layout)
 
 
-def test_occlusion_aware_cost_beats_all_views_on_the_hard_scene(hard_twin):
-    """The hard scene against its exact ground truth on every pixel of view 0's
-    disc: 'lcn-occlusion' has fewer pixels off by more than 0.5 px of disparity than
-    'lcn' (measured 27.5 % against 29.2 %)."""
+def test_occlusion_aware_costs_beat_all_views_on_the_hard_scene(hard_twin):
+    """The hard scene against its exact ground truth on every pixel of view 0's disc: the two
+    occlusion-aware costs have fewer pixels off by more than 0.5 px of disparity than 'lcn'
+    (measured: 'lcn' 22.1 %, 'lcn-occlusion' 19.8 %, the default 'lcn-halves' 19.5 %; off by
+    more than 1 px 13.1, 12.2 and 11.7 %)."""
     r, cal = hard_twin
     gt = r.depth_m[0]
     m = np.isfinite(gt) & (r.layout.masks()[0] > 0)
-    bad = {}
-    for cost in ("lcn", "lcn-occlusion"):
+    bad, bad1 = {}, {}
+    for cost in ("lcn", "lcn-occlusion", None):
         res = estimate_depth(r.views, cal, zmin_m=0.27, zmax_m=1.1, reference=0, cost=cost)
         d = res.depth_filled_m[m]
         err = np.abs(_disparity(cal, np.where(np.isfinite(d), d, 1.0)) - _disparity(cal, gt[m]))
-        bad[res.cost] = np.mean(~(err <= 0.5))
-    assert bad["lcn-occlusion"] <= 0.285 and bad["lcn-occlusion"] <= 0.97 * bad["lcn"], bad
+        bad[res.cost], bad1[res.cost] = np.mean(~(err <= 0.5)), np.mean(~(err <= 1.0))
+    assert bad["lcn-occlusion"] <= 0.21 and bad["lcn-occlusion"] <= 0.93 * bad["lcn"], bad
+    assert bad["lcn-halves"] <= 0.205 and bad["lcn-halves"] <= 0.92 * bad["lcn"], bad
+    assert bad1["lcn-halves"] <= 0.122 and bad1["lcn-halves"] <= 0.92 * bad1["lcn"], bad1
+
+
+def test_view_halves_follow_the_rows_and_columns_of_the_ring(twin):
+    """Reference 0 (top left): its column and its row; 'center': the four sides of the square;
+    the pair and a single line of views: none; the cost is 'lcn' there."""
+    import warnings
+
+    from lfring.depth.costs import view_halves
+
+    r, cal, views, *_ = twin
+    shape = views.shape[1:3]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", LfringWarning)
+        hs = lambda c, ref: c.homographies(np.array([0.3, 1.0]), reference=ref)
+        assert view_halves(hs(cal, 0), shape) == [(0, 2), (0, 1)]
+        assert view_halves(hs(cal, 3), shape) == [(1, 3), (2, 3)]
+        assert sorted(view_halves(hs(cal, "center"), shape)) == [(0, 1), (0, 2), (1, 3), (2, 3)]
+        pair = cal.select_views([0, 1])
+        assert view_halves(hs(pair, 0), shape) == [] and view_halves(hs(pair, "center"), shape) == []
+        a = estimate_depth(views[:2], pair, zmin_m=0.3, zmax_m=1.0, reference=0)
+        b = estimate_depth(views[:2], pair, zmin_m=0.3, zmax_m=1.0, reference=0, cost="lcn")
+    assert a.cost == "lcn-halves"
+    np.testing.assert_array_equal(a.depth_m, b.depth_m)
 
 
 def test_a_pair_measures_every_pixel_both_views_see_up_to_their_rims(hard_twin):
