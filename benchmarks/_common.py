@@ -18,21 +18,45 @@ def machine_line() -> str:
             f"OpenCV {cv2.__version__}, load {os.getloadavg()[0]:.2f}")
 
 
+def mirrored_hard_scene():
+    """The hard scene laid out anew, for rules tuned on the hard scene: every surface's centre
+    mirrored through the optical axis and moved (x -> 4 mm - 0.9 x, y -> -3 mm - 0.9 y), the
+    wires 3 cm farther and the diagonal one turned to -25 degrees. Same surfaces and textures."""
+    import dataclasses
+
+    from lfring.synth.presets import hard_scene
+    from lfring.synth.scene import Plane
+
+    surfaces = []
+    for o in hard_scene().surfaces:
+        cx, cy = o.center_m
+        kw = dict(center_m=(0.004 - 0.9 * cx, -0.003 - 0.9 * cy))
+        if isinstance(o, Plane) and "wire" in o.name:
+            kw.update(depth_m=o.depth_m + 0.03, roll_deg=-o.roll_deg + (15.0 if o.roll_deg else 0.0))
+        elif isinstance(o, Plane):
+            kw.update(roll_deg=-o.roll_deg)
+        surfaces.append(dataclasses.replace(o, **kw))
+    return dataclasses.replace(hard_scene(), surfaces=tuple(surfaces))
+
+
 def twin_scene(seed: int = 3, *, scene: str = "three_depth") -> SimpleNamespace:
-    """The twin's three-depth scene, or with ``scene='hard'`` the hard one (slants, curves, thin
-    wires, a blank card, per-view vignetting), 2 x 2 binned with realistic noise: ``render`` (the
-    RenderResult), ``cal`` (the optics calibration), ``views`` (demosaiced, split), ``gt``
-    (view 0's depth [m])."""
+    """The twin's three-depth scene; with ``scene='hard'`` the hard one (slants, curves, thin
+    wires, a blank card, per-view vignetting of 15 to 90 %: HARD_VIEW_FALLOFF), with
+    ``'hard_mirrored'`` its surfaces laid out anew (:func:`mirrored_hard_scene`, the same
+    vignetting); 2 x 2 binned with realistic noise: ``render`` (the RenderResult), ``cal`` (the
+    optics calibration), ``views`` (demosaiced, split), ``gt`` (view 0's depth [m])."""
     from lfring.calibration import RingCalibration
     from lfring.io.demosaic import demosaic
     from lfring.io.raw import RawFrame
     from lfring.optics import load_device
     from lfring.synth import render
-    from lfring.synth.presets import hard_scene, three_depth_scene
+    from lfring.synth.presets import HARD_VIEW_FALLOFF, hard_scene, three_depth_scene
     from lfring.views import split_views
 
-    scenes = {"three_depth": three_depth_scene, "hard": hard_scene}
-    r = render(load_device("prototype"), scenes[scene](), binning=2, noise="realistic", seed=seed)
+    scenes = {"three_depth": three_depth_scene, "hard": hard_scene, "hard_mirrored": mirrored_hard_scene}
+    # The hard scenes with their per-view vignetting, as `lfring synth hard` renders it.
+    falloff = HARD_VIEW_FALLOFF if scene.startswith("hard") else None
+    r = render(load_device("prototype"), scenes[scene](), binning=2, noise="realistic", seed=seed, view_falloff=falloff)
     cal = RingCalibration.from_optics(r.device, layout=r.layout)
     frame = RawFrame(mosaic=r.raw, pattern="RGGB", black_level=r.black_level, white_level=r.white_level, bit_depth=12)
     return SimpleNamespace(render=r, cal=cal, views=split_views(demosaic(frame), r.layout), gt=r.depth_m[0])

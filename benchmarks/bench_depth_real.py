@@ -7,8 +7,9 @@ lfring gets the pair through ``RingCalibration.from_grid`` (views at grid positi
 and returns depth in the left view's frame; SGBM gets the same pair and range. Bad 1 px and bad
 2 px over every pixel with ground truth at least 10 px from the border.
 
-Twin (the three-depth scene of bench_depth.py, depth in view 0's frame): lfring on all four
-views and on views 0 and 1; SGBM on views 0 and 1 (a horizontal pair, rectified: the twin's views
+Twin (the three-depth scene of bench_depth.py; the hard scene with its per-view vignetting; the
+hard scene's surfaces laid out anew, ``_common.mirrored_hard_scene``, for rules tuned on the hard
+one; depth in view 0's frame): lfring on all four views and on views 0 and 1; SGBM on views 0 and 1 (a horizontal pair, rectified: the twin's views
 differ by translations), its disparity turned into depth by the calibration. BadPix 0.3 px
 (disparity between views 0 and 1) and the median relative depth error, on every pixel with
 ground truth that at least two views see (inside their disc, not occluded: from the per-view
@@ -89,6 +90,7 @@ def sgbm_method(views, cal, data):
 METHODS = [
     Method("lfring estimate_depth, defaults", "all", lfring_method()),
     Method("lfring estimate_depth, defaults", "pair", lfring_method()),
+    Method("lfring estimate_depth, cost='lcn' (all views only)", "all", lfring_method(cost="lcn")),
     Method("lfring estimate_depth, cost='lcn-occlusion'", "all", lfring_method(cost="lcn-occlusion")),
     Method("lfring estimate_depth, method='local'", "all", lfring_method(method="local")),
     Method("lfring estimate_depth, method='local'", "pair", lfring_method(method="local")),
@@ -256,7 +258,8 @@ def main() -> None:
     print(machine_line())
     print(f"times: median of {runs} run(s) after a warm-up; memory: rise of the peak resident set (VmHWM) over the "
           "resident set before one call, in a fresh process after a warm-up call")
-    datasets = [middlebury(s, args.data) for s in (SCENES[:1] if args.quick else SCENES)] + [twin(), twin("hard")]
+    datasets = [middlebury(s, args.data) for s in (SCENES[:1] if args.quick else SCENES)] + [twin(), twin("hard"),
+                                                                                              twin("hard_mirrored")]
     print("| data | method | views | region | pixels | invalid | bad 0.3 px | bad 1 px | bad 2 px | median rel. depth error "
           "| time s | / SGBM | peak memory MiB |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
