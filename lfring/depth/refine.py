@@ -37,9 +37,9 @@ FGS_LAMBDA = 200.0
 FGS_SIGMA = 8.0
 # Normalised convolution: below this smoothed weight a pixel has no support at all.
 _FILL_WEIGHT_FLOOR = 1e-6
-# The weighted median bins the values: at most this many coarse bins over their range (one per
-# unit, i.e. per hypothesis, when the range allows), each split into MEDIAN_FINE_BINS; the answer
-# is the weighted mean of the values in the median's fine bin.
+# The weighted median bins the values: their range is cut into at most this many units (one per
+# hypothesis when the range allows), each split into MEDIAN_FINE_BINS bins; the answer is the
+# weighted mean of the values in the median's bin.
 MEDIAN_COARSE_BINS = 256
 MEDIAN_FINE_BINS = 8
 
@@ -63,7 +63,7 @@ def weighted_median(values: np.ndarray, known: np.ndarray, guide8: np.ndarray, r
     bins = np.clip(np.floor((np.where(k, v, lo) - lo) / fine_width), 0, fine - 1).astype(np.int32)
     bins[~k] = -1
     lut = np.exp(-np.arange(256, dtype=np.float64) ** 2 / (2.0 * max(float(sigma), 1e-6) ** 2))
-    kernel(v, bins, np.ascontiguousarray(guide8, np.uint8), int(radius_px), lut, MEDIAN_FINE_BINS, fine, out)
+    kernel(v, bins, np.ascontiguousarray(guide8, np.uint8), int(radius_px), lut, fine, out)
     return out
 
 

@@ -12,19 +12,19 @@ __all__ = ["weighted_median"]
 
 
 @njit(parallel=True, cache=True, nogil=True, fastmath=False, error_model="numpy")
-def weighted_median(values, bins, guide, radius, lut, fine_per_coarse, fine_bins, out):
+def weighted_median(values, bins, guide, radius, lut, fine_bins, out):
     """Per pixel with a bin (``bins >= 0``; -1: unknown, NaN out), the weighted median of the
     known values in its (2 radius + 1)^2 window, weighted by ``lut[|guide_p - guide_q|]``.
 
-    ``bins`` holds each known value's fine bin (its coarse bin is ``bins // fine_per_coarse``).
-    The median's fine bin is found by two cumulative scans (coarse, then fine); the answer is the
-    weighted mean of the values in that bin. One row per parallel task; each task keeps its own
-    histograms and clears only the range of bins it touched.
+    ``bins`` holds each known value's bin, of ``fine_bins``. The median's bin is found by one
+    cumulative scan from the window's lowest bin to its highest (a window's values span few
+    bins: a coarse histogram beside it measured 1.4-1.7x slower on the twin and Middlebury, for
+    the same answers); the answer is the weighted mean of the values in that bin. One row per
+    parallel task; each task keeps its own histograms and clears only the range of bins it
+    touched.
     """
     h, w = values.shape
-    coarse_bins = fine_bins // fine_per_coarse
     for y in prange(h):
-        hc = np.zeros(coarse_bins, np.float64)
         hf = np.zeros(fine_bins, np.float64)
         hv = np.zeros(fine_bins, np.float64)
         y0 = max(0, y - radius)
@@ -44,7 +44,6 @@ def weighted_median(values, bins, guide, radius, lut, fine_per_coarse, fine_bins
                     f = bins[yy, xx]
                     if f >= 0:
                         wq = lut[abs(np.int32(guide[yy, xx]) - gp)]
-                        hc[f // fine_per_coarse] += wq
                         hf[f] += wq
                         hv[f] += wq * np.float64(values[yy, xx])
                         total += wq
@@ -52,18 +51,11 @@ def weighted_median(values, bins, guide, radius, lut, fine_per_coarse, fine_bins
                         fmax = max(fmax, f)
             half = 0.5 * total
             acc = 0.0
-            c = fmin // fine_per_coarse
-            while c < coarse_bins - 1 and acc + hc[c] < half:
-                acc += hc[c]
-                c += 1
-            first = c * fine_per_coarse
-            f = first
-            while f < first + fine_per_coarse - 1 and acc + hf[f] < half:
+            f = fmin
+            # Stops on a filled bin: an empty one cannot take the sum from below half to half.
+            while f < fmax and acc + hf[f] < half:
                 acc += hf[f]
                 f += 1
-            while hf[f] <= 0.0 and f > first:  # rounding may end the scan on an empty bin
-                f -= 1
             out[y, x] = np.float32(hv[f] / hf[f]) if hf[f] > 0.0 else values[y, x]
-            hc[fmin // fine_per_coarse:fmax // fine_per_coarse + 1] = 0.0  # the touched range only
-            hf[fmin:fmax + 1] = 0.0
+            hf[fmin:fmax + 1] = 0.0  # the touched range only
             hv[fmin:fmax + 1] = 0.0
