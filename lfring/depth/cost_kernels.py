@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["fold_half", "half_terms", "leave_one_out", "pair_terms", "take_least"]
+__all__ = ["finite_mean", "finite_terms", "fold_half", "half_terms", "leave_one_out", "pair_terms", "take_least"]
 
 _JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")  # numpy: no zero-division checks, so loops vectorise
 
@@ -118,3 +118,33 @@ def fold_half(box_cost, box_own, own, full, penalty, min_support, least):
                 ok = (own[y, x] > 0) & (b >= min_support)
                 c = penalty * box_cost[y, x] / (b if ok else np.float32(1.0))
                 least[y, x] = c if ok & (c < a) else a
+
+
+@njit(**_JIT)
+def finite_terms(c, cs, s):
+    """``cs = c`` where finite, else 0, and ``s`` = 1 there, else 0; returns the finite count."""
+    h, w = c.shape
+    one = np.float32(1.0)
+    zero = np.float32(0.0)
+    big = np.float32(np.inf)
+    total = 0
+    for y in range(h):
+        for x in range(w):
+            v = c[y, x]
+            ok = abs(v) < big  # NaN fails too
+            cs[y, x] = v if ok else zero
+            s[y, x] = one if ok else zero
+            total += 1 if ok else 0
+    return total
+
+
+@njit(**_JIT)
+def finite_mean(c, box_cs, box_s, floor):
+    """In place in ``c``: ``box_cs / max(box_s, floor)`` where ``c`` is finite, else inf."""
+    h, w = c.shape
+    floor = np.float32(floor)
+    big = np.float32(np.inf)
+    for y in range(h):
+        for x in range(w):
+            b = box_s[y, x]
+            c[y, x] = box_cs[y, x] / (b if b > floor else floor) if abs(c[y, x]) < big else big

@@ -37,7 +37,7 @@ from lfring.warp import WEIGHT_FLOOR, box_filter, cached_view_masks, luminance, 
 __all__ = ["AGGREGATIONS", "COSTS", "DEPTH_TAPER", "GUIDED_EPS", "MIN_VIEWS_TO_LEAVE_ONE_OUT", "OCCLUSION_PENALTY",
            "HALVES_GAIN", "HALVES_LINE_TOL", "HALVES_MIN_SUPPORT", "HALVES_POOR", "LCN_AGGREGATE_PX", "LCN_EPS", "LCN_FLOOR", "STRIP_PIXELS",
            "aggregate", "half_aggregate", "lcn_cost", "lcn_leave_one_out", "leavable_views", "lcn_sources",
-           "occlusion_aggregate", "seen_mean", "slice_cost", "sweep_masks", "take_halves", "view_halves", "window_weights"]
+           "occlusion_aggregate", "seen_mean", "seen_mean_of_finite", "slice_cost", "sweep_masks", "take_halves", "view_halves", "window_weights"]
 
 # Fraction of a view's disc radius over which its weight rises from 0 to 1 in the sweep
 # (lfring.warp.view_masks). The refocusing taper (lfring.warp.TAPER, 15 %) hides seams in an image;
@@ -428,6 +428,28 @@ def seen_mean(c: np.ndarray, seen: np.ndarray, window) -> np.ndarray:
         out /= np.maximum(window(seen.astype(np.float32)), np.float32(WEIGHT_FLOOR))
         out[~seen] = np.inf
     return out
+
+
+def seen_mean_of_finite(c: np.ndarray, window, scratch=None) -> np.ndarray:
+    """:func:`seen_mean` of a float32 (h, w) ``c`` over its finite pixels, in place (two passes
+    and two windows; one window where every pixel is finite). ``scratch``: two (h, w) float32
+    buffers, optional.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from lfring.warp import box_filter
+    >>> c = np.array([[1.0, 1.0, np.inf]], np.float32)
+    >>> seen_mean_of_finite(c, lambda x: box_filter(x, 3)).tolist()
+    [[1.0, 1.0, inf]]
+    """
+    cs, s = scratch if scratch is not None else (np.empty_like(c), np.empty_like(c))
+    kernels = _kernels()
+    if kernels.finite_terms(c, cs, s) == c.size:
+        c[...] = window(cs)
+    else:
+        kernels.finite_mean(c, window(cs), window(s), WEIGHT_FLOOR)
+    return c
 
 
 def aggregate(c, nv, guide, window_px):

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from lfring.depth.costs import (AGGREGATIONS, COSTS, DEPTH_TAPER, GUIDED_EPS, LCN_AGGREGATE_PX, lcn_sources, seen_mean, sweep_masks,
+from lfring.depth.costs import (AGGREGATIONS, COSTS, DEPTH_TAPER, GUIDED_EPS, LCN_AGGREGATE_PX, lcn_sources, seen_mean_of_finite, sweep_masks,
                                 take_halves, view_halves)
 from lfring.depth.refine import refine_index
 from lfring.depth.sgm import P1_SCALE, P2_SCALE, PATHS, cost_scale, select, sgm_aggregate
@@ -411,8 +411,9 @@ def _sgm_index(views, calibration, plan, backend, device, cost, aggregation, win
     # The sub-hypothesis parabola is fitted to the cost aggregated over the local method's wider
     # box (over the seen pixels, as every aggregation): the optimised curve is flat-bottomed in P1
     # steps and the small box's is noisy.
+    scratch = (np.empty((h, w), np.float32), np.empty((h, w), np.float32))
     for slice_ in volume:
-        slice_[...] = seen_mean(slice_, np.isfinite(slice_), lambda x: box_filter(x, SUBPIXEL_BOX_PX))
+        seen_mean_of_finite(slice_, lambda x: box_filter(x, SUBPIXEL_BOX_PX), scratch)
     index, confidence = select(optimised, raw=volume, exclude=plan.exclude, threads=threads)
     # The optimised curve is distinct wherever the neighbours decided, textured or not; its
     # distinctness times the local curve's ranks errors better than either (sparsification AUC
