@@ -65,7 +65,8 @@ _BLOCK = 64
 
 
 
-_KERNEL_NAMES = {"fill": "fill_values", "horizontal": "horizontal", "lines": "lines", "select": "select_index"}
+_KERNEL_NAMES = {"fill": "fill_values", "horizontal": "horizontal", "lines": "lines", "select": "select_index",
+                 "select_both": "select_index_both"}
 
 
 def _kernel(name: str):
@@ -285,7 +286,8 @@ def sgm_aggregate(cost, *, guide=None, p1: float | None = None, p2: float | None
     return out
 
 
-def select(aggregated, raw=None, *, exclude: int = 1, threads: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+def select(aggregated, raw=None, *, exclude: int = 1, threads: int | None = None,
+           raw_distinctness: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Winner-take-all with a sub-hypothesis parabola and the distinctness confidence.
 
     Parameters
@@ -299,6 +301,9 @@ def select(aggregated, raw=None, *, exclude: int = 1, threads: int | None = None
         Hypotheses within ``exclude`` of the winner are not candidates for the second best.
     threads : int, optional
         numba threads for this call.
+    raw_distinctness : bool
+        With ``raw``: the confidence times ``raw``'s own distinctness (the confidence
+        ``select(raw)`` gives), in the same pass.
 
     Returns
     -------
@@ -331,7 +336,12 @@ def select(aggregated, raw=None, *, exclude: int = 1, threads: int | None = None
         raise InvalidInputError(f"exclude must be an integer >= 0, got {exclude!r}")
     index = np.empty((h, w), np.float32)
     conf = np.empty((h, w), np.float32)
+    if raw_distinctness and raw is None:
+        raise InvalidInputError("raw_distinctness needs the raw volume")
     with _threads(threads):
+        if raw_distinctness:
+            _kernel("select_both")(agg, r, int(exclude), index, conf)
+            return index, conf
         fill = np.empty((h, w), np.float32)
         if raw is not None:
             _kernel("fill")(r, fill)

@@ -116,6 +116,30 @@ def test_select_on_a_known_curve():
     assert np.isnan(index[0, 2]) and conf[0, 2] == 0
 
 
+@pytest.mark.parametrize("exclude", [1, 2])
+def test_select_with_the_raw_distinctness_equals_two_selections(exclude):
+    """One pass gives the index of ``select(agg, raw)`` and the product of its confidence with
+    ``select(raw)``'s, to the bit, with NaN and inf entries in both volumes."""
+    rng = np.random.default_rng(5)
+    agg = rng.random((9, 13, 17), dtype=np.float32)
+    raw = rng.random((9, 13, 17), dtype=np.float32)
+    agg[:, 3, 4] = 1.0
+    agg[3, 3, 4] = 0.0  # the winner is 3 ...
+    raw[2:5, 3, 4] = np.nan  # ... and the parabola's points stand in with the pixel's mean finite cost
+    raw[:, 6, 6] = np.inf  # no raw information: no raw distinctness
+    agg[:, 7, 7] = np.nan  # nothing known
+    agg[4, 8, :] = np.inf
+    raw[6, 9, :] = np.nan
+    index, conf = select(agg, raw, exclude=exclude, raw_distinctness=True)
+    want_index, want_conf = select(agg, raw, exclude=exclude)
+    want_conf = want_conf * select(raw, exclude=exclude)[1]
+    np.testing.assert_array_equal(index, want_index)
+    np.testing.assert_array_equal(conf, want_conf)
+    assert conf[6, 6] == 0.0 and np.isnan(index[7, 7]) and conf.dtype == np.float32
+    with pytest.raises(InvalidInputError, match="raw_distinctness needs"):
+        select(agg, raw_distinctness=True)
+
+
 def test_sparsification_auc_by_hand():
     err = np.array([[1.0, 3.0], [0.0, 2.0]])
     conf = np.array([[0.9, 0.1], [0.5, 0.2]])  # order: 1, 0, 2, 3
