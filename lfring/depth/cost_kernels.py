@@ -1,16 +1,19 @@
-"""The compiled kernels of the 'lcn-occlusion' cost (:mod:`lfring.depth.costs`): numba, cached on disk.
+"""The compiled kernels of :mod:`lfring.depth.costs` ('lcn-occlusion', 'lcn-halves', the seen-pixel
+mean): numba, cached on disk.
 
 Importing this module imports numba; :mod:`lfring.depth.costs` imports it on first use only.
-Each kernel is one pass over its (h, w) arrays with no temporaries, and releases the GIL, so the
-sweep's strip threads run them side by side.
+The per-strip kernels are one pass over their (h, w) arrays with no temporaries, and release the
+GIL, so the sweep's strip threads run them side by side; the two over whole volumes
+(:func:`volume_minima`, :func:`take_where`) run their rows in parallel.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
-__all__ = ["finite_mean", "finite_terms", "fold_half", "half_terms", "leave_one_out", "pair_terms", "take_least"]
+__all__ = ["finite_mean", "finite_terms", "fold_half", "half_terms", "leave_one_out", "pair_terms", "take_least",
+           "take_where", "volume_minima"]
 
 _JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")  # numpy: no zero-division checks, so loops vectorise
 
@@ -148,3 +151,28 @@ def finite_mean(c, box_cs, box_s, floor):
         for x in range(w):
             b = box_s[y, x]
             c[y, x] = box_cs[y, x] / (b if b > floor else floor) if abs(c[y, x]) < big else big
+
+
+@njit(parallel=True, **_JIT)
+def volume_minima(volume, halves, best, half_best):
+    """Per pixel, the least cost over the hypotheses of ``volume`` and of ``halves`` (N, h, w)."""
+    n, h, w = volume.shape
+    for y in prange(h):
+        for x in range(w):
+            best[y, x] = volume[0, y, x]
+            half_best[y, x] = halves[0, y, x]
+        for d in range(1, n):
+            for x in range(w):
+                best[y, x] = min(best[y, x], volume[d, y, x])
+                half_best[y, x] = min(half_best[y, x], halves[d, y, x])
+
+
+@njit(parallel=True, **_JIT)
+def take_where(volume, halves, take):
+    """``volume = min(volume, halves)`` at the pixels ``take``, in place."""
+    n, h, w = volume.shape
+    for y in prange(h):
+        for d in range(n):
+            for x in range(w):
+                if take[y, x]:
+                    volume[d, y, x] = min(volume[d, y, x], halves[d, y, x])

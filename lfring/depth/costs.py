@@ -315,15 +315,16 @@ def take_halves(volume: np.ndarray, halves: np.ndarray) -> np.ndarray:
     >>> volume[:, 0, 3].tolist(), volume[:, 0, 0].tolist()
     ([3.9000000953674316, 0.25], [0.10000000149011612, 0.30000001192092896])
     """
-    best = volume.min(axis=0)
+    n, h, w = volume.shape
+    best, half_best = np.empty((h, w), np.float32), np.empty((h, w), np.float32)
+    _kernels().volume_minima(volume, halves, best, half_best)
     finite = np.isfinite(best)
     if not finite.any():
         return 0.0
     poor = best > HALVES_POOR * float(np.median(best[finite]))
-    take = poor & (halves.min(axis=0) < HALVES_GAIN * best)
+    take = poor & (half_best < HALVES_GAIN * best)
     if take.any():
-        ys, xs = np.nonzero(take)
-        volume[:, ys, xs] = np.minimum(volume[:, ys, xs], halves[:, ys, xs])
+        _kernels().take_where(volume, halves, take)
     return float(take.mean())
 
 
