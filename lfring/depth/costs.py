@@ -35,7 +35,7 @@ import numpy as np
 from lfring.warp import WEIGHT_FLOOR, box_filter, cached_view_masks, luminance, run_threads
 
 __all__ = ["AGGREGATIONS", "COSTS", "DEPTH_TAPER", "GUIDED_EPS", "MIN_VIEWS_TO_LEAVE_ONE_OUT", "OCCLUSION_PENALTY",
-           "HALVES_GAIN", "HALVES_LINE_TOL", "HALVES_MIN_SUPPORT", "HALVES_POOR", "LCN_AGGREGATE_PX", "LCN_EPS", "LCN_FLOOR", "STRIP_PIXELS",
+           "HALVES_GAIN", "HALVES_LINE_TOL", "HALVES_MEDIAN_SAMPLE", "HALVES_MIN_SUPPORT", "HALVES_POOR", "LCN_AGGREGATE_PX", "LCN_EPS", "LCN_FLOOR", "STRIP_PIXELS",
            "aggregate", "half_aggregate", "lcn_cost", "lcn_leave_one_out", "leavable_views", "lcn_sources",
            "occlusion_aggregate", "seen_mean", "seen_mean_of_finite", "slice_cost", "sweep_masks", "take_halves", "view_halves", "window_weights"]
 
@@ -76,6 +76,7 @@ HALVES_GAIN = 0.5
 # A half's cost counts over a window where two of its views see at least this share of the window's
 # pixels (a mean over a few rim pixels makes a distinct and wrong cost curve).
 HALVES_MIN_SUPPORT = 0.75
+HALVES_MEDIAN_SAMPLE = 1 << 16
 AGGREGATIONS = ("box", "guided")
 # Regularisation of the guided aggregation (cv2.ximgproc.createGuidedFilter's eps; the torch twin the same).
 GUIDED_EPS = 1e-3
@@ -318,11 +319,14 @@ def take_halves(volume: np.ndarray, halves: np.ndarray) -> np.ndarray:
     n, h, w = volume.shape
     best, half_best = np.empty((h, w), np.float32), np.empty((h, w), np.float32)
     _kernels().volume_minima(volume, halves, best, half_best)
-    finite = np.isfinite(best)
-    if not finite.any():
+    # The median best cost is a scale: the pixels of a regular grid, about HALVES_MEDIAN_SAMPLE of
+    # them, give it (to about 1 %) in a fraction of the whole image's time.
+    stride = max(1, int(np.ceil(np.sqrt(h * w / HALVES_MEDIAN_SAMPLE))))
+    sample = best[::stride, ::stride]
+    sample = sample[np.isfinite(sample)]
+    if not sample.size:
         return 0.0
-    poor = best > HALVES_POOR * float(np.median(best[finite]))
-    take = poor & (half_best < HALVES_GAIN * best)
+    take = (best > HALVES_POOR * float(np.median(sample))) & (half_best < HALVES_GAIN * best)
     if take.any():
         _kernels().take_where(volume, halves, take)
     return float(take.mean())
