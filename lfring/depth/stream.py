@@ -172,8 +172,7 @@ def sweep_strips(sources: np.ndarray, masks: np.ndarray, hs: np.ndarray, *, aggr
             cv2.subtract(cnt, 1.0, dst=tmp[:, :w])
             cv2.divide(t, tmp[:, :w], dst=t)  # C - 1 >= 0.5 wherever the result is kept:
             cv2.compare(cnt, 1.5, cv2.CMP_LT, dst=bad)
-            box = lambda c, dst=None: cv2.boxFilter(c, cv2.CV_32F, (aggregate_px, aggregate_px), dst=dst,
-                                                    borderType=cv2.BORDER_REFLECT_101)
+            box = lambda c, dst=None: box_filter(c, aggregate_px, dst=dst)
             support = None  # as costs.aggregate: the window's mean over the pixels 1.5 views see
             if cv2.countNonZero(bad):
                 cv2.copyTo(zeros, bad, dst=t)
