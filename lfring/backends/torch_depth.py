@@ -272,6 +272,9 @@ def sweep_torch(lum, masks, hs, *, cost, aggregation, window_px, guide, exclude=
     run = _RunningMinimum(torch, (h, w), exclude, dev)
     nviews = full(0.0)
     leavable = leavable_views(hs) if cost == "lcn-occlusion" else []
+    if halves is not None and (volume is None or cost not in ("lcn", "lcn-halves") or np.shape(halves) != (n, h, w)):
+        raise InvalidInputError(f"halves needs a volume and an 'lcn' cost and must be {(n, h, w)}, got {cost!r} "
+                                f"{np.shape(halves)}")
     halves_of = view_halves(hs, (h, w)) if halves is not None else []
     if halves is not None and not halves_of:
         halves.fill(np.inf)

@@ -276,6 +276,8 @@ def sweep_slices(lum, masks, hs, cost, window_px, guide, exclude=1, aggregate_px
     lum_w = np.empty((v, h, w), np.float32)
     wts = np.empty((v, h, w), np.float32)
     leavable = leavable_views(hs) if cost == "lcn-occlusion" else []
+    if halves is not None and (volume is None or cost not in ("lcn", "lcn-halves") or halves.shape != (n, h, w)):
+        raise ValueError(f"halves needs a volume and an 'lcn' cost and must be {(n, h, w)}, got {cost!r} {np.shape(halves)}")
     halves_of = view_halves(hs, (h, w)) if halves is not None else []
     if halves is not None and not halves_of:
         halves.fill(np.inf)

@@ -106,8 +106,8 @@ def estimate_depth(
         and where no depth suits all views but the views on one side of the reference agree much
         better (a depth edge hides the background from the views on the other side), that side's
         cost (:func:`lfring.depth.costs.take_halves`; from three views on, otherwise 'lcn'): on
-        the twin's hard scene 8.4 % of the pixels are off by more than 1 px against 10.9 % for
-        'lcn', at about a fifth more time (``benchmarks/RESULTS.md``). 'lcn-occlusion': over
+        the twin's hard scene 8.9 % of the pixels two views see are off by more than 1 px
+        against 11.4 % for 'lcn', for up to a quarter more time (``benchmarks/RESULTS.md``). 'lcn-occlusion': over
         each aggregation window, the least of the 'lcn' cost and the costs without one view
         (from three views on; :func:`lfring.depth.costs.occlusion_aggregate`). The others compare
         the warped luminances divided by their wide local mean: absolute or squared deviation

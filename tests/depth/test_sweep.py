@@ -370,6 +370,27 @@ def test_occlusion_aware_costs_beat_all_views_on_the_hard_scene(hard_twin):
     assert bad1["lcn-halves"] <= 0.122 and bad1["lcn-halves"] <= 0.92 * bad1["lcn"], bad1
 
 
+def test_the_halves_volume_needs_the_whole_volume_and_an_lcn_cost(twin):
+    import warnings
+
+    from lfring.depth.stream import sweep_slices, sweep_strips
+
+    r, cal, views, *_ = twin
+    h, w = views.shape[1:3]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", LfringWarning)
+        hs = cal.homographies(np.array([0.3, 0.5, 1.0]), reference=0)
+    lum = np.zeros((4, h, w), np.float32)
+    masks = np.ones((4, h, w), np.float32)
+    vol = np.empty((3, h, w), np.float32)
+    with pytest.raises(ValueError, match="halves needs a volume"):
+        sweep_strips(lum, masks, hs, aggregate_px=5, halves=vol)
+    with pytest.raises(ValueError, match="halves needs a volume"):
+        sweep_strips(lum, masks, hs, aggregate_px=5, volume=vol, halves=np.empty((2, h, w), np.float32))
+    with pytest.raises(ValueError, match="an 'lcn' cost"):
+        sweep_slices(lum, masks, hs, "zncc", 9, None, volume=vol, halves=np.empty_like(vol))
+
+
 def test_view_halves_follow_the_rows_and_columns_of_the_ring(twin):
     """Reference 0 (top left): its column and its row; 'center': the four sides of the square;
     the pair and a single line of views: none; the cost is 'lcn' there."""
