@@ -29,7 +29,7 @@ def main() -> None:
     print(machine_line())
     print("| data | method | views | pixels | AUC px | oracle AUC px | random AUC px | AUC / random |")
     print("|---|---|---|---|---|---|---|---|")
-    datasets = [real.middlebury(s) for s in real.SCENES] + [real.twin(), real.twin("hard")]
+    datasets = [real.middlebury(s) for s in real.SCENES] + [real.twin(), real.twin("hard"), real.twin("hard_mirrored")]
     for data in datasets:
         region = next(iter(data.regions.values()))
         for method in ("sgm", "local"):

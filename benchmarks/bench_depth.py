@@ -68,8 +68,9 @@ def main() -> None:
     near_edges = evaluation_mask(gt, r.views_sharp[0], margin_px=3) & seen & ~usable
     est = lambda **kw: (lambda: estimate_depth(views, cal, zmin_m=ZMIN, zmax_m=ZMAX, reference=0, **kw).depth_m)
     runs = {
-        "lfring, defaults (sgm over lcn, 1 px spacing)": est(),
+        "lfring, defaults (sgm over lcn-halves, 1 px spacing)": est(),
         "lfring, defaults, threads=1": est(threads=1),
+        "lfring, cost='lcn' (all views only: the former default)": est(cost="lcn"),
         "lfring, method='local' (lcn, box 15 px: the former defaults)": est(method="local"),
         "lfring, method='local', aggregation='guided'": est(method="local", aggregation="guided"),
         "lfring, method='local', 0.25 px spacing": est(method="local", num_planes=41),
@@ -123,6 +124,7 @@ def big_views(side: int = 1060, planes: int = 64, runs: int = 3) -> None:
     print("| what | median s | min s | max s |")
     print("|---|---|---|---|")
     for name, kw in (("estimate_depth, defaults (sgm)", {}), ("estimate_depth, defaults, threads=1", {"threads": 1}),
+                     ("estimate_depth, cost='lcn'", {"cost": "lcn"}),
                      ("estimate_depth, method='local'", {"method": "local"}),
                      ("estimate_depth, method='local', cost='zncc', aggregation='guided'",
                       {"method": "local", "cost": "zncc", "aggregation": "guided"})):
