@@ -34,10 +34,12 @@ import numpy as np
 
 from lfring.warp import WEIGHT_FLOOR, box_filter, cached_view_masks, luminance, run_threads
 
-__all__ = ["AGGREGATIONS", "COSTS", "DEPTH_TAPER", "GUIDED_EPS", "MIN_VIEWS_TO_LEAVE_ONE_OUT", "OCCLUSION_PENALTY",
-           "HALVES_GAIN", "HALVES_LINE_TOL", "HALVES_MEDIAN_SAMPLE", "HALVES_MIN_SUPPORT", "HALVES_POOR", "LCN_AGGREGATE_PX", "LCN_EPS", "LCN_FLOOR", "STRIP_PIXELS",
-           "aggregate", "half_aggregate", "lcn_cost", "lcn_leave_one_out", "leavable_views", "lcn_sources",
-           "occlusion_aggregate", "seen_mean", "seen_mean_of_finite", "slice_cost", "sweep_masks", "take_halves", "view_halves", "window_weights"]
+__all__ = ["AGGREGATIONS", "COSTS", "DEPTH_TAPER", "GUIDED_EPS", "HALVES_GAIN", "HALVES_LINE_TOL",
+           "HALVES_MEDIAN_SAMPLE", "HALVES_MIN_SUPPORT", "HALVES_POOR", "LCN_AGGREGATE_PX", "LCN_EPS",
+           "LCN_FLOOR", "MIN_VIEWS_TO_LEAVE_ONE_OUT", "OCCLUSION_PENALTY", "STRIP_PIXELS", "aggregate",
+           "half_aggregate", "lcn_cost", "lcn_leave_one_out", "lcn_sources", "leavable_views",
+           "occlusion_aggregate", "seen_mean", "seen_mean_of_finite", "slice_cost", "sweep_masks",
+           "take_halves", "view_halves", "window_weights"]
 
 # Fraction of a view's disc radius over which its weight rises from 0 to 1 in the sweep
 # (lfring.warp.view_masks). The refocusing taper (lfring.warp.TAPER, 15 %) hides seams in an image;
@@ -338,7 +340,8 @@ def slice_cost(lum_w: np.ndarray, wts: np.ndarray, cost: str, window_px: int) ->
     nview = wts.sum(axis=0)
     if cost == "zncc":
         return zncc_cost(lum_w, wts, nview, window_px), nview
-    if cost in ("lcn", "lcn-halves", "lcn-occlusion"):  # lum_w: the warped locally normalised luminances (lcn_sources) times their masks
+    if cost in ("lcn", "lcn-halves", "lcn-occlusion"):
+        # lum_w: the warped locally normalised luminances (lcn_sources) times their masks
         # (for 'lcn-occlusion' the cost of all views; occlusion_aggregate adds the leave-one-outs)
         return lcn_cost(lum_w.sum(axis=0), np.square(lum_w).sum(axis=0), nview), nview
     safe = np.maximum(nview, WEIGHT_FLOOR)

@@ -249,9 +249,10 @@ def sgm_aggregate(cost, *, guide=None, p1: float | None = None, p2: float | None
     copied, when it is C-contiguous float32); the horizontal paths keep three (w, N) float32
     rows per task (one image row), the others two (N, B) buffers per task of B lines (a quarter
     of the lines on two threads, at least 64: 265 for 1060 columns, 1 MiB at 128 hypotheses).
-    For 1060 x 1060 pixels the result is 288 MB for 64 hypotheses and 575 MB for 128 (plus the caller's cost volume of the same size); a uint16
-    accumulator would halve it but needs integer costs and saturating sums, not worth the loss of
-    the float cost's resolution. Time grows as paths * N * h * w.
+    For 1060 x 1060 pixels the result is 288 MB for 64 hypotheses and 575 MB for 128 (plus the
+    caller's cost volume of the same size); a uint16 accumulator would halve it but needs
+    integer costs and saturating sums, not worth the loss of the float cost's resolution. Time
+    grows as paths * N * h * w.
 
     Examples
     --------

@@ -20,8 +20,8 @@ import threading
 import cv2
 import numpy as np
 
-from lfring.depth.costs import (STRIP_PIXELS, aggregate, half_aggregate, lcn_leave_one_out, leavable_views, occlusion_aggregate,
-                                slice_cost, view_halves)
+from lfring.depth.costs import (STRIP_PIXELS, aggregate, half_aggregate, lcn_leave_one_out, leavable_views,
+                                occlusion_aggregate, slice_cost, view_halves)
 from lfring.depth.selection import RunningMinimum
 from lfring.warp import WEIGHT_FLOOR, ShiftEngine, box_filter, run_threads, translations, warp_image
 

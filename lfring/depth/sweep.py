@@ -22,8 +22,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from lfring.depth.costs import (AGGREGATIONS, COSTS, DEPTH_TAPER, GUIDED_EPS, LCN_AGGREGATE_PX, lcn_sources, seen_mean_of_finite, sweep_masks,
-                                take_halves, view_halves)
+from lfring.depth.costs import (AGGREGATIONS, COSTS, DEPTH_TAPER, GUIDED_EPS, LCN_AGGREGATE_PX, lcn_sources,
+                                seen_mean_of_finite, sweep_masks, take_halves, view_halves)
 from lfring.depth.refine import refine_index
 from lfring.depth.sgm import P1_SCALE, P2_SCALE, PATHS, cost_scale, select, sgm_aggregate
 from lfring.depth.hypotheses import depth_hypotheses, view_motion_px
@@ -107,9 +107,10 @@ def estimate_depth(
         better (a depth edge hides the background from the views on the other side), that side's
         cost (:func:`lfring.depth.costs.take_halves`; from three views on, otherwise 'lcn'): on
         the twin's hard scene 8.9 % of the pixels two views see are off by more than 1 px
-        against 11.4 % for 'lcn', for up to a quarter more time (``benchmarks/RESULTS.md``). 'lcn-occlusion': over
-        each aggregation window, the least of the 'lcn' cost and the costs without one view
-        (from three views on; :func:`lfring.depth.costs.occlusion_aggregate`). The others compare
+        against 11.4 % for 'lcn', for 5-20 % more time there and 70 % more at 1060 x 1060 x 64
+        planes with the 'center' reference's four halves (``benchmarks/RESULTS.md``).
+        'lcn-occlusion': over each aggregation window, the least of the 'lcn' cost and the costs
+        without one view (from three views on; :func:`lfring.depth.costs.occlusion_aggregate`). The others compare
         the warped luminances divided by their wide local mean: absolute or squared deviation
         from their mean, one minus their mean zero-normalised cross-correlation with the mean
         over ``window_px``, or the absolute deviation without the view deviating most per pixel.
