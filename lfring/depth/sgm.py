@@ -43,6 +43,7 @@ __all__ = [
     "sgm_aggregate",
     "select",
     "combine_confidence",
+    "numba_threads",
     "sparsification_auc",
 ]
 
@@ -89,8 +90,9 @@ def _kernel(name: str):
     return getattr(sgm_kernels, _KERNEL_NAMES[name])
 
 
-class _threads:
-    """Run numba kernels on ``n`` threads (None: numba's default), restoring the old count."""
+class numba_threads:
+    """Context: this thread's numba kernels run on ``n`` threads (None: numba's default); the old
+    count comes back on exit."""
 
     def __init__(self, n):
         self.n = n
@@ -286,7 +288,7 @@ def sgm_aggregate(cost, *, guide=None, p1: float | None = None, p2: float | None
         raise InvalidInputError(f"threads must be a positive integer or None, got {threads!r}")
     f32 = np.float32
     out = np.zeros((n, h, w), np.float32)
-    with _threads(threads):
+    with numba_threads(threads):
         fill = np.empty((h, w), np.float32)
         _kernel("fill")(c, fill)
         directions = PATHS[paths]
@@ -351,7 +353,7 @@ def select(aggregated, raw=None, *, exclude: int = 1, threads: int | None = None
     conf = np.empty((h, w), np.float32)
     if raw_distinctness and raw is None:
         raise InvalidInputError("raw_distinctness needs the raw volume")
-    with _threads(threads):
+    with numba_threads(threads):
         if raw_distinctness:
             _kernel("select_both")(agg, r, int(exclude), index, conf)
             return index, conf

@@ -25,7 +25,7 @@ import numpy as np
 from lfring.depth.costs import (AGGREGATIONS, COSTS, DEPTH_TAPER, GUIDED_EPS, LCN_AGGREGATE_PX, lcn_sources,
                                 seen_mean_of_finite, sweep_masks, take_halves, view_halves)
 from lfring.depth.refine import refine_index
-from lfring.depth.sgm import P1_SCALE, P2_SCALE, PATHS, cost_scale, select, sgm_aggregate
+from lfring.depth.sgm import P1_SCALE, P2_SCALE, PATHS, cost_scale, numba_threads, select, sgm_aggregate
 from lfring.depth.hypotheses import depth_hypotheses, view_motion_px
 from lfring.depth.selection import DepthResult, Finisher
 from lfring.depth.stream import sweep_slices, sweep_strips
@@ -219,8 +219,9 @@ def estimate_depth(
                   method=method)
     if method == "sgm":
         check = arr.shape[0] == 2 if consistency is None else bool(consistency)
-        filled = _optimise(arr, calibration, plan, fin, backend, device, cost, aggregation, window_px, aggregate_px, threads,
-                           paths, consistency=check, report=report)
+        with numba_threads(threads):  # every compiled kernel of the method, not only the optimisation's
+            filled = _optimise(arr, calibration, plan, fin, backend, device, cost, aggregation, window_px, aggregate_px,
+                               threads, paths, consistency=check, report=report)
         report.done()
         return fin.result(depth_filled_m=filled, **record)
     if cost in LCN_COSTS and aggregation == "box" and backend == "numpy":

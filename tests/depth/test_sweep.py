@@ -370,6 +370,29 @@ def test_occlusion_aware_costs_beat_all_views_on_the_hard_scene(hard_twin):
     assert bad1["lcn-halves"] <= 0.122 and bad1["lcn-halves"] <= 0.92 * bad1["lcn"], bad1
 
 
+def test_threads_bound_every_compiled_kernel_of_the_semi_global_method(twin, monkeypatch):
+    """threads=1: the refinement's and the halves' kernels (which take numba's thread count) run
+    on one thread too, and the count is restored afterwards."""
+    import numba
+
+    import lfring.depth.sweep as sweep
+
+    r, cal, views, *_ = twin
+    seen = {}
+    for name in ("refine_index", "take_halves"):
+        real = getattr(sweep, name)
+
+        def spy(*a, _real=real, _name=name, **k):
+            seen[_name] = numba.get_num_threads()
+            return _real(*a, **k)
+
+        monkeypatch.setattr(sweep, name, spy)
+    before = numba.get_num_threads()
+    estimate_depth(views, cal, zmin_m=0.3, zmax_m=1.0, num_planes=6, reference=0, threads=1)
+    assert seen == {"refine_index": 1, "take_halves": 1}
+    assert numba.get_num_threads() == before
+
+
 def test_the_halves_volume_needs_the_whole_volume_and_an_lcn_cost(twin):
     import warnings
 
