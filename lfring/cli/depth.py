@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from lfring.depth.costs import COSTS
+from lfring.depth.costs import COSTS, DEPTH_TAPER
 from lfring.cli._options import check_option, load_views, progress_bar, raw_options
 
 log = logging.getLogger("lfring.cli.depth")
@@ -34,6 +34,9 @@ log = logging.getLogger("lfring.cli.depth")
 @click.option("--method", type=click.Choice(["sgm", "local"]), default="sgm", show_default=True,
               help="sgm: semi-global optimisation of the whole sweep (fills weak texture, rejects occlusions); "
                    "local: each pixel's best hypothesis alone (several times faster).")
+@click.option("--rim-taper", type=float, default=DEPTH_TAPER, show_default=True, metavar="FRACTION",
+              help="Share of each view's disc radius over which its weight rises from 0 (a smaller share measures "
+                   "more of the dark periphery; inspection uses 0.15).")
 @click.option("--backend", type=click.Choice(["numpy", "torch"]), default="numpy", show_default=True, help="Compute backend.")
 @click.option("--device", default=None, metavar="cpu|cuda", help="Torch device (default: cuda when present).")
 @click.option("--min-confidence", type=float, default=0.5, show_default=True,
@@ -43,8 +46,8 @@ log = logging.getLogger("lfring.cli.depth")
 @click.option("--overwrite", is_flag=True, help="Replace existing output files.")
 @raw_options
 @check_option
-def command(raw, zmin, zmax, outdir, calib, planes, reference, cost, aggregation, method, backend, device, min_confidence,
-            device_name, overwrite, levels, no_check):
+def command(raw, zmin, zmax, outdir, calib, planes, reference, cost, aggregation, method, rim_taper, backend, device,
+            min_confidence, device_name, overwrite, levels, no_check):
     """Depth map of RAW in metres with confidence, by plane sweep over the views.
 
     RAW is one raw frame, or several images: separate views in the view order of --calib (a
@@ -73,7 +76,7 @@ def command(raw, zmin, zmax, outdir, calib, planes, reference, cost, aggregation
     ref = check_reference(reference, cal.num_views)
     with progress_bar(100, "depth", "%") as bar:
         res = estimate_depth(views, cal, zmin_m=zmin, zmax_m=zmax, num_planes=planes, reference=ref, cost=cost,
-                             aggregation=aggregation, method=method, backend=backend, device=device,
+                             aggregation=aggregation, method=method, rim_taper=rim_taper, backend=backend, device=device,
                              progress=lambda f: bar.update(max(0, round(100 * f) - bar.n)))
     out.mkdir(parents=True, exist_ok=True)
     write_depth_tiff(paths["depth.tiff"], res.depth_m)
@@ -101,7 +104,8 @@ def command(raw, zmin, zmax, outdir, calib, planes, reference, cost, aggregation
         log.warning("no device description matches %d x %d px frames: the point cloud is not written", *cal.raw_size)
     write_json(paths["depth.json"], {
         "input": raw, "calibration": cal_name, "reference": ref, "zmin_m": zmin, "zmax_m": zmax,
-        "hypotheses_m": res.depths_m, "step_px": res.step_px, "cost": res.cost, "aggregation": aggregation, "method": method, "backend": backend,
+        "hypotheses_m": res.depths_m, "step_px": res.step_px, "cost": res.cost, "aggregation": aggregation, "method": method,
+        "rim_taper": rim_taper, "backend": backend,
         "units": "depth in metres from the main lens; NaN where unknown", "points": n_points,
         "confidence_median": float(np.median(res.confidence)),
     })

@@ -26,6 +26,7 @@ def test_depth_cli_outputs(tmp_path, capsys):
     assert len(pts) == side["points"] > 50_000 and cols.shape == (len(pts), 3)
     assert 0.29 < np.median(pts[:, 2]) < 1.0
     assert (out / "scene_depth_preview.png").read_bytes()[:4] == b"\x89PNG"
+    assert (side["cost"], side["method"], side["rim_taper"]) == ("lcn-halves", "sgm", 0.05)
     assert main(["depth", str(SCENE), "--zmin", "0.3", "--zmax", "1.0", "-o", str(out)]) == 2  # no overwrite
     assert "exists" in capsys.readouterr().err
 
@@ -37,6 +38,9 @@ def test_depth_cli_outputs(tmp_path, capsys):
         (["--zmin", "0.01", "--zmax", "0.5"], "depth origin"),
         (["--zmin", "0.3", "--zmax", "0.5", "--planes", "0"], "num_planes"),
         (["--zmin", "0.3", "--zmax", "0.5", "--reference", "9"], "reference"),
+        (["--zmin", "0.3", "--zmax", "0.5", "--rim-taper", "1.5"], "rim_taper"),
+        (["--zmin", "0.3", "--zmax", "0.5", "--rim-taper", "nan"], "rim_taper"),
+        (["--zmin", "0.3", "--zmax", "0.5", "--cost", "lcn-halves", "--method", "local"], "needs method='sgm'"),
     ],
 )
 def test_depth_cli_errors(tmp_path, capsys, args, text):
