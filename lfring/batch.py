@@ -103,7 +103,9 @@ class BatchSettings:
     planes : int, optional
         Number of depth hypotheses (default: at most 1 px of view motion apart).
     depth_method : {'sgm', 'local'}
-        ``method`` of :func:`lfring.estimate_depth` for the depth maps.
+        ``method`` of :func:`lfring.estimate_depth` for the depth maps, with its default cost (the
+        cost is part of the depth outputs' keys, so maps made with an earlier default are not
+        taken for this run's).
     min_confidence : float
         Depth preview: pixels below it are black.
     viewer : bool
@@ -189,6 +191,12 @@ class BatchSettings:
         common = {k: d[k] for k in ("calibration_name", "calibration_sha256", "reference", "bit_depth", "encoding", "pattern",
                                     "black_level", "white_level")}
         depth_part = {k: d[k] for k in ("zmin_m", "zmax_m", "planes", "min_confidence", "depth_method")}
+        if self.depth_method == "sgm":
+            # The method's default cost: depth maps made before it changed ('lcn' until 'lcn-halves')
+            # are not this run's; a resumed folder refuses them unless told to overwrite.
+            from lfring.depth.sweep import DEFAULT_COSTS
+
+            depth_part["depth_cost"] = DEFAULT_COSTS["sgm"]
 
         def h(obj) -> str:
             return hashlib.sha256(json.dumps(obj, sort_keys=True, default=json_default).encode()).hexdigest()[:16]
@@ -903,8 +911,8 @@ def decide_resume(planned: dict[str, str], planned_keys: dict[str, str], record:
         if rel not in owner:
             return ResumeDecision("refuse", reason=f"{rel} exists and was not made by lfring batch; pass --overwrite to replace it")
         if pending_keys.get(owner[rel]) != planned_keys[k]:
-            return ResumeDecision("refuse", reason=f"outputs exist ({rel}...) and other settings made them; "
-                                                   "pass --overwrite to replace them")
+            return ResumeDecision("refuse", reason=f"outputs exist ({rel}...) and other settings made them (or an "
+                                                   "earlier lfring's default depth cost); pass --overwrite to replace them")
         # else: our own run with these settings, cut short: its file may be replaced
     return ResumeDecision("run", todo)
 

@@ -396,6 +396,26 @@ def test_resume_refuses_other_settings_and_changed_inputs():
     assert _decide(P5, K5, _record(P5, K5, identity={"size_bytes": 11}), []).action == "run"
 
 
+def test_depth_keys_follow_the_default_depth_cost(monkeypatch):
+    """A semi-global depth map made with another default cost (the 'lcn' of earlier versions) has
+    another key, so a resumed folder refuses it as made with other settings; the refocused
+    images and the local sweep's maps keep theirs."""
+    import lfring.depth.sweep as sweep
+
+    kw = dict(refocus_m=(0.5,), depth=True, zmin_m=0.3, zmax_m=1.0)
+    settings = {m: BatchSettings(**kw, depth_method=m) for m in ("sgm", "local")}
+    now = {m: s.output_keys() for m, s in settings.items()}
+    monkeypatch.setitem(sweep.DEFAULT_COSTS, "sgm", "lcn")
+    before = {m: BatchSettings(**kw, depth_method=m).output_keys() for m in settings}
+    for kind in ("depth", "confidence", "depth_preview"):
+        assert now["sgm"][kind] != before["sgm"][kind]
+        assert now["local"][kind] == before["local"][kind]
+    assert now["sgm"]["refocus_0.5m"] == before["sgm"]["refocus_0.5m"]
+    rec = _record({"depth": "a_depth.tiff"}, {"depth": before["sgm"]["depth"]})
+    d = _decide({"depth": "a_depth.tiff"}, {"depth": now["sgm"]["depth"]}, rec, ["a_depth.tiff"])
+    assert d.action == "refuse" and "other settings" in d.reason
+
+
 def test_resume_replaces_files_of_its_own_cut_short_run():
     rec = _record(P5, {}, status="pending", pending=K5)
     assert _decide(P5, K5, rec, ["a_refocus_0.5m.png"]).kinds == ("refocus_0.5m",)
