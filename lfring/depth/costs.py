@@ -32,6 +32,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from lfring.errors import InvalidInputError
 from lfring.warp import WEIGHT_FLOOR, box_filter, cached_view_masks, luminance, run_threads
 
 __all__ = ["AGGREGATIONS", "COSTS", "DEPTH_TAPER", "GUIDED_EPS", "HALVES_GAIN", "HALVES_LINE_TOL",
@@ -318,6 +319,11 @@ def take_halves(volume: np.ndarray, halves: np.ndarray) -> np.ndarray:
     >>> volume[:, 0, 3].tolist(), volume[:, 0, 0].tolist()
     ([3.9000000953674316, 0.25], [0.10000000149011612, 0.30000001192092896])
     """
+    for name, a in (("volume", volume), ("halves", halves)):
+        if not isinstance(a, np.ndarray) or a.dtype != np.float32 or a.ndim != 3 or not a.flags.c_contiguous:
+            raise InvalidInputError(f"{name} must be a C-contiguous float32 (N, h, w) array, got {np.shape(a)}")
+    if halves.shape != volume.shape:
+        raise InvalidInputError(f"halves must have the volume's shape {volume.shape}, got {halves.shape}")
     n, h, w = volume.shape
     best, half_best = np.empty((h, w), np.float32), np.empty((h, w), np.float32)
     _kernels().volume_minima(volume, halves, best, half_best)

@@ -412,6 +412,12 @@ def test_the_halves_volume_needs_the_whole_volume_and_an_lcn_cost(twin):
         sweep_strips(lum, masks, hs, aggregate_px=5, volume=vol, halves=np.empty((2, h, w), np.float32))
     with pytest.raises(ValueError, match="an 'lcn' cost"):
         sweep_slices(lum, masks, hs, "zncc", 9, None, volume=vol, halves=np.empty_like(vol))
+    from lfring.depth.costs import take_halves
+
+    with pytest.raises(InvalidInputError, match="halves must have the volume's shape"):
+        take_halves(vol, np.empty((2, h, w), np.float32))
+    with pytest.raises(InvalidInputError, match="volume must be a C-contiguous float32"):
+        take_halves(vol.astype(np.float64), vol)
 
 
 def test_view_halves_follow_the_rows_and_columns_of_the_ring(twin):
