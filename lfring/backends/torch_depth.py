@@ -11,7 +11,7 @@ import numpy as np
 
 from lfring.backends import require_torch, resolve_device
 from lfring.depth.costs import (AGGREGATIONS, COSTS, GUIDED_EPS, HALVES_MIN_SUPPORT, MIN_VIEWS_TO_LEAVE_ONE_OUT,
-                                OCCLUSION_PENALTY, leavable_views, view_halves)
+                                OCCLUSION_PENALTY, checked_halves, leavable_views)
 from lfring.errors import InvalidInputError
 from lfring.warp import WEIGHT_FLOOR
 
@@ -272,12 +272,7 @@ def sweep_torch(lum, masks, hs, *, cost, aggregation, window_px, guide, exclude=
     run = _RunningMinimum(torch, (h, w), exclude, dev)
     nviews = full(0.0)
     leavable = leavable_views(hs) if cost == "lcn-occlusion" else []
-    if halves is not None and (volume is None or cost not in ("lcn", "lcn-halves") or np.shape(halves) != (n, h, w)):
-        raise InvalidInputError(f"halves needs a volume and an 'lcn' cost and must be {(n, h, w)}, got {cost!r} "
-                                f"{np.shape(halves)}")
-    halves_of = view_halves(hs, (h, w)) if halves is not None else []
-    if halves is not None and not halves_of:
-        halves.fill(np.inf)
+    halves_of = checked_halves(halves, volume, hs, (h, w), cost)
     chunk = _chunk_size(n, v, h, w)
     with torch.no_grad():
         for i0 in range(0, n, chunk):

@@ -38,7 +38,7 @@ from lfring.warp import WEIGHT_FLOOR, box_filter, cached_view_masks, luminance, 
 __all__ = ["AGGREGATIONS", "COSTS", "DEPTH_TAPER", "GUIDED_EPS", "HALVES_GAIN", "HALVES_LINE_TOL",
            "HALVES_MEDIAN_SAMPLE", "HALVES_MIN_SUPPORT", "HALVES_POOR", "LCN_AGGREGATE_PX", "LCN_EPS",
            "LCN_FLOOR", "MIN_VIEWS_TO_LEAVE_ONE_OUT", "OCCLUSION_PENALTY", "STRIP_PIXELS", "aggregate",
-           "half_aggregate", "lcn_cost", "lcn_leave_one_out", "lcn_sources", "leavable_views",
+           "checked_halves", "half_aggregate", "lcn_cost", "lcn_leave_one_out", "lcn_sources", "leavable_views",
            "occlusion_aggregate", "seen_mean", "seen_mean_of_finite", "slice_cost", "sweep_masks",
            "take_halves", "view_halves", "window_weights"]
 
@@ -262,6 +262,24 @@ def view_halves(hs: np.ndarray, view_shape) -> list[tuple[int, ...]]:
         if 2 <= len(half) < len(hs[0]) and half not in halves:
             halves.append(half)
     return halves
+
+
+def checked_halves(halves, volume, hs: np.ndarray, view_shape, cost: str = "lcn") -> list[tuple[int, ...]]:
+    """The halves (:func:`view_halves`) a sweep fills the ``halves`` volume for, after checking
+    it: none without it; with it, a whole ``volume``, an 'lcn' cost and a float32 (N, h, w)
+    array are needed. Where there are no halves (a pair) it is filled with inf at once."""
+    if halves is None:
+        return []
+    n = np.shape(hs)[0]
+    want = (n, *tuple(view_shape))
+    if volume is None or cost not in ("lcn", "lcn-halves") or np.shape(halves) != want \
+            or getattr(halves, "dtype", None) != np.float32:
+        raise InvalidInputError(f"halves needs a volume, an 'lcn' cost and a float32 {want} array, got {cost!r} "
+                                f"{getattr(halves, 'dtype', None)} {np.shape(halves)}")
+    found = view_halves(hs, view_shape)
+    if not found:
+        halves.fill(np.inf)
+    return found
 
 
 def half_aggregate(parts, seen: np.ndarray, box, out: np.ndarray, scratch=None) -> np.ndarray:

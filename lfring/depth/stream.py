@@ -20,8 +20,8 @@ import threading
 import cv2
 import numpy as np
 
-from lfring.depth.costs import (STRIP_PIXELS, aggregate, half_aggregate, lcn_leave_one_out, leavable_views,
-                                occlusion_aggregate, slice_cost, view_halves)
+from lfring.depth.costs import (STRIP_PIXELS, aggregate, checked_halves, half_aggregate, lcn_leave_one_out,
+                                leavable_views, occlusion_aggregate, slice_cost)
 from lfring.depth.selection import RunningMinimum
 from lfring.warp import WEIGHT_FLOOR, ShiftEngine, box_filter, run_threads, translations, warp_image
 
@@ -82,11 +82,7 @@ def sweep_strips(sources: np.ndarray, masks: np.ndarray, hs: np.ndarray, *, aggr
     identity = [bool(np.all(hs[:, k] == np.eye(3))) for k in range(v)]
     moving = [k for k in range(v) if not identity[k]]
     occlusion = occlusion and bool(leavable_views(hs))  # nothing to leave out of a pair
-    if halves is not None and (volume is None or halves.shape != (n, h, w) or halves.dtype != np.float32):
-        raise ValueError(f"halves needs a volume and must be float32 {(n, h, w)}, got {halves.dtype} {halves.shape}")
-    halves_of = view_halves(hs, (h, w)) if halves is not None else []
-    if halves is not None and not halves_of:
-        halves.fill(np.inf)
+    halves_of = checked_halves(halves, volume, hs, (h, w))
     keep = occlusion or bool(halves_of)  # every view's rendering is kept for the other subsets
     shifts = translations(hs, (h, w))
     if shifts is not None:  # one engine per view, one slot per hypothesis, from padded copies
@@ -276,11 +272,7 @@ def sweep_slices(lum, masks, hs, cost, window_px, guide, exclude=1, aggregate_px
     lum_w = np.empty((v, h, w), np.float32)
     wts = np.empty((v, h, w), np.float32)
     leavable = leavable_views(hs) if cost == "lcn-occlusion" else []
-    if halves is not None and (volume is None or cost not in ("lcn", "lcn-halves") or halves.shape != (n, h, w)):
-        raise ValueError(f"halves needs a volume and an 'lcn' cost and must be {(n, h, w)}, got {cost!r} {np.shape(halves)}")
-    halves_of = view_halves(hs, (h, w)) if halves is not None else []
-    if halves is not None and not halves_of:
-        halves.fill(np.inf)
+    halves_of = checked_halves(halves, volume, hs, (h, w), cost)
     window = (lambda x: guide.filter(x)) if guide is not None else (lambda x: box_filter(x, aggregate_px))
     for i in range(n):
         for k in range(v):
