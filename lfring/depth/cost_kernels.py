@@ -50,27 +50,29 @@ def take_least(agg, candidate, penalty, agg_count, agg_w, least_rest):
 
 
 @njit(**_JIT)
+def _lcn_term(s1, s2, count, seen, floor):
+    """The 'lcn' cost of sums (S1, S2, C) where the pixel is ``seen`` and C >= 1.5, else 0, and
+    whether it is (as :func:`lfring.depth.costs.lcn_cost`, in float32)."""
+    r = count if count > floor else floor
+    d = count - np.float32(1.0)
+    d = d if d > np.float32(0.5) else np.float32(0.5)
+    ok = seen & (count >= np.float32(1.5))
+    return ((s2 - s1 * s1 / r) / d if ok else np.float32(0.0)), ok
+
+
+@njit(**_JIT)
 def half_terms(s1, s2, count, seen, floor, cost, own):
     """A half's 'lcn' cost where the pixel is ``seen`` and two of the half's views see it (``own``
     = 1), else 0 and ``own`` = 0: the terms its seen-pixel mean over a window is made of.
     Returns the number of pixels ``own``."""
     h, w = s1.shape
     floor = np.float32(floor)
-    one = np.float32(1.0)
-    half = np.float32(0.5)
-    zero = np.float32(0.0)
-    lo = np.float32(1.5)
     total = 0
     for y in range(h):
         for x in range(w):
-            c = count[y, x]
-            r = c if c > floor else floor
-            d = c - one
-            d = d if d > half else half
-            v = s1[y, x]
-            ok = seen[y, x] & (c >= lo)
-            cost[y, x] = (s2[y, x] - v * v / r) / d if ok else zero
-            own[y, x] = one if ok else zero
+            c, ok = _lcn_term(s1[y, x], s2[y, x], count[y, x], seen[y, x], floor)
+            cost[y, x] = c
+            own[y, x] = np.float32(1.0) if ok else np.float32(0.0)
             total += 1 if ok else 0
     return total
 
@@ -81,23 +83,14 @@ def pair_terms(a0, w0, a1, w1, seen, floor, cost, own):
     masks) and masks, without forming the sums first."""
     h, w = a0.shape
     floor = np.float32(floor)
-    one = np.float32(1.0)
-    half = np.float32(0.5)
-    zero = np.float32(0.0)
-    lo = np.float32(1.5)
     total = 0
     for y in range(h):
         for x in range(w):
             p = a0[y, x]
             q = a1[y, x]
-            c = w0[y, x] + w1[y, x]
-            r = c if c > floor else floor
-            d = c - one
-            d = d if d > half else half
-            v = p + q
-            ok = seen[y, x] & (c >= lo)
-            cost[y, x] = (p * p + q * q - v * v / r) / d if ok else zero
-            own[y, x] = one if ok else zero
+            c, ok = _lcn_term(p + q, p * p + q * q, w0[y, x] + w1[y, x], seen[y, x], floor)
+            cost[y, x] = c
+            own[y, x] = np.float32(1.0) if ok else np.float32(0.0)
             total += 1 if ok else 0
     return total
 
