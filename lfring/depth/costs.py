@@ -37,7 +37,7 @@ from lfring.warp import WEIGHT_FLOOR, box_filter, cached_view_masks, luminance, 
 
 __all__ = ["AGGREGATIONS", "COSTS", "DEPTH_TAPER", "GUIDED_EPS", "HALVES_GAIN", "HALVES_LINE_TOL",
            "HALVES_MEDIAN_SAMPLE", "HALVES_MIN_SUPPORT", "HALVES_POOR", "LCN_AGGREGATE_PX", "LCN_EPS",
-           "LCN_FLOOR", "MIN_VIEWS_TO_LEAVE_ONE_OUT", "OCCLUSION_PENALTY", "STRIP_PIXELS", "aggregate",
+           "LCN_FLOOR", "MIN_VIEWS_TO_LEAVE_ONE_OUT", "OCCLUSION_PENALTY", "STRIP_PIXELS", "aggregate", "aggregation_window",
            "checked_halves", "half_aggregate", "lcn_cost", "lcn_leave_one_out", "lcn_sources", "leavable_views",
            "occlusion_aggregate", "seen_mean", "seen_mean_of_finite", "slice_cost", "sweep_masks",
            "take_halves", "view_halves", "window_weights"]
@@ -484,9 +484,14 @@ def seen_mean_of_finite(c: np.ndarray, window, scratch=None) -> np.ndarray:
     return c
 
 
+def aggregation_window(guide, window_px: int):
+    """The aggregation's linear window, (h, w) float32 -> (h, w) float32: ``guide`` (a guided
+    filter) when given, else a box of ``window_px``."""
+    return (lambda x: guide.filter(x)) if guide is not None else (lambda x: box_filter(x, window_px))
+
+
 def aggregate(c, nv, guide, window_px):
     """Aggregate one cost slice over ``window_px`` (box) or with ``guide`` (a guided filter),
     over the pixels that at least 1.5 views see and whose cost is finite (:func:`seen_mean`);
     inf at the others."""
-    window = (lambda x: guide.filter(x)) if guide is not None else (lambda x: box_filter(x, window_px))
-    return seen_mean(c, (nv >= 1.5) & np.isfinite(c), window)
+    return seen_mean(c, (nv >= 1.5) & np.isfinite(c), aggregation_window(guide, window_px))

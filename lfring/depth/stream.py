@@ -20,8 +20,8 @@ import threading
 import cv2
 import numpy as np
 
-from lfring.depth.costs import (STRIP_PIXELS, aggregate, checked_halves, half_aggregate, lcn_leave_one_out,
-                                leavable_views, occlusion_aggregate, slice_cost)
+from lfring.depth.costs import (STRIP_PIXELS, aggregate, aggregation_window, checked_halves, half_aggregate,
+                                lcn_leave_one_out, leavable_views, occlusion_aggregate, slice_cost)
 from lfring.depth.selection import RunningMinimum
 from lfring.warp import WEIGHT_FLOOR, ShiftEngine, box_filter, run_threads, translations, warp_image
 
@@ -273,7 +273,7 @@ def sweep_slices(lum, masks, hs, cost, window_px, guide, exclude=1, aggregate_px
     wts = np.empty((v, h, w), np.float32)
     leavable = leavable_views(hs) if cost == "lcn-occlusion" else []
     halves_of = checked_halves(halves, volume, hs, (h, w), cost)
-    window = (lambda x: guide.filter(x)) if guide is not None else (lambda x: box_filter(x, aggregate_px))
+    window = aggregation_window(guide, aggregate_px)
     for i in range(n):
         for k in range(v):
             warp_image(src[k], hs[i, k], (w, h), dst=lum_w[k])
