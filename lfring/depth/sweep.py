@@ -110,10 +110,11 @@ def estimate_depth(
         against 11.4 % for 'lcn', for 5-20 % more time there and 70 % more at 1060 x 1060 x 64
         planes with the 'center' reference's four halves (``benchmarks/RESULTS.md``).
         'lcn-occlusion': over each aggregation window, the least of the 'lcn' cost and the costs
-        without one view (from three views on; :func:`lfring.depth.costs.occlusion_aggregate`). The others compare
-        the warped luminances divided by their wide local mean: absolute or squared deviation
-        from their mean, one minus their mean zero-normalised cross-correlation with the mean
-        over ``window_px``, or the absolute deviation without the view deviating most per pixel.
+        without one view (from three views on; :func:`lfring.depth.costs.occlusion_aggregate`).
+        The others compare the warped luminances divided by their wide local mean: absolute or
+        squared deviation from their mean, one minus their mean zero-normalised
+        cross-correlation with the mean over ``window_px``, or the absolute deviation without
+        the view deviating most per pixel.
     aggregation : {'box', 'guided'}
         Spatial aggregation of each cost slice over ``aggregate_px``: a box, or an edge-aware
         guided filter (guide: the reference view, or for 'center' the views' mean refocused at
