@@ -4,7 +4,8 @@ mean): numba, cached on disk.
 Importing this module imports numba; :mod:`lfring.depth.costs` imports it on first use only.
 The per-strip kernels are one pass over their (h, w) arrays with no temporaries, and release the
 GIL, so the sweep's strip threads run them side by side; the two over whole volumes
-(:func:`volume_minima`, :func:`take_where`) run their rows in parallel.
+(:func:`volume_minima`, :func:`take_where`) and the seen-pixel mean (:func:`finite_box_mean`)
+run their rows in parallel.
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-__all__ = ["finite_mean", "finite_terms", "fold_half", "half_terms", "leave_one_out", "pair_terms", "take_least",
+__all__ = ["finite_box_mean", "fold_half", "half_terms", "leave_one_out", "pair_terms", "take_least",
            "take_where", "volume_minima"]
 
 _JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")  # numpy: no zero-division checks, so loops vectorise
@@ -116,36 +117,6 @@ def fold_half(box_cost, box_own, own, full, penalty, min_support, least):
                 least[y, x] = c if ok & (c < a) else a
 
 
-@njit(**_JIT)
-def finite_terms(c, cs, s):
-    """``cs = c`` where finite, else 0, and ``s`` = 1 there, else 0; returns the finite count."""
-    h, w = c.shape
-    one = np.float32(1.0)
-    zero = np.float32(0.0)
-    big = np.float32(np.inf)
-    total = 0
-    for y in range(h):
-        for x in range(w):
-            v = c[y, x]
-            ok = abs(v) < big  # NaN fails too
-            cs[y, x] = v if ok else zero
-            s[y, x] = one if ok else zero
-            total += 1 if ok else 0
-    return total
-
-
-@njit(**_JIT)
-def finite_mean(c, box_cs, box_s, floor):
-    """In place in ``c``: ``box_cs / max(box_s, floor)`` where ``c`` is finite, else inf."""
-    h, w = c.shape
-    floor = np.float32(floor)
-    big = np.float32(np.inf)
-    for y in range(h):
-        for x in range(w):
-            b = box_s[y, x]
-            c[y, x] = box_cs[y, x] / (b if b > floor else floor) if abs(c[y, x]) < big else big
-
-
 @njit(parallel=True, **_JIT)
 def volume_minima(volume, halves, best, half_best):
     """Per pixel, the least cost over the hypotheses of ``volume`` and of ``halves`` (N, h, w)."""
@@ -169,3 +140,71 @@ def take_where(volume, halves, take):
             for x in range(w):
                 if take[y, x]:
                     volume[d, y, x] = min(volume[d, y, x], halves[d, y, x])
+
+
+@njit(**_JIT)
+def _reflect(i, n):
+    """Index i folded into [0, n) as OpenCV's BORDER_REFLECT_101 (gfedcb|abcdefgh|gfedcba)."""
+    if n == 1:
+        return 0
+    while i < 0 or i >= n:
+        i = -i if i < 0 else 2 * n - 2 - i
+    return i
+
+
+@njit(parallel=True, **_JIT)
+def finite_box_mean(c, radius, floor, blocks, out):
+    """``out`` = the mean of ``c`` over the finite pixels of each (2 radius + 1)^2 box (borders
+    reflected as BORDER_REFLECT_101), ``box(c) / max(box(finite), floor)`` with both boxes
+    normalised; inf where ``c`` is not finite. Sums in float64: running column sums, then each
+    row's box from its prefix sums; ``blocks`` of rows in parallel. ``out`` must not be ``c``."""
+    h, w = c.shape
+    big = np.float32(np.inf)
+    size = 2 * radius + 1
+    norm = 1.0 / (size * size)
+    floor = np.float64(floor)
+    blocks = max(1, min(h, blocks))
+    rows = (h + blocks - 1) // blocks
+    for b in prange(blocks):
+        y0 = b * rows
+        y1 = min(h, y0 + rows)
+        if y0 >= y1:
+            continue
+        col_v = np.zeros(w, np.float64)  # the column sums over the box's rows
+        col_n = np.zeros(w, np.float64)
+        pre_v = np.empty(w + size, np.float64)  # prefix sums along the reflected row
+        pre_n = np.empty(w + size, np.float64)
+        fold = np.empty(w + 2 * radius, np.int64)
+        for j in range(w + 2 * radius):
+            fold[j] = _reflect(j - radius, w)
+        for k in range(y0 - radius, y0 + radius + 1):
+            r = _reflect(k, h)
+            for x in range(w):
+                v = c[r, x]
+                ok = abs(v) < big
+                col_v[x] += v if ok else 0.0
+                col_n[x] += 1.0 if ok else 0.0
+        for y in range(y0, y1):
+            if y > y0:
+                r_in = _reflect(y + radius, h)
+                r_out = _reflect(y - radius - 1, h)
+                for x in range(w):
+                    v = c[r_in, x]
+                    u = c[r_out, x]
+                    ok = abs(v) < big
+                    gone = abs(u) < big
+                    col_v[x] += (v if ok else 0.0) - (u if gone else 0.0)
+                    col_n[x] += (1.0 if ok else 0.0) - (1.0 if gone else 0.0)
+            sv = 0.0
+            sn = 0.0
+            pre_v[0] = 0.0
+            pre_n[0] = 0.0
+            for j in range(w + 2 * radius):
+                sv += col_v[fold[j]]
+                sn += col_n[fold[j]]
+                pre_v[j + 1] = sv
+                pre_n[j + 1] = sn
+            for x in range(w):
+                mean_n = (pre_n[x + size] - pre_n[x]) * norm
+                mean_v = (pre_v[x + size] - pre_v[x]) * norm
+                out[y, x] = np.float32(mean_v / (mean_n if mean_n > floor else floor)) if abs(c[y, x]) < big else big

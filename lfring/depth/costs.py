@@ -38,8 +38,8 @@ from lfring.warp import WEIGHT_FLOOR, box_filter, cached_view_masks, luminance, 
 __all__ = ["AGGREGATIONS", "COSTS", "DEPTH_TAPER", "GUIDED_EPS", "HALVES_GAIN", "HALVES_LINE_TOL",
            "HALVES_MEDIAN_SAMPLE", "HALVES_MIN_SUPPORT", "HALVES_POOR", "LCN_AGGREGATE_PX", "LCN_EPS",
            "LCN_FLOOR", "MIN_VIEWS_TO_LEAVE_ONE_OUT", "OCCLUSION_PENALTY", "STRIP_PIXELS", "aggregate", "aggregation_window",
-           "checked_halves", "half_aggregate", "lcn_cost", "lcn_leave_one_out", "lcn_sources", "leavable_views",
-           "occlusion_aggregate", "seen_mean", "seen_mean_of_finite", "slice_cost", "sweep_masks",
+           "box_mean_of_finite", "checked_halves", "half_aggregate", "lcn_cost", "lcn_leave_one_out", "lcn_sources", "leavable_views",
+           "occlusion_aggregate", "seen_mean", "slice_cost", "sweep_masks",
            "take_halves", "view_halves", "window_weights"]
 
 # Fraction of a view's disc radius over which its weight rises from 0 to 1 in the sweep
@@ -462,25 +462,30 @@ def seen_mean(c: np.ndarray, seen: np.ndarray, window) -> np.ndarray:
     return out
 
 
-def seen_mean_of_finite(c: np.ndarray, window, scratch=None) -> np.ndarray:
-    """:func:`seen_mean` of a float32 (h, w) ``c`` over its finite pixels, in place (two passes
-    and two windows; one window where every pixel is finite). ``scratch``: two (h, w) float32
-    buffers, optional.
+def box_mean_of_finite(c: np.ndarray, box_px: int, scratch: np.ndarray | None = None) -> np.ndarray:
+    """:func:`seen_mean` of a float32 (h, w) ``c`` over its finite pixels with a ``box_px`` box
+    (odd; borders reflected as ``cv2.BORDER_REFLECT_101``), in place; inf where ``c`` is not
+    finite. Compiled: float64 running sums, rows in parallel on numba's threads. ``scratch``: an
+    (h, w) float32 buffer, optional.
 
     Examples
     --------
     >>> import numpy as np
-    >>> from lfring.warp import box_filter
-    >>> c = np.array([[1.0, 1.0, np.inf]], np.float32)
-    >>> seen_mean_of_finite(c, lambda x: box_filter(x, 3)).tolist()
-    [[1.0, 1.0, inf]]
+    >>> c = np.array([[2.0, 2.0, np.inf, 4.0]], np.float32)
+    >>> box_mean_of_finite(c, 3).tolist()  # pixel 3's box holds 4 and inf (twice, reflected)
+    [[2.0, 2.0, inf, 4.0]]
     """
-    cs, s = scratch if scratch is not None else (np.empty_like(c), np.empty_like(c))
-    kernels = _kernels()
-    if kernels.finite_terms(c, cs, s) == c.size:
-        c[...] = window(cs)
-    else:
-        kernels.finite_mean(c, window(cs), window(s), WEIGHT_FLOOR)
+    import numba
+
+    if not isinstance(c, np.ndarray) or c.dtype != np.float32 or c.ndim != 2:
+        raise InvalidInputError(f"c must be a float32 (h, w) array, got {getattr(c, 'dtype', type(c))} {np.shape(c)}")
+    if isinstance(box_px, bool) or not isinstance(box_px, (int, np.integer)) or box_px < 1 or box_px % 2 == 0:
+        raise InvalidInputError(f"box_px must be an odd positive integer, got {box_px!r}")
+    out = np.empty_like(c) if scratch is None else scratch
+    if out.shape != c.shape or out.dtype != np.float32:
+        raise InvalidInputError(f"scratch must be float32 {c.shape}, got {out.dtype} {out.shape}")
+    _kernels().finite_box_mean(c, int(box_px) // 2, WEIGHT_FLOOR, 4 * numba.get_num_threads(), out)
+    np.copyto(c, out)
     return c
 
 

@@ -379,7 +379,7 @@ def test_threads_bound_every_compiled_kernel_of_the_semi_global_method(twin, mon
 
     r, cal, views, *_ = twin
     seen = {}
-    for name in ("refine_index", "take_halves"):
+    for name in ("refine_index", "take_halves", "box_mean_of_finite"):
         real = getattr(sweep, name)
 
         def spy(*a, _real=real, _name=name, **k):
@@ -389,7 +389,7 @@ def test_threads_bound_every_compiled_kernel_of_the_semi_global_method(twin, mon
         monkeypatch.setattr(sweep, name, spy)
     before = numba.get_num_threads()
     estimate_depth(views, cal, zmin_m=0.3, zmax_m=1.0, num_planes=6, reference=0, threads=1)
-    assert seen == {"refine_index": 1, "take_halves": 1}
+    assert seen == {"refine_index": 1, "take_halves": 1, "box_mean_of_finite": 1}
     assert numba.get_num_threads() == before
 
 
@@ -418,6 +418,39 @@ def test_the_halves_volume_needs_the_whole_volume_and_an_lcn_cost(twin):
         take_halves(vol, np.empty((2, h, w), np.float32))
     with pytest.raises(InvalidInputError, match="volume must be a C-contiguous float32"):
         take_halves(vol.astype(np.float64), vol)
+
+
+@pytest.mark.parametrize("shape, box", [((40, 57), 15), ((1, 6), 3), ((5, 3), 7), ((9, 1), 5), ((30, 30), 1)])
+def test_box_mean_of_finite_is_the_seen_mean_over_a_box(shape, box):
+    """The compiled seen-pixel mean equals seen_mean with OpenCV's box (reflected borders, boxes
+    larger than the image included) in float64, to float32 rounding; inf stays where c is."""
+    from lfring.depth.costs import box_mean_of_finite, seen_mean
+
+    rng = np.random.default_rng(box)
+    c = rng.uniform(0.0, 2.0, shape).astype(np.float32)
+    c[rng.random(shape) < 0.3] = np.inf
+    c[0, 0] = np.nan
+    finite = np.isfinite(c)
+    window = lambda x: cv2.boxFilter(x.astype(np.float64), -1, (box, box), borderType=cv2.BORDER_REFLECT_101)
+    expected = seen_mean(c, finite, window)
+    got = box_mean_of_finite(c.copy(), box)
+    assert np.array_equal(np.isfinite(got), finite) and np.all(got[~finite] == np.inf)
+    np.testing.assert_allclose(got[finite], expected[finite], rtol=2e-6, atol=1e-7)
+    full = np.where(finite, c, np.float32(1.5))  # every pixel finite: the plain box mean
+    np.testing.assert_allclose(box_mean_of_finite(full.copy(), box), window(full), rtol=2e-6, atol=1e-7)
+
+
+@pytest.mark.parametrize("c, box, match", [
+    (np.zeros((4, 4), np.float64), 3, "float32"), (np.zeros((2, 4, 4), np.float32), 3, r"\(h, w\)"),
+    (np.zeros((4, 4), np.float32), 4, "odd positive"), (np.zeros((4, 4), np.float32), 0, "odd positive"),
+    (np.zeros((4, 4), np.float32), True, "odd positive")])
+def test_box_mean_of_finite_refuses_bad_inputs(c, box, match):
+    from lfring.depth.costs import box_mean_of_finite
+
+    with pytest.raises(InvalidInputError, match=match):
+        box_mean_of_finite(c, box)
+    with pytest.raises(InvalidInputError, match="scratch must be float32"):
+        box_mean_of_finite(np.zeros((4, 4), np.float32), 3, np.zeros((4, 5), np.float32))
 
 
 def test_view_halves_follow_the_rows_and_columns_of_the_ring(twin):
