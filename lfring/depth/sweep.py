@@ -316,7 +316,10 @@ def _in_reference_frame(lum, plan) -> np.ndarray:
 def _guide(views, plan) -> np.ndarray:
     """(h, w) float32 luminance of the reference frame in [0, 1] (for 'center', the views' mean
     at the middle hypothesis), for the edge-aware optimisation and refinement."""
-    g = _in_reference_frame(luminance(views), plan)
+    if plan.reference == "center":
+        g = _in_reference_frame(luminance(views), plan)
+    else:  # the reference view's own: the others' luminance is not needed
+        g = luminance(views[plan.reference:plan.reference + 1])[0]
     top = float(np.percentile(g, 99.5))
     return np.clip(g / max(top, 1e-6), 0, 1).astype(np.float32)
 
