@@ -194,6 +194,18 @@ def _parabola(cm, c0, cp):
 
 
 @njit(**_PIECE)
+def _end_offset(c_end, c_next, c_after):
+    """Sub-hypothesis offset in [0, 0.5] inwards from a winner at the first or last hypothesis:
+    the vertex of the parabola through the end's cost and the next two, clamped (0 unless it
+    curves up or a cost is not finite). A surface within half a step inside the range's end
+    otherwise comes out at the end."""
+    den = np.float64(c_end) - 2.0 * np.float64(c_next) + np.float64(c_after)
+    if den > 0.0 and np.isfinite(den):
+        return min(0.5, max(0.0, 1.0 + 0.5 * (np.float64(c_end) - np.float64(c_after)) / den))
+    return 0.0
+
+
+@njit(**_PIECE)
 def _distinctness(b, s):
     """1 - best / second in [0, 1] (float32), 0 where either is not finite or second <= 0."""
     if np.isfinite(b) and np.isfinite(s) and s > 0.0:
@@ -231,6 +243,12 @@ def select_index(agg, raw, fill, use_raw, exclude, index, conf):
                     c0 = b
                     cp = agg[k + 1, y, x]
                 off = _parabola(cm, c0, cp)
+            elif n >= 3:
+                vol = raw if use_raw else agg
+                if k == 0:
+                    off = _end_offset(vol[0, y, x], vol[1, y, x], vol[2, y, x])
+                else:
+                    off = -_end_offset(vol[n - 1, y, x], vol[n - 2, y, x], vol[n - 3, y, x])
             index[y, x] = np.float32(k + off)
             conf[y, x] = _distinctness(b, second[x])
 
@@ -276,5 +294,10 @@ def select_index_both(agg, raw, exclude, index, conf):
                     c0 = c0 if np.isfinite(c0) else f
                     cp = cp if np.isfinite(cp) else f
                 off = _parabola(cm, c0, cp)
+            elif n >= 3:
+                if k == 0:
+                    off = _end_offset(raw[0, y, x], raw[1, y, x], raw[2, y, x])
+                else:
+                    off = -_end_offset(raw[n - 1, y, x], raw[n - 2, y, x], raw[n - 3, y, x])
             index[y, x] = np.float32(k + off)
             conf[y, x] = _distinctness(b, second[x]) * _distinctness(rbest[x], rsecond[x])

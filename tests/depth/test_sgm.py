@@ -106,7 +106,7 @@ def test_confidence_combined_with_a_second_estimate_ranks_better():
 
 def test_select_on_a_known_curve():
     cost = np.full((7, 1, 3), 5.0, np.float32)
-    cost[:, 0, 0] = [4, 3, 1, 2, 4, 4, 0.5][::-1]  # minimum at 6 (edge): no parabola
+    cost[:, 0, 0] = [4, 3, 1, 2, 4, 4, 0.5][::-1]  # minimum at 0 (the end), curving down: no offset
     cost[:, 0, 1] = [9, 4, 1, 2, 5, 6, 8]  # minimum at 2, parabola offset (4 - 2) / (2 (4 - 2 + 2))
     cost[:, 0, 2] = np.nan  # nothing known
     index, conf = select(cost, exclude=1)
@@ -114,6 +114,19 @@ def test_select_on_a_known_curve():
     assert index[0, 1] == pytest.approx(2 + 0.25)
     assert conf[0, 1] == pytest.approx(1 - 1 / 5)  # second best away from 1..3 is 5 at index 4
     assert np.isnan(index[0, 2]) and conf[0, 2] == 0
+
+
+def test_select_fits_the_parabola_inwards_at_the_range_ends():
+    """A minimum within half a hypothesis inside the first or last one comes out where it is,
+    from the parabola through the end and the next two costs; one beyond the end stays at the end."""
+    i = np.arange(7, dtype=np.float32)[:, None, None]
+    vertex = np.array([5.7, 0.2, 5.6, 6.4, -2.0], np.float32)[None, None, :]
+    cost = np.broadcast_to((i - vertex) ** 2, (7, 1, 5)).astype(np.float32)
+    flat = np.ones_like(cost)  # an optimised curve with the same winner and no sub-hypothesis information
+    flat[6, 0, [0, 2, 3]] = 0.0
+    flat[0, 0, [1, 4]] = 0.0
+    for index in (select(cost)[0], select(flat, cost)[0], select(flat, cost, raw_distinctness=True)[0]):
+        np.testing.assert_allclose(index[0], [5.7, 0.2, 5.6, 6.0, 0.0], atol=1e-5)
 
 
 @pytest.mark.parametrize("exclude", [1, 2])
