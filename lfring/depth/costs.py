@@ -21,7 +21,9 @@ done, :func:`take_halves` uses the halves' volume only at the pixels where no de
 and a half agrees much better.
 
 Every cost is aggregated over the pixels that at least 1.5 views see (:func:`aggregate`,
-:func:`seen_mean`: a normalised convolution); pixels seen by fewer are inf.
+:func:`seen_mean`: a normalised convolution); pixels seen by fewer are inf. The semi-global
+method optimises the least of the aggregated costs of the boxes that contain a pixel
+(:func:`least_over_windows`, shiftable windows).
 
 The other costs (:func:`slice_cost`) compare warped luminances divided by their wide local mean
 (:func:`lfring.warp.normalised_luminance`).
@@ -38,7 +40,8 @@ from lfring.warp import WEIGHT_FLOOR, box_filter, cached_view_masks, luminance, 
 __all__ = ["AGGREGATIONS", "COSTS", "DEPTH_TAPER", "GUIDED_EPS", "HALVES_GAIN", "HALVES_LINE_TOL",
            "HALVES_MEDIAN_SAMPLE", "HALVES_MIN_SUPPORT", "HALVES_POOR", "LCN_AGGREGATE_PX", "LCN_EPS",
            "LCN_FLOOR", "MIN_VIEWS_TO_LEAVE_ONE_OUT", "OCCLUSION_PENALTY", "STRIP_PIXELS", "aggregate", "aggregation_window",
-           "box_mean_of_finite", "checked_halves", "half_aggregate", "lcn_cost", "lcn_leave_one_out", "lcn_sources", "leavable_views",
+           "box_mean_of_finite", "checked_halves", "half_aggregate", "lcn_cost", "lcn_leave_one_out", "lcn_sources",
+           "least_over_windows", "leavable_views",
            "occlusion_aggregate", "seen_mean", "slice_cost", "sweep_masks",
            "take_halves", "view_halves", "window_weights"]
 
@@ -487,6 +490,52 @@ def box_mean_of_finite(c: np.ndarray, box_px: int, scratch: np.ndarray | None = 
     _kernels().finite_box_mean(c, int(box_px) // 2, WEIGHT_FLOOR, 4 * numba.get_num_threads(), out)
     np.copyto(c, out)
     return c
+
+
+def least_over_windows(volume: np.ndarray, box_px: int, *, out: np.ndarray | None = None, threads: int = 1) -> np.ndarray:
+    """Shiftable windows: each slice of a cost volume eroded by a ``box_px`` square, the least cost
+    of the ``box_px`` neighbourhood (borders ignored; inf only where the whole neighbourhood is).
+
+    Of a cost aggregated over ``box_px`` boxes it is the least cost of every box that contains the
+    pixel, not only of the box centred on it. Next to a depth edge one of those boxes lies on the
+    pixel's own surface, so the texture of the surface beside it no longer pulls the pixel to its
+    depth (the "foreground fattening" of window costs; Scharstein and Szeliski 2002, section 3.2).
+
+    Parameters
+    ----------
+    volume : (N, h, w) float32
+    box_px : int
+        Odd side of the neighbourhood.
+    out : (N, h, w) float32, optional
+        The result's buffer (not ``volume``); allocated when not given.
+    threads : int
+        Slices are shared among this many threads.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> v = np.array([[[3.0, 1.0, 4.0, 5.0, np.inf, np.inf, np.inf]]], np.float32)
+    >>> least_over_windows(v, 3).tolist()
+    [[[1.0, 1.0, 1.0, 4.0, 5.0, inf, inf]]]
+    """
+    if not isinstance(volume, np.ndarray) or volume.dtype != np.float32 or volume.ndim != 3:
+        raise InvalidInputError(f"volume must be a float32 (N, h, w) array, got {getattr(volume, 'dtype', type(volume))} "
+                                f"{np.shape(volume)}")
+    if isinstance(box_px, bool) or not isinstance(box_px, (int, np.integer)) or box_px < 1 or box_px % 2 == 0:
+        raise InvalidInputError(f"box_px must be an odd positive integer, got {box_px!r}")
+    if out is None:
+        out = np.empty_like(volume)
+    elif out.shape != volume.shape or out.dtype != np.float32 or np.shares_memory(out, volume):
+        raise InvalidInputError(f"out must be a float32 {volume.shape} array apart from volume, got {out.dtype} {out.shape}")
+    square = np.ones((int(box_px), int(box_px)), np.uint8)
+
+    def one(k: int) -> None:
+        # Replicated borders, which the minimum ignores (OpenCV's default border value would
+        # turn an all-inf neighbourhood at the border into FLT_MAX).
+        cv2.erode(volume[k], square, dst=out[k], borderType=cv2.BORDER_REPLICATE)
+
+    run_threads([lambda k=k: one(k) for k in range(len(volume))], threads)
+    return out
 
 
 def aggregation_window(guide, window_px: int):

