@@ -25,7 +25,7 @@ import numpy as np
 
 from lfring.errors import InvalidInputError
 
-__all__ = ["MIN_CONFIDENCE", "refine_index"]
+__all__ = ["MIN_CONFIDENCE", "fill_from_farther_side", "refine_index"]
 
 # Pixels below this confidence (1 - best / second best of the aggregated cost) are not trusted.
 MIN_CONFIDENCE = 0.05
@@ -158,3 +158,57 @@ def refine_index(index, confidence, guide, *, min_confidence: float = MIN_CONFID
         interp = np.where(den > _FILL_WEIGHT_FLOOR, num / den, np.nan)
     filled = np.where(known, refined, interp).astype(np.float32)
     return refined, filled
+
+
+def fill_from_farther_side(index, holes, *, axis: int = 1) -> np.ndarray:
+    """``index`` with its ``holes`` filled along ``axis`` from the farther side.
+
+    A hole takes the higher (the hypotheses run from near to far) of the nearest known values
+    before and after it on its row (``axis=1``) or column (``axis=0``); the one there is where
+    only one side has any; it stays NaN where its line has none. The holes of the left-right
+    check are mostly occlusions: background beside a nearer surface, which the other view
+    cannot see. They belong to the farther side, and the Middlebury SDK fills them so.
+
+    Parameters
+    ----------
+    index : (h, w) float array
+        Hypothesis index (or any value that grows with depth); NaN where unknown. Known: finite
+        and not a hole.
+    holes : (h, w) bool array
+    axis : {0, 1}
+        Along the baseline: 1 for a horizontal pair, 0 for a vertical one.
+
+    Returns
+    -------
+    (h, w) float32
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> index = np.array([[2.0, 9.0, 1.0, 1.0, 5.0, np.nan]], np.float32)
+    >>> holes = np.array([[False, False, True, True, False, True]])
+    >>> fill_from_farther_side(index, holes).tolist()
+    [[2.0, 9.0, 9.0, 9.0, 5.0, 5.0]]
+    """
+    d = np.asarray(index)
+    if d.ndim != 2 or not np.issubdtype(d.dtype, np.floating):
+        raise InvalidInputError(f"index must be a floating-point (h, w) map, got {d.dtype} {d.shape}")
+    holes = np.asarray(holes)
+    if holes.shape != d.shape or holes.dtype != bool:
+        raise InvalidInputError(f"holes must be a bool map of the index's shape {d.shape}, got {holes.dtype} {holes.shape}")
+    if axis not in (0, 1) or isinstance(axis, bool):
+        raise InvalidInputError(f"axis must be 0 (columns) or 1 (rows), got {axis!r}")
+    v = np.asarray(d, np.float32)
+    if axis == 0:
+        v, holes = v.T, holes.T
+    h, w = v.shape
+    known = np.isfinite(v) & ~holes
+    cols = np.broadcast_to(np.arange(w), (h, w))
+    before = np.maximum.accumulate(np.where(known, cols, -1), axis=1)  # nearest known at or before
+    after = np.minimum.accumulate(np.where(known, cols, w)[:, ::-1], axis=1)[:, ::-1]
+    rows = np.arange(h)[:, None]
+    vb = np.where(before >= 0, v[rows, np.clip(before, 0, w - 1)], -np.inf)
+    va = np.where(after < w, v[rows, np.clip(after, 0, w - 1)], -np.inf)
+    far = np.maximum(vb, va)
+    out = np.where(holes, np.where(np.isfinite(far), far, np.nan), v).astype(np.float32)
+    return out.T.copy() if axis == 0 else out

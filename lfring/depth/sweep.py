@@ -24,7 +24,7 @@ import numpy as np
 
 from lfring.depth.costs import (AGGREGATIONS, COSTS, DEPTH_TAPER, GUIDED_EPS, LCN_AGGREGATE_PX, box_mean_of_finite,
                                 lcn_sources, least_over_windows, sweep_masks, take_halves, view_halves)
-from lfring.depth.refine import refine_index
+from lfring.depth.refine import fill_from_farther_side, refine_index
 from lfring.depth.sgm import P1_SCALE, P2_SCALE, PATHS, cost_scale, numba_threads, select, sgm_aggregate
 from lfring.depth.hypotheses import depth_hypotheses, view_motion_px
 from lfring.depth.selection import DepthResult, Finisher
@@ -151,7 +151,8 @@ def estimate_depth(
         'sgm' only: estimate the map again from the view farthest from the reference and make
         unknown (NaN) the pixels whose two answers disagree by more than one pixel of motion:
         the left-right check of stereo, which finds the pixels the other view cannot see. It
-        doubles the time. By default on for two views (a pixel occluded in the other view has no
+        doubles the time. ``depth_filled_m`` fills those pixels from the farther side along the
+        baseline (they are mostly background hidden from the other view by a nearer surface). By default on for two views (a pixel occluded in the other view has no
         information at all) and off for more (a pixel hidden from one view is still measured by
         the others, and a single second frame would reject it).
     progress : callable, optional
@@ -336,6 +337,16 @@ def _other_reference(plan) -> int:
     return int(np.argmax(moved))
 
 
+def _baseline_axis(plan, view: int) -> int:
+    """1 when ``view`` moves the reference's pixels mostly along rows as the depth changes (a
+    horizontal baseline), 0 when mostly along columns."""
+    h, w = plan.masks.shape[1:3]
+    centre = np.array([w / 2.0, h / 2.0, 1.0])
+    near, far = plan.hs[0, view] @ centre, plan.hs[-1, view] @ centre
+    dx, dy = far[:2] / far[2] - near[:2] / near[2]
+    return 1 if abs(dx) >= abs(dy) else 0
+
+
 def _consistent(calibration, plan, index, other_plan, other_index, tolerance: float) -> np.ndarray:
     """(h, w) bool: pixels whose depth, seen from the other reference frame at that depth, is
     the depth found there (to ``tolerance`` hypotheses): the left-right check of stereo."""
@@ -377,6 +388,13 @@ def _optimise(views, calibration, plan, fin, backend, device, cost, aggregation,
         keep = _consistent(calibration, plan, index, other, other_index, CONSISTENCY_STEPS * plan.exclude)
         confidence = np.where(keep, confidence, np.float32(0.0))
     refined, filled = refine_index(index, confidence, guide)
+    if consistency:
+        # The pixels the check rejects are mostly occlusions (background the other view cannot
+        # see): the filled map takes the farther side along the baseline there, the smoother's
+        # interpolation elsewhere. Bad 1 px of depth_filled_m on Teddy / Cones 17.2 / 14.4 % ->
+        # 14.0 / 12.2 %; the twin's pairs 4.6 / 10.5 / 10.6 % -> 4.2 / 10.5 / 10.5 %.
+        behind = fill_from_farther_side(refined, ~keep, axis=_baseline_axis(plan, other.reference))
+        filled = np.where(~keep & np.isfinite(behind), behind, filled).astype(np.float32)
     index = np.where(np.isfinite(refined), refined, np.nan if consistency else index).astype(np.float32)
     missing = np.where(np.isfinite(index), np.float32(0.0), np.float32(np.inf))
     fin.rows(0, h, np.nan_to_num(index), confidence, missing, nviews)

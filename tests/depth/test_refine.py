@@ -78,3 +78,39 @@ def test_accepts_uint8_and_colour_guides():
 def test_errors(args, kwargs, match):
     with pytest.raises(InvalidInputError, match=match):
         refine_index(*args, **kwargs)
+
+
+def test_fill_from_farther_side_takes_the_higher_neighbour_along_rows_or_columns():
+    from lfring.depth.refine import fill_from_farther_side
+
+    rng = np.random.default_rng(2)
+    index = rng.random((6, 9)).astype(np.float32) * 10
+    holes = rng.random((6, 9)) < 0.4
+    holes[3] = True  # a row with nothing known
+    index[0, 4] = np.nan  # unknown but no hole: stays unknown, and is no neighbour
+    got = fill_from_farther_side(index, holes)
+    for y in range(6):
+        for x in range(9):
+            if not holes[y, x]:
+                assert got[y, x] == index[y, x] or (np.isnan(got[y, x]) and np.isnan(index[y, x]))
+                continue
+            known = [i for i in range(9) if not holes[y, i] and np.isfinite(index[y, i])]
+            left = [index[y, i] for i in known if i < x][-1:]
+            right = [index[y, i] for i in known if i > x][:1]
+            want = max(left + right) if left + right else np.nan
+            np.testing.assert_equal(got[y, x], np.float32(want))
+    np.testing.assert_array_equal(fill_from_farther_side(index.T, holes.T, axis=0), got.T)
+
+
+@pytest.mark.parametrize("args, kwargs, match", [
+    ((np.zeros((3, 3), np.int32), np.zeros((3, 3), bool)), {}, "floating-point"),
+    ((np.zeros(3, np.float32), np.zeros(3, bool)), {}, r"\(h, w\)"),
+    ((np.zeros((3, 3), np.float32), np.zeros((3, 4), bool)), {}, "holes must"),
+    ((np.zeros((3, 3), np.float32), np.zeros((3, 3))), {}, "holes must"),
+    ((np.zeros((3, 3), np.float32), np.zeros((3, 3), bool)), {"axis": 2}, "axis"),
+    ((np.zeros((3, 3), np.float32), np.zeros((3, 3), bool)), {"axis": True}, "axis")])
+def test_fill_from_farther_side_refuses_bad_inputs(args, kwargs, match):
+    from lfring.depth.refine import fill_from_farther_side
+
+    with pytest.raises(InvalidInputError, match=match):
+        fill_from_farther_side(*args, **kwargs)

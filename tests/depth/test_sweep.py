@@ -288,6 +288,23 @@ def test_pair_consistency_makes_occluded_pixels_unknown():
     assert np.mean(err < 0.5) >= 0.95
 
 
+@pytest.mark.parametrize("vertical", [False, True])
+def test_pair_fills_the_occlusion_from_the_background(vertical):
+    """The filled map gives the background's disparity to the strip beside a nearer square that
+    only the reference sees (the left-right check's holes take the farther side along the
+    baseline: rows for a horizontal pair, columns for a vertical one). Measured: 88 % of the
+    strip within 0.5 px, against 13-15 % when the edge-aware smoother filled it."""
+    views, truth, occluded = _occluding_pair()
+    positions = [(0, 0), (1, 0)]
+    if vertical:
+        views, truth, occluded = np.ascontiguousarray(views.transpose(0, 2, 1, 3)), truth.T, occluded.T
+        positions = [(0, 0), (0, 1)]
+    cal = RingCalibration.from_grid(views.shape[1:3], positions, disparity_scale_px_m=100.0)
+    res = estimate_depth(views, cal, zmin_m=100.0 / 16, zmax_m=100.0 / 2, reference=0)
+    assert np.mean(np.isnan(res.depth_m[occluded])) >= 0.8  # the raw map keeps them unknown
+    assert np.mean(np.abs(100.0 / res.depth_filled_m[occluded] - truth[occluded]) < 0.5) >= 0.8
+
+
 def test_background_beside_a_nearer_square_keeps_its_depth():
     """Shiftable windows: the background pixels within 4 px of a nearer textured square (those
     both views see) keep the background's disparity; with the centred boxes alone 7-8 % of them
