@@ -194,14 +194,18 @@ def _parabola(cm, c0, cp):
 
 
 @njit(**_PIECE)
-def _end_offset(c_end, c_next, c_after):
-    """Sub-hypothesis offset in [0, 0.5] inwards from a winner at the first or last hypothesis:
-    the vertex of the parabola through the end's cost and the next two, clamped (0 unless it
-    curves up or a cost is not finite). A surface within half a step inside the range's end
-    otherwise comes out at the end."""
-    den = np.float64(c_end) - 2.0 * np.float64(c_next) + np.float64(c_after)
+def _end_offset(vol, k, y, x):
+    """Sub-hypothesis offset, at most 0.5 inwards, of a winner ``k`` at the first or last
+    hypothesis of ``vol``: the vertex of the parabola through the end's cost and the next two
+    inwards, clamped (0 unless it curves up or a cost is not finite); ``vol`` holds three
+    hypotheses or more. A surface within half a step inside the range's end otherwise comes out
+    at the end."""
+    inward = 1 if k == 0 else -1
+    c_end = np.float64(vol[k, y, x])
+    c_after = np.float64(vol[k + 2 * inward, y, x])
+    den = c_end - 2.0 * np.float64(vol[k + inward, y, x]) + c_after
     if den > 0.0 and np.isfinite(den):
-        return min(0.5, max(0.0, 1.0 + 0.5 * (np.float64(c_end) - np.float64(c_after)) / den))
+        return inward * min(0.5, max(0.0, 1.0 + 0.5 * (c_end - c_after) / den))
     return 0.0
 
 
@@ -244,11 +248,7 @@ def select_index(agg, raw, fill, use_raw, exclude, index, conf):
                     cp = agg[k + 1, y, x]
                 off = _parabola(cm, c0, cp)
             elif n >= 3:
-                vol = raw if use_raw else agg
-                if k == 0:
-                    off = _end_offset(vol[0, y, x], vol[1, y, x], vol[2, y, x])
-                else:
-                    off = -_end_offset(vol[n - 1, y, x], vol[n - 2, y, x], vol[n - 3, y, x])
+                off = _end_offset(raw if use_raw else agg, k, y, x)
             index[y, x] = np.float32(k + off)
             conf[y, x] = _distinctness(b, second[x])
 
@@ -295,9 +295,6 @@ def select_index_both(agg, raw, exclude, index, conf):
                     cp = cp if np.isfinite(cp) else f
                 off = _parabola(cm, c0, cp)
             elif n >= 3:
-                if k == 0:
-                    off = _end_offset(raw[0, y, x], raw[1, y, x], raw[2, y, x])
-                else:
-                    off = -_end_offset(raw[n - 1, y, x], raw[n - 2, y, x], raw[n - 3, y, x])
+                off = _end_offset(raw, k, y, x)
             index[y, x] = np.float32(k + off)
             conf[y, x] = _distinctness(b, second[x]) * _distinctness(rbest[x], rsecond[x])
