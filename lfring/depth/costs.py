@@ -38,12 +38,11 @@ from lfring.errors import InvalidInputError
 from lfring.warp import WEIGHT_FLOOR, box_filter, cached_view_masks, luminance, run_threads
 
 __all__ = ["AGGREGATIONS", "COSTS", "DEPTH_TAPER", "GUIDED_EPS", "HALVES_GAIN", "HALVES_LINE_TOL",
-           "HALVES_MEDIAN_SAMPLE", "HALVES_MIN_SUPPORT", "HALVES_POOR", "LCN_AGGREGATE_PX", "LCN_EPS",
-           "LCN_FLOOR", "MIN_VIEWS_TO_LEAVE_ONE_OUT", "OCCLUSION_PENALTY", "STRIP_PIXELS", "aggregate", "aggregation_window",
-           "box_mean_of_finite", "checked_halves", "half_aggregate", "lcn_cost", "lcn_leave_one_out", "lcn_sources",
-           "least_over_windows", "leavable_views",
-           "occlusion_aggregate", "seen_mean", "slice_cost", "sweep_masks",
-           "take_halves", "view_halves", "window_weights"]
+           "HALVES_MEDIAN_SAMPLE", "HALVES_MIN_SUPPORT", "HALVES_POOR", "LCN_AGGREGATE_PX", "LCN_EPS", "LCN_FLOOR",
+           "MIN_VIEWS_TO_LEAVE_ONE_OUT", "OCCLUSION_PENALTY", "STRIP_PIXELS", "aggregate", "aggregation_window",
+           "box_mean_of_finite", "check_odd_px", "checked_halves", "half_aggregate", "lcn_cost", "lcn_leave_one_out",
+           "lcn_sources", "least_over_windows", "leavable_views", "occlusion_aggregate", "seen_mean", "slice_cost",
+           "sweep_masks", "take_halves", "view_halves", "window_weights"]
 
 # Fraction of a view's disc radius over which its weight rises from 0 to 1 in the sweep
 # (lfring.warp.view_masks). The refocusing taper (lfring.warp.TAPER, 15 %) hides seams in an image;
@@ -95,6 +94,12 @@ LCN_FLOOR = 1e-6
 # Pixels per strip (rows times width, with the halo): about 0.4 MiB a buffer, so a thread's dozen
 # buffers stay in its L2 and L3 share; larger strips measured no faster, smaller ones slower.
 STRIP_PIXELS = 1 << 17
+
+
+def check_odd_px(name: str, value) -> None:
+    """Refuse a window side ``value`` that is not an odd positive integer (a centred window)."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1 or value % 2 == 0:
+        raise InvalidInputError(f"{name} must be an odd positive integer, got {value!r}")
 
 
 def sweep_masks(calibration, view_shape, taper: float = DEPTH_TAPER) -> np.ndarray:
@@ -482,8 +487,7 @@ def box_mean_of_finite(c: np.ndarray, box_px: int, scratch: np.ndarray | None = 
 
     if not isinstance(c, np.ndarray) or c.dtype != np.float32 or c.ndim != 2:
         raise InvalidInputError(f"c must be a float32 (h, w) array, got {getattr(c, 'dtype', type(c))} {np.shape(c)}")
-    if isinstance(box_px, bool) or not isinstance(box_px, (int, np.integer)) or box_px < 1 or box_px % 2 == 0:
-        raise InvalidInputError(f"box_px must be an odd positive integer, got {box_px!r}")
+    check_odd_px("box_px", box_px)
     out = np.empty_like(c) if scratch is None else scratch
     if out.shape != c.shape or out.dtype != np.float32:
         raise InvalidInputError(f"scratch must be float32 {c.shape}, got {out.dtype} {out.shape}")
@@ -521,8 +525,7 @@ def least_over_windows(volume: np.ndarray, box_px: int, *, out: np.ndarray | Non
     if not isinstance(volume, np.ndarray) or volume.dtype != np.float32 or volume.ndim != 3:
         raise InvalidInputError(f"volume must be a float32 (N, h, w) array, got {getattr(volume, 'dtype', type(volume))} "
                                 f"{np.shape(volume)}")
-    if isinstance(box_px, bool) or not isinstance(box_px, (int, np.integer)) or box_px < 1 or box_px % 2 == 0:
-        raise InvalidInputError(f"box_px must be an odd positive integer, got {box_px!r}")
+    check_odd_px("box_px", box_px)
     if out is None:
         out = np.empty_like(volume)
     elif out.shape != volume.shape or out.dtype != np.float32 or np.shares_memory(out, volume):

@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 
 from lfring.depth.costs import (AGGREGATIONS, COSTS, DEPTH_TAPER, GUIDED_EPS, LCN_AGGREGATE_PX, box_mean_of_finite,
-                                lcn_sources, least_over_windows, sweep_masks, take_halves, view_halves)
+                                check_odd_px, lcn_sources, least_over_windows, sweep_masks, take_halves, view_halves)
 from lfring.depth.refine import fill_from_farther_side, refine_index
 from lfring.depth.sgm import P1_SCALE, P2_SCALE, PATHS, cost_scale, numba_threads, select, sgm_aggregate
 from lfring.depth.hypotheses import depth_hypotheses, view_motion_px
@@ -48,11 +48,6 @@ SUBPIXEL_BOX_PX = 15
 # Two reference frames agree when their hypotheses differ by at most this many times the
 # smallest distinguishable step (one pixel of view motion).
 CONSISTENCY_STEPS = 1
-
-
-def _odd_positive(name: str, value) -> None:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1 or value % 2 == 0:
-        raise InvalidInputError(f"{name} must be an odd positive integer, got {value!r}")
 
 
 def _optional_count(name: str, value, least: int, meaning: str) -> None:
@@ -205,9 +200,9 @@ def estimate_depth(
         raise InvalidInputError(f"aggregation must be one of {', '.join(AGGREGATIONS)}, got {aggregation!r}")
     if paths not in PATHS:
         raise InvalidInputError(f"paths must be one of {', '.join(map(str, PATHS))}, got {paths!r}")
-    _odd_positive("window_px", window_px)
+    check_odd_px("window_px", window_px)
     if aggregate_px is not None:
-        _odd_positive("aggregate_px", aggregate_px)
+        check_odd_px("aggregate_px", aggregate_px)
     _optional_count("threads", threads, 1, "")
     _optional_count("num_planes", num_planes, 2, " (or None for the default spacing)")
     if isinstance(rim_taper, bool) or not isinstance(rim_taper, (int, float, np.integer, np.floating)) \
