@@ -65,28 +65,18 @@ def twin_scene(seed: int = 3, *, scene: str = "three_depth") -> SimpleNamespace:
 def fill_invalid(disparity: np.ndarray, *, far_is_lower: bool = True) -> np.ndarray:
     """Invalid (NaN) disparities replaced by the farther of the nearest valid values to their
     left and right on the same row (the Middlebury SDK's filling: an occlusion's hole belongs to
-    the background); rows with no valid pixel stay NaN.
+    the background); rows with no valid pixel stay NaN. The rule is lfring's own
+    (:func:`lfring.depth.refine.fill_from_farther_side`, on a value that grows with depth).
 
     The SDK takes the lower disparity, which is the farther one for a left view's disparity
     x_left - x_right > 0. Where the disparity grows with depth instead (the twin's x0 - x1 is
     negative and rises towards the far plane), ``far_is_lower=False`` takes the higher one.
     """
+    from lfring.depth.refine import fill_from_farther_side
+
     d = np.asarray(disparity, np.float32)
-    sign = np.float32(1.0 if far_is_lower else -1.0)
-    out = d.copy()
-    w = d.shape[1]
-    cols = np.arange(w)
-    for y in range(d.shape[0]):
-        ok = np.isfinite(d[y])
-        if ok.all() or not ok.any():
-            continue
-        left = np.maximum.accumulate(np.where(ok, cols, -1))  # nearest valid at or left of x
-        right = np.minimum.accumulate(np.where(ok, cols, w)[::-1])[::-1]
-        lv = np.where(left >= 0, sign * d[y, np.clip(left, 0, w - 1)], np.inf)
-        rv = np.where(right < w, sign * d[y, np.clip(right, 0, w - 1)], np.inf)
-        fill = sign * np.minimum(lv, rv)
-        out[y, ~ok] = fill[~ok]
-    return out
+    sign = np.float32(-1.0 if far_is_lower else 1.0)  # sign * d grows with depth
+    return sign * fill_from_farther_side(sign * d, ~np.isfinite(d))
 
 
 def sgbm_disparity(left: np.ndarray, right: np.ndarray, min_disparity_px: float, max_disparity_px: float, *,
