@@ -96,8 +96,14 @@ class RingCalibration:
             raise InvalidInputError(f"calibration source must be one of {SOURCES}, got {self.source!r}")
         if self.model.num_views != self.layout.num_views:
             raise InvalidInputError(f"the model has {self.model.num_views} views but the layout {self.layout.num_views}")
-        lo, hi = self.valid_depth_range_m
-        if not (np.isfinite(lo) and lo > self.model.depth_origin_m and (hi is None or hi >= lo)):
+        rng = self.valid_depth_range_m
+        if isinstance(rng, (str, bytes)) or not hasattr(rng, "__len__") or len(rng) != 2 \
+                or not all(_is_finite_number(v) for v in (rng[0], *([] if rng[1] is None else [rng[1]]))):
+            raise InvalidInputError(f"valid_depth_range_m must be (nearest, farthest or None) finite metres, got {rng!r} "
+                                    "(None, not inf, for no farthest depth)")
+        lo, hi = float(rng[0]), None if rng[1] is None else float(rng[1])
+        object.__setattr__(self, "valid_depth_range_m", (lo, hi))
+        if not (lo > self.model.depth_origin_m and (hi is None or hi >= lo)):
             raise InvalidInputError(f"valid depth range {self.valid_depth_range_m} must lie beyond z0 = {self.model.depth_origin_m}")
         object.__setattr__(self, "planes", tuple(self.planes))
 
@@ -308,9 +314,9 @@ class RingCalibration:
         """
         pos = np.asarray(grid_positions, dtype=np.float64) if _is_numeric(grid_positions) else None
         if pos is None or pos.ndim != 2 or pos.shape[1] != 2 or not np.all(np.isfinite(pos)):
+            got = f"shape {pos.shape}" if pos is not None else repr(grid_positions)[:80]
             raise InvalidInputError(
-                f"grid_positions must be (V, 2) finite (x, y) grid positions, got {np.shape(grid_positions)}; "
-                "a stereo pair is [(0, 0), (1, 0)]"
+                f"grid_positions must be (V, 2) finite (x, y) grid positions, got {got}; a stereo pair is [(0, 0), (1, 0)]"
             )
         layout = grid_layout(view_shape, pos)
         for name, value in (("disparity_scale_px_m", disparity_scale_px_m), ("disparity_offset_px", disparity_offset_px),
@@ -330,7 +336,7 @@ class RingCalibration:
         return cls(
             model=VariableHomography(a, b, z0, 0),
             layout=layout,
-            valid_depth_range_m=tuple(valid_depth_range_m),
+            valid_depth_range_m=valid_depth_range_m,
             source="grid",
             provenance={"grid_positions": pos.tolist(), "disparity_scale_px_m": float(disparity_scale_px_m),
                         "disparity_offset_px": float(disparity_offset_px),
@@ -524,6 +530,10 @@ def _is_builtin_name(path) -> bool:
     separators = {"/", os.sep} | ({os.altsep} if os.altsep else set())
     return (bool(text) and not any(s in text for s in separators) and not text.lower().endswith(".json")
             and not Path(text).exists())
+
+
+def _is_finite_number(value) -> bool:
+    return not isinstance(value, bool) and isinstance(value, (int, float, np.integer, np.floating)) and math.isfinite(value)
 
 
 def _is_numeric(value) -> bool:

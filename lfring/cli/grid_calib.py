@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 import logging
+import math
 import re
 
 import click
+
+from lfring.views import MAX_VIEWS
 
 log = logging.getLogger("lfring.cli.grid_calib")
 
@@ -21,7 +24,7 @@ def _pair(text: str, sep: str, what: str) -> tuple[float, float]:
 
 def _size(text: str, hint: str, form: str) -> tuple[int, int]:
     w, h = _pair(text, r"[xX,]", f"{form} (two positive integers)")
-    if not (w == int(w) >= 1 and h == int(h) >= 1):
+    if not (math.isfinite(w) and math.isfinite(h) and w == int(w) >= 1 and h == int(h) >= 1):
         raise click.BadParameter(f"expected {form} (two positive integers), got {text!r}", param_hint=hint)
     return int(w), int(h)
 
@@ -32,6 +35,8 @@ def _positions(grid: str | None, positions: str | None) -> list[tuple[float, flo
     if positions is not None:
         return [_pair(p, r",", "X,Y grid positions separated by spaces") for p in positions.split()]
     cols, rows = _size(grid or "2x1", "--grid", "COLSxROWS")
+    if cols * rows > MAX_VIEWS:
+        raise click.BadParameter(f"a grid of {cols} x {rows} has {cols * rows} views: at most {MAX_VIEWS}", param_hint="--grid")
     return [(float(k % cols), float(k // cols)) for k in range(cols * rows)]
 
 

@@ -180,6 +180,12 @@ def test_views_that_do_not_match_the_calibration_are_refused():
     ({"disparity_scale_px_m": 0.0}, "must not be 0"),
     ({"disparity_scale_px_m": float("nan")}, "finite"),
     ({"view_shape": (0, 5)}, "view_shape"),
+    ({"grid_positions": [(0, 0), (1,)]}, r"\(V, 2\)"),
+    ({"valid_depth_range_m": (1.0, float("inf"))}, "None, not inf"),  # save() would write what load() refuses
+    ({"valid_depth_range_m": (1.0,)}, "valid_depth_range_m must be"),
+    ({"valid_depth_range_m": 5}, "valid_depth_range_m must be"),
+    ({"valid_depth_range_m": ("a", "b")}, "valid_depth_range_m must be"),
+    ({"valid_depth_range_m": (5.0, 1.0)}, "must lie beyond"),
 ])
 def test_bad_grids_are_refused(bad, match):
     kw = {"view_shape": (8, 8), "grid_positions": [(0, 0), (1, 0)], "disparity_scale_px_m": 1.0, **bad}
@@ -222,6 +228,10 @@ def test_cli_grid_calib_then_depth_and_refocus_of_separate_views(tmp_path):
     assert main(["depth", *paths, "--zmin", "1", "--zmax", "5", "-o", str(tmp_path / "o2")]) == 2
     assert main(["depth", *paths, paths[0], "--calib", str(cal_path), "--zmin", "9", "--zmax", "50", "-o", str(tmp_path / "o3")]) == 2
     assert main(["grid-calib", "--size", "96x64", "--grid", "11x10", "--disparity-scale", "1", "-o", str(tmp_path / "g.json")]) == 2
+    # Refused before any view is built (a huge grid used to be listed first), and no traceback.
+    for size, grid in (("96x64", "100000x100000"), ("nanx64", "2x1"), ("infx64", "2x1")):
+        assert main(["grid-calib", "--size", size, "--grid", grid, "--disparity-scale", "1", "-o", str(tmp_path / "g.json")]) == 2
+    assert not (tmp_path / "g.json").exists()
 
 
 def test_select_views_of_the_ring_keeps_their_homographies(prototype):
