@@ -25,7 +25,7 @@ from lfring.errors import InvalidInputError
 __all__ = [
     "DEFAULT_INTERPOLATION", "INTERPOLATIONS", "STRIP_BYTES", "TAPER", "TRANSLATION_TOL_PX", "WEIGHT_FLOOR", "ShiftEngine", "box_filter",
     "cached_view_masks", "calibration_cache", "check_views", "interpolation_flag", "inverse_weight", "luminance", "normalised_luminance",
-    "run_threads", "translation_of", "translations", "view_masks", "warp_image", "warp_views",
+    "check_threads", "run_threads", "translation_of", "translations", "view_masks", "warp_image", "warp_views",
 ]
 
 # A reference pixel whose summed view weight is below this is seen by no view: it gets 0 (images)
@@ -298,6 +298,16 @@ def _pool(workers: int) -> ThreadPoolExecutor:
     if _POOL is None or _POOL[0] != os.getpid() or _POOL[2] < workers:
         _POOL = (os.getpid(), ThreadPoolExecutor(max_workers=workers, thread_name_prefix="lfring"), workers)
     return _POOL[1]
+
+
+def check_threads(threads, *, allow_none: bool = True):
+    """``threads`` as an int >= 1 (None passes when ``allow_none``: the caller's default); anything
+    else is refused with :class:`InvalidInputError`."""
+    if threads is None and allow_none:
+        return None
+    if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 1:
+        raise InvalidInputError(f"threads must be an integer >= 1{' or None' if allow_none else ''}, got {threads!r}")
+    return int(threads)
 
 
 def run_threads(tasks, threads: int) -> None:

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from lfring.backends import require_torch, resolve_device
-from lfring.depth.sgm import EDGE_SCALE, P1_SCALE, P2_SCALE, PATHS, cost_scale
+from lfring.depth.sgm import EDGE_SCALE, P1_SCALE, P2_SCALE, PATHS, check_guide, check_paths, check_penalty, cost_scale
 from lfring.errors import InvalidInputError
 
 __all__ = ["sgm_aggregate_torch"]
@@ -74,30 +74,24 @@ def sgm_aggregate_torch(cost, *, guide=None, p1: float | None = None, p2: float 
         raise InvalidInputError(f"cost must be a non-empty (N, h, w) cost volume, got shape {tuple(c.shape)}")
     if not c.is_floating_point():
         raise InvalidInputError(f"cost must be floating point (float32), got {c.dtype}")
-    if paths not in PATHS:
-        raise InvalidInputError(f"paths must be one of {sorted(PATHS)}, got {paths!r}")
+    paths = check_paths(paths)
     c = c.float()
     n, h, w = c.shape
     if p1 is None or p2 is None:
         scale = cost_scale(c.cpu().numpy())
         p1 = P1_SCALE * scale if p1 is None else p1
         p2 = P2_SCALE * scale if p2 is None else p2
-    if not (np.isfinite(p1) and np.isfinite(p2) and p1 >= 0 and p2 >= 0):
-        raise InvalidInputError(f"p1 and p2 must be finite and >= 0, got {p1!r}, {p2!r}")
-    p2 = max(float(p2), float(p1))
+    p1 = check_penalty(p1, "p1")
+    p2 = max(check_penalty(p2, "p2"), p1)
     f32 = torch.float32
     tp1 = torch.tensor(np.float32(p1), dtype=f32, device=dev)
     tp2 = torch.tensor(np.float32(p2), dtype=f32, device=dev)
     use_guide = guide is not None and edge_scale is not None
     if use_guide:
-        if not (np.isfinite(edge_scale) and edge_scale > 0):
-            raise InvalidInputError(f"edge_scale must be > 0 and finite, got {edge_scale!r}")
-        g = guide.to(dev) if isinstance(guide, torch.Tensor) else torch.from_numpy(np.asarray(guide, np.float32)).to(dev)
-        if g.ndim == 3:
-            g = g.float().mean(dim=2)
-        if tuple(g.shape) != (h, w):
-            raise InvalidInputError(f"guide must be an (h, w) image of the cost's (h, w) = {(h, w)}, got {tuple(g.shape)}")
-        g = g.float()
+        edge_scale = check_penalty(edge_scale, "edge_scale", allow_zero=False)
+        # The numba version's checks and luminance (an (h, w) image of guide values is small).
+        g = torch.from_numpy(check_guide(guide.detach().cpu().numpy() if isinstance(guide, torch.Tensor) else guide,
+                                         (h, w))).to(dev)
         tes = torch.tensor(np.float32(edge_scale), dtype=f32, device=dev)
     c = _neutral(c, torch)
     out = torch.zeros_like(c)

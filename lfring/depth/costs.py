@@ -35,7 +35,7 @@ import cv2
 import numpy as np
 
 from lfring.errors import InvalidInputError
-from lfring.warp import WEIGHT_FLOOR, box_filter, cached_view_masks, luminance, run_threads
+from lfring.warp import WEIGHT_FLOOR, box_filter, cached_view_masks, check_threads, luminance, run_threads
 
 __all__ = ["AGGREGATIONS", "COSTS", "DEPTH_TAPER", "GUIDED_EPS", "HALVES_GAIN", "HALVES_LINE_TOL",
            "HALVES_MEDIAN_SAMPLE", "HALVES_MIN_SUPPORT", "HALVES_POOR", "LCN_AGGREGATE_PX", "LCN_EPS", "LCN_FLOOR",
@@ -507,10 +507,11 @@ def least_over_windows(volume: np.ndarray, box_px: int, *, out: np.ndarray | Non
 
     Parameters
     ----------
-    volume : (N, h, w) float32
+    volume : (N, h, w) float32, C-contiguous
+        Costs; inf marks an unknown entry (NaN is refused: it is no cost).
     box_px : int
         Odd side of the neighbourhood.
-    out : (N, h, w) float32, optional
+    out : (N, h, w) float32, C-contiguous, optional
         The result's buffer (not ``volume``); allocated when not given.
     threads : int
         Slices are shared among this many threads.
@@ -522,22 +523,35 @@ def least_over_windows(volume: np.ndarray, box_px: int, *, out: np.ndarray | Non
     >>> least_over_windows(v, 3).tolist()
     [[[1.0, 1.0, 1.0, 4.0, 5.0, inf, inf]]]
     """
-    if not isinstance(volume, np.ndarray) or volume.dtype != np.float32 or volume.ndim != 3:
-        raise InvalidInputError(f"volume must be a float32 (N, h, w) array, got {getattr(volume, 'dtype', type(volume))} "
-                                f"{np.shape(volume)}")
+    def usable(a) -> bool:
+        return isinstance(a, np.ndarray) and a.dtype == np.float32 and a.ndim == 3 and a.flags.c_contiguous
+
+    if not usable(volume) or min(volume.shape) < 1:
+        raise InvalidInputError(f"volume must be a non-empty C-contiguous float32 (N, h, w) array, got "
+                                f"{getattr(volume, 'dtype', type(volume).__name__)} {np.shape(volume)}")
     check_odd_px("box_px", box_px)
+    threads = check_threads(threads, allow_none=False)
     if out is None:
         out = np.empty_like(volume)
-    elif out.shape != volume.shape or out.dtype != np.float32 or np.shares_memory(out, volume):
-        raise InvalidInputError(f"out must be a float32 {volume.shape} array apart from volume, got {out.dtype} {out.shape}")
-    square = np.ones((int(box_px), int(box_px)), np.uint8)
+    elif not usable(out) or out.shape != volume.shape or np.shares_memory(out, volume):
+        raise InvalidInputError(f"out must be a C-contiguous float32 {volume.shape} array apart from volume, got "
+                                f"{getattr(out, 'dtype', type(out).__name__)} {np.shape(out)}")
+    # A box wider than twice the slice covers all of it from every pixel: the same minimum.
+    side = min(int(box_px), 2 * max(volume.shape[1:]) + 1)
+    square = np.ones((side, side), np.uint8)
+    has_nan = []
 
     def one(k: int) -> None:
+        if np.isnan(volume[k]).any():  # OpenCV's minimum would move it (about 1 % of the erosion's time)
+            has_nan.append(k)
+            return
         # Replicated borders, which the minimum ignores (OpenCV's default border value would
         # turn an all-inf neighbourhood at the border into FLT_MAX).
         cv2.erode(volume[k], square, dst=out[k], borderType=cv2.BORDER_REPLICATE)
 
     run_threads([lambda k=k: one(k) for k in range(len(volume))], threads)
+    if has_nan:
+        raise InvalidInputError(f"volume has NaN in slice {min(has_nan)}: mark unknown costs with inf")
     return out
 
 

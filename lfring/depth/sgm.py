@@ -31,6 +31,7 @@ from typing import NamedTuple
 import numpy as np
 
 from lfring.errors import InvalidInputError
+from lfring.warp import check_threads
 
 __all__ = [
     "PATHS",
@@ -38,6 +39,9 @@ __all__ = [
     "P2_SCALE",
     "EDGE_SCALE",
     "Sparsification",
+    "check_guide",
+    "check_paths",
+    "check_penalty",
     "cost_scale",
     "edge_penalty",
     "sgm_aggregate",
@@ -128,19 +132,28 @@ def _check_cost(cost, name="cost") -> np.ndarray:
     return np.ascontiguousarray(a, dtype=np.float32)
 
 
-def _check_guide(guide, shape) -> np.ndarray:
-    g = np.asarray(guide)
+def check_guide(guide, shape) -> np.ndarray:
+    """The guide of the edge-aware penalty as a contiguous (h, w) float32 luminance: an (h, w)
+    image, or (h, w, 1 or 3) averaged over its channels; finite and numeric (not bool)."""
+    try:
+        g = np.asarray(guide)
+    except (TypeError, ValueError):
+        g = np.asarray(None)
+    got = g.shape
     if g.ndim == 3 and g.shape[2] in (1, 3):
-        g = g.mean(axis=2)
+        g = g[..., 0] if g.dtype == bool else g.mean(axis=2)
     if g.shape != tuple(shape):
-        raise InvalidInputError(f"guide must be an (h, w) or (h, w, C) image of the cost's (h, w) = {tuple(shape)}, "
-                                f"got shape {np.shape(guide)}")
-    if not np.issubdtype(g.dtype, np.number) or not np.all(np.isfinite(g)):
+        raise InvalidInputError(f"guide must be an (h, w), (h, w, 1) or (h, w, 3) image of the cost's (h, w) = "
+                                f"{tuple(shape)}, got shape {got}")
+    if g.dtype == bool or not np.issubdtype(g.dtype, np.number) or not np.all(np.isfinite(g)):
         raise InvalidInputError("guide must be a finite numeric image (luminance in [0, 1])")
     return np.ascontiguousarray(g, dtype=np.float32)
 
 
-def _check_positive(value, name, *, allow_zero=True) -> float:
+def check_penalty(value, name, *, allow_zero=True) -> float:
+    """A penalty or scale as a float: finite, >= 0 (> 0 unless ``allow_zero``), a real number."""
+    if isinstance(value, (bool, str, bytes)) or np.ndim(value) != 0:
+        raise InvalidInputError(f"{name} must be a number, got {value!r}")
     try:
         v = float(value)
     except (TypeError, ValueError):
@@ -153,6 +166,13 @@ def _check_positive(value, name, *, allow_zero=True) -> float:
 # --------------------------------------------------------------------------------------------
 # Public API
 # --------------------------------------------------------------------------------------------
+
+
+def check_paths(paths) -> int:
+    """``paths`` as one of :data:`PATHS`' keys (an integer, 4 or 8)."""
+    if isinstance(paths, bool) or not isinstance(paths, (int, np.integer)) or int(paths) not in PATHS:
+        raise InvalidInputError(f"paths must be one of {sorted(PATHS)}, got {paths!r}")
+    return int(paths)
 
 
 def cost_scale(cost, *, max_pixels: int = 1 << 14) -> float:
@@ -227,7 +247,8 @@ def sgm_aggregate(cost, *, guide=None, p1: float | None = None, p2: float | None
     Returns
     -------
     aggregated : (N, h, w) float32
-        ``S(p, d) = sum_r L_r(p, d)``, finite everywhere.
+        ``S(p, d) = sum_r L_r(p, d)``, finite everywhere while ``paths * (max C + p2)`` is
+        (costs below about 1e37).
 
     Notes
     -----
@@ -248,9 +269,9 @@ def sgm_aggregate(cost, *, guide=None, p1: float | None = None, p2: float | None
     volume: values stay below ``paths * (max C + p2)``.
 
     Memory: the result (N, h, w) float32 is the only volume allocated (the input is read, not
-    copied, when it is C-contiguous float32); the horizontal paths keep three (w, N) float32
+    copied, when it is C-contiguous float32); the horizontal paths keep two (w, N) float32
     rows per task (one image row), the others two (N, B) buffers per task of B lines (a quarter
-    of the lines on two threads, at least 64: 265 for 1060 columns, 1 MiB at 128 hypotheses).
+    of the lines on two threads, at least 64: 265 for 1060 columns, 0.26 MiB at 128 hypotheses).
     For 1060 x 1060 pixels the result is 288 MB for 64 hypotheses and 575 MB for 128 (plus the
     caller's cost volume of the same size); a uint16 accumulator would halve it but needs
     integer costs and saturating sums, not worth the loss of the float cost's resolution. Time
@@ -268,24 +289,22 @@ def sgm_aggregate(cost, *, guide=None, p1: float | None = None, p2: float | None
     np.float32(2.0)
     """
     c = _check_cost(cost)
-    if paths not in PATHS:
-        raise InvalidInputError(f"paths must be one of {sorted(PATHS)}, got {paths!r}")
+    paths = check_paths(paths)
+    threads = check_threads(threads)
     n, h, w = c.shape
     if p1 is None or p2 is None:
         scale = cost_scale(c)
         p1 = P1_SCALE * scale if p1 is None else p1
         p2 = P2_SCALE * scale if p2 is None else p2
-    p1 = _check_positive(p1, "p1")
-    p2 = max(_check_positive(p2, "p2"), p1)
+    p1 = check_penalty(p1, "p1")
+    p2 = max(check_penalty(p2, "p2"), p1)
     use_guide = guide is not None and edge_scale is not None
     if use_guide:
-        edge_scale = _check_positive(edge_scale, "edge_scale", allow_zero=False)
-        g = _check_guide(guide, (h, w))
+        edge_scale = check_penalty(edge_scale, "edge_scale", allow_zero=False)
+        g = check_guide(guide, (h, w))
     else:
         g = np.zeros((1, 1), np.float32)
         edge_scale = 1.0
-    if threads is not None and (not isinstance(threads, (int, np.integer)) or threads < 1):
-        raise InvalidInputError(f"threads must be a positive integer or None, got {threads!r}")
     f32 = np.float32
     out = np.zeros((n, h, w), np.float32)
     with numba_threads(threads):
@@ -343,6 +362,7 @@ def select(aggregated, raw=None, *, exclude: int = 1, threads: int | None = None
     after it; hence the default fits the aggregated curve.
     """
     agg = _check_cost(aggregated, "aggregated")
+    threads = check_threads(threads)
     n, h, w = agg.shape
     if raw is not None:
         r = _check_cost(raw, "raw")
@@ -392,7 +412,7 @@ def combine_confidence(confidence, index, other_index, *, tolerance: float = 1.0
     if not (c.shape == a.shape == b.shape) or c.ndim != 2:
         raise InvalidInputError(f"confidence, index and other_index must be (h, w) arrays of one shape, "
                                 f"got {c.shape}, {a.shape}, {b.shape}")
-    tol = _check_positive(tolerance, "tolerance", allow_zero=False)
+    tol = check_penalty(tolerance, "tolerance", allow_zero=False)
     diff = a - b
     agree = np.exp(-0.5 * (diff / np.float32(tol)) ** 2)
     out = np.where(np.isfinite(diff), np.clip(c, 0, 1) * agree, 0.0)

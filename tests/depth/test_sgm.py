@@ -194,6 +194,14 @@ def test_importing_lfring_does_not_import_numba():
         ({"edge_scale": 0.0, "guide": np.zeros((5, 6))}, "edge_scale must be > 0"),
         ({"guide": np.zeros((6, 5))}, "guide must be an"),
         ({"threads": 0}, "threads must be"),
+        ({"threads": True}, "threads must be"),
+        ({"paths": 4.0}, "paths must be one of"),
+        ({"paths": [4]}, "paths must be one of"),
+        ({"p1": "1"}, "p1 must be a number"),
+        ({"p1": np.array([1.0, 2.0])}, "p1 must be a number"),
+        ({"guide": np.where(np.arange(30).reshape(5, 6) == 7, np.nan, 0.5)}, "finite numeric"),
+        ({"guide": np.zeros((5, 6), bool)}, "finite numeric"),
+        ({"guide": np.zeros((5, 6, 4))}, "guide must be an"),
     ],
 )
 def test_sgm_aggregate_rejects_bad_arguments(kwargs, match):
@@ -208,6 +216,9 @@ def test_select_and_metrics_reject_bad_arguments():
         select(np.zeros((4, 5, 6), np.float32), np.zeros((4, 5, 5), np.float32))
     with pytest.raises(InvalidInputError, match="exclude"):
         select(np.zeros((4, 5, 6), np.float32), exclude=-1)
+    for threads in (0, -3, 1.5, True, "a"):
+        with pytest.raises(InvalidInputError, match="threads must be"):
+            select(np.zeros((4, 5, 6), np.float32), threads=threads)
     with pytest.raises(InvalidInputError, match="one shape"):
         sparsification_auc(np.zeros((2, 2)), np.zeros((2, 3)))
     with pytest.raises(InvalidInputError, match="no pixel"):

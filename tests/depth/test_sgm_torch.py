@@ -46,5 +46,27 @@ def test_errors():
         sgm_aggregate_torch(cost[0], p1=0.1, p2=1.0)
     with pytest.raises(InvalidInputError, match="guide must be"):
         sgm_aggregate_torch(cost, guide=np.zeros((3, 3)), p1=0.1, p2=1.0)
-    with pytest.raises(InvalidInputError, match="p1 and p2"):
+    with pytest.raises(InvalidInputError, match="p1 must be >= 0"):
         sgm_aggregate_torch(cost, p1=-1.0, p2=1.0)
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    (dict(guide="nan"), "finite numeric"),  # one NaN guide pixel would spread NaN along the paths
+    (dict(guide="bool"), "finite numeric"),
+    (dict(guide="four channels"), "image of the cost"),
+    (dict(p1="1"), "p1 must be a number"),
+    (dict(p1=np.array([1.0, 2.0])), "p1 must be a number"),
+    (dict(edge_scale="a", guide="ok"), "edge_scale must be a number"),
+    (dict(edge_scale=0.0, guide="ok"), "edge_scale must be > 0"),
+    (dict(paths=4.0), "paths must be one of"),
+    (dict(paths=[4]), "paths must be one of"),
+])
+def test_bad_inputs_are_refused_as_the_numba_version_refuses_them(kwargs, message):
+    cost, guide = _volume()
+    guides = {"nan": np.where(np.arange(guide.size).reshape(guide.shape) == 7, np.nan, guide),
+              "bool": guide > 0.5, "four channels": np.repeat(guide[..., None], 4, axis=2), "ok": guide}
+    kwargs = {k: guides[v] if k == "guide" else v for k, v in kwargs.items()}
+    kwargs = {"p1": 0.1, "p2": 1.0, **kwargs}
+    for fn in (sgm_aggregate_torch, sgm_aggregate):
+        with pytest.raises(InvalidInputError, match=message):
+            fn(cost, **kwargs)
