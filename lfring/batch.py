@@ -39,6 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
+from lfring.depth.sweep import SGM_MIN_PLANES
 from lfring.errors import InvalidInputError, LfringError, LfringWarning
 from lfring.io.atomic import atomic_write_bytes
 from lfring.io.writers import json_default
@@ -164,10 +165,12 @@ class BatchSettings:
             raise InvalidInputError(f"bit_depth must be 8 or 16, got {self.bit_depth!r}")
         if self.encoding not in ("srgb", "linear"):
             raise InvalidInputError(f"encoding must be 'srgb' or 'linear', got {self.encoding!r}")
-        if self.planes is not None and (isinstance(self.planes, bool) or not isinstance(self.planes, int) or self.planes < 2):
-            raise InvalidInputError(f"planes must be an integer >= 2, got {self.planes!r}")
         if self.depth_method not in ("sgm", "local"):
             raise InvalidInputError(f"depth_method must be 'sgm' or 'local', got {self.depth_method!r}")
+        least = SGM_MIN_PLANES if self.depth and self.depth_method == "sgm" else 2
+        if self.planes is not None and (isinstance(self.planes, bool) or not isinstance(self.planes, int) or self.planes < least):
+            raise InvalidInputError(f"planes must be an integer >= {least}"
+                                    f"{' for the semi-global depth' if least > 2 else ''}, got {self.planes!r}")
         if not (0.0 <= self.min_confidence <= 1.0):
             raise InvalidInputError(f"min_confidence must lie in [0, 1], got {self.min_confidence!r}")
 

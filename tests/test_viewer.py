@@ -125,7 +125,7 @@ def test_overlays_and_bad_options(scene):
     views, cal, _ = scene
     mask = np.zeros(views.shape[1:3], bool)
     mask[:10] = True
-    text = viewer_html(views, cal, num_planes=2, boxes=[(5, 6, 20, 10, "bump 1.2 mm"), {"x": 1, "y": 2, "w": 3, "h": 4}],
+    text = viewer_html(views, cal, num_planes=3, boxes=[(5, 6, 20, 10, "bump 1.2 mm"), {"x": 1, "y": 2, "w": 3, "h": 4}],
                        unchecked_mask=mask, image_format="webp")
     d = json.loads(re.search(r'type="application/json">(.*?)</script>', text, re.S).group(1))
     assert d["boxes"][0] == {"x": 5.0, "y": 6.0, "w": 20.0, "h": 10.0, "label": "bump 1.2 mm"}
@@ -134,7 +134,8 @@ def test_overlays_and_bad_options(scene):
     rgba = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_UNCHANGED)
     assert np.array_equal(rgba[..., 3] > 0, mask)
     assert d["frames"][0].startswith("data:image/webp;base64,")
-    bad = [dict(num_planes=1), dict(boxes=[(0, 0, -1, 2)]), dict(unchecked_mask=mask[:5]), dict(image_format="gif"),
+    bad = [dict(num_planes=1), dict(num_planes=2), dict(boxes=[(0, 0, -1, 2)]), dict(unchecked_mask=mask[:5]),
+           dict(image_format="gif"),
            dict(quality=0), dict(min_confidence=2.0), dict(focus_m=5.0), dict(num_planes=3, depth=object())]
     for kw in bad:
         with pytest.raises(InvalidInputError):

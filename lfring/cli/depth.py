@@ -34,20 +34,27 @@ log = logging.getLogger("lfring.cli.depth")
 @click.option("--method", type=click.Choice(["sgm", "local"]), default="sgm", show_default=True,
               help="sgm: semi-global optimisation of the whole sweep (fills weak texture, rejects occlusions); "
                    "local: each pixel's best hypothesis alone (several times faster).")
+@click.option("--paths", "scan_paths", type=click.Choice(["4", "8"]), default="4", show_default=True,
+              help="Scan paths of --method sgm (8 adds the diagonals: about twice the optimisation's time).")
+@click.option("--consistency/--no-consistency", default=None,
+              help="--method sgm: estimate again from the farthest view and make unknown the pixels whose two answers "
+                   "disagree (the left-right check; doubles the time). Default: on for two views, off for more.")
+@click.option("--threads", type=click.IntRange(min=1), default=None, metavar="N",
+              help="Threads of the sweep and the optimisation (default: OpenCV's thread count).")
 @click.option("--rim-taper", type=float, default=DEPTH_TAPER, show_default=True, metavar="FRACTION",
               help="Share of each view's disc radius over which its weight rises from 0 (a smaller share measures "
                    "more of the dark periphery; inspection uses 0.15).")
 @click.option("--backend", type=click.Choice(["numpy", "torch"]), default="numpy", show_default=True, help="Compute backend.")
 @click.option("--device", default=None, metavar="cpu|cuda", help="Torch device (default: cuda when present).")
-@click.option("--min-confidence", type=float, default=0.5, show_default=True,
+@click.option("--min-confidence", type=click.FloatRange(0.0, 1.0), default=0.5, show_default=True,
               help="Pixels below this confidence are black in the preview and left out of the point cloud.")
 @click.option("--device-file", "device_name", default=None, metavar="NAME|FILE",
               help="Device description for the point cloud (default: the calibration's, else prototype).")
 @click.option("--overwrite", is_flag=True, help="Replace existing output files.")
 @raw_options
 @check_option
-def command(raw, zmin, zmax, outdir, calib, planes, reference, cost, aggregation, method, rim_taper, backend, device,
-            min_confidence, device_name, overwrite, levels, no_check):
+def command(raw, zmin, zmax, outdir, calib, planes, reference, cost, aggregation, method, scan_paths, consistency, threads,
+            rim_taper, backend, device, min_confidence, device_name, overwrite, levels, no_check):
     """Depth map of RAW in metres with confidence, by plane sweep over the views.
 
     RAW is one raw frame, or several images: separate views in the view order of --calib (a
@@ -65,6 +72,8 @@ def command(raw, zmin, zmax, outdir, calib, planes, reference, cost, aggregation
     from lfring.io.writers import check_writable, write_float_tiff, write_json
     from lfring.optics.device import load_device
 
+    if method != "sgm" and (scan_paths != "4" or consistency is not None):
+        raise click.UsageError("--paths and --consistency belong to --method sgm")
     out = Path(outdir)
     stem, raw = Path(raw[0]).stem, raw[0] if len(raw) == 1 else list(raw)  # several: separate view images
     names = ["depth.tiff", "depth.pfm", "confidence.tiff", "depth_preview.png", "points.ply", "depth.json"]
@@ -77,6 +86,7 @@ def command(raw, zmin, zmax, outdir, calib, planes, reference, cost, aggregation
     with progress_bar(100, "depth", "%") as bar:
         res = estimate_depth(views, cal, zmin_m=zmin, zmax_m=zmax, num_planes=planes, reference=ref, cost=cost,
                              aggregation=aggregation, method=method, rim_taper=rim_taper, backend=backend, device=device,
+                             threads=threads, **({"paths": int(scan_paths), "consistency": consistency} if method == "sgm" else {}),
                              progress=lambda f: bar.update(max(0, round(100 * f) - bar.n)))
     out.mkdir(parents=True, exist_ok=True)
     write_depth_tiff(paths["depth.tiff"], res.depth_m)
@@ -105,7 +115,7 @@ def command(raw, zmin, zmax, outdir, calib, planes, reference, cost, aggregation
     write_json(paths["depth.json"], {
         "input": raw, "calibration": cal_name, "reference": ref, "zmin_m": zmin, "zmax_m": zmax,
         "hypotheses_m": res.depths_m, "step_px": res.step_px, "cost": res.cost, "aggregation": aggregation, "method": method,
-        "rim_taper": rim_taper, "backend": backend,
+        **({"paths": int(scan_paths), "consistency": bool(views.shape[0] == 2 if consistency is None else consistency)} if method == "sgm" else {}), "rim_taper": rim_taper, "backend": backend,
         "units": "depth in metres from the main lens; NaN where unknown", "points": n_points,
         "confidence_median": float(np.median(res.confidence)),
     })

@@ -31,7 +31,7 @@ def depth_hypotheses(calibration, zmin_m: float, zmax_m: float, *, num=None, max
     by default close enough that no view moves more than ``max_step_px`` between neighbours."""
     z0 = calibration.depth_origin_m
     for name, v in (("zmin_m", zmin_m), ("zmax_m", zmax_m)):
-        if not (isinstance(v, (int, float, np.floating)) and np.isfinite(v) and v > 0):
+        if isinstance(v, bool) or not (isinstance(v, (int, float, np.integer, np.floating)) and np.isfinite(v) and v > 0):
             raise InvalidInputError(f"{name} must be a positive number of metres, got {v!r}")
     if not zmin_m < zmax_m:
         raise InvalidInputError(f"zmin_m ({zmin_m}) must be smaller than zmax_m ({zmax_m})")

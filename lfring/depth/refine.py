@@ -110,7 +110,9 @@ def refine_index(index, confidence, guide, *, min_confidence: float = MIN_CONFID
         Weighted median over the confident pixels of the window, NaN at holes.
     filled : (h, w) float32
         ``refined`` where known; at holes ``FGS(w d) / FGS(w)`` with w = confidence at known
-        pixels and 0 at holes; NaN only if no pixel at all is known.
+        pixels and 0 at holes; NaN where that weight vanishes (below 1e-6: strong edges of the
+        guide cut the hole off from every known pixel; a nearest-value fill there measured
+        25 ms on the twin's 704 px frame) and where no pixel at all is known.
 
     Notes
     -----
@@ -135,16 +137,22 @@ def refine_index(index, confidence, guide, *, min_confidence: float = MIN_CONFID
         raise InvalidInputError(f"index must be an (h, w) map, got shape {d.shape}")
     if not np.issubdtype(d.dtype, np.floating):
         raise InvalidInputError(f"index must be floating point (NaN where unknown), got {d.dtype}")
-    c = np.asarray(confidence, np.float32)
+    try:
+        c = np.asarray(confidence, np.float32)
+    except (TypeError, ValueError):
+        raise InvalidInputError(f"confidence must be a float (h, w) map, got {type(confidence).__name__}") from None
     if c.shape != d.shape:
         raise InvalidInputError(f"confidence must have the index's shape {d.shape}, got {c.shape}")
     g8 = _guide8(guide, d.shape)
     for name, v in (("min_confidence", min_confidence), ("sigma", sigma), ("fill_lambda", fill_lambda),
                     ("fill_sigma", fill_sigma)):
-        if not isinstance(v, (int, float, np.floating, np.integer)) or not math.isfinite(float(v)) or v < 0:
-            raise InvalidInputError(f"{name} must be a finite number >= 0, got {v!r}")
+        if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)) or not math.isfinite(float(v)) \
+                or v < 0 or (name == "min_confidence" and v > 1):
+            raise InvalidInputError(f"{name} must be a finite number >= 0{' and <= 1' if name == 'min_confidence' else ''}, "
+                                    f"got {v!r}")
     if isinstance(radius_px, bool) or not isinstance(radius_px, (int, np.integer)) or radius_px < 1:
         raise InvalidInputError(f"radius_px must be a positive integer, got {radius_px!r}")
+    radius_px = min(int(radius_px), max(d.shape))  # a wider window covers the same pixels
     d = d.astype(np.float32)
     known = np.isfinite(d) & np.isfinite(c) & (c >= min_confidence)
     refined = weighted_median(d, known, g8 if g8.ndim == 2 else cv2.cvtColor(g8, cv2.COLOR_RGB2GRAY), radius_px, sigma)
@@ -196,7 +204,7 @@ def fill_from_farther_side(index, holes, *, axis: int = 1) -> np.ndarray:
     holes = np.asarray(holes)
     if holes.shape != d.shape or holes.dtype != bool:
         raise InvalidInputError(f"holes must be a bool map of the index's shape {d.shape}, got {holes.dtype} {holes.shape}")
-    if axis not in (0, 1) or isinstance(axis, bool):
+    if isinstance(axis, bool) or not isinstance(axis, (int, np.integer)) or axis not in (0, 1):
         raise InvalidInputError(f"axis must be 0 (columns) or 1 (rows), got {axis!r}")
     v = np.asarray(d, np.float32)
     if axis == 0:

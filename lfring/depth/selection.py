@@ -22,7 +22,9 @@ class DepthResult:
     Attributes
     ----------
     depth_m : (h, w) float32
-        Distance from the main lens in metres; NaN where fewer than two views see the pixel.
+        Distance from the main lens in metres; NaN where fewer than ``min_views`` views see the
+        pixel, and for the 'sgm' method with the left-right check (``consistency``) also where
+        the check fails or the confidence is below ``lfring.depth.refine.MIN_CONFIDENCE``.
     confidence : (h, w) float32 in [0, 1]
         How distinct the best hypothesis is: 1 - best cost / best cost away from it.
     hypothesis_index : (h, w) float32
@@ -37,8 +39,10 @@ class DepthResult:
         The settings that made it (see :func:`lfring.estimate_depth`).
     depth_filled_m : (h, w) float32 or None
         The 'sgm' method's depth with the unconfident pixels filled from confident neighbours of
-        the same image region (an estimate, not a measurement); NaN where fewer than
-        ``min_views`` views see the pixel. None for the 'local' method.
+        the same image region (an estimate, not a measurement); known wherever ``depth_m`` is;
+        NaN where fewer than ``min_views`` views see the pixel, and where ``depth_m`` is NaN and
+        strong image edges cut the pixel off from every confident one. None for the 'local'
+        method.
     """
 
     depth_m: np.ndarray

@@ -25,15 +25,15 @@ import numpy as np
 from lfring.depth.costs import (AGGREGATIONS, COSTS, DEPTH_TAPER, GUIDED_EPS, LCN_AGGREGATE_PX, box_mean_of_finite,
                                 check_odd_px, lcn_sources, least_over_windows, sweep_masks, take_halves, view_halves)
 from lfring.depth.refine import fill_from_farther_side, refine_index
-from lfring.depth.sgm import P1_SCALE, P2_SCALE, PATHS, cost_scale, numba_threads, select, sgm_aggregate
+from lfring.depth.sgm import P1_SCALE, P2_SCALE, check_paths, cost_scale, numba_threads, select, sgm_aggregate
 from lfring.depth.hypotheses import depth_hypotheses, view_motion_px
 from lfring.depth.selection import DepthResult, Finisher
 from lfring.depth.stream import sweep_slices, sweep_strips
 from lfring.errors import InvalidInputError, LfringWarning
 from lfring.geometry import check_reference
-from lfring.warp import WEIGHT_FLOOR, check_views, luminance, normalised_luminance, warp_image
+from lfring.warp import WEIGHT_FLOOR, check_threads, check_views, luminance, normalised_luminance, warp_image
 
-__all__ = ["AGGREGATIONS", "COSTS", "METHODS", "DepthResult", "estimate_depth"]
+__all__ = ["AGGREGATIONS", "COSTS", "METHODS", "SGM_MIN_PLANES", "DepthResult", "estimate_depth"]
 
 METHODS = ("sgm", "local")
 # The costs that compare the views' locally normalised luminances (lcn_sources), in strips.
@@ -45,6 +45,9 @@ DEFAULT_COSTS = {"sgm": "lcn-halves", "local": "lcn"}
 SGM_AGGREGATE_PX = 5
 # The box of the cost the sub-hypothesis parabola is fitted to after the optimisation.
 SUBPIXEL_BOX_PX = 15
+# The semi-global method judges each answer against the hypotheses more than one step of view
+# motion away (its confidence): it needs at least this many, however far apart.
+SGM_MIN_PLANES = 3
 # Two reference frames agree when their hypotheses differ by at most this many times the
 # smallest distinguishable step (one pixel of view motion).
 CONSISTENCY_STEPS = 1
@@ -102,8 +105,9 @@ def estimate_depth(
         better (a depth edge hides the background from the views on the other side), that side's
         cost (:func:`lfring.depth.costs.take_halves`; from three views on, otherwise 'lcn'): on
         the twin's hard scene 8.8 % of the pixels two views see are off by more than 1 px
-        against 10.0 % for 'lcn', for 5-20 % more time there and 70 % more at 1060 x 1060 x 64
-        planes with the 'center' reference's four halves (``benchmarks/RESULTS.md``).
+        against 10.0 % for 'lcn', for -5 to +30 % time on the twin's scenes (the benchmarks' runs
+        differ that much) and 70 % more at 1060 x 1060 x 64 planes with the 'center' reference's
+        four halves (``benchmarks/RESULTS.md``).
         'lcn-occlusion': over each aggregation window, the least of the 'lcn' cost and the costs
         without one view (from three views on; :func:`lfring.depth.costs.occlusion_aggregate`).
         The others compare the warped luminances divided by their wide local mean: absolute or
@@ -117,10 +121,11 @@ def estimate_depth(
     window_px : int
         Odd window of the normalisation ('lcn') or of the correlation ('zncc').
     aggregate_px : int, optional
-        Odd window of the aggregation: by default LCN_AGGREGATE_PX (15) for 'lcn' and
-        ``window_px`` for the other costs.
+        Odd window of the aggregation: by default, for the 'lcn' costs, SGM_AGGREGATE_PX (5) with
+        'sgm' (the optimisation does the rest of the smoothing) and LCN_AGGREGATE_PX (15) with
+        'local'; ``window_px`` for the other costs.
     min_views : int
-        Pixels seen by fewer views get NaN.
+        From 1 to the number of views: pixels seen by fewer views get NaN.
     rim_taper : float
         Fraction of each view's disc radius, in [0, 1], over which its weight rises from 0 to 1
         (:func:`lfring.warp.view_masks`); a view counts as the sum of its weights towards
@@ -137,22 +142,26 @@ def estimate_depth(
         :func:`lfring.depth.costs.least_over_windows`; with the guided aggregation, the least
         over the same neighbourhood), so a surface's texture does not spread its depth over the
         pixels beside it. It holds three (N, h, w) float32 volumes at once (the cost, its
-        eroded copy and the optimised one: 1754 MiB in all at 1060 x 1060 x 128 hypotheses).
-        The result is refined by an
+        eroded copy and the optimised one: 1646 MiB at 1060 x 1060 x 128 hypotheses, a peak of
+        1754 MiB measured). It needs hypotheses more than one pixel of view motion apart
+        (``InvalidInputError`` otherwise). The result is refined by an
         edge-aware weighted median; ``DepthResult.depth_filled_m`` also fills the unconfident
         pixels (:mod:`lfring.depth.refine`). 'local': winner-take-all on the aggregated cost of
         each pixel alone, streamed (memory does not grow with the number of hypotheses): the
         fastest, and exact where the texture is good.
     paths : {4, 8}
-        Scan paths of 'sgm'.
+        Scan paths of 'sgm' (the 'local' method refuses 8).
     consistency : bool, optional
         'sgm' only: estimate the map again from the view farthest from the reference and make
         unknown (NaN) the pixels whose two answers disagree by more than one pixel of motion:
-        the left-right check of stereo, which finds the pixels the other view cannot see. It
-        doubles the time. ``depth_filled_m`` fills those pixels from the farther side along the
-        baseline (they are mostly background hidden from the other view by a nearer surface). By default on for two views (a pixel occluded in the other view has no
-        information at all) and off for more (a pixel hidden from one view is still measured by
-        the others, and a single second frame would reject it).
+        the left-right check of stereo, which finds the pixels the other view cannot see. With
+        the check, the pixels whose confidence is below ``lfring.depth.refine.MIN_CONFIDENCE``
+        are unknown too (without it they keep the optimisation's answer, which their scan lines
+        gave them). It doubles the time. ``depth_filled_m`` fills the rejected pixels from the
+        farther side along the baseline (they are mostly background hidden from the other view
+        by a nearer surface). By default on for two views (a pixel occluded in the other view
+        has no information at all) and off for more (a pixel hidden from one view is still
+        measured by the others, and a single second frame would reject it).
     progress : callable, optional
         Called as ``progress(fraction)`` (0 to 1) as the work advances, possibly from worker
         threads (the calls are serialised): for a progress bar.
@@ -198,24 +207,39 @@ def estimate_depth(
         raise InvalidInputError("cost 'lcn-halves' chooses per pixel over the whole cost volume: it needs method='sgm'")
     if aggregation not in AGGREGATIONS:
         raise InvalidInputError(f"aggregation must be one of {', '.join(AGGREGATIONS)}, got {aggregation!r}")
-    if paths not in PATHS:
-        raise InvalidInputError(f"paths must be one of {', '.join(map(str, PATHS))}, got {paths!r}")
+    paths = check_paths(paths)
+    if consistency is not None and not isinstance(consistency, (bool, np.bool_)):
+        raise InvalidInputError(f"consistency must be True, False or None (on for two views), got {consistency!r}")
+    if method != "sgm" and (paths != 4 or consistency):
+        raise InvalidInputError("paths and consistency belong to method='sgm'")
     check_odd_px("window_px", window_px)
     if aggregate_px is not None:
         check_odd_px("aggregate_px", aggregate_px)
-    _optional_count("threads", threads, 1, "")
-    _optional_count("num_planes", num_planes, 2, " (or None for the default spacing)")
+    threads = check_threads(threads)
+    _optional_count("num_planes", num_planes, SGM_MIN_PLANES if method == "sgm" else 2,
+                    " (or None for the default spacing)" + (" with method='sgm'" if method == "sgm" else ""))
+    if progress is not None and not callable(progress):
+        raise InvalidInputError(f"progress must be a callable progress(fraction) or None, got {progress!r}")
+    if not hasattr(calibration, "homographies") or not hasattr(calibration, "check_fits"):
+        raise InvalidInputError(f"calibration must be a RingCalibration, got {type(calibration).__name__}")
     if isinstance(rim_taper, bool) or not isinstance(rim_taper, (int, float, np.integer, np.floating)) \
             or not 0.0 <= float(rim_taper) <= 1.0:
         raise InvalidInputError(f"rim_taper must be a fraction of the disc radius in [0, 1], got {rim_taper!r}")
     arr = check_views(views)
     calibration.check_fits(arr.shape)
+    if isinstance(min_views, bool) or not isinstance(min_views, (int, np.integer)) or not 1 <= min_views <= arr.shape[0]:
+        raise InvalidInputError(f"min_views must be an integer from 1 to the {arr.shape[0]} views, got {min_views!r}")
     if not np.all(np.isfinite(arr)):
         raise InvalidInputError("views contain NaN or infinite values")
     plan = _plan(arr, calibration, zmin_m, zmax_m, num_planes, reference, float(rim_taper))
     if aggregate_px is None:
         aggregate_px = (SGM_AGGREGATE_PX if method == "sgm" else LCN_AGGREGATE_PX) if cost in LCN_COSTS else window_px
-    threads = max(1, cv2.getNumThreads()) if threads is None else int(threads)
+    threads = max(1, cv2.getNumThreads()) if threads is None else threads
+    if method == "sgm" and len(plan.depths) < max(SGM_MIN_PLANES, plan.exclude + 2):
+        raise InvalidInputError(
+            f"method='sgm' judges each answer against hypotheses more than one pixel of view motion away, and "
+            f"{zmin_m}..{zmax_m} m moves the views by {plan.step_px * (len(plan.depths) - 1):.2g} px in all: "
+            "widen the depth range, or use method='local'")
     fin = Finisher(plan.depths, calibration.depth_origin_m, arr.shape[1:3], min_views)
     report = _Progress(progress, arr.shape[1])
     record = dict(depths_m=plan.depths, step_px=plan.step_px, reference=plan.reference, cost=cost, aggregation=aggregation,
@@ -394,6 +418,7 @@ def _optimise(views, calibration, plan, fin, backend, device, cost, aggregation,
         behind = fill_from_farther_side(refined, ~keep, axis=_baseline_axis(plan, other.reference))
         filled = np.where(~keep & np.isfinite(behind), behind, filled).astype(np.float32)
     index = np.where(np.isfinite(refined), refined, np.nan if consistency else index).astype(np.float32)
+    filled = np.where(np.isfinite(filled), filled, index).astype(np.float32)  # never unknown where index is known
     missing = np.where(np.isfinite(index), np.float32(0.0), np.float32(np.inf))
     fin.rows(0, h, np.nan_to_num(index), confidence, missing, nviews)
     return fin.depth_of(filled, nviews)

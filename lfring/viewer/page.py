@@ -12,6 +12,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from lfring.depth.sweep import SGM_MIN_PLANES
 from lfring.errors import InvalidInputError
 
 #: Image formats of the focal stack and the all-in-focus image: (cv2 suffix, MIME type, quality flag).
@@ -73,8 +74,9 @@ def _overlay_png(mask, shape_hw) -> str:
 
 def _check_options(num_planes, min_confidence, image_format, quality):
     if num_planes is not None and (isinstance(num_planes, bool) or not isinstance(num_planes, (int, np.integer))
-                                   or num_planes < 2):
-        raise InvalidInputError(f"num_planes must be an integer >= 2 or None, got {num_planes!r}")
+                                   or num_planes < SGM_MIN_PLANES):
+        raise InvalidInputError(f"num_planes must be an integer >= {SGM_MIN_PLANES} (the depth map's semi-global "
+                                f"method judges each answer against farther hypotheses) or None, got {num_planes!r}")
     if isinstance(min_confidence, bool) or not isinstance(min_confidence, numbers.Real) or not 0 <= min_confidence <= 1:
         raise InvalidInputError(f"min_confidence must be a number in [0, 1], got {min_confidence!r}")
     if image_format not in IMAGE_FORMATS:

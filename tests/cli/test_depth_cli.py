@@ -41,6 +41,11 @@ def test_depth_cli_outputs(tmp_path, capsys):
         (["--zmin", "0.3", "--zmax", "0.5", "--rim-taper", "1.5"], "rim_taper"),
         (["--zmin", "0.3", "--zmax", "0.5", "--rim-taper", "nan"], "rim_taper"),
         (["--zmin", "0.3", "--zmax", "0.5", "--cost", "lcn-halves", "--method", "local"], "needs method='sgm'"),
+        (["--zmin", "0.3", "--zmax", "0.5", "--method", "local", "--paths", "8"], "belong to --method sgm"),
+        (["--zmin", "0.3", "--zmax", "0.5", "--method", "local", "--consistency"], "belong to --method sgm"),
+        (["--zmin", "0.3", "--zmax", "0.5", "--paths", "6"], "'6' is not one of"),
+        (["--zmin", "0.3", "--zmax", "0.5", "--threads", "0"], "--threads"),
+        (["--zmin", "0.3", "--zmax", "0.5", "--min-confidence", "-5"], "--min-confidence"),
     ],
 )
 def test_depth_cli_errors(tmp_path, capsys, args, text):

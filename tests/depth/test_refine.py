@@ -73,6 +73,9 @@ def test_accepts_uint8_and_colour_guides():
         ((np.zeros((3, 4)), np.zeros((3, 4)), np.zeros((4, 3))), {}, "guide must be an"),
         ((np.zeros((3, 4)), np.zeros((3, 4)), np.zeros((3, 4))), {"radius_px": 0}, "radius_px"),
         ((np.zeros((3, 4)), np.zeros((3, 4)), np.zeros((3, 4))), {"min_confidence": -1}, "min_confidence"),
+        ((np.zeros((3, 4)), np.zeros((3, 4)), np.zeros((3, 4))), {"min_confidence": 5}, "min_confidence"),  # all holes
+        ((np.zeros((3, 4)), np.zeros((3, 4)), np.zeros((3, 4))), {"min_confidence": True}, "min_confidence"),
+        ((np.zeros((3, 4)), "a", np.zeros((3, 4))), {}, "confidence must be"),
     ],
 )
 def test_errors(args, kwargs, match):
@@ -108,9 +111,28 @@ def test_fill_from_farther_side_takes_the_higher_neighbour_along_rows_or_columns
     ((np.zeros((3, 3), np.float32), np.zeros((3, 4), bool)), {}, "holes must"),
     ((np.zeros((3, 3), np.float32), np.zeros((3, 3))), {}, "holes must"),
     ((np.zeros((3, 3), np.float32), np.zeros((3, 3), bool)), {"axis": 2}, "axis"),
-    ((np.zeros((3, 3), np.float32), np.zeros((3, 3), bool)), {"axis": True}, "axis")])
+    ((np.zeros((3, 3), np.float32), np.zeros((3, 3), bool)), {"axis": True}, "axis"),
+    ((np.zeros((3, 3), np.float32), np.zeros((3, 3), bool)), {"axis": 1.0}, "axis"),
+    ((np.zeros((3, 3), np.float32), np.zeros((3, 3), bool)), {"axis": np.array([1, 1])}, "axis")])
 def test_fill_from_farther_side_refuses_bad_inputs(args, kwargs, match):
     from lfring.depth.refine import fill_from_farther_side
 
     with pytest.raises(InvalidInputError, match=match):
         fill_from_farther_side(*args, **kwargs)
+
+
+def test_filled_is_nan_only_where_the_smoother_brings_no_weight():
+    """One known pixel: the smoother carries its value over its own image region; a region behind
+    a guide edge of the full range gets no weight and stays NaN, as documented (the sweep then
+    falls back on the optimisation's answer: test_filled_map_is_known_wherever_the_depth_is)."""
+    index = np.full((60, 80), 5.0, np.float32)
+    conf = np.zeros((60, 80), np.float32)
+    conf[10, 10] = 1.0
+    guide = np.zeros((60, 80), np.float32)
+    guide[:, 40:] = 1.0
+    refined, filled = refine_index(index, conf, guide)
+    reached = np.isfinite(filled)
+    assert reached[:, :40].all()
+    np.testing.assert_allclose(filled[reached], 5.0, atol=1e-4)
+    assert np.isnan(refined).sum() == index.size - 1
+    assert np.isnan(refine_index(index, np.zeros_like(conf), guide)[1]).all()

@@ -350,7 +350,14 @@ def test_least_over_windows_is_the_least_of_the_boxes_containing_each_pixel(shap
     (np.zeros((2, 3, 3), np.float64), 3, {}, "float32"), (np.zeros((3, 3), np.float32), 3, {}, r"\(N, h, w\)"),
     (np.zeros((2, 3, 3), np.float32), 4, {}, "odd"), (np.zeros((2, 3, 3), np.float32), True, {}, "odd"),
     (np.zeros((2, 3, 3), np.float32), 3, {"out": np.zeros((2, 3, 4), np.float32)}, "out must"),
-    (np.zeros((2, 3, 3), np.float32), 3, {"out": "self"}, "apart from volume")])
+    (np.zeros((2, 3, 3), np.float32), 3, {"out": "self"}, "apart from volume"),
+    (np.zeros((2, 0, 0), np.float32), 3, {}, "non-empty"),
+    (np.zeros((2, 3, 4), np.float32).transpose(0, 2, 1), 3, {}, "C-contiguous"),
+    (np.zeros((2, 3, 3), np.float32), 3, {"out": np.zeros((2, 3, 3), np.float32).transpose(0, 2, 1)}, "out must"),
+    (np.zeros((2, 3, 3), np.float32), 3, {"out": [1]}, "out must"),
+    (np.where(np.arange(18).reshape(2, 3, 3) == 13, np.nan, 1.0).astype(np.float32), 3, {}, "NaN in slice 1"),
+    (np.zeros((2, 3, 3), np.float32), 3, {"threads": 0}, "threads"),
+    (np.zeros((2, 3, 3), np.float32), 3, {"threads": None}, "threads")])
 def test_least_over_windows_refuses_bad_inputs(v, box, kw, match):
     from lfring.depth.costs import least_over_windows
 
@@ -360,14 +367,31 @@ def test_least_over_windows_refuses_bad_inputs(v, box, kw, match):
         least_over_windows(v, box, **kw)
 
 
+def test_least_over_windows_wider_than_the_slice_is_its_minimum():
+    from lfring.depth.costs import least_over_windows
+
+    v = np.random.default_rng(0).random((2, 5, 7)).astype(np.float32)
+    got = least_over_windows(v, 10**9 + 1)  # used to allocate the whole square
+    np.testing.assert_array_equal(got, np.broadcast_to(v.min(axis=(1, 2))[:, None, None], v.shape))
+
+
 @pytest.mark.parametrize("bad, match", [(dict(method="global"), "method"), (dict(paths=6), "paths"),
+                                        (dict(paths=4.0), "paths"), (dict(paths=[4]), "paths"),
+                                        (dict(consistency="no"), "consistency must be"),
+                                        (dict(method="local", paths=8), "belong to method='sgm'"),
+                                        (dict(method="local", consistency=True), "belong to method='sgm'"),
+                                        (dict(min_views=0), "min_views"), (dict(min_views=5), "min_views"),
+                                        (dict(min_views=True), "min_views"), (dict(min_views="a"), "min_views"),
+                                        (dict(progress=1), "progress must be"), (dict(threads=True), "threads"),
+                                        (dict(zmin_m=True), "zmin_m"),
+                                        (dict(zmin_m=0.5, zmax_m=0.5001), "widen the depth range"),
                                         (dict(rim_taper=-0.1), "rim_taper"), (dict(rim_taper=1.5), "rim_taper"),
                                         (dict(rim_taper=float("nan")), "rim_taper"), (dict(rim_taper="5 %"), "rim_taper"),
                                         (dict(rim_taper=True), "rim_taper")])
 def test_bad_method_options_are_refused(twin, bad, match):
     r, cal, views, gt, usable, res = twin
     with pytest.raises(InvalidInputError, match=match):
-        estimate_depth(views, cal, zmin_m=0.27, zmax_m=1.1, **bad)
+        estimate_depth(views, cal, **{"zmin_m": 0.27, "zmax_m": 1.1, **bad})
 
 
 def test_occlusion_aware_cost_leaves_out_the_view_that_disagrees():
@@ -582,3 +606,20 @@ def test_a_pair_measures_every_pixel_both_views_see_up_to_their_rims(hard_twin):
     # Inspection's choice, the refocusing taper, counts the periphery's views as less than two.
     cautious = estimate_depth(r.views[:2], pair, zmin_m=0.27, zmax_m=1.1, reference=0, consistency=False, rim_taper=TAPER)
     assert np.mean(np.isnan(cautious.depth_m[seen])) >= 0.12
+
+
+def test_a_calibration_that_is_none_is_refused(twin):
+    r, cal, views, *_ = twin
+    with pytest.raises(InvalidInputError, match="calibration must be a RingCalibration"):
+        estimate_depth(views, None, zmin_m=0.3, zmax_m=1.0)
+
+
+def test_filled_map_is_known_wherever_the_depth_is():
+    """Flat views: no pixel is confident, so the refinement knows nothing; without the left-right
+    check the depth keeps the optimisation's answers, and the filled map must not be emptier."""
+    cal = RingCalibration.from_grid((40, 56), [(0, 0), (1, 0)], disparity_scale_px_m=20.0)
+    views = np.full((2, 40, 56, 3), 0.5, np.float32)
+    res = estimate_depth(views, cal, zmin_m=2.0, zmax_m=10.0, reference=0, consistency=False)
+    known = np.isfinite(res.depth_m)
+    assert known.mean() > 0.9
+    assert np.isfinite(res.depth_filled_m[known]).all()
