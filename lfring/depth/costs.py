@@ -542,7 +542,9 @@ def least_over_windows(volume: np.ndarray, box_px: int, *, out: np.ndarray | Non
     has_nan = []
 
     def one(k: int) -> None:
-        if np.isnan(volume[k]).any():  # OpenCV's minimum would move it (about 1 % of the erosion's time)
+        # OpenCV's minimum would move a NaN. The check: 9 ms of the erosion's 50 at 1060^2 x 64 on
+        # two threads, under 0.5 % of estimate_depth's call.
+        if np.isnan(volume[k]).any():
             has_nan.append(k)
             return
         # Replicated borders, which the minimum ignores (OpenCV's default border value would
