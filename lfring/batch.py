@@ -167,7 +167,8 @@ class BatchSettings:
             raise InvalidInputError(f"encoding must be 'srgb' or 'linear', got {self.encoding!r}")
         if self.depth_method not in ("sgm", "local"):
             raise InvalidInputError(f"depth_method must be 'sgm' or 'local', got {self.depth_method!r}")
-        least = SGM_MIN_PLANES if self.depth and self.depth_method == "sgm" else 2
+        # The viewer's depth map, when the batch makes none, is the semi-global default.
+        least = SGM_MIN_PLANES if (self.depth and self.depth_method == "sgm") or self.viewer else 2
         if self.planes is not None and (isinstance(self.planes, bool) or not isinstance(self.planes, int) or self.planes < least):
             raise InvalidInputError(f"planes must be an integer >= {least}"
                                     f"{' for the semi-global depth' if least > 2 else ''}, got {self.planes!r}")

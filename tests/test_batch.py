@@ -253,6 +253,10 @@ def test_inputs_outputs_and_names(frames, tmp_path):
         ({"depth": True, "zmin_m": 0.8, "zmax_m": 0.4}, "smaller"),
         ({"refocus_m": (0.5,), "bit_depth": 12}, "bit_depth"),
         ({"refocus_m": (0.5,), "planes": 1}, "planes"),
+        # Two planes leave the semi-global depth nothing to judge its answers against: the
+        # batch's own depth map or the viewer's.
+        ({"depth": True, "zmin_m": 0.3, "zmax_m": 1.0, "planes": 2}, "planes must be an integer >= 3"),
+        ({"viewer": True, "planes": 2}, "planes must be an integer >= 3"),
     ],
 )
 def test_settings_errors(kwargs, text):

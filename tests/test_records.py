@@ -34,7 +34,8 @@ def test_depth_result_repr():
     assert repr(_depth()) == (
         "DepthResult(depth_m=array(shape=(705, 705), dtype=float32), confidence=array(shape=(705, 705), dtype=float32), "
         "hypothesis_index=array(shape=(705, 705), dtype=float32), depths_m=array(shape=(40,), dtype=float64), "
-        "step_px=0.9, reference='center', cost='lcn', aggregation='box', method='local', depth_filled_m=None)"
+        "step_px=0.9, reference='center', cost='lcn', aggregation='box', method='local', depth_filled_m=None, paths=None, "
+        "consistency=None)"
     )
 
 

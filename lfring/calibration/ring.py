@@ -321,7 +321,7 @@ class RingCalibration:
         layout = grid_layout(view_shape, pos)
         for name, value in (("disparity_scale_px_m", disparity_scale_px_m), ("disparity_offset_px", disparity_offset_px),
                             ("depth_origin_m", depth_origin_m)):
-            if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) or not math.isfinite(value):
+            if not _is_finite_number(value):
                 raise InvalidInputError(f"{name} must be a finite number, got {value!r}")
         if disparity_scale_px_m == 0:
             raise InvalidInputError("disparity_scale_px_m must not be 0: the views would not move with depth")

@@ -72,8 +72,6 @@ def command(raw, zmin, zmax, outdir, calib, planes, reference, cost, aggregation
     from lfring.io.writers import check_writable, write_float_tiff, write_json
     from lfring.optics.device import load_device
 
-    if method != "sgm" and (scan_paths != "4" or consistency is not None):
-        raise click.UsageError("--paths and --consistency belong to --method sgm")
     out = Path(outdir)
     stem, raw = Path(raw[0]).stem, raw[0] if len(raw) == 1 else list(raw)  # several: separate view images
     names = ["depth.tiff", "depth.pfm", "confidence.tiff", "depth_preview.png", "points.ply", "depth.json"]
@@ -86,7 +84,7 @@ def command(raw, zmin, zmax, outdir, calib, planes, reference, cost, aggregation
     with progress_bar(100, "depth", "%") as bar:
         res = estimate_depth(views, cal, zmin_m=zmin, zmax_m=zmax, num_planes=planes, reference=ref, cost=cost,
                              aggregation=aggregation, method=method, rim_taper=rim_taper, backend=backend, device=device,
-                             threads=threads, **({"paths": int(scan_paths), "consistency": consistency} if method == "sgm" else {}),
+                             threads=threads, paths=int(scan_paths), consistency=consistency,
                              progress=lambda f: bar.update(max(0, round(100 * f) - bar.n)))
     out.mkdir(parents=True, exist_ok=True)
     write_depth_tiff(paths["depth.tiff"], res.depth_m)
@@ -115,7 +113,7 @@ def command(raw, zmin, zmax, outdir, calib, planes, reference, cost, aggregation
     write_json(paths["depth.json"], {
         "input": raw, "calibration": cal_name, "reference": ref, "zmin_m": zmin, "zmax_m": zmax,
         "hypotheses_m": res.depths_m, "step_px": res.step_px, "cost": res.cost, "aggregation": aggregation, "method": method,
-        **({"paths": int(scan_paths), "consistency": bool(views.shape[0] == 2 if consistency is None else consistency)} if method == "sgm" else {}), "rim_taper": rim_taper, "backend": backend,
+        "paths": res.paths, "consistency": res.consistency, "rim_taper": rim_taper, "backend": backend,
         "units": "depth in metres from the main lens; NaN where unknown", "points": n_points,
         "confidence_median": float(np.median(res.confidence)),
     })

@@ -43,6 +43,11 @@ class DepthResult:
         NaN where fewer than ``min_views`` views see the pixel, and where ``depth_m`` is NaN and
         strong image edges cut the pixel off from every confident one. None for the 'local'
         method.
+    paths : int or None
+        The 'sgm' method's scan paths; None for 'local'.
+    consistency : bool or None
+        Whether the 'sgm' method ran the left-right check (its default decided for the number
+        of views); None for 'local'.
     """
 
     depth_m: np.ndarray
@@ -55,6 +60,8 @@ class DepthResult:
     aggregation: str
     method: str = "local"
     depth_filled_m: np.ndarray | None = None
+    paths: int | None = None
+    consistency: bool | None = None
 
     __repr__ = record_repr
 

@@ -216,8 +216,7 @@ def estimate_depth(
     if aggregate_px is not None:
         check_odd_px("aggregate_px", aggregate_px)
     threads = check_threads(threads)
-    _optional_count("num_planes", num_planes, SGM_MIN_PLANES if method == "sgm" else 2,
-                    " (or None for the default spacing)" + (" with method='sgm'" if method == "sgm" else ""))
+    _optional_count("num_planes", num_planes, 2, " (or None for the default spacing)")
     if progress is not None and not callable(progress):
         raise InvalidInputError(f"progress must be a callable progress(fraction) or None, got {progress!r}")
     if not hasattr(calibration, "homographies") or not hasattr(calibration, "check_fits"):
@@ -237,9 +236,10 @@ def estimate_depth(
     threads = max(1, cv2.getNumThreads()) if threads is None else threads
     if method == "sgm" and len(plan.depths) < max(SGM_MIN_PLANES, plan.exclude + 2):
         raise InvalidInputError(
-            f"method='sgm' judges each answer against hypotheses more than one pixel of view motion away, and "
-            f"{zmin_m}..{zmax_m} m moves the views by {plan.step_px * (len(plan.depths) - 1):.2g} px in all: "
-            "widen the depth range, or use method='local'")
+            f"method='sgm' judges each answer against hypotheses more than one pixel of view motion away: "
+            f"{len(plan.depths)} hypotheses over {plan.step_px * (len(plan.depths) - 1):.2g} px of motion "
+            f"({zmin_m}..{zmax_m} m) have none; give num_planes >= {SGM_MIN_PLANES}, widen the depth range, "
+            "or use method='local'")
     fin = Finisher(plan.depths, calibration.depth_origin_m, arr.shape[1:3], min_views)
     report = _Progress(progress, arr.shape[1])
     record = dict(depths_m=plan.depths, step_px=plan.step_px, reference=plan.reference, cost=cost, aggregation=aggregation,
@@ -250,7 +250,7 @@ def estimate_depth(
             filled = _optimise(arr, calibration, plan, fin, backend, device, cost, aggregation, window_px, aggregate_px,
                                threads, paths, consistency=check, report=report)
         report.done()
-        return fin.result(depth_filled_m=filled, **record)
+        return fin.result(depth_filled_m=filled, paths=paths, consistency=check, **record)
     if cost in LCN_COSTS and aggregation == "box" and backend == "numpy":
         sweep_strips(lcn_sources(arr, calibration, window_px, threads=threads, taper=plan.taper), plan.masks, plan.hs,
                      aggregate_px=aggregate_px, exclude=plan.exclude, threads=threads, on_strip=fin,

@@ -217,7 +217,9 @@ def test_cli_grid_calib_then_depth_and_refocus_of_separate_views(tmp_path):
     depth = tifffile.imread(tmp_path / "out" / "v0_depth.tiff")
     m = _plane_masks(gt, rect, margin=12)[10.0]
     assert np.mean(np.abs(SCALE_PX_M / depth[m] - 10.0) < 0.5) > 0.95
-    assert json.loads((tmp_path / "out" / "v0_depth.json").read_text())["input"] == paths
+    record = json.loads((tmp_path / "out" / "v0_depth.json").read_text())
+    assert record["input"] == paths
+    assert (record["paths"], record["consistency"]) == (4, True)  # a pair's default: the left-right check
     # A grid's calibration reaches infinity: the depth-aware default needs the depth range.
     assert main(["refocus", *paths, "--calib", str(cal_path), "--depth", "12", "-o", str(tmp_path / "r.png")]) == 2
     assert not (tmp_path / "r.png").exists()
