@@ -20,7 +20,7 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from lfring.calibration import calibrate
-from lfring.geometry import homography_rms_px
+from lfring.core.geometry import homography_rms_px
 from lfring.io.raw import RawFrame
 from lfring.optics import load_device
 from lfring.optics.views import optical_homographies

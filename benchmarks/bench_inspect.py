@@ -33,7 +33,8 @@ from lfring.inspect import inspect_frame
 from lfring.io.demosaic import demosaic
 from lfring.io.raw import RawFrame
 from lfring.optics import load_device
-from lfring.warp import view_masks, warp_views
+from lfring.core.viewstack import view_masks
+from lfring.core.warping import warp_views
 from lfring.synth import render
 from lfring.synth.presets import part_scene
 from lfring.views import split_views

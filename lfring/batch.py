@@ -43,7 +43,7 @@ from lfring.depth.sweep import SGM_MIN_PLANES
 from lfring.errors import InvalidInputError, LfringError, LfringWarning
 from lfring.io.atomic import atomic_write_bytes
 from lfring.io.writers import json_default
-from lfring.warp import DEFAULT_INTERPOLATION
+from lfring.core.warping import DEFAULT_INTERPOLATION
 
 __all__ = [
     "EXECUTORS",

@@ -19,7 +19,7 @@ import numpy as np
 
 from lfring.calibration.overlap import nearest_renderable_depth_m
 from lfring.errors import InvalidInputError, LfringWarning
-from lfring.warp import luminance
+from lfring.core.filters import luminance
 
 __all__ = ["AGREEMENT_THRESHOLD", "CHECK_DOWNSAMPLE", "FrameCheck", "check_frame", "draw_layout"]
 
@@ -121,7 +121,7 @@ def _small(lum: np.ndarray, f: int) -> np.ndarray:
 
 
 def _agreement(hp: np.ndarray, masks: np.ndarray, h_small: np.ndarray) -> float:
-    from lfring.warp import warp_views
+    from lfring.core.warping import warp_views
 
     warped, weights = warp_views(hp[..., None], h_small, masks=masks)
     common = (weights > 0.99).all(axis=0)
@@ -149,9 +149,9 @@ def _discs(layout, f: int) -> np.ndarray:
 
 
 def _soft_discs(layout, f: int) -> np.ndarray:
-    """Reduced valid weights: the discs shrunk by the taper of :func:`lfring.warp.view_masks`
+    """Reduced valid weights: the discs shrunk by the taper of :func:`lfring.core.viewstack.view_masks`
     (its weight is 1 only there), as float32."""
-    from lfring.warp import TAPER
+    from lfring.core.viewstack import TAPER
 
     if layout.circles is None:
         return _discs(layout, f).astype(np.float32)

@@ -41,8 +41,11 @@ import cv2
 import numpy as np
 
 from lfring.errors import InvalidInputError
-from lfring.geometry import apply_homography, check_reference, to_reference
-from lfring.warp import WEIGHT_FLOOR, cached_view_masks, check_views, luminance, run_threads, translations
+from lfring.core.geometry import apply_homography, check_reference, to_reference
+from lfring.core.viewstack import WEIGHT_FLOOR, cached_view_masks, check_views
+from lfring.core.filters import luminance
+from lfring.core.threads import run_threads
+from lfring.core.warping import translations
 
 __all__ = [
     "AGREE_TOL", "FULL_RES_BLUR_PX", "GEOMETRIC_STEP", "LINEAR_UNTIL_PX", "OCCLUSION_PX", "SHARP_PX", "SHARP_RAMP_PX", "DepthOfField",

@@ -20,19 +20,10 @@ from lfring.depth.hypotheses import depth_hypotheses
 from lfring.depth.selection import DepthResult
 from lfring.dof import DepthOfField, aperture_from_f_number
 from lfring.errors import InvalidInputError, LfringWarning
-from lfring.geometry import check_reference
-from lfring.warp import (
-    DEFAULT_INTERPOLATION,
-    WEIGHT_FLOOR,
-    ShiftEngine,
-    cached_view_masks,
-    check_views,
-    interpolation_flag,
-    inverse_weight,
-    translation_of,
-    warp_image,
-    warp_views,
-)
+from lfring.core.geometry import check_reference
+from lfring.core.warping import DEFAULT_INTERPOLATION, interpolation_flag, translation_of, warp_image, warp_views
+from lfring.core.viewstack import WEIGHT_FLOOR, cached_view_masks, check_views, inverse_weight
+from lfring.core.shift import ShiftEngine
 
 __all__ = ["METHODS", "Refocuser", "refocus", "focal_stack", "all_in_focus", "depth_of_field", "resolve_aperture"]
 
@@ -339,7 +330,7 @@ def refocus(views, calibration, depth_m: float, *, reference="center", interpola
     >>> at_book.shape, bool(sharpness(at_book[book]) > 3 * sharpness(at_cup[book]))
     ((705, 705, 3), True)
     """
-    from lfring.backends import BACKENDS
+    from lfring.core.backend import BACKENDS
 
     _check_method(method)
     if backend not in BACKENDS:

@@ -38,9 +38,11 @@ import numpy as np
 from lfring.errors import InvalidInputError, LfringWarning
 from lfring.depth.costs import LCN_AGGREGATE_PX, sweep_masks
 from lfring.depth.hypotheses import depth_hypotheses, view_motion_px
-from lfring.geometry import check_reference
-from lfring.records import record_repr
-from lfring.warp import TAPER, WEIGHT_FLOOR, check_views, normalised_luminance, warp_views
+from lfring.core.geometry import check_reference
+from lfring.core.records import record_repr
+from lfring.core.viewstack import TAPER, WEIGHT_FLOOR, check_views
+from lfring.core.filters import normalised_luminance
+from lfring.core.warping import warp_views
 
 __all__ = [
     "DARK_LEVEL", "MIN_COVERAGE", "MIN_PART_FRACTION", "MIN_TEXTURED_FRACTION", "VERDICTS", "Defect", "InspectionResult",

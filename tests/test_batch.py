@@ -81,7 +81,7 @@ def _expected_refocus(frame: Path, cal_path: Path, depth_m: float) -> np.ndarray
 
     cal = RingCalibration.load(cal_path)
     views = split_views(demosaic(load_raw(frame)), cal.layout)
-    from lfring.warp import DEFAULT_INTERPOLATION  # the batch's default, as the library's
+    from lfring.core.warping import DEFAULT_INTERPOLATION
 
     return encode_image(refocus(views, cal, depth_m, interpolation=DEFAULT_INTERPOLATION), 8, "srgb")
 

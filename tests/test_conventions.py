@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from lfring.geometry import to_reference
+from lfring.core.geometry import to_reference
 from lfring.optics import paraxial
 from lfring.optics.views import optical_homographies, optical_layout
 from lfring.views import Layout, split_views

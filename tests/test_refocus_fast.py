@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 
 from lfring.calibration import RingCalibration
-from lfring import warp
+from lfring.core import shift as warp
 from lfring.focus import Refocuser, refocus
-from lfring.warp import TRANSLATION_TOL_PX, translation_of, view_masks, warp_views
+from lfring.core.warping import TRANSLATION_TOL_PX, translation_of, warp_views
+from lfring.core.viewstack import view_masks
 from lfring.views import Layout
 
 H_PX, W_PX = 61, 97  # view size: non-square, odd
@@ -95,7 +96,7 @@ def test_threads_split_strips_without_changing_the_result(monkeypatch):
 def test_shift_larger_than_the_view_and_integer_shifts(strips):
     """The shift engine itself (a Refocuser refuses such a depth: the views do not overlap)."""
     from lfring.errors import InvalidInputError
-    from lfring.warp import ShiftEngine
+    from lfring.core.shift import ShiftEngine
 
     shifts = [(0.0, 0.0), (W_PX + 5.5, 0.25), (-3.0, 2.0), (0.5, -H_PX - 1.0)]
     cal = _calibration(shifts)

@@ -9,11 +9,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from lfring.backends import require_torch, resolve_device
+from lfring.core.backend import require_torch, resolve_device
 from lfring.depth.costs import (AGGREGATIONS, COSTS, GUIDED_EPS, HALVES_MIN_SUPPORT, MIN_VIEWS_TO_LEAVE_ONE_OUT,
                                 OCCLUSION_PENALTY, checked_halves, leavable_views)
 from lfring.errors import InvalidInputError
-from lfring.warp import WEIGHT_FLOOR
+from lfring.core.viewstack import WEIGHT_FLOOR
 
 __all__ = ["sweep_torch"]
 

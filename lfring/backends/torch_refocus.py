@@ -7,9 +7,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from lfring.backends import require_torch, resolve_device
+from lfring.core.backend import require_torch, resolve_device
 from lfring.errors import InvalidInputError
-from lfring.warp import WEIGHT_FLOOR, cached_view_masks
+from lfring.core.viewstack import WEIGHT_FLOOR, cached_view_masks
 
 __all__ = ["refocus_torch"]
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from lfring.backends import require_torch, resolve_device
+from lfring.core.backend import require_torch, resolve_device
 from lfring.depth.sgm import EDGE_SCALE, P1_SCALE, P2_SCALE, PATHS, check_guide, check_paths, check_penalty, cost_scale
 from lfring.errors import InvalidInputError
 

@@ -13,7 +13,7 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from lfring.errors import EstimationError, InvalidInputError
-from lfring.geometry import homography_rms_px, normalize_homographies
+from lfring.core.geometry import homography_rms_px, normalize_homographies
 
 __all__ = ["VariableHomography", "PlaneFit", "fit_variable_homography"]
 

@@ -56,7 +56,7 @@ def _common_coverage(h_ref_from_view: np.ndarray, view_shape_hw) -> float:
 def _homographies_at_x(calibration, x: float, reference) -> np.ndarray:
     """H_ref_from_view at inverse distance x = 1 / (Z - z0) (x = 0: infinity), without the
     valid-range warnings of :meth:`RingCalibration.homographies`."""
-    from lfring.geometry import normalize_homographies, to_reference
+    from lfring.core.geometry import normalize_homographies, to_reference
 
     model = calibration.model
     return to_reference(normalize_homographies(model.A + model.B * x), reference)
@@ -134,7 +134,7 @@ def disparity_spread_px(h_ref_from_view: np.ndarray, view_shape_hw) -> float:
 
 def nearest_renderable_depth_m(calibration, *, reference="center") -> float:
     """:func:`nearest_overlap_depth_m`, computed once per calibration object and reference."""
-    from lfring.warp import calibration_cache
+    from lfring.core.viewstack import calibration_cache
 
     return calibration_cache(calibration, ("nearest_overlap_depth_m", reference),
                              lambda: nearest_overlap_depth_m(calibration, reference=reference))

@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 
 from lfring.errors import EstimationError, InvalidInputError
-from lfring.records import record_repr
+from lfring.core.records import record_repr
 
 __all__ = [
     "METHODS",
@@ -194,7 +194,7 @@ def estimate_plane_homographies(
     >>> dev = load_device("prototype")
     >>> r = render(dev, target_scene(dev, 1.0), binning=4)
     >>> est = estimate_plane_homographies(r.views, masks=r.layout.masks())
-    >>> from lfring.geometry import homography_rms_px
+    >>> from lfring.core.geometry import homography_rms_px
     >>> bool(homography_rms_px(est.H_ref_from_view, r.homographies(1.0, reference=0), r.layout.view_shape).max() < 0.05)
     True
     """
@@ -303,7 +303,7 @@ def _prepare(views, masks, flat_views, reference):
     if isinstance(reference, bool) or not isinstance(reference, (int, np.integer)) or not 0 <= reference < num:
         raise InvalidInputError(
             f"reference must be a view index 0..{num - 1}, got {reference!r} (for the virtual center view, "
-            "re-express the result with lfring.geometry.to_reference)"
+            "re-express the result with lfring.core.geometry.to_reference)"
         )
     if masks is None:
         valid = np.ones((num, h, w), dtype=bool)

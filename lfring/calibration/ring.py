@@ -14,7 +14,7 @@ import numpy as np
 from lfring._resources import calib_dir
 from lfring.calibration.model import PlaneFit, VariableHomography, fit_variable_homography
 from lfring.errors import FileFormatError, InvalidInputError, LfringFileNotFoundError, LfringWarning
-from lfring.geometry import check_reference, to_reference
+from lfring.core.geometry import check_reference, to_reference
 from lfring.optics.device import RingDevice
 from lfring.optics.views import optical_homography_model, optical_layout, view_cameras
 from lfring.views import Layout, grid_layout

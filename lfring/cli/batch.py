@@ -7,7 +7,7 @@ import logging
 import click
 
 from lfring.cli._options import check_option, parse_depths, raw_options
-from lfring.warp import DEFAULT_INTERPOLATION
+from lfring.core.warping import DEFAULT_INTERPOLATION
 
 log = logging.getLogger("lfring.cli.batch")
 
@@ -58,7 +58,7 @@ def command(ctx, inputs, outdir, calib, refocus_m, depth_map, zmin, zmax, planes
     Exit code: 0 all frames done or skipped, 1 some failed, 2 bad usage.
     """
     from lfring.batch import BatchSettings, run_batch
-    from lfring.geometry import check_reference
+    from lfring.core.geometry import check_reference
 
     zs = parse_depths(refocus_m, param_hint="--refocus") if refocus_m is not None else ()
     if not (zs or depth_map or aif or viewer):

@@ -68,7 +68,7 @@ def command(raw, zmin, zmax, outdir, calib, planes, reference, cost, aggregation
     """
     from lfring.depth import estimate_depth
     from lfring.depth.io import depth_to_points, write_depth_preview, write_depth_tiff, write_pfm, write_ply
-    from lfring.geometry import check_reference
+    from lfring.core.geometry import check_reference
     from lfring.io.writers import check_writable, write_float_tiff, write_json
     from lfring.optics.device import load_device
 

@@ -101,7 +101,7 @@ def command(ctx, raw, plane, tolerance, outdir, calib, roi, reference_depth, min
     """
     from lfring.check import check_frame
     from lfring.errors import LfringError
-    from lfring.geometry import check_reference
+    from lfring.core.geometry import check_reference
     from lfring.inspect import annotate, inspect_frame, report
     from lfring.io.writers import check_writable, write_image, write_json
     from lfring.optics.device import load_device

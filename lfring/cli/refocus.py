@@ -10,7 +10,7 @@ import click
 import numpy as np
 
 from lfring.cli._options import check_option, load_views, parse_depths, parse_range, progress_bar, raw_options
-from lfring.warp import DEFAULT_INTERPOLATION
+from lfring.core.warping import DEFAULT_INTERPOLATION
 
 log = logging.getLogger("lfring.cli.refocus")
 
@@ -107,7 +107,7 @@ def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolat
 
     from lfring.calibration.overlap import INFINITE_DEPTH_M, check_renderable
     from lfring.errors import LfringWarning
-    from lfring.geometry import check_reference
+    from lfring.core.geometry import check_reference
     from lfring.io.writers import check_writable, write_gif, write_image, write_json, write_tiff_stack
     from lfring.focus import Refocuser, all_in_focus, focal_stack
 

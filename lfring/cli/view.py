@@ -36,7 +36,7 @@ def command(raw, calib, zmin, zmax, planes, reference, min_confidence, image_for
     range, the all-in-focus image, the depth map and its confidence. Click a point to refocus at
     its depth; the cursor reads the depth in mm; arrow keys step the focus.
     """
-    from lfring.geometry import check_reference
+    from lfring.core.geometry import check_reference
     from lfring.io.writers import check_writable
     from lfring.viewer import write_viewer
 

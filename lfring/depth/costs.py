@@ -26,7 +26,7 @@ method optimises the least of the aggregated costs of the boxes that contain a p
 (:func:`least_over_windows`, shiftable windows).
 
 The other costs (:func:`slice_cost`) compare warped luminances divided by their wide local mean
-(:func:`lfring.warp.normalised_luminance`).
+(:func:`lfring.core.filters.normalised_luminance`).
 """
 
 from __future__ import annotations
@@ -35,7 +35,10 @@ import cv2
 import numpy as np
 
 from lfring.errors import InvalidInputError
-from lfring.warp import WEIGHT_FLOOR, box_filter, cached_view_masks, check_threads, luminance, run_threads
+from lfring.core.viewstack import WEIGHT_FLOOR, cached_view_masks
+from lfring.core.filters import box_filter, luminance
+from lfring.core.validate import check_threads
+from lfring.core.threads import run_threads
 
 __all__ = ["AGGREGATIONS", "COSTS", "DEPTH_TAPER", "GUIDED_EPS", "HALVES_GAIN", "HALVES_LINE_TOL",
            "HALVES_MEDIAN_SAMPLE", "HALVES_MIN_SUPPORT", "HALVES_POOR", "LCN_AGGREGATE_PX", "LCN_EPS", "LCN_FLOOR",
@@ -45,7 +48,7 @@ __all__ = ["AGGREGATIONS", "COSTS", "DEPTH_TAPER", "GUIDED_EPS", "HALVES_GAIN", 
            "sweep_masks", "take_halves", "view_halves", "window_weights"]
 
 # Fraction of a view's disc radius over which its weight rises from 0 to 1 in the sweep
-# (lfring.warp.view_masks). The refocusing taper (lfring.warp.TAPER, 15 %) hides seams in an image;
+# (lfring.core.viewstack.view_masks). The refocusing taper (lfring.core.viewstack.TAPER, 15 %) hides seams in an image;
 # in the sweep it counted a view that sees a pixel as a fraction of a view over the outer 15 % of
 # its disc, so pixels two views see came out unseen (min_views) and their costs were weighted
 # down. Twin, every pixel two views see, bad 1 px, taper 15 / 5 / 2 %: hard scene 13.1 / 10.9 /
@@ -103,7 +106,7 @@ def check_odd_px(name: str, value) -> None:
 
 
 def sweep_masks(calibration, view_shape, taper: float = DEPTH_TAPER) -> np.ndarray:
-    """(V, h, w) float32 weight of every view pixel in the sweep: :func:`lfring.warp.view_masks`
+    """(V, h, w) float32 weight of every view pixel in the sweep: :func:`lfring.core.viewstack.view_masks`
     with the rim ``taper`` (by default :data:`DEPTH_TAPER`), made once per calibration, view
     shape and taper (read-only)."""
     return cached_view_masks(calibration, view_shape, taper=taper)
@@ -458,7 +461,7 @@ def seen_mean(c: np.ndarray, seen: np.ndarray, window) -> np.ndarray:
     Examples
     --------
     >>> import numpy as np
-    >>> from lfring.warp import box_filter
+    >>> from lfring.core.filters import box_filter
     >>> c = np.array([[1.0, 1.0, 9.0]], np.float32)
     >>> seen_mean(c, np.array([[True, True, False]]), lambda x: box_filter(x, 3)).tolist()
     [[1.0, 1.0, inf]]

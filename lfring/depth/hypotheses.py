@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from lfring.errors import InvalidInputError
-from lfring.geometry import apply_homography
+from lfring.core.geometry import apply_homography
 
 __all__ = ["depth_hypotheses", "view_motion_px"]
 

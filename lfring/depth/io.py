@@ -336,7 +336,7 @@ def depth_to_points(
 
         (X, Y) = C_k + (p - p0_k) (Z - s) / f.
 
-    The 'center' frame (:func:`lfring.geometry.to_reference`: ``H_center_from_k`` is view k's
+    The 'center' frame (:func:`lfring.core.geometry.to_reference`: ``H_center_from_k`` is view k's
     translation minus the mean translation) puts a point at the mean of its four view-pixel
     positions. For the ring that is again a pinhole: centre mean(C_k), principal point
     mean(p0_k), and pixel (u, v) at raw pixel (u, v) + mean(x_k, y_k) (exact in the optics

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from lfring.records import record_repr
+from lfring.core.records import record_repr
 
 __all__ = ["DepthResult", "Finisher", "RunningMinimum", "parabola", "refine"]
 

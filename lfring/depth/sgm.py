@@ -31,7 +31,8 @@ from typing import NamedTuple
 import numpy as np
 
 from lfring.errors import InvalidInputError
-from lfring.warp import check_threads
+from lfring.core.threads import numba_threads
+from lfring.core.validate import check_threads
 
 __all__ = [
     "PATHS",
@@ -47,7 +48,6 @@ __all__ = [
     "sgm_aggregate",
     "select",
     "combine_confidence",
-    "numba_threads",
     "sparsification_auc",
 ]
 
@@ -92,27 +92,6 @@ def _kernel(name: str):
     except ImportError as exc:  # pragma: no cover - numba is a core dependency
         raise InvalidInputError(f"semi-global matching needs numba ({exc}): pip install numba") from None
     return getattr(sgm_kernels, _KERNEL_NAMES[name])
-
-
-class numba_threads:
-    """Context: this thread's numba kernels run on ``n`` threads (None: numba's default); the old
-    count comes back on exit."""
-
-    def __init__(self, n):
-        self.n = n
-
-    def __enter__(self):
-        import numba
-
-        self.old = numba.get_num_threads()
-        if self.n is not None:
-            numba.set_num_threads(max(1, min(int(self.n), numba.config.NUMBA_NUM_THREADS)))
-
-    def __exit__(self, *exc):
-        import numba
-
-        numba.set_num_threads(self.old)
-        return False
 
 
 # --------------------------------------------------------------------------------------------

@@ -4,8 +4,8 @@
 strip of output rows (with the aggregation window's halo) is shifted, summed, box-filtered and
 folded into the running minimum for all hypotheses before the next strip, so its buffers stay in
 the cache, and strips are shared among threads. When every homography is a translation (the
-optics model; :func:`lfring.warp.translations`) the views are shifted by the shared
-:class:`lfring.warp.ShiftEngine`; otherwise ``cv2.warpPerspective`` renders the strip. Memory
+optics model; :func:`lfring.core.warping.translations`) the views are shifted by the shared
+:class:`lfring.core.shift.ShiftEngine`; otherwise ``cv2.warpPerspective`` renders the strip. Memory
 holds a few strips per thread and ``exclude + 2`` aggregated slices of a strip, whatever the
 number of hypotheses.
 
@@ -23,7 +23,11 @@ import numpy as np
 from lfring.depth.costs import (STRIP_PIXELS, aggregate, aggregation_window, checked_halves, half_aggregate,
                                 lcn_leave_one_out, leavable_views, occlusion_aggregate, slice_cost)
 from lfring.depth.selection import RunningMinimum
-from lfring.warp import WEIGHT_FLOOR, ShiftEngine, box_filter, run_threads, translations, warp_image
+from lfring.core.viewstack import WEIGHT_FLOOR
+from lfring.core.shift import ShiftEngine
+from lfring.core.filters import box_filter
+from lfring.core.threads import run_threads
+from lfring.core.warping import translations, warp_image
 
 __all__ = ["sweep_slices", "sweep_strips"]
 
@@ -238,7 +242,7 @@ def sweep_slices(lum, masks, hs, cost, window_px, guide, exclude=1, aggregate_px
     Parameters
     ----------
     lum : (V, h, w) float32
-        The views' luminances as the cost compares them (:func:`lfring.warp.normalised_luminance`,
+        The views' luminances as the cost compares them (:func:`lfring.core.filters.normalised_luminance`,
         or for 'lcn' :func:`lfring.depth.costs.lcn_sources`).
     masks : (V, h, w) float32
     hs : (N, V, 3, 3)

@@ -25,13 +25,17 @@ import numpy as np
 from lfring.depth.costs import (AGGREGATIONS, COSTS, DEPTH_TAPER, GUIDED_EPS, LCN_AGGREGATE_PX, box_mean_of_finite,
                                 check_odd_px, lcn_sources, least_over_windows, sweep_masks, take_halves, view_halves)
 from lfring.depth.refine import fill_from_farther_side, refine_index
-from lfring.depth.sgm import P1_SCALE, P2_SCALE, check_paths, cost_scale, numba_threads, select, sgm_aggregate
+from lfring.depth.sgm import P1_SCALE, P2_SCALE, check_paths, cost_scale, select, sgm_aggregate
+from lfring.core.threads import numba_threads
 from lfring.depth.hypotheses import depth_hypotheses, view_motion_px
 from lfring.depth.selection import DepthResult, Finisher
 from lfring.depth.stream import sweep_slices, sweep_strips
 from lfring.errors import InvalidInputError, LfringWarning
-from lfring.geometry import check_reference
-from lfring.warp import WEIGHT_FLOOR, check_threads, check_views, luminance, normalised_luminance, warp_image
+from lfring.core.geometry import check_reference
+from lfring.core.viewstack import WEIGHT_FLOOR, check_views
+from lfring.core.validate import check_threads
+from lfring.core.filters import luminance, normalised_luminance
+from lfring.core.warping import warp_image
 
 __all__ = ["AGGREGATIONS", "COSTS", "METHODS", "SGM_MIN_PLANES", "DepthResult", "estimate_depth"]
 
@@ -128,9 +132,9 @@ def estimate_depth(
         From 1 to the number of views: pixels seen by fewer views get NaN.
     rim_taper : float
         Fraction of each view's disc radius, in [0, 1], over which its weight rises from 0 to 1
-        (:func:`lfring.warp.view_masks`); a view counts as the sum of its weights towards
+        (:func:`lfring.core.viewstack.view_masks`); a view counts as the sum of its weights towards
         ``min_views``. The default (5 %, ``lfring.depth.costs.DEPTH_TAPER``) measures every pixel
-        that two views see; the refocusing taper (``lfring.warp.TAPER``, 15 %) trusts the dark
+        that two views see; the refocusing taper (``lfring.core.viewstack.TAPER``, 15 %) trusts the dark
         periphery of the discs less, as inspection does.
     threads : int, optional
         Threads of the sweep and of the optimisation; by default OpenCV's thread count.
@@ -193,7 +197,7 @@ def estimate_depth(
     >>> round(float(np.nanmedian(result.depth_m[300:400, 450:550])), 2)  # the book, metres
     0.5
     """
-    from lfring.backends import BACKENDS
+    from lfring.core.backend import BACKENDS
 
     if backend not in BACKENDS:
         raise InvalidInputError(f"backend must be one of {', '.join(BACKENDS)}, got {backend!r}")

@@ -47,7 +47,7 @@ import numpy as np
 
 from lfring.errors import FileFormatError, InvalidInputError, LfringError, LfringFileNotFoundError
 from lfring.io.bayer import PATTERNS, validate_pattern
-from lfring.records import record_repr
+from lfring.core.records import record_repr
 
 __all__ = ["RawFrame", "load_raw", "write_dng", "RAW_SUFFIXES", "FILE_FORMATS", "sidecar_path"]
 

@@ -12,7 +12,7 @@ from scipy.optimize import brentq
 
 from lfring.errors import DesignError, InvalidInputError
 from lfring.optics.device import RingDevice
-from lfring.records import record_repr
+from lfring.core.records import record_repr
 
 __all__ = [
     "METHODS",

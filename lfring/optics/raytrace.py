@@ -24,7 +24,7 @@ import numpy as np
 
 from lfring.errors import InvalidInputError
 from lfring.optics.device import RingDevice
-from lfring.records import record_repr
+from lfring.core.records import record_repr
 
 __all__ = [
     "APERTURES",

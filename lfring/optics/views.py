@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from lfring.errors import InvalidInputError
-from lfring.geometry import to_reference
+from lfring.core.geometry import to_reference
 from lfring.optics.device import RingDevice
 from lfring.optics.paraxial import sensor_to_pixel
 from lfring.views import Layout, layout_from_circles

@@ -34,7 +34,7 @@ from lfring.optics.views import (
     view_cameras,
     vignetting_region,
 )
-from lfring.records import record_repr
+from lfring.core.records import record_repr
 from lfring.synth.scene import HeightField, Plane, Scene
 from lfring.synth.textures import raster_shape, rasterize
 from lfring.views import Layout, split_views

@@ -5,7 +5,7 @@ import pytest
 
 from lfring.calibration import calibrate
 from lfring.errors import EstimationError, InvalidInputError
-from lfring.geometry import homography_rms_px
+from lfring.core.geometry import homography_rms_px
 from lfring.io.raw import RawFrame
 from lfring.optics.views import optical_homographies
 from lfring.synth import Plane, Scene, Texture, render

@@ -23,7 +23,7 @@ def test_twin_default_is_measured_and_predicts_the_held_out_target(prototype):
     from pathlib import Path
 
     from lfring.calibration.planes import estimate_plane_homographies
-    from lfring.geometry import homography_rms_px
+    from lfring.core.geometry import homography_rms_px
     from lfring.io.demosaic import demosaic
     from lfring.io.raw import load_raw
     from lfring.optics.views import optical_homographies

@@ -7,7 +7,7 @@ import pytest
 
 from lfring.calibration import RingCalibration, fit_variable_homography
 from lfring.errors import FileFormatError, InvalidInputError, LfringFileNotFoundError, LfringWarning
-from lfring.geometry import homography_rms_px
+from lfring.core.geometry import homography_rms_px
 from lfring.optics.views import optical_homographies, optical_layout
 
 

@@ -11,7 +11,7 @@ from lfring.calibration.planes import (
     phase_correlation_translations,
 )
 from lfring.errors import EstimationError, InvalidInputError
-from lfring.geometry import homography_rms_px
+from lfring.core.geometry import homography_rms_px
 from lfring.io.raw import RawFrame
 from lfring.synth import render
 from lfring.synth.presets import flat_scene, target_scene

@@ -195,7 +195,7 @@ def test_points_of_a_fronto_parallel_plane(plane_render, view):
 
 @pytest.mark.parametrize("z", [0.5, 1.7])
 def test_points_in_the_center_frame(plane_render, z):
-    # The centre frame of lfring.geometry.to_reference: view pixels moved by H_center_from_k(Z).
+    # The centre frame of lfring.core.geometry.to_reference: view pixels moved by H_center_from_k(Z).
     from lfring.optics.views import optical_homographies
 
     r = plane_render

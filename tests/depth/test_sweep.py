@@ -171,7 +171,7 @@ def test_strips_equal_whole_slices(prototype, reference, warp, cost):
     from lfring.depth.costs import lcn_sources
     from lfring.depth.hypotheses import depth_hypotheses
     from lfring.depth.stream import sweep_slices, sweep_strips
-    from lfring.warp import cached_view_masks
+    from lfring.core.viewstack import cached_view_masks
 
     r = render(prototype, three_depth_scene(), binning=4)
     cal = RingCalibration.from_optics(r.device, layout=r.layout)
@@ -399,7 +399,7 @@ def test_occlusion_aware_cost_leaves_out_the_view_that_disagrees():
     three's variance (0) where 'lcn' is high; where only two views see the window, or the view
     left out would leave fewer than two, nothing is left out."""
     from lfring.depth.costs import OCCLUSION_PENALTY, lcn_cost, lcn_leave_one_out, occlusion_aggregate
-    from lfring.warp import box_filter
+    from lfring.core.filters import box_filter
 
     rng = np.random.default_rng(1)
     x = np.broadcast_to(rng.random((1, 12, 16), dtype=np.float32), (4, 12, 16)).copy()
@@ -582,7 +582,7 @@ def test_a_pair_measures_every_pixel_both_views_see_up_to_their_rims(hard_twin):
     used to count such a pixel as fewer than two views and leave it unknown), and the depth is
     no worse there (measured: 4.3 % unknown and 10.7 % of the known off by more than 1 px of
     disparity; with the refocusing taper 15.5 % and 11.5 %)."""
-    from lfring.warp import TAPER
+    from lfring.core.viewstack import TAPER
 
     r, cal = hard_twin
     pair = cal.select_views([0, 1])

@@ -1,0 +1,67 @@
+"""Work shared among threads: a process-wide pool (made anew in a forked child) and the numba
+thread count of a block of compiled calls."""
+
+from __future__ import annotations
+
+import os
+import threading
+from concurrent.futures import ThreadPoolExecutor
+
+__all__ = ["numba_threads", "run_threads"]
+
+_POOL: tuple | None = None  # (pid, executor, workers)
+
+
+def _pool(workers: int) -> ThreadPoolExecutor:
+    """The worker threads, made anew in a forked child (which has none of them)."""
+    global _POOL
+    if _POOL is None or _POOL[0] != os.getpid() or _POOL[2] < workers:
+        _POOL = (os.getpid(), ThreadPoolExecutor(max_workers=workers, thread_name_prefix="lfring"), workers)
+    return _POOL[1]
+
+
+def run_threads(tasks, threads: int) -> None:
+    """Run the callables, shared among ``threads`` threads: this one and the pool's (which take
+    the next task as they free up; OpenCV and NumPy release the GIL)."""
+    lock = threading.Lock()
+    todo = iter(tasks)
+
+    def worker() -> None:
+        while True:
+            with lock:
+                task = next(todo, None)
+            if task is None:
+                return
+            task()
+
+    threads = max(1, min(int(threads), len(tasks)))
+    if threads == 1:
+        worker()
+        return
+    futures = [_pool(threads - 1).submit(worker) for _ in range(threads - 1)]
+    try:
+        worker()
+    finally:
+        for f in futures:
+            f.result()
+
+
+class numba_threads:
+    """Context: this thread's numba kernels run on ``n`` threads (None: numba's default); the old
+    count comes back on exit."""
+
+    def __init__(self, n):
+        self.n = n
+
+    def __enter__(self):
+        import numba
+
+        self.old = numba.get_num_threads()
+        if self.n is not None:
+            numba.set_num_threads(max(1, min(int(self.n), numba.config.NUMBA_NUM_THREADS)))
+
+    def __exit__(self, *exc):
+        import numba
+
+        numba.set_num_threads(self.old)
+        return False
