@@ -50,7 +50,7 @@ from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 from _timing import bench
 from lfring import estimate_depth
 from lfring.calibration import RingCalibration
-from lfring.dof import coc_radius_px
+from lfring.focus.depth_aware import coc_radius_px
 from lfring.errors import LfringWarning
 from lfring.focus import depth_of_field, focal_stack, refocus
 from lfring.views import Layout

@@ -39,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lfring.depth.sweep import SGM_MIN_PLANES
+from lfring.depth import SGM_MIN_PLANES
 from lfring.errors import InvalidInputError, LfringError, LfringWarning
 from lfring.io.atomic import atomic_write_bytes
 from lfring.io.writers import json_default
@@ -198,9 +198,9 @@ class BatchSettings:
         if self.depth_method == "sgm":
             # The method's default cost: depth maps made before it changed ('lcn' until 'lcn-halves')
             # are not this run's; a resumed folder refuses them unless told to overwrite.
-            from lfring.depth.sweep import DEFAULT_COSTS
+            from lfring.depth.engines import ENGINES
 
-            depth_part["depth_cost"] = DEFAULT_COSTS["sgm"]
+            depth_part["depth_cost"] = ENGINES["sgm"].default_cost
 
         def h(obj) -> str:
             return hashlib.sha256(json.dumps(obj, sort_keys=True, default=json_default).encode()).hexdigest()[:16]

@@ -36,7 +36,8 @@ import cv2
 import numpy as np
 
 from lfring.errors import InvalidInputError, LfringWarning
-from lfring.depth.costs import LCN_AGGREGATE_PX, sweep_masks
+from lfring.depth.costs.lcn import LCN_AGGREGATE_PX
+from lfring.depth.plan import sweep_masks
 from lfring.depth.hypotheses import depth_hypotheses, view_motion_px
 from lfring.core.geometry import check_reference
 from lfring.core.records import record_repr

@@ -404,12 +404,14 @@ def test_depth_keys_follow_the_default_depth_cost(monkeypatch):
     """A semi-global depth map made with another default cost (the 'lcn' of earlier versions) has
     another key, so a resumed folder refuses it as made with other settings; the refocused
     images and the local sweep's maps keep theirs."""
-    import lfring.depth.sweep as sweep
+    import dataclasses
+
+    from lfring.depth.engines import ENGINES
 
     kw = dict(refocus_m=(0.5,), depth=True, zmin_m=0.3, zmax_m=1.0)
     settings = {m: BatchSettings(**kw, depth_method=m) for m in ("sgm", "local")}
     now = {m: s.output_keys() for m, s in settings.items()}
-    monkeypatch.setitem(sweep.DEFAULT_COSTS, "sgm", "lcn")
+    monkeypatch.setitem(ENGINES._entries, "sgm", dataclasses.replace(ENGINES["sgm"], default_cost="lcn"))
     before = {m: BatchSettings(**kw, depth_method=m).output_keys() for m in settings}
     for kind in ("depth", "confidence", "depth_preview"):
         assert now["sgm"][kind] != before["sgm"][kind]

@@ -1,4 +1,4 @@
-"""Depth-aware refocusing (lfring.dof) against exact constructions: two fronto-parallel textured
+"""Depth-aware refocusing (lfring.focus.depth_aware) against exact constructions: two fronto-parallel textured
 planes, a near one partly covering a far one, rendered as four views by shifting them with
 occlusion; the exact depth map is given."""
 
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from lfring.calibration import RingCalibration
-from lfring.dof import aperture_from_f_number, aperture_radius_px, coc_radius_px
+from lfring.focus.depth_aware import aperture_from_f_number, aperture_radius_px, coc_radius_px
 from lfring.errors import InvalidInputError
 from lfring.focus import all_in_focus, depth_of_field, focal_stack, refocus, resolve_aperture
 from lfring.optics import load_device

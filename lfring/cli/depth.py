@@ -8,7 +8,8 @@ from pathlib import Path
 import click
 import numpy as np
 
-from lfring.depth.costs import COSTS, DEPTH_TAPER
+from lfring.depth.costs import COSTS
+from lfring.depth.plan import DEPTH_TAPER
 from lfring.cli._options import check_option, load_views, progress_bar, raw_options
 
 log = logging.getLogger("lfring.cli.depth")

@@ -7,7 +7,11 @@ import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
 
-__all__ = ["numba_threads", "run_threads"]
+__all__ = ["STRIP_PIXELS", "numba_threads", "run_threads"]
+
+# Pixels per strip (rows times width, with the halo): about 0.4 MiB a buffer, so a thread's dozen
+# buffers stay in its L2 and L3 share; larger strips measured no faster, smaller ones slower.
+STRIP_PIXELS = 1 << 17
 
 _POOL: tuple | None = None  # (pid, executor, workers)
 

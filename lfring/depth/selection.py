@@ -12,7 +12,7 @@ import numpy as np
 
 from lfring.core.records import record_repr
 
-__all__ = ["DepthResult", "Finisher", "RunningMinimum", "parabola", "refine"]
+__all__ = ["DepthResult", "Finisher", "RunningMinimum", "RunningMinimumTorch", "parabola", "refine"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -126,6 +126,52 @@ class RunningMinimum:
         (h, w) float32
         """
         return np.minimum(self.far_lo, self.far_hi)
+
+
+class RunningMinimumTorch:
+    """:class:`lfring.depth.selection.RunningMinimum` with torch tensors, folding chunks of slices
+    one slice at a time with the same rules (strict '<', so the earliest minimum wins; the
+    second minimum exact, from a lagging prefix minimum and a minimum after the best)."""
+
+    def __init__(self, torch, shape, exclude: int, device):
+        self.torch = torch
+        self.exclude = e = max(1, int(exclude))
+        full = lambda: torch.full(shape, float("inf"), dtype=torch.float32, device=device)
+        self.best, self.c_prev, self.c_next, self.far_lo, self.far_hi, self.prefix = (full() for _ in range(6))
+        self.best_i = torch.zeros(shape, dtype=torch.int64, device=device)
+        self.ring = [full() for _ in range(e + 2)]  # slices i - e - 1 .. i
+        self.inf = torch.tensor(float("inf"), dtype=torch.float32, device=device)
+        self.i = 0
+
+    def push_chunk(self, aggs) -> None:
+        """Fold a chunk of slices (C, h, w), one after the other."""
+        for a in aggs:
+            self.push(a)
+
+    def push(self, cur) -> None:
+        """Fold the next slice (h, w)."""
+        torch, i, e, ring = self.torch, self.i, self.exclude, self.ring
+        ring[i % len(ring)].copy_(cur)  # a copy: a view would keep the whole chunk alive
+        cur = ring[i % len(ring)]
+        if i >= e + 1:
+            torch.minimum(self.prefix, ring[(i - e - 1) % len(ring)], out=self.prefix)
+        if i >= 1:
+            self.c_next.copy_(torch.where(self.best_i == i - 1, cur, self.c_next))
+            self.far_hi.copy_(torch.where(self.best_i < i - e, torch.minimum(self.far_hi, cur), self.far_hi))
+        new = cur < self.best
+        self.best.copy_(torch.where(new, cur, self.best))
+        self.best_i.masked_fill_(new, i)
+        if i >= 1:
+            self.c_prev.copy_(torch.where(new, ring[(i - 1) % len(ring)], self.c_prev))
+            self.c_next.masked_fill_(new, float("inf"))
+            self.far_hi.masked_fill_(new, float("inf"))
+        if i >= e + 1:
+            self.far_lo.copy_(torch.where(new, self.prefix, self.far_lo))
+        self.i += 1
+
+    def second(self):
+        """The lowest cost more than ``exclude`` hypotheses from the best, (h, w)."""
+        return self.torch.minimum(self.far_lo, self.far_hi)
 
 
 def parabola(a, b, c):

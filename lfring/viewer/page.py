@@ -12,7 +12,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from lfring.depth.sweep import SGM_MIN_PLANES
+from lfring.depth import SGM_MIN_PLANES
 from lfring.errors import InvalidInputError
 
 #: Image formats of the focal stack and the all-in-focus image: (cv2 suffix, MIME type, quality flag).

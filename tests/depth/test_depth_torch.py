@@ -6,10 +6,12 @@ import pytest
 
 torch = pytest.importorskip("torch", reason="the torch extra is not installed")
 
-from lfring.backends import torch_depth  # noqa: E402
+from lfring.core.filters import BoxTorch  # noqa: E402
+from lfring.depth.aggregation import GuidedTorch  # noqa: E402
+from lfring.depth.sweep import slices  # noqa: E402
 from lfring.calibration import RingCalibration  # noqa: E402
 from lfring.depth import COSTS, estimate_depth  # noqa: E402
-from lfring.depth.selection import RunningMinimum  # noqa: E402
+from lfring.depth.selection import RunningMinimum, RunningMinimumTorch  # noqa: E402
 from lfring.errors import InvalidInputError  # noqa: E402
 from lfring.synth import render  # noqa: E402
 from lfring.synth.presets import three_depth_scene  # noqa: E402
@@ -52,9 +54,10 @@ def _halves_parity(twin, aggregation, reference):
     """'lcn-halves': the torch sweep fills the volume and the halves' volume as the NumPy one."""
     import warnings
 
-    from lfring.depth.costs import lcn_sources, sweep_masks
+    from lfring.depth.costs.lcn import lcn_sources
+    from lfring.depth.plan import sweep_masks
     from lfring.depth.hypotheses import depth_hypotheses
-    from lfring.depth.stream import sweep_slices
+    from lfring.depth.sweep.slices import sweep_slices
     from lfring.errors import LfringWarning
 
     views, cal = twin
@@ -69,7 +72,7 @@ def _halves_parity(twin, aggregation, reference):
     want_v, want_h, got_v, got_h = (np.empty((n, h, w), np.float32) for _ in range(4))
     filt = None if guide is None else cv2.ximgproc.createGuidedFilter(guide, 5 // 2, 1e-3)
     sweep_slices(src, masks, hs, "lcn-halves", 9, filt, 1, 5, volume=want_v, halves=want_h)
-    torch_depth.sweep_torch(src, masks, hs, cost="lcn-halves", aggregation=aggregation, window_px=9, aggregate_px=5,
+    slices.sweep_slices_torch(src, masks, hs, cost="lcn-halves", aggregation=aggregation, window_px=9, aggregate_px=5,
                             guide=guide, device="cpu", volume=got_v, halves=got_h)
     for got, want in ((got_v, want_v), (got_h, want_h)):
         fin = np.isfinite(want)
@@ -98,8 +101,8 @@ def test_parity_over_many_chunks(twin, monkeypatch):
     """Chunks of three hypotheses: the streamed bookkeeping carries over chunk boundaries."""
     views, cal = twin
     h, w = views.shape[1:3]
-    monkeypatch.setattr(torch_depth, "_CHUNK_BYTES", 3 * torch_depth._IMAGES_PER_HYPOTHESIS * 4 * h * w * 4)
-    assert torch_depth._chunk_size(16, 4, h, w) == 3
+    monkeypatch.setattr(slices, "_CHUNK_BYTES", 3 * slices._IMAGES_PER_HYPOTHESIS * 4 * h * w * 4)
+    assert slices._chunk_size(16, 4, h, w) == 3
     kw = dict(zmin_m=0.28, zmax_m=1.1, num_planes=16, reference=1, cost="zncc", aggregation="guided", method="local")
     ref = estimate_depth(views, cal, **kw)
     got = estimate_depth(views, cal, backend="torch", device="cpu", **kw)
@@ -137,7 +140,7 @@ def test_running_minimum_is_exact(exclude):
             np.copyto(run.slot(), aggs[i])
             run.push()
         got = {"best": run.best, "best_i": run.best_i, "c_prev": run.c_prev, "c_next": run.c_next, "second": run.second()}
-        trun = torch_depth._RunningMinimum(torch, (h, w), exclude, "cpu")
+        trun = RunningMinimumTorch(torch, (h, w), exclude, "cpu")
         i = 0
         while i < n:
             c = min(int(rng.integers(1, 8)), n - i)
@@ -157,9 +160,9 @@ def test_windows_match_opencv(shape, k):
     x = (rng.random(shape) * 3).astype(np.float32)
     g = cv2.GaussianBlur(rng.random(shape).astype(np.float32), (0, 0), 2)
     g = ((g - g.min()) / max(float(g.max() - g.min()), 1e-6)).astype(np.float32)
-    box = torch_depth._Box(torch, shape, k, 1, "cpu")(torch.from_numpy(x)[None, None])[0, 0].numpy()
+    box = BoxTorch(torch, shape, k, 1, "cpu")(torch.from_numpy(x)[None, None])[0, 0].numpy()
     np.testing.assert_allclose(box, cv2.boxFilter(x, -1, (k, k)), atol=1e-6)
-    guided = torch_depth._Guided(torch, g, k, 1e-3, "cpu")(torch, torch.from_numpy(x)[None])[0].numpy()
+    guided = GuidedTorch(torch, g, k, 1e-3, "cpu")(torch, torch.from_numpy(x)[None])[0].numpy()
     np.testing.assert_allclose(guided, cv2.ximgproc.createGuidedFilter(g, k // 2, 1e-3).filter(x), atol=1e-4)
 
 
@@ -170,8 +173,8 @@ def test_errors(twin):
     hs = np.tile(np.eye(3), (2, v, 1, 1))
     kw = dict(cost="sad", aggregation="guided", window_px=9, device="cpu")
     with pytest.raises(InvalidInputError, match="guide image"):
-        torch_depth.sweep_torch(lum, lum, hs, guide=None, **kw)
+        slices.sweep_slices_torch(lum, lum, hs, guide=None, **kw)
     with pytest.raises(InvalidInputError, match="float32"):
-        torch_depth.sweep_torch(lum.astype(np.float64), lum, hs, guide=lum[0], **kw)
+        slices.sweep_slices_torch(lum.astype(np.float64), lum, hs, guide=lum[0], **kw)
     with pytest.raises(InvalidInputError, match="homographies"):
-        torch_depth.sweep_torch(lum, lum, hs[:, :2], guide=lum[0], **kw)
+        slices.sweep_slices_torch(lum, lum, hs[:, :2], guide=lum[0], **kw)

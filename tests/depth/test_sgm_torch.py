@@ -6,8 +6,7 @@ import pytest
 torch = pytest.importorskip("torch", reason="the torch extra is not installed")
 pytest.importorskip("kornia", reason="the torch extra is not installed")
 
-from lfring.backends.torch_sgm import sgm_aggregate_torch  # noqa: E402
-from lfring.depth.sgm import sgm_aggregate  # noqa: E402
+from lfring.depth.sgm import sgm_aggregate, sgm_aggregate_torch  # noqa: E402
 from lfring.errors import InvalidInputError  # noqa: E402
 
 

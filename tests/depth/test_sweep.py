@@ -168,9 +168,10 @@ def test_strips_equal_whole_slices(prototype, reference, warp, cost):
     warpPerspective per strip), gives what the whole-slice sweep gives for the same cost."""
     import warnings
 
-    from lfring.depth.costs import lcn_sources
+    from lfring.depth.costs.lcn import lcn_sources
     from lfring.depth.hypotheses import depth_hypotheses
-    from lfring.depth.stream import sweep_slices, sweep_strips
+    from lfring.depth.sweep.slices import sweep_slices
+    from lfring.depth.sweep.strips import sweep_strips
     from lfring.core.viewstack import cached_view_masks
 
     r = render(prototype, three_depth_scene(), binning=4)
@@ -325,7 +326,7 @@ def test_least_over_windows_is_the_least_of_the_boxes_containing_each_pixel(shap
     """Of a box-aggregated cost, the erosion is the least box mean over every box that contains
     the pixel (boxes cut at the border), by brute force; inf stays inf only where the whole
     neighbourhood is."""
-    from lfring.depth.costs import least_over_windows
+    from lfring.depth.aggregation import least_over_windows
 
     rng = np.random.default_rng(box)
     v = rng.random(shape, dtype=np.float32)
@@ -359,7 +360,7 @@ def test_least_over_windows_is_the_least_of_the_boxes_containing_each_pixel(shap
     (np.zeros((2, 3, 3), np.float32), 3, {"threads": 0}, "threads"),
     (np.zeros((2, 3, 3), np.float32), 3, {"threads": None}, "threads")])
 def test_least_over_windows_refuses_bad_inputs(v, box, kw, match):
-    from lfring.depth.costs import least_over_windows
+    from lfring.depth.aggregation import least_over_windows
 
     if isinstance(kw.get("out"), str):
         kw = {"out": v}
@@ -368,7 +369,7 @@ def test_least_over_windows_refuses_bad_inputs(v, box, kw, match):
 
 
 def test_least_over_windows_wider_than_the_slice_is_its_minimum():
-    from lfring.depth.costs import least_over_windows
+    from lfring.depth.aggregation import least_over_windows
 
     v = np.random.default_rng(0).random((2, 5, 7)).astype(np.float32)
     got = least_over_windows(v, 10**9 + 1)  # used to allocate the whole square
@@ -398,7 +399,8 @@ def test_occlusion_aware_cost_leaves_out_the_view_that_disagrees():
     """Three views agree and one (occluded) does not: over the window, 'lcn-occlusion' takes the
     three's variance (0) where 'lcn' is high; where only two views see the window, or the view
     left out would leave fewer than two, nothing is left out."""
-    from lfring.depth.costs import OCCLUSION_PENALTY, lcn_cost, lcn_leave_one_out, occlusion_aggregate
+    from lfring.depth.costs.lcn import lcn_cost
+    from lfring.depth.costs.lcn_occlusion import OCCLUSION_PENALTY, lcn_leave_one_out, occlusion_aggregate
     from lfring.core.filters import box_filter
 
     rng = np.random.default_rng(1)
@@ -474,7 +476,7 @@ def test_threads_bound_every_compiled_kernel_of_the_semi_global_method(twin, mon
     on one thread too, and the count is restored afterwards."""
     import numba
 
-    import lfring.depth.sweep as sweep
+    import lfring.depth.engines.semiglobal as sweep
 
     r, cal, views, *_ = twin
     seen = {}
@@ -495,7 +497,8 @@ def test_threads_bound_every_compiled_kernel_of_the_semi_global_method(twin, mon
 def test_the_halves_volume_needs_the_whole_volume_and_an_lcn_cost(twin):
     import warnings
 
-    from lfring.depth.stream import sweep_slices, sweep_strips
+    from lfring.depth.sweep.slices import sweep_slices
+    from lfring.depth.sweep.strips import sweep_strips
 
     r, cal, views, *_ = twin
     h, w = views.shape[1:3]
@@ -511,7 +514,7 @@ def test_the_halves_volume_needs_the_whole_volume_and_an_lcn_cost(twin):
         sweep_strips(lum, masks, hs, aggregate_px=5, volume=vol, halves=np.empty((2, h, w), np.float32))
     with pytest.raises(ValueError, match="an 'lcn' cost"):
         sweep_slices(lum, masks, hs, "zncc", 9, None, volume=vol, halves=np.empty_like(vol))
-    from lfring.depth.costs import take_halves
+    from lfring.depth.costs.lcn_halves import take_halves
 
     with pytest.raises(InvalidInputError, match="halves must have the volume's shape"):
         take_halves(vol, np.empty((2, h, w), np.float32))
@@ -523,7 +526,7 @@ def test_the_halves_volume_needs_the_whole_volume_and_an_lcn_cost(twin):
 def test_box_mean_of_finite_is_the_seen_mean_over_a_box(shape, box):
     """The compiled seen-pixel mean equals seen_mean with OpenCV's box (reflected borders, boxes
     larger than the image included) in float64, to float32 rounding; inf stays where c is."""
-    from lfring.depth.costs import box_mean_of_finite, seen_mean
+    from lfring.depth.aggregation import box_mean_of_finite, seen_mean
 
     rng = np.random.default_rng(box)
     c = rng.uniform(0.0, 2.0, shape).astype(np.float32)
@@ -544,7 +547,7 @@ def test_box_mean_of_finite_is_the_seen_mean_over_a_box(shape, box):
     (np.zeros((4, 4), np.float32), 4, "odd positive"), (np.zeros((4, 4), np.float32), 0, "odd positive"),
     (np.zeros((4, 4), np.float32), True, "odd positive")])
 def test_box_mean_of_finite_refuses_bad_inputs(c, box, match):
-    from lfring.depth.costs import box_mean_of_finite
+    from lfring.depth.aggregation import box_mean_of_finite
 
     with pytest.raises(InvalidInputError, match=match):
         box_mean_of_finite(c, box)
@@ -557,7 +560,7 @@ def test_view_halves_follow_the_rows_and_columns_of_the_ring(twin):
     the pair and a single line of views: none; the cost is 'lcn' there."""
     import warnings
 
-    from lfring.depth.costs import view_halves
+    from lfring.depth.costs.lcn_halves import view_halves
 
     r, cal, views, *_ = twin
     shape = views.shape[1:3]

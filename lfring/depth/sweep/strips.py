@@ -1,16 +1,12 @@
-"""Plane-sweep kernels: every hypothesis's cost, aggregated and folded into a running minimum.
+"""The strip sweep: the 'lcn' costs with box aggregation over every hypothesis, strip by strip.
 
-:func:`sweep_strips` evaluates the default cost ('lcn' with box aggregation) strip by strip: each
-strip of output rows (with the aggregation window's halo) is shifted, summed, box-filtered and
-folded into the running minimum for all hypotheses before the next strip, so its buffers stay in
-the cache, and strips are shared among threads. When every homography is a translation (the
+Each strip of output rows (with the aggregation window's halo) is shifted, summed, box-filtered
+and folded into the running minimum for all hypotheses before the next strip, so its buffers stay
+in the cache, and strips are shared among threads. When every homography is a translation (the
 optics model; :func:`lfring.core.warping.translations`) the views are shifted by the shared
-:class:`lfring.core.shift.ShiftEngine`; otherwise ``cv2.warpPerspective`` renders the strip. Memory
-holds a few strips per thread and ``exclude + 2`` aggregated slices of a strip, whatever the
-number of hypotheses.
-
-:func:`sweep_slices` runs any cost and aggregation a whole slice at a time (the reference the
-torch backend mirrors).
+:class:`lfring.core.shift.ShiftEngine`; otherwise ``cv2.warpPerspective`` renders the strip.
+Memory holds a few strips per thread and ``exclude + 2`` aggregated slices of a strip, whatever
+the number of hypotheses.
 """
 
 from __future__ import annotations
@@ -20,16 +16,16 @@ import threading
 import cv2
 import numpy as np
 
-from lfring.depth.costs import (STRIP_PIXELS, aggregate, aggregation_window, checked_halves, half_aggregate,
-                                lcn_leave_one_out, leavable_views, occlusion_aggregate, slice_cost)
-from lfring.depth.selection import RunningMinimum
-from lfring.core.viewstack import WEIGHT_FLOOR
-from lfring.core.shift import ShiftEngine
 from lfring.core.filters import box_filter
-from lfring.core.threads import run_threads
-from lfring.core.warping import translations, warp_image
+from lfring.core.shift import ShiftEngine
+from lfring.core.threads import STRIP_PIXELS, run_threads
+from lfring.core.viewstack import WEIGHT_FLOOR
+from lfring.core.warping import translations
+from lfring.depth.costs.lcn_halves import checked_halves, half_aggregate
+from lfring.depth.costs.lcn_occlusion import lcn_leave_one_out, leavable_views, occlusion_aggregate
+from lfring.depth.selection import RunningMinimum
 
-__all__ = ["sweep_slices", "sweep_strips"]
+__all__ = ["sweep_strips"]
 
 
 def sweep_strips(sources: np.ndarray, masks: np.ndarray, hs: np.ndarray, *, aggregate_px: int, exclude: int = 1,
@@ -39,7 +35,7 @@ def sweep_strips(sources: np.ndarray, masks: np.ndarray, hs: np.ndarray, *, aggr
     Parameters
     ----------
     sources : (V, h, w) float32
-        :func:`lfring.depth.costs.lcn_sources` of the views.
+        :func:`lfring.depth.costs.lcn.lcn_sources` of the views.
     masks : (V, h, w) float32
         Valid weight of every view pixel.
     hs : (N, V, 3, 3)
@@ -64,17 +60,17 @@ def sweep_strips(sources: np.ndarray, masks: np.ndarray, hs: np.ndarray, *, aggr
         them): for progress reports.
     occlusion : bool
         The 'lcn-occlusion' cost: over each window, the least of all views' cost and the costs
-        without one view (:func:`lfring.depth.costs.occlusion_aggregate`).
+        without one view (:func:`lfring.depth.costs.lcn_occlusion.occlusion_aggregate`).
     halves : (N, h, w) float32, optional
         With ``volume``: filled with every hypothesis's least aggregated cost of a half of the
-        views (:func:`lfring.depth.costs.view_halves`, :func:`lfring.depth.costs.half_aggregate`;
-        inf where no half counts), for :func:`lfring.depth.costs.take_halves`.
+        views (:func:`lfring.depth.costs.lcn_halves.view_halves`, :func:`lfring.depth.costs.lcn_halves.half_aggregate`;
+        inf where no half counts), for :func:`lfring.depth.costs.lcn_halves.take_halves`.
 
     Returns
     -------
     best_i : (h, w) int32
     c_best, c_prev, c_next, c_second, nviews : (h, w) float32
-        As :func:`sweep_slices` defines them (c_second exact, see
+        As :func:`lfring.depth.sweep.slices.sweep_slices` defines them (c_second exact, see
         :class:`RunningMinimum`).
     """
     v, h, w = sources.shape
@@ -234,69 +230,3 @@ def sweep_strips(sources: np.ndarray, masks: np.ndarray, hs: np.ndarray, *, aggr
     if out is not None:
         return best_i, out["c_best"], out["c_prev"], out["c_next"], out["second"], out["nviews"]
     return None
-
-
-def sweep_slices(lum, masks, hs, cost, window_px, guide, exclude=1, aggregate_px=None, volume=None, halves=None):
-    """Any cost and aggregation over every hypothesis, a whole slice at a time.
-
-    Parameters
-    ----------
-    lum : (V, h, w) float32
-        The views' luminances as the cost compares them (:func:`lfring.core.filters.normalised_luminance`,
-        or for 'lcn' :func:`lfring.depth.costs.lcn_sources`).
-    masks : (V, h, w) float32
-    hs : (N, V, 3, 3)
-    cost : str
-        One of :data:`lfring.depth.costs.COSTS`.
-    window_px : int
-    guide : cv2.ximgproc.GuidedFilter or None
-        The guided aggregation, or None for a box over ``aggregate_px``.
-    exclude : int
-        As :class:`lfring.depth.selection.RunningMinimum`.
-    volume : (N, h, w) float32, optional
-        As in :func:`sweep_strips`: filled with every aggregated slice; then only ``nviews``
-        is returned.
-    halves : (N, h, w) float32, optional
-        As in :func:`sweep_strips` (with ``volume``; the 'lcn' costs).
-
-    Returns
-    -------
-    best_i : (h, w) int32
-        The best hypothesis.
-    c_best, c_prev, c_next, c_second, nviews : (h, w) float32
-        Its aggregated cost, its neighbours' (inf at the ends), the best cost more than
-        ``exclude`` hypotheses away, and the most views that saw the pixel.
-    """
-    n, v = hs.shape[:2]
-    h, w = lum.shape[1:]
-    aggregate_px = window_px if aggregate_px is None else aggregate_px
-    run = RunningMinimum((h, w), exclude) if volume is None else None
-    nviews = np.zeros((h, w), np.float32)
-    src = lum * masks
-    lum_w = np.empty((v, h, w), np.float32)
-    wts = np.empty((v, h, w), np.float32)
-    leavable = leavable_views(hs) if cost == "lcn-occlusion" else []
-    halves_of = checked_halves(halves, volume, hs, (h, w), cost)
-    window = aggregation_window(guide, aggregate_px)
-    for i in range(n):
-        for k in range(v):
-            warp_image(src[k], hs[i, k], (w, h), dst=lum_w[k])
-            warp_image(masks[k], hs[i, k], (w, h), dst=wts[k])
-        c, nv = slice_cost(lum_w, wts, cost, window_px)
-        agg = aggregate(c, nv, guide, aggregate_px)
-        if leavable:
-            s1, s2 = lum_w.sum(axis=0), np.square(lum_w).sum(axis=0)
-            occlusion_aggregate(agg, nv, ((lcn_leave_one_out(s1, s2, nv, lum_w[k], wts[k]), wts[k]) for k in leavable),
-                                lambda one: aggregate(one, nv, guide, aggregate_px), window)
-        if halves_of:
-            least = np.full((h, w), np.inf, np.float32)
-            for half in halves_of:
-                half_aggregate([(lum_w[k], wts[k]) for k in half], nv >= 1.5, window, least)
-            halves[i] = least
-        np.copyto(run.slot() if run is not None else volume[i], agg)
-        if run is not None:
-            run.push()
-        np.maximum(nviews, nv, out=nviews)
-    if run is None:
-        return nviews
-    return run.best_i, run.best, run.c_prev, run.c_next, run.second(), nviews

@@ -1,4 +1,4 @@
-"""Depth-aware refocusing: what the whole main-lens aperture would have recorded (SPEC 5).
+"""Depth-aware refocusing: what the whole main-lens aperture would have recorded.
 
 Shift-and-add shows every object away from the focus depth as V displaced copies of itself. A
 lens whose aperture spans the views would show it as a smooth disc of blur instead. Given a
@@ -45,11 +45,16 @@ from lfring.core.geometry import apply_homography, check_reference, to_reference
 from lfring.core.viewstack import WEIGHT_FLOOR, cached_view_masks, check_views
 from lfring.core.filters import luminance
 from lfring.core.threads import run_threads
+from lfring.core.validate import check_number
 from lfring.core.warping import translations
+from lfring.depth.estimate import estimate_depth
+from lfring.depth.selection import DepthResult
+from lfring.focus.base import RefocusMethod
 
 __all__ = [
     "AGREE_TOL", "FULL_RES_BLUR_PX", "GEOMETRIC_STEP", "LINEAR_UNTIL_PX", "OCCLUSION_PX", "SHARP_PX", "SHARP_RAMP_PX", "DepthOfField",
-    "aperture_from_f_number", "aperture_radius_px", "coc_radius_px", "disc_kernel",
+    "DEPTH_AWARE", "aperture_from_f_number", "aperture_radius_px", "coc_radius_px", "depth_of_field", "disc_kernel",
+    "prepare_depth_aware", "resolve_aperture",
 ]
 
 # Views aligned to within this many pixels of view motion at the focus depth are in focus: the
@@ -453,3 +458,83 @@ class DepthOfField:
         np.divide(np.float32(1.0), alpha, out=inv, where=alpha > WEIGHT_FLOOR)
         planes = [acc[i] * inv for i in range(c)]
         return planes[0][..., None] if c == 1 else cv2.merge(planes)
+
+
+def resolve_aperture(calibration, aperture=None, f_number=None, ring_device=None) -> float:
+    """The depth-aware ``aperture`` (1: the disc through the views, 0: a pinhole) from either
+    ``aperture`` or ``f_number`` (1.0 when neither is given).
+
+    ``f_number`` needs the device: ``ring_device`` (a :class:`lfring.optics.RingDevice` with
+    its positions), or else the built-in device the calibration was made from (calibrations
+    from the optics name it), set to the positions the calibration records. See
+    :func:`aperture_from_f_number` for the relation.
+    """
+    if aperture is not None and f_number is not None:
+        raise InvalidInputError("give the depth of field as aperture or as f_number, not both")
+    if f_number is None:
+        return check_number(1.0 if aperture is None else aperture, "aperture", minimum=0,
+                            hint=" (1: the views' aperture, 0: a pinhole)")
+    if ring_device is None:
+        if calibration.device is None:
+            raise InvalidInputError(
+                "f_number needs the device (its main lens's focal length and where the views sit in its aperture): "
+                "pass ring_device=, or use aperture= (1 is the aperture the views span)"
+            )
+        from lfring.optics.device import load_device
+
+        ring_device = load_device(calibration.device)
+        prov = calibration.provenance
+        if prov.get("ring_distance_m") is not None and prov.get("sensor_distance_m") is not None:
+            ring_device = ring_device.with_positions(prov["ring_distance_m"], prov["sensor_distance_m"])
+    return aperture_from_f_number(f_number, ring_device)
+
+
+def _depth_map(arr, calibration, depth, zmin_m, zmax_m, reference) -> np.ndarray:
+    """The depth map of the views in the reference frame: given, or estimated."""
+    h, w = arr.shape[1:3]
+    if depth is None:
+        lo, hi = calibration.valid_depth_range_m
+        zmin_m = lo if zmin_m is None else zmin_m
+        zmax_m = hi if zmax_m is None else zmax_m
+        if zmax_m is None:
+            raise InvalidInputError("the calibration has no upper depth bound: give zmax_m (or a depth map as depth=)")
+        depth = estimate_depth(arr, calibration, zmin_m=float(zmin_m), zmax_m=float(zmax_m), reference=reference)
+    elif zmin_m is not None or zmax_m is not None:
+        raise InvalidInputError("zmin_m/zmax_m set the range of the depth estimation: give them or a depth map, not both")
+    if isinstance(depth, DepthResult):
+        if depth.reference != reference:
+            raise InvalidInputError(f"the depth map is in the frame of reference {depth.reference!r}, the refocusing in {reference!r}")
+        depth = depth.depth_m
+    dm = np.asarray(depth, dtype=np.float64)
+    if dm.shape != (h, w):
+        raise InvalidInputError(f"the depth map must be (h, w) = ({h}, {w}) metres like the views, got shape {dm.shape}")
+    return dm
+
+
+def depth_of_field(views, calibration, *, depth=None, zmin_m=None, zmax_m=None, reference="center") -> DepthOfField:
+    """A :class:`DepthOfField` renderer of the views: from a depth map (``depth``, a
+    :class:`lfring.DepthResult` or (h, w) metres in the reference frame), or one estimated over
+    ``zmin_m``..``zmax_m`` (by default the calibration's valid range). Reuse it to render many
+    focus depths and apertures from one depth map."""
+    arr = check_views(views)
+    ref = check_reference(reference, calibration.num_views)
+    return DepthOfField(arr, calibration, _depth_map(arr, calibration, depth, zmin_m, zmax_m, ref), reference=ref)
+
+
+def prepare_depth_aware(views, calibration, reference, *, aperture=None, f_number=None, ring_device=None, depth=None,
+                        zmin_m=None, zmax_m=None):
+    """The depth-aware method's ``finish(sharp, focus_m)`` for one frame (see
+    :class:`lfring.focus.base.RefocusMethod`): the depth map (given or estimated) and the
+    all-in-focus colour are made once, every focus depth reuses them."""
+    a = resolve_aperture(calibration, aperture, f_number, ring_device)
+    dof = depth_of_field(views, calibration, depth=depth, zmin_m=zmin_m, zmax_m=zmax_m, reference=reference)
+    return lambda sharp, focus_m: dof.render(float(focus_m), a, sharp)
+
+
+DEPTH_AWARE = RefocusMethod(
+    name="depth-aware",
+    summary="what a lens whose aperture spans the views records: in focus as shift-and-add, elsewhere a disc of blur",
+    prepare=prepare_depth_aware,
+    options=frozenset({"aperture", "f_number", "ring_device", "depth", "zmin_m", "zmax_m"}),
+)
+

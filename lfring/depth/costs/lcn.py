@@ -1,0 +1,117 @@
+"""The 'lcn' cost: the variance across the views of their locally normalised luminances.
+
+The 'lcn' cost of a hypothesis at a pixel is the variance across the views of their
+locally normalised luminances, ``n = (L - mu) / sqrt(var + LCN_EPS mu^2 + LCN_FLOOR)`` with
+``mu`` and ``var`` the masked local mean and variance of the luminance ``L`` over ``window_px``.
+The normalisation is done once per view, before the sweep (:func:`lcn_sources`), so a hypothesis
+only has to shift the views and sum: with S1, S2 the sums over views of the (mask-weighted)
+normalised values and their squares and C the sum of the views' weights,
+``c = (S2 - S1^2 / C) / max(C - 1, 0.5)`` (:func:`lcn_cost`). Dividing by the local mean makes
+it blind to the views' different vignetting and exposure.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from lfring.core.filters import box_filter, luminance
+from lfring.core.threads import STRIP_PIXELS, run_threads
+from lfring.core.viewstack import WEIGHT_FLOOR, cached_view_masks
+from lfring.depth.costs.base import DepthCost
+from lfring.depth.plan import DEPTH_TAPER, sweep_masks
+
+__all__ = ["LCN", "LCN_AGGREGATE_PX", "LCN_EPS", "LCN_FLOOR", "lcn_cost", "lcn_cost_torch", "lcn_slice_cost",
+           "lcn_slice_cost_torch", "lcn_sources", "window_weights"]
+
+# The default aggregation window of the 'lcn' cost (the other costs aggregate over window_px).
+LCN_AGGREGATE_PX = 15
+# Relative contrast floor of the normalisation (its variance term is LCN_EPS mu^2): texture
+# fainter than 10 % of the local mean is compared unnormalised; LCN_FLOOR keeps black regions finite.
+LCN_EPS = 1e-2
+LCN_FLOOR = 1e-6
+
+
+def lcn_sources(views: np.ndarray, calibration, window_px: int, *, threads: int = 1, taper: float = DEPTH_TAPER) -> np.ndarray:
+    """(V, h, w) float32 locally normalised luminance of every view (masked by
+    :func:`sweep_masks` with ``taper``), to be multiplied by the mask before warping; views are
+    shared among ``threads`` threads."""
+    masks = sweep_masks(calibration, views.shape[1:3], taper)
+    lum = luminance(views)
+    out = np.empty(lum.shape, np.float32)
+
+    weights = window_weights(calibration, views.shape[1:3], window_px, taper)
+    v, h, w = lum.shape
+    pad = window_px // 2
+    rows = max(8, STRIP_PIXELS // (2 * max(w, 1)))  # row strips of every view, in the cache
+
+    def one(k: int, r0: int, r1: int) -> None:
+        q0, q1 = max(0, r0 - pad), min(h, r1 + pad)
+        inner = slice(r0 - q0, r1 - q0)
+        m, x = masks[k][q0:q1], lum[k][q0:q1]
+        a = cv2.multiply(x, m)
+        mu = box_filter(a, window_px)[inner]
+        cv2.multiply(a, x, dst=a)
+        s2 = box_filter(a, window_px)[inner]
+        wk = weights[k][r0:r1]
+        cv2.multiply(mu, wk, dst=mu)
+        cv2.multiply(s2, wk, dst=s2)
+        # sqrt(max(E[x^2] - mu^2, 0) + eps mu^2 + floor)
+        sq = cv2.multiply(mu, mu)
+        var = cv2.subtract(s2, sq)
+        cv2.max(var, 0.0, dst=var)
+        cv2.scaleAdd(sq, LCN_EPS, var, dst=var)
+        cv2.add(var, LCN_FLOOR, dst=var)
+        cv2.sqrt(var, dst=var)
+        dst = out[k][r0:r1]
+        cv2.subtract(x[inner], mu, dst=dst)
+        cv2.divide(dst, var, dst=dst)
+
+    run_threads([lambda k=k, r=r: one(k, r, min(h, r + rows)) for k in range(v) for r in range(0, h, rows)], threads)
+    return out
+
+
+def window_weights(calibration, view_shape, window_px: int, taper: float = DEPTH_TAPER) -> np.ndarray:
+    """(V, h, w) float32 ``1 / max(box(mask), WEIGHT_FLOOR)`` of every view's
+    :func:`sweep_masks` over ``window_px``: made once per calibration, view shape, window and taper."""
+    return cached_view_masks(
+        calibration, view_shape, ("window_weights", int(window_px)),
+        taper=taper, make=lambda masks: np.stack([1.0 / np.maximum(box_filter(m, window_px), WEIGHT_FLOOR) for m in masks]).astype(np.float32),
+    )
+
+
+def lcn_cost(s1: np.ndarray, s2: np.ndarray, count: np.ndarray) -> np.ndarray:
+    """The 'lcn' cost from the sums over views (S1, S2, C; see the module's docstring)."""
+    c = s2 - s1 * s1 / np.maximum(count, WEIGHT_FLOOR)
+    c /= np.maximum(count - 1.0, 0.5)
+    return c.astype(np.float32, copy=False)
+
+
+def lcn_cost_torch(s1, s2, count):
+    """The torch twin of :func:`lcn_cost`."""
+    return (s2 - s1 * s1 / count.clamp_min(WEIGHT_FLOOR)) / (count - 1.0).clamp_min(0.5)
+
+
+def lcn_slice_cost(lum_w: np.ndarray, wts: np.ndarray, nview: np.ndarray, window_px: int) -> np.ndarray:
+    """The 'lcn' cost of one hypothesis from the warped :func:`lcn_sources` premultiplied by their
+    warped masks (V, h, w) (see :class:`lfring.depth.costs.base.DepthCost`)."""
+    return lcn_cost(lum_w.sum(axis=0), np.square(lum_w).sum(axis=0), nview)
+
+
+def lcn_slice_cost_torch(torch, lum_w, wts, nview, box):
+    """The torch twin of :func:`lcn_slice_cost` on chunks (C, V, h, w) -> (C, h, w)."""
+    return lcn_cost_torch(lum_w.sum(dim=1), (lum_w * lum_w).sum(dim=1), nview)
+
+
+def _sources(views, calibration, plan, window_px: int, threads: int) -> np.ndarray:
+    return lcn_sources(views, calibration, window_px, threads=threads, taper=plan.taper)
+
+
+LCN = DepthCost(
+    name="lcn",
+    summary="variance across views of the locally normalised luminances (fastest; blind to vignetting)",
+    sources=_sources,
+    slice_cost=lcn_slice_cost,
+    slice_cost_torch=lcn_slice_cost_torch,
+    lcn=True,
+)

@@ -1,0 +1,44 @@
+"""The record of one depth engine: what turns a planned sweep into a depth map.
+
+An engine runs the sweep (:func:`lfring.depth.sweep.run_sweep`) and whatever selection,
+optimisation and refinement it adds, and hands each pixel's hypothesis index and confidence to a
+:class:`lfring.depth.selection.Finisher`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+__all__ = ["DepthEngine"]
+
+
+@dataclass(frozen=True)
+class DepthEngine:
+    """One depth engine (a ``method`` of :func:`lfring.estimate_depth`).
+
+    Attributes
+    ----------
+    name : str
+    summary : str
+        One line for help texts.
+    run : callable
+        ``run(views, calibration, plan, settings, finisher, progress)`` -> dict of the fields it
+        adds to the :class:`lfring.DepthResult` (the finisher holds the rest).
+    default_cost : str
+        The cost it uses when none is asked for.
+    lcn_aggregate_px : int
+        The aggregation window of the 'lcn' costs when none is asked for.
+    whole_volume : bool
+        It holds the whole cost volume (costs that choose over it need that).
+    options : frozenset of str
+        The engine-specific options of ``estimate_depth`` it reads ('paths', 'consistency').
+    """
+
+    name: str
+    summary: str
+    run: Callable
+    default_cost: str
+    lcn_aggregate_px: int
+    whole_volume: bool = False
+    options: frozenset = frozenset()

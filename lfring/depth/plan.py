@@ -1,0 +1,144 @@
+"""Planning a plane sweep: the hypotheses, the homographies into the reference frame, the
+views' masks, the settings every stage of the sweep reads, and the progress reports.
+
+:func:`plan_sweep` turns a depth range into a :class:`SweepPlan`; :class:`DepthSettings` holds the
+checked options of :func:`lfring.estimate_depth`; the engines (:mod:`lfring.depth.engines`) read
+both and never see the raw arguments.
+"""
+
+from __future__ import annotations
+
+import threading
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+
+from lfring.core.filters import luminance
+from lfring.core.geometry import check_reference
+from lfring.core.viewstack import WEIGHT_FLOOR, cached_view_masks
+from lfring.core.warping import warp_image
+from lfring.depth.hypotheses import depth_hypotheses, view_motion_px
+from lfring.errors import LfringWarning
+
+__all__ = ["DEPTH_TAPER", "DepthSettings", "Progress", "SweepPlan", "guide_image", "in_reference_frame", "plan_sweep",
+           "sweep_masks"]
+
+# Fraction of a view's disc radius over which its weight rises from 0 to 1 in the sweep
+# (lfring.core.viewstack.view_masks). The refocusing taper (lfring.core.viewstack.TAPER, 15 %) hides seams in an image;
+# in the sweep it counted a view that sees a pixel as a fraction of a view over the outer 15 % of
+# its disc, so pixels two views see came out unseen (min_views) and their costs were weighted
+# down. Twin, every pixel two views see, bad 1 px, taper 15 / 5 / 2 %: hard scene 13.1 / 10.9 /
+# 11.0 % (4 views) and 15.0 / 11.5 / 10.7 % (views 0 and 1); three-depth 8.0 / 6.3 / 5.7 % and
+# 7.3 / 5.2 / 4.7 %. At 3 % and below the darkest, noisiest rim pixels of the inspection sample
+# (data/synthetic/part_good.png) made a confident false dent at the bottom of the frame.
+DEPTH_TAPER = 0.05
+
+
+def sweep_masks(calibration, view_shape, taper: float = DEPTH_TAPER) -> np.ndarray:
+    """(V, h, w) float32 weight of every view pixel in the sweep: :func:`lfring.core.viewstack.view_masks`
+    with the rim ``taper`` (by default :data:`DEPTH_TAPER`), made once per calibration, view
+    shape and taper (read-only)."""
+    return cached_view_masks(calibration, view_shape, taper=taper)
+
+
+@dataclass(frozen=True)
+class DepthSettings:
+    """The checked options of one depth estimation (see :func:`lfring.estimate_depth`)."""
+
+    cost: object  # the lfring.depth.costs.DepthCost entry
+    aggregation: str  # 'box' or 'guided'
+    window_px: int  # odd window of the cost's normalisation or correlation
+    aggregate_px: int  # odd window of the aggregation
+    min_views: int
+    threads: int
+    backend: str  # 'numpy' or 'torch'
+    device: object  # the torch device asked for, or None
+    paths: int  # scan paths of the semi-global engine
+    consistency: bool | None  # the left-right check (None: the engine's default)
+
+
+@dataclass(frozen=True)
+class SweepPlan:
+    """What a sweep needs besides the views: hypotheses, homographies, masks and spacing."""
+
+    depths: np.ndarray  # (N,) metres
+    hs: np.ndarray  # (N, V, 3, 3) H_ref_from_view
+    masks: np.ndarray  # (V, h, w)
+    reference: object
+    step_px: float  # largest view motion between neighbouring hypotheses
+    exclude: int  # the second minimum is looked for more than this many hypotheses away
+    taper: float  # rim taper of the masks (sweep_masks)
+
+
+def plan_sweep(views, calibration, zmin_m, zmax_m, num_planes, reference, taper) -> SweepPlan:
+    """The :class:`SweepPlan` of views (V, h, w, C) over ``zmin_m``..``zmax_m``."""
+    ref = check_reference(reference, calibration.num_views)
+    depths = depth_hypotheses(calibration, zmin_m, zmax_m, num=num_planes)
+    calibration.check_depth(np.array([zmin_m, zmax_m]))  # warns once if outside the calibrated range
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", LfringWarning)
+        hs = calibration.homographies(depths, reference=ref)  # (N, V, 3, 3)
+    shape = views.shape[1:3]
+    step = view_motion_px(calibration, depths, shape)
+    # The second minimum is looked for more than one pixel of motion away from the best.
+    exclude = max(1, int(np.ceil(1.0 / max(step, 1e-6))))
+    return SweepPlan(depths, hs, sweep_masks(calibration, shape, taper), ref, step, exclude, taper)
+
+
+class Progress:
+    """Serialises ``progress(fraction)`` calls from the sweep's threads; rows done map onto a
+    span of the fraction."""
+
+    def __init__(self, callback, height: int):
+        self.callback, self.height = callback, height
+        self.lock = threading.Lock()
+
+    def at(self, fraction: float) -> None:
+        """Report ``fraction`` of the work done (clamped to [0, 1])."""
+        if self.callback is not None:
+            with self.lock:
+                self.callback(min(1.0, max(0.0, float(fraction))))
+
+    def rows(self, start: float, end: float):
+        """An ``on_rows`` callback for one sweep advancing the fraction from start to end."""
+        if self.callback is None:
+            return None
+        counted = [0]
+
+        def on_rows(r0, r1):
+            with self.lock:
+                counted[0] += r1 - r0
+                self.callback(start + (end - start) * counted[0] / self.height)
+
+        return on_rows
+
+    def done(self) -> None:
+        """Report the whole work done."""
+        self.at(1.0)
+
+
+def in_reference_frame(lum, plan) -> np.ndarray:
+    """(h, w) float32 image of the reference frame from per-view images (V, h, w): the reference
+    view's own, or for 'center' the views' weighted mean at the middle hypothesis."""
+    if plan.reference != "center":
+        return lum[plan.reference]
+    h, w = lum.shape[1:3]
+    mid = len(plan.depths) // 2
+    acc = np.zeros((h, w), np.float32)
+    wsum = np.zeros((h, w), np.float32)
+    for k in range(len(lum)):
+        acc += warp_image(lum[k] * plan.masks[k], plan.hs[mid, k], (w, h))
+        wsum += warp_image(plan.masks[k], plan.hs[mid, k], (w, h))
+    return acc / np.maximum(wsum, WEIGHT_FLOOR)
+
+
+def guide_image(views, plan) -> np.ndarray:
+    """(h, w) float32 luminance of the reference frame in [0, 1] (for 'center', the views' mean
+    at the middle hypothesis), for the edge-aware optimisation and refinement."""
+    if plan.reference == "center":
+        g = in_reference_frame(luminance(views), plan)
+    else:  # the reference view's own: the others' luminance is not needed
+        g = luminance(views[plan.reference:plan.reference + 1])[0]
+    top = float(np.percentile(g, 99.5))
+    return np.clip(g / max(top, 1e-6), 0, 1).astype(np.float32)

@@ -1,0 +1,260 @@
+"""Refocusing at metric depth, focal stacks and all-in-focus images: the entry points, which look
+the method up in :data:`lfring.focus.methods.METHODS`.
+
+Refocusing at depth Z warps every view into the reference frame with ``H_ref_from_view(Z)``
+and averages them, each pixel weighted by how many views are valid there, so the borders are
+not darkened. Objects at Z line up and are sharp; others appear as displaced copies
+(``method='shift-and-add'``). With a depth map, ``method='depth-aware'`` renders what a lens
+whose aperture spans the views would record instead: smooth, occlusion-correct blur of any
+aperture (:mod:`lfring.focus.depth_aware`).
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import cv2
+import numpy as np
+
+from lfring.calibration.overlap import check_renderable
+from lfring.core.backend import check_backend
+from lfring.core.viewstack import WEIGHT_FLOOR, cached_view_masks, check_views
+from lfring.core.warping import DEFAULT_INTERPOLATION, warp_views
+from lfring.depth.hypotheses import depth_hypotheses
+from lfring.errors import InvalidInputError, LfringWarning
+from lfring.focus.depth_aware import DepthOfField
+from lfring.focus.methods import METHODS
+from lfring.focus.shift_and_add import Refocuser, refocus_torch
+
+__all__ = ["all_in_focus", "focal_stack", "refocus"]
+
+
+def _given(**options) -> dict:
+    return {k: v for k, v in options.items() if v is not None}
+
+
+def _method(name, backend, options):
+    """The method ``name`` after checking that it runs on ``backend`` and takes the options given."""
+    m = METHODS.lookup(name)
+    check_backend(backend)
+    if backend not in m.backends:
+        raise InvalidInputError(f"method={m.name!r} runs on the {' or '.join(m.backends)} backend only")
+    extra = sorted(set(_given(**options)) - m.options)
+    if extra:
+        owners = ", ".join(f"method={o.name!r}" for o in METHODS.values() if set(extra) <= o.options)
+        raise InvalidInputError(f"{', '.join(extra)} {'is' if len(extra) == 1 else 'are'} for {owners or 'no method'}, "
+                                f"not method={m.name!r}")
+    return m
+
+
+def refocus(views, calibration, depth_m: float, *, reference="center", interpolation: str = DEFAULT_INTERPOLATION,
+            backend: str = "numpy", device=None, method: str = "shift-and-add", aperture=None, f_number=None,
+            ring_device=None, depth=None, zmin_m=None, zmax_m=None) -> np.ndarray:
+    """Refocus the views at ``depth_m`` metres from the main lens.
+
+    Parameters
+    ----------
+    views : (V, h, w, C) float32 in [0, 1]
+        From :func:`lfring.split_views` with the calibration's layout.
+    calibration : RingCalibration
+    depth_m : float
+        Must be positive and beyond the calibration's depth origin; outside its valid range it
+        warns (:class:`lfring.LfringWarning`). Nearer than where every view still covers part
+        of the reference frame (``calibration.overlap_depth_range``) it is refused.
+    reference : 'center' or int
+        Frame of the result: the virtual central view (default) or a view index.
+    interpolation : {'linear', 'cubic'}
+    backend : {'numpy', 'torch'}
+        'torch' runs on ``device`` (CUDA when present by default) through kornia, and also
+        takes batches (B, V, h, w, C); see :func:`lfring.focus.shift_and_add.refocus_torch`.
+    device : str, optional
+        For the torch backend, e.g. 'cuda' or 'cpu'.
+    method : str
+        One of :data:`lfring.focus.methods.METHODS`. 'shift-and-add' averages the views aligned at ``depth_m``: objects elsewhere appear as V
+        displaced copies. 'depth-aware' renders what a lens whose aperture spans the views
+        would record (numpy backend): in focus as shift-and-add, elsewhere a disc of blur of the
+        circle-of-confusion radius, occlusion-correct (:mod:`lfring.focus.depth_aware`).
+    aperture : float, optional
+        'depth-aware': the lens's aperture radius in units of the views' distance from their
+        centre: 1 (default) the aperture the views span, 0 a pinhole (all in focus); any value
+        >= 0 scales the blur.
+    f_number : float, optional
+        'depth-aware': instead of ``aperture``, the main lens's f-number (needs the device:
+        ``ring_device`` or a calibration made from a built-in device; see
+        :func:`lfring.focus.depth_aware.resolve_aperture`).
+    ring_device : RingDevice, optional
+    depth : DepthResult or (h, w) array of metres, optional
+        'depth-aware': the depth map in the reference frame (e.g. from
+        :func:`lfring.estimate_depth`); estimated over ``zmin_m``..``zmax_m`` when not given.
+    zmin_m, zmax_m : float, optional
+        'depth-aware': the range of the depth estimation (default: the calibration's valid range).
+
+    Returns
+    -------
+    (h, w, C) float32
+
+    Notes
+    -----
+    Shift-and-add: ``out(x) = sum_k m_k(H_k^-1 x) v_k(H_k^-1 x) / sum_k m_k(H_k^-1 x)`` with
+    ``H_k = H_ref_from_k(Z)`` and ``m_k`` the valid disc of view k, bilinear interpolation.
+    For many frames at one depth, build a :class:`Refocuser` once. Depth-aware: the circle of
+    confusion of a point at depth Z is ``aperture * R * |1/(Z - z0) - 1/(Z_f - z0)|`` px, R from
+    the calibration's model (:func:`lfring.focus.depth_aware.aperture_radius_px`); for many
+    depths from one depth map use :func:`focal_stack` or :func:`lfring.focus.depth_aware.depth_of_field`.
+
+    Examples
+    --------
+    The bundled scene refocused on the book (0.5 m): the book is sharper than when refocused on
+    the cup (0.3 m).
+
+    >>> import cv2, lfring
+    >>> cal = lfring.RingCalibration.load("twin_binned2")
+    >>> views = lfring.split_views(lfring.demosaic(lfring.load_raw("data/synthetic/scene.png")), cal.layout)
+    >>> sharpness = lambda img: cv2.Laplacian(img.mean(axis=2), cv2.CV_32F).var()
+    >>> book = (slice(250, 450), slice(420, 600))  # rows, columns of the book in the centre frame
+    >>> at_book, at_cup = refocus(views, cal, 0.5), refocus(views, cal, 0.3)
+    >>> at_book.shape, bool(sharpness(at_book[book]) > 3 * sharpness(at_cup[book]))
+    ((705, 705, 3), True)
+    """
+    m = _method(method, backend, dict(aperture=aperture, f_number=f_number, ring_device=ring_device, depth=depth,
+                                      zmin_m=zmin_m, zmax_m=zmax_m))
+    if backend == "torch":
+        check_renderable(calibration, depth_m, reference=reference)  # as the Refocuser does
+        return refocus_torch(views, calibration, depth_m, reference=reference, device=device, interpolation=interpolation)
+    arr = check_views(views)
+    sharp = Refocuser(calibration, depth_m, reference=reference, view_shape=arr.shape[1:3], interpolation=interpolation)(arr)
+    if m.prepare is None:
+        return sharp
+    finish = m.prepare(arr, calibration, reference, **_given(aperture=aperture, f_number=f_number, ring_device=ring_device,
+                                                            depth=depth, zmin_m=zmin_m, zmax_m=zmax_m))
+    return finish(sharp, float(depth_m))
+
+
+
+def focal_stack(views, calibration, depths_m, *, reference="center", interpolation: str = DEFAULT_INTERPOLATION,
+                method: str = "shift-and-add", aperture=None, f_number=None, ring_device=None, depth=None,
+                zmin_m=None, zmax_m=None) -> np.ndarray:
+    """Refocus at every depth of ``depths_m``: (N, h, w, C) float32.
+
+    The arguments are :func:`refocus`'s; a method's per-frame preparation (for 'depth-aware'
+    the depth map, given or estimated, and the all-in-focus colour) is made once for the whole stack.
+
+    Examples
+    --------
+    >>> import cv2, numpy as np, lfring
+    >>> cal = lfring.RingCalibration.load("twin_binned2")
+    >>> views = lfring.split_views(lfring.demosaic(lfring.load_raw("data/synthetic/scene.png")), cal.layout)
+    >>> stack = focal_stack(views, cal, [0.3, 0.5, 1.0])
+    >>> book = (slice(250, 450), slice(420, 600))
+    >>> stack.shape, int(np.argmax([cv2.Laplacian(s[book].mean(axis=2), cv2.CV_32F).var() for s in stack]))
+    ((3, 705, 705, 3), 1)
+    """
+    m = _method(method, "numpy", dict(aperture=aperture, f_number=f_number, ring_device=ring_device, depth=depth,
+                                      zmin_m=zmin_m, zmax_m=zmax_m))
+    z = np.atleast_1d(np.asarray(depths_m, dtype=np.float64))
+    if z.ndim != 1 or z.size == 0:
+        raise InvalidInputError(f"depths_m must be a non-empty list of depths, got {depths_m!r}")
+    arr = check_views(views)
+    calibration.check_depth(z)  # validates and warns once for the whole stack
+    check_renderable(calibration, z, reference=reference)
+    finish = None
+    if m.prepare is not None:
+        finish = m.prepare(arr, calibration, reference, **_given(aperture=aperture, f_number=f_number,
+                                                                ring_device=ring_device, depth=depth, zmin_m=zmin_m,
+                                                                zmax_m=zmax_m))
+    out = []
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", LfringWarning)
+        for d in z:
+            img = refocus(arr, calibration, float(d), reference=reference, interpolation=interpolation)
+            out.append(img if finish is None else finish(img, float(d)))
+    return np.stack(out)
+
+
+
+def all_in_focus(views, calibration, depths_m=None, *, depth_map_m=None, reference="center", window_px: int = 7):
+    """An all-in-focus image: every pixel from the views aligned at the depth where it is sharpest
+    (the depth-aware renderer at aperture 0).
+
+    Parameters
+    ----------
+    views : (V, h, w, C) float32
+    calibration : RingCalibration
+    depths_m : sequence of float, optional
+        Depths to choose from (default: the calibration's valid range, evenly in disparity,
+        one pixel apart).
+    depth_map_m : (h, w) float, optional
+        Depth of every reference pixel (from :func:`lfring.estimate_depth`, say): each pixel is
+        then refocused at its own depth, taken from the nearest of ``depths_m``.
+    window_px : int
+        Side of the box over which the photo-consistency is averaged.
+
+    Returns
+    -------
+    image : (h, w, C) float32
+    depth_m : (h, w) float32
+        The depth each pixel was taken from.
+
+    Notes
+    -----
+    Without a depth map, the focus measure is photo-consistency: at the right depth the
+    warped views agree, so their weighted variance, averaged over a small window, is least.
+    The sweep is streamed: memory does not grow with the number of depths. The image is then
+    the depth-aware renderer's at aperture 0 (:class:`lfring.focus.depth_aware.DepthOfField`) with the
+    chosen depths: every pixel from the views that see it at its depth, occluded views left
+    out.
+
+    Examples
+    --------
+    Each pixel comes from the depth where the views agree: the book at 0.5 m, the cup at 0.3 m.
+
+    >>> import numpy as np, lfring
+    >>> cal = lfring.RingCalibration.load("twin_binned2")
+    >>> views = lfring.split_views(lfring.demosaic(lfring.load_raw("data/synthetic/scene.png")), cal.layout)
+    >>> image, depth_m = all_in_focus(views, cal)
+    >>> book, cup = (slice(250, 450), slice(420, 600)), (slice(150, 350), slice(80, 280))
+    >>> round(float(np.nanmedian(depth_m[book])), 1), round(float(np.nanmedian(depth_m[cup])), 1)
+    (0.5, 0.3)
+    """
+    arr = check_views(views)
+    h, w = arr.shape[1:3]
+    if depths_m is None:
+        lo, hi = calibration.valid_depth_range_m
+        if hi is None:
+            raise InvalidInputError("give depths_m: the calibration has no upper depth bound")
+        depths_m = depth_hypotheses(calibration, lo, hi)
+    z = np.atleast_1d(np.asarray(depths_m, dtype=np.float64))
+    calibration.check_depth(z)
+    masks = cached_view_masks(calibration, (h, w))
+    if depth_map_m is not None:
+        dm = np.asarray(depth_map_m, dtype=np.float64)
+        if dm.shape != (h, w):
+            raise InvalidInputError(f"depth_map_m must be {h} x {w}, got {dm.shape}")
+        target = np.where(np.isfinite(dm), dm, z[0])
+    best_cost = np.full((h, w), np.inf, np.float32)
+    out = np.zeros((h, w, arr.shape[3]), np.float32)
+    chosen = np.full((h, w), np.nan, np.float32)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", LfringWarning)  # checked once above
+        hs = [calibration.homographies(float(d), reference=reference) for d in z]
+    for d, hd in zip(z, hs):
+        warped, weights = warp_views(arr, hd, masks=masks)
+        wsum = weights.sum(axis=0)
+        ok = wsum > WEIGHT_FLOOR
+        if depth_map_m is not None:
+            cost = np.abs(1.0 / (target - calibration.depth_origin_m) - 1.0 / (d - calibration.depth_origin_m)).astype(np.float32)
+        else:
+            mean = warped.sum(axis=0) / np.where(ok, wsum, 1.0)[..., None]
+            # Weighted variance across views (warped values are premultiplied by the weights).
+            second = (warped**2 / np.maximum(weights, WEIGHT_FLOOR)[..., None]).sum(axis=0) / np.where(ok, wsum, 1.0)[..., None]
+            var = np.maximum(second - mean**2, 0).mean(axis=2)
+            var = np.where(wsum >= 1.5, var, np.inf).astype(np.float32)  # one view alone proves nothing
+            cost = cv2.boxFilter(np.where(np.isfinite(var), var, 1e3).astype(np.float32), -1, (window_px, window_px))
+        better = (cost < best_cost) & ok
+        best_cost[better] = cost[better]
+        chosen[better] = d
+    if np.all(np.isnan(chosen)):
+        return out, chosen
+    out = DepthOfField(arr, calibration, chosen, reference=reference).render(float(z[0]), 0.0)
+    out[np.isnan(chosen)] = 0.0
+    return out, chosen
