@@ -1,77 +1,19 @@
-"""Inspection at a working plane on rendered parts of the twin (2 x 2 binned, realistic noise, the
-shipped calibration): every planted bump and dent is found with its sign and size, good parts
-pass, and bad inputs are refused with the bad value named."""
+"""Inspection at a working plane on rendered parts of the twin (2 x 2 binned, realistic noise,
+the shipped calibration): every planted bump and dent is found with its sign and size, good parts
+pass, and bad inputs are refused with the bad value named (lfring.inspect.measure)."""
 
-import json
-from pathlib import Path
-
-import cv2
 import numpy as np
 import pytest
 
+from inspect_parts import DATA, PLANE, TOL, overlap, truth_deviation, views_of
 from lfring.calibration.defaults import default_calibration
 from lfring.errors import InvalidInputError, LfringWarning
-from lfring.inspect import Defect, InspectionResult, annotate, inspect_frame, report, write_report
+from lfring.inspect import Defect, InspectionResult, inspect_frame
 from lfring.io.demosaic import demosaic
 from lfring.io.raw import RawFrame
 from lfring.synth import render
 from lfring.synth.presets import part_scene
 from lfring.views import split_views
-
-PLANE, TOL = 0.3, 0.008
-
-
-def _truth_deviation(r, cal, plane_m):
-    """Plane minus true depth (+ towards the camera) in the central frame: each view's ground
-    truth carried by its plane homography (its rectangle may sit a pixel off the calibration's)."""
-    h, w = cal.layout.view_shape
-    acc, cnt = np.zeros((h, w)), np.zeros((h, w))
-    with np.errstate(invalid="ignore"):
-        for k, hk in enumerate(cal.homographies(plane_m)):
-            t = np.eye(3)
-            t[:2, 2] = np.subtract(r.layout.rects[k][:2], cal.layout.rects[k][:2])
-            z = r.depth_m[k]
-            ok = np.isfinite(z).astype(np.float32)
-            dev = np.where(np.isfinite(z), plane_m - z, 0).astype(np.float32)
-            wo = cv2.warpPerspective(ok, hk @ t, (w, h), flags=cv2.INTER_NEAREST)
-            acc += cv2.warpPerspective(dev, hk @ t, (w, h), flags=cv2.INTER_NEAREST) * wo
-            cnt += wo
-        return np.where(cnt > 0, acc / np.maximum(cnt, 1), np.nan)
-
-
-def _truth_defects(dev_m, tol_m):
-    """Planted defects: regions deviating by more than tol/2 (and less than 5 cm: not the belt)."""
-    out = []
-    d = np.nan_to_num(dev_m)
-    for sign in (1, -1):
-        m = (sign * d > tol_m / 2) & (np.abs(d) < 0.05)
-        n, lab, st, _ = cv2.connectedComponentsWithStats(m.astype(np.uint8))
-        out += [(tuple(st[j, :4]), float(sign * np.max(sign * d[lab == j]))) for j in range(1, n) if st[j, 4] >= 50]
-    return out
-
-
-def _overlap(a, b):
-    return a[0] < b[0] + b[2] and b[0] < a[0] + a[2] and a[1] < b[1] + b[3] and b[1] < a[1] + a[3]
-
-
-@pytest.fixture(scope="module")
-def parts(prototype):
-    """name -> (render, calibration, views, truth defects, inspection)."""
-    cal = default_calibration((2456, 1842))[0]
-    specs = {
-        "good": dict(defect_heights_m=(), seed=21),
-        "two": dict(defect_heights_m=(0.015, -0.013), defect_size_m=0.012, seed=22),
-        # 12.5 mm is 0.52 px of disparity between neighbouring views at 0.3 m.
-        "three": dict(defect_heights_m=(0.0125, -0.016, -0.0125), defect_size_m=0.0125, seed=23),
-    }
-    out = {}
-    for name, kw in specs.items():
-        r = render(prototype, part_scene(depth_m=PLANE, **kw), binning=2, noise="realistic", seed=kw["seed"])
-        frame = RawFrame(mosaic=r.raw, pattern="RGGB", black_level=r.black_level, white_level=r.white_level, bit_depth=12)
-        views = split_views(demosaic(frame), cal.layout)
-        res = inspect_frame(views, cal, plane_m=PLANE, tolerance_m=TOL, device=r.device)
-        out[name] = (r, cal, views, _truth_defects(_truth_deviation(r, cal, PLANE), TOL), res)
-    return out
 
 
 def test_edge_of_two_views_coverage_makes_no_false_defect(prototype):
@@ -102,7 +44,7 @@ def test_every_planted_defect_is_found(parts, name):
     assert len(truth) == len(r.scene.surfaces[0].bumps)
     assert not res.passed and len(res.defects) == len(truth)  # no false defect either
     for box, dev in truth:
-        hits = [d for d in res.defects if _overlap(d.bbox_px, box)]
+        hits = [d for d in res.defects if overlap(d.bbox_px, box)]
         assert len(hits) == 1, (box, res.defects)
         d = hits[0]
         assert np.sign(d.deviation_m) == np.sign(dev) and d.kind == ("bump" if dev > 0 else "dent")
@@ -128,33 +70,10 @@ def test_result_maps_and_areas(parts):
         assert d.area_mm2 == pytest.approx(d.area_px * res.settings["pixel_footprint_mm"] ** 2)
     assert 0.12 < res.settings["pixel_footprint_mm"] < 0.16
     # The working plane: mostly photo-consistent on the part, never on the belt 10 cm behind.
-    dev = _truth_deviation(r, cal, PLANE)
+    dev = truth_deviation(r, cal, PLANE)
     flat = np.abs(dev) < 1e-4
     belt = dev < -0.05
     assert res.plane_mask[flat].mean() > 0.6 and res.plane_mask[belt].mean() < 0.05
-
-
-def test_report_and_annotation(parts, tmp_path):
-    r, cal, views, truth, res = parts["two"]
-    rep = report(res, raw="part.png")
-    text = json.dumps(rep, allow_nan=False)  # plain JSON: no NaN, no NumPy types
-    back = json.loads(text)
-    assert back["passed"] is False and back["verdict"] == "fail" and back["num_defects"] == 2
-    d0 = back["defects"][0]
-    assert set(d0) == {"id", "kind", "bbox_px", "centroid_px", "area_px", "area_mm2", "max_deviation_mm", "mean_confidence"}
-    assert set(d0["bbox_px"]) == {"x", "y", "w", "h"}
-    assert abs(d0["max_deviation_mm"]) > TOL * 1e3
-    assert back["settings"]["tolerance_m"] == TOL and back["input"]["raw"] == "part.png"
-    img = annotate(res)
-    assert img.dtype == np.uint8 and img.shape == (*views.shape[1:3], 3)
-    x, y, w, h = res.defects[0].bbox_px
-    colour = (255, 40, 40) if res.defects[0].kind == "bump" else (40, 140, 255)
-    assert (img[y + h // 2, x] == colour).all()  # the box's left edge
-    paths = write_report(res, tmp_path / "r.json", image_path=tmp_path / "r.png")
-    assert [p.name for p in paths] == ["r.json", "r.png"] and (tmp_path / "r.png").read_bytes()[:4] == b"\x89PNG"
-    with pytest.raises(InvalidInputError, match="exists"):
-        write_report(res, tmp_path / "r.json")
-    write_report(res, tmp_path / "r.json", overwrite=True)
 
 
 def test_roi_and_reference_depth(parts):
@@ -233,24 +152,13 @@ def test_plane_outside_calibrated_range_warns(parts):
 
 
 # -- verdicts and coverage: nothing passes that was not checked -----------------------------------
-def _views_of(path):
-    import lfring
-
-    image = lfring.demosaic(lfring.load_raw(path))
-    cal = default_calibration((image.shape[1], image.shape[0]))[0]
-    return lfring.split_views(image, cal.layout), cal
-
-
-DATA = Path(__file__).resolve().parents[1] / "data" / "synthetic"
-
-
 def test_good_part_is_checked_and_passes(parts):
     r, cal, views, truth, res = parts["good"]
     assert res.verdict == "pass" and res.passed and res.reason is None
     assert 0.95 <= res.coverage < 1.0 and res.stats["coverage"] == res.coverage
     # The part is found from evidence that does not need confident depth: it is the true part
     # (the plate within 5 cm of the plane) wherever two views or more see it, and not the belt.
-    dev = _truth_deviation(r, cal, PLANE)
+    dev = truth_deviation(r, cal, PLANE)
     plate, belt = np.abs(np.nan_to_num(dev, nan=1.0)) < 0.05, np.nan_to_num(dev) < -0.05
     seen = np.isfinite(res.depth.depth_m)
     assert res.part[plate & seen].mean() > 0.97 and res.part[belt].mean() < 0.02
@@ -289,7 +197,7 @@ def test_lens_cap_cannot_be_judged(parts, level):
 
 
 def test_flat_frame_cannot_be_judged():
-    views, cal = _views_of(DATA / "flat.png")
+    views, cal = views_of(DATA / "flat.png")
     res = inspect_frame(views, cal, plane_m=PLANE, tolerance_m=TOL)
     assert res.verdict == "cannot_judge" and res.reason.startswith("frame too flat") and res.defects == ()
     assert res.stats["textured_fraction"] < 0.02
@@ -320,20 +228,3 @@ def test_min_coverage_decides_between_pass_and_cannot_judge(parts):
     assert not inner.part[:200].any() and inner.part[250:450, 250:450].all()
     with pytest.raises(InvalidInputError, match=r"min_coverage must be a number in \[0, 1\], got 1.5"):
         inspect_frame(views, cal, plane_m=PLANE, tolerance_m=TOL, min_coverage=1.5)
-
-
-def test_cannot_judge_report_and_drawing(parts, tmp_path):
-    r, cal, views, *_ = parts["good"]
-    res = inspect_frame(np.zeros_like(views), cal, plane_m=PLANE, tolerance_m=TOL)
-    back = json.loads(json.dumps(report(res), allow_nan=False))
-    assert back["verdict"] == "cannot_judge" and back["passed"] is False and back["coverage"] == 0.0
-    assert back["reason"].startswith("frame too dark") and back["num_defects"] == 0
-    paths = write_report(res, tmp_path / "c.json", image_path=tmp_path / "c.png")
-    assert [p.name for p in paths] == ["c.json", "c.png"]
-    # A good part: its unchecked pixels are hatched in magenta, its checked ones never.
-    good = parts["good"][4]
-    img = annotate(good)
-    hatch = (img == (255, 0, 255)).all(axis=-1)
-    unchecked = good.part & ~good.reliable
-    assert hatch[unchecked].mean() > 0.15 and hatch[good.reliable & good.part].sum() == 0
-    assert json.loads(json.dumps(report(good)))["coverage"] == pytest.approx(good.coverage, abs=1e-4)

@@ -1,19 +1,21 @@
-"""Inspection at a working plane: which pixels lie on it, which regions leave it, and a report.
+"""The check at a working plane: which pixels lie on it, which regions leave it, and the verdict.
 
 An inspection line images parts at a known distance. :func:`inspect_frame` takes the views of
 one frame and
 
 * highlights the **working plane**: pixels that are photo-consistent when the views are warped
-  to the plane's depth (their spread across the views is small next to the local contrast);
+  to the plane's depth (their spread across the views is small next to the local contrast,
+  :func:`photo_consistency`);
 * measures the **deviation** of every confident pixel from the plane (or from a reference depth
-  map) with a plane sweep over a narrow band of depths around it, and flags connected regions
-  of confident pixels deviating by more than the tolerance as **defects**;
+  map) with a plane sweep over a narrow band of depths around it (:func:`default_depth_band`),
+  and flags connected regions of confident pixels deviating by more than the tolerance as
+  **defects**;
 * finds the **part** (the pixels whose surface lies near the plane, confident or not) and the
   **coverage**, the fraction of it actually checked with confident depth;
-* returns an :class:`InspectionResult` (the verdict 'pass', 'fail' or 'cannot_judge' with its
-  reason, the coverage, the :class:`Defect` records, the masks and maps behind them, the
-  refocused image): nothing passes that was not checked. :func:`annotate` draws it and
-  :func:`report` turns into a JSON-ready dict; :func:`write_report` writes both, atomically.
+* returns an :class:`~lfring.inspect.records.InspectionResult` (the verdict 'pass', 'fail' or
+  'cannot_judge' with its reason, the coverage, the :class:`~lfring.inspect.records.Defect`
+  records, the masks and maps behind them, the refocused image): nothing passes that was not
+  checked. :mod:`lfring.inspect.draw` draws it, :mod:`lfring.inspect.reporting` reports it.
 
 Sign convention: a deviation is the **target depth minus the measured depth**, so it is
 positive towards the camera (a bump, like :class:`lfring.synth.Bump` heights) and negative
@@ -21,16 +23,14 @@ away from it (a dent).
 
 Physics: the ring's baseline is small. At 0.3 m on the 2 x 2 binned prototype one pixel of
 disparity between neighbouring views is about 24 mm of depth, so a 10 mm tolerance is about
-0.4 px: the sweep is sampled at 0.25 px of view motion and refined to sub-pixel, and only
-confident pixels (textured, seen alike by the views) can raise an alarm.
+0.4 px: the sweep is sampled at :data:`STEP_PX` of view motion and refined to sub-pixel, and
+only confident pixels (textured, seen alike by the views) can raise an alarm.
 """
 
 from __future__ import annotations
 
-import numbers
 import warnings
-from dataclasses import dataclass, field
-from pathlib import Path
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -40,14 +40,16 @@ from lfring.depth.costs.lcn import LCN_AGGREGATE_PX
 from lfring.depth.plan import sweep_masks
 from lfring.depth.hypotheses import depth_hypotheses, view_motion_px
 from lfring.core.geometry import check_reference
-from lfring.core.records import record_repr
+from lfring.core.validate import check_fraction, check_int, check_number, is_integer
 from lfring.core.viewstack import TAPER, WEIGHT_FLOOR, check_views
 from lfring.core.filters import normalised_luminance
 from lfring.core.warping import warp_views
+from lfring.inspect.records import Defect, InspectionResult
 
 __all__ = [
-    "DARK_LEVEL", "MIN_COVERAGE", "MIN_PART_FRACTION", "MIN_TEXTURED_FRACTION", "VERDICTS", "Defect", "InspectionResult",
-    "annotate", "default_depth_band", "inspect_frame", "photo_consistency", "report", "write_report",
+    "DARK_LEVEL", "MARGIN_PX", "MIN_CONFIDENCE_TWO_VIEWS", "MIN_COVERAGE", "MIN_PART_FRACTION", "MIN_TEXTURED_FRACTION",
+    "PART_OPENING_PX", "PHOTO_MIN_CONTRAST", "STEP_PX", "VERDICTS", "default_depth_band", "inspect_frame",
+    "photo_consistency",
 ]
 
 #: Spacing of the depth hypotheses, in pixels of view motion (the sweep refines below it).
@@ -58,136 +60,10 @@ STEP_PX = 0.25
 MARGIN_PX = 1.5
 
 
-# -- records --------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class Defect:
-    """A region whose depth leaves the target by more than the tolerance.
-
-    Attributes
-    ----------
-    bbox_px : (x, y, w, h)
-        Bounding box in pixels of the reference frame (x right, y down, pixel centres at
-        integers).
-    centroid_px : (x, y)
-    area_px : int
-        Pixels in the region (after morphological clean-up).
-    area_mm2 : float or None
-        The same at the plane's distance, when the optics are known.
-    deviation_m : float
-        Robust maximum deviation (see ``percentile`` of :func:`inspect_frame`), signed:
-        positive towards the camera (bump), negative away (dent).
-    kind : {'bump', 'dent'}
-    mean_confidence : float
-        Mean sweep confidence of the region's pixels, in [0, 1].
-    """
-
-    bbox_px: tuple[int, int, int, int]
-    centroid_px: tuple[float, float]
-    area_px: int
-    area_mm2: float | None
-    deviation_m: float
-    kind: str
-    mean_confidence: float
-
-    def to_dict(self) -> dict:
-        """The defect as written in the inspection's JSON report.
-
-        Returns
-        -------
-        dict
-            ``kind``, ``bbox_px`` (x, y, w, h), ``centroid_px``, ``area_px``, ``area_mm2`` (None
-            without a pixel footprint), ``max_deviation_mm`` (+ towards the camera) and
-            ``mean_confidence``, rounded for reading.
-        """
-        x, y, w, h = self.bbox_px
-        return {
-            "kind": self.kind,
-            "bbox_px": {"x": x, "y": y, "w": w, "h": h},
-            "centroid_px": [round(self.centroid_px[0], 2), round(self.centroid_px[1], 2)],
-            "area_px": self.area_px,
-            "area_mm2": None if self.area_mm2 is None else round(self.area_mm2, 3),
-            "max_deviation_mm": round(self.deviation_m * 1e3, 3),
-            "mean_confidence": round(self.mean_confidence, 4),
-        }
-
-
-@dataclass(frozen=True, eq=False)
-class InspectionResult:
-    """The outcome of :func:`inspect_frame`, all maps in the reference frame (h, w).
-
-    Attributes
-    ----------
-    verdict : {'pass', 'fail', 'cannot_judge'}
-        'pass': the part was found, at least ``min_coverage`` of it checked, no defect;
-        'fail': defects were found; 'cannot_judge': the frame is too dark or too flat, no
-        surface lies near the plane, or too little of the part was checked (see ``reason``).
-    coverage : float in [0, 1]
-        Fraction of the part (``part``) checked with confident depth; 0 when no part was found
-        (the frame too dark or too flat, or nothing near the plane).
-    reason : str or None
-        Why the frame cannot be judged (None otherwise); it starts with one of 'frame too
-        dark', 'frame too flat', 'no surface found at the working plane' or 'too few confident
-        pixels'.
-    defects : tuple of Defect
-        Largest deviation first; empty unless the verdict is 'fail'.
-    plane_mask : (h, w) bool
-        Pixels photo-consistent at the plane's depth (textured, seen by two views or more).
-    consistency : (h, w) float32
-        Spread of the views warped to the plane over the local contrast (0: perfectly
-        consistent; NaN where fewer than two views see the pixel).
-    deviation_m : (h, w) float32
-        Target depth minus measured depth, metres (positive towards the camera); NaN where the
-        sweep has no depth or the depth left the searched band.
-    reliable : (h, w) bool
-        Pixels that can raise an alarm (the checked ones): seen by two views or more, confident
-        (more so with two views), inside the band and the region of interest.
-    deviating : (h, w) bool
-        Reliable pixels beyond the tolerance after clean-up (the defects are its components
-        of at least ``min_area_px``).
-    part : (h, w) bool
-        The inspected region: the part, found as :func:`inspect_frame`'s Notes say; the
-        coverage is the fraction of it that is ``reliable``.
-    depth : DepthResult
-        The plane sweep over the band.
-    refocused : (h, w, C) float32
-        The views refocused at the plane.
-    settings : dict
-        The inspection's parameters (JSON-ready), the band included.
-    stats : dict
-        Fractions of reliable, on-plane and out-of-band pixels inside the region of interest,
-        the median absolute deviation of the reliable ones in metres, the coverage, the part's
-        fraction of the region, the textured fraction and the views' 99th percentile of
-        luminance.
-    """
-
-    verdict: str
-    coverage: float
-    reason: str | None
-    defects: tuple
-    plane_mask: np.ndarray
-    consistency: np.ndarray
-    deviation_m: np.ndarray
-    reliable: np.ndarray
-    deviating: np.ndarray
-    part: np.ndarray
-    depth: object
-    refocused: np.ndarray
-    settings: dict = field(default_factory=dict)
-    stats: dict = field(default_factory=dict)
-
-    __repr__ = record_repr
-
-    @property
-    def passed(self) -> bool:
-        """True only for the verdict 'pass' (a frame that cannot be judged has not passed)."""
-        return self.verdict == "pass"
-
-
 # -- validation -----------------------------------------------------------------------------------
-def _positive(value, name: str, unit: str = "metres") -> float:
-    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not np.isfinite(value) or value <= 0:
-        raise InvalidInputError(f"{name} must be a positive, finite number of {unit}, got {value!r}")
-    return float(value)
+def _positive(value, name: str, what: str = "a positive distance in metres") -> float:
+    """``value`` as a float > 0 (finite), else an error naming ``name``."""
+    return check_number(value, name, above=0.0, what=what)
 
 
 def _check_roi(roi, shape_hw) -> tuple[int, int, int, int] | None:
@@ -198,7 +74,7 @@ def _check_roi(roi, shape_hw) -> tuple[int, int, int, int] | None:
         vals = tuple(roi)
     except TypeError:
         raise InvalidInputError(f"roi must be (x, y, w, h) in pixels of the reference frame, got {roi!r}") from None
-    if len(vals) != 4 or not all(isinstance(v, numbers.Integral) and not isinstance(v, bool) for v in vals):
+    if len(vals) != 4 or not all(is_integer(v) for v in vals):
         raise InvalidInputError(f"roi must be four integers (x, y, w, h) in pixels of the reference frame, got {roi!r}")
     x, y, rw, rh = (int(v) for v in vals)
     if rw < 1 or rh < 1:
@@ -281,9 +157,8 @@ def _aligned_band(calibration, near_m, far_m, tolerance_m, num_planes=None) -> t
     if num_planes is None:
         half = int(np.ceil(max(inv_hi - inv_mid, inv_mid - inv_lo) * k / STEP_PX))
     else:
-        if isinstance(num_planes, bool) or not isinstance(num_planes, numbers.Integral) or num_planes < 3:
-            raise InvalidInputError(f"num_planes must be an integer >= 3 (or None for the default spacing), got {num_planes!r}")
-        half = (int(num_planes) - 1) // 2
+        num_planes = check_int(num_planes, "num_planes", minimum=3, hint=" (or None for the default spacing)")
+        half = (num_planes - 1) // 2
     step = max(inv_hi - inv_mid, inv_mid - inv_lo) / half
     return float(z0 + 1.0 / (inv_mid + half * step)), float(z0 + 1.0 / (inv_mid - half * step)), 2 * half + 1
 
@@ -350,25 +225,24 @@ def _target(plane_m: float, reference_depth) -> np.ndarray | float:
     return plane_m if reference_depth is None else reference_depth
 
 
-# The plane sweep's settings here. On benchmarks/bench_inspect.py's 24 parts, pixels seen by only
-# two views gave 4 confident false defects (near the frame's edges) when judged like the others
-# (confidence >= 0.6), and none when they must be more confident (MIN_CONFIDENCE_TWO_VIEWS: 0.9
-# and 0.97 gave 0 false and 0 missed on all 24): they are a ring around the part (15 % of it), and
-# judging them raised the checked share of the good parts from 85 % to 98 %. ZNCC with
-# guided aggregation also found 31 of 31 but took 3x as long.
+# The plane sweep's settings here, chosen on benchmarks/bench_inspect.py's parts (the figures are
+# in benchmarks/RESULTS.md, "Inspection"). Pixels seen by only two views form a ring around the
+# part: judged like the others they gave confident false defects near the frame's edges, and none
+# once they must be more confident (MIN_CONFIDENCE_TWO_VIEWS), and judging them checks much more
+# of a good part. ZNCC with guided aggregation found the same defects, several times slower.
 SWEEP_COST = "lcn"
 SWEEP_AGGREGATION = "box"
 # The local sweep (winner-take-all per pixel): what these figures were measured with, and the
 # fastest; its confidence says where a pixel's own cost curve is distinct.
 SWEEP_METHOD = "local"
 SWEEP_MIN_VIEWS = 2
-# Each view's weight rises over the outer 15 % of its disc (the refocusing taper), not the depth
-# default's 5 %: with 5 %, the dark, noisy periphery of the frame gave 6 confident false defects on
-# the 12 good parts (0 with 15 %), for 3 points more of the true plate checked.
+# Each view's weight rises over the refocusing taper (TAPER, the outer part of its disc), not the
+# depth default's narrower rim: with the narrower one, the dark, noisy periphery of the frame gave
+# confident false defects on good parts (none with TAPER), for little more of the plate checked.
 SWEEP_RIM_TAPER = TAPER
 # The local sweep's aggregation window: only pixels whose whole window two views see are checked.
 # Near the edge of what two views see, the window's mean over its few seen pixels gave a confident
-# false dent on 1 of the 12 good parts; with the rule 0.
+# false dent on a good part (a test renders it); with the rule none.
 SWEEP_WINDOW_PX = LCN_AGGREGATE_PX
 #: Smallest sweep confidence of a pixel that only two views see for it to be checked (pixels
 #: that three views or more see need ``min_confidence``).
@@ -387,6 +261,7 @@ MIN_PART_FRACTION = 0.02
 #: Radius of the opening that removes specks from the part's evidence before its holes are filled.
 PART_OPENING_PX = 3
 
+#: The verdicts of :func:`inspect_frame`, in :attr:`InspectionResult.verdict`.
 VERDICTS = ("pass", "fail", "cannot_judge")
 
 
@@ -413,16 +288,12 @@ def _check_inputs(views, calibration, *, plane_m, tolerance_m, roi, reference_de
     z0 = calibration.depth_origin_m
     if plane <= z0:
         raise InvalidInputError(f"plane_m ({plane:g} m) must lie beyond the calibration's depth origin z0 = {z0:.4g} m")
-    if isinstance(min_area_px, bool) or not isinstance(min_area_px, numbers.Integral) or min_area_px < 1:
-        raise InvalidInputError(f"min_area_px must be an integer >= 1, got {min_area_px!r}")
-    for name, value in (("min_confidence", min_confidence), ("min_coverage", min_coverage)):
-        if isinstance(value, bool) or not isinstance(value, numbers.Real) or not 0 <= value <= 1:
-            raise InvalidInputError(f"{name} must be a number in [0, 1], got {value!r}")
-    if isinstance(percentile, bool) or not isinstance(percentile, numbers.Real) or not 0 < percentile <= 100:
-        raise InvalidInputError(f"percentile must be a number in (0, 100], got {percentile!r}")
-    if isinstance(opening_px, bool) or not isinstance(opening_px, numbers.Integral) or opening_px < 0:
-        raise InvalidInputError(f"opening_px must be an integer >= 0, got {opening_px!r}")
-    threshold = _positive(consistency_threshold, "consistency_threshold", "(spread over contrast)")
+    check_int(min_area_px, "min_area_px", minimum=1)
+    check_fraction(min_confidence, "min_confidence")
+    coverage = check_fraction(min_coverage, "min_coverage")
+    check_number(percentile, "percentile", above=0.0, maximum=100.0)
+    check_int(opening_px, "opening_px", minimum=0)
+    threshold = _positive(consistency_threshold, "consistency_threshold", "a positive ratio (spread over contrast)")
     ref = check_reference(reference, calibration.num_views)
     shape = arr.shape[1:3]
     if shape != tuple(calibration.layout.view_shape):
@@ -432,7 +303,7 @@ def _check_inputs(views, calibration, *, plane_m, tolerance_m, roi, reference_de
         )
     box = _check_roi(roi, shape)
     target = None if reference_depth_m is None else _check_reference_depth(reference_depth_m, shape, z0)
-    return _Checked(arr, plane, tol, ref, box, target, threshold, float(min_coverage))
+    return _Checked(arr, plane, tol, ref, box, target, threshold, coverage)
 
 
 def _plan_band(calibration, chk: _Checked, zmin_m, zmax_m, num_planes) -> tuple[float, float, int]:
@@ -812,138 +683,3 @@ def _footprint_mm(device, calibration, depth_m: float) -> float | None:
         )
     cams = view_cameras(device)
     return float(device.pixel_pitch_m * (depth_m - cams.depth_origin_m) / cams.focal_m * 1e3)
-
-
-# -- outputs --------------------------------------------------------------------------------------
-_BUMP_RGB = (255, 40, 40)
-_DENT_RGB = (40, 140, 255)
-_PLANE_RGB = (40, 220, 60)
-_ROI_RGB = (255, 220, 0)
-_UNCHECKED_RGB = (255, 0, 255)
-_JUDGE_RGB = (255, 170, 0)
-#: Period and width of the diagonal hatching over the part's unchecked pixels, display pixels.
-_HATCH_PERIOD_PX, _HATCH_WIDTH_PX = 8, 2
-
-
-def _display(image: np.ndarray) -> np.ndarray:
-    """Linear float image -> uint8 RGB for viewing: stretched to its 99.5th percentile, gamma 2.2."""
-    img = np.asarray(image, dtype=np.float32)
-    if img.ndim == 3 and img.shape[2] == 1:
-        img = img[..., 0]
-    if img.ndim == 2:
-        img = np.repeat(img[..., None], 3, axis=2)
-    top = float(np.percentile(img, 99.5)) if img.size else 1.0
-    img = np.clip(img / max(top, 1e-6), 0.0, 1.0) ** (1 / 2.2)
-    return np.rint(img[..., :3] * 255).astype(np.uint8)
-
-
-def annotate(result: InspectionResult, *, tint: float = 0.35, scale: int = 1) -> np.ndarray:
-    """Draw an inspection: the refocused image, the working plane tinted green, the part's
-    unchecked pixels hatched magenta, the region of interest in yellow, defect boxes (bumps
-    red, dents blue) labelled with their number and deviation in mm, and a banner with the
-    verdict (PASS, FAIL or CANNOT JUDGE and why) and "checked N % of the part".
-
-    Parameters
-    ----------
-    result : InspectionResult
-    tint : float in [0, 1]
-        Opacity of the plane's tint.
-    scale : int
-        Integer upscaling before drawing, for legible labels on small frames.
-
-    Returns
-    -------
-    (h * scale, w * scale, 3) uint8 RGB
-    """
-    if not 0 <= tint <= 1:
-        raise InvalidInputError(f"tint must be in [0, 1], got {tint!r}")
-    if isinstance(scale, bool) or not isinstance(scale, numbers.Integral) or scale < 1:
-        raise InvalidInputError(f"scale must be an integer >= 1, got {scale!r}")
-    img = _display(result.refocused).astype(np.float32)
-    m = result.plane_mask
-    img[m] = (1 - tint) * img[m] + tint * np.array(_PLANE_RGB, np.float32)
-    out = np.rint(img).astype(np.uint8)
-    unchecked = (result.part & ~result.reliable).astype(np.uint8)
-    if scale > 1:
-        out = cv2.resize(out, None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)
-        unchecked = cv2.resize(unchecked, None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)
-    out = np.ascontiguousarray(out)
-    h, w = out.shape[:2]
-    yy, xx = np.mgrid[:h, :w]
-    out[(unchecked > 0) & ((xx + yy) % _HATCH_PERIOD_PX < _HATCH_WIDTH_PX)] = _UNCHECKED_RGB
-    thick = max(1, round(min(h, w) / 350))
-    font = 0.4 * max(1.0, min(h, w) / 500)
-    roi = result.settings.get("roi_px")
-    if roi:
-        x, y, rw, rh = (v * scale for v in roi)
-        cv2.rectangle(out, (x, y), (x + rw - 1, y + rh - 1), _ROI_RGB, thick)
-    for i, d in enumerate(result.defects, 1):
-        x, y, bw, bh = (v * scale for v in d.bbox_px)
-        colour = _BUMP_RGB if d.kind == "bump" else _DENT_RGB
-        cv2.rectangle(out, (x, y), (x + bw - 1, y + bh - 1), colour, thick)
-        label = f"{i} {d.kind} {d.deviation_m * 1e3:+.1f} mm"
-        ty = y - 4 if y > 20 else y + bh + int(14 * font / 0.4)
-        _text(out, label, (x, ty), font, colour, thick)
-    s = result.settings
-    if result.verdict == "pass":
-        verdict, colour = "PASS", _PLANE_RGB
-    elif result.verdict == "fail":
-        verdict, colour = f"FAIL: {len(result.defects)} defect(s)", _BUMP_RGB
-    else:
-        verdict, colour = f"CANNOT JUDGE: {(result.reason or '').split(':')[0]}", _JUDGE_RGB
-    line = int(22 * font / 0.4)
-    for i, text in enumerate((verdict, f"checked {result.coverage * 100:.0f} % of the part (unchecked: hatched)",
-                              f"plane {s['plane_m']:.3f} m  tolerance {s['tolerance_m'] * 1e3:.1f} mm")):
-        _text(out, text, (8, (i + 1) * line + 4 * i), font * 1.2, colour, thick)
-    return out
-
-
-def _text(img, text, org, font, colour, thick) -> None:
-    """Text with a dark outline, legible on any background."""
-    cv2.putText(img, text, org, cv2.FONT_HERSHEY_SIMPLEX, font, (0, 0, 0), thick + 2, cv2.LINE_AA)
-    cv2.putText(img, text, org, cv2.FONT_HERSHEY_SIMPLEX, font, colour, thick, cv2.LINE_AA)
-
-
-def report(result: InspectionResult, **metadata) -> dict:
-    """The JSON-ready report of an inspection: verdict, coverage, settings, defects, statistics.
-
-    Keyword arguments (input file, calibration name...) are added under ``"input"``. Lengths
-    are in the units their keys name; a defect's ``max_deviation_mm`` is positive towards the
-    camera (bump) and negative away from it (dent); boxes are in reference-frame pixels.
-    ``"verdict"`` is 'pass', 'fail' or 'cannot_judge' (then ``"reason"`` says why; it is null
-    otherwise), ``"coverage"`` the fraction of the part checked with confident depth.
-    """
-    return {
-        "passed": bool(result.passed),
-        "verdict": result.verdict,
-        "coverage": round(float(result.coverage), 4),
-        "reason": result.reason,
-        "num_defects": len(result.defects),
-        "defects": [dict(id=i, **d.to_dict()) for i, d in enumerate(result.defects, 1)],
-        "settings": result.settings,
-        "stats": result.stats,
-        "input": metadata,
-        "conventions": {
-            "deviation": "target depth minus measured depth: positive towards the camera (bump), negative away (dent)",
-            "bbox_px": "x, y, w, h in pixels of the reference frame (x right, y down)",
-            "coverage": "fraction of the part (pixels whose surface lies near the plane) checked with confident depth",
-        },
-    }
-
-
-def write_report(result: InspectionResult, json_path, *, image_path=None, overwrite: bool = False, **metadata) -> list[Path]:
-    """Write the JSON report (and the annotated image when ``image_path`` is given), atomically.
-
-    Existing files are refused unless ``overwrite`` (checked before anything is written).
-    Returns the paths written.
-    """
-    from lfring.io.writers import check_writable, write_image, write_json
-
-    paths = [Path(json_path)] + ([Path(image_path)] if image_path is not None else [])
-    check_writable(paths, overwrite=overwrite)
-    for p in paths:
-        p.parent.mkdir(parents=True, exist_ok=True)
-    if image_path is not None:
-        write_image(image_path, annotate(result))
-    write_json(json_path, report(result, **metadata))
-    return paths

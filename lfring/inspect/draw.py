@@ -1,0 +1,103 @@
+"""Drawing an inspection: :func:`annotate` shows the refocused image with the working plane
+tinted, the part's unchecked pixels hatched, the region of interest, the defect boxes and a banner
+with the verdict and the share of the part checked.
+
+Nothing here measures: every figure drawn comes from the
+:class:`~lfring.inspect.records.InspectionResult` that :func:`lfring.inspect.inspect_frame` made.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from lfring.core.validate import check_fraction, check_int
+from lfring.inspect.records import InspectionResult
+
+__all__ = ["annotate"]
+
+_BUMP_RGB = (255, 40, 40)
+_DENT_RGB = (40, 140, 255)
+_PLANE_RGB = (40, 220, 60)
+_ROI_RGB = (255, 220, 0)
+_UNCHECKED_RGB = (255, 0, 255)
+_JUDGE_RGB = (255, 170, 0)
+#: Period and width of the diagonal hatching over the part's unchecked pixels, display pixels.
+_HATCH_PERIOD_PX, _HATCH_WIDTH_PX = 8, 2
+
+
+def _display(image: np.ndarray) -> np.ndarray:
+    """Linear float image -> uint8 RGB for viewing: stretched to its 99.5th percentile, gamma 2.2."""
+    img = np.asarray(image, dtype=np.float32)
+    if img.ndim == 3 and img.shape[2] == 1:
+        img = img[..., 0]
+    if img.ndim == 2:
+        img = np.repeat(img[..., None], 3, axis=2)
+    top = float(np.percentile(img, 99.5)) if img.size else 1.0
+    img = np.clip(img / max(top, 1e-6), 0.0, 1.0) ** (1 / 2.2)
+    return np.rint(img[..., :3] * 255).astype(np.uint8)
+
+
+def annotate(result: InspectionResult, *, tint: float = 0.35, scale: int = 1) -> np.ndarray:
+    """Draw an inspection: the refocused image, the working plane tinted green, the part's
+    unchecked pixels hatched magenta, the region of interest in yellow, defect boxes (bumps
+    red, dents blue) labelled with their number and deviation in mm, and a banner with the
+    verdict (PASS, FAIL or CANNOT JUDGE and why) and "checked N % of the part".
+
+    Parameters
+    ----------
+    result : InspectionResult
+    tint : float in [0, 1]
+        Opacity of the plane's tint.
+    scale : int
+        Integer upscaling before drawing, for legible labels on small frames.
+
+    Returns
+    -------
+    (h * scale, w * scale, 3) uint8 RGB
+    """
+    tint = check_fraction(tint, "tint")
+    scale = check_int(scale, "scale", minimum=1)
+    img = _display(result.refocused).astype(np.float32)
+    m = result.plane_mask
+    img[m] = (1 - tint) * img[m] + tint * np.array(_PLANE_RGB, np.float32)
+    out = np.rint(img).astype(np.uint8)
+    unchecked = (result.part & ~result.reliable).astype(np.uint8)
+    if scale > 1:
+        out = cv2.resize(out, None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)
+        unchecked = cv2.resize(unchecked, None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)
+    out = np.ascontiguousarray(out)
+    h, w = out.shape[:2]
+    yy, xx = np.mgrid[:h, :w]
+    out[(unchecked > 0) & ((xx + yy) % _HATCH_PERIOD_PX < _HATCH_WIDTH_PX)] = _UNCHECKED_RGB
+    thick = max(1, round(min(h, w) / 350))
+    font = 0.4 * max(1.0, min(h, w) / 500)
+    roi = result.settings.get("roi_px")
+    if roi:
+        x, y, rw, rh = (v * scale for v in roi)
+        cv2.rectangle(out, (x, y), (x + rw - 1, y + rh - 1), _ROI_RGB, thick)
+    for i, d in enumerate(result.defects, 1):
+        x, y, bw, bh = (v * scale for v in d.bbox_px)
+        colour = _BUMP_RGB if d.kind == "bump" else _DENT_RGB
+        cv2.rectangle(out, (x, y), (x + bw - 1, y + bh - 1), colour, thick)
+        label = f"{i} {d.kind} {d.deviation_m * 1e3:+.1f} mm"
+        ty = y - 4 if y > 20 else y + bh + int(14 * font / 0.4)
+        _text(out, label, (x, ty), font, colour, thick)
+    s = result.settings
+    if result.verdict == "pass":
+        verdict, colour = "PASS", _PLANE_RGB
+    elif result.verdict == "fail":
+        verdict, colour = f"FAIL: {len(result.defects)} defect(s)", _BUMP_RGB
+    else:
+        verdict, colour = f"CANNOT JUDGE: {(result.reason or '').split(':')[0]}", _JUDGE_RGB
+    line = int(22 * font / 0.4)
+    for i, text in enumerate((verdict, f"checked {result.coverage * 100:.0f} % of the part (unchecked: hatched)",
+                              f"plane {s['plane_m']:.3f} m  tolerance {s['tolerance_m'] * 1e3:.1f} mm")):
+        _text(out, text, (8, (i + 1) * line + 4 * i), font * 1.2, colour, thick)
+    return out
+
+
+def _text(img, text, org, font, colour, thick) -> None:
+    """Text with a dark outline, legible on any background."""
+    cv2.putText(img, text, org, cv2.FONT_HERSHEY_SIMPLEX, font, (0, 0, 0), thick + 2, cv2.LINE_AA)
+    cv2.putText(img, text, org, cv2.FONT_HERSHEY_SIMPLEX, font, colour, thick, cv2.LINE_AA)
