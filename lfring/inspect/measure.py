@@ -201,7 +201,7 @@ def _consistency(views, calibration, depth_m: float, *, reference="center", wind
     that see each pixel at ``depth_m`` ((h, w) int)."""
     arr = np.asarray(views)
     masks = sweep_masks(calibration, arr.shape[1:3], SWEEP_RIM_TAPER)  # the views that see a pixel, as the sweep counts them
-    lum = normalised_luminance(arr, masks, sigma=max(8.0, min(arr.shape[1:3]) / 40.0))
+    lum = normalised_luminance(arr, masks)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", LfringWarning)
         hs = calibration.homographies(depth_m, reference=reference)
