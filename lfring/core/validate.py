@@ -90,9 +90,12 @@ def check_number(value, name: str, *, minimum=None, maximum=None, above=None, be
     """
     if value is None and allow_none:
         return None
-    ok = is_number(value) and not math.isnan(float(value)) and (not finite or math.isfinite(float(value)))
+    try:
+        v = float(value) if is_number(value) else math.nan
+    except OverflowError:  # an integer beyond float's range
+        v = math.nan
+    ok = not math.isnan(v) and (not finite or math.isfinite(v))
     if ok:
-        v = float(value)
         ok = not ((minimum is not None and v < minimum) or (maximum is not None and v > maximum)
                   or (above is not None and v <= above) or (below is not None and v >= below))
     if not ok:

@@ -87,3 +87,9 @@ def reference_sgm(cost, *, guide=None, p1, p2, paths=4, edge_scale=None) -> np.n
                 L[:, y, x] = c[:, y, x] + (best - m)
         out += L
     return out
+
+
+def disparity(cal, z):
+    """Disparity in px between views 0 and 1 (horizontal neighbours) at depth ``z``."""
+    h = cal.model(np.asarray(z, dtype=np.float64))
+    return h[..., 1, 0, 2] - h[..., 0, 0, 2]

@@ -6,12 +6,12 @@ import pytest
 
 torch = pytest.importorskip("torch", reason="the torch extra is not installed")
 
-from lfring.core.filters import BoxTorch  # noqa: E402
-from lfring.depth.aggregation import GuidedTorch  # noqa: E402
-from lfring.depth.sweep import slices  # noqa: E402
 from lfring.calibration import RingCalibration  # noqa: E402
+from lfring.core.filters import BoxTorch  # noqa: E402
 from lfring.depth import COSTS, estimate_depth  # noqa: E402
+from lfring.depth.aggregation import GuidedTorch  # noqa: E402
 from lfring.depth.selection import RunningMinimum, RunningMinimumTorch  # noqa: E402
+from lfring.depth.sweep import slices  # noqa: E402
 from lfring.errors import InvalidInputError  # noqa: E402
 from lfring.synth import render  # noqa: E402
 from lfring.synth.presets import three_depth_scene  # noqa: E402
@@ -33,13 +33,13 @@ def _agreement(a, b):
 @pytest.mark.parametrize("reference", [0, "center"])
 @pytest.mark.parametrize("aggregation", ["box", "guided"])
 @pytest.mark.parametrize("cost", COSTS)
-def test_parity_with_numpy(twin, cost, aggregation, reference):
+def test_parity_with_numpy(twin, cost, aggregation, reference, device):
     if cost == "lcn-halves":  # the whole volume and the halves' volume beside it
-        return _halves_parity(twin, aggregation, reference)
+        return _halves_parity(twin, aggregation, reference, device)
     views, cal = twin
     kw = dict(zmin_m=0.28, zmax_m=1.1, reference=reference, cost=cost, aggregation=aggregation, method="local")
     ref = estimate_depth(views, cal, **kw)
-    got = estimate_depth(views, cal, backend="torch", device="cpu", **kw)
+    got = estimate_depth(views, cal, backend="torch", device=device, **kw)
     assert got.depth_m.dtype == np.float32 and got.depth_m.shape == ref.depth_m.shape
     assert got.confidence.dtype == np.float32
     np.testing.assert_array_equal(got.depths_m, ref.depths_m)
@@ -50,13 +50,13 @@ def test_parity_with_numpy(twin, cost, aggregation, reference):
     assert conf_ok >= 0.99, conf_ok
 
 
-def _halves_parity(twin, aggregation, reference):
+def _halves_parity(twin, aggregation, reference, device):
     """'lcn-halves': the torch sweep fills the volume and the halves' volume as the NumPy one."""
     import warnings
 
     from lfring.depth.costs.lcn import lcn_sources
-    from lfring.depth.plan import sweep_masks
     from lfring.depth.hypotheses import depth_hypotheses
+    from lfring.depth.plan import sweep_masks
     from lfring.depth.sweep.slices import sweep_slices
     from lfring.errors import LfringWarning
 
@@ -73,7 +73,7 @@ def _halves_parity(twin, aggregation, reference):
     filt = None if guide is None else cv2.ximgproc.createGuidedFilter(guide, 5 // 2, 1e-3)
     sweep_slices(src, masks, hs, "lcn-halves", 9, filt, 1, 5, volume=want_v, halves=want_h)
     slices.sweep_slices_torch(src, masks, hs, cost="lcn-halves", aggregation=aggregation, window_px=9, aggregate_px=5,
-                            guide=guide, device="cpu", volume=got_v, halves=got_h)
+                            guide=guide, device=device, volume=got_v, halves=got_h)
     for got, want in ((got_v, want_v), (got_h, want_h)):
         fin = np.isfinite(want)
         assert np.mean(np.isfinite(got) == fin) > 0.999
@@ -83,13 +83,13 @@ def _halves_parity(twin, aggregation, reference):
 
 
 @pytest.mark.parametrize("reference", [0, "center"])
-def test_parity_of_the_semi_global_default(twin, reference):
+def test_parity_of_the_semi_global_default(twin, reference, device):
     """The default 'sgm' method with the torch backend: its cost volume and optimisation in
     torch, the same depth as NumPy/numba nearly everywhere."""
     views, cal = twin
     kw = dict(zmin_m=0.28, zmax_m=1.1, reference=reference)
     ref = estimate_depth(views, cal, **kw)
-    got = estimate_depth(views, cal, backend="torch", device="cpu", **kw)
+    got = estimate_depth(views, cal, backend="torch", device=device, **kw)
     assert ref.method == got.method == "sgm"
     both, depth_ok, conf_ok = _agreement(ref, got)
     assert both.mean() > 0.5
@@ -97,7 +97,7 @@ def test_parity_of_the_semi_global_default(twin, reference):
     assert conf_ok >= 0.95, conf_ok
 
 
-def test_parity_over_many_chunks(twin, monkeypatch):
+def test_parity_over_many_chunks(twin, monkeypatch, device):
     """Chunks of three hypotheses: the streamed bookkeeping carries over chunk boundaries."""
     views, cal = twin
     h, w = views.shape[1:3]
@@ -105,7 +105,7 @@ def test_parity_over_many_chunks(twin, monkeypatch):
     assert slices._chunk_size(16, 4, h, w) == 3
     kw = dict(zmin_m=0.28, zmax_m=1.1, num_planes=16, reference=1, cost="zncc", aggregation="guided", method="local")
     ref = estimate_depth(views, cal, **kw)
-    got = estimate_depth(views, cal, backend="torch", device="cpu", **kw)
+    got = estimate_depth(views, cal, backend="torch", device=device, **kw)
     _, depth_ok, conf_ok = _agreement(ref, got)
     assert depth_ok >= 0.99 and conf_ok >= 0.99
 
@@ -124,7 +124,7 @@ def _brute_force(aggs, exclude):
 
 
 @pytest.mark.parametrize("exclude", [1, 2, 3])
-def test_running_minimum_is_exact(exclude):
+def test_running_minimum_is_exact(exclude, device):
     """Integer costs with ties, gaps and missing (inf) slices: the NumPy/OpenCV tracker and the
     torch one, fed in chunks of any size, give exactly the minimum, its first index, its
     neighbours and the lowest cost more than ``exclude`` hypotheses away from it."""
@@ -140,38 +140,38 @@ def test_running_minimum_is_exact(exclude):
             np.copyto(run.slot(), aggs[i])
             run.push()
         got = {"best": run.best, "best_i": run.best_i, "c_prev": run.c_prev, "c_next": run.c_next, "second": run.second()}
-        trun = RunningMinimumTorch(torch, (h, w), exclude, "cpu")
+        trun = RunningMinimumTorch(torch, (h, w), exclude, device)
         i = 0
         while i < n:
             c = min(int(rng.integers(1, 8)), n - i)
-            trun.push_chunk(torch.from_numpy(aggs[i:i + c]))
+            trun.push_chunk(torch.from_numpy(aggs[i:i + c]).to(device))
             i += c
         tgot = {"best": trun.best, "best_i": trun.best_i, "c_prev": trun.c_prev, "c_next": trun.c_next, "second": trun.second()}
         for name in want:
             np.testing.assert_array_equal(got[name], want[name], err_msg=f"numpy {name}, trial {trial}")
-            np.testing.assert_array_equal(tgot[name].numpy(), want[name], err_msg=f"torch {name}, trial {trial}")
+            np.testing.assert_array_equal(tgot[name].cpu().numpy(), want[name], err_msg=f"torch {name}, trial {trial}")
 
 
 @pytest.mark.parametrize("shape, k", [((37, 53), 9), ((53, 37), 5), ((4, 9), 9), ((1, 6), 3), ((20, 30), 1)])
-def test_windows_match_opencv(shape, k):
+def test_windows_match_opencv(shape, k, device):
     """Box windows as cv2.boxFilter (BORDER_REFLECT_101); the guided filter as ximgproc's
     (radius k // 2, BORDER_REFLECT, eps on the guide's variance), including windows wider than the image."""
     rng = np.random.default_rng(7)
     x = (rng.random(shape) * 3).astype(np.float32)
     g = cv2.GaussianBlur(rng.random(shape).astype(np.float32), (0, 0), 2)
     g = ((g - g.min()) / max(float(g.max() - g.min()), 1e-6)).astype(np.float32)
-    box = BoxTorch(torch, shape, k, 1, "cpu")(torch.from_numpy(x)[None, None])[0, 0].numpy()
+    box = BoxTorch(torch, shape, k, 1, device)(torch.from_numpy(x)[None, None].to(device))[0, 0].cpu().numpy()
     np.testing.assert_allclose(box, cv2.boxFilter(x, -1, (k, k)), atol=1e-6)
-    guided = GuidedTorch(torch, g, k, 1e-3, "cpu")(torch, torch.from_numpy(x)[None])[0].numpy()
+    guided = GuidedTorch(torch, g, k, 1e-3, device)(torch, torch.from_numpy(x)[None].to(device))[0].cpu().numpy()
     np.testing.assert_allclose(guided, cv2.ximgproc.createGuidedFilter(g, k // 2, 1e-3).filter(x), atol=1e-4)
 
 
-def test_errors(twin):
+def test_errors(twin, device):
     views, _ = twin
     v, h, w = views.shape[:3]
     lum = np.ones((v, h, w), np.float32)
     hs = np.tile(np.eye(3), (2, v, 1, 1))
-    kw = dict(cost="sad", aggregation="guided", window_px=9, device="cpu")
+    kw = dict(cost="sad", aggregation="guided", window_px=9, device=device)
     with pytest.raises(InvalidInputError, match="guide image"):
         slices.sweep_slices_torch(lum, lum, hs, guide=None, **kw)
     with pytest.raises(InvalidInputError, match="float32"):

@@ -21,10 +21,10 @@ def _volume(seed=0, shape=(7, 11, 13)):
 
 @pytest.mark.parametrize("paths", [4, 8])
 @pytest.mark.parametrize("edge_scale", [None, 0.05])
-def test_parity_with_numba(paths, edge_scale):
+def test_parity_with_numba(paths, edge_scale, device):
     cost, guide = _volume()
     want = sgm_aggregate(cost, guide=guide, p1=0.05, p2=0.3, paths=paths, edge_scale=edge_scale)
-    got = sgm_aggregate_torch(cost, guide=guide, p1=0.05, p2=0.3, paths=paths, edge_scale=edge_scale, device="cpu")
+    got = sgm_aggregate_torch(cost, guide=guide, p1=0.05, p2=0.3, paths=paths, edge_scale=edge_scale, device=device)
     assert isinstance(got, np.ndarray) and got.dtype == np.float32
     np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-6)
 

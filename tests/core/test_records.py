@@ -6,13 +6,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from lfring.core.records import record_repr, summarize
 from lfring.depth.selection import DepthResult
 from lfring.inspect import Defect, InspectionResult
 from lfring.io.raw import RawFrame, load_raw
-from lfring.core.records import record_repr, summarize
 from lfring.synth.renderer import RenderResult
 
-DATA = Path(__file__).resolve().parent.parent / "data" / "synthetic"
+DATA = Path(__file__).resolve().parents[2] / "data" / "synthetic"
 
 
 def _depth(h=705, w=705):

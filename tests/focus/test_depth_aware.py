@@ -236,7 +236,7 @@ def test_cli_depth_aware_stack_is_labelled(tmp_path, capsys):
 
     from lfring.cli.main import main
 
-    scene = Path(__file__).resolve().parents[1] / "data" / "synthetic" / "scene.png"
+    scene = Path(__file__).resolve().parents[2] / "data" / "synthetic" / "scene.png"
     out = tmp_path / "s.png"
     assert main(["refocus", str(scene), "--depths", "0.3,0.6", "--method", "depth-aware", "--aperture", "0.5",
                  "--zmin", "0.3", "--zmax", "0.9", "-o", str(out)]) == 0

@@ -21,7 +21,7 @@ import tifffile
 
 from lfring.errors import InvalidInputError
 
-DATA = Path(__file__).resolve().parent.parent / "data" / "synthetic"
+DATA = Path(__file__).resolve().parents[2] / "data" / "synthetic"
 OBJECTS = {"cup": 0.3, "book": 0.5, "chessboard": 1.0}
 PLANES = 12  # a reduced stack keeps the browser tests quick
 MAX_BYTES = 15 * 1024 * 1024
