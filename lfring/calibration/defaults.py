@@ -5,7 +5,8 @@ from __future__ import annotations
 import json
 
 from lfring._resources import calib_dir
-from lfring.calibration.ring import RingCalibration, builtin_calibrations
+from lfring.calibration.jsonio import builtin_calibrations, calibration_from_dict
+from lfring.calibration.ring import RingCalibration
 from lfring.errors import LfringFileNotFoundError
 
 __all__ = ["builtin_calibrations", "default_calibration"]
@@ -24,6 +25,6 @@ def default_calibration(raw_size: tuple[int, int]) -> tuple[RingCalibration, str
             "make one with lfring calibrate and pass it with --calib"
         )
     # Read from the package even when the working folder holds a file of the same name.
-    cals = [(RingCalibration.from_dict(json.loads((calib_dir() / f"{n}.json").read_text()), source_name=n), n) for n in matches]
+    cals = [(calibration_from_dict(json.loads((calib_dir() / f"{n}.json").read_text()), source_name=n), n) for n in matches]
     cals.sort(key=lambda c: c[0].source != "planes")
     return cals[0]

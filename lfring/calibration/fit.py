@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from lfring.calibration.build import calibration_from_plane_homographies
 from lfring.calibration.ring import RingCalibration
 from lfring.errors import InvalidInputError
 from lfring.views import Layout, detect_layout, split_views
@@ -159,7 +160,7 @@ def calibrate(
     elif z0 is None:
         how = "fitted"
     check_disparity_sign(measured, {d: images[d][1] for d in images}, layout.view_shape)
-    cal = RingCalibration.from_plane_homographies(
+    cal = calibration_from_plane_homographies(
         measured, reference=reference, depth_origin_m=z0, layout=layout, pattern=_common(raws, "pattern", pattern),
         rank1=rank1, provenance={"method": method, "flat": None if flat is None else str(flat), "planes": diag,
                                  "depth_origin": how},

@@ -1,13 +1,11 @@
 """The variable-homography model against the optics' exact homographies."""
 
-import json
-
 import numpy as np
 import pytest
 
-from lfring.calibration import RingCalibration, fit_variable_homography
-from lfring.errors import FileFormatError, InvalidInputError, LfringFileNotFoundError, LfringWarning
+from lfring.calibration import fit_variable_homography
 from lfring.core.geometry import homography_rms_px
+from lfring.errors import InvalidInputError
 from lfring.optics.views import optical_homographies, optical_layout
 
 
@@ -74,80 +72,3 @@ def test_fit_with_measurement_noise(twin):
 def test_fit_errors(planes, kwargs, match):
     with pytest.raises(InvalidInputError, match=match):
         fit_variable_homography(planes, shape_hw=(100, 100), **kwargs)
-
-
-def test_ring_calibration_from_optics_and_references(twin):
-    dev, lay = twin
-    cal = RingCalibration.from_optics(dev)
-    for ref in ("center", 0, 3):
-        np.testing.assert_allclose(cal.homographies(0.42, reference=ref), optical_homographies(dev, lay, 0.42, reference=ref), atol=1e-9)
-    np.testing.assert_allclose(cal.homography(2, 0.42, reference="center"), optical_homographies(dev, lay, 0.42)[2], atol=1e-9)
-    assert cal.raw_size == (2456, 1842)
-    with pytest.raises(InvalidInputError, match="view must be"):
-        cal.homography(4, 0.5)
-    with pytest.raises(InvalidInputError, match="reference"):
-        cal.homographies(0.5, reference="middle")
-    for bad in (0.0, -1.0, float("nan")):
-        with pytest.raises(InvalidInputError, match="depth"):
-            cal.homographies(bad)
-    with pytest.raises(InvalidInputError, match="1228 x 920 px but the calibration is for 2456 x 1842"):
-        cal.check_frame((920, 1228))
-
-
-def test_outside_the_calibrated_range_warns(twin):
-    dev, lay = twin
-    cal = RingCalibration.from_plane_homographies(_exact(twin, (0.3, 1.0)), layout=lay, depth_origin_m=dev.entrance_pupil_m)
-    assert cal.valid_depth_range_m == (0.3, 1.0)
-    cal.homographies(0.5)  # inside: no warning (warnings are errors in the test suite)
-    with pytest.warns(LfringWarning, match="outside the calibrated range"):
-        cal.homographies(2.0)
-
-
-def test_save_load_round_trip(tmp_path, twin):
-    dev, lay = twin
-    cal = RingCalibration.from_plane_homographies(_exact(twin, (0.3, 0.5, 1.0)), layout=lay, depth_origin_m=None, pattern="GRBG")
-    back = RingCalibration.load(cal.save(tmp_path / "c.json"))
-    np.testing.assert_array_equal(back.model.A, cal.model.A)
-    np.testing.assert_array_equal(back.model.B, cal.model.B)
-    assert back.depth_origin_m == cal.depth_origin_m and back.pattern == "GRBG"
-    assert [p.depth_m for p in back.planes] == [0.3, 0.5, 1.0]
-    np.testing.assert_array_equal(back.planes[1].leave_one_out_px, cal.planes[1].leave_one_out_px)
-
-
-def _edit(tmp_path, cal, fn):
-    data = cal.to_dict()
-    fn(data)
-    p = tmp_path / "edited.json"
-    p.write_text(json.dumps(data))
-    return p
-
-
-@pytest.mark.parametrize(
-    "edit, match",
-    [
-        (lambda d: d.update(lfring_calibration_version=99), "version"),
-        (lambda d: d.pop("A"), "missing key 'A'"),
-        (lambda d: d.update(B=[[1, 2], [3, 4]]), "'B' must be 4 finite 3 x 3"),
-        (lambda d: d.update(depth_origin_m="zero"), "'depth_origin_m' must be a finite number"),
-        (lambda d: d.update(colour="red"), "unknown key"),
-        (lambda d: d.update(reference_view=7), "reference_view"),
-        (lambda d: d.update(raw_width_px=100), "disagree with the layout"),
-        (lambda d: d["layout"].update(rects_xywh_px=[[0, 0, 10, 10]] * 3), "4 views but the layout 3|layout"),
-        (lambda d: d.update(bayer_pattern="RGBG"), "bayer_pattern"),
-        (lambda d: d.update(valid_depth_range_m=[0.01, 1.0]), "valid depth range"),
-    ],
-)
-def test_hand_edited_calibration_files(tmp_path, twin, edit, match):
-    cal = RingCalibration.from_optics(twin[0])
-    with pytest.raises(FileFormatError, match=match):
-        RingCalibration.load(_edit(tmp_path, cal, edit))
-
-
-def test_corrupt_and_missing_files(tmp_path, twin):
-    cal = RingCalibration.from_optics(twin[0])
-    p = cal.save(tmp_path / "c.json")
-    p.write_text(p.read_text()[:200])
-    with pytest.raises(FileFormatError, match="not a JSON calibration"):
-        RingCalibration.load(p)
-    with pytest.raises(LfringFileNotFoundError):
-        RingCalibration.load(tmp_path / "none.json")
