@@ -108,6 +108,12 @@ class Plane:
         w, h = self.size_m
         return np.array([p0 + su * w / 2 * u + sv * h / 2 * v for su in (-1, 1) for sv in (-1, 1)])
 
+    @property
+    def depth_range_m(self) -> tuple[float, float]:
+        """Nearest and farthest Z (metres) of the plane: those of its corners."""
+        zs = self.corners_m()[:, 2]
+        return float(zs.min()), float(zs.max())
+
 
 @dataclass(frozen=True)
 class Bump:
@@ -162,6 +168,14 @@ class HeightField:
     bumps: tuple[Bump, ...] = ()
     shading: bool = True
     name: str = ""
+
+    @property
+    def depth_range_m(self) -> tuple[float, float]:
+        """Nearest and farthest Z (metres) of the part: its base moved by the highest bump and
+        the deepest dent (no nearer than the base, nor farther)."""
+        highest = max([b.height_m for b in self.bumps if b.height_m > 0], default=0.0)
+        deepest = min([b.height_m for b in self.bumps if b.height_m < 0], default=0.0)
+        return self.depth_m - highest, self.depth_m - deepest
 
     @property
     def curved(self) -> bool:
@@ -250,4 +264,10 @@ class Scene:
         if bg.shape != (3,) or np.any(bg < 0) or np.any(bg > 1):
             raise InvalidInputError(f"scene background must be an RGB triple in [0, 1], got {self.background!r}")
         object.__setattr__(self, "background", tuple(float(v) for v in bg))
+
+    @property
+    def depth_range_m(self) -> tuple[float, float]:
+        """Nearest and farthest Z (metres) of the scene's surfaces."""
+        ranges = [surf.depth_range_m for surf in self.surfaces]
+        return float(min(lo for lo, _ in ranges)), float(max(hi for _, hi in ranges))
 
