@@ -12,6 +12,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
+from lfring.core.validate import check_int, check_number
 from lfring.errors import InvalidInputError
 from lfring.optics.device import RingDevice
 from lfring.optics.views import ViewCameras, optical_layout, view_cameras
@@ -61,20 +62,10 @@ def conventional_aperture_radius_m(device: RingDevice, *, f_number=None, apertur
     if f_number is not None and aperture_scale is not None:
         raise InvalidInputError("give f_number or aperture_scale, not both")
     if f_number is not None:
-        try:
-            n = float(f_number)
-        except (TypeError, ValueError):
-            n = float("nan")
-        if not n > 0:
-            raise InvalidInputError(f"f_number must be a positive number (inf for a pinhole), got {f_number!r}")
+        n = check_number(f_number, "f_number", above=0, finite=False, hint=" (inf for a pinhole)")
         return 0.0 if np.isinf(n) else device.main_focal_length_m / (2.0 * n)
     if aperture_scale is not None:
-        try:
-            a = float(aperture_scale)
-        except (TypeError, ValueError):
-            a = float("nan")
-        if not (np.isfinite(a) and a >= 0):
-            raise InvalidInputError(f"aperture_scale must be a finite number >= 0, got {aperture_scale!r}")
+        a = check_number(aperture_scale, "aperture_scale", minimum=0)
         return a * viewpoint_radius_m(device)
     return float(device.effective_aperture_radius_m)
 
@@ -211,27 +202,20 @@ def render_conventional(scene: Scene, device: RingDevice, focus_m: float, *, f_n
     """
     if not isinstance(scene, Scene):
         raise InvalidInputError(f"scene must be a lfring.synth.Scene, got {type(scene).__name__}")
-    RenderSettings(binning=binning)  # validates the binning
+    check_int(binning, "binning", minimum=1)
     dev = device.binned(binning)
     dev.require_positions()
     cams = view_cameras(dev)
     s, f, tp = cams.depth_origin_m, cams.focal_m, dev.pixel_pitch_m
-    try:
-        zf = float(focus_m)
-    except (TypeError, ValueError):
-        zf = float("nan")
-    if not (np.isfinite(zf) and zf > s):
-        raise InvalidInputError(f"focus_m must be a distance in metres beyond the views' entrance pupil ({s:.4g} m), "
-                                f"got {focus_m!r}")
+    zf = check_number(focus_m, "focus_m", above=s, what="a distance in metres",
+                      hint=": beyond the views' entrance pupil")
     radius = conventional_aperture_radius_m(dev, f_number=f_number, aperture_scale=aperture_scale)
     if radius == 0:
         n = 1
     elif samples is None:
         n = conventional_sample_count(scene, dev, zf, radius)
     else:
-        if isinstance(samples, bool) or not isinstance(samples, (int, np.integer)) or samples < 1:
-            raise InvalidInputError(f"samples must be an integer >= 1, got {samples!r}")
-        n = int(samples)
+        n = check_int(samples, "samples", minimum=1)
     layout = optical_layout(dev)
     vh, vw = layout.view_shape
     corner = np.mean([(x, y) for x, y, _, _ in layout.rects], axis=0)
@@ -255,7 +239,7 @@ def render_conventional(scene: Scene, device: RingDevice, focus_m: float, *, f_n
     margin = int(np.ceil(float(np.max(conventional_blur_px(dev, np.array(scene.depth_range_m), zf, cell))) / 2)) + 2
     region = (int(origin[0]) - margin, int(origin[1]) - margin, vw + 2 * margin, vh + 2 * margin)
     inner = np.s_[margin : margin + vh, margin : margin + vw]
-    workers = default_workers() if workers is None else max(1, int(workers))
+    workers = default_workers() if workers is None else check_int(workers, "workers", minimum=1)
     # Fixed chunks summed in order: the image does not depend on the number of threads.
     chunks = [range(i, n, 8) for i in range(min(8, n))]
 

@@ -19,6 +19,7 @@ from concurrent.futures import ThreadPoolExecutor
 import cv2
 import numpy as np
 
+from lfring.core.validate import check_int
 from lfring.errors import InvalidInputError
 from lfring.optics.device import RingDevice
 from lfring.optics.views import lit_region, optical_layout, vignetting_region
@@ -247,7 +248,7 @@ def _render(device: RingDevice, scene: Scene, settings: RenderSettings, *, timin
     four). ``timings``, when given, receives seconds per stage: wall clock for the stages, and
     for the ``view:`` entries the time summed over the views (which run ``workers`` at a time,
     so with several workers they include the threads' waits for a core)."""
-    workers = default_workers() if workers is None else max(1, int(workers))
+    workers = default_workers() if workers is None else check_int(workers, "workers", minimum=1)
     clock = time.perf_counter
     t0 = clock()
     dev = device.binned(settings.binning)

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from lfring.core.validate import check_choice, check_int, check_number
 from lfring.errors import InvalidInputError
 from lfring.io.bayer import validate_pattern
 
@@ -64,20 +65,14 @@ class RenderSettings:
                     "view_falloff must be four (strength >= 0, dx, dy) triples, one per view, with |dx|, |dy| <= 1, "
                     f"got {self.view_falloff!r}")
             object.__setattr__(self, "view_falloff", fall)
-        if isinstance(self.binning, bool) or not isinstance(self.binning, (int, np.integer)) or self.binning < 1:
-            raise InvalidInputError(f"binning must be an integer >= 1, got {self.binning!r}")
+        check_int(self.binning, "binning", minimum=1)
         if self.pattern is not None:
             object.__setattr__(self, "pattern", validate_pattern(self.pattern))
-        if self.bit_depth not in BIT_DEPTHS:
-            raise InvalidInputError(f"bit_depth must be one of {BIT_DEPTHS}, got {self.bit_depth!r}")
-        if self.noise not in NOISE_PRESETS:
-            raise InvalidInputError(f"noise must be one of {', '.join(NOISE_PRESETS)}, got {self.noise!r}")
-        if not (np.isfinite(self.gain) and self.gain > 0):
-            raise InvalidInputError(f"gain must be > 0, got {self.gain!r}")
-        if not (np.isfinite(self.exposure) and 0 < self.exposure <= 4):
-            raise InvalidInputError(f"exposure must be in (0, 4], got {self.exposure!r}")
-        if self.black_level is not None and not 0 <= self.black_level < self.white_level // 2:
-            raise InvalidInputError(f"black_level must be in [0, {self.white_level // 2}), got {self.black_level!r}")
+        check_choice(self.bit_depth, "bit_depth", BIT_DEPTHS)
+        check_choice(self.noise, "noise", NOISE_PRESETS)
+        check_number(self.gain, "gain", above=0)
+        check_number(self.exposure, "exposure", above=0, maximum=4)
+        check_int(self.black_level, "black_level", minimum=0, maximum=self.white_level // 2 - 1, allow_none=True)
 
     @property
     def white_level(self) -> int:
