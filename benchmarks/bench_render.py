@@ -20,10 +20,11 @@ import numpy as np
 
 from _timing import bench as _bench
 from lfring.optics import load_device
-from lfring.synth import render
+from lfring.synth import RenderSettings, render
 from lfring.synth.presets import three_depth_scene
 
 from lfring.synth import renderer as _render_module
+from lfring.synth.layers import default_workers
 
 RUNS = 5
 SETTINGS = dict(noise="realistic", pattern="RGGB", bit_depth=12)
@@ -49,7 +50,7 @@ def stage_breakdown(dev, scene):
     runs = []
     for _ in range(RUNS):
         t = {}
-        _render_module._render(dev, scene, _render_module.RenderSettings(binning=1, **SETTINGS), timings=t)
+        _render_module._render(dev, scene, RenderSettings(binning=1, **SETTINGS), timings=t)
         runs.append(t)
     return {key: statistics.median(r[key] for r in runs) for key in runs[0]}
 
@@ -61,7 +62,7 @@ def main_bench() -> None:
     frame = np.random.default_rng(0).random((H, W, 3), dtype=np.float32)
     # A view-to-reference warp of the kind the pipeline applies: small rotation, scale, shift.
     h_ref_from_view = np.array([[1.001, 0.002, 3.5], [-0.002, 1.001, -2.25], [1e-7, -1e-7, 1.0]])
-    dev1_settings = _render_module.RenderSettings(binning=1, **SETTINGS)
+    dev1_settings = RenderSettings(binning=1, **SETTINGS)
     load_before = os.getloadavg()[0]
 
     rows = [
@@ -95,7 +96,7 @@ def main_bench() -> None:
     print()
     if not stages:
         return
-    n = _render_module._workers()
+    n = default_workers()
     print(f"Full-resolution stages (median of {RUNS}; `view:` rows are summed over the four views, which")
     print(f"run {n} at a time, so with more than one they add up to more than the views' wall time):")
     print()

@@ -78,7 +78,7 @@ def command(preset, outdir, depth, scene_file, defects, defect_size, part_depth,
     (conventional_<M>m[_f<N>|_a<A>].tiff, .png preview in sRGB, .json with the aperture).
     """
     from lfring.synth import presets
-    from lfring.synth.renderer import RenderSettings, render
+    from lfring.synth import RenderSettings, render
 
     device = get_device(device_name)
     if preset == "target" and depth is None:

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from lfring.core.validate import check_number
 from lfring.errors import FileFormatError, InvalidInputError, LfringFileNotFoundError
 from lfring.optics import paraxial
 from lfring.optics.device import RingDevice
@@ -65,8 +66,7 @@ def target_scene(device: RingDevice, depth_m: float, *, seed: int = 0) -> Scene:
     four pixels of the 2 x 2 binned sensor, and larger than the defocus blur there, so the
     target keeps its contrast when out of focus.
     """
-    if not (np.isfinite(depth_m) and depth_m > 0):
-        raise InvalidInputError(f"target depth must be a positive number of metres, got {depth_m!r}")
+    check_number(depth_m, "target depth", above=0, what="a distance in metres")
     cams = view_cameras(device)
     if depth_m <= cams.depth_origin_m * 1.1:
         raise InvalidInputError(f"target depth {depth_m} m is too close to the camera (entrance pupil at {cams.depth_origin_m:.3f} m)")
@@ -159,8 +159,7 @@ def part_scene(
     centimetre-high features, not scratches.
     """
     heights = tuple(float(h) for h in defect_heights_m)
-    if not (np.isfinite(defect_size_m) and defect_size_m > 0):
-        raise InvalidInputError(f"defect size must be a positive number of metres, got {defect_size_m!r}")
+    check_number(defect_size_m, "defect size", above=0, what="a length in metres")
     size = (0.08, 0.08)
     rng = np.random.default_rng(seed)
     placed: list[tuple[float, float]] = []

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from lfring.core.validate import check_choice, check_number, is_number
 from lfring.errors import InvalidInputError
 from lfring.synth.textures import Texture
 
@@ -23,23 +24,17 @@ CURVED_SHAPES = ("sphere", "cylinder")
 
 
 def _pair(value, name: str, *, positive: bool) -> tuple[float, float]:
+    """``value`` as two finite floats (both > 0 when ``positive``)."""
     try:
-        a, b = (float(v) for v in value)
+        a, b = value
     except (TypeError, ValueError):
         raise InvalidInputError(f"{name} must be a pair of numbers, got {value!r}") from None
+    if not (is_number(a) and is_number(b)):
+        raise InvalidInputError(f"{name} must be a pair of numbers, got {value!r}")
+    a, b = float(a), float(b)
     if not (np.isfinite(a) and np.isfinite(b)) or (positive and not (a > 0 and b > 0)):
         raise InvalidInputError(f"{name} must be {'positive ' if positive else ''}finite numbers, got {value!r}")
     return a, b
-
-
-def _positive(value, name: str) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise InvalidInputError(f"{name} must be a number, got {value!r}") from None
-    if not (np.isfinite(v) and v > 0):
-        raise InvalidInputError(f"{name} must be a positive number of metres, got {value!r}")
-    return v
 
 
 @dataclass(frozen=True)
@@ -65,22 +60,15 @@ class Plane:
     roll_deg: float = 0.0
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "depth_m", _positive(self.depth_m, "plane depth_m"))
-        try:
-            roll = float(self.roll_deg)
-        except (TypeError, ValueError):
-            raise InvalidInputError(f"plane roll_deg must be a number of degrees, got {self.roll_deg!r}") from None
-        if not np.isfinite(roll):
-            raise InvalidInputError(f"plane roll_deg must be finite, got {self.roll_deg!r}")
-        object.__setattr__(self, "roll_deg", roll)
+        object.__setattr__(self, "depth_m", check_number(self.depth_m, "plane depth_m", above=0, what="a distance in metres"))
+        object.__setattr__(self, "roll_deg", check_number(self.roll_deg, "plane roll_deg", what="a number of degrees"))
         object.__setattr__(self, "size_m", _pair(self.size_m, "plane size_m", positive=True))
         object.__setattr__(self, "center_m", _pair(self.center_m, "plane center_m", positive=False))
         tilt = _pair(self.tilt_deg, "plane tilt_deg", positive=False)
         if max(abs(tilt[0]), abs(tilt[1])) >= 80:
             raise InvalidInputError(f"plane tilt must stay within +-80 degrees, got {tilt}")
         object.__setattr__(self, "tilt_deg", tilt)
-        if self.shape not in SHAPES:
-            raise InvalidInputError(f"plane shape must be one of {', '.join(SHAPES)}, got {self.shape!r}")
+        check_choice(self.shape, "plane shape", SHAPES)
         if not isinstance(self.texture, Texture):
             raise InvalidInputError("plane texture must be a lfring.synth.Texture")
 
@@ -108,6 +96,12 @@ class Plane:
         w, h = self.size_m
         return np.array([p0 + su * w / 2 * u + sv * h / 2 * v for su in (-1, 1) for sv in (-1, 1)])
 
+    @property
+    def depth_range_m(self) -> tuple[float, float]:
+        """Nearest and farthest Z (metres) of the plane: those of its corners."""
+        zs = self.corners_m()[:, 2]
+        return float(zs.min()), float(zs.max())
+
 
 @dataclass(frozen=True)
 class Bump:
@@ -129,12 +123,11 @@ class Bump:
     def __post_init__(self) -> None:
         object.__setattr__(self, "center_m", _pair(self.center_m, "bump center_m", positive=False))
         object.__setattr__(self, "size_m", _pair(self.size_m, "bump size_m", positive=True))
-        h = float(self.height_m)
-        if not np.isfinite(h) or h == 0:
-            raise InvalidInputError(f"bump height_m must be a non-zero finite number of metres, got {self.height_m!r}")
+        h = check_number(self.height_m, "bump height_m", what="a non-zero number of metres")
+        if h == 0:
+            raise InvalidInputError(f"bump height_m must be a non-zero number of metres, got {self.height_m!r}")
         object.__setattr__(self, "height_m", h)
-        if self.shape not in BUMP_SHAPES:
-            raise InvalidInputError(f"bump shape must be one of {', '.join(BUMP_SHAPES)}, got {self.shape!r}")
+        check_choice(self.shape, "bump shape", BUMP_SHAPES)
         if self.shape == "sphere" and self.size_m[0] != self.size_m[1]:
             raise InvalidInputError(f"a 'sphere' bump has a circular footprint: give equal width and height, got {self.size_m}")
         if self.shape in CURVED_SHAPES and abs(h) > self.size_m[0] / 2:
@@ -164,13 +157,21 @@ class HeightField:
     name: str = ""
 
     @property
+    def depth_range_m(self) -> tuple[float, float]:
+        """Nearest and farthest Z (metres) of the part: its base moved by the highest bump and
+        the deepest dent (no nearer than the base, nor farther)."""
+        highest = max([b.height_m for b in self.bumps if b.height_m > 0], default=0.0)
+        deepest = min([b.height_m for b in self.bumps if b.height_m < 0], default=0.0)
+        return self.depth_m - highest, self.depth_m - deepest
+
+    @property
     def curved(self) -> bool:
         """True when a bump is a sphere or cylinder: the renderer then puts the depth on the
         analytic surface (:meth:`height_at`) rather than on the sampled height map."""
         return any(b.shape in CURVED_SHAPES for b in self.bumps)
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "depth_m", _positive(self.depth_m, "part depth_m"))
+        object.__setattr__(self, "depth_m", check_number(self.depth_m, "part depth_m", above=0, what="a distance in metres"))
         object.__setattr__(self, "size_m", _pair(self.size_m, "part size_m", positive=True))
         object.__setattr__(self, "center_m", _pair(self.center_m, "part center_m", positive=False))
         object.__setattr__(self, "bumps", tuple(self.bumps))
@@ -250,4 +251,10 @@ class Scene:
         if bg.shape != (3,) or np.any(bg < 0) or np.any(bg > 1):
             raise InvalidInputError(f"scene background must be an RGB triple in [0, 1], got {self.background!r}")
         object.__setattr__(self, "background", tuple(float(v) for v in bg))
+
+    @property
+    def depth_range_m(self) -> tuple[float, float]:
+        """Nearest and farthest Z (metres) of the scene's surfaces."""
+        ranges = [surf.depth_range_m for surf in self.surfaces]
+        return float(min(lo for lo, _ in ranges)), float(max(hi for _, hi in ranges))
 

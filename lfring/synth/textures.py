@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from lfring.core.validate import check_choice, check_number
 from lfring.errors import InvalidInputError
 
 __all__ = ["Texture", "IMAGES", "KINDS", "rasterize", "raster_shape"]
@@ -42,12 +43,11 @@ class Texture:
     colors: tuple = ((0.05, 0.05, 0.05), (0.9, 0.9, 0.9))
 
     def __post_init__(self) -> None:
-        if self.kind not in KINDS:
-            raise InvalidInputError(f"texture kind must be one of {', '.join(KINDS)}, got {self.kind!r}")
-        if self.kind == "image" and self.name not in IMAGES:
-            raise InvalidInputError(f"texture image must be one of {', '.join(IMAGES)}, got {self.name!r}")
-        if not (self.square_m > 0 and self.feature_m > 0):
-            raise InvalidInputError("texture square_m and feature_m must be > 0 m")
+        check_choice(self.kind, "texture kind", KINDS)
+        if self.kind == "image":
+            check_choice(self.name, "texture image", IMAGES)
+        check_number(self.square_m, "texture square_m", above=0, what="a length in metres")
+        check_number(self.feature_m, "texture feature_m", above=0, what="a length in metres")
         cols = np.asarray(self.colors, dtype=np.float64)
         if cols.ndim != 2 or cols.shape[1] != 3 or np.any(cols < 0) or np.any(cols > 1):
             raise InvalidInputError(f"texture colors must be RGB triples in [0, 1], got {self.colors!r}")
@@ -72,8 +72,9 @@ def raster_shape(size_m: tuple[float, float], texel_m: float) -> tuple[int, int]
     """(rows, cols) of the raster :func:`rasterize` makes: texels no larger than ``texel_m``
     that tile the surface exactly (texel width = width / cols, height = height / rows)."""
     w_m, h_m = size_m
-    if not (w_m > 0 and h_m > 0 and texel_m > 0):
-        raise InvalidInputError("texture size and texel size must be > 0 m")
+    check_number(w_m, "texture width", above=0, what="a length in metres")
+    check_number(h_m, "texture height", above=0, what="a length in metres")
+    check_number(texel_m, "texel size", above=0, what="a length in metres")
     return max(2, int(np.ceil(h_m / texel_m))), max(2, int(np.ceil(w_m / texel_m)))
 
 

@@ -10,7 +10,7 @@ from lfring.core.records import record_repr, summarize
 from lfring.depth.selection import DepthResult
 from lfring.inspect import Defect, InspectionResult
 from lfring.io.raw import RawFrame, load_raw
-from lfring.synth.renderer import RenderResult
+from lfring.synth.result import RenderResult
 
 DATA = Path(__file__).resolve().parents[2] / "data" / "synthetic"
 

@@ -1,12 +1,13 @@
 """The sample frames committed in data/synthetic/, and how to make them again.
 
-    python -m lfring.synth.samples data/synthetic
+    python -m lfring.cli.samples data/synthetic
 
 renders every sample with the ``lfring synth`` command recorded for it and writes
-``manifest.json`` (command, seed and SHA-256 of every file). The flat frame is noise-free and
-the targets use the 'low' noise preset, standing for the averages of many exposures that
-calibration captures are; the scene and the parts use 'realistic' noise, the hard scene
-'low' (with 'realistic' noise its frame would take the folder past 30 MB).
+``manifest.json`` (command, seed and SHA-256 of every file). The samples are defined by those
+commands, so they are made by running them. The flat frame is noise-free and the targets use
+the 'low' noise preset, standing for the averages of many exposures that calibration captures
+are; the scene and the parts use 'realistic' noise, the hard scene 'low' (with 'realistic'
+noise its frame would take the folder past the size the sample set is kept under).
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ SAMPLES = {
     "scene": f"scene {_COMMON} --noise realistic --seed 4",
     "part_good": f"part --defects none {_COMMON} --noise realistic --seed 5",
     "part_defects": f"part --defects 0.015,-0.015 {_COMMON} --noise realistic --seed 6",
-    # 'low' noise: with 'realistic' noise the frame would take data/synthetic past 30 MB.
+    # 'low' noise: with 'realistic' noise the frame would take data/synthetic past its size limit.
     "hard": f"hard {_COMMON} --noise low --seed 7",
 }
 
@@ -74,7 +75,7 @@ def make_samples(outdir: str | Path, *, names=None, overwrite: bool = False) -> 
             "description": "Frames of the synthetic twin: prototype optics, 2 x 2 binned sensor (2456 x 1842 px, 2.5 um), "
                            "12-bit RGGB. Each NAME.png has a sidecar NAME.png.json (pattern, levels) and a NAME_truth/ "
                            "folder (per-view depth in metres, layout.json, truth.json with the exact homographies).",
-            "regenerate": "python -m lfring.synth.samples data/synthetic --overwrite",
+            "regenerate": "python -m lfring.cli.samples data/synthetic --overwrite",
             "lfring_version": __version__,
             "samples": entries,
         }

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from lfring.cli.main import main
-from lfring.synth.samples import SAMPLES, sha256
+from lfring.cli.samples import SAMPLES, sha256
 
-DATA = Path(__file__).resolve().parent.parent / "data" / "synthetic"
+DATA = Path(__file__).resolve().parents[2] / "data" / "synthetic"
 MANIFEST = json.loads((DATA / "manifest.json").read_text())
 
 
