@@ -63,8 +63,9 @@ def calibrate(
         Use this layout instead of detecting one.
     depth_origin_m : float or None
         z0 of the model. None: fitted with three or more planes; with two, the entrance pupil s
-        of ``device`` when one is given, else 0 (SPEC 4). For the ring z0 = s is exact, and 0
-        costs about 0.2 px at other depths on the binned twin.
+        of ``device`` when one is given, else 0. For the ring z0 = s is exact; 0 makes the model
+        miss by a fraction of a pixel at depths between and beyond the planes
+        (benchmarks/RESULTS.md, "Calibration").
     method : {'ecc', 'sift'}
         Per-plane homographies by direct intensity alignment (ECC, initialised by phase
         correlation; no features) or by SIFT + RANSAC.
@@ -174,8 +175,8 @@ def check_disparity_sign(h_by_depth: dict, names: dict, view_shape_hw) -> None:
     """Refuse planes whose views lie farther apart than those of a nearer plane.
 
     The ring's physics fixes the sign of the model: views of nearer planes lie farther apart
-    (SPEC: d(Z) falls with Z). Measured homographies that say otherwise come from depths given
-    in the wrong order (or frames given in the wrong order).
+    (the disparity d(Z) falls as Z grows). Measured homographies that say otherwise come from
+    depths given in the wrong order (or frames given in the wrong order).
 
     Parameters
     ----------

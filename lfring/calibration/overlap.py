@@ -1,5 +1,5 @@
 """Where the views overlap: the depths at which refocusing has something to average, and the
-sign of the ring's disparity (views of nearer planes lie farther apart, SPEC d(Z)).
+sign of the ring's disparity (views of nearer planes lie farther apart: d(Z) falls as Z grows).
 
 Close to the depth origin z0 the homographies' translations B / (Z - z0) grow without bound:
 the warped views slide off the reference frame and a refocused image is black. These functions
@@ -26,9 +26,10 @@ __all__ = [
 MIN_OVERLAP_FRACTION = 0.1
 """Smallest fraction of the reference frame that every view must cover at a renderable depth.
 
-On the binned twin (705 px views, z0 = 0.0280 m) all views cover 66 % of the frame at 0.3 m,
-39 % at 0.05 m, and this limit is reached at 0.037 m; at 0.028 m, just beyond z0, they lie
-830 px apart and the common area is 0."""
+On the binned twin all views cover most of the frame at working distances; the common area
+shrinks as the depth nears z0 and vanishes just beyond it, and this limit falls within a
+centimetre of z0 (:func:`nearest_overlap_depth_m`), so only depths where next to nothing could
+be averaged are refused."""
 
 INFINITE_DEPTH_M = 1e9
 """A depth standing for infinity: 1 / (Z - z0) is below 1e-9 /m there, so H(Z) equals A to

@@ -31,7 +31,7 @@ log = logging.getLogger("lfring.cli.depth")
                    "all views, the views on one side of the reference if they agree (next to depth edges); "
                    "lcn-occlusion: the same, leaving out a view hidden behind an occluder where that is cheaper.")
 @click.option("--aggregation", type=click.Choice(["box", "guided"]), default="box", show_default=True,
-              help="Spatial aggregation of the cost (guided: edge-aware, about 3x slower, more accurate on the twin).")
+              help="Spatial aggregation of the cost (guided: edge-aware, slower, measured more accurate on the twin).")
 @click.option("--method", type=click.Choice(["sgm", "local"]), default="sgm", show_default=True,
               help="sgm: semi-global optimisation of the whole sweep (fills weak texture, rejects occlusions); "
                    "local: each pixel's best hypothesis alone (several times faster).")

@@ -1,4 +1,4 @@
-"""``lfring design``: lens positions, sweeps and working-range designs (SPEC 2.1)."""
+"""``lfring design``: lens positions (paper Secs. 4.1-4.2), sweeps and working-range designs."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""``lfring raytrace``: the 2D ray-trace figure of the ring camera (SPEC 2.2, paper Fig. 4)."""
+"""``lfring raytrace``: the 2D ray-trace figure of the ring camera (paper Fig. 4)."""
 
 from __future__ import annotations
 

@@ -17,7 +17,8 @@ __all__ = ["STRIP_BYTES", "ShiftEngine"]
 # take about this many bytes, so they stay in the L3 cache (each view is read from memory once
 # and the intermediate images of the bilinear stencil never go back to it), while every OpenCV
 # call is long enough that two threads seldom wait for each other's Python in between (the GIL).
-# On the benchmark machine (32 MiB L3) 2 to 6 MiB were best, 0.6 MiB (strips fit for L2) 1.8x slower.
+# Strips of a few MiB measured best; strips sized for L2 were much slower, their threads mostly
+# waiting on each other's Python between short calls (benchmarks/RESULTS.md, "Refocusing").
 STRIP_BYTES = 3 << 20
 
 

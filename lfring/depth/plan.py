@@ -28,10 +28,10 @@ __all__ = ["DEPTH_TAPER", "DepthSettings", "Progress", "SweepPlan", "guide_image
 # (lfring.core.viewstack.view_masks). The refocusing taper (lfring.core.viewstack.TAPER, 15 %) hides seams in an image;
 # in the sweep it counted a view that sees a pixel as a fraction of a view over the outer 15 % of
 # its disc, so pixels two views see came out unseen (min_views) and their costs were weighted
-# down. Twin, every pixel two views see, bad 1 px, taper 15 / 5 / 2 %: hard scene 13.1 / 10.9 /
-# 11.0 % (4 views) and 15.0 / 11.5 / 10.7 % (views 0 and 1); three-depth 8.0 / 6.3 / 5.7 % and
-# 7.3 / 5.2 / 4.7 %. At 3 % and below the darkest, noisiest rim pixels of the inspection sample
-# (data/synthetic/part_good.png) made a confident false dent at the bottom of the frame.
+# down. This narrower taper measured fewer bad pixels on the twin's scenes, four views and pairs
+# (benchmarks/RESULTS.md, "Depth on real data"). At 3 % and below the darkest, noisiest rim pixels
+# of the inspection sample (data/synthetic/part_good.png) made a confident false dent at the bottom
+# of the frame.
 DEPTH_TAPER = 0.05
 
 

@@ -18,8 +18,8 @@ def weighted_median(values, bins, guide, radius, lut, fine_bins, out):
 
     ``bins`` holds each known value's bin, of ``fine_bins``. The median's bin is found by one
     cumulative scan from the window's lowest bin to its highest (a window's values span few
-    bins: a coarse histogram beside it measured 1.4-1.7x slower on the twin and Middlebury, for
-    the same answers); the answer is the weighted mean of the values in that bin. One row per
+    bins: a coarse histogram beside it measured slower on the twin and on real stereo pairs,
+    for the same answers); the answer is the weighted mean of the values in that bin. One row per
     parallel task; each task keeps its own histograms and clears only the range of bins it
     touched.
     """

@@ -73,7 +73,7 @@ class RunningMinimum:
     the slices before the best (a prefix minimum lagging ``exclude + 1`` slices, copied when
     the best moves) and over the slices after it (restarted when the best moves); the tracker
     keeps the last ``exclude + 2`` slices for it. OpenCV masked copies throughout: NumPy's
-    masked assignments are 40x slower on these arrays."""
+    masked assignments are many times slower on these arrays."""
 
     def __init__(self, shape, exclude: int = 1):
         self.exclude = e = max(1, int(exclude))

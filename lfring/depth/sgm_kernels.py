@@ -13,7 +13,7 @@ from numba import njit, prange
 __all__ = ["fill_values", "horizontal", "lines", "select_index", "select_index_both"]
 
 # numpy's error model: no zero-division checks (every division here is guarded), so the loops
-# vectorise: the four paths over a random 1060^2 x 64 volume 0.93 -> 0.74 s.
+# vectorise and the paths take clearly less time, with the same sums.
 _JIT = dict(parallel=True, cache=True, fastmath=False, nogil=True, error_model="numpy")
 # The pieces the kernels share run inside their parallel loops: compiled alike, without parallel.
 _PIECE = {k: v for k, v in _JIT.items() if k != "parallel"}
@@ -134,7 +134,7 @@ def lines(cost, fill, guide, use_guide, p1, p2, edge_scale, out, dy, dx, block):
                 dm = d - 1 if d > 0 else d
                 dp = d + 1 if d < n - 1 else d
                 # Row slices, and two loops of few arrays each: with every array in one loop,
-                # LLVM's aliasing checks gave up and the loop ran scalar (0.65x the time).
+                # LLVM's aliasing checks gave up and the loop ran scalar, markedly slower.
                 cost_row = cost[d, y, xb + j0:xb + j1]
                 here, below, above = prev[d, j0:j1], prev[dm, j0:j1], prev[dp, j0:j1]
                 jumps, base, new = jump[j0:j1], pmin[j0:j1], cur[d, j0:j1]

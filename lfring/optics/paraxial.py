@@ -1,4 +1,5 @@
-"""Thin-lens (paraxial) model of the ring camera, SPEC section 2.
+"""Thin-lens (paraxial) model of the ring camera: intermediate image, magnification, chief-ray
+images on the sensor, defocus and disparity.
 
 Sensor coordinates are metres from the optical axis, x to the right and y down, in the frame
 the views are numbered in (after the optional 180-degree rotation of the raw frame). The image
@@ -112,7 +113,8 @@ def focus_sensor_distance_m(device: RingDevice, distance_m) -> np.ndarray:
 
 
 def blur_diameter_m(device: RingDevice, distance_m) -> np.ndarray:
-    """Defocus blur-circle diameter on the sensor, 2 Rml |c - c'| / c' (SPEC 2.3)."""
+    """Defocus blur-circle diameter on the sensor, 2 Rml |c - c'| / c' (the sensor at c, the
+    plane imaged sharply at c')."""
     _, c = device.require_positions()
     cp = focus_sensor_distance_m(device, distance_m)
     with np.errstate(invalid="ignore"):
@@ -120,7 +122,7 @@ def blur_diameter_m(device: RingDevice, distance_m) -> np.ndarray:
 
 
 def disparity_px(device: RingDevice, distance_m, *, axis: str = "vertical") -> np.ndarray:
-    """Disparity between adjacent views cut at half the sensor pitch (SPEC 2.1 item 3, Eq. 16).
+    """Disparity between adjacent views cut at half the sensor pitch (the paper's Eq. 16).
 
     ``d = ((4 hml - hs)/2 + 2 hml c/b2) / tpix`` for vertically adjacent views (``hs`` replaced by
     ``ws`` for ``axis='horizontal'``). It is affine in 1/(Z - s).

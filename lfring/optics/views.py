@@ -8,7 +8,7 @@ position ``C_k = -m_k FL / (b - FL)``. A world point (X, Y, Z) lands on the sens
 
     p_k = p0_k + f (X - C_k) / (Z - s),   f = c FL / (b - FL),   p0_k = m_k (1 + c / (b - FL)),
 
-which is the chief-ray formula of SPEC 2 rewritten (``x2_k = m_k + (m_k - x1) c / b2``).
+which is the paraxial chief-ray formula rewritten (``x2_k = m_k + (m_k - x1) c / b2``).
 """
 
 from __future__ import annotations
@@ -136,7 +136,7 @@ def optical_layout(device: RingDevice, *, rotate180: bool = False) -> Layout:
 
 
 def optical_homographies(device: RingDevice, layout: Layout, depth_m, *, reference="center") -> np.ndarray:
-    """Exact ``H_ref_from_view`` for a fronto-parallel plane at ``depth_m`` (SPEC 4).
+    """Exact ``H_ref_from_view`` for a fronto-parallel plane at ``depth_m``.
 
     Parameters
     ----------
@@ -175,7 +175,8 @@ def optical_homographies(device: RingDevice, layout: Layout, depth_m, *, referen
 
 
 def optical_homography_model(device: RingDevice, layout: Layout, *, reference="center"):
-    """The variable-homography model of SPEC 4 that the optics predicts, exactly:
+    """The variable-homography model (as :func:`lfring.calibrate` fits it) that the optics
+    predicts, exactly:
     ``H_ref_from_view(Z) = A + B / (Z - z0)`` with z0 = s, the views' entrance pupil.
 
     Returns

@@ -29,11 +29,11 @@ __all__ = ["HALVES_GAIN", "HALVES_LINE_TOL", "HALVES_MEDIAN_SAMPLE", "HALVES_MIN
 # reference's own view on the line), as many as move at most this fraction of the largest view
 # motion towards that side. It takes the halves' cost at a pixel whose best cost over all views is
 # over HALVES_POOR times the image's median best cost (no depth suits every view) while some half's
-# best is under HALVES_GAIN times it (a half agrees). On the twin (every pixel two views see, bad
-# 1 px, four views, reference 0): the hard scene 11.4 -> 8.9 %, three-depth 6.3 -> 6.0 %, and a
-# layout the rule was not tuned on (the hard scene's objects mirrored and moved) 12.6 -> 11.0 %.
-# Taking the halves' cost wherever it is lower made the three-depth scene worse (9.1 %): two views
-# agree by chance in weak texture.
+# best is under HALVES_GAIN times it (a half agrees). The factors were tuned on the twin's hard and
+# three-depth scenes, where the rule lowers the bad pixels, and checked on a layout they were not
+# tuned on (the hard scene's objects mirrored and moved), where it does too. Taking the halves'
+# cost wherever it is lower made the three-depth scene worse: two views agree by chance in weak
+# texture (benchmarks/RESULTS.md, "Depth on real data").
 HALVES_LINE_TOL = 0.25
 HALVES_POOR = 3.0
 HALVES_GAIN = 0.5
@@ -162,7 +162,7 @@ def take_halves(volume: np.ndarray, halves: np.ndarray) -> np.ndarray:
     best, half_best = np.empty((h, w), np.float32), np.empty((h, w), np.float32)
     compiled_kernels().volume_minima(volume, halves, best, half_best)
     # The median best cost is a scale: the pixels of a regular grid, about HALVES_MEDIAN_SAMPLE of
-    # them, give it (to about 1 %) in a fraction of the whole image's time.
+    # them, give it (closely: no benchmark figure moved) in a fraction of the whole image's time.
     stride = max(1, int(np.ceil(np.sqrt(h * w / HALVES_MEDIAN_SAMPLE))))
     sample = best[::stride, ::stride]
     sample = sample[np.isfinite(sample)]

@@ -21,13 +21,12 @@ __all__ = ["LCN_OCCLUSION", "MIN_VIEWS_TO_LEAVE_ONE_OUT", "OCCLUSION_PENALTY", "
 # A view may be left out of a window where on average at least this many views see its pixels
 # (with two, neither can be told to be the occluded one). Judged over the window, not per pixel: a
 # per-pixel rule switches the candidates on and off as the views' edges move with the hypothesis,
-# and measured worse than no leaving out at all (twin three-depth scene, bad 1 px 11.8 % against
-# 8.9 %).
+# and measured worse than no leaving out at all on the twin's three-depth scene.
 MIN_VIEWS_TO_LEAVE_ONE_OUT = 3
 # 'lcn-occlusion': the aggregated cost of the views without one competes with all views' cost
 # after this factor. Fewer samples give a noisier variance, and the least of several noisy
-# candidates is biased low; on the twin's hard scene 1.0 and 1.15 measured the same (bad 1 px
-# 12.6 %), on the three-depth scene 1.15 was better (8.5 % against 8.7 %).
+# candidates is biased low. On the twin's hard scene 1.0 and 1.15 measured the same, on the
+# three-depth scene 1.15 slightly better.
 OCCLUSION_PENALTY = 1.15
 
 
