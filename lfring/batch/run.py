@@ -37,6 +37,7 @@ from lfring.batch.record import (
     read_record,
 )
 from lfring.batch.settings import BatchSettings
+from lfring.core.validate import check_choice, check_int
 from lfring.errors import InvalidInputError
 
 __all__ = ["BatchReport", "run_batch"]
@@ -141,14 +142,12 @@ class _Run:
 
 
 def _check_run_args(executor, scheduler, workers, settings, out: Path) -> int:
-    if executor not in EXECUTORS:
-        raise InvalidInputError(f"executor must be one of {', '.join(EXECUTORS)}, got {executor!r}")
+    check_choice(executor, "executor", EXECUTORS)
     if scheduler and executor != "dask":
         raise InvalidInputError("a scheduler address goes with executor='dask' (--executor dask)")
     if workers is None:
         workers = os.cpu_count() or 1
-    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-        raise InvalidInputError(f"workers must be an integer >= 1, got {workers!r}")
+    workers = check_int(workers, "workers", minimum=1)
     if not isinstance(settings, BatchSettings):
         raise InvalidInputError(f"settings must be a BatchSettings, got {type(settings).__name__}")
     if out.exists() and not out.is_dir():

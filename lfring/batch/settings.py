@@ -7,10 +7,9 @@ import hashlib
 import json
 from dataclasses import dataclass, fields
 
-import numpy as np
-
-from lfring.core.warping import DEFAULT_INTERPOLATION
-from lfring.depth import SGM_MIN_PLANES
+from lfring.core.validate import check_choice, check_fraction, check_int, check_number
+from lfring.core.warping import DEFAULT_INTERPOLATION, INTERPOLATIONS
+from lfring.depth import ENGINES, SGM_MIN_PLANES
 from lfring.errors import InvalidInputError
 from lfring.io.writers import json_default
 
@@ -77,11 +76,12 @@ class BatchSettings:
     check_frames: bool = True
 
     def __post_init__(self):
+        # The fields are checked, not converted (refocus_m aside): their values as given are part
+        # of the outputs' keys, which earlier runs' records hold.
         zs = tuple(float(z) for z in self.refocus_m)
         object.__setattr__(self, "refocus_m", zs)
         for z in zs:
-            if not (np.isfinite(z) and z > 0):
-                raise InvalidInputError(f"refocus depths must be positive, finite metres, got {z!r}")
+            check_number(z, "each refocus depth", above=0.0, what="a positive distance in metres")
         if len(set(zs)) != len(zs):
             raise InvalidInputError(f"refocus depths repeat: {list(zs)}")
         if not (zs or self.depth or self.all_in_focus or self.viewer):
@@ -90,26 +90,18 @@ class BatchSettings:
             if self.zmin_m is None or self.zmax_m is None:
                 raise InvalidInputError("a depth map needs zmin_m and zmax_m (--zmin, --zmax)")
             for name in ("zmin_m", "zmax_m"):
-                v = getattr(self, name)
-                if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
-                    raise InvalidInputError(f"{name} must be a positive, finite number of metres, got {v!r}")
+                check_number(getattr(self, name), name, above=0.0, what="a positive number of metres")
             if not self.zmin_m < self.zmax_m:
                 raise InvalidInputError(f"zmin_m ({self.zmin_m}) must be smaller than zmax_m ({self.zmax_m})")
-        if self.interpolation not in ("cubic", "linear"):
-            raise InvalidInputError(f"interpolation must be 'cubic' or 'linear', got {self.interpolation!r}")
-        if self.bit_depth not in (8, 16):
-            raise InvalidInputError(f"bit_depth must be 8 or 16, got {self.bit_depth!r}")
-        if self.encoding not in ("srgb", "linear"):
-            raise InvalidInputError(f"encoding must be 'srgb' or 'linear', got {self.encoding!r}")
-        if self.depth_method not in ("sgm", "local"):
-            raise InvalidInputError(f"depth_method must be 'sgm' or 'local', got {self.depth_method!r}")
+        check_choice(self.interpolation, "interpolation", INTERPOLATIONS)
+        check_choice(self.bit_depth, "bit_depth", (8, 16))
+        check_choice(self.encoding, "encoding", ("srgb", "linear"))
+        check_choice(self.depth_method, "depth_method", ENGINES)
         # The viewer's depth map, when the batch makes none, is the semi-global default.
         least = SGM_MIN_PLANES if (self.depth and self.depth_method == "sgm") or self.viewer else 2
-        if self.planes is not None and (isinstance(self.planes, bool) or not isinstance(self.planes, int) or self.planes < least):
-            raise InvalidInputError(f"planes must be an integer >= {least}"
-                                    f"{' for the semi-global depth' if least > 2 else ''}, got {self.planes!r}")
-        if not (0.0 <= self.min_confidence <= 1.0):
-            raise InvalidInputError(f"min_confidence must lie in [0, 1], got {self.min_confidence!r}")
+        if self.planes is not None:
+            check_int(self.planes, "planes", minimum=least, hint=" for the semi-global depth" if least > 2 else "")
+        check_fraction(self.min_confidence, "min_confidence")
 
     def outputs(self, stem: str) -> dict[str, str]:
         """Kind -> output path relative to OUTDIR, for a frame whose relative stem is ``stem``."""
@@ -134,8 +126,6 @@ class BatchSettings:
         if self.depth_method == "sgm":
             # The method's default cost: depth maps made before it changed ('lcn' until 'lcn-halves')
             # are not this run's; a resumed folder refuses them unless told to overwrite.
-            from lfring.depth.engines import ENGINES
-
             depth_part["depth_cost"] = ENGINES["sgm"].default_cost
 
         def h(obj) -> str:
