@@ -76,8 +76,8 @@ def dask_client(workers: int, scheduler: str | None):
 
     # Dask's nannies start workers with MALLOC_TRIM_THRESHOLD_ set, which freezes glibc's mmap
     # threshold: every large NumPy temporary is then mapped and unmapped afresh, and the plane
-    # sweep ran 2.3x slower than in a plain process. Workers of this local cluster keep glibc's
-    # adaptive default.
+    # sweep ran markedly slower than in a plain process. Workers of this local cluster keep
+    # glibc's adaptive default.
     environ = {k: v for k, v in (dask.config.get("distributed.nanny.pre-spawn-environ") or {}).items()
                if k != "MALLOC_TRIM_THRESHOLD_"}
     with dask.config.set({"distributed.nanny.pre-spawn-environ": environ}):

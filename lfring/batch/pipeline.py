@@ -21,7 +21,11 @@ import numpy as np
 from lfring.batch.settings import BatchSettings
 from lfring.errors import InvalidInputError, LfringError, LfringWarning
 
-__all__ = ["FrameResult", "process_frame"]
+__all__ = ["REFOCUSER_CACHE_SIZE", "FrameResult", "process_frame"]
+
+REFOCUSER_CACHE_SIZE = 32
+"""Refocusers a worker process keeps (one per settings, calibration, depth and frame size)
+before it drops them all and starts again."""
 
 
 @dataclass
@@ -60,7 +64,7 @@ def _refocuser(cal, cal_name: str, depth_m: float, settings: BatchSettings, view
     key = ("refocuser", settings.key(), cal_name, depth_m, tuple(view_shape))
     r = _WORKER_CACHE.get(key)
     if r is None:
-        if sum(k[0] == "refocuser" for k in _WORKER_CACHE) >= 32:
+        if sum(k[0] == "refocuser" for k in _WORKER_CACHE) >= REFOCUSER_CACHE_SIZE:
             for k in [k for k in _WORKER_CACHE if k[0] == "refocuser"]:
                 del _WORKER_CACHE[k]
         r = _WORKER_CACHE[key] = Refocuser(cal, depth_m, reference=settings.reference, view_shape=view_shape,
