@@ -1,0 +1,207 @@
+"""Which files a batch processes: files, folders (searched recursively) and glob patterns
+expanded into :class:`BatchJob` items, with the files of folders that are not frames left out
+and said why, and the output names of every job checked before anything runs."""
+
+from __future__ import annotations
+
+import fnmatch
+import glob
+import logging
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from lfring.batch.record import RECORD_SUFFIX
+from lfring.batch.settings import BatchSettings
+from lfring.errors import InvalidInputError
+
+__all__ = ["TRUTH_SUFFIX", "BatchJob", "find_inputs", "frame_size", "plan_jobs", "scan_inputs"]
+
+log = logging.getLogger("lfring.batch")
+
+
+def _frame_suffixes() -> frozenset[str]:
+    from lfring.io.raw import RAW_SUFFIXES
+
+    return frozenset(RAW_SUFFIXES) | {".png", ".tif", ".tiff"}
+
+
+@dataclass(frozen=True)
+class BatchJob:
+    """One frame: its path, and the stem of its outputs relative to OUTDIR (folders kept)."""
+
+    input: str
+    stem: str
+
+
+def _is_under(path: Path, folder: Path) -> bool:
+    try:
+        path.relative_to(folder)
+        return True
+    except ValueError:
+        return False
+
+
+def find_inputs(inputs: Sequence[str], *, outdir: str | Path | None = None, exclude: Sequence[str] = ()) -> list[BatchJob]:
+    """Expand files, folders (recursively) and glob patterns into jobs; see :func:`scan_inputs`
+    (this keeps every file with a frame suffix)."""
+    return scan_inputs(inputs, outdir=outdir, exclude=exclude)[0]
+
+
+TRUTH_SUFFIX = "_truth"
+"""Folders whose name ends so hold a frame's ground truth (the synthetic twin writes them): never
+frames."""
+
+
+def frame_size(path: str | Path) -> tuple[int, int] | None:
+    """(width, height) of a PNG or TIFF read from its header (no pixels), None when it cannot
+    be told cheaply (camera RAW, unreadable files: the frame's own error says why later) or the
+    file holds float samples (a map, not raw counts: size (0, 0))."""
+    p = Path(path)
+    suffix = p.suffix.lower()
+    try:
+        if suffix == ".png":
+            with open(p, "rb") as f:
+                head = f.read(24)
+            if len(head) == 24 and head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR":
+                return int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
+            return None
+        if suffix in (".tif", ".tiff"):
+            import tifffile
+
+            with tifffile.TiffFile(p) as tf:
+                page = tf.pages[0]
+                if np.dtype(page.dtype).kind == "f":
+                    return (0, 0)
+                return int(page.imagewidth), int(page.imagelength)
+    except Exception:  # noqa: BLE001 - any unreadable header: not decided here
+        return None
+    return None
+
+
+def scan_inputs(inputs: Sequence[str], *, outdir: str | Path | None = None, exclude: Sequence[str] = (),
+                frame_sizes=None) -> tuple[list[BatchJob], list[tuple[str, str]]]:
+    """Expand files, folders (recursively) and glob patterns into jobs, and list the files of
+    folders that are not frames.
+
+    Folder walks leave out, besides hidden files and suffixes that are not frames, ground-truth
+    folders (``*_truth/``) and, when ``frame_sizes`` (a collection of (width, height)) is given,
+    PNG/TIFF files whose header says another size or float samples. Files named explicitly or
+    matched by a glob are always taken.
+
+    Returns
+    -------
+    jobs : list of BatchJob
+    skipped : list of (path, reason)
+    """
+    skipped: list[tuple[str, str]] = []
+    sizes = None if frame_sizes is None else {tuple(s) for s in frame_sizes}
+    jobs = _expand_inputs(inputs, outdir=outdir, exclude=exclude, skipped=skipped, sizes=sizes)
+    return jobs, skipped
+
+
+def _expand_inputs(inputs, *, outdir, exclude, skipped, sizes) -> list[BatchJob]:
+    """Expand files, folders (recursively) and glob patterns into jobs.
+
+    Folders yield the files with a raw-frame suffix (camera RAW, PNG, TIFF), hidden files and
+    folders left out; a file named explicitly is taken whatever its suffix. Files inside
+    ``outdir`` are never inputs (a rerun must not process its own outputs). ``exclude`` holds
+    glob patterns matched against each file's name and its path relative to its folder argument.
+    Output stems keep the folder structure below each folder argument; a file or a glob match
+    gives its bare name.
+
+    Raises
+    ------
+    InvalidInputError
+        An argument matches nothing, or two inputs would write the same outputs.
+    """
+    if isinstance(inputs, (str, Path)):
+        inputs = [inputs]
+    if not inputs:
+        raise InvalidInputError("no inputs given: name files, folders or glob patterns")
+    out_res = Path(outdir).resolve() if outdir is not None else None
+    suffixes = _frame_suffixes()
+    found: list[tuple[Path, str]] = []
+
+    def excluded(rel: str) -> bool:
+        return any(fnmatch.fnmatch(rel, pat) or fnmatch.fnmatch(Path(rel).name, pat) for pat in exclude)
+
+    def keep(p: Path) -> bool:
+        return out_res is None or not _is_under(p.resolve(), out_res)
+
+    for arg in inputs:
+        arg = str(arg)
+        p = Path(arg)
+        if p.is_dir():
+            n0 = len(found)
+            for root, dirs, files in os.walk(p):
+                for d in sorted(dirs):
+                    if d.endswith(TRUTH_SUFFIX) and not d.startswith("."):
+                        skipped.append((str(Path(root, d)) + os.sep, "a ground-truth folder"))
+                dirs[:] = sorted(d for d in dirs if not d.startswith(".") and not d.endswith(TRUTH_SUFFIX) and keep(Path(root, d)))
+                for name in sorted(files):
+                    f = Path(root, name)
+                    rel = f.relative_to(p).as_posix()
+                    if name.startswith(".") or excluded(rel) or not keep(f):
+                        continue
+                    if f.suffix.lower() not in suffixes:
+                        if f.suffix.lower() == ".json":
+                            skipped.append((str(f), "a sidecar or record (JSON)"))
+                        continue
+                    if sizes is not None:
+                        size = frame_size(f)
+                        if size == (0, 0):
+                            skipped.append((str(f), "float samples (a map, not raw counts)"))
+                            continue
+                        if size is not None and size not in sizes:
+                            skipped.append((str(f), f"{size[0]} x {size[1]} px, a size no calibration fits"))
+                            continue
+                    found.append((f, rel))
+            if len(found) == n0:
+                log.warning("%s: no frames found (suffixes %s)", arg, ", ".join(sorted(suffixes)))
+        elif p.is_file():
+            if keep(p) and not excluded(p.name):
+                found.append((p, p.name))
+        elif glob.has_magic(arg):
+            matches = sorted(glob.glob(arg, recursive=True))
+            files = [Path(m) for m in matches if Path(m).is_file()]
+            files = [f for f in files if keep(f) and not excluded(f.name) and not f.name.endswith(".json")]
+            if not files:
+                raise InvalidInputError(f"{arg}: the pattern matches no files")
+            found.extend((f, f.name) for f in files)
+        else:
+            raise InvalidInputError(f"{arg}: no such file or folder")
+    # The same file named twice (a folder and a glob, say) is one job.
+    seen: dict[Path, BatchJob] = {}
+    for f, rel in found:
+        res = f.resolve()
+        if res not in seen:
+            stem = rel[: -len(Path(rel).suffix)] if Path(rel).suffix else rel
+            seen[res] = BatchJob(str(f), stem)
+    jobs = list(seen.values())
+    if not jobs:
+        raise InvalidInputError(f"no frames found in {', '.join(map(str, inputs))}")
+    return jobs
+
+
+def plan_jobs(jobs: Sequence[BatchJob], settings: BatchSettings, outdir: str | Path) -> dict[str, dict[str, str]]:
+    """Input -> {kind: relative output path}; refuses names that collide or leave ``outdir``."""
+    out_res = Path(outdir).resolve()
+    owner: dict[str, str] = {}
+    plan = {}
+    for job in jobs:
+        outs = settings.outputs(job.stem)
+        for rel in [*outs.values(), job.stem + RECORD_SUFFIX]:
+            target = (out_res / rel).resolve()
+            if not _is_under(target, out_res) or target == out_res:
+                raise InvalidInputError(f"{job.input}: output {rel!r} would leave the output folder {outdir}")
+            key = os.path.normcase(str(target))
+            if key in owner and owner[key] != job.input:
+                raise InvalidInputError(
+                    f"{owner[key]} and {job.input} would both write {rel}: rename one, or run them into different folders")
+            owner[key] = job.input
+        plan[job.input] = outs
+    return plan

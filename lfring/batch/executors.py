@@ -1,0 +1,111 @@
+"""Where a batch's frames run: a pool of local worker processes (or this process alone, for one
+worker) or a Dask cluster, each behind the same small face (``submit``, ``shutdown`` and a
+``wait`` that returns the finished futures)."""
+
+from __future__ import annotations
+
+import logging
+import os
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+
+from lfring.errors import InvalidInputError
+
+__all__ = ["EXECUTORS", "DaskExecutor", "InProcess", "dask_client", "dask_wait", "local_executor"]
+
+log = logging.getLogger("lfring.batch")
+
+EXECUTORS = ("local", "dask")
+
+_DASK_HINT = 'install it with: python3 -m pip install -c constraints.txt ".[dask]"  (or: pip install "dask[distributed]")'
+
+
+def _init_worker(threads: int) -> None:
+    """Give a worker process its share of the cores for OpenCV's threads."""
+    import cv2
+
+    cv2.setNumThreads(max(1, int(threads)))
+
+
+class InProcess:
+    """Runs the frames one by one here (workers=1): no process start-up, same code path."""
+
+    def submit(self, fn, *args):
+        """Run ``fn(*args)`` now; a future that holds its result or its exception."""
+        from concurrent.futures import Future
+
+        fut: Future = Future()
+        try:
+            fut.set_result(fn(*args))
+        except BaseException as exc:  # noqa: BLE001 - delivered through the future like a pool does
+            fut.set_exception(exc)
+        return fut
+
+    def shutdown(self, **kwargs):
+        """Nothing to stop (the pool's signature)."""
+
+
+def local_executor(workers: int):
+    """A pool of ``workers`` spawned processes (this process alone for one) and its ``wait``."""
+    import multiprocessing as mp
+
+    if workers == 1:
+        return InProcess(), wait
+    threads = max(1, (os.cpu_count() or 1) // workers)
+    # spawn, not fork: forking a process whose OpenCV thread pool is running can deadlock.
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"), initializer=_init_worker,
+                               initargs=(threads,))
+    return pool, wait
+
+
+def dask_client(workers: int, scheduler: str | None):
+    """A Dask client of the cluster at ``scheduler``, or of a local cluster of ``workers``
+    processes when none is given, and that cluster (None for a remote one)."""
+    try:
+        from distributed import Client, LocalCluster
+    except ImportError:
+        raise InvalidInputError(f"--executor dask needs dask.distributed, which is not installed; {_DASK_HINT}") from None
+    # The cluster's own chatter (workers starting, connections) only when lfring is verbose.
+    logging.getLogger("distributed").setLevel(max(logging.WARNING, log.getEffectiveLevel()))
+    if scheduler:
+        try:
+            client = Client(scheduler, timeout="10s")
+        except (OSError, TimeoutError, ValueError) as exc:
+            raise InvalidInputError(f"cannot reach the Dask scheduler at {scheduler!r}: {exc}") from None
+        return client, None
+    import dask
+
+    # Dask's nannies start workers with MALLOC_TRIM_THRESHOLD_ set, which freezes glibc's mmap
+    # threshold: every large NumPy temporary is then mapped and unmapped afresh, and the plane
+    # sweep ran markedly slower than in a plain process. Workers of this local cluster keep
+    # glibc's adaptive default.
+    environ = {k: v for k, v in (dask.config.get("distributed.nanny.pre-spawn-environ") or {}).items()
+               if k != "MALLOC_TRIM_THRESHOLD_"}
+    with dask.config.set({"distributed.nanny.pre-spawn-environ": environ}):
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                               dashboard_address=":0")
+    client = Client(cluster)
+    # As in the local pool: the cores are shared among the worker processes, not oversubscribed.
+    client.run(_init_worker, max(1, (os.cpu_count() or 1) // workers))
+    return client, cluster
+
+
+class DaskExecutor:
+    """A Dask client behind the face of a process pool (``submit``, ``shutdown``)."""
+
+    def __init__(self, client):
+        self.client = client
+
+    def submit(self, fn, *args):
+        """Submit ``fn(*args)`` to the cluster (never cached as a pure task); its future."""
+        return self.client.submit(fn, *args, pure=False)
+
+    def shutdown(self, **kwargs):
+        """Nothing to stop: the caller closes the client and the cluster."""
+
+
+def dask_wait(futures, return_when=FIRST_COMPLETED):
+    """:func:`concurrent.futures.wait` for Dask futures: (done, not done)."""
+    from distributed import wait as dwait
+
+    res = dwait(list(futures), return_when="FIRST_COMPLETED")
+    return res.done, res.not_done

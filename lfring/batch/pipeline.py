@@ -1,0 +1,205 @@
+"""The pipeline of one frame, as a batch worker runs it: load, check, split, refocus, depth,
+all-in-focus and viewer, each output encoded in memory and handed back as bytes.
+
+:func:`process_frame` runs in worker processes (on this machine or on a Dask cluster) and never
+writes into the output folder: the process that runs the batch does the only writes, so every
+write is atomic and no output escapes the folder, whatever the workers do.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import socket
+import time
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from lfring.batch.settings import BatchSettings
+from lfring.errors import InvalidInputError, LfringError, LfringWarning
+
+__all__ = ["REFOCUSER_CACHE_SIZE", "FrameResult", "process_frame"]
+
+REFOCUSER_CACHE_SIZE = 32
+"""Refocusers a worker process keeps (one per settings, calibration, depth and frame size)
+before it drops them all and starts again."""
+
+
+@dataclass
+class FrameResult:
+    """What a worker sends back for one frame: encoded files or an error, and timings."""
+
+    input: str
+    ok: bool
+    files: dict[str, bytes] = field(default_factory=dict)
+    info: dict = field(default_factory=dict)
+    timings_s: dict = field(default_factory=dict)
+    error: str | None = None
+    worker: str = ""
+
+
+_WORKER_CACHE: dict = {}
+
+
+def _worker_calibration(settings: BatchSettings, size_wh):
+    if settings.calibration is not None:
+        return settings.calibration, settings.calibration_name
+    key = ("default", tuple(size_wh))
+    if key not in _WORKER_CACHE:
+        from lfring.calibration.defaults import default_calibration
+
+        _WORKER_CACHE[key] = default_calibration(tuple(size_wh))
+    return _WORKER_CACHE[key]
+
+
+def _refocuser(cal, cal_name: str, depth_m: float, settings: BatchSettings, view_shape):
+    """Per worker process: one Refocuser per (settings, calibration, depth, frame size), reused
+    for every frame (a folder of frames at one depth pays the geometry once). Keyed by content,
+    not identity: every task brings its own unpickled copy of the settings."""
+    from lfring.focus import Refocuser
+
+    key = ("refocuser", settings.key(), cal_name, depth_m, tuple(view_shape))
+    r = _WORKER_CACHE.get(key)
+    if r is None:
+        if sum(k[0] == "refocuser" for k in _WORKER_CACHE) >= REFOCUSER_CACHE_SIZE:
+            for k in [k for k in _WORKER_CACHE if k[0] == "refocuser"]:
+                del _WORKER_CACHE[k]
+        r = _WORKER_CACHE[key] = Refocuser(cal, depth_m, reference=settings.reference, view_shape=view_shape,
+                                           interpolation=settings.interpolation)
+    return r
+
+
+def process_frame(input_path: str, settings: BatchSettings, outputs: dict[str, str] | None = None) -> FrameResult:
+    """Run the batch pipeline on one frame; never raises for a bad frame.
+
+    Returns a :class:`FrameResult` whose ``files`` maps each output kind of
+    :meth:`BatchSettings.outputs` to the encoded file's bytes; on failure ``ok`` is False and
+    ``error`` says why in one line.
+    """
+    t_start = time.perf_counter()
+    timings: dict[str, float] = {}
+    worker = f"{socket.gethostname()}:{os.getpid()}"
+    outputs = outputs if outputs is not None else settings.outputs(Path(input_path).stem)
+    caught: list[str] = []
+    try:
+        with warnings.catch_warnings(record=True) as wlist:
+            warnings.simplefilter("always")
+            files, info = _process(input_path, settings, outputs, timings)
+            caught = [str(w.message) for w in wlist]
+    except (LfringError, OSError, ValueError, MemoryError) as exc:
+        msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        timings["total"] = time.perf_counter() - t_start
+        error = msg if isinstance(exc, LfringError) else f"{type(exc).__name__}: {msg}"
+        if input_path not in error:
+            error = f"{input_path}: {error}"
+        return FrameResult(input_path, False, timings_s=timings, error=error, worker=worker)
+    except Exception as exc:  # noqa: BLE001 - a bad frame must not stop the batch; the error is kept by name
+        timings["total"] = time.perf_counter() - t_start
+        return FrameResult(input_path, False, timings_s=timings, error=f"unexpected {type(exc).__name__}: {exc}", worker=worker)
+    if caught:
+        info["warnings"] = sorted(set(caught))
+    timings["total"] = time.perf_counter() - t_start
+    return FrameResult(input_path, True, files=files, info=info, timings_s=timings, worker=worker)
+
+
+def _process(input_path, settings: BatchSettings, outputs, timings) -> tuple[dict[str, bytes], dict]:
+    from lfring.focus import all_in_focus
+    from lfring.io.demosaic import demosaic
+    from lfring.io.levels import load_frame
+    from lfring.io.writers import encode_file, encode_float_tiff, encode_image
+    from lfring.views import split_views
+
+    t = time.perf_counter()
+    frame, notes = load_frame(input_path, pattern=settings.pattern, black_level=settings.black_level,
+                              white_level=settings.white_level, calibration=settings.calibration)
+    for level, message in notes:
+        if level >= logging.WARNING:
+            warnings.warn(message, LfringWarning, stacklevel=2)
+    image = demosaic(frame)
+    cal, cal_name = _worker_calibration(settings, (image.shape[1], image.shape[0]))
+    cal.check_frame(image.shape, what=f"frame {input_path}")
+    if settings.check_frames:
+        from lfring.check import check_frame
+
+        checked = check_frame(image, cal)
+        if not checked.ok:
+            raise InvalidInputError(f"{input_path}: {checked.message}")
+    views = split_views(image, cal.layout)
+    if not np.all(np.isfinite(views)):
+        raise InvalidInputError(f"{input_path}: the frame holds NaN or infinite values")
+    timings["load"] = time.perf_counter() - t
+    info: dict = {"calibration": cal_name, "frame_size_px": [int(image.shape[1]), int(image.shape[0])]}
+    arrays: dict[str, np.ndarray] = {}
+
+    t = time.perf_counter()
+    for z in settings.refocus_m:
+        if f"refocus_{z:g}m" not in outputs:
+            continue
+        r = _refocuser(cal, cal_name, z, settings, views.shape[1:3])
+        arrays[f"refocus_{z:g}m"] = r(views)
+    timings["refocus"] = time.perf_counter() - t
+
+    depth_res = None
+    if settings.depth and ({"depth", "confidence", "depth_preview"} & set(outputs) or "all_in_focus" in outputs):
+        from lfring.depth import estimate_depth
+
+        t = time.perf_counter()
+        depth_res = estimate_depth(views, cal, zmin_m=settings.zmin_m, zmax_m=settings.zmax_m, num_planes=settings.planes,
+                                   reference=settings.reference, method=settings.depth_method)
+        timings["depth"] = time.perf_counter() - t
+        info["depth_hypotheses"] = len(depth_res.depths_m)
+        info["depth_step_px"] = float(depth_res.step_px)
+        ok = np.isfinite(depth_res.depth_m) & (depth_res.confidence >= settings.min_confidence)
+        info["confident_fraction"] = float(ok.mean())
+        if ok.any():
+            info["depth_median_m"] = float(np.median(depth_res.depth_m[ok]))
+
+    if "all_in_focus" in outputs:
+        t = time.perf_counter()
+        if depth_res is not None:
+            zs = depth_res.depths_m
+            img, _ = all_in_focus(views, cal, zs, depth_map_m=depth_res.depth_m, reference=settings.reference)
+        else:
+            zs = list(settings.refocus_m) if len(settings.refocus_m) > 1 else None
+            img, _ = all_in_focus(views, cal, zs, reference=settings.reference)
+        arrays["all_in_focus"] = img
+        timings["all_in_focus"] = time.perf_counter() - t
+
+    # Encode in memory and hand back bytes: the caller (maybe on another machine) does the only
+    # writes into OUTDIR.
+    t = time.perf_counter()
+    files: dict[str, bytes] = {}
+    for kind, img in arrays.items():
+        files[kind] = encode_file(encode_image(img, settings.bit_depth, settings.encoding), Path(outputs[kind]).suffix)
+    if depth_res is not None:
+        if "depth" in outputs:
+            files["depth"] = encode_float_tiff(depth_res.depth_m)
+        if "confidence" in outputs:
+            files["confidence"] = encode_float_tiff(depth_res.confidence)
+        if "depth_preview" in outputs:
+            files["depth_preview"] = _depth_preview_png(depth_res, settings, Path(input_path).name)
+    timings["encode"] = time.perf_counter() - t
+    if settings.viewer:
+        from lfring.viewer import viewer_html
+
+        t = time.perf_counter()
+        files["viewer"] = viewer_html(views, cal, zmin_m=settings.zmin_m, zmax_m=settings.zmax_m, reference=settings.reference,
+                                      depth=depth_res, num_planes=None if depth_res is not None else settings.planes,
+                                      min_confidence=settings.min_confidence, title=Path(input_path).name,
+                                      metadata={"input": str(input_path), "calibration": cal_name}).encode("utf-8")
+        timings["viewer"] = time.perf_counter() - t
+    missing = set(outputs) - set(files)
+    if missing:  # pragma: no cover - a programming error, not a bad frame
+        raise RuntimeError(f"outputs not produced: {sorted(missing)}")
+    return files, info
+
+
+def _depth_preview_png(depth_res, settings: BatchSettings, name: str) -> bytes:
+    """The depth preview's PNG bytes, made in memory."""
+    from lfring.depth.io import depth_preview_png
+
+    return depth_preview_png(depth_res.depth_m, confidence=depth_res.confidence, zmin_m=settings.zmin_m,
+                             zmax_m=settings.zmax_m, title=f"{name}: depth (m)", min_confidence=settings.min_confidence)

@@ -1,0 +1,229 @@
+"""What a batch keeps in its output folder, and what a rerun makes of it: the per-frame record,
+the manifest, the one writer into OUTDIR, the folder's lock and the resume decision.
+
+A frame's record ``<name>.lfring.json`` is written ``pending`` before its outputs and ``done``
+after them; :func:`decide_resume` reads it, with the input's identity (size and modification
+time), to skip what is done, compute only what is missing and refuse files this tool did not
+make.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import os
+import socket
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+from lfring.errors import InvalidInputError
+from lfring.io.atomic import atomic_write_bytes
+from lfring.io.writers import json_default
+
+__all__ = [
+    "LOCK_FILE",
+    "MANIFEST",
+    "RECORD_SUFFIX",
+    "RECORD_VERSION",
+    "TMP_DIR",
+    "OutputWriter",
+    "ResumeDecision",
+    "append_manifest",
+    "decide_resume",
+    "file_identity",
+    "outdir_lock",
+    "read_manifest",
+    "read_record",
+]
+
+log = logging.getLogger("lfring.batch")
+
+TMP_DIR = ".lfring-tmp"
+LOCK_FILE = ".lfring-batch.lock"
+MANIFEST = "manifest.jsonl"
+RECORD_SUFFIX = ".lfring.json"
+RECORD_VERSION = 1
+
+
+def file_identity(path: str) -> dict:
+    """An input's size and modification time: a record made from another identity is stale."""
+    st = os.stat(path)
+    return {"size_bytes": st.st_size, "mtime_ns": st.st_mtime_ns}
+
+
+def read_record(path: Path) -> dict | None:
+    """The record at ``path``, or None when there is none, it is unreadable or of another version."""
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    return data if isinstance(data, dict) and data.get("lfring_batch_record") == RECORD_VERSION else None
+
+
+class OutputWriter:
+    """The only writer into OUTDIR: temporary files in OUTDIR/.lfring-tmp, renamed into place."""
+
+    def __init__(self, outdir: Path):
+        self.outdir = outdir
+        self.tmp = outdir / TMP_DIR
+
+    def write(self, rel: str, data: bytes) -> Path:
+        """Write ``data`` atomically to ``rel`` (relative to OUTDIR)."""
+        return atomic_write_bytes(self.outdir / rel, data, tmp_dir=self.tmp)
+
+    def write_json(self, rel: str, obj) -> Path:
+        """Write ``obj`` as indented JSON, atomically, to ``rel`` (relative to OUTDIR)."""
+        return self.write(rel, (json.dumps(obj, indent=2, default=json_default) + "\n").encode("utf-8"))
+
+
+@contextlib.contextmanager
+def outdir_lock(outdir: Path) -> Iterator[None]:
+    """One batch at a time per output folder; a lock left by a killed run is taken over."""
+    lock = outdir / LOCK_FILE
+    me = {"pid": os.getpid(), "host": socket.gethostname()}
+    for _ in range(2):
+        try:
+            fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+        except FileExistsError:
+            try:
+                other = json.loads(lock.read_text())
+            except (OSError, ValueError):
+                other = {}
+            alive = False
+            if other.get("host") == me["host"] and isinstance(other.get("pid"), int):
+                try:
+                    os.kill(other["pid"], 0)
+                    alive = True
+                except ProcessLookupError:
+                    alive = False
+                except PermissionError:
+                    alive = True
+            elif other.get("host") not in (None, me["host"]):
+                alive = True  # cannot tell from here: refuse rather than clash
+            if alive:
+                raise InvalidInputError(
+                    f"{outdir} is in use by another lfring batch (pid {other.get('pid')} on {other.get('host')}); "
+                    f"wait for it, or remove {lock} if that run is gone")
+            log.info("%s: taking over the lock of a run that is gone (pid %s)", outdir, other.get("pid"))
+            with contextlib.suppress(FileNotFoundError):
+                lock.unlink()
+            continue
+        with os.fdopen(fd, "w") as f:
+            json.dump(me, f)
+        break
+    try:
+        yield
+    finally:
+        with contextlib.suppress(FileNotFoundError):
+            lock.unlink()
+
+
+def append_manifest(path: Path, entry: dict) -> None:
+    """Append ``entry`` to the manifest at ``path`` as one JSON line."""
+    line = (json.dumps(entry, default=json_default, allow_nan=False) + "\n").encode("utf-8")
+    fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+    try:
+        os.write(fd, line)  # one write with O_APPEND: whole lines, even with a reader tailing it
+    finally:
+        os.close(fd)
+
+
+def read_manifest(path: str | Path) -> list[dict]:
+    """The manifest's entries (a line cut short by a killed run is left out)."""
+    out = []
+    for line in Path(path).read_text(encoding="utf-8").splitlines():
+        try:
+            out.append(json.loads(line))
+        except ValueError:
+            continue
+    return out
+
+
+@dataclass(frozen=True)
+class ResumeDecision:
+    """What to do with one frame of a run: ``action`` 'run' (compute ``kinds``), 'skip'
+    (everything asked for is done) or 'refuse' (``reason`` says why and how to go on)."""
+
+    action: str
+    kinds: tuple[str, ...] = ()
+    reason: str = ""
+
+
+def decide_resume(planned: dict[str, str], planned_keys: dict[str, str], record: dict | None, identity: dict,
+                  existing: frozenset | set, *, record_exists: bool, overwrite: bool, settings_key: str = "") -> ResumeDecision:
+    """Decide, without touching any file, what a run does with one frame.
+
+    Parameters
+    ----------
+    planned : {kind: relative path}
+        The outputs this run asks for.
+    planned_keys : {kind: key}
+        :meth:`BatchSettings.output_keys` of this run.
+    record : dict or None
+        The frame's record from an earlier run (None: none, or unreadable).
+    identity : dict
+        The input's size and modification time now.
+    existing : set of str
+        Relative paths in OUTDIR that exist.
+    record_exists : bool
+        A file stands where the record goes (even one that is not a record).
+    overwrite : bool
+    settings_key : str
+        :meth:`BatchSettings.legacy_key`, for records written before per-output keys.
+
+    Returns
+    -------
+    ResumeDecision
+        'run' with only the outputs that are missing or made with other settings by a run that
+        was cut short; 'skip' when all are done with these settings on this input; 'refuse'
+        for files this tool did not make, files made with other settings, or a changed input
+        (unless ``overwrite``).
+
+    Examples
+    --------
+    >>> done = {"outputs": {"refocus_0.5m": "a_refocus_0.5m.png"}, "output_keys": {"refocus_0.5m": "k5"},
+    ...         "input_identity": {"size_bytes": 1}, "status": "done"}
+    >>> decide_resume({"refocus_0.5m": "a_refocus_0.5m.png", "refocus_1m": "a_refocus_1m.png"},
+    ...               {"refocus_0.5m": "k5", "refocus_1m": "k1"}, done, {"size_bytes": 1}, {"a_refocus_0.5m.png"},
+    ...               record_exists=True, overwrite=False)
+    ResumeDecision(action='run', kinds=('refocus_1m',), reason='')
+    """
+    kinds = tuple(planned)
+    if overwrite:
+        return ResumeDecision("run", kinds)
+    present = [rel for rel in planned.values() if rel in existing]
+    if record is None:
+        if present or record_exists:
+            what = present[0] if present else "its record"
+            return ResumeDecision("refuse", reason=f"{what} exists and was not made by lfring batch; pass --overwrite to replace it")
+        return ResumeDecision("run", kinds)
+    ours = dict(record.get("outputs") or {})
+    done_keys = dict(record.get("output_keys") or {})
+    pending_keys = dict(record.get("pending_keys") or {})
+    if "output_keys" not in record and record.get("settings_key") == settings_key:
+        # A record from before per-output keys: its outputs were made with one settings key.
+        same = {k: planned_keys[k] for k in ours if k in planned_keys}
+        done_keys, pending_keys = (same, {}) if record.get("status") == "done" else ({}, same)
+    if record.get("input_identity") != identity:
+        if present:
+            return ResumeDecision("refuse", reason=f"outputs exist ({present[0]}...) and the input changed since; "
+                                                   "pass --overwrite to replace them")
+        return ResumeDecision("run", kinds)
+    todo = tuple(k for k in kinds if not (done_keys.get(k) == planned_keys[k] and ours.get(k) == planned[k]
+                                          and planned[k] in existing))
+    if not todo:
+        return ResumeDecision("skip")
+    owner = {rel: k for k, rel in ours.items()}
+    for k in todo:
+        rel = planned[k]
+        if rel not in existing:
+            continue
+        if rel not in owner:
+            return ResumeDecision("refuse", reason=f"{rel} exists and was not made by lfring batch; pass --overwrite to replace it")
+        if pending_keys.get(owner[rel]) != planned_keys[k]:
+            return ResumeDecision("refuse", reason=f"outputs exist ({rel}...) and other settings made them (or an "
+                                                   "earlier lfring's default depth cost); pass --overwrite to replace them")
+        # else: our own run with these settings, cut short: its file may be replaced
+    return ResumeDecision("run", todo)

@@ -1,0 +1,390 @@
+"""A batch run from start to end: :func:`run_batch` checks its arguments, finds the frames,
+plans and checks their outputs, takes the output folder's lock, decides per frame what to
+resume, runs the frames on the executor and writes what comes back, with a record and a
+manifest line per frame; :class:`BatchReport` says how it went."""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import shutil
+import time
+from collections.abc import Callable, Sequence
+from concurrent.futures import FIRST_COMPLETED
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from lfring.batch.discovery import BatchJob, plan_jobs, scan_inputs
+from lfring.batch.executors import (
+    EXECUTORS,
+    DaskExecutor,
+    InProcess,
+    dask_client,
+    dask_wait,
+    local_executor,
+)
+from lfring.batch.pipeline import FrameResult, process_frame
+from lfring.batch.record import (
+    MANIFEST,
+    RECORD_SUFFIX,
+    RECORD_VERSION,
+    OutputWriter,
+    append_manifest,
+    decide_resume,
+    file_identity,
+    outdir_lock,
+    read_record,
+)
+from lfring.batch.settings import BatchSettings
+from lfring.core.validate import check_choice, check_int
+from lfring.errors import InvalidInputError
+
+__all__ = ["BatchReport", "run_batch"]
+
+log = logging.getLogger("lfring.batch")
+
+
+@dataclass
+class BatchReport:
+    """The outcome of :func:`run_batch`.
+
+    ``done``, ``skipped`` and ``failed`` are input paths; ``errors`` maps each failed input to
+    its one-line error; ``not_frames`` lists (path, reason) of files in folder inputs left out
+    because they are not frames; ``elapsed_s`` is the wall time; ``frames_per_s`` counts processed
+    (not skipped) frames.
+    """
+
+    outdir: str
+    done: list[str] = field(default_factory=list)
+    skipped: list[str] = field(default_factory=list)
+    failed: list[str] = field(default_factory=list)
+    errors: dict[str, str] = field(default_factory=dict)
+    elapsed_s: float = 0.0
+    manifest: str = ""
+    not_frames: list = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        """True when no frame failed (every frame done or skipped)."""
+        return not self.failed
+
+    @property
+    def exit_code(self) -> int:
+        """0 when every frame is done or skipped, 1 when some failed."""
+        return 0 if self.ok else 1
+
+    @property
+    def frames_per_s(self) -> float:
+        """Frames processed (not skipped) per second of wall time; 0 when none was processed."""
+        return len(self.done) / self.elapsed_s if self.elapsed_s > 0 and self.done else 0.0
+
+    def summary(self) -> str:
+        """One line for the end of a run: counts of done, skipped and failed frames, the time,
+        the rate, the output folder and the files left out as not frames.
+
+        Returns
+        -------
+        str
+        """
+        n = len(self.done) + len(self.skipped) + len(self.failed)
+        rate = f", {self.frames_per_s:.2f} frames/s" if self.done else ""
+        left = f"; {len(self.not_frames)} files that are not frames left out" if self.not_frames else ""
+        return (f"{n} frames: {len(self.done)} done, {len(self.skipped)} skipped (already done), "
+                f"{len(self.failed)} failed in {self.elapsed_s:.1f} s{rate}; outputs in {self.outdir}{left}")
+
+
+@dataclass
+class _Run:
+    """The state of one run shared by its steps."""
+
+    out: Path
+    settings: BatchSettings
+    plan: dict
+    report: BatchReport
+    run_id: str
+    writer: OutputWriter
+    on_result: Callable[[dict], None] | None
+    identity: dict = field(default_factory=dict)
+    todo_kinds: dict = field(default_factory=dict)  # input -> kinds computed this run
+    carried: dict = field(default_factory=dict)  # input -> (outputs, output_keys) of earlier runs still valid
+
+    def entry(self, job: BatchJob, status: str, **kw) -> dict:
+        kinds = self.todo_kinds.get(job.input, tuple(self.plan[job.input]))
+        e = {"run": self.run_id, "input": job.input, "status": status,
+             "outputs": [self.plan[job.input][k] for k in kinds], "record": job.stem + RECORD_SUFFIX,
+             "settings_key": self.settings.key(), **kw}
+        append_manifest(self.out / MANIFEST, e)
+        if self.on_result is not None:
+            self.on_result(e)
+        return e
+
+    def record(self, job: BatchJob, status: str, **extra) -> None:
+        outputs, keys = self.carried.get(job.input, ({}, {}))
+        kinds = self.todo_kinds.get(job.input, tuple(self.plan[job.input]))
+        planned_keys = self.settings.output_keys()
+        new = {k: planned_keys[k] for k in kinds}
+        self.writer.write_json(job.stem + RECORD_SUFFIX, {
+            "lfring_batch_record": RECORD_VERSION, "status": status, "run": self.run_id, "input": job.input,
+            "input_identity": self.identity[job.input], "settings_key": self.settings.key(),
+            "settings": self.settings.describe(), "outputs": {**outputs, **self.plan[job.input]},
+            "output_keys": {**keys, **new} if status == "done" else keys,
+            "pending_keys": {} if status == "done" else new, "lfring_version": _version(), **extra})
+
+    def fail(self, job: BatchJob, error: str, record_it: bool = False, **kw) -> None:
+        self.report.failed.append(job.input)
+        self.report.errors[job.input] = error
+        log.error("%s", error if error.startswith(job.input) else f"{job.input}: {error}")
+        if record_it:  # our pending record becomes a failed one (a rerun tries the frame again)
+            with contextlib.suppress(OSError):
+                self.record(job, "failed", error=error)
+        self.entry(job, "failed", error=error, **kw)
+
+
+def _check_run_args(executor, scheduler, workers, settings, out: Path) -> int:
+    check_choice(executor, "executor", EXECUTORS)
+    if scheduler and executor != "dask":
+        raise InvalidInputError("a scheduler address goes with executor='dask' (--executor dask)")
+    if workers is None:
+        workers = os.cpu_count() or 1
+    workers = check_int(workers, "workers", minimum=1)
+    if not isinstance(settings, BatchSettings):
+        raise InvalidInputError(f"settings must be a BatchSettings, got {type(settings).__name__}")
+    if out.exists() and not out.is_dir():
+        raise InvalidInputError(f"{out} exists and is not a folder")
+    return workers
+
+
+def _frame_sizes(settings: BatchSettings):
+    """Sizes (width, height) a frame may have: the calibration's, or those of the built-in ones."""
+    if settings.calibration is not None:
+        return {tuple(settings.calibration.raw_size)}
+    from lfring.calibration.defaults import builtin_calibrations
+
+    return {tuple(s) for s in builtin_calibrations().values()}
+
+
+def _decide_jobs(run: _Run, jobs: Sequence[BatchJob], overwrite: bool) -> list[BatchJob]:
+    """Apply :func:`decide_resume` to every frame: skipped and refused frames are reported, the
+    rest returned with the outputs each must compute in ``run.todo_kinds``."""
+    planned_keys = run.settings.output_keys()
+    todo: list[BatchJob] = []
+    for job in jobs:
+        outs = run.plan[job.input]
+        rec_path = run.out / (job.stem + RECORD_SUFFIX)
+        rec = read_record(rec_path)
+        try:
+            ident = run.identity[job.input] = file_identity(job.input)
+        except OSError as exc:
+            run.fail(job, f"cannot read the input: {exc.strerror or exc}")
+            continue
+        existing = {rel for rel in outs.values() if (run.out / rel).exists()}
+        d = decide_resume(outs, planned_keys, rec, ident, existing, record_exists=rec_path.exists(), overwrite=overwrite,
+                          settings_key=run.settings.legacy_key() or "")
+        if d.action == "refuse":
+            run.fail(job, d.reason)
+            continue
+        if d.action == "skip":
+            run.report.skipped.append(job.input)
+            run.todo_kinds[job.input] = ()
+            run.entry(job, "skipped")
+            continue
+        run.todo_kinds[job.input] = d.kinds
+        if rec is not None and rec.get("input_identity") == ident:
+            keep = {k: v for k, v in (rec.get("output_keys") or {}).items() if k not in d.kinds}
+            run.carried[job.input] = ({k: v for k, v in (rec.get("outputs") or {}).items() if k in keep}, keep)
+        todo.append(job)
+    return todo
+
+
+def _progress(todo, progress):
+    if not todo:
+        return None
+    try:
+        from tqdm import tqdm
+    except ImportError:  # pragma: no cover - tqdm is a dependency
+        return None
+    return tqdm(total=len(todo), unit="frame", desc="lfring batch", disable=(None if progress is None else not progress),
+                dynamic_ncols=True, smoothing=0.1)
+
+
+def _finish(run: _Run, job: BatchJob, res: FrameResult) -> None:
+    """Write a worker's files for one frame, then its record and manifest line."""
+    if not res.ok:
+        run.fail(job, res.error, record_it=True, timings_s=res.timings_s, worker=res.worker)
+        return
+    t_w = time.perf_counter()
+    try:
+        for kind in run.todo_kinds[job.input]:
+            run.writer.write(run.plan[job.input][kind], res.files[kind])
+        run.record(job, "done", info=res.info, timings_s=res.timings_s)
+    except OSError as exc:
+        run.fail(job, f"cannot write its outputs: {exc.strerror or exc}", record_it=True)
+        return
+    res.timings_s["write"] = time.perf_counter() - t_w
+    run.report.done.append(job.input)
+    run.entry(job, "done", timings_s=res.timings_s, worker=res.worker, info=res.info)
+    for w in res.info.get("warnings", []):
+        log.warning("%s: %s", job.input, w)
+
+
+def _execute(run: _Run, todo: list[BatchJob], *, workers: int, executor: str, scheduler, progress) -> None:
+    """Process the frames on the executor, a window of them at a time; a lost local worker's
+    frames are retried once on a fresh pool."""
+    bar = _progress(todo, progress)
+    cluster = client = None
+    pool = None
+    try:
+        if todo:
+            if executor == "dask":
+                client, cluster = dask_client(workers, scheduler)
+                pool, waiter = DaskExecutor(client), dask_wait
+            else:
+                pool, waiter = local_executor(min(workers, len(todo)))
+        window = max(2, 2 * workers)
+        pending: dict = {}
+        queue = list(todo)
+        retried: set[str] = set()
+
+        def submit(job: BatchJob) -> None:
+            run.record(job, "pending")
+            outputs = {k: run.plan[job.input][k] for k in run.todo_kinds[job.input]}
+            pending[pool.submit(process_frame, job.input, run.settings, outputs)] = job
+
+        while queue or pending:
+            while queue and len(pending) < window:
+                job = queue.pop(0)
+                try:
+                    submit(job)
+                except OSError as exc:
+                    run.fail(job, f"cannot write its record: {exc}")
+            if not pending:
+                continue
+            done_set, _ = waiter(list(pending), return_when=FIRST_COMPLETED)
+            for fut in done_set:
+                job = pending.pop(fut)
+                try:
+                    res: FrameResult = fut.result()
+                except Exception as exc:  # noqa: BLE001 - a worker died (crash, killed): retry once elsewhere
+                    if job.input not in retried and executor == "local" and not isinstance(pool, InProcess):
+                        retried.add(job.input)
+                        log.warning("%s: worker lost (%s); retrying once", job.input, type(exc).__name__)
+                        pool.shutdown(wait=False, cancel_futures=True)
+                        requeue = [job, *pending.values()]
+                        pending.clear()
+                        pool, waiter = local_executor(min(workers, len(requeue) + len(queue)))
+                        queue[:0] = requeue
+                        break
+                    run.fail(job, f"the worker processing it was lost: {type(exc).__name__}: {exc}", record_it=True)
+                    if bar is not None:
+                        bar.update(1)
+                    continue
+                _finish(run, job, res)
+                if bar is not None:
+                    bar.update(1)
+                    bar.set_postfix(failed=len(run.report.failed), refresh=False)
+    finally:
+        if bar is not None:
+            bar.close()
+        if pool is not None:
+            pool.shutdown(wait=True, cancel_futures=True)
+        if client is not None:
+            client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+def run_batch(
+    inputs: Sequence[str],
+    outdir: str | Path,
+    settings: BatchSettings,
+    *,
+    workers: int | None = None,
+    executor: str = "local",
+    scheduler: str | None = None,
+    overwrite: bool = False,
+    exclude: Sequence[str] = (),
+    progress: bool | None = False,
+    on_result: Callable[[dict], None] | None = None,
+) -> BatchReport:
+    """Process every frame of ``inputs`` (files, folders, glob patterns) into ``outdir``.
+
+    Parameters
+    ----------
+    inputs : sequence of str
+    outdir : str or Path
+        Created if missing. Outputs keep the folder structure of folder inputs.
+    settings : BatchSettings
+    workers : int, optional
+        Worker processes (default: the number of cores); 1 runs the frames in this process.
+    executor : {'local', 'dask'}
+        'dask' runs on the cluster at ``scheduler`` (an address such as 'tcp://host:8786'),
+        or on a local Dask cluster of ``workers`` processes when none is given. The workers must
+        see the inputs at the same paths; outputs come back to this process, which writes them.
+    overwrite : bool
+        Redo frames already done and replace files this run did not make.
+    exclude : sequence of str
+        Glob patterns of files to leave out of folder inputs.
+    progress : bool or None
+        A progress bar on stderr (None: only when stderr is a terminal).
+    on_result : callable, optional
+        Called with each manifest entry as it is written.
+
+    Returns
+    -------
+    BatchReport
+        ``exit_code`` is 0 when all frames are done or skipped, 1 when some failed.
+
+    Raises
+    ------
+    InvalidInputError
+        Bad arguments, no inputs, outputs that would collide: nothing is processed.
+
+    Notes
+    -----
+    The worker processes are started with ``spawn`` (forking a process whose OpenCV threads run
+    can deadlock), so a script that calls this with ``workers > 1`` must do so under
+    ``if __name__ == "__main__":``, as with any spawning process pool.
+
+    Examples
+    --------
+    The bundled scene (data/synthetic, paths relative to the repository root) refocused at
+    0.5 m into a temporary folder, then the same run again, which finds it done:
+
+    >>> import os, tempfile
+    >>> with tempfile.TemporaryDirectory() as out:
+    ...     first = run_batch(["data/synthetic/scene.png"], out, BatchSettings(refocus_m=(0.5,)), workers=1, progress=False)
+    ...     again = run_batch(["data/synthetic/scene.png"], out, BatchSettings(refocus_m=(0.5,)), workers=1, progress=False)
+    ...     files = sorted(os.listdir(out))
+    >>> first.exit_code, len(first.done), len(again.done), len(again.skipped)
+    (0, 1, 0, 1)
+    >>> files
+    ['manifest.jsonl', 'scene.lfring.json', 'scene_refocus_0.5m.png']
+    """
+    out = Path(outdir)
+    workers = _check_run_args(executor, scheduler, workers, settings, out)
+    jobs, not_frames = scan_inputs(inputs, outdir=out, exclude=exclude, frame_sizes=_frame_sizes(settings))
+    plan = plan_jobs(jobs, settings, out)
+    out.mkdir(parents=True, exist_ok=True)
+    report = BatchReport(str(out), manifest=str(out / MANIFEST), not_frames=not_frames)
+    t0 = time.perf_counter()
+    run_id = time.strftime("%Y%m%dT%H%M%S") + f"-{os.getpid()}"
+    with outdir_lock(out):
+        writer = OutputWriter(out)
+        # Temporary files left by a killed run are never outputs; clear them.
+        if writer.tmp.exists():
+            shutil.rmtree(writer.tmp, ignore_errors=True)
+        run = _Run(out, settings, plan, report, run_id, writer, on_result)
+        try:
+            todo = _decide_jobs(run, jobs, overwrite)
+            _execute(run, todo, workers=workers, executor=executor, scheduler=scheduler, progress=progress)
+        finally:
+            shutil.rmtree(writer.tmp, ignore_errors=True)
+    report.elapsed_s = time.perf_counter() - t0
+    return report
+
+
+def _version() -> str:
+    from lfring import __version__
+
+    return __version__

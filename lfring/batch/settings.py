@@ -1,0 +1,178 @@
+"""What a batch makes of every frame: :class:`BatchSettings`, its checks, its output names and
+the keys that tell a rerun which outputs are still valid."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass, fields
+
+from lfring.core.validate import check_choice, check_fraction, check_int, check_number
+from lfring.core.warping import DEFAULT_INTERPOLATION, INTERPOLATIONS
+from lfring.depth import ENGINES, SGM_MIN_PLANES
+from lfring.errors import InvalidInputError
+from lfring.io.writers import json_default
+
+__all__ = ["BatchSettings"]
+
+
+@dataclass(frozen=True)
+class BatchSettings:
+    """What to make of every frame.
+
+    Attributes
+    ----------
+    refocus_m : tuple of float
+        Depths in metres to refocus at (one image each).
+    depth : bool
+        Also compute a depth map over ``zmin_m``..``zmax_m`` (metres).
+    all_in_focus : bool
+        Also write an all-in-focus image (from the depth map when there is one, else over the
+        refocus depths when there are two or more, else over the calibrated range).
+    calibration : RingCalibration, optional
+        None: the built-in calibration for each frame's size.
+    calibration_name : str
+    reference : 'center' or int
+    interpolation : {'cubic', 'linear'}
+    bit_depth : {8, 16}
+    encoding : {'srgb', 'linear'}
+    planes : int, optional
+        Number of depth hypotheses (default: at most 1 px of view motion apart).
+    depth_method : {'sgm', 'local'}
+        ``method`` of :func:`lfring.estimate_depth` for the depth maps, with its default cost (the
+        cost is part of the depth outputs' keys, so maps made with an earlier default are not
+        taken for this run's).
+    min_confidence : float
+        Depth preview: pixels below it are black.
+    viewer : bool
+        Also write an interactive HTML viewer (:mod:`lfring.viewer`), its depth range
+        ``zmin_m``..``zmax_m`` or the calibrated range.
+    pattern, black_level, white_level : optional
+        Bayer pattern and levels in counts for frames that lack them (they win over sidecars;
+        see :func:`lfring.io.levels.load_frame`).
+    check_frames : bool
+        Refuse frames that do not look like ring frames for the calibration
+        (:func:`lfring.check.check_frame`).
+    """
+
+    refocus_m: tuple[float, ...] = ()
+    depth: bool = False
+    zmin_m: float | None = None
+    zmax_m: float | None = None
+    all_in_focus: bool = False
+    calibration: object = None
+    calibration_name: str = "built-in"
+    reference: object = "center"
+    interpolation: str = DEFAULT_INTERPOLATION
+    bit_depth: int = 8
+    encoding: str = "srgb"
+    planes: int | None = None
+    depth_method: str = "sgm"
+    min_confidence: float = 0.5
+    viewer: bool = False
+    pattern: str | None = None
+    black_level: object = None
+    white_level: float | None = None
+    check_frames: bool = True
+
+    def __post_init__(self):
+        # The fields are checked, not converted (refocus_m aside): their values as given are part
+        # of the outputs' keys, which earlier runs' records hold.
+        zs = tuple(float(z) for z in self.refocus_m)
+        object.__setattr__(self, "refocus_m", zs)
+        for z in zs:
+            check_number(z, "each refocus depth", above=0.0, what="a positive distance in metres")
+        if len(set(zs)) != len(zs):
+            raise InvalidInputError(f"refocus depths repeat: {list(zs)}")
+        if not (zs or self.depth or self.all_in_focus or self.viewer):
+            raise InvalidInputError("nothing to do: ask for refocus depths, a depth map, an all-in-focus image or a viewer")
+        if self.depth:
+            if self.zmin_m is None or self.zmax_m is None:
+                raise InvalidInputError("a depth map needs zmin_m and zmax_m (--zmin, --zmax)")
+            for name in ("zmin_m", "zmax_m"):
+                check_number(getattr(self, name), name, above=0.0, what="a positive number of metres")
+            if not self.zmin_m < self.zmax_m:
+                raise InvalidInputError(f"zmin_m ({self.zmin_m}) must be smaller than zmax_m ({self.zmax_m})")
+        check_choice(self.interpolation, "interpolation", INTERPOLATIONS)
+        check_choice(self.bit_depth, "bit_depth", (8, 16))
+        check_choice(self.encoding, "encoding", ("srgb", "linear"))
+        check_choice(self.depth_method, "depth_method", ENGINES)
+        # The viewer's depth map, when the batch makes none, is the semi-global default.
+        least = SGM_MIN_PLANES if (self.depth and self.depth_method == "sgm") or self.viewer else 2
+        if self.planes is not None:
+            check_int(self.planes, "planes", minimum=least, hint=" for the semi-global depth" if least > 2 else "")
+        check_fraction(self.min_confidence, "min_confidence")
+
+    def outputs(self, stem: str) -> dict[str, str]:
+        """Kind -> output path relative to OUTDIR, for a frame whose relative stem is ``stem``."""
+        out = {f"refocus_{z:g}m": f"{stem}_refocus_{z:g}m.png" for z in self.refocus_m}
+        if self.all_in_focus:
+            out["all_in_focus"] = f"{stem}_all_in_focus.png"
+        if self.depth:
+            out["depth"] = f"{stem}_depth.tiff"
+            out["confidence"] = f"{stem}_confidence.tiff"
+            out["depth_preview"] = f"{stem}_depth_preview.png"
+        if self.viewer:
+            out["viewer"] = f"{stem}_viewer.html"
+        return out
+
+    def output_keys(self) -> dict[str, str]:
+        """Kind -> a short hash of every setting that changes that output: a rerun that adds an
+        output (another refocus depth, a depth map) recomputes only the outputs whose key is new."""
+        d = self.describe()
+        common = {k: d[k] for k in ("calibration_name", "calibration_sha256", "reference", "bit_depth", "encoding", "pattern",
+                                    "black_level", "white_level")}
+        depth_part = {k: d[k] for k in ("zmin_m", "zmax_m", "planes", "min_confidence", "depth_method")}
+        if self.depth_method == "sgm":
+            # The method's default cost: depth maps made before it changed ('lcn' until 'lcn-halves')
+            # are not this run's; a resumed folder refuses them unless told to overwrite.
+            depth_part["depth_cost"] = ENGINES["sgm"].default_cost
+
+        def h(obj) -> str:
+            return hashlib.sha256(json.dumps(obj, sort_keys=True, default=json_default).encode()).hexdigest()[:16]
+
+        keys = {f"refocus_{z:g}m": h({**common, "refocus_m": z, "interpolation": self.interpolation}) for z in self.refocus_m}
+        if self.all_in_focus:
+            source = ({"depth": depth_part} if self.depth
+                      else {"depths_m": list(self.refocus_m)} if len(self.refocus_m) > 1 else {"depths_m": "calibrated range"})
+            keys["all_in_focus"] = h({**common, "all_in_focus": source})
+        if self.depth:
+            for kind in ("depth", "confidence", "depth_preview"):
+                keys[kind] = h({**common, **depth_part, "kind": kind})
+        if self.viewer:
+            keys["viewer"] = h({**common, **depth_part, "kind": "viewer", "depth": self.depth})
+        return keys
+
+    def describe(self) -> dict:
+        """The settings as JSON-ready values (the calibration by name and content hash)."""
+        d = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "calibration"}
+        d["refocus_m"] = list(self.refocus_m)
+        if not self.viewer:  # keeps the keys of folders made before the viewer existed
+            del d["viewer"]
+        if isinstance(self.black_level, tuple):
+            d["black_level"] = list(self.black_level)
+        d["calibration_sha256"] = None
+        if self.calibration is not None:
+            blob = json.dumps(self.calibration.to_dict(), sort_keys=True, default=json_default).encode()
+            d["calibration_sha256"] = hashlib.sha256(blob).hexdigest()
+        return d
+
+    def legacy_key(self) -> str | None:
+        """:meth:`key` as lfring computed it before raw levels and the frame check were settings
+        (records of that time carry it), or None when those settings are not at their defaults."""
+        new = ("pattern", "black_level", "white_level", "check_frames", "depth_method")
+        if any(getattr(self, n) is not None for n in new[:3]) or not self.check_frames:
+            return None
+        if self.depth and self.depth_method != "local":  # that version's depth maps came from the local sweep
+            return None
+        d = {k: v for k, v in self.describe().items() if k not in new}
+        return hashlib.sha256(json.dumps(d, sort_keys=True, default=json_default).encode()).hexdigest()[:16]
+
+    def key(self) -> str:
+        """A short hash of everything that changes the outputs (computed once per instance)."""
+        k = self.__dict__.get("_key")
+        if k is None:
+            blob = json.dumps(self.describe(), sort_keys=True, default=json_default).encode()
+            k = hashlib.sha256(blob).hexdigest()[:16]
+            object.__setattr__(self, "_key", k)  # frozen: a memo, not a field
+        return k

@@ -1,0 +1,68 @@
+"""lfring.batch.discovery: files, folders and globs into jobs, what is not a frame, and output
+names that collide."""
+
+import shutil
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from batch_frames import copy_frame, load_calibration, render_frames
+
+from lfring.batch import BatchSettings, find_inputs, plan_jobs, run_batch
+from lfring.errors import InvalidInputError
+
+
+@pytest.fixture(scope="module")
+def frames(tmp_path_factory):
+    """Two rendered 4 x 4 binned frames of the twin (1228 x 921 px) and an optics calibration."""
+    return render_frames(tmp_path_factory.mktemp("render"))
+
+
+def test_inputs_outputs_and_names(frames, tmp_path):
+    d, cal_path = frames
+    root = tmp_path / "in"
+    copy_frame(d / "scene.png", root / "a.png")
+    shutil.copyfile(d / "scene.png", root / "a.tif")
+    (root / ".hidden.png").write_bytes(b"x")
+    (root / "notes.txt").write_text("not a frame")
+    settings = BatchSettings(refocus_m=(0.5,), calibration=load_calibration(cal_path))
+    jobs = find_inputs([str(root)])
+    assert sorted(Path(j.input).name for j in jobs) == ["a.png", "a.tif"]
+    with pytest.raises(InvalidInputError, match="would both write"):
+        plan_jobs(jobs, settings, tmp_path / "out")
+    assert [Path(j.input).name for j in find_inputs([str(root)], exclude=["*.tif"])] == ["a.png"]
+    assert [Path(j.input).name for j in find_inputs([str(root / "*.png")])] == ["a.png"]
+    with pytest.raises(InvalidInputError, match="matches no files"):
+        find_inputs([str(root / "*.dng")])
+    with pytest.raises(InvalidInputError, match="no such file"):
+        find_inputs([str(root / "missing.png")])
+    # An output folder inside the input folder: its files are never inputs, even on a rerun.
+    (root / "a.tif").unlink()
+    out = root / "results"
+    rep = run_batch([str(root)], out, settings, workers=1)
+    assert rep.done == [str(root / "a.png")]
+    rep = run_batch([str(root)], out, settings, workers=1)
+    assert rep.skipped == [str(root / "a.png")] and rep.done == []
+
+
+def test_scan_inputs_leaves_out_what_is_not_a_frame(tmp_path):
+    import tifffile
+
+    from lfring.batch import scan_inputs
+
+    root = tmp_path / "in"
+    (root / "x_truth").mkdir(parents=True)
+    cv2.imwrite(str(root / "a.png"), np.zeros((8, 10), np.uint16))
+    (root / "a.png.json").write_text("{}")
+    cv2.imwrite(str(root / "small.png"), np.zeros((4, 6), np.uint16))
+    tifffile.imwrite(root / "map.tiff", np.zeros((8, 10), np.float32))
+    (root / "x_truth" / "depth.tiff").write_bytes(b"")
+    (root / "broken.png").write_bytes(b"")  # unreadable: kept, its own error says why
+    jobs, skipped = scan_inputs([str(root)], frame_sizes={(10, 8)})
+    assert sorted(Path(j.input).name for j in jobs) == ["a.png", "broken.png"]
+    reasons = {Path(p).name: why for p, why in skipped}
+    assert reasons == {"x_truth": "a ground-truth folder", "a.png.json": "a sidecar or record (JSON)",
+                       "small.png": "6 x 4 px, a size no calibration fits", "map.tiff": "float samples (a map, not raw counts)"}
+    # A file named explicitly is always taken.
+    assert [Path(j.input).name for j in scan_inputs([str(root / "small.png")], frame_sizes={(10, 8)})[0]] == ["small.png"]

@@ -1,0 +1,46 @@
+"""lfring.batch.executors: a Dask cluster gives what the local executor gives, and says how to
+install it when it is missing."""
+
+import os
+import sys
+
+import pytest
+from batch_frames import copy_frame, load_calibration, render_frames
+
+from lfring.batch import BatchSettings, read_manifest, run_batch
+from lfring.errors import InvalidInputError
+
+
+@pytest.fixture(scope="module")
+def frames(tmp_path_factory):
+    """Two rendered 4 x 4 binned frames of the twin (1228 x 921 px) and an optics calibration."""
+    return render_frames(tmp_path_factory.mktemp("render"))
+
+
+def test_dask_cluster_on_loopback_matches_local(frames, tmp_path):
+    import distributed  # the README's install includes the dask extra
+    d, cal_path = frames
+    root = tmp_path / "in"
+    for i in range(4):
+        copy_frame(d / ("scene.png" if i % 2 else "part.png"), root / f"d{i}.png")
+    (root / "broken.png").write_bytes(b"\x89PNG\r\n\x1a\n")
+    settings = BatchSettings(refocus_m=(0.5,), calibration=load_calibration(cal_path))
+    local = run_batch([str(root)], tmp_path / "local", settings, workers=1)
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                  dashboard_address=":0") as cluster:
+        rep = run_batch([str(root)], tmp_path / "dask", settings, executor="dask", scheduler=cluster.scheduler_address)
+    assert rep.failed == [str(root / "broken.png")] == local.failed and len(rep.done) == 4
+    workers = {e.get("worker") for e in read_manifest(tmp_path / "dask" / "manifest.jsonl") if e["status"] == "done"}
+    assert os.getpid() not in {int(w.split(":")[1]) for w in workers}  # computed in the cluster's processes
+    for i in range(4):
+        a = (tmp_path / "local" / f"d{i}_refocus_0.5m.png").read_bytes()
+        assert (tmp_path / "dask" / f"d{i}_refocus_0.5m.png").read_bytes() == a
+
+
+def test_dask_missing_says_how_to_install(frames, tmp_path, monkeypatch):
+    d, cal_path = frames
+    monkeypatch.setitem(sys.modules, "distributed", None)
+    with pytest.raises(InvalidInputError, match=r"pip install"):
+        run_batch([str(d / "scene.png")], tmp_path / "o", BatchSettings(refocus_m=(0.5,), calibration=load_calibration(cal_path)),
+                  executor="dask")
+    assert not (tmp_path / "o" / "scene_refocus_0.5m.png").exists()

@@ -1,0 +1,78 @@
+"""lfring.batch.run: a whole folder with corrupt frames, then its resume; the progress bar."""
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+from batch_frames import (
+    CORRUPT,
+    N_FRAMES,
+    digest,
+    expected_refocus,
+    load_calibration,
+    make_folder,
+    render_frames,
+)
+
+from lfring.batch import BatchSettings, read_manifest, run_batch
+
+
+@pytest.fixture(scope="module")
+def frames(tmp_path_factory):
+    """Two rendered 4 x 4 binned frames of the twin (1228 x 921 px) and an optics calibration."""
+    return render_frames(tmp_path_factory.mktemp("render"))
+
+
+@pytest.fixture
+def folder(frames, tmp_path):
+    """50 frames in nested folders, 3 of them corrupt."""
+    d, _ = frames
+    return make_folder(d, tmp_path / "in")
+
+
+def test_fifty_frames_three_corrupt_then_resume(frames, folder, tmp_path):
+    d, cal_path = frames
+    root, good = folder
+    before = digest(root)
+    out = tmp_path / "out"
+    from lfring import RingCalibration
+
+    settings = BatchSettings(refocus_m=(0.5,), calibration=RingCalibration.load(cal_path), calibration_name="binned4")
+    rep = run_batch([str(root)], out, settings, workers=2)
+    # Exactly the three corrupt frames fail, by name; the 47 others are done.
+    assert sorted(rep.failed) == sorted(str(root / c) for c in CORRUPT)
+    assert len(rep.done) == N_FRAMES - 3 and rep.skipped == [] and rep.exit_code == 1
+    for c in CORRUPT:
+        assert str(root / c) in rep.errors[str(root / c)]  # the message names the file
+    # Outputs keep the folder structure, and are exactly what refocus gives.
+    for rel in good:
+        assert (out / rel.replace(".png", "_refocus_0.5m.png")).is_file()
+        rec = json.loads((out / rel.replace(".png", ".lfring.json")).read_text())
+        assert rec["status"] == "done" and rec["settings"]["refocus_m"] == [0.5]
+    img = cv2.cvtColor(cv2.imread(str(out / "sub/f21_refocus_0.5m.png")), cv2.COLOR_BGR2RGB)
+    np.testing.assert_array_equal(img, expected_refocus(d / "part.png", cal_path, 0.5))
+    # One manifest line per frame, with status, outputs and timings.
+    entries = read_manifest(out / "manifest.jsonl")
+    assert len(entries) == N_FRAMES
+    assert sorted(e["input"] for e in entries if e["status"] == "failed") == sorted(rep.failed)
+    assert all(e["timings_s"]["total"] > 0 for e in entries if e["status"] == "done")
+    assert not (out / ".lfring-tmp").exists() and not (out / ".lfring-batch.lock").exists()
+    # Inputs untouched.
+    assert digest(root) == before
+
+    # A rerun skips the 47 done (their files untouched) and tries the 3 corrupt ones again.
+    stamp = {p: p.stat().st_mtime_ns for p in out.rglob("*.png")}
+    rep2 = run_batch([str(root)], out, settings, workers=1)
+    assert len(rep2.skipped) == N_FRAMES - 3 and rep2.done == [] and sorted(rep2.failed) == sorted(rep.failed)
+    assert {p: p.stat().st_mtime_ns for p in out.rglob("*.png")} == stamp
+    assert len(read_manifest(out / "manifest.jsonl")) == 2 * N_FRAMES
+
+
+def test_progress_bar_shows_rate_and_eta(frames, tmp_path, capsys):
+    d, cal_path = frames
+    rep = run_batch([str(d / "scene.png"), str(d / "part.png")], tmp_path / "o",
+                    BatchSettings(refocus_m=(0.5,), calibration=load_calibration(cal_path)), workers=1, progress=True)
+    assert rep.exit_code == 0
+    err = capsys.readouterr().err
+    assert "lfring batch" in err and "2/2" in err and "frame/s" in err and "<00:00" in err
