@@ -16,7 +16,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from lfring.core.validate import check_int, is_integer
+from lfring.core.validate import check_choice, check_int, is_integer
 from lfring.errors import EstimationError, FileFormatError, InvalidInputError
 
 __all__ = ["Layout", "split_views", "read_views", "layout_from_circles", "grid_layout", "detect_layout", "DETECT_KINDS", "MIN_VIEWS",
@@ -422,8 +422,7 @@ def detect_layout(
     >>> float(np.abs(discs(layout) - discs(truth)).max()) < 0.2
     True
     """
-    if kind not in DETECT_KINDS:
-        raise InvalidInputError(f"kind must be one of {', '.join(DETECT_KINDS)}, got {kind!r}")
+    check_choice(kind, "kind", DETECT_KINDS)
     arr = np.asarray(image)
     if arr.ndim == 3:
         arr = arr.mean(axis=2)

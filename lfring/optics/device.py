@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from lfring._resources import calib_dir
-from lfring.core.validate import check_int, check_number, is_integer, is_number
+from lfring.core.validate import check_int, check_number, is_number
 from lfring.errors import DeviceError, LfringFileNotFoundError
 
 if sys.version_info >= (3, 11):
@@ -231,8 +231,7 @@ class RingDevice:
                 if not isinstance(value, str):
                     raise DeviceError(f"{source}: key '{key}' must be a string, got {value!r}")
             elif key.endswith("_px"):
-                if not is_integer(value):
-                    raise DeviceError(f"{source}: key '{key}' must be an integer, got {value!r}")
+                check_int(value, f"{source}: key '{key}'", error=DeviceError)
             elif not is_number(value):
                 raise DeviceError(
                     f"{source}: key '{key}' must be a number in metres, got {value!r}"

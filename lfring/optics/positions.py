@@ -311,8 +311,8 @@ def design(device: RingDevice, *, object_size_m: float, distance_m: float, metho
     distance_m : float
         Object distance Z in front of the main lens, metres; must exceed the focal length.
     method : {'fit-sensor', 'max-magnification'}
-        ``'max-magnification'`` (paper Sec. 4.1): G = hs / (4 h0) and
-        b = FL (Fml/G + Z)/(Z - FL) + Fml. ``'fit-sensor'`` (Sec. 4.2): the top of the upper
+        ``'max-magnification'`` (the source paper's first design): G = hs / (4 h0) and
+        b = FL (Fml/G + Z)/(Z - FL) + Fml. ``'fit-sensor'`` (its second): the top of the upper
         image at the sensor edge, hml + c (hml + h1)/b2 = hs/2 with c = b2 Fml/(b2 - Fml).
 
     Returns
@@ -351,7 +351,7 @@ def sweep(
     method: str = "fit-sensor",
     fixed: bool = False,
 ) -> Sweep:
-    """Design numbers over distances and/or object sizes (paper Figs. 7-9).
+    """Design numbers over distances and/or object sizes (the source paper's design curves).
 
     With ``fixed=False`` the positions are redesigned at every point with ``method``; with
     ``fixed=True`` the device's own b and c are kept and only the imaging numbers change.

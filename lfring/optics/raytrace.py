@@ -1,11 +1,11 @@
 """2D meridional ray tracer of the ring camera through thin lenses with finite apertures.
 
 The tracer works in the meridional plane (y, z) that holds the optical axis and the centres of two
-of the four mini-lenses. **y points up** (as in the paper's Fig. 4), z runs from the object to the
-sensor, the main lens L sits at z = 0, the ring at z = b and the sensor at z = b + c. The two
-mini-lenses of the plane are lens ``a`` (index 0, ``UPPER``) centred at y = +hml and lens ``b``
-(index 1, ``LOWER``) at y = -hml, both of radius Rml. The object is the segment
--h0 <= y <= +h0 at z = -Z.
+of the four mini-lenses. **y points up** (as in the source paper's ray diagram), z runs from the
+object to the sensor, the main lens L sits at z = 0, the ring at z = b and the sensor at
+z = b + c. The two mini-lenses of the plane are lens ``a`` (index 0, ``UPPER``) centred at
+y = +hml and lens ``b`` (index 1, ``LOWER``) at y = -hml, both of radius Rml. The object is the
+segment -h0 <= y <= +h0 at z = -Z.
 
 This differs from the sensor frame of :mod:`lfring.optics.paraxial`, where y points *down*: a
 height here is minus the sensor y of that module for the column of views through lenses a and b.
@@ -235,7 +235,7 @@ def trace(
         optical axis.
     rays_per_point : int, default 21
         Rays per source point whose heights at the main lens are evenly spread over
-        ``[-fan_radius_m, +fan_radius_m]``: the fan of the paper's Fig. 4, most of which misses
+        ``[-fan_radius_m, +fan_radius_m]``: the fan of the source paper's ray diagram, most of which misses
         the ring. May be 0.
     rays_per_lens : int, default 7
         Further rays per source point and mini-lens, aimed so that their heights at the ring are
