@@ -16,6 +16,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from lfring.core.validate import check_choice, check_int, is_integer
 from lfring.errors import EstimationError, FileFormatError, InvalidInputError
 
 __all__ = ["Layout", "split_views", "read_views", "layout_from_circles", "grid_layout", "detect_layout", "DETECT_KINDS", "MIN_VIEWS",
@@ -56,9 +57,7 @@ class Layout:
 
     def __post_init__(self) -> None:
         for key in ("raw_width_px", "raw_height_px"):
-            v = getattr(self, key)
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
-                raise InvalidInputError(f"layout {key} must be a positive integer, got {v!r}")
+            check_int(getattr(self, key), f"layout {key}", minimum=1)
         rects = tuple(tuple(int(x) for x in r) for r in self.rects)
         if not rects or any(len(r) != 4 for r in rects):
             raise InvalidInputError(f"layout rects must be a non-empty list of (x, y, w, h), got {self.rects!r}")
@@ -342,7 +341,7 @@ def grid_layout(view_shape: tuple[int, int], grid_positions) -> Layout:
     ((0, 0, 6, 4), (6, 0, 6, 4), (0, 4, 6, 4))
     """
     shape = tuple(view_shape) if isinstance(view_shape, (tuple, list)) else ()
-    if len(shape) != 2 or any(isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1 for v in shape):
+    if len(shape) != 2 or any(not is_integer(v) or v < 1 for v in shape):
         raise InvalidInputError(f"view_shape must be (h, w), two positive integers, got {view_shape!r}")
     h, w = (int(v) for v in shape)
     try:
@@ -423,8 +422,7 @@ def detect_layout(
     >>> float(np.abs(discs(layout) - discs(truth)).max()) < 0.2
     True
     """
-    if kind not in DETECT_KINDS:
-        raise InvalidInputError(f"kind must be one of {', '.join(DETECT_KINDS)}, got {kind!r}")
+    check_choice(kind, "kind", DETECT_KINDS)
     arr = np.asarray(image)
     if arr.ndim == 3:
         arr = arr.mean(axis=2)

@@ -1,4 +1,4 @@
-"""The variable-homography model H_k(Z) = A_k + B_k / (Z - z0) (SPEC 4) and its fit.
+"""The variable-homography model H_k(Z) = A_k + B_k / (Z - z0) of the source paper, and its fit.
 
 For a plane at distance Z the homography that maps view k onto the reference view is affine in
 1 / (Z - z0) when the views' projection centres lie in one plane parallel to the target, at
@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import minimize_scalar
 
+from lfring.core.validate import check_view_index
 from lfring.errors import EstimationError, InvalidInputError
 from lfring.core.geometry import homography_rms_px, normalize_homographies
 
@@ -131,8 +132,7 @@ def fit_variable_homography(
     if hs.ndim != 4 or hs.shape[2:] != (3, 3) or not np.all(np.isfinite(hs)):
         raise InvalidInputError(f"each plane needs finite (V, 3, 3) homographies, got shape {hs.shape[1:]}")
     hs = normalize_homographies(hs)
-    if not (isinstance(reference, (int, np.integer)) and 0 <= reference < hs.shape[1]):
-        raise InvalidInputError(f"reference must be a view index 0..{hs.shape[1] - 1}, got {reference!r}")
+    reference = check_view_index(reference, "reference", hs.shape[1])
 
     if depth_origin_m is None:
         if len(depths) < 3:

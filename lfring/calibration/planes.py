@@ -1,5 +1,5 @@
 """Per-plane homographies: align every view of one photograph of a textured planar target onto
-a reference view (SPEC 4, first step of the variable-homography calibration).
+a reference view (the first step of the variable-homography calibration).
 
 The default method needs no features. Each view is brought to a common brightness scale
 (divided by a flat field when one is given), a phase correlation of high-passed, windowed copies
@@ -20,6 +20,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from lfring.core.registry import Registry
+from lfring.core.validate import check_choice, check_int, check_number, check_view_index
 from lfring.errors import EstimationError, InvalidInputError
 from lfring.core.records import record_repr
 
@@ -31,7 +33,6 @@ __all__ = [
     "phase_correlation_translations",
 ]
 
-METHODS = ("ecc", "sift")
 MODELS = ("homography", "affine", "translation")
 
 _ECC_MOTION = {"homography": cv2.MOTION_HOMOGRAPHY, "affine": cv2.MOTION_AFFINE, "translation": cv2.MOTION_TRANSLATION}
@@ -53,8 +54,8 @@ _MIN_RESPONSE = 0.05
 #: the ECC estimate may move the overlap's centre at most this far from the phase correlation.
 _MAX_ECC_DRIFT_PX = 5.0
 #: ECC's Gaussian prefilter (kernel size, px). Wider than OpenCV's default 5: bilinear
-#: resampling shifts fine detail by up to 0.006 px at quarter-pixel offsets on sharp targets,
-#: and smoothing weights the low frequencies, where it is exact (measured: 0.004 px at 9).
+#: resampling shifts fine detail at sub-pixel offsets on sharp targets, and smoothing weights
+#: the low frequencies, where it is exact (the wider kernel measured the smaller error).
 _ECC_SMOOTHING = 9
 #: default margins inside the valid disc, as fractions of its inscribed radius: the disc's rim
 #: falls off over about a fifth of the radius on the twin and is kept out of the alignment
@@ -181,10 +182,9 @@ def estimate_plane_homographies(
     over a Gaussian window w (T_w is view k warped by the current H) and aligns ``I / G``. At
     the true H, ``I / G`` is exactly ``T_w``, so the pass does not move a correct estimate.
 
-    On the twin of the prototype (2 x 2 binned, 704 px views, realistic noise) the error of each
-    view's homography is 0.003 to 0.010 px RMS over the view between 0.3 and 2 m with a flat
-    field, 0.005 to 0.012 px without; SIFT, 0.01 to 0.05 px. A plane of four views takes about
-    0.5 s (ECC) or 1 s (SIFT) on two cores.
+    On the synthetic twin of the prototype (binned, with realistic noise) each view's homography
+    is accurate to a small fraction of a pixel over the working range, a little better with a
+    flat field than without; SIFT is several times less accurate and slower than ECC.
 
     Examples
     --------
@@ -198,10 +198,8 @@ def estimate_plane_homographies(
     >>> bool(homography_rms_px(est.H_ref_from_view, r.homographies(1.0, reference=0), r.layout.view_shape).max() < 0.05)
     True
     """
-    if not isinstance(method, str) or method not in METHODS:
-        raise InvalidInputError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
-    if not isinstance(model, str) or model not in MODELS:
-        raise InvalidInputError(f"model must be one of {', '.join(MODELS)}, got {model!r}")
+    align = METHODS.lookup(method)
+    check_choice(model, "model", MODELS)
     lum, valid, ref = _prepare(views, masks, flat_views, reference)
     num, h, w = lum.shape
     levels = _check_levels(pyramid_levels, h, w)
@@ -230,10 +228,7 @@ def estimate_plane_homographies(
             continue
         h0 = np.eye(3)
         h0[:2, 2] = shifts[k]
-        if method == "ecc":
-            H[k], corr[k], residual[k] = _align_ecc(lum[k], lum[ref], inner[k], inner[ref], h0, model, levels, k, ref)
-        else:
-            H[k], corr[k], residual[k] = _align_sift(lum[k], lum[ref], inner[k], inner[ref], h0, model, k, ref)
+        H[k], corr[k], residual[k] = align(lum[k], lum[ref], inner[k], inner[ref], h0, model, levels, k, ref)
     return PlaneHomographies(
         H_ref_from_view=H, reference=ref, residual_px=residual, correlation=corr,
         init_translation_px=shifts, method=method, model=model,
@@ -257,8 +252,8 @@ def phase_correlation_translations(views, *, reference: int = 0, masks=None, fla
     Each luminance image is divided by its local mean (a Gaussian of 6 px over the valid
     pixels) to remove vignetting and exposure, then multiplied by a window that rises smoothly
     from 0 at the margin to 1 at twice the margin inside the valid region, so that the discs'
-    edges, which sit at the same place in every view, add no peak at zero shift. Accuracy on the
-    twin: 0.3 px or better at full resolution.
+    edges, which sit at the same place in every view, add no peak at zero shift. On the twin it
+    lands within a fraction of a pixel at full resolution, inside ECC's basin.
     """
     lum, valid, ref = _prepare(views, masks, flat_views, reference)
     margin = _margin(valid, margin_px, flat_views is not None)
@@ -300,11 +295,8 @@ def _prepare(views, masks, flat_views, reference):
         raise InvalidInputError(f"need two or more views to align, got {num}")
     if min(h, w) < 32:
         raise InvalidInputError(f"views must be at least 32 x 32 px, got {w} x {h}")
-    if isinstance(reference, bool) or not isinstance(reference, (int, np.integer)) or not 0 <= reference < num:
-        raise InvalidInputError(
-            f"reference must be a view index 0..{num - 1}, got {reference!r} (for the virtual center view, "
-            "re-express the result with lfring.core.geometry.to_reference)"
-        )
+    check_view_index(reference, "reference", num, hint=" (for the virtual center view, re-express the result with "
+                                                        "lfring.core.geometry.to_reference)")
     if masks is None:
         valid = np.ones((num, h, w), dtype=bool)
     else:
@@ -317,8 +309,8 @@ def _prepare(views, masks, flat_views, reference):
     lum = v.mean(axis=3, dtype=np.float32)
     brightest = v.max(axis=3)
     # Partly clipped views are used whole: the clipped highlights sit at (nearly) the same
-    # target points in every view and still align (25% clipped costs nothing measurable), while
-    # cutting them out of the masks riddles the masks with holes, which throws ECC off by 0.3 px.
+    # target points in every view and still align (partial clipping measured harmless), while
+    # cutting them out of the masks riddles the masks with holes, which measurably throws ECC off.
     for k in range(num):
         n = int(valid[k].sum())
         if n == 0:
@@ -364,8 +356,7 @@ def _check_levels(levels, h: int, w: int) -> int:
         while min(h, w) / 2**n >= 128:
             n += 1
         return n
-    if isinstance(levels, bool) or not isinstance(levels, (int, np.integer)) or levels < 1:
-        raise InvalidInputError(f"pyramid_levels must be an integer >= 1, got {levels!r}")
+    check_int(levels, "pyramid_levels", minimum=1)
     if min(h, w) / 2 ** (levels - 1) < 16:
         raise InvalidInputError(
             f"pyramid_levels={levels} would shrink the {w} x {h} px views below 16 px; use at most "
@@ -376,9 +367,7 @@ def _check_levels(levels, h: int, w: int) -> int:
 
 def _margin(valid: np.ndarray, margin_px, have_flat: bool) -> float:
     if margin_px is not None:
-        if isinstance(margin_px, bool) or not np.isfinite(margin_px) or margin_px < 0:
-            raise InvalidInputError(f"margin_px must be a number >= 0, got {margin_px!r}")
-        return float(margin_px)
+        return check_number(margin_px, "margin_px", minimum=0.0)
     # The inscribed radius of the smallest valid region (the disc's radius for the ring).
     radius = min(float(cv2.distanceTransform(np.pad(m, 1).view(np.uint8), cv2.DIST_L2, 5).max()) for m in valid)
     return (_MARGIN_FLAT if have_flat else _MARGIN_NO_FLAT) * radius
@@ -608,7 +597,10 @@ def _to_u8(img: np.ndarray, mask: np.ndarray) -> np.ndarray:
     return np.clip((img - lo) * (255.0 / (hi - lo)), 0, 255).astype(np.uint8)
 
 
-def _align_sift(tmpl, image, t_mask, i_mask, h0, model, view, ref):
+def _align_sift(tmpl, image, t_mask, i_mask, h0, model, levels, view, ref):
+    """SIFT matches of view ``tmpl`` onto reference ``image`` gated by the phase correlation, then
+    RANSAC and least squares; at full resolution (``levels`` is ECC's alone). Returns
+    (H_ref_from_view, inlier fraction, residual_px)."""
     sift = cv2.SIFT_create(nfeatures=_SIFT_MAX_FEATURES)
     kt, dt = sift.detectAndCompute(_to_u8(tmpl, t_mask), _mask_u8(t_mask))
     ki, di = sift.detectAndCompute(_to_u8(image, i_mask), _mask_u8(i_mask))
@@ -676,3 +668,11 @@ def _align_sift(tmpl, image, t_mask, i_mask, h0, model, view, ref):
     residual = float(np.sqrt(np.mean(np.sum(err * err, axis=1))))
     _check_drift(H, h0, t_mask, view, ref)
     return H, float(keep.sum() / len(src)), residual
+
+
+#: The alignment methods by name, each ``(view, reference, view mask, reference mask, initial H,
+#: model, pyramid levels, view index, reference index) -> (H_ref_from_view, correlation,
+#: residual_px)``.
+METHODS = Registry("method")
+METHODS.register("ecc", _align_ecc)
+METHODS.register("sift", _align_sift)

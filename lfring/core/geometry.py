@@ -11,6 +11,7 @@ import math
 
 import numpy as np
 
+from lfring.core.validate import check_view_index
 from lfring.errors import InvalidInputError
 
 __all__ = ["normalize_homographies", "to_reference", "check_reference", "apply_homography", "homography_rms_px"]
@@ -26,16 +27,9 @@ def normalize_homographies(h: np.ndarray) -> np.ndarray:
 
 def check_reference(reference, num_views: int):
     """Validate a reference: 'center' or a view index in [0, num_views)."""
-    if isinstance(reference, str):
-        if reference == "center":
-            return reference
-        if reference.isdigit():
-            reference = int(reference)
-        else:
-            raise InvalidInputError(f"reference must be 'center' or a view index 0..{num_views - 1}, got {reference!r}")
-    if isinstance(reference, bool) or not isinstance(reference, (int, np.integer)) or not 0 <= reference < num_views:
-        raise InvalidInputError(f"reference must be 'center' or a view index 0..{num_views - 1}, got {reference!r}")
-    return int(reference)
+    if isinstance(reference, str) and reference.isdigit():  # a view index typed on a command line
+        reference = int(reference)
+    return check_view_index(reference, "reference", num_views, allow_center=True)
 
 
 def to_reference(H_r_from_view: np.ndarray, reference) -> np.ndarray:
@@ -48,7 +42,7 @@ def to_reference(H_r_from_view: np.ndarray, reference) -> np.ndarray:
     reference : 'center' or int
         A view index j gives ``H_j_from_k = inv(H_r_from_j) @ H_r_from_k``. ``'center'`` gives the
         virtual central view: with ``M = mean_k H_r_from_k`` (each normalised),
-        ``H_center_from_k = inv(M) @ H_r_from_k`` (SPEC 4); for pure translations this is the
+        ``H_center_from_k = inv(M) @ H_r_from_k`` (the source paper's central view); for pure translations this is the
         translation minus its mean.
 
     Returns

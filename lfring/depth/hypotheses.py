@@ -1,7 +1,7 @@
 """Depth hypotheses: depths evenly spaced in disparity, and how far views move between them.
 
 A ring's views of a fronto-parallel plane at depth Z differ by maps that are affine in
-1/(Z - z0) (SPEC 3), so hypotheses evenly spaced in 1/(Z - z0) are evenly spaced in disparity:
+1/(Z - z0) (the variable-homography model), so hypotheses evenly spaced in 1/(Z - z0) are evenly spaced in disparity:
 a sweep over them samples every pixel's cost curve at a constant step.
 """
 
@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from lfring.core.validate import check_int, check_number
 from lfring.errors import InvalidInputError
 from lfring.core.geometry import apply_homography
 
@@ -31,8 +32,7 @@ def depth_hypotheses(calibration, zmin_m: float, zmax_m: float, *, num=None, max
     by default close enough that no view moves more than ``max_step_px`` between neighbours."""
     z0 = calibration.depth_origin_m
     for name, v in (("zmin_m", zmin_m), ("zmax_m", zmax_m)):
-        if isinstance(v, bool) or not (isinstance(v, (int, float, np.integer, np.floating)) and np.isfinite(v) and v > 0):
-            raise InvalidInputError(f"{name} must be a positive number of metres, got {v!r}")
+        check_number(v, name, above=0.0, what="a distance in metres")
     if not zmin_m < zmax_m:
         raise InvalidInputError(f"zmin_m ({zmin_m}) must be smaller than zmax_m ({zmax_m})")
     if zmin_m <= z0:
@@ -40,7 +40,6 @@ def depth_hypotheses(calibration, zmin_m: float, zmax_m: float, *, num=None, max
     if num is None:
         move = view_motion_px(calibration, [zmin_m, zmax_m], calibration.layout.view_shape)
         num = max(2, int(np.ceil(move / max_step_px)) + 1)
-    if isinstance(num, bool) or not isinstance(num, (int, np.integer)) or num < 2:
-        raise InvalidInputError(f"the number of depths must be an integer >= 2, got {num!r}")
+    check_int(num, "the number of depths", minimum=2)
     inv = np.linspace(1.0 / (zmin_m - z0), 1.0 / (zmax_m - z0), int(num))
     return z0 + 1.0 / inv

@@ -7,12 +7,12 @@ Every writer is atomic (a killed run leaves no partial file) and raises the erro
 from __future__ import annotations
 
 import io
-import numbers
 import re
 from pathlib import Path
 
 import numpy as np
 
+from lfring.core.validate import check_number, check_view_index
 from lfring.errors import FileFormatError, InvalidInputError, LfringFileNotFoundError
 from lfring.io.atomic import atomic_write_bytes
 from lfring.io.writers import write_float_tiff
@@ -139,8 +139,7 @@ def _colour_table(cmap: str) -> np.ndarray:
 
 def _shown(z: np.ndarray, confidence, min_confidence) -> np.ndarray:
     """Pixels with a finite depth and, when given, confidence >= min_confidence."""
-    if isinstance(min_confidence, bool) or not isinstance(min_confidence, numbers.Real) or not np.isfinite(min_confidence):
-        raise InvalidInputError(f"min_confidence must be a finite number, got {min_confidence!r}")
+    check_number(min_confidence, "min_confidence")
     shown = np.isfinite(z)
     if confidence is not None:
         c = _float_map(confidence, "confidence")
@@ -153,8 +152,7 @@ def _shown(z: np.ndarray, confidence, min_confidence) -> np.ndarray:
 
 def _depth_range(z_shown: np.ndarray, zmin_m, zmax_m) -> tuple[float, float]:
     for name, v in (("zmin_m", zmin_m), ("zmax_m", zmax_m)):
-        if v is not None and (isinstance(v, bool) or not isinstance(v, numbers.Real) or not np.isfinite(v)):
-            raise InvalidInputError(f"{name} must be a finite number of metres or None, got {v!r}")
+        check_number(v, name, allow_none=True, what="a finite number of metres")
     if zmin_m is not None and zmax_m is not None and not zmin_m < zmax_m:
         raise InvalidInputError(f"zmin_m must be less than zmax_m, got {zmin_m} and {zmax_m}")
     lo, hi = np.percentile(z_shown, [1.0, 99.0]) if z_shown.size else (0.0, 1.0)
@@ -346,10 +344,7 @@ def depth_to_points(
         raise InvalidInputError(f"device must be a RingDevice, got {type(device).__name__}")
     if not isinstance(layout, Layout):
         raise InvalidInputError(f"layout must be a lfring.views.Layout, got {type(layout).__name__}")
-    if view != "center" and (
-        isinstance(view, bool) or not isinstance(view, numbers.Integral) or not 0 <= view < layout.num_views
-    ):
-        raise InvalidInputError(f"view must be 'center' or a view index 0..{layout.num_views - 1}, got {view!r}")
+    check_view_index(view, "view", layout.num_views, allow_center=True)
     if (device.sensor_width_px, device.sensor_height_px) != (layout.raw_width_px, layout.raw_height_px):
         raise InvalidInputError(
             f"device '{device.name}' has a {device.sensor_width_px} x {device.sensor_height_px} px sensor but the layout "

@@ -19,10 +19,9 @@ between neighbouring views of its 9 x 9 grid; here they are between two views of
 
 from __future__ import annotations
 
-import numbers
-
 import numpy as np
 
+from lfring.core.validate import check_number, check_view_index
 from lfring.errors import InvalidInputError
 
 __all__ = [
@@ -74,12 +73,6 @@ def _finite_pairs(e: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     return e[ok], t[ok]
 
 
-def _check_view(view, num_views: int, name: str) -> int:
-    if isinstance(view, bool) or not isinstance(view, numbers.Integral) or not 0 <= view < num_views:
-        raise InvalidInputError(f"{name} must be a view index 0..{num_views - 1}, got {view!r}")
-    return int(view)
-
-
 # -- metrics -----------------------------------------------------------------------------------
 def badpix(estimate, truth, tau: float, mask=None) -> float:
     """Fraction of evaluated pixels whose error exceeds ``tau`` (HCI BadPix, as a fraction).
@@ -107,8 +100,7 @@ def badpix(estimate, truth, tau: float, mask=None) -> float:
     >>> badpix(np.array([1.0, 2.0, np.nan, 4.0]), np.array([1.0, 2.5, 3.0, 4.05]), 0.07)
     0.5
     """
-    if isinstance(tau, bool) or not isinstance(tau, numbers.Real) or not (np.isfinite(tau) and tau > 0):
-        raise InvalidInputError(f"tau must be a positive number of pixels, got {tau!r}")
+    check_number(tau, "tau", above=0.0, what="a positive number of pixels")
     e, t = _evaluated(estimate, truth, mask)
     with np.errstate(invalid="ignore"):
         good = np.abs(e - t) <= tau  # NaN compares False: a missing estimate is bad
@@ -223,8 +215,8 @@ def depth_to_disparity_px(depth_m, calibration, view_a: int = 0, view_b: int = 1
     """
     model = _model_of(calibration)
     v = model.A.shape[0]
-    a = _check_view(view_a, v, "view_a")
-    b = _check_view(view_b, v, "view_b")
+    a = check_view_index(view_a, "view_a", v)
+    b = check_view_index(view_b, "view_b", v)
     if a == b:
         raise InvalidInputError(f"view_a and view_b must be two different views, got {a} twice")
     z = _float_array(depth_m, "depth_m").astype(np.float64)

@@ -23,6 +23,7 @@ import math
 import cv2
 import numpy as np
 
+from lfring.core.validate import check_int, check_number
 from lfring.errors import InvalidInputError
 
 __all__ = ["MIN_CONFIDENCE", "fill_from_farther_side", "refine_index"]
@@ -111,8 +112,8 @@ def refine_index(index, confidence, guide, *, min_confidence: float = MIN_CONFID
     filled : (h, w) float32
         ``refined`` where known; at holes ``FGS(w d) / FGS(w)`` with w = confidence at known
         pixels and 0 at holes; NaN where that weight vanishes (below 1e-6: strong edges of the
-        guide cut the hole off from every known pixel; a nearest-value fill there measured
-        25 ms on the twin's 704 px frame) and where no pixel at all is known.
+        guide cut the hole off from every known pixel; a nearest-value fill there was measured
+        and judged not worth its time) and where no pixel at all is known.
 
     Notes
     -----
@@ -144,14 +145,10 @@ def refine_index(index, confidence, guide, *, min_confidence: float = MIN_CONFID
     if c.shape != d.shape:
         raise InvalidInputError(f"confidence must have the index's shape {d.shape}, got {c.shape}")
     g8 = _guide8(guide, d.shape)
-    for name, v in (("min_confidence", min_confidence), ("sigma", sigma), ("fill_lambda", fill_lambda),
-                    ("fill_sigma", fill_sigma)):
-        if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)) or not math.isfinite(float(v)) \
-                or v < 0 or (name == "min_confidence" and v > 1):
-            raise InvalidInputError(f"{name} must be a finite number >= 0{' and <= 1' if name == 'min_confidence' else ''}, "
-                                    f"got {v!r}")
-    if isinstance(radius_px, bool) or not isinstance(radius_px, (int, np.integer)) or radius_px < 1:
-        raise InvalidInputError(f"radius_px must be a positive integer, got {radius_px!r}")
+    check_number(min_confidence, "min_confidence", minimum=0.0, maximum=1.0)
+    for name, v in (("sigma", sigma), ("fill_lambda", fill_lambda), ("fill_sigma", fill_sigma)):
+        check_number(v, name, minimum=0.0)
+    check_int(radius_px, "radius_px", minimum=1)
     radius_px = min(int(radius_px), max(d.shape))  # a wider window covers the same pixels
     d = d.astype(np.float32)
     known = np.isfinite(d) & np.isfinite(c) & (c >= min_confidence)
@@ -204,8 +201,7 @@ def fill_from_farther_side(index, holes, *, axis: int = 1) -> np.ndarray:
     holes = np.asarray(holes)
     if holes.shape != d.shape or holes.dtype != bool:
         raise InvalidInputError(f"holes must be a bool map of the index's shape {d.shape}, got {holes.dtype} {holes.shape}")
-    if isinstance(axis, bool) or not isinstance(axis, (int, np.integer)) or axis not in (0, 1):
-        raise InvalidInputError(f"axis must be 0 (columns) or 1 (rows), got {axis!r}")
+    check_int(axis, "axis", minimum=0, maximum=1, hint=" (0 along columns, 1 along rows)")
     v = np.asarray(d, np.float32)
     if axis == 0:
         v, holes = v.T, holes.T

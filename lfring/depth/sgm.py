@@ -19,7 +19,7 @@ a hole-filled one.
 
 The kernels (:mod:`lfring.depth.sgm_kernels`) are compiled with numba on first use (importing
 lfring imports neither numba nor compiles anything): the very first call pays the compile time
-(about 15 s), and numba's on-disk cache serves every later process (a fraction of a second).
+(many seconds), and numba's on-disk cache serves every later process in a fraction of that.
 :func:`sgm_aggregate_torch` is the torch twin of :func:`sgm_aggregate` (one line of a path per step).
 """
 
@@ -33,7 +33,7 @@ import numpy as np
 from lfring.errors import InvalidInputError
 from lfring.core.backend import require_torch, resolve_device
 from lfring.core.threads import numba_threads
-from lfring.core.validate import check_threads
+from lfring.core.validate import check_int, check_number, check_threads, is_integer
 
 __all__ = [
     "PATHS",
@@ -60,17 +60,17 @@ PATHS = {
 }
 # Default penalties, in units of the cost volume's own scale (see cost_scale): the penalties then
 # follow the cost function (LCN variance, absolute differences, census) without retuning. Tuned
-# on Middlebury 2003 Teddy and Cones with one pixel of motion per hypothesis (lfring's spacing):
-# census and locally normalised absolute differences both measured best near p1 = 1, p2 = 8.
+# on real stereo pairs with one pixel of motion per hypothesis (lfring's spacing): census and
+# locally normalised absolute differences both did best near these values.
 P1_SCALE = 1.0
 P2_SCALE = 8.0
-# Guide-luminance step (guide in [0, 1]) that halves p2: P2_eff = p2 / (1 + |dI| / s). On Middlebury
-# 0.04 to 0.1 beat no edge awareness by 0.5 to 1 point of bad 1 px.
+# Guide-luminance step (guide in [0, 1]) that halves p2: P2_eff = p2 / (1 + |dI| / s). On real
+# stereo pairs steps from 0.04 to 0.1 measured better than no edge awareness.
 EDGE_SCALE = 0.04
 # Lines (columns or diagonals) per parallel task of the vertical and diagonal paths: the lines
 # split into LINE_TASKS_PER_THREAD blocks per thread, of at least MIN_LINE_BLOCK lines. Longer
-# blocks make longer vector loops: the two vertical paths of the twin's 704 x 704 x 11 volume on
-# 2 threads took 44 ms in blocks of 64 lines and 26 ms in blocks of 176, the same numbers.
+# blocks make longer vector loops: the vertical paths ran markedly faster in longer blocks, with
+# the same numbers.
 MIN_LINE_BLOCK = 64
 LINE_TASKS_PER_THREAD = 2
 
@@ -133,13 +133,8 @@ def check_guide(guide, shape) -> np.ndarray:
 
 def check_penalty(value, name, *, allow_zero=True) -> float:
     """A penalty or scale as a float: finite, >= 0 (> 0 unless ``allow_zero``), a real number."""
-    if isinstance(value, (bool, str, bytes)) or np.ndim(value) != 0:
-        raise InvalidInputError(f"{name} must be a number, got {value!r}")
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise InvalidInputError(f"{name} must be a number, got {value!r}") from None
-    if not math.isfinite(v) or v < 0 or (v == 0 and not allow_zero):
+    v = check_number(value, name)
+    if v < 0 or (v == 0 and not allow_zero):
         raise InvalidInputError(f"{name} must be {'>= 0' if allow_zero else '> 0'} and finite, got {value!r}")
     return v
 
@@ -151,7 +146,7 @@ def check_penalty(value, name, *, allow_zero=True) -> float:
 
 def check_paths(paths) -> int:
     """``paths`` as one of :data:`PATHS`' keys (an integer, 4 or 8)."""
-    if isinstance(paths, bool) or not isinstance(paths, (int, np.integer)) or int(paths) not in PATHS:
+    if not is_integer(paths) or int(paths) not in PATHS:
         raise InvalidInputError(f"paths must be one of {sorted(PATHS)}, got {paths!r}")
     return int(paths)
 
@@ -251,12 +246,11 @@ def sgm_aggregate(cost, *, guide=None, p1: float | None = None, p2: float | None
 
     Memory: the result (N, h, w) float32 is the only volume allocated (the input is read, not
     copied, when it is C-contiguous float32); the horizontal paths keep two (w, N) float32
-    rows per task (one image row), the others two (N, B) buffers per task of B lines (a quarter
-    of the lines on two threads, at least 64: 265 for 1060 columns, 0.26 MiB at 128 hypotheses).
-    For 1060 x 1060 pixels the result is 288 MB for 64 hypotheses and 575 MB for 128 (plus the
-    caller's cost volume of the same size); a uint16 accumulator would halve it but needs
-    integer costs and saturating sums, not worth the loss of the float cost's resolution. Time
-    grows as paths * N * h * w.
+    rows per task (one image row), the others two (N, B) buffers per task of B lines (the lines
+    split into ``LINE_TASKS_PER_THREAD`` blocks per thread, at least ``MIN_LINE_BLOCK`` lines).
+    The result takes 4 N h w bytes (plus the caller's cost volume of the same size); a uint16
+    accumulator would halve it but needs integer costs and saturating sums, not worth the loss
+    of the float cost's resolution. Time grows as paths * N * h * w.
 
     Examples
     --------
@@ -334,13 +328,12 @@ def select(aggregated, raw=None, *, exclude: int = 1, threads: int | None = None
     + c_+))`` when the curvature is positive, else 0. At the first or last hypothesis the parabola
     goes through it and the next two inwards, and delta is its vertex clamped to [0, 0.5] inwards
     (0 unless it curves up): a surface just inside the range's end would otherwise come out at the
-    end (twin hard scene, textured pixels, BadPix 0.3 px: 8.5 % -> 0.05 %).
+    end, as it did on the synthetic twin's textured surfaces.
     The aggregated curve is piecewise smooth in P1 steps around its minimum and biases delta
     towards 0 ("pixel locking"); the raw curve keeps the sub-hypothesis information but is noisy.
-    Measured: on the slanted plane of tests/depth/test_sgm.py both give 0.023-0.024 hypothesis RMS;
-    on Middlebury 2003 Teddy and Cones (census cost, 4 paths) the aggregated fit gives 0.4-0.7
-    points fewer pixels off by more than 1 px before the left-right check and within 0.3 points
-    after it; hence the default fits the aggregated curve.
+    On a slanted plane both fits are about equally accurate; on real stereo pairs the aggregated
+    fit measured slightly better before a left-right check and as good after it; hence the
+    default fits the aggregated curve.
     """
     agg = _check_cost(aggregated, "aggregated")
     threads = check_threads(threads)
@@ -351,8 +344,7 @@ def select(aggregated, raw=None, *, exclude: int = 1, threads: int | None = None
             raise InvalidInputError(f"raw must have the aggregated volume's shape {agg.shape}, got {r.shape}")
     else:
         r = np.zeros((1, 1, 1), np.float32)
-    if isinstance(exclude, bool) or not isinstance(exclude, (int, np.integer)) or exclude < 0:
-        raise InvalidInputError(f"exclude must be an integer >= 0, got {exclude!r}")
+    check_int(exclude, "exclude", minimum=0)
     index = np.empty((h, w), np.float32)
     conf = np.empty((h, w), np.float32)
     if raw_distinctness and raw is None:
@@ -459,8 +451,7 @@ def sparsification_auc(error, confidence, *, mask=None, steps: int = 20) -> Spar
     c = np.asarray(confidence, np.float64)
     if e.shape != c.shape:
         raise InvalidInputError(f"error and confidence must have one shape, got {e.shape} and {c.shape}")
-    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
-        raise InvalidInputError(f"steps must be a positive integer, got {steps!r}")
+    check_int(steps, "steps", minimum=1)
     keep = np.isfinite(e)
     if mask is not None:
         m = np.asarray(mask, bool)

@@ -147,9 +147,7 @@ def aperture_from_f_number(f_number: float, device) -> float:
     """
     from lfring.optics.views import view_cameras
 
-    if isinstance(f_number, bool) or not isinstance(f_number, (int, float, np.floating, np.integer)) or not (
-            math.isfinite(f_number) and f_number > 0):
-        raise InvalidInputError(f"f_number must be a positive number, got {f_number!r}")
+    f_number = check_number(f_number, "f_number", above=0.0, what="a positive number")
     cams = view_cameras(device)
     radius = float(np.linalg.norm(cams.centres_m - cams.centres_m.mean(axis=0), axis=1).mean())
     return device.main_focal_length_m / (2.0 * float(f_number)) / radius
@@ -394,8 +392,7 @@ class DepthOfField:
 
         ``shift_and_add`` is the views refocused at ``focus_m`` (:func:`lfring.refocus`): used
         where it is in focus. Without it, the all-in-focus colour is used everywhere."""
-        if not (math.isfinite(aperture) and aperture >= 0):
-            raise InvalidInputError(f"aperture must be a finite number >= 0, got {aperture!r}")
+        aperture = check_number(aperture, "aperture", minimum=0.0)
         disp = self.signed_radius_px(focus_m)
         colour = self.colour
         rho = disp * np.float32(aperture)

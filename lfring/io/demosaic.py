@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from lfring.core.registry import Registry
 from lfring.errors import InvalidInputError
 from lfring.io.bayer import (
     KORNIA_CFA,
@@ -55,7 +56,6 @@ from lfring.io.raw import RawFrame
 
 __all__ = ["METHODS", "demosaic", "apply_levels"]
 
-METHODS = ("bilinear", "edge-aware", "vng", "rawpy", "kornia")
 _U16 = 65535.0
 
 
@@ -132,17 +132,16 @@ def demosaic(frame: RawFrame, *, method: str = "edge-aware") -> np.ndarray:
         )
     if frame.image is not None:
         return np.ascontiguousarray(apply_levels(frame))
-    if method == "rawpy":
-        return _demosaic_rawpy(frame)
-    linear = apply_levels(frame)
-    if method == "kornia":
-        out = _demosaic_kornia(linear, frame.pattern)
-    elif method == "vng":
-        out = _demosaic_vng(linear, frame.pattern)
-    else:
-        table = OPENCV_BAYER_TO_RGB if method == "bilinear" else OPENCV_BAYER_TO_RGB_EA
-        out = _opencv_u16(linear, table[frame.pattern])
+    out = METHODS[method](frame)
     return np.ascontiguousarray(np.clip(out, 0.0, 1.0, out=out), dtype=np.float32)
+
+
+def _demosaic_bilinear(frame: RawFrame) -> np.ndarray:
+    return _opencv_u16(apply_levels(frame), OPENCV_BAYER_TO_RGB[frame.pattern])
+
+
+def _demosaic_edge_aware(frame: RawFrame) -> np.ndarray:
+    return _opencv_u16(apply_levels(frame), OPENCV_BAYER_TO_RGB_EA[frame.pattern])
 
 
 def _opencv_u16(linear: np.ndarray, code: int) -> np.ndarray:
@@ -165,9 +164,10 @@ def _tile_spans(n: int, tile: int, halo: int):
         yield c0, min(n, c0 + tile), start, start + size
 
 
-def _demosaic_vng(linear: np.ndarray, pattern: str) -> np.ndarray:
+def _demosaic_vng(frame: RawFrame) -> np.ndarray:
     import cv2
 
+    linear, pattern = apply_levels(frame), frame.pattern
     code = OPENCV_BAYER_TO_RGB_VNG[pattern]
     h, w = linear.shape
     out = np.empty((h, w, 3), dtype=np.float32)
@@ -208,13 +208,13 @@ def _bilinear_float(values: np.ndarray, pattern: str) -> np.ndarray:
     return out
 
 
-def _demosaic_kornia(linear: np.ndarray, pattern: str) -> np.ndarray:
+def _demosaic_kornia(frame: RawFrame) -> np.ndarray:
     import torch
     from kornia.color import CFA, raw_to_rgb
 
-    tensor = torch.from_numpy(np.ascontiguousarray(linear))[None, None]
+    tensor = torch.from_numpy(np.ascontiguousarray(apply_levels(frame)))[None, None]
     with torch.no_grad():
-        rgb = raw_to_rgb(tensor, getattr(CFA, KORNIA_CFA[pattern]))
+        rgb = raw_to_rgb(tensor, getattr(CFA, KORNIA_CFA[frame.pattern]))
     return rgb[0].permute(1, 2, 0).contiguous().numpy()
 
 
@@ -279,3 +279,13 @@ def _demosaic_rawpy(frame: RawFrame) -> np.ndarray:
         ) from exc
     out = rgb[:h, :w, :3].astype(np.float32) * np.float32(1.0 / _U16)
     return np.ascontiguousarray(np.clip(out, 0.0, 1.0, out=out))
+
+
+#: The demosaicing methods by name, each ``RawFrame -> (H, W, 3) float32`` linear camera RGB
+#: (clipped to [0, 1] by :func:`demosaic`), in the order the documentation lists them.
+METHODS = Registry("method")
+METHODS.register("bilinear", _demosaic_bilinear)
+METHODS.register("edge-aware", _demosaic_edge_aware)
+METHODS.register("vng", _demosaic_vng)
+METHODS.register("rawpy", _demosaic_rawpy)
+METHODS.register("kornia", _demosaic_kornia)

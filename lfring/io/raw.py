@@ -45,6 +45,7 @@ from typing import Any
 
 import numpy as np
 
+from lfring.core.validate import check_int, check_number
 from lfring.errors import FileFormatError, InvalidInputError, LfringError, LfringFileNotFoundError
 from lfring.io.bayer import PATTERNS, validate_pattern
 from lfring.core.records import record_repr
@@ -180,14 +181,9 @@ class RawFrame:
 
         container_bits = data.dtype.itemsize * 8
         bit_depth = container_bits if self.bit_depth is None else self.bit_depth
-        if isinstance(bit_depth, bool) or not isinstance(bit_depth, (int, np.integer)) or not (
-            1 <= bit_depth <= container_bits
-        ):
-            raise InvalidInputError(
-                f"{where}bit_depth must be an integer in 1..{container_bits} for {data.dtype} data, "
-                f"got {bit_depth!r}"
-            )
-        object.__setattr__(self, "bit_depth", int(bit_depth))
+        bit_depth = check_int(bit_depth, f"{where}bit_depth", minimum=1, maximum=container_bits,
+                              hint=f" for {data.dtype} data")
+        object.__setattr__(self, "bit_depth", bit_depth)
         full_scale = 2 ** int(bit_depth) - 1
         white = float(full_scale)
         if self.white_level is not None:
@@ -223,12 +219,7 @@ class RawFrame:
 
 
 def _as_level(value: Any, name: str, where: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise InvalidInputError(f"{where}{name} must be a number, got {value!r}")
-    value = float(value)
-    if not math.isfinite(value):
-        raise InvalidInputError(f"{where}{name} must be finite, got {value!r}")
-    return value
+    return check_number(value, f"{where}{name}")
 
 
 def _normalise_black(value: Any, where: str, *, allow_per_channel: bool) -> float | tuple[float, ...]:
@@ -755,15 +746,9 @@ def _frame_from_pixels(
     if bit_depth is None:
         bits = info.get("bits_per_sample", container)
         bit_depth = bits if 1 <= bits <= container else container
-    elif (
-        isinstance(bit_depth, bool)
-        or not isinstance(bit_depth, (int, np.integer))
-        or not 1 <= bit_depth <= container
-    ):
-        raise InvalidInputError(
-            f"{p}: bit_depth (from {source['bit_depth']}) must be an integer in 1..{container} "
-            f"for a {container}-bit file, got {bit_depth!r}"
-        )
+    else:
+        bit_depth = check_int(bit_depth, f"{p}: bit_depth (from {source['bit_depth']})", minimum=1, maximum=container,
+                              hint=f" for a {container}-bit file")
     full_scale = 2 ** int(bit_depth) - 1
     peak = int(data.max()) if data.size else 0
     if peak > full_scale:

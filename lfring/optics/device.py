@@ -1,6 +1,6 @@
 """The ring-camera device record and its files.
 
-A device is everything the paraxial model needs (SPEC section 1): the main lens, the four
+A device is everything the source paper's paraxial model needs: the main lens, the four
 mini-lenses, the sensor, the mount, and optionally the positions ``b`` (main lens -> ring) and
 ``c`` (ring -> sensor) the device is set to. All lengths are in metres.
 """
@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
 import sys
 from dataclasses import dataclass, fields
 from pathlib import Path
@@ -18,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from lfring._resources import calib_dir
+from lfring.core.validate import check_int, check_number, is_number
 from lfring.errors import DeviceError, LfringFileNotFoundError
 
 if sys.version_info >= (3, 11):
@@ -36,6 +36,8 @@ _LENGTH_FIELDS = (
     "pixel_pitch_m",
 )
 _OPTIONAL_LENGTHS = ("sensor_width_m", "sensor_height_m", "aperture_radius_m", "ring_distance_m", "sensor_distance_m")
+#: Relative disagreement allowed between a declared sensor size and pixels times pitch.
+SENSOR_SIZE_TOLERANCE = 0.01
 
 
 @dataclass(frozen=True)
@@ -57,11 +59,11 @@ class RingDevice:
     pixel_pitch_m : float
         tpix, the pixel pitch.
     sensor_width_m, sensor_height_m : float or None
-        ws, hs: the active area as the datasheet gives it, used by the design equations
-        (SPEC 2.1). ``None`` means pixels times pitch; a given value must agree with that
-        within 1 %.
+        ws, hs: the active area as the datasheet gives it, used by the lens-position design
+        equations. ``None`` means pixels times pitch; a given value must agree with that
+        within ``SENSOR_SIZE_TOLERANCE`` (a relative tolerance: datasheets round).
     flange_focal_distance_m, screw_thread_m : float
-        FFD and ST of the lens mount, used for the mount distance B (SPEC 2.1, item 4).
+        FFD and ST of the lens mount, used for the mount distance B of the lens-position design.
     aperture_radius_m : float or None
         Radius of the main lens iris. Its image through each mini-lens is the disc of sensor that
         the mini-lens lights (the field stop of the view). ``None`` means the full lens radius.
@@ -100,28 +102,22 @@ class RingDevice:
         if not isinstance(self.name, str) or not self.name:
             raise DeviceError(f"device 'name' must be a non-empty string, got {self.name!r}")
         for key in _LENGTH_FIELDS:
-            _check_positive(key, getattr(self, key))
+            _metres(key, getattr(self, key), above=0.0)
         for key in _OPTIONAL_LENGTHS:
-            if getattr(self, key) is not None:
-                _check_positive(key, getattr(self, key))
+            _metres(key, getattr(self, key), above=0.0, allow_none=True)
         for key in ("flange_focal_distance_m", "screw_thread_m"):
-            value = getattr(self, key)
-            _check_number(key, value)
-            if value < 0:
-                raise DeviceError(f"device '{key}' must be >= 0 m, got {value!r}")
+            _metres(key, getattr(self, key), minimum=0.0)
         for key in ("sensor_width_px", "sensor_height_px"):
-            value = getattr(self, key)
-            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 2:
-                raise DeviceError(f"device '{key}' must be an integer >= 2, got {value!r}")
+            check_int(getattr(self, key), f"device '{key}'", minimum=2, error=DeviceError)
         for key, px in (("sensor_width_m", "sensor_width_px"), ("sensor_height_m", "sensor_height_px")):
             from_pixels = getattr(self, px) * self.pixel_pitch_m
             declared = getattr(self, key)
             if declared is None:
                 object.__setattr__(self, key, float(from_pixels))
-            elif abs(declared - from_pixels) > 0.01 * from_pixels:
+            elif abs(declared - from_pixels) > SENSOR_SIZE_TOLERANCE * from_pixels:
                 raise DeviceError(
                     f"device '{key}' ({declared!r} m) disagrees with '{px}' x 'pixel_pitch_m' "
-                    f"({from_pixels!r} m) by more than 1 %"
+                    f"({from_pixels!r} m) by more than {SENSOR_SIZE_TOLERANCE:.0%}"
                 )
         if self.mini_lens_offset_m < self.mini_lens_radius_m:
             raise DeviceError(
@@ -190,8 +186,7 @@ class RingDevice:
 
         Pixel counts are rounded down to even numbers: a binned colour sensor still delivers
         whole 2 x 2 CFA blocks."""
-        if isinstance(factor, bool) or not isinstance(factor, (int, np.integer)) or factor < 1:
-            raise DeviceError(f"binning factor must be an integer >= 1, got {factor!r}")
+        check_int(factor, "binning factor", minimum=1, error=DeviceError)
         if factor == 1:
             return self
         return dataclasses.replace(
@@ -236,9 +231,8 @@ class RingDevice:
                 if not isinstance(value, str):
                     raise DeviceError(f"{source}: key '{key}' must be a string, got {value!r}")
             elif key.endswith("_px"):
-                if isinstance(value, bool) or not isinstance(value, int):
-                    raise DeviceError(f"{source}: key '{key}' must be an integer, got {value!r}")
-            elif isinstance(value, bool) or not isinstance(value, (int, float)):
+                check_int(value, f"{source}: key '{key}'", error=DeviceError)
+            elif not is_number(value):
                 raise DeviceError(
                     f"{source}: key '{key}' must be a number in metres, got {value!r}"
                 )
@@ -248,17 +242,9 @@ class RingDevice:
             raise DeviceError(f"{source}: {exc}") from None
 
 
-def _check_number(key: str, value: Any) -> None:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
-        raise DeviceError(f"device '{key}' must be a number in metres, got {value!r}")
-    if not math.isfinite(value):
-        raise DeviceError(f"device '{key}' must be finite, got {value!r}")
-
-
-def _check_positive(key: str, value: Any) -> None:
-    _check_number(key, value)
-    if value <= 0:
-        raise DeviceError(f"device '{key}' must be > 0 m, got {value!r}")
+def _metres(key: str, value: Any, **bounds) -> float | None:
+    """A finite length of the device record within ``bounds`` (those of :func:`check_number`)."""
+    return check_number(value, f"device '{key}'", what="a number in metres", error=DeviceError, **bounds)
 
 
 def builtin_devices() -> list[str]:

@@ -1,4 +1,4 @@
-"""Lens-position design of the ring camera (SPEC 2.1) and the working-range design.
+"""Lens-position design of the ring camera (the source paper's design equations) and the working-range design.
 
 Every function here is pure: device and numbers in, frozen records out.
 """
@@ -10,6 +10,8 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 from scipy.optimize import brentq
 
+from lfring.core.registry import Registry
+from lfring.core.validate import check_int
 from lfring.errors import DesignError, InvalidInputError
 from lfring.optics.device import RingDevice
 from lfring.core.records import record_repr
@@ -25,7 +27,6 @@ __all__ = [
     "design_working_range",
 ]
 
-METHODS = ("fit-sensor", "max-magnification")
 _TOL_M = 1e-12
 
 
@@ -33,7 +34,7 @@ _TOL_M = 1e-12
 class Design:
     """Lens positions and the imaging numbers of one design point (all lengths in metres).
 
-    ``disparity_px`` is the vertical disparity of SPEC Eq. 16 between adjacent views cut at half
+    ``disparity_px`` is the source paper's vertical disparity between adjacent views cut at half
     the sensor pitch; ``depth_resolution_m_per_px`` is |dZ/dd| at ``distance_m``.
     ``problems`` lists, in words, every validity limit the design breaks; ``valid`` is True when
     there is none.
@@ -166,33 +167,44 @@ def _check_inputs(device: RingDevice, object_size_m, distance_m) -> tuple[np.nda
     return np.broadcast_arrays(size, z)
 
 
+def _fit_sensor_b2(device: RingDevice, h0: np.ndarray, z: np.ndarray, b1: np.ndarray) -> np.ndarray:
+    """b2 that puts the top of the upper image at the sensor edge (the paper's fit-sensor design)."""
+    fml, hml, hs = device.mini_focal_length_m, device.mini_lens_offset_m, device.sensor_height_m
+    if hs / 2.0 <= hml:
+        raise DesignError(
+            f"the mini-lens offset ({hml} m) is not inside half the sensor height "
+            f"({hs / 2} m): no image can be placed at the sensor edge"
+        )
+    h1 = b1 * h0 / z
+    # H2,a = hml + c (hml + h1) / b2 = hs/2 with c/b2 = Fml/(b2 - Fml), solved for b2.
+    return fml + fml * (hml + h1) / (hs / 2.0 - hml)
+
+
+def _max_magnification_b2(device: RingDevice, h0: np.ndarray, z: np.ndarray, b1: np.ndarray) -> np.ndarray:
+    """b2 of the largest magnification G = hs / (4 h0) (the paper's max-magnification design)."""
+    fl, fml = device.main_focal_length_m, device.mini_focal_length_m
+    g = device.sensor_height_m / (4.0 * h0)
+    return fl * (fml / g + z) / (z - fl) + fml - b1
+
+
+#: The lens-position designs by name, each ``(device, h0, Z, b1) -> b2``, vectorised.
+METHODS = Registry("method")
+METHODS.register("fit-sensor", _fit_sensor_b2)
+METHODS.register("max-magnification", _max_magnification_b2)
+
+
 def _solve_positions(device: RingDevice, h0: np.ndarray, z: np.ndarray, method: str):
-    """b and c (and b1, b2) of SPEC 2.1 items 1 and 2, vectorised."""
-    fl, fml, hml = device.main_focal_length_m, device.mini_focal_length_m, device.mini_lens_offset_m
-    hs = device.sensor_height_m
+    """b and c of the design ``method`` (the paper's first two design steps), vectorised."""
+    solve_b2 = METHODS.lookup(method)
+    fl, fml = device.main_focal_length_m, device.mini_focal_length_m
     b1 = z * fl / (z - fl)
-    if method == "max-magnification":
-        g = hs / (4.0 * h0)
-        b = fl * (fml / g + z) / (z - fl) + fml
-        b2 = b - b1
-    elif method == "fit-sensor":
-        if hs / 2.0 <= hml:
-            raise DesignError(
-                f"the mini-lens offset ({hml} m) is not inside half the sensor height "
-                f"({hs / 2} m): no image can be placed at the sensor edge"
-            )
-        h1 = b1 * h0 / z
-        # H2,a = hml + c (hml + h1) / b2 = hs/2 with c/b2 = Fml/(b2 - Fml), solved for b2.
-        b2 = fml + fml * (hml + h1) / (hs / 2.0 - hml)
-        b = b1 + b2
-    else:
-        raise InvalidInputError(f"method must be one of {', '.join(METHODS)}; got {method!r}")
+    b2 = solve_b2(device, h0, z, b1)
     c = b2 * fml / (b2 - fml)
-    return b, c
+    return b1 + b2, c
 
 
 def _numbers(device: RingDevice, b, c, h0, z) -> dict[str, np.ndarray]:
-    """Everything SPEC 2.1 derives from b, c, the object half-size h0 and the distance Z."""
+    """Everything the design equations derive from b, c, the object half-size h0 and the distance Z."""
     fl, fml, hml = device.main_focal_length_m, device.mini_focal_length_m, device.mini_lens_offset_m
     hs, ws, tpix = device.sensor_height_m, device.sensor_width_m, device.pixel_pitch_m
     b1 = z * fl / (z - fl)
@@ -206,7 +218,7 @@ def _numbers(device: RingDevice, b, c, h0, z) -> dict[str, np.ndarray]:
         d = ((4.0 * hml - hs) / 2.0 + 2.0 * hml * c / b2) / tpix
         dh = ((4.0 * hml - ws) / 2.0 + 2.0 * hml * c / b2) / tpix
         o = 1.0 - d * tpix / ia
-        # c' of the mini-lens for the plane at Z, and the blur circle at c (SPEC 2.3).
+        # c' of the mini-lens for the plane at Z, and the blur circle at c (the paper's defocus blur).
         cp = np.where(b2 > fml, b2 * fml / (b2 - fml), np.inf)
         blur = np.where(np.isfinite(cp), 2.0 * device.mini_lens_radius_m * np.abs(c - cp) / cp, np.inf) / tpix
         # |dZ/dd|: d depends on Z through b2 only, d(b2)/dZ = FL^2 / (Z - FL)^2.
@@ -288,7 +300,7 @@ def _design_from(device, method, size, z, b, c) -> Design:
 
 
 def design(device: RingDevice, *, object_size_m: float, distance_m: float, method: str = "fit-sensor") -> Design:
-    """Lens positions b, c for an object of size ``object_size_m`` at ``distance_m`` (SPEC 2.1).
+    """Lens positions b, c for an object of size ``object_size_m`` at ``distance_m``.
 
     Parameters
     ----------
@@ -299,8 +311,8 @@ def design(device: RingDevice, *, object_size_m: float, distance_m: float, metho
     distance_m : float
         Object distance Z in front of the main lens, metres; must exceed the focal length.
     method : {'fit-sensor', 'max-magnification'}
-        ``'max-magnification'`` (paper Sec. 4.1): G = hs / (4 h0) and
-        b = FL (Fml/G + Z)/(Z - FL) + Fml. ``'fit-sensor'`` (Sec. 4.2): the top of the upper
+        ``'max-magnification'`` (the source paper's first design): G = hs / (4 h0) and
+        b = FL (Fml/G + Z)/(Z - FL) + Fml. ``'fit-sensor'`` (its second): the top of the upper
         image at the sensor edge, hml + c (hml + h1)/b2 = hs/2 with c = b2 Fml/(b2 - Fml).
 
     Returns
@@ -339,14 +351,13 @@ def sweep(
     method: str = "fit-sensor",
     fixed: bool = False,
 ) -> Sweep:
-    """Design numbers over distances and/or object sizes (paper Figs. 7-9).
+    """Design numbers over distances and/or object sizes (the source paper's design curves).
 
     With ``fixed=False`` the positions are redesigned at every point with ``method``; with
     ``fixed=True`` the device's own b and c are kept and only the imaging numbers change.
     Points that break a validity limit are kept and listed in ``problems``, never dropped.
     """
-    if method not in METHODS:
-        raise InvalidInputError(f"method must be one of {', '.join(METHODS)}; got {method!r}")
+    METHODS.lookup(method)
     size, z = _check_inputs(device, object_size_m, distances_m)
     size, z = np.atleast_1d(size).astype(np.float64), np.atleast_1d(z).astype(np.float64)
     if fixed:
@@ -392,8 +403,7 @@ def design_working_range(
     _, far = _check_inputs(device, object_size_m, far_m)
     if not far > near:
         raise InvalidInputError(f"the far distance ({float(far)} m) must exceed the near one ({float(near)} m)")
-    if isinstance(num, bool) or not isinstance(num, (int, np.integer)) or num < 2:
-        raise InvalidInputError(f"num must be an integer >= 2, got {num!r}")
+    check_int(num, "num", minimum=2)
     fl, fml, hml = device.main_focal_length_m, device.mini_focal_length_m, device.mini_lens_offset_m
     hs = device.sensor_height_m
     if hs / 2.0 <= hml:

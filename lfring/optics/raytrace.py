@@ -1,11 +1,11 @@
-"""2D meridional ray tracer of the ring camera through thin lenses with finite apertures (SPEC 2.2).
+"""2D meridional ray tracer of the ring camera through thin lenses with finite apertures.
 
 The tracer works in the meridional plane (y, z) that holds the optical axis and the centres of two
-of the four mini-lenses. **y points up** (as in the paper's Fig. 4), z runs from the object to the
-sensor, the main lens L sits at z = 0, the ring at z = b and the sensor at z = b + c. The two
-mini-lenses of the plane are lens ``a`` (index 0, ``UPPER``) centred at y = +hml and lens ``b``
-(index 1, ``LOWER``) at y = -hml, both of radius Rml. The object is the segment
--h0 <= y <= +h0 at z = -Z.
+of the four mini-lenses. **y points up** (as in the source paper's ray diagram), z runs from the
+object to the sensor, the main lens L sits at z = 0, the ring at z = b and the sensor at
+z = b + c. The two mini-lenses of the plane are lens ``a`` (index 0, ``UPPER``) centred at
+y = +hml and lens ``b`` (index 1, ``LOWER``) at y = -hml, both of radius Rml. The object is the
+segment -h0 <= y <= +h0 at z = -Z.
 
 This differs from the sensor frame of :mod:`lfring.optics.paraxial`, where y points *down*: a
 height here is minus the sensor y of that module for the column of views through lenses a and b.
@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from lfring.core.validate import check_choice, check_int, check_number
 from lfring.errors import InvalidInputError
 from lfring.optics.device import RingDevice
 from lfring.core.records import record_repr
@@ -158,11 +159,11 @@ class BundleStats:
     spread_m : ndarray
         Convergence spread, max - min of the sensor hit heights, metres. Zero (to rounding) when
         the sensor is at the sharp-image distance; the defocus blur diameter
-        ``2 Rml |c - c'| / c'`` when the bundle fills the mini-lens (SPEC 2.3).
+        ``2 Rml |c - c'| / c'`` when the bundle fills the mini-lens (the source paper's blur circle).
     mean_height_m : ndarray
         Mean sensor hit height, metres (y up).
     paraxial_height_m : ndarray
-        The chief-ray image height of SPEC 2, ``m_k + (m_k - y1) c / b2`` with ``y1 = -y0 b1 / Z``
+        The chief-ray image height of the source paper, ``m_k + (m_k - y1) c / b2`` with ``y1 = -y0 b1 / Z``
         (H2,a and H2,b for the source at +h0).
     """
 
@@ -198,19 +199,8 @@ def _json_float(x) -> float | None:
     return x if np.isfinite(x) else None
 
 
-def _count(name: str, value, minimum: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
-        raise InvalidInputError(f"{name} must be an integer >= {minimum}, got {value!r}")
-    return int(value)
-
-
 def _positive_length(name: str, value) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise InvalidInputError(f"{name} must be a number of metres, got {value!r}")
-    value = float(value)
-    if not np.isfinite(value) or value <= 0:
-        raise InvalidInputError(f"{name} must be a positive, finite number of metres, got {value!r}")
-    return value
+    return check_number(value, name, above=0.0, what="a positive length in metres")
 
 
 def _even(n: int) -> np.ndarray:
@@ -245,7 +235,7 @@ def trace(
         optical axis.
     rays_per_point : int, default 21
         Rays per source point whose heights at the main lens are evenly spread over
-        ``[-fan_radius_m, +fan_radius_m]``: the fan of the paper's Fig. 4, most of which misses
+        ``[-fan_radius_m, +fan_radius_m]``: the fan of the source paper's ray diagram, most of which misses
         the ring. May be 0.
     rays_per_lens : int, default 7
         Further rays per source point and mini-lens, aimed so that their heights at the ring are
@@ -301,13 +291,12 @@ def trace(
             f"object distance {z!r} m does not exceed the main lens focal length ({fl} m): the main "
             "lens forms no real intermediate image; use a larger distance"
         )
-    num_points = _count("num_points", num_points, 1)
-    rays_per_point = _count("rays_per_point", rays_per_point, 0)
-    rays_per_lens = _count("rays_per_lens", rays_per_lens, 0)
+    num_points = check_int(num_points, "num_points", minimum=1)
+    rays_per_point = check_int(rays_per_point, "rays_per_point", minimum=0)
+    rays_per_lens = check_int(rays_per_lens, "rays_per_lens", minimum=0)
     if rays_per_point + rays_per_lens == 0:
         raise InvalidInputError("rays_per_point and rays_per_lens are both 0: there is no ray to trace")
-    if aperture not in APERTURES:
-        raise InvalidInputError(f"aperture must be one of {', '.join(APERTURES)}; got {aperture!r}")
+    check_choice(aperture, "aperture", APERTURES)
     stop = device.main_lens_radius_m if aperture == "lens" else device.effective_aperture_radius_m
     fan = stop if fan_radius_m is None else _positive_length("fan radius", fan_radius_m)
 
@@ -374,7 +363,7 @@ def _check_trace(rt) -> None:
 
 
 def paraxial_hit_height_m(rt: RayTrace) -> np.ndarray:
-    """(P, 2) chief-ray image heights of the source points through lens a and b (SPEC 2).
+    """(P, 2) chief-ray image heights of the source points through lens a and b (the source paper's equations).
 
     ``m_k + (m_k - y1) c / b2`` with ``y1 = -y0 b1 / Z``, ``b1 = Z FL / (Z - FL)``, ``b2 = b - b1``.
     For the source at +h0 these are H2,a = hml + c (hml + h1)/b2 and H2,b = -hml + c (h1 - hml)/b2.

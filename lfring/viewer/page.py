@@ -5,13 +5,13 @@ from __future__ import annotations
 import base64
 import html
 import json
-import numbers
 from importlib import resources
 from pathlib import Path
 
 import cv2
 import numpy as np
 
+from lfring.core.validate import check_choice, check_fraction, check_int, check_number, is_number
 from lfring.depth import SGM_MIN_PLANES
 from lfring.errors import InvalidInputError
 
@@ -52,7 +52,7 @@ def _check_boxes(boxes) -> list[dict]:
     for i, b in enumerate(boxes or ()):
         if isinstance(b, dict):
             b = (b["x"], b["y"], b["w"], b["h"], b.get("label", ""))
-        if len(b) not in (4, 5) or not all(isinstance(v, numbers.Real) and np.isfinite(v) for v in b[:4]):
+        if len(b) not in (4, 5) or not all(is_number(v) and np.isfinite(v) for v in b[:4]):
             raise InvalidInputError(f"boxes[{i}] must be (x, y, w, h) or (x, y, w, h, label) in pixels, got {b!r}")
         x, y, w, h = (float(v) for v in b[:4])
         if w <= 0 or h <= 0:
@@ -73,16 +73,11 @@ def _overlay_png(mask, shape_hw) -> str:
 
 
 def _check_options(num_planes, min_confidence, image_format, quality):
-    if num_planes is not None and (isinstance(num_planes, bool) or not isinstance(num_planes, (int, np.integer))
-                                   or num_planes < SGM_MIN_PLANES):
-        raise InvalidInputError(f"num_planes must be an integer >= {SGM_MIN_PLANES} (the depth map's semi-global "
-                                f"method judges each answer against farther hypotheses) or None, got {num_planes!r}")
-    if isinstance(min_confidence, bool) or not isinstance(min_confidence, numbers.Real) or not 0 <= min_confidence <= 1:
-        raise InvalidInputError(f"min_confidence must be a number in [0, 1], got {min_confidence!r}")
-    if image_format not in IMAGE_FORMATS:
-        raise InvalidInputError(f"image_format must be one of {sorted(IMAGE_FORMATS)}, got {image_format!r}")
-    if isinstance(quality, bool) or not isinstance(quality, (int, np.integer)) or not 1 <= quality <= 100:
-        raise InvalidInputError(f"quality must be an integer from 1 to 100, got {quality!r}")
+    check_int(num_planes, "num_planes", minimum=SGM_MIN_PLANES, allow_none=True,
+              hint=" (the depth map's semi-global method judges each answer against farther hypotheses)")
+    check_fraction(min_confidence, "min_confidence")
+    check_choice(image_format, "image_format", IMAGE_FORMATS)
+    check_int(quality, "quality", minimum=1, maximum=100)
 
 
 def _depth_range(calibration, zmin_m, zmax_m) -> tuple[float, float]:
@@ -111,8 +106,7 @@ def viewer_data(views, calibration, *, zmin_m=None, zmax_m=None, num_planes=None
     if depth is not None and zmin_m is None and zmax_m is None:
         zmin_m, zmax_m = float(np.min(depth.depths_m)), float(np.max(depth.depths_m))
     lo, hi = _depth_range(calibration, zmin_m, zmax_m)
-    if focus_m is not None and (isinstance(focus_m, bool) or not isinstance(focus_m, numbers.Real) or not lo <= focus_m <= hi):
-        raise InvalidInputError(f"focus_m must be a depth in metres within {lo:g}..{hi:g}, got {focus_m!r}")
+    check_number(focus_m, "focus_m", minimum=lo, maximum=hi, allow_none=True, what="a depth in metres")
     if depth is None:
         depth = estimate_depth(views, calibration, zmin_m=lo, zmax_m=hi, num_planes=num_planes, reference=reference)
     # One stack frame per depth hypothesis (evenly spaced in disparity): a click on any depth
