@@ -358,92 +358,109 @@ def sweep_halves(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, views
     """'lcn-halves': at the ``poor`` pixels (no depth suits all views), the least cost of a half
     of the views, aggregated over the box; where its best is under ``gain`` times the pixel's
     ``best`` of all views, ``out`` (the all views' volume, h, N, w uint16) becomes the least of
-    the two. Only the columns of each strip that some poor pixel's box reaches are computed.
-    Arguments as :func:`sweep_volume`; ``halves`` with ``half_ptr``: each half's positions in
-    ``views``, flattened; ``penalty`` and ``min_support`` as
+    the two. Only the runs of columns of each strip that hold poor pixels (with the box's reach)
+    are computed. Arguments as :func:`sweep_volume`; ``halves`` with ``half_ptr``: each half's
+    positions in ``views``, flattened; ``penalty`` and ``min_support`` as
     :func:`lfring.depth.costs.lcn_halves.half_aggregate`."""
     h, n, w = out.shape
-    n_views = views.shape[0]
-    n_halves = half_ptr.shape[0] - 1
     n_strips = (h + rows - 1) // rows
-    inv_unit = np.float32(1.0 / unit)
-    area = np.float32((2 * rad + 1) ** 2)
-    inf = np.float32(np.inf)
+    # Runs closer than this share one span: their terms' reach would overlap anyway.
+    gap = 4 * rad + 8
     for s in prange(n_strips):
         y0 = s * rows
         y1 = min(h, y0 + rows)
-        # The columns some poor pixel of the strip reaches with its box.
-        xa = w
-        xb = 0
+        cols = np.zeros(w, np.bool_)
         for y in range(y0, y1):
             pr = poor[y]
             for x in range(w):
-                if pr[x]:
-                    xa = min(xa, x)
-                    xb = max(xb, x + 1)
-        if xa >= xb:
-            continue
-        xa = max(0, xa - rad)
-        xb = min(w, xb + rad)
-        q0 = max(0, y0 - rad)
-        q1 = min(h, y1 + rad)
-        nq = q1 - q0
-        m = y1 - y0
-        # The terms over a span wider by the box's radius, so that its box sums are exact inside.
-        ta = max(0, xa - rad)
-        tb = min(w, xb + rad)
-        sw = tb - ta
-        t = np.empty(sw + 1, np.float32)
-        a_buf = np.empty((n_views, sw), np.float32)
-        w_buf = np.empty((n_views, sw), np.float32)
-        ones = np.ones(sw, np.float32)
-        s1 = np.empty(sw, np.float32)
-        s2 = np.empty(sw, np.float32)
-        cn = np.empty(sw, np.float32)
-        seen_rows = np.empty((nq, sw), np.float32)
-        scratch = np.empty(sw, np.float32)
-        hc_rows = np.empty((n_halves, nq, sw), np.float32)
-        ho_rows = np.empty((n_halves, nq, sw), np.float32)
-        ordered = np.empty((2 * rad + 1, sw), np.float32)
-        col = np.empty(sw, np.float32)
-        bt = np.empty(sw, np.float32)
-        bs = np.empty(sw, np.float32)
-        tmp = np.empty(sw + 2 * rad, np.float32)
-        least = np.empty((m, n, sw), np.float32)
-        hbest = np.full((m, sw), inf, np.float32)
-        for d in range(n):
-            for r in range(nq):
-                _view_span(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, q0 + r, d, views, ta, t, a_buf,
-                           w_buf)
-                _all_terms(a_buf, w_buf, floor, ones, s1, s2, cn, scratch, seen_rows[r])
-                for h_i in range(n_halves):
-                    _half_terms(a_buf, w_buf, halves, half_ptr, h_i, floor, seen_rows[r], s1, s2, cn, hc_rows[h_i, r],
-                                ho_rows[h_i, r])
-            for i in range(m):
-                y = y0 + i
-                l_row = least[i, d]
-                for x in range(sw):
-                    l_row[x] = inf
-                for h_i in range(n_halves):
-                    _box_span(hc_rows[h_i], q0, y, rad, h, ta, w, ordered, col, tmp, bt)
-                    _box_span(ho_rows[h_i], q0, y, rad, h, ta, w, ordered, col, tmp, bs)
-                    _fold_half(bt, bs, ho_rows[h_i, y - q0], min_support * area, penalty, l_row)
-                hb = hbest[i]
-                for x in range(sw):
-                    hb[x] = min(hb[x], l_row[x])
-        q = np.empty(sw, np.uint16)
+                cols[x] |= pr[x]
+        x = 0
+        while x < w:
+            if not cols[x]:
+                x += 1
+                continue
+            xa = x
+            xb = x + 1
+            last = x
+            while xb < w and xb - last <= gap:
+                if cols[xb]:
+                    last = xb
+                xb += 1
+            xb = last + 1
+            _halves_span(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, views, halves, half_ptr, rad, floor,
+                         penalty, min_support, gain, unit, poor, best, out, y0, y1, xa, xb)
+            x = xb
+
+
+@njit(**_JIT)
+def _halves_span(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, views, halves, half_ptr, rad, floor, penalty,
+                 min_support, gain, unit, poor, best, out, y0, y1, xa, xb):
+    """:func:`sweep_halves` for the rows y0..y1 and the output columns xa..xb."""
+    h, n, w = out.shape
+    n_views = views.shape[0]
+    n_halves = half_ptr.shape[0] - 1
+    inv_unit = np.float32(1.0 / unit)
+    area = np.float32((2 * rad + 1) ** 2)
+    inf = np.float32(np.inf)
+    q0 = max(0, y0 - rad)
+    q1 = min(h, y1 + rad)
+    nq = q1 - q0
+    m = y1 - y0
+    # The terms over a span wider by the box's radius, so that its box sums are exact inside.
+    ta = max(0, xa - rad)
+    tb = min(w, xb + rad)
+    sw = tb - ta
+    t = np.empty(sw + 1, np.float32)
+    a_buf = np.empty((n_views, sw), np.float32)
+    w_buf = np.empty((n_views, sw), np.float32)
+    ones = np.ones(sw, np.float32)
+    s1 = np.empty(sw, np.float32)
+    s2 = np.empty(sw, np.float32)
+    cn = np.empty(sw, np.float32)
+    seen_rows = np.empty((nq, sw), np.float32)
+    scratch = np.empty(sw, np.float32)
+    hc_rows = np.empty((n_halves, nq, sw), np.float32)
+    ho_rows = np.empty((n_halves, nq, sw), np.float32)
+    ordered = np.empty((2 * rad + 1, sw), np.float32)
+    col = np.empty(sw, np.float32)
+    bt = np.empty(sw, np.float32)
+    bs = np.empty(sw, np.float32)
+    tmp = np.empty(sw + 2 * rad, np.float32)
+    least = np.empty((m, n, sw), np.float32)
+    hbest = np.full((m, sw), inf, np.float32)
+    for d in range(n):
+        for r in range(nq):
+            _view_span(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, q0 + r, d, views, ta, t, a_buf,
+                       w_buf)
+            _all_terms(a_buf, w_buf, floor, ones, s1, s2, cn, scratch, seen_rows[r])
+            for h_i in range(n_halves):
+                _half_terms(a_buf, w_buf, halves, half_ptr, h_i, floor, seen_rows[r], s1, s2, cn, hc_rows[h_i, r],
+                            ho_rows[h_i, r])
         for i in range(m):
             y = y0 + i
-            pr = poor[y]
-            br = best[y]
+            l_row = least[i, d]
+            for x in range(sw):
+                l_row[x] = inf
+            for h_i in range(n_halves):
+                _box_span(hc_rows[h_i], q0, y, rad, h, ta, w, ordered, col, tmp, bt)
+                _box_span(ho_rows[h_i], q0, y, rad, h, ta, w, ordered, col, tmp, bs)
+                _fold_half(bt, bs, ho_rows[h_i, y - q0], min_support * area, penalty, l_row)
             hb = hbest[i]
-            for d in range(n):
-                _quantise(least[i, d], inv_unit, q)
-                o = out[y, d]
-                for x in range(xa, xb):
-                    j = x - ta
-                    take = pr[x] & (hb[j] < gain * br[x])
-                    o[x] = min(o[x], q[j]) if take else o[x]
+            for x in range(sw):
+                hb[x] = min(hb[x], l_row[x])
+    q = np.empty(sw, np.uint16)
+    for i in range(m):
+        y = y0 + i
+        pr = poor[y]
+        br = best[y]
+        hb = hbest[i]
+        for d in range(n):
+            _quantise(least[i, d], inv_unit, q)
+            o = out[y, d]
+            for x in range(xa, xb):
+                j = x - ta
+                take = pr[x] & (hb[j] < gain * br[x])
+                o[x] = min(o[x], q[j]) if take else o[x]
 
 
 @njit(**_JIT)
@@ -534,19 +551,25 @@ def _eroded_rows(vol, y, rad, x0, x1, ext, out):
 def _fill_unknown(e, fill):
     """Each column's unknown costs replaced by the mean of its known ones (0 when none is)."""
     n, m = e.shape
-    for x in range(m):
-        total = 0
-        count = 0
-        for d in range(n):
-            v = e[d, x]
-            if v != UNKNOWN:
-                total += v
-                count += 1
-        fill[x] = (total + count // 2) // count if count > 0 else 0
+    total = np.zeros(m, np.int64)
+    count = np.zeros(m, np.int64)
     for d in range(n):
         row = e[d]
         for x in range(m):
-            row[x] = fill[x] if row[x] == UNKNOWN else row[x]
+            known = row[x] != UNKNOWN
+            total[x] += np.int64(row[x]) if known else 0
+            count[x] += 1 if known else 0
+    missing = False
+    for x in range(m):
+        c = count[x]
+        fill[x] = (total[x] + c // 2) // c if c > 0 else 0
+        missing |= c < n
+    if not missing:
+        return
+    for d in range(n):
+        row = e[d]
+        for x in range(m):
+            row[x] = np.uint16(fill[x]) if row[x] == UNKNOWN else row[x]
 
 
 @njit(**_JIT)
@@ -820,6 +843,7 @@ def _select_row(vol, total, cur, y, x0, x1, raw_rad, exclude, floor, col_sum, co
             arg[x] = d if better else arg[x]
     for x in range(m):
         k = arg[x]
+        # The second best of the sum away from the winner, and the raw curve's best and second.
         second = big
         rbest = np.float32(np.inf)
         rk = 0
