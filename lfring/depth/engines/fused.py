@@ -39,9 +39,10 @@ UNITS_PER_SCALE = 64
 # A view is resampled once by a fixed near-identity map, so that every hypothesis is a pure shift,
 # when what is left over after that is within this many pixels everywhere in the frame.
 RESAMPLE_TOL_PX = 0.01
-# Rows of a strip of the sweep, and columns of a block of the vertical paths (per parallel task).
+# Rows of a strip of the sweep (per parallel task), and the fewest columns of a block of the
+# vertical paths (one block per thread).
 STRIP_ROWS = 16
-COLUMN_BLOCK = 64
+MIN_COLUMN_BLOCK = 32
 # Rows sampled for a first estimate of the cost's scale (which sets the integer unit).
 SCALE_SAMPLE_ROWS = 16
 
@@ -122,6 +123,28 @@ def _padded(images, remaps, pad):
     return out
 
 
+def _runs_of_ones(masks):
+    """Per view and row of the padded masks (V, H, W), the run [lo, hi) of columns where the mask
+    is exactly 1 (a disc's inside, one run per row), lo = hi where there is none: there the
+    weights need no interpolation."""
+    v, hh, ww = masks.shape
+    lo = np.zeros((v, hh), np.int64)
+    hi = np.zeros((v, hh), np.int64)
+    rows = np.arange(hh)
+    for k in range(v):
+        one = masks[k] == 1.0
+        has = one.any(axis=1)
+        first = np.where(has, np.argmax(one, axis=1), 0)
+        last = np.where(has, ww - np.argmax(one[:, ::-1], axis=1), 0)
+        # Only where the ones form one run: every column between the first and the last is one.
+        count = np.cumsum(one, axis=1)
+        before = np.where(first > 0, count[rows, np.maximum(first - 1, 0)], 0)
+        run = has & (count[rows, np.maximum(last - 1, 0)] - before == last - first)
+        lo[k] = np.where(run, first, 0)
+        hi[k] = np.where(run, last, 0)
+    return lo, hi
+
+
 def fused_index(views, calibration, plan, settings, subpixel_box_px: int, on_stage=None):
     """Fractional hypothesis index, confidence, views seen and guide of one reference frame, as
     :func:`lfring.depth.engines.semiglobal.semiglobal_index` defines them (the parabola fitted to
@@ -164,7 +187,8 @@ def fused_index(views, calibration, plan, settings, subpixel_box_px: int, on_sta
     ptr = np.cumsum([0] + [len(half) for half in halves]).astype(np.int64)
     rad = settings.aggregate_px // 2
     floor = np.float32(WEIGHT_FLOOR)
-    geometry = (weighted, mpad, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, views_idx)
+    ones_lo, ones_hi = _runs_of_ones(mpad) if not all_valid else (np.zeros((1, 1), np.int64),) * 2
+    geometry = (weighted, mpad, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, views_idx)
 
     # A first estimate of the cost's scale, on a few rows: the unit of the integer costs.
     rows = np.unique(np.linspace(0, h - 1, min(h, SCALE_SAMPLE_ROWS)).astype(np.int64))
@@ -204,7 +228,8 @@ def fused_index(views, calibration, plan, settings, subpixel_box_px: int, on_sta
     stage(0.7)
     index = np.empty((h, w), np.float32)
     confidence = np.empty((h, w), np.float32)
-    block = max(8, min(COLUMN_BLOCK, -(-w // max(1, 4 * settings.threads))))
+    # As few blocks as threads: every block pays a fixed cost per row and hypothesis.
+    block = max(MIN_COLUMN_BLOCK, -(-w // max(1, settings.threads)))
     fk.vertical_paths(vol, paths, guide, True, p1, p2, np.float32(EDGE_SCALE), erode, subpixel_box_px // 2,
                       int(plan.exclude), block, WEIGHT_FLOOR, index, confidence)
     stage(1.0)

@@ -31,9 +31,12 @@ __all__ = ["COST_MAX", "COST_ZERO", "PENALTY_MAX", "UNKNOWN", "horizontal_paths"
            "vertical_paths"]
 
 # Fast maths without "no infinities": unknown costs are inf until they are quantised.
-_FAST = {"nsz", "arcp", "contract", "afn", "reassoc"}
+_FAST = {"nsz", "arcp", "contract", "afn"}
 _JIT = dict(cache=True, nogil=True, fastmath=_FAST, error_model="numpy")
 _PAR = dict(_JIT, parallel=True)
+# Small row helpers are inlined into their callers: a call per row and hypothesis costs more than
+# the row itself on the short rows of a span or a block of columns.
+_INLINE = dict(_JIT, inline="always")
 # A cost that no two views saw: never a winner; the paths see the pixel's mean known cost there.
 UNKNOWN = 65535
 # The largest cost and penalty kept: 4 * (COST_MAX + PENALTY_MAX) < 2**16.
@@ -56,27 +59,27 @@ def _reflect(i, n):
     return i
 
 
-@njit(**_JIT)
+@njit(**_INLINE)
 def _lerp(s0, s1, p, q, t):
     """t = p s0 + q s1 (the vertical tap pair of a bilinear shift)."""
     for x in range(t.shape[0]):
         t[x] = p * s0[x] + q * s1[x]
 
 
-@njit(**_JIT)
+@njit(**_INLINE)
 def _shifted(t, a, b, out):
     """out = a t[x] + b t[x + 1] (the horizontal tap pair)."""
     for x in range(out.shape[0]):
         out[x] = a * t[x] + b * t[x + 1]
 
 
-@njit(**_JIT)
+@njit(**_INLINE)
 def _scaled(row, s, out):
     for x in range(out.shape[0]):
         out[x] = s * row[x]
 
 
-@njit(**_JIT)
+@njit(**_INLINE)
 def _sums_first(v, wt, s1, s2, cn):
     for x in range(v.shape[0]):
         s1[x] = v[x]
@@ -84,7 +87,7 @@ def _sums_first(v, wt, s1, s2, cn):
         cn[x] = wt[x]
 
 
-@njit(**_JIT)
+@njit(**_INLINE)
 def _sums_add(v, wt, s1, s2, cn):
     for x in range(v.shape[0]):
         s1[x] += v[x]
@@ -92,7 +95,7 @@ def _sums_add(v, wt, s1, s2, cn):
         cn[x] += wt[x]
 
 
-@njit(**_JIT)
+@njit(**_INLINE)
 def _lcn_row(s1, s2, cn, floor, seen_in, t, seen):
     """The 'lcn' cost of the sums where 1.5 views or more see the pixel (and ``seen_in``, when
     given), 0 elsewhere; ``seen`` 1 or 0."""
@@ -109,7 +112,7 @@ def _lcn_row(s1, s2, cn, floor, seen_in, t, seen):
         seen[x] = one if ok else np.float32(0.0)
 
 
-@njit(**_JIT)
+@njit(**_INLINE)
 def _vsum(rows, start, count, out):
     """out = sum of ``count`` rows of ``rows`` from index ``start`` (any order of rows)."""
     w = out.shape[0]
@@ -121,7 +124,7 @@ def _vsum(rows, start, count, out):
             out[x] += r[x]
 
 
-@njit(**_JIT)
+@njit(**_INLINE)
 def _hsum(col, rad, tmp, out):
     """out[x] = sum of col over x - rad .. x + rad, reflected at the ends (BORDER_REFLECT_101)."""
     w = col.shape[0]
@@ -138,8 +141,30 @@ def _hsum(col, rad, tmp, out):
 
 
 # -- per-pixel terms of one row at one hypothesis ------------------------------------------------
+@njit(**_INLINE)
+def _weights(m0, m1, ones_lo, ones_hi, r, c0, p, q, a, b, t, out):
+    """out[x] = the bilinear mask at padded columns c0 + x (+1) of padded rows r, r + 1 (``m0``,
+    ``m1``: those rows from c0), 1 where all four taps lie in both rows' run of ones
+    [ones_lo, ones_hi) (a disc's inside, where nothing needs computing)."""
+    m = out.shape[0]
+    lo = max(ones_lo[r], ones_lo[r + 1]) - c0
+    hi = min(ones_hi[r], ones_hi[r + 1]) - c0 - 1  # x + 1 must be inside too
+    lo = min(max(lo, 0), m)
+    hi = min(max(hi, lo), m)
+    if hi - lo < m:
+        _lerp(m0, m1, p, q, t)
+        for x in range(lo):
+            out[x] = a * t[x] + b * t[x + 1]
+        for x in range(hi, m):
+            out[x] = a * t[x] + b * t[x + 1]
+    for x in range(lo, hi):
+        out[x] = np.float32(1.0)
+
+
+
 @njit(**_JIT)
-def _view_rows(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, y, d, views, t, a_buf, w_buf):
+def _view_rows(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, y, d, views, t, a_buf,
+               w_buf):
     """Every view's value (premultiplied by its mask) and weight at row ``y`` shifted to
     hypothesis ``d`` (bilinear, zero outside the view)."""
     w = a_buf.shape[1]
@@ -156,8 +181,8 @@ def _view_rows(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, y, d, v
         if all_valid:
             _scaled(edge_x[d, k], edge_y[d, k, y], w_buf[j])
         else:
-            _lerp(msk[k, r, c0:c0 + w + 1], msk[k, r + 1, c0:c0 + w + 1], p, q, t)
-            _shifted(t, a, b, w_buf[j])
+            _weights(msk[k, r, c0:c0 + w + 1], msk[k, r + 1, c0:c0 + w + 1], ones_lo[k], ones_hi[k], r, c0, p, q, a, b,
+                     t, w_buf[j])
 
 
 @njit(**_JIT)
@@ -178,7 +203,47 @@ def _half_terms(a_buf, w_buf, halves, half_ptr, h_i, floor, seen, s1, s2, cn, hc
     _lcn_row(s1, s2, cn, floor, seen, hc, ho)
 
 
-@njit(**_JIT)
+@njit(**_INLINE)
+def _all_set(row):
+    """Whether every value of a row of 1 / 0 flags is 1."""
+    for x in range(row.shape[0]):
+        if row[x] < np.float32(0.5):
+            return False
+    return True
+
+
+@njit(**_INLINE)
+def _window_all_set(flags, q0, y, rad, h):
+    """Whether the rows y - rad .. y + rad (reflected) all have their flag set."""
+    for k in range(y - rad, y + rad + 1):
+        if not flags[_reflect(k, h) - q0]:
+            return False
+    return True
+
+
+@njit(**_INLINE)
+def _seen_row(w_buf, seen):
+    """seen = 1 where the views' weights add up to 1.5 or more, else 0."""
+    m = seen.shape[0]
+    for x in range(m):
+        seen[x] = w_buf[0, x]
+    for j in range(1, w_buf.shape[0]):
+        wr = w_buf[j]
+        for x in range(m):
+            seen[x] += wr[x]
+    for x in range(m):
+        seen[x] = np.float32(1.0) if seen[x] >= np.float32(1.5) else np.float32(0.0)
+
+
+@njit(**_INLINE)
+def _fold_full(bt, scale, least):
+    """least = min(least, scale * bt): a half whose every window is its own."""
+    for x in range(least.shape[0]):
+        c = scale * bt[x]
+        least[x] = c if c < least[x] else least[x]
+
+
+@njit(**_INLINE)
 def _agg_row(bt, bs, seen_c, area, floor, out):
     """The seen-pixel mean of a box (sums ``bt`` of costs, ``bs`` of seen pixels); inf where the
     centre pixel is not seen."""
@@ -189,7 +254,7 @@ def _agg_row(bt, bs, seen_c, area, floor, out):
         out[x] = bt[x] / area / sup if seen_c[x] > np.float32(0.5) else inf
 
 
-@njit(**_JIT)
+@njit(**_INLINE)
 def _fold_half(bt, bs, own_c, area_support, penalty, least):
     """least = min(least, penalty * bt / bs) where the centre is the half's own and the window's
     own share reaches the support."""
@@ -201,7 +266,7 @@ def _fold_half(bt, bs, own_c, area_support, penalty, least):
 
 # -- pass 0: the scale and threshold from a sample of rows --------------------------------------
 @njit(**_PAR)
-def sample_costs(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, views, sample_rows, stride, rad, floor,
+def sample_costs(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, views, sample_rows, stride, rad, floor,
                  best_out, spread_out):
     """Per sampled pixel (rows ``sample_rows``, every ``stride``-th column): the least aggregated
     cost of all views over the hypotheses (``best_out``) and the mean of its finite costs minus
@@ -234,7 +299,8 @@ def sample_costs(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, views
         for d in range(n):
             for k in range(2 * rad + 1):
                 yy = _reflect(y - rad + k, h)
-                _view_rows(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, yy, d, views, t, a_buf, w_buf)
+                _view_rows(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, yy, d, views, t, a_buf,
+                           w_buf)
                 _all_terms(a_buf, w_buf, floor, ones, s1, s2, cn, t_rows[k], seen_rows[k])
             _vsum(t_rows, 0, 2 * rad + 1, col)
             _hsum(col, rad, tmp, bt)
@@ -257,7 +323,7 @@ def sample_costs(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, views
 
 
 # -- pass 1: the quantised cost volume ------------------------------------------------------------
-@njit(**_JIT)
+@njit(**_INLINE)
 def _quantise(v, inv_unit, out):
     """Costs in integer units from COST_ZERO, rounded and clipped to [0, COST_MAX]; UNKNOWN where
     not finite."""
@@ -285,7 +351,7 @@ def _box_row(rows, q0, y, rad, h, ordered, col, tmp, out):
 
 
 @njit(**_PAR)
-def sweep_volume(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, views, rad, rows, floor, unit, out, best,
+def sweep_volume(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, views, rad, rows, floor, unit, out, best,
                  total, count, nviews):
     """The quantised cost volume of all views ``out`` (h, N, w) uint16, each pixel's least cost
     ``best`` (h, w) float32 (inf where none), the sum and number of its finite costs ``total``
@@ -318,6 +384,7 @@ def sweep_volume(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, views
         cn = np.empty(w, np.float32)
         t_rows = np.empty((nq, w), np.float32)
         seen_rows = np.empty((nq, w), np.float32)
+        seen_all = np.empty(nq, np.bool_)
         ordered = np.empty((2 * rad + 1, w), np.float32)
         col = np.empty(w, np.float32)
         bt = np.empty(w, np.float32)
@@ -331,15 +398,21 @@ def sweep_volume(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, views
             count[y] = 0.0
         for d in range(n):
             for r in range(nq):
-                _view_rows(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, q0 + r, d, views, t, a_buf, w_buf)
+                _view_rows(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, q0 + r, d, views, t,
+                           a_buf, w_buf)
                 _all_terms(a_buf, w_buf, floor, ones, s1, s2, cn, t_rows[r], seen_rows[r])
                 if q0 + r >= y0 and q0 + r < y1:
                     nvr = nviews[q0 + r]
                     for x in range(w):
                         nvr[x] = max(nvr[x], cn[x])
+            for r in range(nq):
+                seen_all[r] = _all_set(seen_rows[r])
             for y in range(y0, y1):
                 _box_row(t_rows, q0, y, rad, h, ordered, col, tmp, bt)
-                _box_row(seen_rows, q0, y, rad, h, ordered, col, tmp, bs)
+                if _window_all_set(seen_all, q0, y, rad, h):  # every window wholly seen
+                    bs[:] = area
+                else:
+                    _box_row(seen_rows, q0, y, rad, h, ordered, col, tmp, bs)
                 _agg_row(bt, bs, seen_rows[y - q0], area, floor, agg)
                 _quantise(agg, inv_unit, out[y, d])
                 b_row = best[y]
@@ -353,7 +426,7 @@ def sweep_volume(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, views
 
 
 @njit(**_PAR)
-def sweep_halves(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, views, halves, half_ptr, rad, rows, floor,
+def sweep_halves(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, views, halves, half_ptr, rad, rows, floor,
                  penalty, min_support, gain, unit, poor, best, out):
     """'lcn-halves': at the ``poor`` pixels (no depth suits all views), the least cost of a half
     of the views, aggregated over the box; where its best is under ``gain`` times the pixel's
@@ -387,13 +460,13 @@ def sweep_halves(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, views
                     last = xb
                 xb += 1
             xb = last + 1
-            _halves_span(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, views, halves, half_ptr, rad, floor,
+            _halves_span(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, views, halves, half_ptr, rad, floor,
                          penalty, min_support, gain, unit, poor, best, out, y0, y1, xa, xb)
             x = xb
 
 
 @njit(**_JIT)
-def _halves_span(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, views, halves, half_ptr, rad, floor, penalty,
+def _halves_span(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, views, halves, half_ptr, rad, floor, penalty,
                  min_support, gain, unit, poor, best, out, y0, y1, xa, xb):
     """:func:`sweep_halves` for the rows y0..y1 and the output columns xa..xb."""
     h, n, w = out.shape
@@ -413,12 +486,10 @@ def _halves_span(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, views
     t = np.empty(sw + 1, np.float32)
     a_buf = np.empty((n_views, sw), np.float32)
     w_buf = np.empty((n_views, sw), np.float32)
-    ones = np.ones(sw, np.float32)
     s1 = np.empty(sw, np.float32)
     s2 = np.empty(sw, np.float32)
     cn = np.empty(sw, np.float32)
     seen_rows = np.empty((nq, sw), np.float32)
-    scratch = np.empty(sw, np.float32)
     hc_rows = np.empty((n_halves, nq, sw), np.float32)
     ho_rows = np.empty((n_halves, nq, sw), np.float32)
     ordered = np.empty((2 * rad + 1, sw), np.float32)
@@ -428,14 +499,16 @@ def _halves_span(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, views
     tmp = np.empty(sw + 2 * rad, np.float32)
     least = np.empty((m, n, sw), np.float32)
     hbest = np.full((m, sw), inf, np.float32)
+    own_all = np.empty((n_halves, nq), np.bool_)
     for d in range(n):
         for r in range(nq):
-            _view_span(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, q0 + r, d, views, ta, t, a_buf,
-                       w_buf)
-            _all_terms(a_buf, w_buf, floor, ones, s1, s2, cn, scratch, seen_rows[r])
+            _view_span(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, q0 + r, d, views, ta, t,
+                       a_buf, w_buf)
+            _seen_row(w_buf, seen_rows[r])
             for h_i in range(n_halves):
                 _half_terms(a_buf, w_buf, halves, half_ptr, h_i, floor, seen_rows[r], s1, s2, cn, hc_rows[h_i, r],
                             ho_rows[h_i, r])
+                own_all[h_i, r] = _all_set(ho_rows[h_i, r])
         for i in range(m):
             y = y0 + i
             l_row = least[i, d]
@@ -443,6 +516,9 @@ def _halves_span(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, views
                 l_row[x] = inf
             for h_i in range(n_halves):
                 _box_span(hc_rows[h_i], q0, y, rad, h, ta, w, ordered, col, tmp, bt)
+                if _window_all_set(own_all[h_i], q0, y, rad, h):  # every window the half's own
+                    _fold_full(bt, penalty / area, l_row)
+                    continue
                 _box_span(ho_rows[h_i], q0, y, rad, h, ta, w, ordered, col, tmp, bs)
                 _fold_half(bt, bs, ho_rows[h_i, y - q0], min_support * area, penalty, l_row)
             hb = hbest[i]
@@ -464,7 +540,8 @@ def _halves_span(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, views
 
 
 @njit(**_JIT)
-def _view_span(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, y, d, views, x0, t, a_buf, w_buf):
+def _view_span(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, y, d, views, x0, t, a_buf,
+               w_buf):
     """:func:`_view_rows` for the columns x0 .. x0 + a_buf.shape[1] of the row."""
     m = a_buf.shape[1]
     for j in range(views.shape[0]):
@@ -480,8 +557,8 @@ def _view_span(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, y, d, v
         if all_valid:
             _scaled(edge_x[d, k, x0:x0 + m], edge_y[d, k, y], w_buf[j])
         else:
-            _lerp(msk[k, r, c0:c0 + m + 1], msk[k, r + 1, c0:c0 + m + 1], p, q, t)
-            _shifted(t, a, b, w_buf[j])
+            _weights(msk[k, r, c0:c0 + m + 1], msk[k, r + 1, c0:c0 + m + 1], ones_lo[k], ones_hi[k], r, c0, p, q, a, b,
+                     t, w_buf[j])
 
 
 @njit(**_JIT)
@@ -514,7 +591,7 @@ def _box_span(rows, q0, y, rad, h, ta, w, ordered, col, tmp, out):
 
 
 # -- the scan paths ---------------------------------------------------------------------------------
-@njit(**_JIT)
+@njit(**_INLINE)
 def _min_into(row, out):
     for x in range(out.shape[0]):
         out[x] = min(out[x], row[x])
@@ -572,7 +649,7 @@ def _fill_unknown(e, fill):
             row[x] = np.uint16(fill[x]) if row[x] == UNKNOWN else row[x]
 
 
-@njit(**_JIT)
+@njit(**_INLINE)
 def _p2_row(guide_a, guide_b, use_guide, p1, p2, edge_scale, out):
     """The large-jump penalty between neighbours with guide values a and b, as an integer."""
     for x in range(out.shape[0]):
@@ -677,7 +754,7 @@ def horizontal_paths(vol, guide, use_guide, p1, p2, edge_scale, erode_rad, total
         _horizontal_row(vol, y, guide, use_guide, p1, p2, edge_scale, erode_rad, total)
 
 
-@njit(**_JIT)
+@njit(**_INLINE)
 def _ext_row(row, x0, m, rad, out):
     """out[j] = row[reflect(x0 - rad + j)] for j < m + 2 rad (BORDER_REFLECT_101)."""
     w = row.shape[0]
@@ -691,7 +768,7 @@ def _ext_row(row, x0, m, rad, out):
         out[j] = row[_reflect(a + j, w)]
 
 
-@njit(**_JIT)
+@njit(**_INLINE)
 def _raw_update(vol, r, d, x0, m, rad, sign, ext, col_sum, col_cnt):
     """col_sum, col_cnt += sign * (known cost, 1) of row ``r`` of hypothesis ``d``."""
     _ext_row(vol[r, d], x0, m, rad, ext)
@@ -702,7 +779,7 @@ def _raw_update(vol, r, d, x0, m, rad, sign, ext, col_sum, col_cnt):
         col_cnt[j] += sign * (1 if known else 0)
 
 
-@njit(**_JIT)
+@njit(**_INLINE)
 def _parabola(cm, c0, cp):
     den = np.float64(cm) - 2.0 * np.float64(c0) + np.float64(cp)
     if den > 0.0:
@@ -710,7 +787,7 @@ def _parabola(cm, c0, cp):
     return 0.0
 
 
-@njit(**_JIT)
+@njit(**_INLINE)
 def _end_offset(c_end, c_next, c_after, inward):
     den = c_end - 2.0 * c_next + c_after
     if den > 0.0 and np.isfinite(den):
@@ -718,7 +795,7 @@ def _end_offset(c_end, c_next, c_after, inward):
     return 0.0
 
 
-@njit(**_JIT)
+@njit(**_INLINE)
 def _distinctness(b, s):
     if np.isfinite(b) and np.isfinite(s) and s > 0.0:
         return np.float32(min(1.0, max(0.0, 1.0 - np.float64(b) / np.float64(s))))
@@ -795,7 +872,7 @@ def vertical_paths(vol, total, guide, use_guide, p1, p2, edge_scale, erode_rad, 
                         min(w, x0 + block), index, conf)
 
 
-@njit(**_JIT)
+@njit(**_INLINE)
 def _raw_row(col_sum, col_cnt, centre, rad, area, floor, out):
     """out[x] = the mean known cost of the box around x (its column sums ``col_sum``,
     ``col_cnt``), inf where the centre is unknown: the mean over the known pixels with the share
