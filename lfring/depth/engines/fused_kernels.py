@@ -37,6 +37,8 @@ _PAR = dict(_JIT, parallel=True)
 # Small row helpers are inlined into their callers: a call per row and hypothesis costs more than
 # the row itself on the short rows of a span or a block of columns.
 _INLINE = dict(_JIT, inline="always")
+# Side of the square tiles of a transposition.
+_TILE = 16
 # A cost that no two views saw: never a winner; the paths see the pixel's mean known cost there.
 UNKNOWN = 65535
 # The largest cost and penalty kept: 4 * (COST_MAX + PENALTY_MAX) < 2**16.
@@ -690,6 +692,26 @@ def _step_line(e, prev, cur, pmin, cmin, p1, p2e):
             least[x] = v if v < least[x] else least[x]
 
 
+@njit(**_INLINE)
+def _path_step(c, prev, cur, pmin, jump, p1):
+    """One step of a path at one pixel: ``cur = c + min(prev, prev[d -+ 1] + p1, jump) - pmin``
+    over the hypotheses (the ends' missing neighbour is the hypothesis itself); returns the least
+    of ``cur``."""
+    n = c.shape[0]
+    if n == 1:
+        cur[0] = c[0] + min(prev[0], jump) - pmin
+        return cur[0]
+    cur[0] = c[0] + min(min(prev[0], prev[1] + p1), jump) - pmin
+    for d in range(1, n - 1):
+        best = min(min(prev[d], prev[d - 1] + p1), min(prev[d + 1] + p1, jump))
+        cur[d] = c[d] + best - pmin
+    cur[n - 1] = c[n - 1] + min(min(prev[n - 1], prev[n - 2] + p1), jump) - pmin
+    least = cur[0]
+    for d in range(1, n):
+        least = min(least, cur[d])
+    return least
+
+
 @njit(**_JIT)
 def _horizontal_row(vol, y, guide, use_guide, p1, p2, edge_scale, erode_rad, total):
     """The two horizontal paths of row ``y`` (see :func:`horizontal_paths`)."""
@@ -699,51 +721,55 @@ def _horizontal_row(vol, y, guide, use_guide, p1, p2, edge_scale, erode_rad, tot
     fill = np.empty(w, np.int64)
     _eroded_rows(vol, y, erode_rad, 0, w, ext, e)
     _fill_unknown(e, fill)
-    # One pixel per step: the line is a column of N values.
+    # One pixel per step: its N costs side by side (transposed in tiles, which stay in the cache).
     c = np.empty((w, n), np.int32)
-    for d in range(n):
-        for x in range(w):
-            c[x, d] = e[d, x]
-    acc = np.zeros((w, n), np.int32)
+    for x0 in range(0, w, _TILE):
+        x1 = min(w, x0 + _TILE)
+        for d0 in range(0, n, _TILE):
+            d1 = min(n, d0 + _TILE)
+            for x in range(x0, x1):
+                for d in range(d0, d1):
+                    c[x, d] = e[d, x]
+    acc = np.empty((w, n), np.int32)
     bufs = np.empty((2, n), np.int32)
+    p2f = np.float32(p2)
+    p1f = np.float32(p1)
     for direction in range(2):
         pmin = np.int32(0)
         for i in range(w):
             x = i if direction == 0 else w - 1 - i
             prev = bufs[(i + 1) % 2]
             cur = bufs[i % 2]
+            cx = c[x]
             if i == 0:
-                pmin = np.int32(1 << 30)
                 for d in range(n):
-                    cur[d] = c[x, d]
+                    cur[d] = cx[d]
+                pmin = cur[0]
+                for d in range(1, n):
                     pmin = min(pmin, cur[d])
             else:
                 xp = x - 1 if direction == 0 else x + 1
                 p2e = np.int32(p2)
                 if use_guide:
-                    v = np.float32(p2) / (np.float32(1.0) + abs(guide[y, x] - guide[y, xp]) / np.float32(edge_scale))
-                    v = v if v > np.float32(p1) else np.float32(p1)
+                    v = p2f / (np.float32(1.0) + abs(guide[y, x] - guide[y, xp]) / np.float32(edge_scale))
+                    v = v if v > p1f else p1f
                     p2e = np.int32(v + np.float32(0.5))
-                jump = pmin + p2e
-                least = np.int32(1 << 30)
+                pmin = _path_step(cx, prev, cur, pmin, pmin + p2e, p1)
+            ax = acc[x]
+            if direction == 0:
                 for d in range(n):
-                    dm = d - 1 if d > 0 else d
-                    dp = d + 1 if d < n - 1 else d
-                    best = prev[d]
-                    t = prev[dm] + p1
-                    best = t if t < best else best
-                    t = prev[dp] + p1
-                    best = t if t < best else best
-                    best = jump if jump < best else best
-                    cur[d] = c[x, d] + best - pmin
-                    least = cur[d] if cur[d] < least else least
-                pmin = least
-            for d in range(n):
-                acc[x, d] += cur[d]
-    for d in range(n):
-        row = total[y, d]
-        for x in range(w):
-            row[x] = np.uint16(acc[x, d])
+                    ax[d] = cur[d]
+            else:
+                for d in range(n):
+                    ax[d] += cur[d]
+    for d0 in range(0, n, _TILE):
+        d1 = min(n, d0 + _TILE)
+        for x0 in range(0, w, _TILE):
+            x1 = min(w, x0 + _TILE)
+            for d in range(d0, d1):
+                row = total[y, d]
+                for x in range(x0, x1):
+                    row[x] = np.uint16(acc[x, d])
 
 
 @njit(**_PAR)
@@ -918,24 +944,29 @@ def _select_row(vol, total, cur, y, x0, x1, raw_rad, exclude, floor, col_sum, co
             best[x] = v if better else best[x]
             tie[x] = rr[x] if better else tie[x]
             arg[x] = d if better else arg[x]
+    # The second best of the sum away from the winner, and the raw curve's best and second.
+    second = np.full(m, big, np.int32)
+    rbest = np.full(m, np.inf, np.float32)
+    rarg = np.zeros(m, np.int64)
+    for d in range(n):
+        trow = total[y, d, x0:x1]
+        cr = cur[d]
+        rr = raw[d]
+        for x in range(m):
+            v = np.int32(trow[x]) + cr[x]
+            if abs(d - arg[x]) > exclude and v < second[x]:
+                second[x] = v
+            if rr[x] < rbest[x]:
+                rbest[x] = rr[x]
+                rarg[x] = d
+    rsecond = np.full(m, np.inf, np.float32)
+    for d in range(n):
+        rr = raw[d]
+        for x in range(m):
+            if abs(d - rarg[x]) > exclude and rr[x] < rsecond[x]:
+                rsecond[x] = rr[x]
     for x in range(m):
         k = arg[x]
-        # The second best of the sum away from the winner, and the raw curve's best and second.
-        second = big
-        rbest = np.float32(np.inf)
-        rk = 0
-        for d in range(n):
-            v = np.int32(total[y, d, x0 + x]) + cur[d, x]
-            if abs(d - k) > exclude and v < second:
-                second = v
-            rv = raw[d, x]
-            if rv < rbest:
-                rbest = rv
-                rk = d
-        rsecond = np.float32(np.inf)
-        for d in range(n):
-            if abs(d - rk) > exclude:
-                rsecond = min(rsecond, raw[d, x])
         off = 0.0
         if 0 < k < n - 1:
             cm = np.float64(raw[k - 1, x])
@@ -959,6 +990,6 @@ def _select_row(vol, total, cur, y, x0, x1, raw_rad, exclude, floor, col_sum, co
                               inward)
         index[y, x0 + x] = np.float32(k + off)
         # The distinctness of costs counted from zero: each of the four paths carries COST_ZERO.
-        s2 = np.float64(second - 4 * COST_ZERO) if second < big else np.inf
+        s2 = np.float64(second[x] - 4 * COST_ZERO) if second[x] < big else np.inf
         conf[y, x0 + x] = _distinctness(np.float64(best[x] - 4 * COST_ZERO), s2) * \
-            _distinctness(np.float64(rbest) - COST_ZERO, np.float64(rsecond) - COST_ZERO)
+            _distinctness(np.float64(rbest[x]) - COST_ZERO, np.float64(rsecond[x]) - COST_ZERO)
