@@ -172,7 +172,14 @@ def fused_index(views, calibration, plan, settings, subpixel_box_px: int, on_sta
     weighted = _padded(src * masks, remaps, pad)
     all_valid = cached_view_masks(calibration, (h, w), "all_valid", _all_valid, taper=plan.taper) and \
         all(r is None for r in remaps)
-    mpad = weighted if all_valid else _padded(np.asarray(masks, np.float32), remaps, pad)
+    def padded_masks():
+        m = _padded(np.asarray(masks, np.float32), remaps, pad)
+        return m, *_runs_of_ones(m)
+
+    if all_valid:
+        mpad, ones_lo, ones_hi = weighted, np.zeros((1, 1), np.int64), np.zeros((1, 1), np.int64)
+    else:  # the masks resampled and padded, and their runs of ones: the same for every frame
+        mpad, ones_lo, ones_hi = calibration_cache(calibration, (plan_key, "masks", plan.taper, pad), padded_masks)
     iy = np.floor(shifts[..., 1]).astype(np.int64)
     ix = np.floor(shifts[..., 0]).astype(np.int64)
     fy = (shifts[..., 1] - iy).astype(np.float32)
@@ -189,7 +196,6 @@ def fused_index(views, calibration, plan, settings, subpixel_box_px: int, on_sta
     ptr = np.cumsum([0] + [len(half) for half in halves]).astype(np.int64)
     rad = settings.aggregate_px // 2
     floor = np.float32(WEIGHT_FLOOR)
-    ones_lo, ones_hi = _runs_of_ones(mpad) if not all_valid else (np.zeros((1, 1), np.int64),) * 2
     geometry = (weighted, mpad, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, views_idx)
 
     # A first estimate of the cost's scale, on a few rows: the unit of the integer costs.
