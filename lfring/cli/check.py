@@ -12,6 +12,8 @@ from lfring.cli._options import raw_options, read_frame
 
 log = logging.getLogger("lfring.cli.check")
 
+_VERDICTS = {"": "ring frame", "flat_field": "a flat field of this camera, not a scene"}
+
 
 @click.command("check")
 @click.argument("frame", type=click.Path(dir_okay=False))
@@ -32,7 +34,7 @@ def command(ctx, frame, calib, output, overwrite, levels):
     """
     from lfring.calibration import RingCalibration
     from lfring.calibration.defaults import default_calibration
-    from lfring.check import check_frame, draw_layout
+    from lfring.check import FLAT_TEXTURE, check_frame, draw_layout
     from lfring.io.demosaic import demosaic
     from lfring.io.writers import check_writable, write_image
 
@@ -60,7 +62,8 @@ def command(ctx, frame, calib, output, overwrite, levels):
         f"layout fit   disc contrast {res.disc_contrast:.2f} (1: dark between the discs, 0: light everywhere)",
         f"agreement    {res.agreement:.2f} at {res.best_depth_m:.3g} m (ring frames score above {res.threshold:g})"
         if res.best_depth_m is not None else f"agreement    none measurable (threshold {res.threshold:g})",
-        f"verdict      {'ring frame' if res.ok else 'NOT a ring frame for this calibration'}: {res.message}",
+        f"texture      {res.texture:.3f} of the mean inside the discs (a flat field's is below {FLAT_TEXTURE:g})",
+        f"verdict      {_VERDICTS.get(res.reason, 'NOT a ring frame for this calibration')}: {res.message}",
     ]
     write_image(out, draw_layout(image, cal.layout))
     for line in lines:
