@@ -11,6 +11,7 @@ import click
 import numpy as np
 
 from lfring.cli._options import get_device, raw_options
+from lfring.cli.outputs import OutputSet
 
 log = logging.getLogger("lfring.cli.calibrate")
 WARN_PX = 0.3
@@ -54,7 +55,6 @@ def command(frames, depths, output, flat, layout_file, depth_origin, device_name
     read frames without a sidecar with them.
     """
     from lfring.calibration import calibrate
-    from lfring.io.writers import check_writable
     from lfring.views import Layout
 
     frames = list(frames)
@@ -88,7 +88,8 @@ def command(frames, depths, output, flat, layout_file, depth_origin, device_name
             z0 = float(depth_origin)
         except ValueError:
             raise click.BadParameter(f"expected auto, optics or metres, got {depth_origin!r}", param_hint="--depth-origin") from None
-    check_writable([output], overwrite=overwrite)
+    outputs = OutputSet([output], name=Path(output).stem, overwrite=overwrite)
+    outputs.check()
     layout = Layout.load(layout_file) if layout_file else None
     cal = calibrate(dict(zip(zs, frames)), flat=flat, layout=layout, depth_origin_m=z0, method=method, rank1=rank1,
                     device=device, **levels.as_kwargs())
@@ -108,5 +109,6 @@ def command(frames, depths, output, flat, layout_file, depth_origin, device_name
             worst = max(worst, float(np.max(p.leave_one_out_px)))
     if worst > WARN_PX:
         log.warning("largest residual %.3f px exceeds %.1f px: check the target's texture, focus and the depths", worst, WARN_PX)
-    cal.save(output)
+    with outputs.writing() as stage:
+        cal.save(stage(output))
     log.info("wrote %s", output)

@@ -9,6 +9,7 @@ from pathlib import Path
 import click
 
 from lfring.cli._options import raw_options, read_frame
+from lfring.cli.outputs import OutputSet
 
 log = logging.getLogger("lfring.cli.check")
 
@@ -36,12 +37,13 @@ def command(ctx, frame, calib, output, overwrite, levels):
     from lfring.calibration.defaults import default_calibration
     from lfring.check import FLAT_TEXTURE, check_frame, draw_layout
     from lfring.io.demosaic import demosaic
-    from lfring.io.writers import check_writable, write_image
+    from lfring.io.writers import write_image
 
     out = Path(output) if output else Path(f"{Path(frame).stem}_check.png")
     if out.suffix.lower() != ".png":
         raise click.BadParameter(f"the overlay must end in .png, got {out.name!r}", param_hint="-o")
-    check_writable([out], overwrite=overwrite)
+    outputs = OutputSet([out], name=out.stem, overwrite=overwrite)
+    outputs.check()
     cal = RingCalibration.load(calib) if calib else None
     raw = read_frame(frame, levels, cal)
     image = demosaic(raw, method="bilinear")
@@ -65,7 +67,8 @@ def command(ctx, frame, calib, output, overwrite, levels):
         f"texture      {res.texture:.3f} of the mean inside the discs (a flat field's is below {FLAT_TEXTURE:g})",
         f"verdict      {_VERDICTS.get(res.reason, 'NOT a ring frame for this calibration')}: {res.message}",
     ]
-    write_image(out, draw_layout(image, cal.layout))
+    with outputs.writing() as stage:
+        write_image(stage(out), draw_layout(image, cal.layout))
     for line in lines:
         click.echo(line)
     click.echo(f"overlay      {out}")

@@ -19,7 +19,10 @@ def test_refocus_sample_with_default_calibration(tmp_path, monkeypatch, capsys):
     assert img.dtype == np.uint8 and img.shape == (705, 705, 3)
     side = json.loads((tmp_path / "scene_refocus_0.5m.png.json").read_text())
     assert side["calibration"] == "twin_binned2" and side["depth_m"] == 0.5 and side["encoding"] == "srgb"
-    # No overwrite without --overwrite.
+    # The same command again replaces its own outputs; a file it did not make is not replaced
+    # without --overwrite.
+    assert main(["refocus", str(SCENE), "--depth", "0.5"]) == 0
+    (tmp_path / "scene_refocus_0.5m.lfring.json").unlink()
     assert main(["refocus", str(SCENE), "--depth", "0.5"]) == 2
 
 
