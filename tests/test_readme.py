@@ -174,3 +174,45 @@ def test_no_module_imports_names_newer_pythons_deprecate():
             elif isinstance(node, ast.Attribute) and node.attr in {"utcnow", "utcfromtimestamp"}:
                 bad.append(f"{path.relative_to(ROOT)}:{node.lineno}")
     assert bad == []
+
+
+def _more_commands():
+    """The README's 'More commands' block: one command per entry (continuations joined,
+    comments dropped)."""
+    import shlex
+
+    text = (ROOT / "README.md").read_text()
+    block = re.search(r"More commands[^\n]*\n\n```bash\n(.*?)```", text, re.S).group(1)
+    return [shlex.split(line, comments=True) for line in block.replace("\\\n", " ").splitlines() if line.strip()]
+
+
+# The commands of the README run twice here: those whose rerun the README's readers hit (the
+# main job, the third refocus line after the second, lfring check) and the quick ones (the focal
+# sweep's and lfring depth's reruns are in tests/cli/test_output_sets.py).
+TWICE = ("refocus", "check", "split", "design", "raytrace", "calibrate")
+
+
+def test_readme_commands_run_twice_in_a_row(tmp_path):
+    """Each command of the README, run as written from a fresh folder, and then again: a rerun
+    replaces what the command made a moment ago instead of refusing it."""
+    import subprocess
+    import sys
+
+    (tmp_path / "data").symlink_to(ROOT / "data")
+    main_job = shlex_split(_quick_start_commands()[0].split("&&", 1)[1])
+    commands = [main_job, *(c for c in _more_commands() if c[1] in TWICE and "--sweep" not in c)]
+    assert [c[1] for c in commands[:4]] == ["refocus"] * 4 and "check" in [c[1] for c in commands]
+    for round_ in (1, 2):
+        for cmd in commands:
+            assert cmd[0] == "lfring"
+            proc = subprocess.run([sys.executable, "-m", "lfring", *cmd[1:]], cwd=tmp_path, capture_output=True, text=True,
+                                  timeout=900)
+            assert proc.returncode == 0, f"round {round_}: {' '.join(cmd)}:\n{proc.stderr}"
+    assert (tmp_path / "scene_refocus_0.5m.png").exists() and (tmp_path / "scene_check.png").exists()
+    assert (tmp_path / "scene_refocus_0.3m.png").exists() and (tmp_path / "scene_refocus_0.3m_shift-and-add.png").exists()
+
+
+def shlex_split(text: str) -> list[str]:
+    import shlex
+
+    return shlex.split(text)

@@ -90,7 +90,8 @@ class OutputSet:
         ctx = ctx or click.get_current_context()
         self.command = f"lfring {ctx.info_name}"
         params = {k: _jsonable(v) for k, v in sorted(ctx.params.items()) if k not in _NOT_SETTINGS}
-        self.inputs = _input_files(ctx.params)
+        ours = {os.path.abspath(p) for p in [*self.paths, self.record]}
+        self.inputs = [f for f in _input_files(ctx.params) if os.path.abspath(f) not in ours]
         self.settings = params
         self.key = hashlib.sha256(json.dumps({"command": self.command, **params}, sort_keys=True,
                                              default=str).encode()).hexdigest()[:16]
