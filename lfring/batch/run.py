@@ -375,9 +375,11 @@ def run_batch(
     0.5 m into a temporary folder, then the same run again, which finds it done:
 
     >>> import os, tempfile
+    >>> import lfring.batch
+    >>> settings = lfring.batch.BatchSettings(refocus_m=(0.5,))
     >>> with tempfile.TemporaryDirectory() as out:
-    ...     first = run_batch(["data/synthetic/scene.png"], out, BatchSettings(refocus_m=(0.5,)), workers=1, progress=False)
-    ...     again = run_batch(["data/synthetic/scene.png"], out, BatchSettings(refocus_m=(0.5,)), workers=1, progress=False)
+    ...     first = lfring.batch.run_batch(["data/synthetic/scene.png"], out, settings, workers=1, progress=False)
+    ...     again = lfring.batch.run_batch(["data/synthetic/scene.png"], out, settings, workers=1, progress=False)
     ...     files = sorted(os.listdir(out))
     >>> first.exit_code, len(first.done), len(again.done), len(again.skipped)
     (0, 1, 0, 1)

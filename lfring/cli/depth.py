@@ -10,7 +10,7 @@ import numpy as np
 
 from lfring.depth.costs import COSTS
 from lfring.depth.plan import DEPTH_TAPER
-from lfring.cli._options import check_option, load_views, progress_bar, raw_options
+from lfring.cli._options import check_option, load_views, note_first_compile, progress_bar, raw_options
 from lfring.cli.outputs import OutputSet
 
 log = logging.getLogger("lfring.cli.depth")
@@ -134,6 +134,7 @@ def command(raw, zmin, zmax, outdir, calib, planes, reference, cost, aggregation
             log.info("the calibration names no device and no --device-file was given: the point cloud uses the prototype's optics")
         paths["points.ply"] = out / f"{stem}_points.ply"
     outputs = OutputSet(paths.values(), name=f"{stem}_depth", overwrite=overwrite)
+    note_first_compile()
     with progress_bar(100, "depth", "%") as bar:
         res = estimate_depth(views, cal, zmin_m=zmin, zmax_m=zmax, num_planes=planes, reference=ref, cost=cost,
                              aggregation=aggregation, method=method, rim_taper=rim_taper, backend=backend,

@@ -10,6 +10,7 @@ import warnings
 import click
 
 from lfring import __version__
+from lfring.cli.words import CliFormatter, cli_words
 from lfring.errors import LfringError
 
 # command name -> module in lfring.cli defining a click command called ``command``.
@@ -45,7 +46,7 @@ class _LfringGroup(click.Group):
         try:
             return super().invoke(ctx)
         except LfringError as exc:
-            raise CliError(str(exc)) from None
+            raise CliError(cli_words(str(exc))) from None
         except OSError as exc:  # any file-system failure: one line naming the path, never a traceback
             where = f": {exc.filename}" if exc.filename else ""
             raise CliError(f"{exc.strerror or exc}{where}") from None
@@ -93,6 +94,8 @@ def cli(verbose: int, quiet: bool) -> None:
     """
     # Third-party loggers stay at WARNING; lfring's own at INFO (DEBUG with -vv).
     logging.basicConfig(level=logging.WARNING, format="lfring: %(levelname)s: %(message)s", stream=sys.stderr, force=True)
+    for handler in logging.getLogger().handlers:  # library messages name API parameters: say the options instead
+        handler.setFormatter(CliFormatter("lfring: %(levelname)s: %(message)s"))
     level = logging.WARNING if quiet else (logging.INFO if verbose < 2 else logging.DEBUG)
     logging.getLogger("lfring").setLevel(level)
     # Library warnings (a depth outside the calibrated range, say) become one log line each.

@@ -9,7 +9,15 @@ from pathlib import Path
 import click
 import numpy as np
 
-from lfring.cli._options import check_option, load_views, parse_depths, parse_range, progress_bar, raw_options
+from lfring.cli._options import (
+    check_option,
+    load_views,
+    note_first_compile,
+    parse_depths,
+    parse_range,
+    progress_bar,
+    raw_options,
+)
 from lfring.cli.outputs import OutputSet
 from lfring.core.warping import DEFAULT_INTERPOLATION
 
@@ -47,7 +55,8 @@ def _depths(depth, depths, sweep) -> list[float]:
         zs = list(parse_depths(depths, param_hint="--depths"))
     else:
         start, stop, n = parse_range(sweep, with_count=True)
-        zs = list(np.linspace(start, stop, n))
+        # Rounded to 12 significant digits: the depths as written (0.45, not 0.44999999999999996).
+        zs = [float(f"{z:.12g}") for z in np.linspace(start, stop, n)]
     for z in zs:
         if not (z > 0 and not math.isnan(z)):
             raise click.BadParameter(f"depths must be positive metres (or inf), got {z!r}", param_hint="depth")
@@ -100,7 +109,8 @@ def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolat
     --method shift-and-add averages the views instead. A focal stack (--depths or --sweep) is
     written as numbered images, a multi-page TIFF (depths in its metadata) and an animated GIF
     (each frame captioned with its depth); the depth map is estimated once for the stack.
-    Every output gets a JSON sidecar (OUTPUT.json) naming the calibration used. Depths nearer
+    Every output gets a JSON sidecar (OUTPUT.json) naming the calibration used; its depth_m is
+    in metres, or the string "inf" for --depth inf (JSON has no infinity). Depths nearer
     than where the views overlap are refused (the error names the nearest that works); frames
     that are not ring frames for the calibration are refused unless --no-check.
     """
@@ -145,6 +155,7 @@ def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolat
             raise click.UsageError("the calibration has no upper depth bound: give --zmax for the depth estimation "
                                    "(or --method shift-and-add)")
         dof = {"aperture": aperture, "f_number": f_number, "zmin_m": zmin, "zmax_m": zmax}
+        note_first_compile()
     check_renderable(cal, zs, reference=ref)
     outputs.check()  # again: loading took a while
 

@@ -204,7 +204,8 @@ def colorize_depth(depth_m, *, zmin_m=None, zmax_m=None, confidence=None, min_co
     Examples
     --------
     >>> import numpy as np
-    >>> rgb = colorize_depth(np.array([[0.5, 1.0, np.nan]], np.float32), zmin_m=0.5, zmax_m=1.0)
+    >>> import lfring.depth.io
+    >>> rgb = lfring.depth.io.colorize_depth(np.array([[0.5, 1.0, np.nan]], np.float32), zmin_m=0.5, zmax_m=1.0)
     >>> rgb[0].tolist()  # near: red; far: blue; unknown: black
     [[183, 29, 2], [66, 75, 181], [0, 0, 0]]
     """

@@ -611,12 +611,12 @@ def inspect_frame(
     >>> cal = lfring.RingCalibration.load("twin_binned2")
     >>> def views_of(path):
     ...     return lfring.split_views(lfring.demosaic(lfring.load_raw(path)), cal.layout)
-    >>> result = inspect_frame(views_of("data/synthetic/part_defects.png"), cal, plane_m=0.3, tolerance_m=0.008)
+    >>> result = lfring.inspect_frame(views_of("data/synthetic/part_defects.png"), cal, plane_m=0.3, tolerance_m=0.008)
     >>> result.verdict, result.coverage > 0.9
     ('fail', True)
     >>> [(d.kind, round(d.deviation_m * 1000)) for d in result.defects]  # deviation in mm
     [('bump', 14), ('dent', -13)]
-    >>> inspect_frame(views_of("data/synthetic/part_good.png"), cal, plane_m=0.3, tolerance_m=0.008).verdict
+    >>> lfring.inspect_frame(views_of("data/synthetic/part_good.png"), cal, plane_m=0.3, tolerance_m=0.008).verdict
     'pass'
     """
     chk = _check_inputs(views, calibration, plane_m=plane_m, tolerance_m=tolerance_m, roi=roi,
