@@ -96,8 +96,8 @@ class FrameCheck:
     reason : str
         Why the frame is not a ring frame to process: ``'no_discs'`` (the disc contrast is
         below :data:`MIN_DISC_CONTRAST`), ``'flat_field'`` (a flat (white) frame of the camera:
-        discs without texture, see :data:`FLAT_TEXTURE`) or ``'views_disagree'``; ``''`` when
-        ``ok``.
+        discs without texture, see :data:`FLAT_TEXTURE`; told only of a whole frame, whose
+        discs are seen) or ``'views_disagree'``; ``''`` when ``ok``.
     texture : float
         The least, over the views, RMS of the high-passed luminance over the mean luminance
         inside the discs (near 0 for a flat field); NaN for a frame without light.
@@ -287,7 +287,7 @@ def check_frame(frame, calibration, *, threshold: float = AGREEMENT_THRESHOLD, d
                    f"contrast {contrast:.2f}, a ring frame's is above {MIN_DISC_CONTRAST:g}), so it is an image that "
                    "fills the sensor (an ordinary photograph, a gradient, another camera), not a frame of this ring "
                    f"camera and layout{'' if agree else '; and ' + disagree}; {how}")
-    elif np.isfinite(texture) and texture < FLAT_TEXTURE and (not np.isfinite(contrast) or contrast >= MIN_DISC_CONTRAST):
+    elif np.isfinite(texture) and texture < FLAT_TEXTURE and np.isfinite(contrast):  # discs seen, without texture
         reason = "flat_field"
         message = (f"a flat field: the views are discs of light without texture ({texture:.3f} of their mean, a scene's is "
                    f"above {FLAT_TEXTURE:g}), a flat (white) frame of this camera with no scene to refocus or measure; "
