@@ -17,8 +17,8 @@ from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from lfring.core.signals import blocked_in_children, held_signals
 from lfring.errors import InvalidInputError
 
-__all__ = ["EXECUTORS", "STOP_TIMEOUT_S", "DaskExecutor", "InProcess", "LocalPool", "dask_client", "dask_wait",
-           "local_executor"]
+__all__ = ["EXECUTORS", "STOP_TIMEOUT_S", "WAIT_SLICE_S", "DaskExecutor", "InProcess", "LocalPool", "dask_client",
+           "dask_wait", "held_wait", "local_executor"]
 
 log = logging.getLogger("lfring.batch")
 
@@ -26,6 +26,10 @@ EXECUTORS = ("local", "dask")
 
 STOP_TIMEOUT_S = 2.0
 """How long a stopped worker gets to exit on SIGTERM before it is killed."""
+
+WAIT_SLICE_S = 0.2
+"""The local pool's wait for finished frames runs in slices this long, Ctrl-C and SIGTERM held
+within each: a stop takes effect between slices, never inside the futures' locks."""
 
 _DASK_HINT = 'install it with: python3 -m pip install -c constraints.txt ".[dask]"  (or: pip install "dask[distributed]")'
 
@@ -81,29 +85,42 @@ class LocalPool:
 
     def terminate(self):
         """Stop now: pending frames are cancelled, running ones lost, the workers ended (SIGTERM,
-        then SIGKILL after :data:`STOP_TIMEOUT_S`) and waited for."""
+        then SIGKILL after :data:`STOP_TIMEOUT_S`) and waited for. A second Ctrl-C meanwhile
+        takes effect once they are gone."""
         import time
 
-        # The executor keeps its processes by pid; Python 3.14 has terminate_workers() for this.
-        procs = list((getattr(self._pool, "_processes", None) or {}).values())
-        self._pool.shutdown(wait=False, cancel_futures=True)
-        for p in procs:
-            with contextlib.suppress(ValueError, ProcessLookupError, OSError):
-                p.terminate()
-        deadline = time.monotonic() + STOP_TIMEOUT_S
-        for p in procs:
-            with contextlib.suppress(ValueError, OSError):
-                p.join(max(0.0, deadline - time.monotonic()))
-                if p.is_alive():
-                    p.kill()
-                    p.join(STOP_TIMEOUT_S)
+        with held_signals():
+            # The executor keeps its processes by pid; Python 3.14 has terminate_workers() for this.
+            procs = list((getattr(self._pool, "_processes", None) or {}).values())
+            self._pool.shutdown(wait=False, cancel_futures=True)
+            for p in procs:
+                with contextlib.suppress(ValueError, ProcessLookupError, OSError):
+                    p.terminate()
+            deadline = time.monotonic() + STOP_TIMEOUT_S
+            for p in procs:
+                with contextlib.suppress(ValueError, OSError):
+                    p.join(max(0.0, deadline - time.monotonic()))
+                    if p.is_alive():
+                        p.kill()
+                        p.join(STOP_TIMEOUT_S)
+
+
+def held_wait(fs, return_when=FIRST_COMPLETED):
+    """:func:`concurrent.futures.wait` in slices of :data:`WAIT_SLICE_S`, Ctrl-C and SIGTERM held
+    within each: interrupted inside the futures' locks, a wait would leave one of them taken,
+    and the pool's manager thread (which sets the results) blocked for ever."""
+    while True:
+        with held_signals():
+            done, not_done = wait(fs, timeout=WAIT_SLICE_S, return_when=return_when)
+        if done or not not_done:
+            return done, not_done
 
 
 def local_executor(workers: int):
     """A pool of ``workers`` spawned processes (this process alone for one) and its ``wait``."""
     if workers == 1:
         return InProcess(), wait
-    return LocalPool(workers), wait
+    return LocalPool(workers), held_wait
 
 
 def dask_client(workers: int, scheduler: str | None):

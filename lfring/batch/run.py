@@ -280,7 +280,8 @@ def _execute(run: _Run, todo: list[BatchJob], *, workers: int, executor: str, sc
             for fut in done_set:
                 job = pending.pop(fut)
                 try:
-                    res: FrameResult = fut.result()
+                    with held_signals():  # taking the result takes the future's lock
+                        res: FrameResult = fut.result()
                 except Exception as exc:  # noqa: BLE001 - a worker died (crash, killed): retry once elsewhere
                     if job.input not in retried and executor == "local" and not isinstance(pool, InProcess):
                         retried.add(job.input)

@@ -60,4 +60,5 @@ class CliFormatter(logging.Formatter):
     """A log formatter whose lines speak the CLI's words (:func:`cli_words`)."""
 
     def formatMessage(self, record: logging.LogRecord) -> str:  # noqa: N802 - logging's name
+        """The record's line as :class:`logging.Formatter` makes it, in the CLI's words."""
         return cli_words(super().formatMessage(record))

@@ -68,16 +68,16 @@ def test_good_part_passes_and_defects_fail(tmp_path, capsys):
 @pytest.mark.parametrize(
     "args, text",
     [
-        (["--tolerance", "0"], "tolerance_m must be a positive"),
-        (["--tolerance", "nan"], "tolerance_m must be a positive"),
-        (["--tolerance", "-0.01"], "tolerance_m must be a positive"),
+        (["--tolerance", "0"], "--tolerance must be a positive"),
+        (["--tolerance", "nan"], "--tolerance must be a positive"),
+        (["--tolerance", "-0.01"], "--tolerance must be a positive"),
         (["--tolerance", "0.01", "--roi", "600,600,200,200"], "roi (x=600, y=600, w=200, h=200) does not fit"),
         (["--tolerance", "0.01", "--roi", "1,2,3"], "X,Y,W,H"),
         (["--tolerance", "0.01", "--reference", "7"], "reference"),
         (["--tolerance", "0.01", "--reference-depth", "missing.pfm"], "not found"),
         (["--tolerance", "ten"], "not a valid float"),
-        (["--tolerance", "0.01", "--min-coverage", "1.5"], "min_coverage must be a number in [0, 1], got 1.5"),
-        (["--tolerance", "0.01", "--min-coverage", "-0.1"], "min_coverage must be a number in [0, 1]"),
+        (["--tolerance", "0.01", "--min-coverage", "1.5"], "--min-coverage must be a number in [0, 1], got 1.5"),
+        (["--tolerance", "0.01", "--min-coverage", "-0.1"], "--min-coverage must be a number in [0, 1]"),
     ],
 )
 def test_bad_input_exits_2(tmp_path, capsys, args, text):
