@@ -99,7 +99,7 @@ def test_a_gradient_has_no_discs_and_is_refused(cal, kind):
     assert not res.ok and res.reason == "no_discs" and "no discs" in res.message and "--no-check" in res.message
 
 
-@pytest.mark.parametrize("kind", ["horizontal", "diagonal"])
+@pytest.mark.parametrize("kind", ["horizontal"])
 def test_cli_check_and_refocus_refuse_a_gradient(tmp_path, kind):
     """What the user did: a gradient PNG of the sensor's size through `lfring check` (exit 1) and
     `lfring refocus` (exit 2, nothing written)."""

@@ -29,8 +29,15 @@ def _up(pid: int) -> bool:
     return False
 
 
+def _default_sigint():
+    """In the child: Ctrl-C as a terminal delivers it (a shell starts background jobs, and so
+    maybe this test, with SIGINT ignored, which a Python program keeps)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _interrupt(cmd, cwd, delay_s, sig):
-    proc = subprocess.Popen(cmd, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(cmd, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=_default_sigint)
     t0 = time.monotonic()
     while not _up(proc.pid) and proc.poll() is None and time.monotonic() - t0 < 60:
         time.sleep(0.005)
@@ -54,7 +61,7 @@ def test_interrupted_depth_leaves_nothing_and_the_rerun_completes(tmp_path):
     cmd = [sys.executable, "-m", "lfring", "depth", str(SCENE), "--zmin", "0.3", "--zmax", "1.0", "--method", "local",
            "-o", "d/"]
     rng = random.Random(4)
-    for i, sig in enumerate([signal.SIGINT, signal.SIGTERM] * 2):
+    for i, sig in enumerate([signal.SIGINT, signal.SIGTERM]):
         shutil.rmtree(tmp_path / "d", ignore_errors=True)
         code, err = _interrupt(cmd, tmp_path, rng.uniform(0.0, 2.5) if i else 2.0, sig)
         assert "Traceback" not in err
@@ -84,7 +91,7 @@ def test_interrupted_depth_leaves_nothing_and_the_rerun_completes(tmp_path):
 
 @pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="needs Linux /proc to see the command start")
 def test_interrupted_focal_sweep_leaves_nothing(tmp_path):
-    cmd = [sys.executable, "-m", "lfring", "refocus", str(SCENE), "--sweep", "0.3:1.0:15", "--method", "shift-and-add",
+    cmd = [sys.executable, "-m", "lfring", "refocus", str(SCENE), "--sweep", "0.3:1.0:8", "--method", "shift-and-add",
            "-o", "stack/scene.png"]
     for delay, sig in ((1.0, signal.SIGINT), (2.0, signal.SIGTERM)):
         shutil.rmtree(tmp_path / "stack", ignore_errors=True)
@@ -94,11 +101,11 @@ def test_interrupted_focal_sweep_leaves_nothing(tmp_path):
         if code != 0:
             assert code == 128 + sig and files == [], files
         else:
-            assert len(files) == 15 * 2 + 3
+            assert len(files) == 8 * 2 + 3
     done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
     files = _files(tmp_path / "stack")
-    assert len(files) == 15 * 2 + 3 and "scene_stack.tif" in files and "scene_stack.gif" in files
+    assert len(files) == 8 * 2 + 3 and "scene_stack.tif" in files and "scene_stack.gif" in files
     assert "scene_stack.lfring.json" in files
 
 
