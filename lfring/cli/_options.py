@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import functools
 import logging
+from pathlib import Path
 
 import click
 
@@ -187,3 +188,27 @@ def progress_bar(total: int, desc: str, unit: str):
 
     quiet = not logging.getLogger("lfring").isEnabledFor(logging.INFO)
     return tqdm(total=total, desc=desc, unit=unit, disable=quiet or not sys.stderr.isatty(), leave=False, dynamic_ncols=True)
+
+
+def note_first_compile() -> None:
+    """Say, once per machine, that the depth kernels are being compiled: numba compiles them on
+    their first use and keeps them on disk, so only the very first depth estimate is slow, and
+    silent without this note. Looks for numba's cache index of every kernel module."""
+    import os
+    import sys
+
+    import lfring.depth
+
+    root = Path(lfring.depth.__file__).parent
+    tag = f"py{sys.version_info.major}{sys.version_info.minor}"
+    where = [Path(d) for d in (os.environ.get("NUMBA_CACHE_DIR"), Path.home() / ".cache" / "numba") if d]
+
+    def cached(module: Path) -> bool:
+        for d in (module.parent / "__pycache__", *where):
+            if d.is_dir() and next(d.rglob(f"{module.stem}.*.{tag}.nbi"), None) is not None:
+                return True
+        return False
+
+    if not all(cached(m) for m in root.rglob("*kernels.py")):
+        logging.getLogger("lfring.cli").info("compiling the depth kernels once (numba keeps them on disk): this first "
+                                             "run takes longer")

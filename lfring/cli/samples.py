@@ -18,6 +18,7 @@ import shlex
 import sys
 from pathlib import Path
 
+from lfring.batch.record import RECORD_SUFFIX
 from lfring.cli.main import main as cli
 
 __all__ = ["SAMPLES", "make_samples", "sha256"]
@@ -62,6 +63,8 @@ def make_samples(outdir: str | Path, *, names=None, overwrite: bool = False) -> 
         code = cli(["-q", "synth", *args])
         if code != 0:
             raise RuntimeError(f"lfring synth {' '.join(args)} failed with exit code {code}")
+        # The command's record (which names this run's inputs and version) is not a sample.
+        (out / f"{name}{RECORD_SUFFIX}").unlink(missing_ok=True)
         files = sorted(p for p in out.glob(f"{name}*") if p.is_file()) + sorted((out / f"{name}_truth").iterdir())
         entries[name] = {
             "command": "lfring synth " + SAMPLES[name] + f" --name {name} -o data/synthetic",

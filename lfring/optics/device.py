@@ -269,7 +269,8 @@ def load_device(name_or_path: str | Path) -> RingDevice:
 
     Examples
     --------
-    >>> dev = load_device("prototype")
+    >>> import lfring.optics
+    >>> dev = lfring.optics.load_device("prototype")
     >>> round(dev.main_focal_length_m * 1e3, 3)
     16.0
     """
