@@ -127,7 +127,7 @@ def _process(input_path, settings: BatchSettings, outputs, timings) -> tuple[dic
         checked = check_frame(image, cal)
         if not checked.ok:
             raise InvalidInputError(f"{input_path}: {checked.message}")
-    views = split_views(image, cal.layout)
+    views = split_views(image, cal)  # the calibration's lens distortion undone, its flat field divided
     if not np.all(np.isfinite(views)):
         raise InvalidInputError(f"{input_path}: the frame holds NaN or infinite values")
     timings["load"] = time.perf_counter() - t

@@ -197,6 +197,8 @@ def estimate_distortion(views_by_depth: dict, homographies_by_depth: dict, *, re
                 np.sum((apply_homography(_solve_homography(xk, xj), xk) - xj) ** 2, axis=1) for _, _, _, xk, xj in corr]))))
         dist, hom, rms = _solve(corr, dist, hom, radius)
         log.debug("distortion round %d: %d tiles, RMS %.4f px", rounds, count, rms)
+        if rms >= KEEP_RATIO * rms_before:
+            break  # the distortion explains nothing the homographies leave: nothing to refine
     out_h = {}
     for z in depths:
         h = np.tile(np.eye(3), (num, 1, 1))
