@@ -54,7 +54,7 @@ def main(argv=None) -> int:
         if cal is None:  # the first frame decides the calibration (and so the frame size)
             cal = lfring.RingCalibration.load(args.calib) if args.calib else default_calibration(image.shape[1::-1])[0]
         cal.check_frame(image.shape, what=name)  # every frame must match it
-        views = lfring.split_views(image, cal.layout)  # (4, h, w, 3)
+        views = lfring.split_views(image, cal)  # (4, h, w, 3)
         t1 = time.perf_counter()
         if refocuser is None:  # built once: the per-frame work is four warps and a sum
             refocuser = lfring.Refocuser(cal, args.depth, interpolation="linear")

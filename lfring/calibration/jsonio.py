@@ -26,7 +26,7 @@ from lfring.views import Layout
 
 __all__ = [
     "CALIBRATION_VERSION",
-    "FLAT_FIELD_GRID_PX",
+    "FLAT_FIELD_GRID_DIVISIONS",
     "READABLE_VERSIONS",
     "builtin_calibrations",
     "calibration_from_dict",
@@ -43,9 +43,10 @@ version 1 (neither) are read as they were; other versions are refused."""
 READABLE_VERSIONS = (1, 2)
 """The file versions :func:`calibration_from_dict` reads."""
 
-FLAT_FIELD_GRID_PX = 16
-"""Spacing in view pixels of the samples of a calibration's flat field in its file (the
-vignetting is smooth: a bicubic spline through them restores it)."""
+FLAT_FIELD_GRID_DIVISIONS = 48
+"""A calibration's flat field is stored as samples every ``side / FLAT_FIELD_GRID_DIVISIONS``
+pixels of the views (14 px on the binned twin's 705 px views): the vignetting is smooth, and a
+bicubic spline through them restores it to a fraction of a per cent, rims included."""
 
 KEYS = frozenset({
     "lfring_calibration_version", "source", "device", "raw_width_px", "raw_height_px", "bayer_pattern", "layout",
@@ -112,11 +113,13 @@ def calibration_to_dict(calibration: RingCalibration) -> dict:
             "views": [d.to_dict() for d in cal.distortion],
         }
     if cal.flat_field is not None:
-        grid = cal.flat_field.to_grid(FLAT_FIELD_GRID_PX)
+        step = max(2, round(min(cal.layout.view_shape) / FLAT_FIELD_GRID_DIVISIONS))
+        grid = cal.flat_field.to_grid(step)
         out["flat_field"] = {
-            "step_px": FLAT_FIELD_GRID_PX,
+            "step_px": step,
             "meaning": "each view's response to a flat white field (1 at the brightest pixel of any view), sampled "
-                       "every step_px pixels of the undistorted views from pixel (0, 0)",
+                       "every step_px pixels of the undistorted views from pixel (0, 0), and on their last row "
+                       "and column",
             "response": np.round(grid.astype(np.float64), 4).tolist(),
         }
     return out

@@ -35,7 +35,6 @@ __all__ = [
     "FlatField",
     "LensDistortion",
     "PolynomialDistortion",
-    "as_polynomial",
     "distortion_from_dict",
     "polynomial_basis",
     "remap_views",
@@ -331,28 +330,6 @@ def _powers(z: np.ndarray) -> tuple[list, list]:
     return zp, zbp
 
 
-def as_polynomial(distortion: Distortion, *, centre_px, scale_px, radius_px: float | None = None) -> PolynomialDistortion:
-    """The :class:`PolynomialDistortion` about ``centre_px`` (scale ``scale_px``) nearest to any
-    distortion over the disc of ``radius_px`` (default ``scale_px``) about that centre, up to an
-    affine map on the ideal side (which a view's homographies absorb): least squares on a grid.
-    Exact for a Brown-Conrady lens without tilt."""
-    r = float(scale_px if radius_px is None else radius_px)
-    t = np.linspace(-1.0, 1.0, 41)
-    gx, gy = np.meshgrid(t, t)
-    inside = gx * gx + gy * gy <= 1.0
-    z = (gx[inside] + 1j * gy[inside]) * (r / scale_px)
-    u = np.stack([centre_px[0] + scale_px * z.real, centre_px[1] + scale_px * z.imag], axis=-1)
-    d = distortion.distort(u) - u
-    target = (d[:, 0] + 1j * d[:, 1]) / scale_px
-    basis = np.concatenate([polynomial_basis(z), np.stack([np.ones_like(z), z, np.conj(z)], axis=-1)], axis=-1)
-    # Real least squares over complex unknowns: stack real and imaginary parts.
-    a = np.concatenate([np.concatenate([basis.real, -basis.imag], axis=1), np.concatenate([basis.imag, basis.real], axis=1)])
-    sol, *_ = np.linalg.lstsq(a, np.concatenate([target.real, target.imag]), rcond=None)
-    n = basis.shape[1]
-    coef = sol[:n] + 1j * sol[n:]
-    return PolynomialDistortion(tuple(float(v) for v in centre_px), float(scale_px), tuple(coef[: len(POLYNOMIAL_TERMS)]))
-
-
 def distortion_from_dict(data) -> Distortion:
     """A distortion from its JSON form (``to_dict``); raises InvalidInputError naming the bad key."""
     if not isinstance(data, dict):
@@ -383,6 +360,13 @@ def distortion_from_dict(data) -> Distortion:
         coef[POLYNOMIAL_TERMS.index((t[0], t[1]))] = complex(check_number(t[2], "term real part"),
                                                              check_number(t[3], "term imaginary part"))
     return PolynomialDistortion(centre_px=data["centre_view_px"], scale_px=data["scale_px"], coefficients=tuple(coef))
+
+
+def _grid_nodes(n: int, step: int) -> np.ndarray:
+    """Pixel positions of a flat-field grid's nodes along a side of ``n`` pixels: every ``step``
+    pixels from 0, and the last pixel."""
+    nodes = np.arange(0, n - 1, step)
+    return np.append(nodes, n - 1) if n > 1 else np.zeros(1, int)
 
 
 def _points(xy) -> np.ndarray:
@@ -514,35 +498,35 @@ class FlatField:
         return self.response.shape[1], self.response.shape[2]
 
     @classmethod
-    def from_views(cls, flat_views, *, smoothing_px: float = 1.5) -> FlatField:
+    def from_views(cls, flat_views, *, smoothing_px: float = 1.0) -> FlatField:
         """The flat field of a flat (white) frame's views (V, h, w[, C]): their luminance, lightly
-        smoothed (noise must not be divided into every frame), over its brightest level (the
-        99.9th percentile of all views, so that a few hot pixels do not set it)."""
+        smoothed (noise must not be divided into every frame; an average of many flat frames
+        needs none), over its brightest level (the 99.9th percentile of all views, so that a
+        few hot pixels do not set it)."""
         v = np.asarray(flat_views, dtype=np.float32)
         if v.ndim == 4:
             v = v.mean(axis=3)
         if v.ndim != 3:
             raise InvalidInputError(f"flat views must be (V, h, w) or (V, h, w, C), got shape {np.shape(flat_views)}")
-        lum = np.stack([cv2.GaussianBlur(x, (0, 0), smoothing_px) if smoothing_px > 0 else x for x in v])
+        lum = np.stack([cv2.GaussianBlur(x, (0, 0), smoothing_px, borderType=cv2.BORDER_REPLICATE) if smoothing_px > 0
+                        else x for x in v])
         level = float(np.percentile(lum, 99.9))
         if not level > 0.01:
             raise InvalidInputError("the flat frame is black where the views are; is it a flat (white) frame?")
         return cls(lum / level)
 
     def gains(self) -> np.ndarray:
-        """(V, h, w) float32 ``1 / response``, 0 where the response is below :data:`FLAT_FLOOR`
-        (nothing to correct there: it lies outside the views' valid discs)."""
+        """(V, h, w) float32 ``1 / max(response, FLAT_FLOOR)``: where hardly any light arrives
+        (the discs' outer rims, outside the valid discs) the views are not amplified further."""
         if "gains" not in self._gains:
-            r = self.response
-            g = np.zeros_like(r)
-            np.divide(np.float32(1.0), r, out=g, where=r >= FLAT_FLOOR)
+            g = (np.float32(1.0) / np.maximum(self.response, np.float32(FLAT_FLOOR))).astype(np.float32)
             g.setflags(write=False)
             self._gains["gains"] = g
         return self._gains["gains"]
 
     def apply(self, views) -> np.ndarray:
-        """(V, h, w, C) float32 views divided by the response, clipped to [0, 1] (a value above 1
-        is a radiance that would have saturated the brightest pixel), 0 outside the discs."""
+        """(V, h, w, C) float32 views divided by the response (:meth:`gains`), clipped to [0, 1]
+        (a value above 1 is a radiance that would have saturated the brightest pixel)."""
         v = np.asarray(views, dtype=np.float32)
         if v.ndim == 3:
             v = v[..., None]
@@ -556,31 +540,31 @@ class FlatField:
     # -- a compact form for calibration files ----------------------------------------------
     def to_grid(self, step_px: int) -> np.ndarray:
         """(V, gh, gw) samples of the response every ``step_px`` pixels from pixel (0, 0), the
-        last row and column at or beyond the views' far edges (what :meth:`from_grid` reads)."""
+        last row and column on the views' far edges (what :meth:`from_grid` reads)."""
         step = check_int(step_px, "flat-field grid step", minimum=1)
-        h, w = self.view_shape
-        gh, gw = -(-(h - 1) // step) + 1, -(-(w - 1) // step) + 1
-        ys = np.minimum(np.arange(gh) * step, h - 1)
-        xs = np.minimum(np.arange(gw) * step, w - 1)
-        # Samples of the response smoothed over a quarter of the step: the grid keeps the
-        # discs' rims (which fall over tens of pixels) and leaves out pixel noise.
-        sm = np.stack([cv2.GaussianBlur(r, (0, 0), step / 4.0) for r in self.response]) if step > 1 else self.response
-        return np.ascontiguousarray(sm[:, ys][:, :, xs], dtype=np.float32)
+        ys, xs = _grid_nodes(self.view_shape[0], step), _grid_nodes(self.view_shape[1], step)
+        # Point samples: the response is already smoothed, and smoothing it again would flatten
+        # the vignetting's curvature.
+        return np.ascontiguousarray(self.response[:, ys][:, :, xs], dtype=np.float32)
 
     @classmethod
     def from_grid(cls, grid, step_px: int, view_shape) -> FlatField:
-        """The flat field whose response :meth:`to_grid` sampled: interpolated (bicubic) back to
-        every pixel of views of ``view_shape`` (h, w)."""
-        g = np.asarray(grid, dtype=np.float32)
+        """The flat field whose response :meth:`to_grid` sampled: interpolated (a bicubic
+        spline) back to every pixel of views of ``view_shape`` (h, w)."""
+        from scipy.interpolate import RectBivariateSpline
+
+        g = np.asarray(grid, dtype=np.float64)
         step = check_int(step_px, "flat-field grid step", minimum=1)
         h, w = (int(n) for n in view_shape)
-        if g.ndim != 3 or g.shape[1] < -(-(h - 1) // step) + 1 or g.shape[2] < -(-(w - 1) // step) + 1:
+        ys, xs = _grid_nodes(h, step), _grid_nodes(w, step)
+        if g.ndim != 3 or g.shape[1:] != (len(ys), len(xs)):
             raise InvalidInputError(f"a flat-field grid of step {step} px for {w} x {h} px views must be (V, "
-                                    f"{-(-(h - 1) // step) + 1}, {-(-(w - 1) // step) + 1}), got shape {g.shape}")
-        yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
-        mx, my = xx / step, yy / step
-        out = np.stack([cv2.remap(x, mx, my, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE) for x in g])
-        return cls(out)
+                                    f"{len(ys)}, {len(xs)}), got shape {g.shape}")
+        # A cubic spline through the nodes (OpenCV's remap would round the positions to a 32nd
+        # of a node spacing, half a pixel here).
+        k = min(3, len(ys) - 1, len(xs) - 1)
+        rows, cols = np.arange(h, dtype=np.float64), np.arange(w, dtype=np.float64)
+        return cls(np.stack([RectBivariateSpline(ys, xs, x, kx=k, ky=k)(rows, cols) for x in g]))
 
     def same_as(self, other: FlatField) -> bool:
         """Whether two flat fields hold the same response (array equality)."""
