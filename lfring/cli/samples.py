@@ -8,8 +8,9 @@ commands, so they are made by running them. The flat frame is noise-free and the
 the 'low' noise preset, standing for the averages of many exposures that calibration captures
 are; the scene and the parts use 'realistic' noise, the hard scene 'low' (with 'realistic'
 noise its frame would take the folder past the size the sample set is kept under). The ``lens_``
-samples are of the prototype with real mini-lenses (``calib/prototype_lenses.toml``), a flat and
-two targets to calibrate its distortion from, on a 4 x 4 binned sensor at 8 bits (small files).
+samples (in ``lenses/``) are of the prototype with real mini-lenses (``calib/prototype_lenses.toml``),
+a flat and two targets to calibrate its distortion from, on a 4 x 4 binned sensor at 8 bits
+(small files).
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ from pathlib import Path
 
 from lfring.cli.main import main as cli
 
-__all__ = ["SAMPLES", "make_samples", "sha256"]
+__all__ = ["SAMPLES", "SUBFOLDERS", "make_samples", "sha256"]
 
 _COMMON = "--binning 2 --pattern RGGB --bit-depth 12"
 _LENSES = "--device prototype_lenses --binning 4 --pattern RGGB --bit-depth 8"
@@ -44,6 +45,10 @@ SAMPLES = {
     "lens_target_0.3m": f"target --depth 0.3 {_LENSES} --noise low --seed 1",
     "lens_target_1m": f"target --depth 1.0 {_LENSES} --noise low --seed 3",
 }
+
+#: samples kept in a folder of their own: the real-lens frames are of another size than the
+#: twin's (no built-in calibration fits them), so they stay out of the main folder's frames.
+SUBFOLDERS = {"lens_flat": "lenses", "lens_target_0.3m": "lenses", "lens_target_1m": "lenses"}
 
 
 def sha256(path: Path) -> str:
@@ -67,15 +72,17 @@ def make_samples(outdir: str | Path, *, names=None, overwrite: bool = False) -> 
     out = Path(outdir)
     entries = {}
     for name in names or SAMPLES:
-        args = shlex.split(SAMPLES[name]) + ["--name", name, "-o", str(out)] + (["--overwrite"] if overwrite else [])
+        where = out / SUBFOLDERS.get(name, "")
+        args = shlex.split(SAMPLES[name]) + ["--name", name, "-o", str(where)] + (["--overwrite"] if overwrite else [])
         code = cli(["-q", "synth", *args])
         if code != 0:
             raise RuntimeError(f"lfring synth {' '.join(args)} failed with exit code {code}")
-        files = sorted(p for p in out.glob(f"{name}*") if p.is_file()) + sorted((out / f"{name}_truth").iterdir())
+        files = sorted(p for p in where.glob(f"{name}*") if p.is_file()) + sorted((where / f"{name}_truth").iterdir())
         entries[name] = {
-            "command": "lfring synth " + SAMPLES[name] + f" --name {name} -o data/synthetic",
+            "command": "lfring synth " + SAMPLES[name] + f" --name {name} -o "
+                       + "/".join(["data/synthetic", *([SUBFOLDERS[name]] if name in SUBFOLDERS else [])]),
             "seed": int(shlex.split(SAMPLES[name])[-1]),
-            "files": {str(p.relative_to(out)): sha256(p) for p in files},
+            "files": {p.relative_to(out).as_posix(): sha256(p) for p in files},
         }
     if names is None:
         from lfring import __version__
