@@ -76,6 +76,8 @@ _MAX_ROUNDS = 2
 #: tiles of the correspondences: this fraction of the disc's radius on a side (about 32 px on
 #: the binned twin: a few hundred tiles per view and plane).
 _TILE_FRACTION = 0.09
+#: fewest tiles a pair of views of one plane must share to take part.
+_MIN_TILES = 16
 #: the tiles kept only inside the discs shrunk by this fraction of their radius (their rims are
 #: dark and, without a flat, uneven).
 _RIM_FRACTION = 0.04
@@ -101,7 +103,8 @@ class DistortionFit:
         One per view (view pixels, ideal -> recorded), centred on the view's disc, ``scale_px``
         its radius.
     homographies : dict of float to (V, 3, 3)
-        Each plane's ``H_ref_from_view`` between the undistorted views (identity for the reference).
+        Each plane's ``H_ref_from_view`` between the undistorted views (identity for the
+        reference, NaN for a view that shares too little of the plane with it).
     rms_px : float
         RMS of the correspondences' residuals after the fit, pixels.
     rms_before_px : float
@@ -185,12 +188,16 @@ def estimate_distortion(views_by_depth: dict, homographies_by_depth: dict, *, re
     rms_before = None
     rounds = 0
     for rounds in range(1, _MAX_ROUNDS + 1):
-        corr = _correspondences(lum, hom, dist, masks, circles, tile)
+        # Pairs of views that share too little of the target to measure are left out; every
+        # view must still be in some pair.
+        corr = [c for c in _correspondences(lum, hom, dist, masks, circles, tile) if len(c[3]) >= _MIN_TILES]
         count = sum(len(c[3]) for c in corr)
-        if count < 16 * len(corr):
+        seen = {v for c in corr for v in c[1:3]}
+        if len(seen) < num:
             raise EstimationError(
-                f"only {count} tiles of the target could be matched between the views (tiles of {tile} px); the "
-                "distortion cannot be estimated: is the target textured and in the field of every view?")
+                f"too few tiles of the target could be matched between the views (tiles of {tile} px; view(s) "
+                f"{sorted(set(range(num)) - seen)} in no pair with {_MIN_TILES} or more): is the target textured and "
+                "in the field of every view?")
         if rms_before is None:
             # What homographies alone leave: each plane's and pair's, by linear least squares.
             rms_before = float(np.sqrt(np.mean(np.concatenate([
@@ -203,8 +210,10 @@ def estimate_distortion(views_by_depth: dict, homographies_by_depth: dict, *, re
     for z in depths:
         h = np.tile(np.eye(3), (num, 1, 1))
         for k in range(num):
-            if k != reference:
-                pair = (min(k, reference), max(k, reference))
+            pair = (min(k, reference), max(k, reference))
+            if k != reference and pair not in hom.get(z, {}):
+                h[k] = np.nan  # the view shares too little with the reference on this plane
+            elif k != reference:
                 hk = hom[z][pair]
                 h[k] = hk if pair[0] == reference else np.linalg.inv(hk)
                 h[k] /= h[k][2, 2]
@@ -225,7 +234,7 @@ def distortion_effect_px(distortions, homographies_by_depth: dict, masks, refere
     h, w = masks.shape[1:]
     for hs in homographies_by_depth.values():
         for k in range(len(distortions)):
-            if k == reference:
+            if k == reference or not np.all(np.isfinite(hs[k])):
                 continue
             ys, xs = np.nonzero(masks[k][::8, ::8])
             pts = np.stack([xs * 8.0, ys * 8.0], axis=-1)

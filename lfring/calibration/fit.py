@@ -11,7 +11,7 @@ import numpy as np
 from lfring.calibration.build import calibration_from_plane_homographies
 from lfring.calibration.ring import RingCalibration
 from lfring.core.lens import remap_views, undistortion_maps
-from lfring.errors import InvalidInputError
+from lfring.errors import EstimationError, InvalidInputError
 from lfring.views import Layout, detect_layout, flat_field_from_frame, split_views
 
 __all__ = ["calibrate", "check_disparity_sign", "load_image"]
@@ -216,8 +216,13 @@ def _lens_distortion(views, measured, layout, masks, flat_views, reference):
     if layout.circles is None:
         log.warning("the layout has no valid discs: the lens distortion is not estimated")
         return None, layout, {"estimated": False, "reason": "the layout has no valid discs"}
-    fit = estimate_distortion(views, measured, reference=reference, masks=masks, circles=layout.circles,
-                              flat_views=flat_views)
+    try:
+        fit = estimate_distortion(views, measured, reference=reference, masks=masks, circles=layout.circles,
+                                  flat_views=flat_views)
+    except EstimationError as exc:
+        # The homographies were measured; only the finer model could not be: say so, go on without it.
+        log.warning("the lens distortion could not be estimated (%s); the views are used as they are cut", exc)
+        return None, layout, {"estimated": False, "reason": str(exc)}
     kept = not fit.negligible and fit.rms_px < KEEP_RATIO * fit.rms_before_px
     info = {"estimated": True, "modelled": kept, "effect_px": fit.effect_px, "tiles_rms_before_px": fit.rms_before_px,
             "tiles_rms_after_px": fit.rms_px, "tiles": fit.correspondences, "rounds": fit.rounds,

@@ -122,10 +122,12 @@ def test_calibration_files_carry_the_distortion_and_the_flat_field(lenses, tmp_p
     pts = np.array([[100.0, 120.0], [200.0, 50.0]])
     for a, b in zip(cal.distortion, back.distortion):
         np.testing.assert_allclose(b.distort(pts), a.distort(pts), atol=1e-9)
-    inside = cal.layout.masks()
-    assert float(np.abs(back.flat_field.response - cal.flat_field.response)[inside].max()) < 0.01
+    inside = cal.layout.masks() & (cal.flat_field.response > 0.3)
+    ratio = back.flat_field.response[inside] / cal.flat_field.response[inside]
+    assert float(np.abs(ratio - 1).max()) < 0.02  # the file's grid restores the response
     image = demosaic(_frame(targets[0.5]))
-    np.testing.assert_allclose(split_views(image, back)[:, inside[0]], split_views(image, cal)[:, inside[0]], atol=0.02)
+    a, b = split_views(image, back), split_views(image, cal)
+    assert float(np.abs(a - b)[inside].max()) < 0.02
     # Version 1 files (no distortion, no flat field) still read; a version 1 file that holds
     # either is refused.
     old = RingCalibration.load("twin_binned2").to_dict()
