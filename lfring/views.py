@@ -5,6 +5,10 @@ same size, in the frame *after* the optional 180-degree rotation (the frame the 
 numbered in: for the ring 0 top-left, 1 top-right, 2 bottom-left, 3 bottom-right), plus an
 optional valid disc per view. Any number of views from ``MIN_VIEWS`` to ``MAX_VIEWS`` is
 accepted: :func:`grid_layout` tiles the views of a stereo pair or a grid of cameras.
+
+Split with a calibration (:func:`split_views`, :func:`correct_views`), each view is also
+corrected as the calibration says: its lens distortion undone by one remap (tables made once per
+calibration) and its vignetting divided out by a flat field.
 """
 
 from __future__ import annotations

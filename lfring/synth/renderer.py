@@ -2,9 +2,11 @@
 
 Each view renders its surfaces as layers (:mod:`lfring.synth.layers`): premultiplied colour,
 coverage and depth, blurred by their own defocus disc (:mod:`lfring.synth.defocus`, the blur
-varying with depth across slanted and curved surfaces), composited front to back. Then come
-per-view vignetting and the iris field stop, the optional 180-degree rotation, and the sensor
-(:mod:`lfring.synth.sensor`: the Bayer mosaic, shot and read noise, quantisation).
+varying with depth across slanted and curved surfaces), composited front to back. Through real
+mini-lenses (``RingDevice.lenses``) each pixel's chief ray is bent by its lens's distortion
+before it meets the scene. Then come per-view vignetting (each lens's own, with its
+transmission and fall-off) and the iris field stop, the optional 180-degree rotation, and the
+sensor (:mod:`lfring.synth.sensor`: the Bayer mosaic, shot and read noise, quantisation).
 
 The views render on parallel threads (the heavy loops are OpenCV's and NumPy's, which release
 the GIL) while the noise is drawn on another; every thread writes its own part of the outputs,
