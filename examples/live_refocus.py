@@ -64,7 +64,7 @@ def main(argv=None) -> int:
                 checked = lfring.check_frame(image, cal)  # an ordinary photograph has no discs of light
                 if not checked.ok:
                     raise lfring.InvalidInputError(f"not a ring frame for the calibration: {checked.message}")
-            views = lfring.split_views(image, cal.layout)  # (4, h, w, 3)
+            views = lfring.split_views(image, cal)  # (4, h, w, 3)
         except (lfring.LfringError, OSError) as exc:  # a bad frame: say so and take the next one
             print(f"ERROR {name}: {exc}")
             bad += 1

@@ -101,6 +101,14 @@ class FrameCheck:
     texture : float
         The least, over the views, RMS of the high-passed luminance over the mean luminance
         inside the discs (near 0 for a flat field); NaN for a frame without light.
+    fit_px, fit_depth_m : float
+        How well the frame fits the calibration (``check_frame(..., measure_fit=True)``): the
+        median over square tiles of the views (corrected as the calibration says) of how far each
+        tile of a view still lies from its place in view 0 at the one depth that fits them best
+        (``fit_depth_m``, metres), in pixels. On a frame of a plane at one depth (a target) it
+        is the calibration's error there (hundredths of a pixel when the calibration fits the
+        camera, tenths when it misses the lenses' distortion); on a scene it also holds the
+        scene's departures from that depth. NaN when not measured.
     """
 
     ok: bool
@@ -116,6 +124,8 @@ class FrameCheck:
     raw: dict = field(default_factory=dict)
     reason: str = ""
     texture: float = float("nan")
+    fit_px: float = float("nan")
+    fit_depth_m: float = float("nan")
 
     @property
     def flat_field(self) -> bool:
@@ -192,7 +202,8 @@ def _soft_discs(layout, f: int) -> np.ndarray:
     return _discs(shrunk, f).astype(np.float32)
 
 
-def check_frame(frame, calibration, *, threshold: float = AGREEMENT_THRESHOLD, downsample: int = CHECK_DOWNSAMPLE) -> FrameCheck:
+def check_frame(frame, calibration, *, threshold: float = AGREEMENT_THRESHOLD, downsample: int = CHECK_DOWNSAMPLE,
+                measure_fit: bool = False) -> FrameCheck:
     """Check that ``frame`` is a ring frame of the camera ``calibration`` describes.
 
     Parameters
@@ -205,6 +216,9 @@ def check_frame(frame, calibration, *, threshold: float = AGREEMENT_THRESHOLD, d
         Agreement below it makes ``ok`` False (see :data:`AGREEMENT_THRESHOLD`).
     downsample : int
         Views are reduced by this factor first.
+    measure_fit : bool
+        Also measure how well the views fit the calibration at the best depth (``fit_px``), at
+        full resolution (about as long again as the check).
 
     Returns
     -------
@@ -222,7 +236,7 @@ def check_frame(frame, calibration, *, threshold: float = AGREEMENT_THRESHOLD, d
     ``downsample`` pixels of view motion apart: 7 depths for the built-in calibration.
     """
     from lfring.depth.hypotheses import depth_hypotheses
-    from lfring.views import split_views
+    from lfring.views import correct_views, split_views
 
     downsample = check_int(downsample, "downsample", minimum=1)
     image, views, info = _image_of(frame)
@@ -251,6 +265,10 @@ def check_frame(frame, calibration, *, threshold: float = AGREEMENT_THRESHOLD, d
             mean_in, mean_out = a / n_in, max(total - a, 0.0) / n_out
             contrast = (mean_in - mean_out) / (mean_in + mean_out) if mean_in + mean_out > 0 else 0.0
 
+    if image is not None:
+        # Exposure is judged on the views as recorded; agreement on the views the calibration's
+        # homographies relate (its lens distortion undone, its flat field divided out).
+        lum = correct_views(lum[..., None], calibration)[..., 0]
     f = downsample
     h, w = layout.view_shape
     small = _small(lum, f)
@@ -299,9 +317,11 @@ def check_frame(frame, calibration, *, threshold: float = AGREEMENT_THRESHOLD, d
     else:
         reason = ""
         message = f"the views agree (ZNCC {agreement:.2f} at {best_z:.3g} m, threshold {threshold:g}): a ring frame for this calibration"
-    return FrameCheck(ok=not reason, agreement=agreement, best_depth_m=best_z, agreement_by_depth=by_depth,
+    ok = not reason
+    fit, fit_z = _fit_px(lum, calibration, best_z) if measure_fit and ok else (float("nan"), float("nan"))
+    return FrameCheck(ok=ok, agreement=agreement, best_depth_m=best_z, agreement_by_depth=by_depth,
                       threshold=threshold, size_px=size, clipped_fraction=clipped, dark_fraction=dark, disc_contrast=contrast,
-                      message=message, raw=info, reason=reason, texture=texture)
+                      message=message, raw=info, reason=reason, texture=texture, fit_px=fit, fit_depth_m=fit_z)
 
 
 def _texture(small: np.ndarray, hp: np.ndarray, masks: np.ndarray) -> float:
@@ -316,6 +336,39 @@ def _texture(small: np.ndarray, hp: np.ndarray, masks: np.ndarray) -> float:
             continue  # no light: no texture to speak of
         out.append(float(np.sqrt(np.mean(np.square(h[inside], dtype=np.float64)))) / mean)
     return min(out) if out else float("nan")
+
+
+def _fit_px(lum: np.ndarray, calibration, depth_m: float) -> tuple[float, float]:
+    """Median over the tiles of every view (onto view 0) of their remaining shift at the single
+    depth that fits them best: measured at ``depth_m`` (a depth tried), then the depth refined
+    by least squares along the views' motion with depth."""
+    from lfring.calibration.planes import local_shifts
+
+    masks = calibration.layout.masks()
+    h, w = calibration.layout.view_shape
+    z0 = calibration.depth_origin_m
+    x = 1.0 / (depth_m - z0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", LfringWarning)
+        hs = calibration.homographies(depth_m, reference=0)
+        hs2 = calibration.homographies(z0 + 1.0 / (x * 1.01), reference=0)
+    centre = np.array([w / 2.0, h / 2.0])
+    tile = max(16, round(min(h, w) / 22))
+    shifts, motion = [], []
+    for k in range(1, len(lum)):
+        warped = cv2.warpPerspective(lum[k], hs[k], (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        seen = cv2.warpPerspective(masks[k].view(np.uint8), hs[k], (w, h), flags=cv2.INTER_NEAREST) > 0
+        _, d = local_shifts(lum[0], warped, seen & masks[0], tile_px=tile)
+        ck = np.linalg.solve(hs[k], np.append(centre, 1.0))
+        a, b = hs[k] @ ck, hs2[k] @ ck
+        shifts.append(d)
+        motion.append(np.broadcast_to((b[:2] / b[2] - a[:2] / a[2]) / (0.01 * x), d.shape))
+    if not shifts or not sum(len(d) for d in shifts):
+        return float("nan"), float("nan")
+    d, g = np.concatenate(shifts), np.concatenate(motion)
+    # Moving the depth by dx moves view k's content by g_k dx: the dx that cancels the shifts best.
+    dx = -float(np.sum(g * d)) / max(float(np.sum(g * g)), 1e-12)
+    return float(np.median(np.hypot(*(d + g * dx).T))), float(z0 + 1.0 / (x + dx))
 
 
 def draw_layout(image: np.ndarray, layout) -> np.ndarray:

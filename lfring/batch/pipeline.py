@@ -139,7 +139,7 @@ def _process(input_path, settings: BatchSettings, outputs, timings) -> tuple[dic
             raise _LeftOut("a flat field (a white frame of the camera, no scene to process)")
         if not checked.ok:
             raise InvalidInputError(f"{input_path}: {checked.message}")
-    views = split_views(image, cal.layout)
+    views = split_views(image, cal)  # the calibration's lens distortion undone, its flat field divided
     if not np.all(np.isfinite(views)):
         raise InvalidInputError(f"{input_path}: the frame holds NaN or infinite values")
     timings["load"] = time.perf_counter() - t

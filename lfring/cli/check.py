@@ -7,6 +7,7 @@ import logging
 from pathlib import Path
 
 import click
+import numpy as np
 
 from lfring.cli._options import raw_options, read_frame
 from lfring.cli.outputs import OutputSet
@@ -52,7 +53,7 @@ def command(ctx, frame, calib, output, overwrite, levels):
         cal, cal_name = default_calibration(size)
     else:
         cal_name = calib
-    res = check_frame(image, cal)
+    res = check_frame(image, cal, measure_fit=True)
     black = raw.black_level if not isinstance(raw.black_level, tuple) else ",".join(f"{b:g}" for b in raw.black_level)
     lines = [
         f"frame        {frame}: {size[0]} x {size[1]} px, "
@@ -65,6 +66,10 @@ def command(ctx, frame, calib, output, overwrite, levels):
         f"agreement    {res.agreement:.2f} at {res.best_depth_m:.3g} m (ring frames score above {res.threshold:g})"
         if res.best_depth_m is not None else f"agreement    none measurable (threshold {res.threshold:g})",
         f"texture      {res.texture:.3f} of the mean inside the discs (a flat field's is below {FLAT_TEXTURE:g})",
+        f"fit          views {res.fit_px:.3f} px from the calibration's homographies at {res.fit_depth_m:.4g} m "
+        f"(median over tiles; lens distortion {'undone' if cal.distortion is not None else 'not modelled'}"
+        f"{', flat field divided' if cal.flat_field is not None else ''})" if np.isfinite(res.fit_px)
+        else "fit          not measured (not a ring frame to process)",
         f"verdict      {_VERDICTS.get(res.reason, 'NOT a ring frame for this calibration')}: {res.message}",
     ]
     with outputs.writing() as stage:

@@ -10,7 +10,7 @@ import numpy as np
 
 from lfring.depth.costs import COSTS
 from lfring.depth.plan import DEPTH_TAPER
-from lfring.cli._options import check_option, load_views, note_first_compile, progress_bar, raw_options
+from lfring.cli._options import check_option, flat_option, load_views, note_first_compile, progress_bar, raw_options
 from lfring.cli.outputs import OutputSet
 
 log = logging.getLogger("lfring.cli.depth")
@@ -68,8 +68,9 @@ MAX_PLANES = 1000
 @click.option("--overwrite", is_flag=True, help="Replace existing output files.")
 @raw_options
 @check_option
+@flat_option
 def command(raw, zmin, zmax, outdir, calib, planes, reference, cost, aggregation, method, scan_paths, consistency, threads,
-            rim_taper, backend, torch_device, old_torch_device, min_confidence, device_name, overwrite, levels, no_check):
+            rim_taper, backend, torch_device, old_torch_device, min_confidence, device_name, overwrite, levels, no_check, flat):
     """Depth map of RAW in metres with confidence, by plane sweep over the views.
 
     RAW is one raw frame, or several images: separate views in the view order of --calib (a
@@ -102,7 +103,7 @@ def command(raw, zmin, zmax, outdir, calib, planes, reference, cost, aggregation
         names.append("depth_filled.tiff")
     paths = {k: out / f"{stem}_{k}" for k in names}
     OutputSet([*paths.values(), out / f"{stem}_points.ply"], name=f"{stem}_depth", overwrite=overwrite).check()
-    views, cal, cal_name = load_views(raw, calib, levels, check=not no_check)
+    views, cal, cal_name = load_views(raw, calib, levels, check=not no_check, flat=flat)
     ref = check_reference(reference, cal.num_views)
     lo, hi = cal.valid_depth_range_m
     zmin = lo if zmin is None else zmin

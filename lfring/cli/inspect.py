@@ -9,7 +9,7 @@ from pathlib import Path
 
 import click
 
-from lfring.cli._options import check_option, load_views, raw_options
+from lfring.cli._options import check_option, flat_option, load_views, raw_options
 from lfring.cli.outputs import OutputSet
 from lfring.inspect import MIN_COVERAGE
 
@@ -86,9 +86,10 @@ def _read_depth(path: str):
 @click.option("--overwrite", is_flag=True, help="Replace existing output files.")
 @raw_options
 @check_option
+@flat_option
 @click.pass_context
 def command(ctx, raw, plane, tolerance, outdir, calib, roi, reference_depth, min_area, min_confidence, min_coverage, zmin,
-            zmax, reference, backend, device_name, viewer, overwrite, levels, no_check):
+            zmax, reference, backend, device_name, viewer, overwrite, levels, no_check, flat):
     """Check that the part in RAW lies on the working plane within the tolerance.
 
     Writes DIR/<name>_inspect.png (refocused at the plane, the plane tinted green, defect boxes:
@@ -109,7 +110,7 @@ def command(ctx, raw, plane, tolerance, outdir, calib, roi, reference_depth, min
 
     # A frame that is not a ring frame for the calibration cannot be judged (exit 3 with the
     # check's reason), rather than refused as bad input: the line needs a verdict for every part.
-    views, cal, cal_name = load_views(raw, calib, levels, check=False)
+    views, cal, cal_name = load_views(raw, calib, levels, check=False, flat=flat)
     frame_check = None if no_check else check_frame(views, cal)
     ref = check_reference(reference, cal.num_views)
     out = Path(outdir)

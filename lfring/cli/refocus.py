@@ -11,6 +11,7 @@ import numpy as np
 
 from lfring.cli._options import (
     check_option,
+    flat_option,
     load_views,
     note_first_compile,
     parse_depths,
@@ -97,8 +98,9 @@ def _depths(depth, depths, sweep) -> list[float]:
 @click.option("--overwrite", is_flag=True, help="Replace existing output files.")
 @raw_options
 @check_option
+@flat_option
 def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolation, method, aperture, f_number, zmin, zmax,
-            bit_depth, encoding, overwrite, levels, no_check):
+            bit_depth, encoding, overwrite, levels, no_check, flat):
     """Refocus RAW at metric depth: lfring refocus raw.png --depth 0.5
 
     RAW is one raw frame, or several images: separate views in the view order of --calib (a
@@ -147,7 +149,7 @@ def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolat
     outputs.check()
     if method != "depth-aware" and any(v is not None for v in (aperture, f_number, zmin, zmax)):
         raise click.UsageError("--aperture, --f-number, --zmin and --zmax are for --method depth-aware")
-    views, cal, cal_name = load_views(raw, calib, levels, check=not no_check)
+    views, cal, cal_name = load_views(raw, calib, levels, check=not no_check, flat=flat)
     ref = check_reference(reference, cal.num_views)
     dof = {}
     if method == "depth-aware":
