@@ -65,9 +65,9 @@ from lfring.focus.base import RefocusMethod
 
 __all__ = [
     "AGREE_TOL", "BACK_EDGE_PX", "BACK_STEP_PX", "COARSE_DISC_PX", "DEPTH_TOL_PX", "GEOMETRIC_STEP", "LINEAR_UNTIL_PX",
-    "MIN_DEPTH_VIEWS", "OCCLUSION_PX", "SHARP_PX", "SHARP_RAMP_PX", "SHARP_RESAMPLED_PX2", "DepthOfField", "DEPTH_AWARE",
-    "aperture_from_f_number", "aperture_radius_px", "coc_radius_px", "depth_of_field", "disc_kernel", "prepare_depth_aware",
-    "resolve_aperture",
+    "MIN_DEPTH_VIEWS", "OCCLUSION_PX", "SHARP_PX", "SHARP_RAMP_PX", "SHARP_RESAMPLED_PX2", "SPREAD_TOL", "DepthOfField", "DEPTH_AWARE",
+    "FAR_MOTION_PX", "aperture_from_f_number", "aperture_radius_px", "coc_radius_px", "depth_of_field", "disc_kernel",
+    "estimation_range", "prepare_depth_aware", "resolve_aperture",
 ]
 
 # Views aligned to within this many pixels of view motion at the focus depth are in focus: the
@@ -75,8 +75,11 @@ __all__ = [
 SHARP_PX = 0.5
 SHARP_RAMP_PX = 1.0
 # A view whose luminance at a pixel's own depth differs from the views' robust mean by more than
-# AGREE_TOL (linear [0, 1] units) loses weight linearly, and none is left by twice that.
+# AGREE_TOL (linear [0, 1] units) loses weight linearly, and none is left by twice that ...
 AGREE_TOL = 0.04
+# ... or by more than SPREAD_TOL times the views' rms spread about it, if that is larger: a view
+# far out of a majority is left out, views that form no majority are averaged.
+SPREAD_TOL = 1.0
 # The ladder of blur radii of the layers: 0 and 1 px, then 0.5 px apart up to 3 px, 1 px apart up
 # to LINEAR_UNTIL_PX, then each GEOMETRIC_STEP times the last. Every pixel is shared between the
 # two rungs around its own radius, so the spacing sets how closely a mixture of two discs stands
@@ -97,6 +100,9 @@ OCCLUSION_PX = 1.0
 # estimated depth map's steps are not one pixel wide.
 BACK_STEP_PX = 2.0
 BACK_EDGE_PX = 2
+# Depth estimated for a calibration without an upper bound reaches as far as the views still
+# move by this many pixels from where they see infinity (estimation_range).
+FAR_MOTION_PX = 0.5
 # For calibrations that are not translations, view sampling positions are interpolated linearly
 # in 1/(Z - z0) between knots this many pixels of view motion apart.
 KNOT_STEP_PX = 0.25
@@ -418,24 +424,27 @@ class DepthOfField:
         visible = np.stack([~self._occluded(mx, my, self.x, nk) for (mx, my), nk in zip(maps, nearest)]) & present
         # Where every view that sees the pixel is occluded by the depth map, trust the photometry alone.
         visible |= present & ~visible.any(axis=0)
-        lum = luminance(warped)
-        np.divide(lum, weight, out=lum, where=present)
+        # (Into a new array: for one channel the luminance is a view of the warped views.)
+        lum = np.divide(luminance(warped), weight, out=np.zeros((v, h, w), np.float32), where=present)
         # Every statistic below weighs a view by how much of it is valid there, so that a view
         # fading out at its disc's rim fades out of the mean too: no seam follows the rim.
         wv = np.where(visible, weight, 0.0).astype(np.float32)
-        # A robust centre: each view weighted by how many others agree with it (to the fourth
-        # power, so that three agreeing views outweigh a fourth that sees something else).
+        # A robust centre: each view weighted by the weight of the views that agree with it (to
+        # the fourth power, so that three agreeing views outweigh a fourth that sees something
+        # else; two groups of two weigh the same).
         close = np.exp(-0.5 * ((lum[:, None] - lum[None, :]) / np.float32(AGREE_TOL)) ** 2)  # (V, V, h, w)
-        support = np.einsum("jvhw,jhw->vhw", close, wv, optimize=True) * wv
+        support = np.einsum("jvhw,jhw->vhw", close, wv, optimize=True)
         support *= support
         support *= support
+        support *= wv
         total = support.sum(axis=0)
         mean_lum = (wv * lum).sum(axis=0) / np.maximum(wv.sum(axis=0), WEIGHT_FLOOR)
         med = np.where(total > 0, (support * lum).sum(axis=0) / np.maximum(total, 1e-30), mean_lum).astype(np.float32)
         dev = np.abs(lum - med)
-        # The view nearest the centre always counts (two groups of two: all of them); a view of
-        # small weight does not set the tolerance.
-        tol = np.maximum(np.float32(AGREE_TOL), np.where(visible, dev + (1.0 - weight), np.inf).min(axis=0))
+        # The tolerance grows with the views' spread about the centre: a view far out of a
+        # majority is left out, views with no majority among them are averaged.
+        spread = np.sqrt((wv * dev * dev).sum(axis=0) / np.maximum(wv.sum(axis=0), WEIGHT_FLOOR))
+        tol = np.maximum(np.float32(AGREE_TOL), np.float32(SPREAD_TOL) * spread)
         phi = np.where(visible, np.clip(2.0 - dev / tol, 0.0, 1.0), 0.0).astype(np.float32)
         # Agreement for the in-focus blend: every view that sees the pixel, occluded or not, each
         # by its weight.
@@ -620,8 +629,8 @@ class _Grid:
         boxes[..., 0::2] = np.iinfo(np.int64).max
         boxes[..., 1::2] = -1
         window = np.array((0, h, 0, w) if window is None else window, np.int64)
-        kern.rungs(x, agree, cover, window, xf, motion, aperture, SHARP_PX, SHARP_RAMP_PX, SHARP_RESAMPLED_PX2,
-                   sharp.shape[0] == h, self.moments, self.stripe, q, s, boxes)
+        kern.rungs(x, agree, cover, sharp, window, xf, motion, aperture, SHARP_PX, SHARP_RAMP_PX, SHARP_RESAMPLED_PX2,
+                   self.moments, self.stripe, q, s, boxes)
         lo = boxes[..., 0::2].min(axis=0)
         hi = boxes[..., 1::2].max(axis=0)
         shift = np.zeros(2 * n + 1, np.int64)
@@ -769,16 +778,37 @@ def resolve_aperture(calibration, aperture=None, f_number=None, ring_device=None
     return aperture_from_f_number(f_number, ring_device)
 
 
+def estimation_range(calibration, zmin_m=None, zmax_m=None, *, reference="center") -> tuple[float, float]:
+    """The depth range (metres) over which depth-aware refocusing estimates its depth map:
+    ``zmin_m`` and ``zmax_m`` where given, else the calibration's valid range. A calibration
+    without an upper bound (one from the optics) reaches as far as the views still move by
+    :data:`FAR_MOTION_PX` from where they see infinity: ``1/(Z - z0) = FAR_MOTION_PX / R``.
+
+    Examples
+    --------
+    >>> from lfring.calibration import RingCalibration
+    >>> from lfring.optics import load_device
+    >>> cal = RingCalibration.from_optics(load_device("prototype").binned(2))
+    >>> lo, hi = estimation_range(cal)
+    >>> round(lo, 3) == round(cal.valid_depth_range_m[0], 3), cal.valid_depth_range_m[1], round(hi, 1)
+    (True, None, 4.4)
+    """
+    lo, hi = calibration.valid_depth_range_m
+    lo = float(lo if zmin_m is None else zmin_m)
+    if zmax_m is not None:
+        return lo, float(zmax_m)
+    if hi is None:
+        hi = calibration.depth_origin_m + aperture_radius_px(calibration, reference) / FAR_MOTION_PX
+        hi = max(hi, 2.0 * lo)
+    return lo, float(hi)
+
+
 def _depth_map(arr, calibration, depth, zmin_m, zmax_m, reference) -> np.ndarray:
     """The depth map of the views in the reference frame: given, or estimated."""
     h, w = arr.shape[1:3]
     if depth is None:
-        lo, hi = calibration.valid_depth_range_m
-        zmin_m = lo if zmin_m is None else zmin_m
-        zmax_m = hi if zmax_m is None else zmax_m
-        if zmax_m is None:
-            raise InvalidInputError("the calibration has no upper depth bound: give zmax_m (or a depth map as depth=)")
-        depth = estimate_depth(arr, calibration, zmin_m=float(zmin_m), zmax_m=float(zmax_m), reference=reference)
+        zmin_m, zmax_m = estimation_range(calibration, zmin_m, zmax_m, reference=reference)
+        depth = estimate_depth(arr, calibration, zmin_m=zmin_m, zmax_m=zmax_m, reference=reference)
     elif zmin_m is not None or zmax_m is not None:
         raise InvalidInputError("zmin_m/zmax_m set the range of the depth estimation: give them or a depth map, not both")
     if isinstance(depth, DepthResult):

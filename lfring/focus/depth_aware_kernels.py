@@ -22,10 +22,11 @@ _JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
 
 
 @njit(parallel=True, **_JIT)
-def rungs(x, agree, cover, window, x_f, motion, aperture, sharp_px, ramp_px, share_px2, with_sharp, moments, stripe,
+def rungs(x, agree, cover, sharp, window, x_f, motion, aperture, sharp_px, ramp_px, share_px2, moments, stripe,
           q, s, boxes):
     """Per pixel of inverse depth ``x`` (h, w), where ``cover`` > 0: ``s`` the share of the
-    shift-and-add image (0 without ``with_sharp``) and ``q`` the signed fractional rung of its
+    shift-and-add image ``sharp`` (h, w, C; 0 where it is empty, or 0 in every channel: there
+    no view covered it) and ``q`` the signed fractional rung of its
     blur radius (between the rungs whose blurs' second ``moments`` enclose its disc's, linear in
     that moment; negative behind the focus); ``boxes`` (stripes, 2 n + 1, 4)
     receives per stripe and signed rung (index + n) the least and largest row and column of its
@@ -37,6 +38,7 @@ def rungs(x, agree, cover, window, x_f, motion, aperture, sharp_px, ramp_px, sha
     (their second moment ``d^2`` plus ``share_px2``, d the view motion)."""
     r0, r1, c0, c1 = window[0], window[1], window[2], window[3]
     n = moments.shape[0] - 1
+    with_sharp = sharp.shape[0] == x.shape[0]
     n_stripes = (r1 + stripe - 1) // stripe
     for b in prange(r0 // stripe, n_stripes):
         for y in range(max(r0, b * stripe), min(r1, (b + 1) * stripe)):
@@ -49,7 +51,10 @@ def rungs(x, agree, cover, window, x_f, motion, aperture, sharp_px, ramp_px, sha
                 rho = aperture * d
                 share = 0.0
                 if with_sharp:
-                    share = min(max((sharp_px + ramp_px - abs(d)) / ramp_px, 0.0), 1.0) * agree[y, xx]
+                    for ch in range(sharp.shape[2]):
+                        if sharp[y, xx, ch] != 0.0:
+                            share = min(max((sharp_px + ramp_px - abs(d)) / ramp_px, 0.0), 1.0) * agree[y, xx]
+                            break
                 m = max(0.5 * rho * rho - share * (d * d + share_px2), 0.0)
                 # The fractional index of m in the increasing moments (np.interp's).
                 frac = float(n)
