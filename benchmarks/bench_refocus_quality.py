@@ -41,7 +41,11 @@ b) The synthetic twin, every view rendered from the prototype's optics (Bayer fr
      'slant', a textured plane turned 70 degrees about the vertical, from about 0.38 to 1.05 m
      across the frame; 'sphere', a half sphere and a cylindrical ridge on a part at 0.5 m;
      'ramp', a floor tilted 72 degrees about the horizontal across the working range, about
-     0.3 to 1.0 m from bottom to top.
+     0.3 to 1.0 m from bottom to top; 'statue', a half sphere and a ridge on a part at 0.52 m,
+     shaded and of faint texture, where shift-and-add's copies hardly show and a seam would.
+   Their views are rendered without their own mini-lens defocus (--view-defocus on renders
+   it): the truth is an ideal lens, and the views' own blur (their pupils focused at the
+   design distance) would otherwise bound both methods alike.
 
 Speed (``--speed``, default on): 4 x 1060 x 1060 RGB float32 views (bench_refocus.py's
 prototype calibration, square views) with a given depth map: one-shot shift-and-add at a new
@@ -82,8 +86,8 @@ DENSE_DISPARITIES = np.arange(0.3, 1.0001, 0.02)  # the plane sweep of the dense
 IN_FOCUS_PX, OUT_OF_FOCUS_PX = 0.5, 1.5
 BORDER_PX = 12  # frame border left out of every metric (shifted views do not cover it)
 MIN_VIEWS = 1.0  # and pixels that less than one view's worth sees (the corners outside the twin's view discs)
-CASES = ("lytro", "three-depth", "hard", "slant", "sphere", "ramp")
-CONTINUOUS = ("slant", "sphere", "ramp")
+CASES = ("lytro", "three-depth", "hard", "slant", "sphere", "ramp", "statue")
+CONTINUOUS = ("slant", "sphere", "ramp", "statue")
 
 
 def position(row, col):
@@ -243,6 +247,12 @@ def continuous_scene(name: str):
         part = HeightField(0.5, (0.3, 0.3), Texture("image", name="gravel"), bumps=(sphere, ridge),
                            name="sphere and cylinder")
         return Scene((part,), name="sphere")
+    if name == "statue":
+        # Smooth and shaded, like a statue: where shift-and-add's copies hardly show, a seam would.
+        stone = Texture("speckle", feature_m=0.004, seed=23, colors=((0.55, 0.52, 0.48), (0.63, 0.6, 0.55)))
+        head = Bump(center_m=(0.17, 0.14), size_m=(0.16, 0.16), height_m=0.08, shape="sphere")
+        arm = Bump(center_m=(0.06, 0.15), size_m=(0.06, 0.3), height_m=0.03, shape="cylinder")
+        return Scene((HeightField(0.52, (0.3, 0.3), stone, bumps=(head, arm), name="statue"),), name="statue")
     if name == "ramp":
         tex = Texture("image", name="gravel")
         return Scene((Plane(0.65, (0.4, 0.82), tex, center_m=(0.0, -0.062), tilt_deg=(-72.5, 0.0), name="ramp"),), name="ramp")
@@ -250,7 +260,8 @@ def continuous_scene(name: str):
 
 
 TWIN_FOCUS_M = {"three-depth": (0.3, 0.5, 1.0), "hard": (0.3, 0.5, 1.0),  # the cup, the book and the chessboard
-                "slant": (0.4, 0.55, 0.85), "sphere": (0.3, 0.44, 0.6), "ramp": (0.35, 0.5, 0.8)}
+                "slant": (0.4, 0.55, 0.85), "sphere": (0.3, 0.44, 0.6), "ramp": (0.35, 0.5, 0.8),
+                "statue": (0.3, 0.44, 0.7)}
 
 
 def central_depth(scene, device, binning: int) -> np.ndarray:

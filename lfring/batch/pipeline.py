@@ -134,11 +134,14 @@ def _process(input_path, settings: BatchSettings, outputs, timings) -> tuple[dic
     info: dict = {"calibration": cal_name, "frame_size_px": [int(image.shape[1]), int(image.shape[0])]}
     arrays: dict[str, np.ndarray] = {}
 
+    from lfring.focus import METHODS
+
     refocus = [z for z in settings.refocus_m if f"refocus_{z:g}m" in outputs]
-    depth_aware = settings.refocus_method == "depth-aware"
+    method = METHODS[settings.refocus_method]
+    needs_depth = "depth" in method.options  # a method that renders from the frame's depth map
     depth_res = None
     depth_wanted = {"depth", "confidence", "depth_preview", "all_in_focus"} & set(outputs)
-    if settings.depth and (depth_wanted or (depth_aware and refocus)):
+    if settings.depth and (depth_wanted or (needs_depth and refocus)):
         from lfring.depth import estimate_depth
 
         t = time.perf_counter()
@@ -156,8 +159,8 @@ def _process(input_path, settings: BatchSettings, outputs, timings) -> tuple[dic
     finish = None
     if refocus or settings.viewer:
         info.update(_refocus_record(cal, settings))
-    if refocus and depth_aware:
-        finish = _depth_aware(views, cal, settings, depth_res, info["aperture"], timings)
+    if refocus and method.prepare is not None:
+        finish = _finisher(views, cal, settings, depth_res, info["aperture"], timings)
     for z in refocus:
         sharp = _refocuser(cal, cal_name, z, settings, views.shape[1:3])(views)
         arrays[f"refocus_{z:g}m"] = sharp if finish is None else finish(sharp, z)
@@ -193,7 +196,7 @@ def _process(input_path, settings: BatchSettings, outputs, timings) -> tuple[dic
 
         t = time.perf_counter()
         stack = {"method": settings.refocus_method}
-        if settings.refocus_method == "depth-aware":
+        if "aperture" in method.options:
             stack["aperture"] = info["aperture"]
         files["viewer"] = viewer_html(views, cal, zmin_m=settings.zmin_m, zmax_m=settings.zmax_m, reference=settings.reference,
                                       depth=depth_res, num_planes=None if depth_res is not None else settings.planes,
@@ -209,12 +212,13 @@ def _process(input_path, settings: BatchSettings, outputs, timings) -> tuple[dic
 
 def _refocus_record(cal, settings: BatchSettings) -> dict:
     """What the frame's record says of the method and aperture that made its refocused images
-    (and the viewer's focal stack): for 'depth-aware' the aperture itself, resolved from the
-    f-number when one was given; shift-and-add has none (its copies sit on the rim of the
-    aperture the views span)."""
-    if settings.refocus_method != "depth-aware":
+    (and the viewer's focal stack): for a method with a depth of field ('depth-aware') the
+    aperture itself, resolved from the f-number when one was given; shift-and-add has none (its
+    copies sit on the rim of the aperture the views span)."""
+    from lfring.focus import METHODS, resolve_aperture
+
+    if "aperture" not in METHODS[settings.refocus_method].options:
         return {"refocus_method": settings.refocus_method, "aperture": None}
-    from lfring.focus import resolve_aperture
 
     out = {"refocus_method": settings.refocus_method,
            "aperture": resolve_aperture(cal, aperture=settings.aperture, f_number=settings.f_number)}
@@ -228,23 +232,30 @@ def _stack_record(info: dict) -> dict:
     return {k: info[k] for k in ("refocus_method", "aperture", "f_number") if k in info}
 
 
-def _depth_aware(views, cal, settings: BatchSettings, depth_res, aperture: float, timings: dict):
-    """``finish(sharp, z)`` of depth-aware refocusing for one frame: from the batch's depth map
-    when it makes one, else from one estimated with the batch's depth settings over its depth
-    range (:func:`lfring.focus.depth_aware.estimation_range`)."""
-    from lfring.focus import depth_of_field
+def _finisher(views, cal, settings: BatchSettings, depth_res, aperture, timings: dict):
+    """The refocusing method's ``finish(sharp, z)`` for one frame (:class:`lfring.focus.base.RefocusMethod`),
+    made once for all its depths; a method that renders from a depth map gets the batch's when
+    it makes one, else one estimated with the batch's depth settings over the depth range of
+    :func:`lfring.focus.depth_aware.estimation_range`."""
+    from lfring.focus import METHODS
     from lfring.focus.depth_aware import estimation_range
 
+    method = METHODS[settings.refocus_method]
     t = time.perf_counter()
-    if depth_res is None:
-        from lfring.depth import estimate_depth
+    options = {}
+    if "depth" in method.options:
+        if depth_res is None:
+            from lfring.depth import estimate_depth
 
-        lo, hi = estimation_range(cal, settings.zmin_m, settings.zmax_m, reference=settings.reference)
-        depth_res = estimate_depth(views, cal, zmin_m=lo, zmax_m=hi, num_planes=settings.planes,
-                                   reference=settings.reference, method=settings.depth_method)
-    dof = depth_of_field(views, cal, depth=depth_res, reference=settings.reference)
-    timings["refocus_depth"] = time.perf_counter() - t
-    return lambda sharp, z: dof.render(float(z), aperture, sharp)
+            lo, hi = estimation_range(cal, settings.zmin_m, settings.zmax_m, reference=settings.reference)
+            depth_res = estimate_depth(views, cal, zmin_m=lo, zmax_m=hi, num_planes=settings.planes,
+                                       reference=settings.reference, method=settings.depth_method)
+        options["depth"] = depth_res
+    if "aperture" in method.options:
+        options["aperture"] = aperture
+    finish = method.prepare(views, cal, settings.reference, **options)
+    timings["refocus_prepare"] = time.perf_counter() - t
+    return finish
 
 
 def _depth_preview_png(depth_res, settings: BatchSettings, name: str) -> bytes:

@@ -112,7 +112,7 @@ class BatchSettings:
         check_choice(self.encoding, "encoding", ("srgb", "linear"))
         check_choice(self.depth_method, "depth_method", ENGINES)
         check_choice(self.refocus_method, "refocus_method", METHODS)
-        if self.refocus_method == "depth-aware":
+        if "aperture" in METHODS[self.refocus_method].options:
             if self.aperture is not None and self.f_number is not None:
                 raise InvalidInputError("give the depth of field as aperture or as f_number, not both")
             check_number(self.aperture, "aperture", minimum=0.0, allow_none=True, hint=" (1: the views' aperture, 0: a pinhole)")
@@ -122,7 +122,8 @@ class BatchSettings:
             if self.zmin_m is not None and self.zmax_m is not None and not self.zmin_m < self.zmax_m:
                 raise InvalidInputError(f"zmin_m ({self.zmin_m}) must be smaller than zmax_m ({self.zmax_m})")
         elif self.aperture is not None or self.f_number is not None:
-            raise InvalidInputError("aperture and f_number are for refocus_method='depth-aware'")
+            owners = ", ".join(f"refocus_method={m.name!r}" for m in METHODS.values() if "aperture" in m.options)
+            raise InvalidInputError(f"aperture and f_number are for {owners}")
         # The viewer's depth map, when the batch makes none, is the semi-global default.
         least = SGM_MIN_PLANES if (self.depth and self.depth_method == "sgm") or self.viewer else 2
         if self.planes is not None:
@@ -158,7 +159,7 @@ class BatchSettings:
             return hashlib.sha256(json.dumps(obj, sort_keys=True, default=json_default).encode()).hexdigest()[:16]
 
         refocus_part = {"interpolation": self.interpolation}
-        if self.refocus_method != "shift-and-add":
+        if METHODS[self.refocus_method].prepare is not None:
             # The method, its aperture and the depth map it used: a folder refocused by another
             # method is not done for this one (shift-and-add's keys stay what they were before
             # methods were a setting, so folders made then stay done for it). The depth map's
@@ -174,7 +175,7 @@ class BatchSettings:
             for kind in ("depth", "confidence", "depth_preview"):
                 keys[kind] = h({**common, **depth_part, "kind": kind})
         if self.viewer:
-            stack = {} if self.refocus_method == "shift-and-add" else {
+            stack = {} if METHODS[self.refocus_method].prepare is None else {
                 "refocus_method": self.refocus_method, "aperture": self.aperture, "f_number": self.f_number}
             keys["viewer"] = h({**common, **depth_part, "kind": "viewer", "depth": self.depth, **stack})
         return keys
@@ -186,7 +187,7 @@ class BatchSettings:
         d["refocus_m"] = list(self.refocus_m)
         if not self.viewer:  # keeps the keys of folders made before the viewer existed
             del d["viewer"]
-        if self.refocus_method == "shift-and-add" and self.aperture is None and self.f_number is None:
+        if METHODS[self.refocus_method].prepare is None and self.aperture is None and self.f_number is None:
             # ... and of folders made before refocusing had a method (all of it shift-and-add).
             del d["refocus_method"], d["aperture"], d["f_number"]
         if isinstance(self.black_level, tuple):

@@ -100,11 +100,14 @@ def viewer_data(views, calibration, *, zmin_m=None, zmax_m=None, num_planes=None
     from lfring.io.writers import encode_image
 
     _check_options(num_planes, min_confidence, image_format, quality)
-    method = METHODS.lookup(method).name
-    if method == "depth-aware":
-        aperture = resolve_aperture(calibration, aperture, f_number)
-    elif aperture is not None or f_number is not None:
-        raise InvalidInputError(f"aperture and f_number are for method='depth-aware', not method={method!r}")
+    m = METHODS.lookup(method)
+    # A method with a depth of field renders from the page's depth map at the aperture (resolved
+    # here for the metadata); any other refuses those options (focal_stack says which takes them).
+    if "aperture" in m.options:
+        aperture, f_number_given = resolve_aperture(calibration, aperture, f_number), f_number
+        f_number = None
+    else:
+        f_number_given = None
     box_list = _check_boxes(boxes)
     shape_hw = tuple(np.shape(views)[1:3])
     unchecked = None if unchecked_mask is None else _overlay_png(unchecked_mask, shape_hw)
@@ -123,8 +126,10 @@ def viewer_data(views, calibration, *, zmin_m=None, zmax_m=None, num_planes=None
     if zs.size < 2:
         raise InvalidInputError(f"the depth result's hypotheses hold fewer than two depths within {lo:g}..{hi:g} m")
     # The stack as lfring refocus makes it: depth-aware (by default) from the depth map above.
-    options = {"aperture": aperture, "depth": depth} if method == "depth-aware" else {}
-    stack = focal_stack(views, calibration, zs, reference=reference, method=method, **options)
+    options = {"aperture": aperture, "f_number": f_number}
+    if "depth" in m.options:
+        options["depth"] = depth
+    stack = focal_stack(views, calibration, zs, reference=reference, method=m.name, **options)
     h, w = stack.shape[1:3]
     depth_m = np.asarray(depth.depth_m, dtype=np.float64)
     conf = np.asarray(depth.confidence, dtype=np.float64)
@@ -167,9 +172,9 @@ def viewer_data(views, calibration, *, zmin_m=None, zmax_m=None, num_planes=None
             "stack_planes": len(zs),
             "depth_hypotheses": len(depth.depths_m),
             "depth_step_px": float(depth.step_px),
-            "refocus_method": method,
+            "refocus_method": m.name,
             "aperture": aperture,
-            **({"f_number": float(f_number)} if f_number is not None else {}),
+            **({"f_number": float(f_number_given)} if f_number_given is not None else {}),
             "units": "depth in metres from the main lens (readout in millimetres); confidence in [0, 1]",
             **(metadata or {}),
             "calibration_model": calibration.to_dict(),
