@@ -19,7 +19,10 @@ def test_refocus_sample_with_default_calibration(tmp_path, monkeypatch, capsys):
     assert img.dtype == np.uint8 and img.shape == (705, 705, 3)
     side = json.loads((tmp_path / "scene_refocus_0.5m.png.json").read_text())
     assert side["calibration"] == "twin_binned2" and side["depth_m"] == 0.5 and side["encoding"] == "srgb"
-    # No overwrite without --overwrite.
+    # The same command again replaces its own outputs; a file it did not make is not replaced
+    # without --overwrite.
+    assert main(["refocus", str(SCENE), "--depth", "0.5"]) == 0
+    (tmp_path / "scene_refocus_0.5m.lfring.json").unlink()
     assert main(["refocus", str(SCENE), "--depth", "0.5"]) == 2
 
 
@@ -86,3 +89,16 @@ def test_refocus_sidecar_says_which_method_and_aperture(tmp_path):
     assert main(["refocus", str(SCENE), "--depth", "0.5", "--method", "shift-and-add", "-o", str(tmp_path / "s.png")]) == 0
     side = json.loads((tmp_path / "s.png.json").read_text())
     assert side["method"] == "shift-and-add" and side["aperture"] is None
+
+
+def test_sweep_metadata_holds_the_depths_as_written(tmp_path):
+    """A sweep's depths were written as 0.44999999999999996; infinity is the documented "inf"."""
+    out = tmp_path / "st" / "s.png"
+    assert main(["refocus", str(SCENE), "--sweep", "0.3:1.0:15", "--method", "shift-and-add", "-o", str(out)]) == 0
+    side = (out.parent / "s_003_0.45m.png.json").read_text()
+    assert '"depth_m": 0.45' in side and "0.4499999" not in side
+    import tifffile
+
+    with tifffile.TiffFile(out.parent / "s_stack.tif") as tif:
+        assert "0.4499999" not in tif.pages[0].description and "0.45" in tif.pages[0].description
+    assert "0.4499999" not in "".join(p.name for p in out.parent.iterdir())

@@ -85,12 +85,13 @@ def _halves_parity(twin, aggregation, reference, device):
 @pytest.mark.parametrize("reference", [0, "center"])
 def test_parity_of_the_semi_global_default(twin, reference, device):
     """The default 'sgm' method with the torch backend: its cost volume and optimisation in
-    torch, the same depth as NumPy/numba nearly everywhere."""
+    torch, the same depth as the float32 NumPy/numba reference of the method nearly everywhere
+    (the 16-bit fused passes are held to that reference in test_semiglobal.py)."""
     views, cal = twin
     kw = dict(zmin_m=0.28, zmax_m=1.1, reference=reference)
-    ref = estimate_depth(views, cal, **kw)
+    ref = estimate_depth(views, cal, method="sgm-reference", **kw)
     got = estimate_depth(views, cal, backend="torch", device=device, **kw)
-    assert ref.method == got.method == "sgm"
+    assert ref.method == "sgm-reference" and got.method == "sgm"
     both, depth_ok, conf_ok = _agreement(ref, got)
     assert both.mean() > 0.5
     assert depth_ok >= 0.97, depth_ok

@@ -8,6 +8,7 @@ from sgm_scenes import disparity
 
 from lfring.calibration import RingCalibration
 from lfring.depth import estimate_depth
+from lfring.synth import render
 
 
 def test_sgm_default_beats_the_local_sweep_on_every_seen_pixel(twin):
@@ -112,26 +113,34 @@ def test_background_beside_a_nearer_square_keeps_its_depth():
     assert np.mean(bad) <= 0.055, bad
 
 
-def test_threads_bound_every_compiled_kernel_of_the_semi_global_method(twin, monkeypatch):
+@pytest.mark.parametrize("method, spied", [
+    ("sgm-reference", {"lfring.depth.engines.semiglobal": ("refine_index", "take_halves", "box_mean_of_finite")}),
+    ("sgm", {"lfring.depth.engines.semiglobal": ("refine_index",),
+             "lfring.depth.engines.fused_volume": ("sweep_volume", "sweep_halves"),
+             "lfring.depth.engines.fused_paths": ("horizontal_paths", "vertical_paths")}),
+])
+def test_threads_bound_every_compiled_kernel_of_the_semi_global_method(twin, monkeypatch, method, spied):
     """threads=1: the refinement's and the halves' kernels (which take numba's thread count) run
-    on one thread too, and the count is restored afterwards."""
-    import numba
+    on one thread too, and the count is restored afterwards; the fused 16-bit passes alike."""
+    import importlib
 
-    import lfring.depth.engines.semiglobal as sweep
+    import numba
 
     r, cal, views, *_ = twin
     seen = {}
-    for name in ("refine_index", "take_halves", "box_mean_of_finite"):
-        real = getattr(sweep, name)
+    for module, names in spied.items():
+        mod = importlib.import_module(module)
+        for name in names:
+            real = getattr(mod, name)
 
-        def spy(*a, _real=real, _name=name, **k):
-            seen[_name] = numba.get_num_threads()
-            return _real(*a, **k)
+            def spy(*a, _real=real, _name=name, **k):
+                seen[_name] = numba.get_num_threads()
+                return _real(*a, **k)
 
-        monkeypatch.setattr(sweep, name, spy)
+            monkeypatch.setattr(mod, name, spy)
     before = numba.get_num_threads()
-    estimate_depth(views, cal, zmin_m=0.3, zmax_m=1.0, num_planes=6, reference=0, threads=1)
-    assert seen == {"refine_index": 1, "take_halves": 1, "box_mean_of_finite": 1}
+    estimate_depth(views, cal, zmin_m=0.3, zmax_m=1.0, num_planes=6, reference=0, threads=1, method=method)
+    assert seen == {name: 1 for names in spied.values() for name in names}
     assert numba.get_num_threads() == before
 
 
@@ -177,3 +186,76 @@ def test_filled_map_is_known_wherever_the_depth_is():
     known = np.isfinite(res.depth_m)
     assert known.mean() > 0.9
     assert np.isfinite(res.depth_filled_m[known]).all()
+
+
+def _agreement(a, b):
+    """Shares of the pixels: known in both or neither, depths within 0.5 % and 2 %, confidences
+    within 0.02."""
+    both = np.isfinite(a.depth_m) & np.isfinite(b.depth_m)
+    rel = np.abs(b.depth_m[both] - a.depth_m[both]) / a.depth_m[both]
+    dconf = np.abs(b.confidence[both] - a.confidence[both])
+    return (np.mean(np.isfinite(a.depth_m) == np.isfinite(b.depth_m)), np.mean(rel <= 0.005), np.mean(rel <= 0.02),
+            np.mean(dconf <= 0.02))
+
+
+@pytest.mark.parametrize("views_of, reference", [("all", 0), ("all", "center"), ("pair", "center")])
+def test_the_16_bit_passes_match_the_float32_reference(prototype, views_of, reference):
+    """The default engine's fused 16-bit passes against the plain float32 reference of the same
+    method ('sgm-reference'), on the twin's three-depth scene (four views, a reference view or
+    the centre; and a pair with its left-right check): the same depth nearly everywhere (a
+    quantisation step of the cost decides a few weak-texture pixels the other way)."""
+    from lfring.synth.presets import three_depth_scene
+
+    r = render(prototype, three_depth_scene(), binning=4, seed=5, noise="realistic")
+    cal = RingCalibration.from_optics(r.device, layout=r.layout)
+    views = r.views
+    if views_of == "pair":
+        views, cal = views[:2], cal.select_views([0, 1])
+    kw = dict(zmin_m=0.28, zmax_m=1.1, reference=reference)
+    ref = estimate_depth(views, cal, method="sgm-reference", **kw)
+    got = estimate_depth(views, cal, **kw)
+    assert got.method == "sgm" and got.consistency == (views_of == "pair")
+    finite, close, near, conf = _agreement(ref, got)
+    assert finite >= 0.999 and close >= 0.95 and near >= 0.98 and conf >= 0.95, (finite, close, near, conf)
+    filled = np.isfinite(ref.depth_filled_m) & np.isfinite(got.depth_filled_m)
+    rel = np.abs(got.depth_filled_m[filled] - ref.depth_filled_m[filled]) / ref.depth_filled_m[filled]
+    assert np.mean(rel <= 0.02) >= 0.97
+
+
+def test_a_calibration_from_planes_takes_the_fused_passes_after_one_resampling():
+    """The bundled measured calibration's homographies are translations only after a fixed
+    near-identity resampling of each view: the fused passes take it (the plan has a resampling
+    and a shift per hypothesis), and agree with the reference on the bundled scene."""
+    import warnings
+
+    from lfring.depth.engines.fused import RESAMPLE_TOL_PX, shift_plan
+    from lfring.depth.hypotheses import depth_hypotheses
+    from lfring.errors import LfringWarning
+
+    cal = RingCalibration.load("twin_binned2")
+    depths = depth_hypotheses(cal, 0.3, 1.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", LfringWarning)
+        hs = cal.homographies(depths, reference="center")
+    shifts, remaps = shift_plan(hs, cal.layout.view_shape)
+    assert shifts.shape == (len(depths), 4, 2) and any(m is not None for m in remaps)
+    # Sampling the resampled view at x + shift is sampling the view where H^-1 puts x.
+    h, w = cal.layout.view_shape
+    pts = np.array([[0.0, 0.0], [w - 1.0, 0.0], [0.0, h - 1.0], [w - 1.0, h - 1.0], [w / 2, h / 3]])
+    for i in (0, len(depths) - 1):
+        for k in range(4):
+            mx, my = remaps[k]
+            for x, y in pts:
+                u, v = x + shifts[i, k, 0], y + shifts[i, k, 1]
+                if not (0 <= u < w - 1 and 0 <= v < h - 1):
+                    continue
+                iu, iv = int(u), int(v)
+                fu_, fv = u - iu, v - iv
+                px = (1 - fv) * ((1 - fu_) * mx[iv, iu] + fu_ * mx[iv, iu + 1]) + fv * ((1 - fu_) * mx[iv + 1, iu] + fu_ * mx[iv + 1, iu + 1])
+                py = (1 - fv) * ((1 - fu_) * my[iv, iu] + fu_ * my[iv, iu + 1]) + fv * ((1 - fu_) * my[iv + 1, iu] + fu_ * my[iv + 1, iu + 1])
+                q = np.linalg.inv(hs[i, k]) @ np.array([x, y, 1.0])
+                assert abs(px - q[0] / q[2]) <= 2 * RESAMPLE_TOL_PX and abs(py - q[1] / q[2]) <= 2 * RESAMPLE_TOL_PX
+    # A homography with a real perspective part cannot be factored: no plan (the reference runs).
+    tilted = hs.copy()
+    tilted[:, 1] = np.array([[1.0, 0.01, 0.0], [0.0, 1.0, 0.0], [1e-4, 0.0, 1.0]]) @ tilted[:, 1]
+    assert shift_plan(tilted, (h, w)) is None

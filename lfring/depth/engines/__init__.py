@@ -8,10 +8,10 @@ line below that registers it.
 from lfring.core.registry import Registry
 from lfring.depth.engines.base import DepthEngine
 from lfring.depth.engines.local import LOCAL
-from lfring.depth.engines.semiglobal import SEMIGLOBAL
+from lfring.depth.engines.semiglobal import SEMIGLOBAL, SEMIGLOBAL_REFERENCE
 
 __all__ = ["ENGINES", "DepthEngine"]
 
 ENGINES = Registry("method")
-for _engine in (SEMIGLOBAL, LOCAL):
+for _engine in (SEMIGLOBAL, LOCAL, SEMIGLOBAL_REFERENCE):
     ENGINES.register(_engine.name, _engine)

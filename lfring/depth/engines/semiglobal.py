@@ -14,6 +14,7 @@ whose two answers disagree.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import warnings
 
 import numpy as np
@@ -22,14 +23,15 @@ from lfring.core.threads import numba_threads
 from lfring.depth.aggregation import box_mean_of_finite, least_over_windows
 from lfring.depth.costs.lcn_halves import take_halves, view_halves
 from lfring.depth.engines.base import DepthEngine
+from lfring.depth.engines.fused import fused_index
 from lfring.depth.plan import guide_image
 from lfring.depth.refine import fill_from_farther_side, refine_index
 from lfring.depth.sgm import P1_SCALE, P2_SCALE, cost_scale, select, sgm_aggregate, sgm_aggregate_torch
 from lfring.depth.sweep import run_sweep
 from lfring.errors import InvalidInputError, LfringWarning
 
-__all__ = ["CONSISTENCY_STEPS", "SEMIGLOBAL", "SGM_AGGREGATE_PX", "SGM_MIN_PLANES", "SUBPIXEL_BOX_PX", "SWEEP_SHARE",
-           "run_semiglobal"]
+__all__ = ["CONSISTENCY_STEPS", "SEMIGLOBAL", "SEMIGLOBAL_REFERENCE", "SGM_AGGREGATE_PX", "SGM_MIN_PLANES", "SUBPIXEL_BOX_PX", "SWEEP_SHARE",
+           "run_semiglobal", "semiglobal_index"]
 
 # The box over which the 'lcn' cost is aggregated before the semi-global optimisation (which does
 # the rest of the smoothing); 'local' aggregates over LCN_AGGREGATE_PX.
@@ -46,9 +48,11 @@ CONSISTENCY_STEPS = 1
 SWEEP_SHARE = 0.3
 
 
-def run_semiglobal(views, calibration, plan, settings, finisher, progress) -> dict:
+def run_semiglobal(views, calibration, plan, settings, finisher, progress, *, fused: bool = True) -> dict:
     """Optimise, select and refine (see the module's docstring); the finisher gets the depth and
-    confidence, the returned fields the hole-filled map, the paths and whether the check ran."""
+    confidence, the returned fields the hole-filled map, the paths and whether the check ran.
+    With ``fused`` the cost volume and its optimisation take the 16-bit passes of
+    :mod:`lfring.depth.engines.fused` wherever they apply; without, the float32 reference."""
     if len(plan.depths) < max(SGM_MIN_PLANES, plan.exclude + 2):
         zmin_m, zmax_m = float(plan.depths[0]), float(plan.depths[-1])
         raise InvalidInputError(
@@ -58,7 +62,7 @@ def run_semiglobal(views, calibration, plan, settings, finisher, progress) -> di
             "or use method='local'")
     check = views.shape[0] == 2 if settings.consistency is None else bool(settings.consistency)
     with numba_threads(settings.threads):  # every compiled kernel of the method, not only the optimisation's
-        filled = _optimise(views, calibration, plan, settings, finisher, consistency=check, report=progress)
+        filled = _optimise(views, calibration, plan, settings, finisher, consistency=check, report=progress, fused=fused)
     progress.done()
     return dict(depth_filled_m=filled, paths=settings.paths, consistency=check)
 
@@ -103,20 +107,30 @@ def _consistent(calibration, plan, index, other_plan, other_index, tolerance: fl
         return inside & (np.abs(there - index) <= tolerance)
 
 
-def _optimise(views, calibration, plan, settings, fin, consistency=True, report=None):
+def _index(views, calibration, plan, settings, report, start, end, fused):
+    """:func:`semiglobal_index`, by the fused 16-bit passes where they apply and ``fused``."""
+    if fused:
+        out = fused_index(views, calibration, plan, settings, SUBPIXEL_BOX_PX,
+                          on_stage=lambda fraction: report.at(start + (end - start) * fraction))
+        if out is not None:
+            return out
+    return semiglobal_index(views, calibration, plan, settings, report, start, end)
+
+
+def _optimise(views, calibration, plan, settings, fin, consistency=True, report=None, fused=True):
     """The 'sgm' method: fill the cost volume, optimise it, select and refine; with
     ``consistency``, the same from a second reference frame, and pixels whose two answers
     disagree become unknown. The finisher gets the depth and confidence; the hole-filled depth
     is returned."""
     h, w = views.shape[1:3]
     share = 0.5 if consistency else 1.0  # of the work, per reference frame
-    index, confidence, nviews, guide = _sgm_index(views, calibration, plan, settings, report, 0.0, share)
+    index, confidence, nviews, guide = _index(views, calibration, plan, settings, report, 0.0, share, fused)
     if consistency:
         other = dataclasses.replace(plan, reference=_other_reference(plan))
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", LfringWarning)
             other = dataclasses.replace(other, hs=calibration.homographies(plan.depths, reference=other.reference))
-        other_index = _sgm_index(views, calibration, other, settings, report, share, 1.0)[0]
+        other_index = _index(views, calibration, other, settings, report, share, 1.0, fused)[0]
         keep = _consistent(calibration, plan, index, other, other_index, CONSISTENCY_STEPS * plan.exclude)
         confidence = np.where(keep, confidence, np.float32(0.0))
     refined, filled = refine_index(index, confidence, guide)
@@ -134,10 +148,10 @@ def _optimise(views, calibration, plan, settings, fin, consistency=True, report=
     return fin.depth_of(filled, nviews)
 
 
-def _sgm_index(views, calibration, plan, settings, report=None, start=0.0, end=1.0):
-    """Fractional hypothesis index, confidence, views seen and guide of one reference frame
-    (``report`` advanced from ``start`` to ``end``: the sweep about a third, the optimisation
-    the rest)."""
+def semiglobal_index(views, calibration, plan, settings, report=None, start=0.0, end=1.0):
+    """Fractional hypothesis index, confidence, views seen and guide of one reference frame: the
+    float32 reference of the method (``report`` advanced from ``start`` to ``end``: the sweep
+    about a third, the optimisation the rest)."""
     h, w = views.shape[1:3]
     volume = np.empty((len(plan.depths), h, w), np.float32)
     swept = start + (end - start) * SWEEP_SHARE
@@ -184,8 +198,18 @@ def _sgm_index(views, calibration, plan, settings, report=None, start=0.0, end=1
 
 SEMIGLOBAL = DepthEngine(
     name="sgm",
-    summary="the whole cost volume optimised semi-globally along scan lines (default)",
+    summary="the whole cost volume optimised semi-globally along scan lines, in 16-bit fused passes (default)",
     run=run_semiglobal,
+    default_cost="lcn-halves",
+    lcn_aggregate_px=SGM_AGGREGATE_PX,
+    whole_volume=True,
+    options=frozenset({"paths", "consistency"}),
+)
+
+SEMIGLOBAL_REFERENCE = DepthEngine(
+    name="sgm-reference",
+    summary="the semi-global method computed plainly in float32 over whole volumes: the reference of 'sgm'",
+    run=functools.partial(run_semiglobal, fused=False),
     default_cost="lcn-halves",
     lcn_aggregate_px=SGM_AGGREGATE_PX,
     whole_volume=True,

@@ -1,0 +1,258 @@
+"""The semi-global method with 16-bit costs in fused passes (:mod:`lfring.depth.engines.fused_volume`,
+:mod:`lfring.depth.engines.fused_paths`).
+
+The same method as the float32 reference (:func:`lfring.depth.engines.semiglobal.semiglobal_index`):
+the 'lcn' cost of all views and of the halves aggregated over a box, the halves taken where no
+depth suits all views, the shiftable windows, four scan paths with edge-aware penalties, the
+winner, its parabola on the wider box of the cost and the two distinctness measures. What differs
+is how it is computed: the views are shifted in row strips (every homography a translation, after
+at most a fixed near-identity resampling of each view), the volume is held once, in 16-bit
+integers, and the erosion, the paths, the wider box and the selection run in passes that read it
+row by row or column block by column block, so memory traffic is a few passes over a 16-bit
+volume and every thread has independent work.
+
+:func:`fused_index` answers None where it does not apply (another backend, cost or aggregation,
+eight paths, or homographies that are not translations up to a fixed resampling); the engine then
+runs the reference.
+"""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+
+from lfring.core.viewstack import WEIGHT_FLOOR, cached_view_masks, calibration_cache
+from lfring.core.warping import TRANSLATION_TOL_PX
+from lfring.depth.costs.lcn_halves import (HALVES_GAIN, HALVES_MEDIAN_SAMPLE, HALVES_MIN_SUPPORT, HALVES_POOR,
+                                           view_halves)
+from lfring.depth.costs.lcn_occlusion import OCCLUSION_PENALTY
+from lfring.depth.plan import guide_image
+from lfring.depth.sgm import EDGE_SCALE, P1_SCALE, P2_SCALE
+
+__all__ = ["RESAMPLE_TOL_PX", "UNITS_PER_SCALE", "fused_index", "shift_plan"]
+
+# Integer steps per unit of the cost's scale (the small penalty P1 is one scale unit): fine
+# enough that rounding moves no decision of the paths, coarse enough that four paths of the
+# clipped cost plus the large penalty fit in 16 bits.
+UNITS_PER_SCALE = 64
+# A view is resampled once by a fixed near-identity map, so that every hypothesis is a pure shift,
+# when what is left over after that is within this many pixels everywhere in the frame.
+RESAMPLE_TOL_PX = 0.01
+# Rows of a strip of the sweep (per parallel task), and the fewest columns of a block of the
+# vertical paths (one block per thread).
+STRIP_ROWS = 16
+MIN_COLUMN_BLOCK = 32
+# Rows sampled for a first estimate of the cost's scale (which sets the integer unit).
+SCALE_SAMPLE_ROWS = 16
+
+
+def _all_valid(masks) -> bool:
+    return bool(np.all(masks == 1.0))
+
+
+def _apply(H, pts):
+    q = pts @ H[:2, :2].T + H[:2, 2]
+    return q / (pts @ H[2, :2] + H[2, 2])[:, None]
+
+
+def shift_plan(hs, view_shape):
+    """Per view, a fixed resampling and per hypothesis a shift such that sampling the resampled
+    view at ``x + shift`` is sampling the view where ``H_ref_from_view(Z)^-1`` puts ``x``, to
+    within :data:`RESAMPLE_TOL_PX` over the frame; None where no such factoring exists.
+
+    Returns
+    -------
+    shifts : (N, V, 2) float64
+        (sx, sy) per hypothesis and view.
+    remaps : list of V (map_x, map_y) float32 pairs or None
+        The resampling of each view (None where it is the identity).
+    """
+    hs = np.asarray(hs, np.float64)
+    n, v = hs.shape[:2]
+    h, w = view_shape
+    ys, xs = np.mgrid[0:h:max(1, (h - 1) // 8), 0:w:max(1, (w - 1) // 8)]
+    grid = np.stack([xs.ravel(), ys.ravel()], axis=1).astype(np.float64)
+    grid = np.vstack([grid, [[w - 1, 0], [0, h - 1], [w - 1, h - 1]]])
+    centre = np.array([[(w - 1) / 2.0, (h - 1) / 2.0]])
+    inv = np.linalg.inv(hs)  # reference -> view
+    mid = n // 2
+    shifts = np.empty((n, v, 2))
+    remaps = []
+    for k in range(v):
+        s_mid = _apply(inv[mid, k], centre)[0] - centre[0]
+        # The resampling P(u) = S_mid(u - s_mid): the identity wherever S_mid is a translation.
+        t = np.array([[1.0, 0.0, -s_mid[0]], [0.0, 1.0, -s_mid[1]], [0.0, 0.0, 1.0]])
+        p = inv[mid, k] @ t
+        p_inv = np.linalg.inv(p)
+        moved = np.abs(_apply(p, grid) - grid).max()
+        for i in range(n):
+            # The shift that puts the frame's centre where the hypothesis samples it.
+            shifts[i, k] = _apply(p_inv, _apply(inv[i, k], centre))[0] - centre[0]
+            err = np.abs(_apply(p, grid + shifts[i, k]) - _apply(inv[i, k], grid)).max()
+            if err > RESAMPLE_TOL_PX:
+                return None
+        if moved <= TRANSLATION_TOL_PX:
+            remaps.append(None)
+            continue
+        yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+        pts = np.stack([xx.ravel(), yy.ravel()], axis=1)
+        q = _apply(p, pts).astype(np.float32)
+        remaps.append((q[:, 0].reshape(h, w), q[:, 1].reshape(h, w)))
+    return shifts, remaps
+
+
+def _edges(shift: float, n: int) -> np.ndarray:
+    """(n,) weight of a zero-padded line of ones sampled at ``x + shift`` (bilinear)."""
+    i = int(np.floor(shift))
+    f = shift - i
+    pos = np.arange(n) + i
+    return (np.where((pos >= 0) & (pos < n), 1.0 - f, 0.0) + np.where((pos + 1 >= 0) & (pos + 1 < n), f, 0.0))
+
+
+def _padded(images, remaps, pad):
+    """(V, h + 2 pad + 1, w + 2 pad + 1) float32: each image resampled (where it has a map) and
+    zero-padded."""
+    v, h, w = images.shape
+    out = np.zeros((v, h + 2 * pad + 1, w + 2 * pad + 1), np.float32)
+    for k in range(v):
+        img = images[k]
+        if remaps[k] is not None:
+            img = cv2.remap(img, remaps[k][0], remaps[k][1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+        out[k, pad:pad + h, pad:pad + w] = img
+    return out
+
+
+def _runs_of_ones(masks):
+    """Per view and row of the padded masks (V, H, W), the run [lo, hi) of columns where the mask
+    is exactly 1 (a disc's inside, one run per row), lo = hi where there is none: there the
+    weights need no interpolation."""
+    v, hh, ww = masks.shape
+    lo = np.zeros((v, hh), np.int64)
+    hi = np.zeros((v, hh), np.int64)
+    rows = np.arange(hh)
+    for k in range(v):
+        one = masks[k] == 1.0
+        has = one.any(axis=1)
+        first = np.where(has, np.argmax(one, axis=1), 0)
+        last = np.where(has, ww - np.argmax(one[:, ::-1], axis=1), 0)
+        # Only where the ones form one run: every column between the first and the last is one.
+        count = np.cumsum(one, axis=1)
+        before = np.where(first > 0, count[rows, np.maximum(first - 1, 0)], 0)
+        run = has & (count[rows, np.maximum(last - 1, 0)] - before == last - first)
+        lo[k] = np.where(run, first, 0)
+        hi[k] = np.where(run, last, 0)
+    return lo, hi
+
+
+def fused_index(views, calibration, plan, settings, subpixel_box_px: int, on_stage=None):
+    """Fractional hypothesis index, confidence, views seen and guide of one reference frame, as
+    :func:`lfring.depth.engines.semiglobal.semiglobal_index` defines them (the parabola fitted to
+    the cost's mean over ``subpixel_box_px`` boxes), or None where the fused passes do not apply.
+    ``on_stage(fraction)``, when given, is called as the passes finish (for progress reports)."""
+    stage = on_stage if on_stage is not None else (lambda fraction: None)
+    cost = settings.cost
+    if (settings.backend != "numpy" or not cost.lcn or cost.leave_one_out or settings.aggregation != "box"
+            or settings.paths != 4):
+        return None
+    from lfring.depth.engines import fused_paths, fused_volume
+    from lfring.depth.engines.fused_common import PENALTY_MAX
+
+    h, w = views.shape[1:3]
+    plan_key = ("fused_shift_plan", plan.reference, tuple(np.round(plan.depths, 12)), (h, w))
+    planned = calibration_cache(calibration, plan_key, lambda: shift_plan(plan.hs, (h, w)))
+    if planned is None:
+        return None
+    shifts, remaps = planned
+    n, v = shifts.shape[:2]
+    masks = plan.masks
+    src = cost.sources(views, calibration, plan, settings.window_px, settings.threads)
+    pad = int(math.ceil(np.abs(shifts).max(initial=0.0))) + 2
+    weighted = _padded(src * masks, remaps, pad)
+    all_valid = cached_view_masks(calibration, (h, w), "all_valid", _all_valid, taper=plan.taper) and \
+        all(r is None for r in remaps)
+    def padded_masks():
+        m = _padded(np.asarray(masks, np.float32), remaps, pad)
+        return m, *_runs_of_ones(m)
+
+    if all_valid:
+        mpad, ones_lo, ones_hi = weighted, np.zeros((1, 1), np.int64), np.zeros((1, 1), np.int64)
+    else:  # the masks resampled and padded, and their runs of ones: the same for every frame
+        mpad, ones_lo, ones_hi = calibration_cache(calibration, (plan_key, "masks", plan.taper, pad), padded_masks)
+    iy = np.floor(shifts[..., 1]).astype(np.int64)
+    ix = np.floor(shifts[..., 0]).astype(np.int64)
+    fy = (shifts[..., 1] - iy).astype(np.float32)
+    fx = (shifts[..., 0] - ix).astype(np.float32)
+    if all_valid:
+        edge_y = np.array([[_edges(shifts[i, k, 1], h) for k in range(v)] for i in range(n)], np.float32)
+        edge_x = np.array([[_edges(shifts[i, k, 0], w) for k in range(v)] for i in range(n)], np.float32)
+    else:
+        edge_y = np.zeros((1, 1, 1), np.float32)
+        edge_x = np.zeros((1, 1, 1), np.float32)
+    views_idx = np.arange(v, dtype=np.int64)
+    halves = view_halves(plan.hs, (h, w)) if cost.halves else []
+    flat = np.array([k for half in halves for k in half], np.int64)
+    ptr = np.cumsum([0] + [len(half) for half in halves]).astype(np.int64)
+    rad = settings.aggregate_px // 2
+    floor = np.float32(WEIGHT_FLOOR)
+    geometry = (weighted, mpad, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, views_idx)
+
+    # A first estimate of the cost's scale, on a few rows: the unit of the integer costs.
+    rows = np.unique(np.linspace(0, h - 1, min(h, SCALE_SAMPLE_ROWS)).astype(np.int64))
+    stride = max(1, w // 256)
+    ncol = (w + stride - 1) // stride
+    sample_best = np.empty((len(rows), ncol), np.float32)
+    sample_spread = np.empty((len(rows), ncol), np.float32)
+    fused_volume.sample_costs(*geometry, rows, stride, rad, floor, sample_best, sample_spread)
+    spread = sample_spread[np.isfinite(sample_spread)]
+    first = float(np.median(spread)) if spread.size else 1.0
+    unit = (first if first > 0 and math.isfinite(first) else 1.0) / UNITS_PER_SCALE
+
+    vol = np.empty((h, n, w), np.uint16)
+    best = np.empty((h, w), np.float32)
+    total = np.empty((h, w), np.float32)
+    count = np.empty((h, w), np.float32)
+    nviews = np.empty((h, w), np.float32)
+    fused_volume.sweep_volume(*geometry, rad, STRIP_ROWS, floor, np.float32(unit), vol, best, total, count, nviews)
+    stage(0.35)
+    # The penalties follow the cost of all views, before the halves are taken, as in the reference.
+    scale = _scale(best, total, count)
+    if halves:
+        stride = max(1, int(np.ceil(np.sqrt(h * w / HALVES_MEDIAN_SAMPLE))))
+        sample = best[::stride, ::stride]
+        sample = sample[np.isfinite(sample)]
+        if sample.size:
+            poor = best > HALVES_POOR * float(np.median(sample))
+            fused_volume.sweep_halves(*geometry, flat, ptr, rad, STRIP_ROWS, floor, np.float32(OCCLUSION_PENALTY),
+                            np.float32(HALVES_MIN_SUPPORT), np.float32(HALVES_GAIN), np.float32(unit), poor, best, vol)
+    p1 = int(round(min(P1_SCALE * scale / unit, PENALTY_MAX)))
+    p2 = int(round(min(max(P2_SCALE * scale / unit, p1), PENALTY_MAX)))
+    guide = guide_image(views, plan)
+    erode = settings.aggregate_px // 2
+    stage(0.5)
+    paths = np.empty((h, n, w), np.uint16)
+    fused_paths.horizontal_paths(vol, guide, True, p1, p2, np.float32(EDGE_SCALE), erode, paths)
+    stage(0.7)
+    index = np.empty((h, w), np.float32)
+    confidence = np.empty((h, w), np.float32)
+    # As few blocks as threads: every block pays a fixed cost per row and hypothesis.
+    block = max(MIN_COLUMN_BLOCK, -(-w // max(1, settings.threads)))
+    fused_paths.vertical_paths(vol, paths, guide, True, p1, p2, np.float32(EDGE_SCALE), erode, subpixel_box_px // 2,
+                      int(plan.exclude), block, WEIGHT_FLOOR, index, confidence)
+    stage(1.0)
+    return index, confidence, nviews, guide
+
+
+def _scale(best, total, count) -> float:
+    """:func:`lfring.depth.sgm.cost_scale` from each pixel's least cost and the sum and number of
+    its finite costs: the median over a grid of pixels with two or more finite costs of their mean
+    minus their least."""
+    h, w = best.shape
+    stride = max(1, int(math.ceil(math.sqrt(h * w / (1 << 14)))))
+    b, t, c = (a[::stride, ::stride] for a in (best, total, count))
+    ok = c >= 2
+    if not ok.any():
+        return 1.0
+    scale = float(np.median(t[ok].astype(np.float64) / c[ok] - b[ok]))
+    return scale if scale > 0 and math.isfinite(scale) else 1.0

@@ -1,0 +1,553 @@
+"""The cost volume of the fused semi-global passes, in 16-bit integers (see
+:mod:`lfring.depth.engines.fused`):
+
+1. :func:`sample_costs`: the aggregated cost of all views on a few rows, for a first estimate of
+   the cost's scale, which sets the integer unit.
+2. :func:`sweep_volume`: per strip of rows, every view shifted to every hypothesis and summed,
+   the 'lcn' cost aggregated over the box and quantised into a (h, N, w) uint16 volume.
+3. :func:`sweep_halves`: where no depth suits all views, the cost of the halves of the views,
+   taken where a half agrees much better.
+
+Each step works on rows of one hypothesis at a time in small helpers whose loops run over
+contiguous pixels, so that they vectorise; strips of rows are the parallel tasks.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+from lfring.depth.engines.fused_common import COST_MAX, COST_ZERO, INLINE, JIT, PARALLEL, UNKNOWN, reflect
+
+__all__ = ["sample_costs", "sweep_halves", "sweep_volume"]
+
+
+@njit(**INLINE)
+def _lerp(s0, s1, p, q, t):
+    """t = p s0 + q s1 (the vertical tap pair of a bilinear shift)."""
+    for x in range(t.shape[0]):
+        t[x] = p * s0[x] + q * s1[x]
+
+
+@njit(**INLINE)
+def _shifted(t, a, b, out):
+    """out = a t[x] + b t[x + 1] (the horizontal tap pair)."""
+    for x in range(out.shape[0]):
+        out[x] = a * t[x] + b * t[x + 1]
+
+
+@njit(**INLINE)
+def _scaled(row, s, out):
+    for x in range(out.shape[0]):
+        out[x] = s * row[x]
+
+
+@njit(**INLINE)
+def _sums_first(v, wt, s1, s2, cn):
+    for x in range(v.shape[0]):
+        s1[x] = v[x]
+        s2[x] = v[x] * v[x]
+        cn[x] = wt[x]
+
+
+@njit(**INLINE)
+def _sums_add(v, wt, s1, s2, cn):
+    for x in range(v.shape[0]):
+        s1[x] += v[x]
+        s2[x] += v[x] * v[x]
+        cn[x] += wt[x]
+
+
+@njit(**INLINE)
+def _lcn_row(s1, s2, cn, floor, seen_in, t, seen):
+    """The 'lcn' cost of the sums where 1.5 views or more see the pixel (and ``seen_in``, when
+    given), 0 elsewhere; ``seen`` 1 or 0."""
+    one = np.float32(1.0)
+    half = np.float32(0.5)
+    lim = np.float32(1.5)
+    for x in range(t.shape[0]):
+        c = cn[x]
+        ok = (c >= lim) & (seen_in[x] > half)
+        r = c if c > floor else floor
+        dd = c - one
+        dd = dd if dd > half else half
+        t[x] = (s2[x] - s1[x] * s1[x] / r) / dd if ok else np.float32(0.0)
+        seen[x] = one if ok else np.float32(0.0)
+
+
+@njit(**INLINE)
+def _vsum(rows, start, count, out):
+    """out = sum of ``count`` rows of ``rows`` from index ``start`` (any order of rows)."""
+    w = out.shape[0]
+    for x in range(w):
+        out[x] = rows[start, x]
+    for k in range(start + 1, start + count):
+        r = rows[k]
+        for x in range(w):
+            out[x] += r[x]
+
+
+@njit(**INLINE)
+def _hsum(col, rad, tmp, out):
+    """out[x] = sum of col over x - rad .. x + rad, reflected at the ends (BORDER_REFLECT_101)."""
+    w = col.shape[0]
+    for x in range(w):
+        tmp[x + rad] = col[x]
+    for x in range(rad):
+        tmp[x] = col[reflect(x - rad, w)]
+        tmp[w + rad + x] = col[reflect(w + x, w)]
+    for x in range(w):
+        s = tmp[x]
+        for k in range(1, 2 * rad + 1):
+            s += tmp[x + k]
+        out[x] = s
+
+
+# -- per-pixel terms of one row at one hypothesis ------------------------------------------------
+@njit(**INLINE)
+def _weights(m0, m1, ones_lo, ones_hi, r, c0, p, q, a, b, t, out):
+    """out[x] = the bilinear mask at padded columns c0 + x (+1) of padded rows r, r + 1 (``m0``,
+    ``m1``: those rows from c0), 1 where all four taps lie in both rows' run of ones
+    [ones_lo, ones_hi) (a disc's inside, where nothing needs computing)."""
+    m = out.shape[0]
+    lo = max(ones_lo[r], ones_lo[r + 1]) - c0
+    hi = min(ones_hi[r], ones_hi[r + 1]) - c0 - 1  # x + 1 must be inside too
+    lo = min(max(lo, 0), m)
+    hi = min(max(hi, lo), m)
+    if hi - lo < m:
+        _lerp(m0, m1, p, q, t)
+        for x in range(lo):
+            out[x] = a * t[x] + b * t[x + 1]
+        for x in range(hi, m):
+            out[x] = a * t[x] + b * t[x + 1]
+    for x in range(lo, hi):
+        out[x] = np.float32(1.0)
+
+
+
+@njit(**JIT)
+def _view_rows(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, y, d, views, t, a_buf,
+               w_buf):
+    """Every view's value (premultiplied by its mask) and weight at row ``y`` shifted to
+    hypothesis ``d`` (bilinear, zero outside the view)."""
+    w = a_buf.shape[1]
+    for j in range(views.shape[0]):
+        k = views[j]
+        r = y + iy[d, k] + pad
+        c0 = ix[d, k] + pad
+        q = np.float32(fy[d, k])
+        p = np.float32(1.0) - q
+        b = np.float32(fx[d, k])
+        a = np.float32(1.0) - b
+        _lerp(src[k, r, c0:c0 + w + 1], src[k, r + 1, c0:c0 + w + 1], p, q, t)
+        _shifted(t, a, b, a_buf[j])
+        if all_valid:
+            _scaled(edge_x[d, k], edge_y[d, k, y], w_buf[j])
+        else:
+            _weights(msk[k, r, c0:c0 + w + 1], msk[k, r + 1, c0:c0 + w + 1], ones_lo[k], ones_hi[k], r, c0, p, q, a, b,
+                     t, w_buf[j])
+
+
+@njit(**JIT)
+def _all_terms(a_buf, w_buf, floor, ones, s1, s2, cn, t, seen):
+    _sums_first(a_buf[0], w_buf[0], s1, s2, cn)
+    for j in range(1, a_buf.shape[0]):
+        _sums_add(a_buf[j], w_buf[j], s1, s2, cn)
+    _lcn_row(s1, s2, cn, floor, ones, t, seen)
+
+
+@njit(**JIT)
+def _half_terms(a_buf, w_buf, halves, half_ptr, h_i, floor, seen, s1, s2, cn, hc, ho):
+    j0 = halves[half_ptr[h_i]]
+    _sums_first(a_buf[j0], w_buf[j0], s1, s2, cn)
+    for q_i in range(half_ptr[h_i] + 1, half_ptr[h_i + 1]):
+        j = halves[q_i]
+        _sums_add(a_buf[j], w_buf[j], s1, s2, cn)
+    _lcn_row(s1, s2, cn, floor, seen, hc, ho)
+
+
+@njit(**INLINE)
+def _all_set(row):
+    """Whether every value of a row of 1 / 0 flags is 1."""
+    for x in range(row.shape[0]):
+        if row[x] < np.float32(0.5):
+            return False
+    return True
+
+
+@njit(**INLINE)
+def _window_all_set(flags, q0, y, rad, h):
+    """Whether the rows y - rad .. y + rad (reflected) all have their flag set."""
+    for k in range(y - rad, y + rad + 1):
+        if not flags[reflect(k, h) - q0]:
+            return False
+    return True
+
+
+@njit(**INLINE)
+def _seen_row(w_buf, seen):
+    """seen = 1 where the views' weights add up to 1.5 or more, else 0."""
+    m = seen.shape[0]
+    for x in range(m):
+        seen[x] = w_buf[0, x]
+    for j in range(1, w_buf.shape[0]):
+        wr = w_buf[j]
+        for x in range(m):
+            seen[x] += wr[x]
+    for x in range(m):
+        seen[x] = np.float32(1.0) if seen[x] >= np.float32(1.5) else np.float32(0.0)
+
+
+@njit(**INLINE)
+def _fold_full(bt, scale, least):
+    """least = min(least, scale * bt): a half whose every window is its own."""
+    for x in range(least.shape[0]):
+        c = scale * bt[x]
+        least[x] = c if c < least[x] else least[x]
+
+
+@njit(**INLINE)
+def _agg_row(bt, bs, seen_c, area, floor, out):
+    """The seen-pixel mean of a box (sums ``bt`` of costs, ``bs`` of seen pixels); inf where the
+    centre pixel is not seen."""
+    inf = np.float32(np.inf)
+    for x in range(out.shape[0]):
+        sup = bs[x] / area
+        sup = sup if sup > floor else floor
+        out[x] = bt[x] / area / sup if seen_c[x] > np.float32(0.5) else inf
+
+
+@njit(**INLINE)
+def _fold_half(bt, bs, own_c, area_support, penalty, least):
+    """least = min(least, penalty * bt / bs) where the centre is the half's own and the window's
+    own share reaches the support."""
+    for x in range(least.shape[0]):
+        ok = (own_c[x] > np.float32(0.5)) & (bs[x] >= area_support)
+        c = penalty * bt[x] / (bs[x] if ok else np.float32(1.0))
+        least[x] = c if ok & (c < least[x]) else least[x]
+
+
+# -- pass 0: the scale and threshold from a sample of rows --------------------------------------
+@njit(**PARALLEL)
+def sample_costs(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, views, sample_rows, stride, rad, floor,
+                 best_out, spread_out):
+    """Per sampled pixel (rows ``sample_rows``, every ``stride``-th column): the least aggregated
+    cost of all views over the hypotheses (``best_out``) and the mean of its finite costs minus
+    that least (``spread_out``); inf and NaN where fewer than two hypotheses are finite."""
+    n = iy.shape[0]
+    h = src.shape[1] - 2 * pad - 1
+    w = src.shape[2] - 2 * pad - 1
+    n_views = views.shape[0]
+    area = np.float32((2 * rad + 1) ** 2)
+    ncol = best_out.shape[1]
+    for i in prange(sample_rows.shape[0]):
+        y = sample_rows[i]
+        t = np.empty(w + 1, np.float32)
+        a_buf = np.empty((n_views, w), np.float32)
+        w_buf = np.empty((n_views, w), np.float32)
+        ones = np.ones(w, np.float32)
+        s1 = np.empty(w, np.float32)
+        s2 = np.empty(w, np.float32)
+        cn = np.empty(w, np.float32)
+        t_rows = np.empty((2 * rad + 1, w), np.float32)
+        seen_rows = np.empty((2 * rad + 1, w), np.float32)
+        col = np.empty(w, np.float32)
+        bt = np.empty(w, np.float32)
+        bs = np.empty(w, np.float32)
+        tmp = np.empty(w + 2 * rad, np.float32)
+        agg = np.empty(w, np.float32)
+        best = np.full(ncol, np.inf, np.float32)
+        total = np.zeros(ncol, np.float64)
+        count = np.zeros(ncol, np.int64)
+        for d in range(n):
+            for k in range(2 * rad + 1):
+                yy = reflect(y - rad + k, h)
+                _view_rows(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, yy, d, views, t, a_buf,
+                           w_buf)
+                _all_terms(a_buf, w_buf, floor, ones, s1, s2, cn, t_rows[k], seen_rows[k])
+            _vsum(t_rows, 0, 2 * rad + 1, col)
+            _hsum(col, rad, tmp, bt)
+            _vsum(seen_rows, 0, 2 * rad + 1, col)
+            _hsum(col, rad, tmp, bs)
+            _agg_row(bt, bs, seen_rows[rad], area, floor, agg)
+            for c in range(ncol):
+                v = agg[c * stride]
+                if v < np.float32(np.inf):
+                    best[c] = min(best[c], v)
+                    total[c] += v
+                    count[c] += 1
+        for c in range(ncol):
+            if count[c] >= 2:
+                best_out[i, c] = best[c]
+                spread_out[i, c] = np.float32(total[c] / count[c]) - best[c]
+            else:
+                best_out[i, c] = np.inf
+                spread_out[i, c] = np.nan
+
+
+# -- pass 1: the quantised cost volume ------------------------------------------------------------
+@njit(**INLINE)
+def _quantise(v, inv_unit, out):
+    """Costs in integer units from COST_ZERO, rounded and clipped to [0, COST_MAX]; UNKNOWN where
+    not finite."""
+    cmax = np.float32(COST_MAX)
+    inf = np.float32(np.inf)
+    for x in range(out.shape[0]):
+        q = v[x] * inv_unit + np.float32(COST_ZERO + 0.5)  # rounded
+        q = q if q < cmax else cmax
+        q = q if q > np.float32(0.0) else np.float32(0.0)
+        out[x] = np.uint16(q) if v[x] < inf else np.uint16(UNKNOWN)
+
+
+@njit(**JIT)
+def _box_row(rows, q0, y, rad, h, ordered, col, tmp, out):
+    """The box sum at row ``y`` of a quantity whose rows from image row ``q0`` are ``rows``
+    (reflected at the image's top and bottom; ``ordered`` a scratch of 2 rad + 1 rows)."""
+    c = y - q0
+    if y - rad >= 0 and y + rad < h:
+        _vsum(rows, c - rad, 2 * rad + 1, col)
+    else:
+        for k in range(2 * rad + 1):
+            ordered[k] = rows[reflect(y - rad + k, h) - q0]
+        _vsum(ordered, 0, 2 * rad + 1, col)
+    _hsum(col, rad, tmp, out)
+
+
+@njit(**PARALLEL)
+def sweep_volume(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, views, rad, rows, floor, unit, out, best,
+                 total, count, nviews):
+    """The quantised cost volume of all views ``out`` (h, N, w) uint16, each pixel's least cost
+    ``best`` (h, w) float32 (inf where none), the sum and number of its finite costs ``total``
+    and ``count`` (h, w) float32 (before quantisation: for the scale of the penalties) and
+    ``nviews`` (h, w) float32.
+
+    ``src``, ``msk``: (V, h + 2 pad + 1, w + 2 pad + 1) zero-padded sources (premultiplied by
+    their masks) and masks; ``iy, ix, fy, fx``: (N, V) integer and fractional sampling shifts;
+    ``edge_y``, ``edge_x``: (N, V, h) and (N, V, w) weights of an all-valid view's edges
+    (``all_valid``); ``views``: the views that enter the cost; ``rad``: the aggregation box's
+    radius; ``rows``: output rows per strip; ``unit``: the cost of one integer step."""
+    h, n, w = out.shape
+    n_views = views.shape[0]
+    n_strips = (h + rows - 1) // rows
+    inv_unit = np.float32(1.0 / unit)
+    area = np.float32((2 * rad + 1) ** 2)
+    inf = np.float32(np.inf)
+    for s in prange(n_strips):
+        y0 = s * rows
+        y1 = min(h, y0 + rows)
+        q0 = max(0, y0 - rad)
+        q1 = min(h, y1 + rad)
+        nq = q1 - q0
+        t = np.empty(w + 1, np.float32)
+        a_buf = np.empty((n_views, w), np.float32)
+        w_buf = np.empty((n_views, w), np.float32)
+        ones = np.ones(w, np.float32)
+        s1 = np.empty(w, np.float32)
+        s2 = np.empty(w, np.float32)
+        cn = np.empty(w, np.float32)
+        t_rows = np.empty((nq, w), np.float32)
+        seen_rows = np.empty((nq, w), np.float32)
+        seen_all = np.empty(nq, np.bool_)
+        ordered = np.empty((2 * rad + 1, w), np.float32)
+        col = np.empty(w, np.float32)
+        bt = np.empty(w, np.float32)
+        bs = np.empty(w, np.float32)
+        tmp = np.empty(w + 2 * rad, np.float32)
+        agg = np.empty(w, np.float32)
+        for y in range(y0, y1):
+            nviews[y] = 0.0
+            best[y] = inf
+            total[y] = 0.0
+            count[y] = 0.0
+        for d in range(n):
+            for r in range(nq):
+                _view_rows(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, q0 + r, d, views, t,
+                           a_buf, w_buf)
+                _all_terms(a_buf, w_buf, floor, ones, s1, s2, cn, t_rows[r], seen_rows[r])
+                if q0 + r >= y0 and q0 + r < y1:
+                    nvr = nviews[q0 + r]
+                    for x in range(w):
+                        nvr[x] = max(nvr[x], cn[x])
+            for r in range(nq):
+                seen_all[r] = _all_set(seen_rows[r])
+            for y in range(y0, y1):
+                _box_row(t_rows, q0, y, rad, h, ordered, col, tmp, bt)
+                if _window_all_set(seen_all, q0, y, rad, h):  # every window wholly seen
+                    bs[:] = area
+                else:
+                    _box_row(seen_rows, q0, y, rad, h, ordered, col, tmp, bs)
+                _agg_row(bt, bs, seen_rows[y - q0], area, floor, agg)
+                _quantise(agg, inv_unit, out[y, d])
+                b_row = best[y]
+                t_row = total[y]
+                c_row = count[y]
+                for x in range(w):
+                    b_row[x] = min(b_row[x], agg[x])
+                    known = agg[x] < inf
+                    t_row[x] += agg[x] if known else np.float32(0.0)
+                    c_row[x] += np.float32(1.0) if known else np.float32(0.0)
+
+
+@njit(**PARALLEL)
+def sweep_halves(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, views, halves, half_ptr, rad, rows, floor,
+                 penalty, min_support, gain, unit, poor, best, out):
+    """'lcn-halves': at the ``poor`` pixels (no depth suits all views), the least cost of a half
+    of the views, aggregated over the box; where its best is under ``gain`` times the pixel's
+    ``best`` of all views, ``out`` (the all views' volume, h, N, w uint16) becomes the least of
+    the two. Only the runs of columns of each strip that hold poor pixels (with the box's reach)
+    are computed. Arguments as :func:`sweep_volume`; ``halves`` with ``half_ptr``: each half's
+    positions in ``views``, flattened; ``penalty`` and ``min_support`` as
+    :func:`lfring.depth.costs.lcn_halves.half_aggregate`."""
+    h, n, w = out.shape
+    n_strips = (h + rows - 1) // rows
+    # Runs closer than this share one span: their terms' reach would overlap anyway.
+    gap = 4 * rad + 8
+    for s in prange(n_strips):
+        y0 = s * rows
+        y1 = min(h, y0 + rows)
+        cols = np.zeros(w, np.bool_)
+        for y in range(y0, y1):
+            pr = poor[y]
+            for x in range(w):
+                cols[x] |= pr[x]
+        x = 0
+        while x < w:
+            if not cols[x]:
+                x += 1
+                continue
+            xa = x
+            xb = x + 1
+            last = x
+            while xb < w and xb - last <= gap:
+                if cols[xb]:
+                    last = xb
+                xb += 1
+            xb = last + 1
+            _halves_span(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, views, halves, half_ptr, rad, floor,
+                         penalty, min_support, gain, unit, poor, best, out, y0, y1, xa, xb)
+            x = xb
+
+
+@njit(**JIT)
+def _halves_span(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, views, halves, half_ptr, rad, floor, penalty,
+                 min_support, gain, unit, poor, best, out, y0, y1, xa, xb):
+    """:func:`sweep_halves` for the rows y0..y1 and the output columns xa..xb."""
+    h, n, w = out.shape
+    n_views = views.shape[0]
+    n_halves = half_ptr.shape[0] - 1
+    inv_unit = np.float32(1.0 / unit)
+    area = np.float32((2 * rad + 1) ** 2)
+    inf = np.float32(np.inf)
+    q0 = max(0, y0 - rad)
+    q1 = min(h, y1 + rad)
+    nq = q1 - q0
+    m = y1 - y0
+    # The terms over a span wider by the box's radius, so that its box sums are exact inside.
+    ta = max(0, xa - rad)
+    tb = min(w, xb + rad)
+    sw = tb - ta
+    t = np.empty(sw + 1, np.float32)
+    a_buf = np.empty((n_views, sw), np.float32)
+    w_buf = np.empty((n_views, sw), np.float32)
+    s1 = np.empty(sw, np.float32)
+    s2 = np.empty(sw, np.float32)
+    cn = np.empty(sw, np.float32)
+    seen_rows = np.empty((nq, sw), np.float32)
+    hc_rows = np.empty((n_halves, nq, sw), np.float32)
+    ho_rows = np.empty((n_halves, nq, sw), np.float32)
+    ordered = np.empty((2 * rad + 1, sw), np.float32)
+    col = np.empty(sw, np.float32)
+    bt = np.empty(sw, np.float32)
+    bs = np.empty(sw, np.float32)
+    tmp = np.empty(sw + 2 * rad, np.float32)
+    least = np.empty((m, n, sw), np.float32)
+    hbest = np.full((m, sw), inf, np.float32)
+    own_all = np.empty((n_halves, nq), np.bool_)
+    for d in range(n):
+        for r in range(nq):
+            _view_span(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, q0 + r, d, views, ta, t,
+                       a_buf, w_buf)
+            _seen_row(w_buf, seen_rows[r])
+            for h_i in range(n_halves):
+                _half_terms(a_buf, w_buf, halves, half_ptr, h_i, floor, seen_rows[r], s1, s2, cn, hc_rows[h_i, r],
+                            ho_rows[h_i, r])
+                own_all[h_i, r] = _all_set(ho_rows[h_i, r])
+        for i in range(m):
+            y = y0 + i
+            l_row = least[i, d]
+            for x in range(sw):
+                l_row[x] = inf
+            for h_i in range(n_halves):
+                _box_span(hc_rows[h_i], q0, y, rad, h, ta, w, ordered, col, tmp, bt)
+                if _window_all_set(own_all[h_i], q0, y, rad, h):  # every window the half's own
+                    _fold_full(bt, penalty / area, l_row)
+                    continue
+                _box_span(ho_rows[h_i], q0, y, rad, h, ta, w, ordered, col, tmp, bs)
+                _fold_half(bt, bs, ho_rows[h_i, y - q0], min_support * area, penalty, l_row)
+            hb = hbest[i]
+            for x in range(sw):
+                hb[x] = min(hb[x], l_row[x])
+    q = np.empty(sw, np.uint16)
+    for i in range(m):
+        y = y0 + i
+        pr = poor[y]
+        br = best[y]
+        hb = hbest[i]
+        for d in range(n):
+            _quantise(least[i, d], inv_unit, q)
+            o = out[y, d]
+            for x in range(xa, xb):
+                j = x - ta
+                take = pr[x] & (hb[j] < gain * br[x])
+                o[x] = min(o[x], q[j]) if take else o[x]
+
+
+@njit(**JIT)
+def _view_span(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, y, d, views, x0, t, a_buf,
+               w_buf):
+    """:func:`_view_rows` for the columns x0 .. x0 + a_buf.shape[1] of the row."""
+    m = a_buf.shape[1]
+    for j in range(views.shape[0]):
+        k = views[j]
+        r = y + iy[d, k] + pad
+        c0 = ix[d, k] + pad + x0
+        q = np.float32(fy[d, k])
+        p = np.float32(1.0) - q
+        b = np.float32(fx[d, k])
+        a = np.float32(1.0) - b
+        _lerp(src[k, r, c0:c0 + m + 1], src[k, r + 1, c0:c0 + m + 1], p, q, t)
+        _shifted(t, a, b, a_buf[j])
+        if all_valid:
+            _scaled(edge_x[d, k, x0:x0 + m], edge_y[d, k, y], w_buf[j])
+        else:
+            _weights(msk[k, r, c0:c0 + m + 1], msk[k, r + 1, c0:c0 + m + 1], ones_lo[k], ones_hi[k], r, c0, p, q, a, b,
+                     t, w_buf[j])
+
+
+@njit(**JIT)
+def _box_span(rows, q0, y, rad, h, ta, w, ordered, col, tmp, out):
+    """:func:`_box_row` over a span of columns from image column ``ta`` of an image ``w`` wide:
+    reflected at the image's edges where the span reaches them; its own ends (inside the image)
+    are wrong over ``rad`` columns, which the caller keeps out of use."""
+    c = y - q0
+    sw = col.shape[0]
+    if y - rad >= 0 and y + rad < h:
+        _vsum(rows, c - rad, 2 * rad + 1, col)
+    else:
+        for k in range(2 * rad + 1):
+            ordered[k] = rows[reflect(y - rad + k, h) - q0]
+        _vsum(ordered, 0, 2 * rad + 1, col)
+    if ta == 0 and sw == w:
+        _hsum(col, rad, tmp, out)
+        return
+    # Pad: reflected where the span meets the image's edge, anything elsewhere (never used).
+    for x in range(sw):
+        tmp[x + rad] = col[x]
+    for x in range(rad):
+        tmp[x] = col[reflect(x - rad, sw)] if ta == 0 else col[0]
+        tmp[sw + rad + x] = col[reflect(sw + x, sw)] if ta + sw == w else col[sw - 1]
+    for x in range(sw):
+        acc = tmp[x]
+        for k in range(1, 2 * rad + 1):
+            acc += tmp[x + k]
+        out[x] = acc
