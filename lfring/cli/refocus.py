@@ -92,7 +92,7 @@ def _depths(depth, depths, sweep) -> list[float]:
 @click.option("--zmin", type=float, default=None, metavar="M", help="depth-aware: nearest depth of the depth estimation [m] "
               "(default: the calibration's valid range).")
 @click.option("--zmax", type=float, default=None, metavar="M", help="depth-aware: farthest depth of the depth estimation [m] "
-              "(default: the calibration's valid range; without an upper bound, where the views stop moving).")
+              "(default: the calibration's valid range; required without an upper bound).")
 @click.option("--bit-depth", type=click.Choice(["8", "16"]), default="8", show_default=True, help="Bits per sample.")
 @click.option("--encoding", type=click.Choice(["srgb", "linear"]), default="srgb", show_default=True,
               help="Write display-ready sRGB values, or linear light.")
@@ -154,6 +154,9 @@ def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolat
     ref = check_reference(reference, cal.num_views)
     dof = {}
     if method == "depth-aware":
+        if zmax is None and cal.valid_depth_range_m[1] is None:
+            raise click.UsageError("the calibration has no upper depth bound: give --zmax for the depth estimation "
+                                   "(or --method shift-and-add)")
         dof = {"aperture": aperture, "f_number": f_number, "zmin_m": zmin, "zmax_m": zmax}
         note_first_compile()
     check_renderable(cal, zs, reference=ref)
