@@ -146,16 +146,14 @@ def _process(input_path, settings: BatchSettings, outputs, timings) -> tuple[dic
     info: dict = {"calibration": cal_name, "frame_size_px": [int(image.shape[1]), int(image.shape[0])]}
     arrays: dict[str, np.ndarray] = {}
 
-    t = time.perf_counter()
-    for z in settings.refocus_m:
-        if f"refocus_{z:g}m" not in outputs:
-            continue
-        r = _refocuser(cal, cal_name, z, settings, views.shape[1:3])
-        arrays[f"refocus_{z:g}m"] = r(views)
-    timings["refocus"] = time.perf_counter() - t
+    from lfring.focus import METHODS
 
+    refocus = [z for z in settings.refocus_m if f"refocus_{z:g}m" in outputs]
+    method = METHODS[settings.refocus_method]
+    needs_depth = "depth" in method.options  # a method that renders from the frame's depth map
     depth_res = None
-    if settings.depth and ({"depth", "confidence", "depth_preview"} & set(outputs) or "all_in_focus" in outputs):
+    depth_wanted = {"depth", "confidence", "depth_preview", "all_in_focus"} & set(outputs)
+    if settings.depth and (depth_wanted or (needs_depth and refocus)):
         from lfring.depth import estimate_depth
 
         t = time.perf_counter()
@@ -168,6 +166,17 @@ def _process(input_path, settings: BatchSettings, outputs, timings) -> tuple[dic
         info["confident_fraction"] = float(ok.mean())
         if ok.any():
             info["depth_median_m"] = float(np.median(depth_res.depth_m[ok]))
+
+    t = time.perf_counter()
+    finish = None
+    if refocus or settings.viewer:
+        info.update(_refocus_record(cal, settings))
+    if refocus and method.prepare is not None:
+        finish = _finisher(views, cal, settings, depth_res, info["aperture"], timings)
+    for z in refocus:
+        sharp = _refocuser(cal, cal_name, z, settings, views.shape[1:3])(views)
+        arrays[f"refocus_{z:g}m"] = sharp if finish is None else finish(sharp, z)
+    timings["refocus"] = time.perf_counter() - t
 
     if "all_in_focus" in outputs:
         t = time.perf_counter()
@@ -198,15 +207,67 @@ def _process(input_path, settings: BatchSettings, outputs, timings) -> tuple[dic
         from lfring.viewer import viewer_html
 
         t = time.perf_counter()
+        stack = {"method": settings.refocus_method}
+        if "aperture" in method.options:
+            stack["aperture"] = info["aperture"]
         files["viewer"] = viewer_html(views, cal, zmin_m=settings.zmin_m, zmax_m=settings.zmax_m, reference=settings.reference,
                                       depth=depth_res, num_planes=None if depth_res is not None else settings.planes,
                                       min_confidence=settings.min_confidence, title=Path(input_path).name,
-                                      metadata={"input": str(input_path), "calibration": cal_name}).encode("utf-8")
+                                      metadata={"input": str(input_path), "calibration": cal_name, **_stack_record(info)},
+                                      **stack).encode("utf-8")
         timings["viewer"] = time.perf_counter() - t
     missing = set(outputs) - set(files)
     if missing:  # pragma: no cover - a programming error, not a bad frame
         raise RuntimeError(f"outputs not produced: {sorted(missing)}")
     return files, info
+
+
+def _refocus_record(cal, settings: BatchSettings) -> dict:
+    """What the frame's record says of the method and aperture that made its refocused images
+    (and the viewer's focal stack): for a method with a depth of field ('depth-aware') the
+    aperture itself, resolved from the f-number when one was given; shift-and-add has none (its
+    copies sit on the rim of the aperture the views span)."""
+    from lfring.focus import METHODS, resolve_aperture
+
+    if "aperture" not in METHODS[settings.refocus_method].options:
+        return {"refocus_method": settings.refocus_method, "aperture": None}
+
+    out = {"refocus_method": settings.refocus_method,
+           "aperture": resolve_aperture(cal, aperture=settings.aperture, f_number=settings.f_number)}
+    if settings.f_number is not None:
+        out["f_number"] = settings.f_number
+    return out
+
+
+def _stack_record(info: dict) -> dict:
+    """The viewer's metadata entries of :func:`_refocus_record`."""
+    return {k: info[k] for k in ("refocus_method", "aperture", "f_number") if k in info}
+
+
+def _finisher(views, cal, settings: BatchSettings, depth_res, aperture, timings: dict):
+    """The refocusing method's ``finish(sharp, z)`` for one frame (:class:`lfring.focus.base.RefocusMethod`),
+    made once for all its depths; a method that renders from a depth map gets the batch's when
+    it makes one, else one estimated with the batch's depth settings over the depth range of
+    :func:`lfring.focus.depth_aware.estimation_range`."""
+    from lfring.focus import METHODS
+    from lfring.focus.depth_aware import estimation_range
+
+    method = METHODS[settings.refocus_method]
+    t = time.perf_counter()
+    options = {}
+    if "depth" in method.options:
+        if depth_res is None:
+            from lfring.depth import estimate_depth
+
+            lo, hi = estimation_range(cal, settings.zmin_m, settings.zmax_m, reference=settings.reference)
+            depth_res = estimate_depth(views, cal, zmin_m=lo, zmax_m=hi, num_planes=settings.planes,
+                                       reference=settings.reference, method=settings.depth_method)
+        options["depth"] = depth_res
+    if "aperture" in method.options:
+        options["aperture"] = aperture
+    finish = method.prepare(views, cal, settings.reference, **options)
+    timings["refocus_prepare"] = time.perf_counter() - t
+    return finish
 
 
 def _depth_preview_png(depth_res, settings: BatchSettings, name: str) -> bytes:

@@ -11,6 +11,7 @@ from lfring.core.validate import check_choice, check_fraction, check_int, check_
 from lfring.core.warping import DEFAULT_INTERPOLATION, INTERPOLATIONS
 from lfring.depth import ENGINES, SGM_MIN_PLANES
 from lfring.errors import InvalidInputError
+from lfring.focus.methods import METHODS
 from lfring.io.writers import json_default
 
 __all__ = ["BatchSettings"]
@@ -24,6 +25,16 @@ class BatchSettings:
     ----------
     refocus_m : tuple of float
         Depths in metres to refocus at (one image each).
+    refocus_method : {'depth-aware', 'shift-and-add'}
+        ``method`` of :func:`lfring.refocus` for those images, and for the viewer's focal stack:
+        'depth-aware' (the default, as ``lfring refocus``'s) renders them from the frame's depth
+        map, the batch's own when it makes one, else one estimated with ``depth_method`` and
+        ``planes`` over ``zmin_m``..``zmax_m`` (by default
+        :func:`lfring.focus.depth_aware.estimation_range`); 'shift-and-add' averages the views.
+    aperture, f_number : float, optional
+        'depth-aware': the lens's aperture (1, the default: the aperture the views span), or
+        the main lens's f-number instead (:func:`lfring.focus.resolve_aperture`); each frame's
+        record holds the aperture that made its images.
     depth : bool
         Also compute a depth map over ``zmin_m``..``zmax_m`` (metres).
     all_in_focus : bool
@@ -56,6 +67,9 @@ class BatchSettings:
     """
 
     refocus_m: tuple[float, ...] = ()
+    refocus_method: str = "depth-aware"
+    aperture: float | None = None
+    f_number: float | None = None
     depth: bool = False
     zmin_m: float | None = None
     zmax_m: float | None = None
@@ -97,6 +111,19 @@ class BatchSettings:
         check_choice(self.bit_depth, "bit_depth", (8, 16))
         check_choice(self.encoding, "encoding", ("srgb", "linear"))
         check_choice(self.depth_method, "depth_method", ENGINES)
+        check_choice(self.refocus_method, "refocus_method", METHODS)
+        if "aperture" in METHODS[self.refocus_method].options:
+            if self.aperture is not None and self.f_number is not None:
+                raise InvalidInputError("give the depth of field as aperture or as f_number, not both")
+            check_number(self.aperture, "aperture", minimum=0.0, allow_none=True, hint=" (1: the views' aperture, 0: a pinhole)")
+            check_number(self.f_number, "f_number", above=0.0, allow_none=True, what="a positive number")
+            for name in ("zmin_m", "zmax_m"):
+                check_number(getattr(self, name), name, above=0.0, allow_none=True, what="a positive number of metres")
+            if self.zmin_m is not None and self.zmax_m is not None and not self.zmin_m < self.zmax_m:
+                raise InvalidInputError(f"zmin_m ({self.zmin_m}) must be smaller than zmax_m ({self.zmax_m})")
+        elif self.aperture is not None or self.f_number is not None:
+            owners = ", ".join(f"refocus_method={m.name!r}" for m in METHODS.values() if "aperture" in m.options)
+            raise InvalidInputError(f"aperture and f_number are for {owners}")
         # The viewer's depth map, when the batch makes none, is the semi-global default.
         least = SGM_MIN_PLANES if (self.depth and self.depth_method == "sgm") or self.viewer else 2
         if self.planes is not None:
@@ -131,7 +158,15 @@ class BatchSettings:
         def h(obj) -> str:
             return hashlib.sha256(json.dumps(obj, sort_keys=True, default=json_default).encode()).hexdigest()[:16]
 
-        keys = {f"refocus_{z:g}m": h({**common, "refocus_m": z, "interpolation": self.interpolation}) for z in self.refocus_m}
+        refocus_part = {"interpolation": self.interpolation}
+        if METHODS[self.refocus_method].prepare is not None:
+            # The method, its aperture and the depth map it used: a folder refocused by another
+            # method is not done for this one (shift-and-add's keys stay what they were before
+            # methods were a setting, so folders made then stay done for it). The depth map's
+            # default cost is left out: images made with an earlier default are kept.
+            refocus_part.update(refocus_method=self.refocus_method, aperture=self.aperture, f_number=self.f_number,
+                                depth={k: getattr(self, k) for k in ("zmin_m", "zmax_m", "planes", "depth_method")})
+        keys = {f"refocus_{z:g}m": h({**common, "refocus_m": z, **refocus_part}) for z in self.refocus_m}
         if self.all_in_focus:
             source = ({"depth": depth_part} if self.depth
                       else {"depths_m": list(self.refocus_m)} if len(self.refocus_m) > 1 else {"depths_m": "calibrated range"})
@@ -140,8 +175,11 @@ class BatchSettings:
             for kind in ("depth", "confidence", "depth_preview"):
                 keys[kind] = h({**common, **depth_part, "kind": kind})
         if self.viewer:
-            keys["viewer"] = h({**common, **depth_part, "kind": "viewer", "depth": self.depth})
+            stack = {} if METHODS[self.refocus_method].prepare is None else {
+                "refocus_method": self.refocus_method, "aperture": self.aperture, "f_number": self.f_number}
+            keys["viewer"] = h({**common, **depth_part, "kind": "viewer", "depth": self.depth, **stack})
         return keys
+
 
     def describe(self) -> dict:
         """The settings as JSON-ready values (the calibration by name and content hash)."""
@@ -149,6 +187,9 @@ class BatchSettings:
         d["refocus_m"] = list(self.refocus_m)
         if not self.viewer:  # keeps the keys of folders made before the viewer existed
             del d["viewer"]
+        if METHODS[self.refocus_method].prepare is None and self.aperture is None and self.f_number is None:
+            # ... and of folders made before refocusing had a method (all of it shift-and-add).
+            del d["refocus_method"], d["aperture"], d["f_number"]
         if isinstance(self.black_level, tuple):
             d["black_level"] = list(self.black_level)
         d["calibration_sha256"] = None
@@ -159,8 +200,10 @@ class BatchSettings:
 
     def legacy_key(self) -> str | None:
         """:meth:`key` as lfring computed it before raw levels and the frame check were settings
-        (records of that time carry it), or None when those settings are not at their defaults."""
-        new = ("pattern", "black_level", "white_level", "check_frames", "depth_method")
+        (records of that time carry it), or None when those settings are not at their defaults.
+        It leaves the refocusing method out: those records' images (shift-and-add, then) are
+        taken as done for either method; ``--overwrite`` redoes them."""
+        new = ("pattern", "black_level", "white_level", "check_frames", "depth_method", "refocus_method", "aperture", "f_number")
         if any(getattr(self, n) is not None for n in new[:3]) or not self.check_frames:
             return None
         if self.depth and self.depth_method != "local":  # that version's depth maps came from the local sweep

@@ -19,9 +19,21 @@ log = logging.getLogger("lfring.cli.batch")
 @click.option("--calib", type=click.Path(dir_okay=False), default=None, metavar="FILE",
               help="Calibration JSON for every frame (default: the built-in one for each frame's size).")
 @click.option("--refocus", "refocus_m", default=None, metavar="Z1,Z2,...", help="Refocus every frame at these depths [m].")
+@click.option("--method", "refocus_method", type=click.Choice(["depth-aware", "shift-and-add"]), default="depth-aware",
+              show_default=True,
+              help="Refocusing of --refocus and of the --viewer's focal stack, as lfring refocus --method: depth-aware "
+                   "renders what the lens's whole aperture would record from each frame's depth map (the --depth map when "
+                   "there is one, else one estimated over --zmin..--zmax or the calibration's range); "
+                   "shift-and-add averages the views (out-of-focus objects as four copies; much faster). Each frame's "
+                   "record says which method and aperture made its images.")
+@click.option("--aperture", type=float, default=None, metavar="A",
+              help="depth-aware: aperture radius, 1 = the aperture the four views span (default), 0 = all in focus.")
+@click.option("--f-number", "f_number", type=float, default=None, metavar="N",
+              help="depth-aware: the main lens's f-number instead of --aperture (needs a calibration made from a "
+                   "described device, as the built-in ones are).")
 @click.option("--depth", "depth_map", is_flag=True, help="Depth map of every frame over --zmin..--zmax.")
-@click.option("--zmin", type=float, default=None, metavar="M", help="Nearest depth searched [m], with --depth.")
-@click.option("--zmax", type=float, default=None, metavar="M", help="Farthest depth searched [m], with --depth.")
+@click.option("--zmin", type=float, default=None, metavar="M", help="Nearest depth searched [m], with --depth or --viewer.")
+@click.option("--zmax", type=float, default=None, metavar="M", help="Farthest depth searched [m], with --depth or --viewer.")
 @click.option("--planes", type=int, default=None, metavar="N", help="Depth hypotheses (default: 1 px of view motion apart).")
 @click.option("--depth-method", type=click.Choice(["sgm", "local"]), default="sgm", show_default=True,
               help="Depth maps by semi-global optimisation, or by the faster local sweep (see lfring depth --method).")
@@ -44,13 +56,16 @@ log = logging.getLogger("lfring.cli.batch")
 @raw_options
 @check_option
 @click.pass_context
-def command(ctx, inputs, outdir, calib, refocus_m, depth_map, zmin, zmax, planes, depth_method, aif, viewer, reference, interpolation,
-            bit_depth, encoding, workers, executor, scheduler, exclude, progress, overwrite, levels, no_check):
+def command(ctx, inputs, outdir, calib, refocus_m, refocus_method, aperture, f_number, depth_map, zmin, zmax, planes, depth_method,
+            aif, viewer, reference, interpolation, bit_depth, encoding, workers, executor, scheduler, exclude, progress, overwrite,
+            levels, no_check):
     """Process every frame of INPUT... (files, folders searched recursively, glob patterns).
 
-    Each frame gets its outputs in OUTDIR (refocused images NAME_refocus_<Z>m.png, depth maps
-    NAME_depth.tiff with NAME_confidence.tiff and NAME_depth_preview.png, NAME_all_in_focus.png)
-    and a record NAME.lfring.json; OUTDIR/manifest.jsonl gets a line per frame. Frames already
+    Each frame gets its outputs in OUTDIR (refocused images NAME_refocus_<Z>m.png, depth-aware
+    by default as with lfring refocus, depth maps NAME_depth.tiff with NAME_confidence.tiff and
+    NAME_depth_preview.png, NAME_all_in_focus.png) and a record NAME.lfring.json, which says
+    which method and aperture made its images; OUTDIR/manifest.jsonl gets a line per frame. A
+    folder refocused with one method is not done for another. Frames already
     done with the same settings are skipped, and a rerun that adds an output (another --refocus
     depth, --depth) computes only what is missing; a bad frame is reported by name and the rest
     go on. Folder walks leave out files that are not frames (sidecars, *_truth/ folders, images
@@ -66,7 +81,11 @@ def command(ctx, inputs, outdir, calib, refocus_m, depth_map, zmin, zmax, planes
     if not (zs or depth_map or aif or viewer):
         raise click.UsageError("nothing to do: give --refocus Z1,Z2,..., --depth (with --zmin/--zmax), --all-in-focus or --viewer")
     if (zmin is not None or zmax is not None) and not (depth_map or viewer):
-        raise click.UsageError("--zmin/--zmax go with --depth or --viewer")
+        raise click.UsageError("--zmin/--zmax go with --depth or --viewer (depth-aware --refocus then uses that range)")
+    if refocus_method != "depth-aware" and (aperture is not None or f_number is not None):
+        raise click.UsageError("--aperture and --f-number are for --method depth-aware")
+    if aperture is not None and f_number is not None:
+        raise click.UsageError("give --aperture or --f-number, not both")
     if depth_map and (zmin is None or zmax is None):
         raise click.UsageError("--depth needs --zmin and --zmax (metres)")
     if scheduler and executor != "dask":
@@ -80,7 +99,8 @@ def command(ctx, inputs, outdir, calib, refocus_m, depth_map, zmin, zmax, planes
         ref = check_reference(reference, cal.num_views)
     else:
         ref = check_reference(reference, 4)
-    settings = BatchSettings(refocus_m=zs, depth=depth_map, zmin_m=zmin, zmax_m=zmax, all_in_focus=aif, calibration=cal,
+    settings = BatchSettings(refocus_m=zs, refocus_method=refocus_method, aperture=aperture, f_number=f_number,
+                             depth=depth_map, zmin_m=zmin, zmax_m=zmax, all_in_focus=aif, calibration=cal,
                              calibration_name=cal_name, reference=ref, interpolation=interpolation, bit_depth=int(bit_depth),
                              encoding=encoding, planes=planes, depth_method=depth_method, viewer=viewer,
                              check_frames=not no_check,

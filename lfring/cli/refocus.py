@@ -91,7 +91,8 @@ def _depths(depth, depths, sweep) -> list[float]:
                    "described device).")
 @click.option("--zmin", type=float, default=None, metavar="M", help="depth-aware: nearest depth of the depth estimation [m] "
               "(default: the calibration's valid range).")
-@click.option("--zmax", type=float, default=None, metavar="M", help="depth-aware: farthest depth of the depth estimation [m].")
+@click.option("--zmax", type=float, default=None, metavar="M", help="depth-aware: farthest depth of the depth estimation [m] "
+              "(default: the calibration's valid range; required without an upper bound).")
 @click.option("--bit-depth", type=click.Choice(["8", "16"]), default="8", show_default=True, help="Bits per sample.")
 @click.option("--encoding", type=click.Choice(["srgb", "linear"]), default="srgb", show_default=True,
               help="Write display-ready sRGB values, or linear light.")
@@ -122,7 +123,7 @@ def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolat
     from lfring.errors import LfringWarning
     from lfring.core.geometry import check_reference
     from lfring.io.writers import write_gif, write_image, write_json, write_tiff_stack
-    from lfring.focus import Refocuser, all_in_focus, focal_stack
+    from lfring.focus import Refocuser, all_in_focus, focal_stack, resolve_aperture
 
     zs = _depths(depth, depths, sweep)
     bits = int(bit_depth)
@@ -172,6 +173,9 @@ def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolat
             "encoding": encoding, "bit_depth": bits, "interpolation": interpolation, "method": method,
             "units": "depth in metres from the main lens"}
     meta.update({k: v for k, v in dof.items() if v is not None})
+    # Which aperture made the images: depth-aware's, resolved from --f-number when given;
+    # shift-and-add has none (its copies sit on the rim of the aperture the views span).
+    meta["aperture"] = resolve_aperture(cal, aperture, f_number) if method == "depth-aware" else None
     stack = []
     with outputs.writing() as stage, warnings.catch_warnings(), progress_bar(len(zs), "refocus", "depth") as bar:
         warnings.simplefilter("ignore", LfringWarning)
@@ -196,8 +200,10 @@ def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolat
         if aif:
             img, chosen = all_in_focus(views, cal, render_zs if len(zs) > 1 else None, reference=ref)
             write_image(stage(aif_path), encode(img, bits, encoding))
+            # The all-in-focus image is the depth-aware renderer's at aperture 0, whatever --method.
             write_json(stage(str(aif_path) + ".json"), {
-                **meta, "all_in_focus_depths_m": zs if len(zs) > 1 else "calibrated range",
+                **meta, "method": "depth-aware", "aperture": 0.0,
+                "all_in_focus_depths_m": zs if len(zs) > 1 else "calibrated range",
                 "chosen_depth_range_m": [float(np.nanmin(chosen)), float(np.nanmax(chosen))]})
     log.info("wrote %s", ", ".join(map(str, all_outputs)) if len(all_outputs) <= 4 else
              f"{len(all_outputs)} files in {base.parent}")

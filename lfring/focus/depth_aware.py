@@ -4,33 +4,46 @@ Shift-and-add shows every object away from the focus depth as V displaced copies
 lens whose aperture spans the views would show it as a smooth disc of blur instead. Given a
 depth map in the reference frame, :class:`DepthOfField` renders that:
 
-1. **All-in-focus colour.** Every view is sampled at every reference pixel's own depth (one
+1. **The depth that was measured.** Where fewer than :data:`MIN_DEPTH_VIEWS` views' worth see
+   a pixel at its own depth (the views' disc rims, the frame's edge), that depth was not
+   measured: the nearest measured pixel's depth is taken instead, unless they agree anyway.
+2. **All-in-focus colour.** Every view is sampled at every reference pixel's own depth (one
    ``cv2.remap`` per view) and the views are averaged where they agree: a view whose luminance
-   is far from the views' median there (it sees an occluder, or a specular highlight) is left
-   out (:data:`AGREE_TOL`). This does not depend on the focus depth and is made once per depth
-   map.
-2. **In focus from shift-and-add.** Where the views refocused at the focus depth are aligned to
+   is far from the views' robust mean there (it sees an occluder, or a specular highlight) is
+   left out (:data:`AGREE_TOL`). Every view counts by how much of it is valid there, so that a
+   view fading out at its disc's rim fades out of every statistic: no seam follows the rims.
+3. **The background under occlusion edges.** Where the depth map steps nearer by more than
+   :data:`BACK_STEP_PX` of view motion, the farther surface is continued under the nearer one:
+   its depth that of the nearest pixel across the step, its colour from the views that see it
+   there (they look behind the edge from their places in the aperture), else extended from
+   around. Steps 1 to 3 do not depend on the focus depth and are made once per depth map.
+4. **In focus from shift-and-add.** Where the views refocused at the focus depth are aligned to
    within :data:`SHARP_PX` px and agree, the colour is the shift-and-add image itself, blending
    to the all-in-focus colour by :data:`SHARP_PX` + :data:`SHARP_RAMP_PX`: in-focus regions are
    what shift-and-add gives.
-3. **Layers.** Each pixel's signed circle-of-confusion radius ``rho = aperture * R * (x - x_f)``,
-   with ``x = 1/(Z - z0)``, ``x_f`` the focus depth's and R from :func:`aperture_radius_px`, goes
-   to the nearest of a ladder of radii (0.5 px apart up to 2 px, 1 px apart up to
-   :data:`LINEAR_UNTIL_PX`, then growing by :data:`GEOMETRIC_STEP`). Every rung is one layer of
-   premultiplied colour and coverage, blurred by a disc of its radius (large radii on a grid
-   reduced so that the disc is at most :data:`FULL_RES_BLUR_PX` px) and composited far to near
-   with the "over" operator; the result is divided by the accumulated coverage. Before a
-   blurred layer is composited, what lies behind is extended under it and under every nearer
-   pixel (a normalised blur of the farther layers, out to the layer's radius): through a near
-   object's soft edge the lens sees the background continue, not a hole. A near object's blur
-   therefore spreads symmetrically over its edge and what lies behind it, and what lies behind
-   never covers a nearer object's sharp pixels.
+5. **Blur without layers to see.** Each pixel's signed circle-of-confusion radius
+   ``rho = aperture * R * (x - x_f)``, with ``x = 1/(Z - z0)``, ``x_f`` the focus depth's and R
+   from :func:`aperture_radius_px`, lies between two rungs of a ladder of radii (0, 1 px, 0.5 px
+   apart up to 3 px, 1 px apart up to :data:`LINEAR_UNTIL_PX`, then growing by
+   :data:`GEOMETRIC_STEP`). The pixel is shared between those two rungs, with weights that give
+   the mixture of their blurs the second moment of its own disc (``rho^2 / 2``): the blur grows
+   continuously with the depth, and no pixel is quantised to a rung. Every rung is one layer of
+   premultiplied colour and coverage, blurred by its disc (on a grid reduced while the disc
+   there stays at least :data:`COARSE_DISC_PX`), and the layers are composited far to near: a
+   layer covers ("over") what lies at least two rungs behind it, but adds to the rung just
+   behind, because the two rungs around one pixel's radius are one surface, which does not hide
+   itself; across a depth step of two rungs or more the nearer surface hides the farther one.
+   The result is divided by the accumulated coverage, and where a nearer surface's soft edge
+   leaves part of the aperture uncovered, the background of step 3, blurred by its own radius,
+   fills it: through a near object's blurred edge the lens sees the background continue, not a
+   hole, and what lies behind never covers a nearer object's sharp pixels.
 
 The physics: view k's sampling shift at depth Z is (for the ring's translation model) affine in
 x = 1/(Z - z0); a virtual viewpoint at aperture position u (the views sitting at their own
 positions, u = 1) sees a point at depth Z moved by u (t_k(Z) - t_k(Z_f)) relative to the focus
 plane, so a lens whose aperture is the disc through the views blurs it over a disc of radius
-``R |x - x_f|`` px, R the views' mean distance (in px per unit x) from their centre.
+``R |x - x_f|`` px, R the views' mean distance (in px per unit x) from their centre. The
+per-pixel passes are compiled (:mod:`lfring.focus.depth_aware_kernels`).
 """
 
 from __future__ import annotations
@@ -44,7 +57,6 @@ from lfring.errors import InvalidInputError
 from lfring.core.geometry import apply_homography, check_reference, to_reference
 from lfring.core.viewstack import WEIGHT_FLOOR, cached_view_masks, check_views
 from lfring.core.filters import luminance
-from lfring.core.threads import run_threads
 from lfring.core.validate import check_number
 from lfring.core.warping import translations
 from lfring.depth.estimate import estimate_depth
@@ -52,31 +64,57 @@ from lfring.depth.selection import DepthResult
 from lfring.focus.base import RefocusMethod
 
 __all__ = [
-    "AGREE_TOL", "FULL_RES_BLUR_PX", "GEOMETRIC_STEP", "LINEAR_UNTIL_PX", "OCCLUSION_PX", "SHARP_PX", "SHARP_RAMP_PX", "DepthOfField",
-    "DEPTH_AWARE", "aperture_from_f_number", "aperture_radius_px", "coc_radius_px", "depth_of_field", "disc_kernel",
-    "prepare_depth_aware", "resolve_aperture",
+    "AGREE_TOL", "BACK_EDGE_PX", "BACK_STEP_PX", "COARSE_DISC_PX", "DEPTH_TOL_PX", "GEOMETRIC_STEP", "LINEAR_UNTIL_PX",
+    "MIN_DEPTH_VIEWS", "OCCLUSION_PX", "SHARP_PX", "SHARP_RAMP_PX", "SHARP_RESAMPLED_PX2", "SPREAD_TOL", "DepthOfField", "DEPTH_AWARE",
+    "FAR_MOTION_PX", "aperture_from_f_number", "aperture_radius_px", "coc_radius_px", "depth_of_field", "disc_kernel",
+    "estimation_range", "prepare_depth_aware", "resolve_aperture",
 ]
 
 # Views aligned to within this many pixels of view motion at the focus depth are in focus: the
 # shift-and-add image is used there, blending to the all-in-focus colour over SHARP_RAMP_PX more.
 SHARP_PX = 0.5
 SHARP_RAMP_PX = 1.0
-# A view whose luminance at a pixel's own depth differs from the views' median by more than
-# AGREE_TOL (linear [0, 1] units) loses weight linearly, and none is left by twice that.
+# A view whose luminance at a pixel's own depth differs from the views' robust mean by more than
+# AGREE_TOL (linear [0, 1] units) loses weight linearly, and none is left by twice that ...
 AGREE_TOL = 0.04
-# The ladder of blur radii of the layers: 0.5 px apart up to 2 px, 1 px apart up to LINEAR_UNTIL_PX, then each
-# GEOMETRIC_STEP times the last (the eye does not tell a disc of radius r from one of 1.2 r).
+# ... or by more than SPREAD_TOL times the views' rms spread about it, if that is larger: a view
+# far out of a majority is left out, views that form no majority are averaged.
+SPREAD_TOL = 1.0
+# The ladder of blur radii of the layers: 0 and 1 px, then 0.5 px apart up to 3 px, 1 px apart up
+# to LINEAR_UNTIL_PX, then each GEOMETRIC_STEP times the last. Every pixel is shared between the
+# two rungs around its own radius, so the spacing sets how closely a mixture of two discs stands
+# for the disc between them, not where the blur changes.
 LINEAR_UNTIL_PX = 6.0
 GEOMETRIC_STEP = 1.2
-# Discs larger than this radius are applied on a grid reduced by an integer factor (INTER_AREA
-# down, bilinear up) so that the disc there is at most this radius.
-FULL_RES_BLUR_PX = 4.0
+# A rung's layer is blurred on a grid reduced by a power of two f (area averaging down, bicubic
+# up), as far as its disc there stays at least COARSE_DISC_PX: a blurred layer holds no detail
+# finer than its disc. The area averaging itself spreads a pixel by f^2 / 12 per axis, a disc of
+# radius r by r^2 / 4: the disc there is shrunk to radius sqrt(r^2 - f^2 / 3) / f.
+COARSE_DISC_PX = 3.0
 # A view is occluded at a reference pixel when the depth map puts a surface nearer by more than
 # this many pixels of view motion onto the same view pixel.
 OCCLUSION_PX = 1.0
+# A step of the depth map nearer by more than BACK_STEP_PX pixels of view motion (at aperture 1)
+# within BACK_EDGE_PX pixels is an occlusion edge: the farther surface is continued under the
+# nearer one (the background layer). The edge is looked for over a few pixels because an
+# estimated depth map's steps are not one pixel wide.
+BACK_STEP_PX = 2.0
+BACK_EDGE_PX = 2
+# Depth estimated for a calibration without an upper bound reaches as far as the views still
+# move by this many pixels from where they see infinity (estimation_range).
+FAR_MOTION_PX = 0.5
 # For calibrations that are not translations, view sampling positions are interpolated linearly
 # in 1/(Z - z0) between knots this many pixels of view motion apart.
 KNOT_STEP_PX = 0.25
+# The shift-and-add image is already spread by its views' bilinear resampling (second moment
+# about this many px^2 besides its copies'): its share is blurred by that much less.
+SHARP_RESAMPLED_PX2 = 0.08
+# A depth that fewer than MIN_DEPTH_VIEWS views' worth see at a pixel was not measured there
+# (depth estimation picks such depths at its range's end, where the views drift off their
+# discs): the depth of the nearest pixel that enough views see is taken instead, unless the
+# two are within DEPTH_TOL_PX of view motion.
+MIN_DEPTH_VIEWS = 2.0
+DEPTH_TOL_PX = 0.5
 
 
 def _inverse_depth(depth_m, z0: float):
@@ -174,63 +212,53 @@ def disc_kernel(radius_px: float) -> np.ndarray:
     return kern
 
 
-def _blur(layer: np.ndarray, radius_px: float) -> np.ndarray:
-    """``layer`` (h, w, C) convolved with a disc of ``radius_px``, zero outside."""
+def _blur_moment(radius_px: float, factor: int = 1) -> float:
+    """Mean squared distance (px^2) over which a rung of ``radius_px`` spreads a pixel: its disc
+    kernel's at full resolution; on a grid reduced ``factor`` times, a disc's r^2 / 2 and a
+    pixel's 1 / 6 (the reduction and the disc there are sized to it)."""
     if radius_px < 0.5:
-        return layer
-    if radius_px <= FULL_RES_BLUR_PX:
-        return cv2.filter2D(layer, -1, disc_kernel(radius_px), borderType=cv2.BORDER_CONSTANT)
-    f = int(math.ceil(radius_px / FULL_RES_BLUR_PX))
-    h, w = layer.shape[:2]
-    hp, wp = -(-h // f) * f, -(-w // f) * f
-    if (hp, wp) != (h, w):
-        layer = cv2.copyMakeBorder(layer, 0, hp - h, 0, wp - w, cv2.BORDER_CONSTANT, value=0)
-    small = cv2.resize(layer, (wp // f, hp // f), interpolation=cv2.INTER_AREA)
-    # Area averaging down and bilinear up blur by f^2 / 4 px^2 per axis; a disc of radius r by r^2 / 4.
-    small = cv2.filter2D(small, -1, disc_kernel(math.sqrt(radius_px**2 - f * f) / f), borderType=cv2.BORDER_CONSTANT)
-    big = cv2.resize(small, (wp, hp), interpolation=cv2.INTER_LINEAR)
-    return big[:h, :w]
+        return 0.0
+    if factor == 1:
+        kern = disc_kernel(radius_px)
+        n = kern.shape[0] // 2
+        yy, xx = np.mgrid[-n:n + 1, -n:n + 1]
+        return float((kern * (xx * xx + yy * yy)).sum())
+    return radius_px * radius_px / 2.0 + 1.0 / 6.0
 
 
-def _extend_under(region: np.ndarray, nearer: np.ndarray, radius_px: float, threads: int = 1) -> None:
-    """Fill the holes of premultiplied planes (C + 1, h, w) where ``nearer`` surfaces sit
-    (coverage below 1 there) with the colour around them, out to about ``radius_px``: a blurred
-    layer composited next shows, through its soft edge, the surface behind extended under it,
-    as a lens looking past the edge sees it."""
-    alpha = region[-1]
-    hole = np.float32(1.0) - alpha
-    np.maximum(hole, 0.0, out=hole)
-    hole *= nearer
-    if float(hole.max()) < 1e-3:
-        return
-    h, w = alpha.shape
-    f = max(1, int(radius_px // 2))
-    size = (max(1, w // f), max(1, h // f))
-    k = 2 * int(math.ceil(radius_px / f)) + 1
-
-    def spread(plane):
-        return cv2.blur(cv2.resize(plane, size, interpolation=cv2.INTER_AREA), (k, k), borderType=cv2.BORDER_CONSTANT)
-
-    weight = spread(alpha)
-    inv = np.zeros_like(weight)
-    np.divide(np.float32(1.0), weight, out=inv, where=weight > WEIGHT_FLOOR)
-    hole *= cv2.resize((weight > WEIGHT_FLOOR).astype(np.float32), (w, h), interpolation=cv2.INTER_LINEAR)
-
-    def fill(i):
-        region[i] += hole * cv2.resize(spread(region[i]) * inv, (w, h), interpolation=cv2.INTER_LINEAR)
-
-    run_threads([lambda i=i: fill(i) for i in range(len(region) - 1)], threads)
-    region[-1] += hole
-
-
-def _radius_ladder(max_px: float) -> np.ndarray:
-    """Signed layer radii, ascending (far to near): 0, +-0.5, +-1, +-1.5, +-2, +-3, ...
-    +-LINEAR_UNTIL_PX, then geometric."""
-    r = [0.5]
+def _ladder(max_px: float) -> np.ndarray:
+    """Unsigned layer radii from 0 to at least ``max_px``: 0, 1, 1.5, 2, 2.5, 3, 4, 5, ...,
+    LINEAR_UNTIL_PX, then geometric."""
+    r = [0.0, 1.0]
     while r[-1] < max_px:
-        r.append(r[-1] * GEOMETRIC_STEP if r[-1] >= LINEAR_UNTIL_PX else r[-1] + (0.5 if r[-1] < 2.0 else 1.0))
-    r = np.array(r)
-    return np.concatenate([-r[::-1], [0.0], r])
+        last = r[-1]
+        r.append(last * GEOMETRIC_STEP if last >= LINEAR_UNTIL_PX else last + (0.5 if last < 3.0 else 1.0))
+    return np.array(r)
+
+
+def _fill_from_around(planes: list, known: np.ndarray) -> list:
+    """``planes`` (each (h, w) float32, valid where ``known`` > 0, ``known`` in [0, 1]) filled
+    everywhere from the valid values around: a pyramid of normalised averages (push-pull),
+    each level blended in where the finer one knows too little."""
+    levels = [([p * known for p in planes], known)]
+    while min(levels[-1][1].shape) > 2:
+        prem, wt = levels[-1]
+        h, w = wt.shape
+        size = ((w + 1) // 2, (h + 1) // 2)
+        levels.append(([cv2.resize(p, size, interpolation=cv2.INTER_AREA) for p in prem],
+                       cv2.resize(wt, size, interpolation=cv2.INTER_AREA)))
+    out = None
+    for prem, wt in reversed(levels):
+        inv = np.zeros_like(wt)
+        np.divide(np.float32(1.0), wt, out=inv, where=wt > 1e-6)
+        own = [p * inv for p in prem]
+        if out is None:
+            out = own
+            continue
+        h, w = wt.shape
+        a = np.clip(wt, 0.0, 1.0)
+        out = [o * a + cv2.resize(u, (w, h), interpolation=cv2.INTER_LINEAR) * (1.0 - a) for o, u in zip(own, out)]
+    return out
 
 
 class DepthOfField:
@@ -260,7 +288,8 @@ class DepthOfField:
     Notes
     -----
     See the module's description. Memory: the views remapped once (V full-size images) while
-    the colour is made; then a few full-size buffers per render.
+    the colour is made; then, kept between renders, a few full-size buffers and the layers
+    (each pixel in two of them, blurred layers on reduced grids).
     """
 
     def __init__(self, views, calibration, depth_map_m, *, reference="center"):
@@ -281,13 +310,17 @@ class DepthOfField:
         self.x = _inverse_depth(dm, z0).astype(np.float32)
         self.radius_px = aperture_radius_px(calibration, self.reference)
         masks = cached_view_masks(calibration, (h, w))
-        self.colour, self.agree, self.seen = self._all_in_focus(arr, masks)
+        self.colour, self.agree, self.seen, nearest = self._all_in_focus(arr, masks)
+        self._back = self._background(arr, masks, nearest)
+        self._cover = self.seen.astype(np.float32)
+        self._scratch: dict = {}
+        self._x_range = (float(self.x[self.seen].min()), float(self.x[self.seen].max())) if self.seen.any() else (1.0, 1.0)
 
-    # -- the all-in-focus colour -----------------------------------------------------------------
-    def _sampling_maps(self, k_views: int):
+    # -- sampling the views --------------------------------------------------------------------
+    def _sampling_maps(self, k_views: int, x: np.ndarray):
         """Per view, the (mapx, mapy) float32 view pixel that every reference pixel samples at
-        its own depth."""
-        cal, (h, w), x = self.calibration, self.view_shape, self.x
+        the inverse depth ``x`` (h, w)."""
+        cal, (h, w) = self.calibration, self.view_shape
         z0 = cal.depth_origin_m
         lo, hi = float(x.min()), float(x.max())
         if hi - lo < 1e-9:
@@ -323,62 +356,148 @@ class DepthOfField:
                 out[k][idx] = a + t * (b - a)
         return [(o[:, 0].reshape(h, w), o[:, 1].reshape(h, w)) for o in out]
 
-    def _visible(self, maps) -> list:
-        """Per view, (h, w) bool: whether the view sees the reference pixel's own surface, i.e.
-        no reference pixel nearer by more than :data:`OCCLUSION_PX` of view motion lands on
-        the same view pixel (the depth map splatted into the view, nearest wins, widened by
-        one pixel)."""
+    def _occluded(self, mx, my, x, nearest) -> np.ndarray:
+        """(h, w) bool: whether a surface nearer than ``x`` by more than :data:`OCCLUSION_PX`
+        of view motion lands on the view pixel (``mx``, ``my``) (``nearest``: the depth map
+        splatted into the view)."""
+        h, w = self.view_shape
+        ui = np.rint(mx).astype(np.int64)
+        vi = np.rint(my).astype(np.int64)
+        inside = (ui >= 0) & (ui < w) & (vi >= 0) & (vi < h)
+        tol = np.float32(OCCLUSION_PX / max(self.radius_px, 1e-12))
+        out = np.zeros((h, w), bool)
+        out[inside] = nearest[vi[inside], ui[inside]] > x[inside] + tol
+        return out
+
+    def _splat(self, maps) -> list:
+        """Per view, (h, w) float32: the largest inverse depth of the reference pixels that land
+        on each view pixel (nearest wins, widened by one pixel), -inf where none does."""
         h, w = self.view_shape
         x = self.x.ravel()
-        tol = np.float32(OCCLUSION_PX / max(self.radius_px, 1e-12))
         out = []
         for mx, my in maps:
             ui = np.rint(mx).astype(np.int64).ravel()
             vi = np.rint(my).astype(np.int64).ravel()
             inside = (ui >= 0) & (ui < w) & (vi >= 0) & (vi < h)
-            flat = vi * w + ui
             nearest = np.full(h * w, -np.inf, np.float32)
-            np.maximum.at(nearest, flat[inside], x[inside])
-            nearest = cv2.dilate(nearest.reshape(h, w), np.ones((3, 3), np.uint8)).ravel()
-            occluded = np.zeros(h * w, bool)
-            occluded[inside] = nearest[flat[inside]] > x[inside] + tol
-            out.append(~occluded.reshape(h, w))
+            np.maximum.at(nearest, (vi * w + ui)[inside], x[inside])
+            out.append(cv2.dilate(nearest.reshape(h, w), np.ones((3, 3), np.uint8)))
         return out
+
+    def _measured(self, k_views: int, masks: np.ndarray):
+        """The depth map, continued from the nearest pixel that :data:`MIN_DEPTH_VIEWS` views'
+        worth see at its own depth where fewer do (a depth one view alone sees was not
+        measured: estimation picks such depths at the range's end, where the views drift off
+        their discs), unless it continues that pixel's depth anyway; and the views' sampling
+        maps at it."""
+        maps = self._sampling_maps(k_views, self.x)
+        cover = sum(cv2.remap(masks[k], mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+                    for k, (mx, my) in enumerate(maps))
+        trust = np.clip(cover - (MIN_DEPTH_VIEWS - 1.0), 0.0, 1.0).astype(np.float32)
+        measured = trust >= 1.0
+        if measured.all() or not measured.any():
+            return maps
+        # The depth of the nearest measured pixel (not an average, which would invent depths
+        # between a nearer surface and a farther one).
+        _, labels = cv2.distanceTransformWithLabels((~measured).view(np.uint8), cv2.DIST_L2, 5,
+                                                    labelType=cv2.DIST_LABEL_PIXEL)
+        my, mx = np.nonzero(measured)
+        around = self.x[my[labels - 1], mx[labels - 1]]
+        # A depth that continues its surroundings' is kept however few views see it.
+        near = np.clip(2.0 - np.abs(self.x - around) * np.float32(self.radius_px / DEPTH_TOL_PX), 0.0, 1.0)
+        trust = np.maximum(trust, near)
+        self.x = (around + trust * (self.x - around)).astype(np.float32)
+        return self._sampling_maps(k_views, self.x)
 
     def _all_in_focus(self, arr: np.ndarray, masks: np.ndarray):
         v, h, w, c = arr.shape
         warped = np.empty((v, h, w, c), np.float32)
         weight = np.empty((v, h, w), np.float32)
-        maps = self._sampling_maps(v)
+        maps = self._measured(v, masks)
         for k, (mx, my) in enumerate(maps):
             src = arr[k] if np.all(masks[k] == 1.0) else arr[k] * masks[k][..., None]
             out = cv2.remap(src, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
             warped[k] = out.reshape(h, w, c)
             weight[k] = cv2.remap(masks[k], mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        nearest = self._splat(maps)
         present = weight > WEIGHT_FLOOR
-        visible = np.stack(self._visible(maps)) & present
+        visible = np.stack([~self._occluded(mx, my, self.x, nk) for (mx, my), nk in zip(maps, nearest)]) & present
         # Where every view that sees the pixel is occluded by the depth map, trust the photometry alone.
         visible |= present & ~visible.any(axis=0)
-        lum = luminance(warped)
-        np.divide(lum, weight, out=lum, where=present)
-        # The visible views' median (for up to four views: their mean without the extremes).
-        n = visible.sum(axis=0)
-        total = np.where(visible, lum, 0.0).sum(axis=0)
-        trim = n >= 3
-        top = np.where(trim, np.where(visible, lum, -np.inf).max(axis=0), 0.0)
-        bottom = np.where(trim, np.where(visible, lum, np.inf).min(axis=0), 0.0)
-        med = np.where(trim, (total - top - bottom) / np.maximum(n - 2, 1), total / np.maximum(n, 1)).astype(np.float32)
+        # (Into a new array: for one channel the luminance is a view of the warped views.)
+        lum = np.divide(luminance(warped), weight, out=np.zeros((v, h, w), np.float32), where=present)
+        # Every statistic below weighs a view by how much of it is valid there, so that a view
+        # fading out at its disc's rim fades out of the mean too: no seam follows the rim.
+        wv = np.where(visible, weight, 0.0).astype(np.float32)
+        # A robust centre: each view weighted by the weight of the views that agree with it (to
+        # the fourth power, so that three agreeing views outweigh a fourth that sees something
+        # else; two groups of two weigh the same).
+        close = np.exp(-0.5 * ((lum[:, None] - lum[None, :]) / np.float32(AGREE_TOL)) ** 2)  # (V, V, h, w)
+        support = np.einsum("jvhw,jhw->vhw", close, wv, optimize=True)
+        support *= support
+        support *= support
+        support *= wv
+        total = support.sum(axis=0)
+        mean_lum = (wv * lum).sum(axis=0) / np.maximum(wv.sum(axis=0), WEIGHT_FLOOR)
+        med = np.where(total > 0, (support * lum).sum(axis=0) / np.maximum(total, 1e-30), mean_lum).astype(np.float32)
         dev = np.abs(lum - med)
-        # The view nearest the median always counts (two groups of two: all of them).
-        tol = np.maximum(np.float32(AGREE_TOL), np.where(visible, dev, np.inf).min(axis=0))
+        # The tolerance grows with the views' spread about the centre: a view far out of a
+        # majority is left out, views with no majority among them are averaged.
+        spread = np.sqrt((wv * dev * dev).sum(axis=0) / np.maximum(wv.sum(axis=0), WEIGHT_FLOOR))
+        tol = np.maximum(np.float32(AGREE_TOL), np.float32(SPREAD_TOL) * spread)
         phi = np.where(visible, np.clip(2.0 - dev / tol, 0.0, 1.0), 0.0).astype(np.float32)
-        # Agreement for the in-focus blend: every view that sees the pixel, occluded or not.
-        agree = np.where(present, np.clip(2.0 - dev / np.float32(AGREE_TOL), 0.0, 1.0), 1.0).min(axis=0)
+        # Agreement for the in-focus blend: every view that sees the pixel, occluded or not, each
+        # by its weight.
+        dis = np.clip(dev / np.float32(AGREE_TOL) - 1.0, 0.0, 1.0) * np.clip(weight, 0.0, 1.0)
+        agree = np.where(present, 1.0 - dis, 1.0).min(axis=0)
         num = np.einsum("vhw,vhwc->hwc", phi, warped, optimize=True)
         den = (phi * weight).sum(axis=0)
         seen = den > WEIGHT_FLOOR
         colour = np.where(seen[..., None], num / np.where(seen, den, 1.0)[..., None], 0.0).astype(np.float32)
-        return colour, np.where(n > 0, agree, 0.0).astype(np.float32), seen
+        return colour, np.where(present.any(axis=0), agree, 0.0).astype(np.float32), seen, nearest
+
+    # -- the background under occlusion edges --------------------------------------------------
+    def _background(self, arr: np.ndarray, masks: np.ndarray, nearest: list):
+        """The farther surface continued under nearer ones near occlusion edges: (under, x_b,
+        colour_b, distance_px), or None where the depth map has no step of :data:`BACK_STEP_PX`.
+
+        ``under`` (h, w) bool marks the pixels with a background; ``x_b`` its inverse depth (the
+        nearest pixel across the step's); ``colour_b`` its colour, from the views that see it
+        there (they look behind the edge from their places in the aperture), else extended from
+        around; ``distance_px`` how far the pixel lies from the step."""
+        x = self.x
+        step = np.float32(BACK_STEP_PX / max(self.radius_px, 1e-12))
+        k = 2 * BACK_EDGE_PX + 1
+        nearer = cv2.dilate(x, np.ones((k, k), np.uint8))
+        seeds = ((nearer - x) > step) & self.seen
+        if not seeds.any():
+            return None
+        dist, labels = cv2.distanceTransformWithLabels((~seeds).astype(np.uint8), cv2.DIST_L2, 5,
+                                                       labelType=cv2.DIST_LABEL_PIXEL)
+        sy, sx = np.nonzero(seeds)  # the labels number the seeds in this (row-major) order
+        idx = labels - 1
+        xb = x[sy[idx], sx[idx]]
+        under = (x - xb) > step
+        if not under.any():
+            return None
+        v, h, w, c = arr.shape
+        num = np.zeros((h, w, c), np.float32)
+        den = np.zeros((h, w), np.float32)
+        for k, (mx, my) in enumerate(self._sampling_maps(v, xb)):
+            sees = (~self._occluded(mx, my, xb, nearest[k])) & under
+            src = arr[k] if np.all(masks[k] == 1.0) else arr[k] * masks[k][..., None]
+            val = cv2.remap(src, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0).reshape(h, w, c)
+            wk = cv2.remap(masks[k], mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+            num += np.where(sees[..., None], val, 0.0)
+            den += np.where(sees, wk, 0.0)
+        known = den > WEIGHT_FLOOR
+        colour = np.where(known[..., None], num / np.where(known, den, 1.0)[..., None], 0.0)
+        # The seeds are the farther surface itself, as the reference sees it.
+        colour[seeds] = self.colour[seeds]
+        source = (known | seeds).astype(np.float32)
+        colour = np.stack(_fill_from_around([np.ascontiguousarray(colour[..., i]) for i in range(c)], source), axis=2)
+        return (under, xb.astype(np.float32), np.ascontiguousarray(colour, dtype=np.float32), dist.astype(np.float32),
+                (float(xb[under].min()), float(xb[under].max())))
 
     # -- rendering -------------------------------------------------------------------------------
     def signed_radius_px(self, focus_m: float) -> np.ndarray:
@@ -392,69 +511,242 @@ class DepthOfField:
 
         ``shift_and_add`` is the views refocused at ``focus_m`` (:func:`lfring.refocus`): used
         where it is in focus. Without it, the all-in-focus colour is used everywhere."""
+        from lfring.focus import depth_aware_kernels as kern
+
         aperture = check_number(aperture, "aperture", minimum=0.0)
-        disp = self.signed_radius_px(focus_m)
-        colour = self.colour
-        rho = disp * np.float32(aperture)
+        h, w, c = self.colour.shape
+        xf = 1.0 / (focus_m - self.calibration.depth_origin_m)
+        motion = float(self.radius_px)
+        sharp = _EMPTY3
         if shift_and_add is not None:
-            sa = np.asarray(shift_and_add, dtype=np.float32).reshape(colour.shape)
-            s = np.clip((SHARP_PX + SHARP_RAMP_PX - np.abs(disp)) / SHARP_RAMP_PX, 0.0, 1.0) * self.agree
-            colour = colour + s[..., None] * (sa - colour)
-            # Shift-and-add is already spread over its V copies at radius |disp| (second moment
-            # disp^2); a disc of radius r has r^2 / 2: blur its share only by the remainder.
-            rho = np.sign(rho) * np.sqrt(np.maximum(rho * rho - 2.0 * s * disp * disp, 0.0))
-        rmax = float(np.abs(rho).max())
-        if rmax < 0.5:
-            return np.where(self.seen[..., None], colour, 0.0).astype(np.float32)
-        return self._composite(colour, rho, rmax)
+            sharp = np.ascontiguousarray(np.asarray(shift_and_add, dtype=np.float32).reshape(self.colour.shape))
+        # The largest blur radius, from the depth map's ends: the ladder reaches it.
+        rmax = aperture * motion * max(abs(self._x_range[0] - xf), abs(self._x_range[1] - xf))
+        back = None
+        if self._back is not None:
+            under, _, colour_b, dist, xb_range = self._back
+            # Only as far from the edge as a nearer surface's blur can reach.
+            near_edge = under & (dist <= rmax + 2.0)
+            rows, cols = np.flatnonzero(near_edge.any(axis=1)), np.flatnonzero(near_edge.any(axis=0))
+            if rows.size:
+                back = (colour_b, near_edge.view(np.uint8).astype(np.float32), (rows[0], rows[-1] + 1, cols[0], cols[-1] + 1))
+                rmax = max(rmax, aperture * motion * max(abs(xb_range[0] - xf), abs(xb_range[1] - xf)))
+        grid = _Grid(_ladder(rmax), (h, w), c, (xf, motion, aperture), self._scratch)
+        acc = _composite(grid.layers(kern, self.x, self.agree, self._cover, self.colour, sharp), grid, kern)
+        by, bx, summed = 0, 0, _EMPTY3
+        if back is not None:
+            colour_b, cover_b, window = back
+            by, bx, summed = _sum_layers(grid.layers(kern, self._back[1], self.agree, cover_b, colour_b, _EMPTY3, window,
+                                                     "back"), (h, w), c)
+        out = np.empty((h, w, c), np.float32)
+        kern.finish(acc, summed, by, bx, np.float32(WEIGHT_FLOOR), out)
+        return out
 
-    def _composite(self, colour: np.ndarray, rho: np.ndarray, rmax: float) -> np.ndarray:
-        h, w, c = colour.shape
-        ladder = _radius_ladder(rmax)
-        # Fractional rung of every pixel; layer j takes the pixels nearest to it (|q - j| < 1/2).
-        q = np.interp(rho.ravel(), ladder, np.arange(len(ladder), dtype=np.float64)).astype(np.float32).reshape(h, w)
-        row_lo, row_hi = q.min(axis=1), q.max(axis=1)
-        col_lo, col_hi = q.min(axis=0), q.max(axis=0)
-        # Planar (C + 1, h, w) premultiplied colour and coverage: per-plane operations are the fastest.
-        prem = np.empty((c + 1, h, w), np.float32)
-        for i, plane in enumerate(cv2.split(colour)):
-            prem[i] = plane
-        prem[c] = self.seen
-        if not np.all(self.seen):
-            prem[:c, ~self.seen] = 0.0
-        acc = np.zeros((c + 1, h, w), np.float32)
-        threads = cv2.getNumThreads()
-        for j, radius in enumerate(ladder):
-            rows = np.flatnonzero((row_lo < j + 1) & (row_hi > j - 1))
-            cols = np.flatnonzero((col_lo < j + 1) & (col_hi > j - 1))
-            if rows.size == 0 or cols.size == 0:
+
+_EMPTY3 = np.zeros((0, 0, 0), np.float32)
+_EMPTY2 = np.zeros((0, 0), np.float32)
+
+
+def _grid_factor(radius_px: float) -> int:
+    """How many times a rung's grid is reduced (a power of two): as long as its disc stays at
+    least :data:`COARSE_DISC_PX` there."""
+    f = 1
+    while radius_px / (2 * f) >= COARSE_DISC_PX:
+        f *= 2
+    return f
+
+
+def _resize(cells: np.ndarray, size) -> np.ndarray:
+    """``cells`` (rows, cols[, n]) resized bicubically to ``size`` (width, height), any ``n``."""
+    if cells.ndim == 2 or cells.shape[2] <= 4:
+        out = cv2.resize(cells, size, interpolation=cv2.INTER_CUBIC)
+        return out if out.ndim == cells.ndim else out[..., None]
+    return np.stack([cv2.resize(np.ascontiguousarray(cells[..., i]), size, interpolation=cv2.INTER_CUBIC)
+                     for i in range(cells.shape[2])], axis=2)
+
+
+class _Layer:
+    """One rung's premultiplied colour and coverage (rows, cols, C + 1) on its grid (reduced
+    ``f`` times; full-resolution origin ``y0``, ``x0``), blurred by the rung's disc."""
+
+    __slots__ = ("_full", "cells", "f", "k", "x0", "y0")
+
+    def __init__(self, k, f, y0, x0, cells):
+        self.k, self.f, self.y0, self.x0, self.cells = k, f, y0, x0, cells
+        self._full = None
+
+    @property
+    def extent(self):
+        """(y0, y1, x0, x1) in full-resolution pixels (may reach past the frame)."""
+        return self.y0, self.y0 + self.cells.shape[0] * self.f, self.x0, self.x0 + self.cells.shape[1] * self.f
+
+    def full(self) -> np.ndarray:
+        """The cells at full resolution over :attr:`extent`."""
+        if self._full is None:
+            _, y1, _, x1 = self.extent
+            self._full = self.cells if self.f == 1 else _resize(self.cells, (x1 - self.x0, y1 - self.y0))
+        return self._full
+
+
+class _Grid:
+    """The ladder of one render: each rung's radius, grid factor and blur, and the passes that
+    share every pixel between two rungs (:mod:`lfring.focus.depth_aware_kernels`)."""
+
+    def __init__(self, radii, shape, channels, params, scratch):
+        self.radii = radii
+        self.scratch = scratch
+        self.n = len(radii) - 1
+        self.factors = np.array([_grid_factor(r) for r in radii], np.int64)
+        self.moments = np.array([_blur_moment(r, f) for r, f in zip(radii, self.factors)])
+        top = int(self.factors.max())
+        self.stripe = top * max(1, 16 // top)
+        self.shape, self.channels, self.params = shape, channels, params
+
+    def buffer(self, name: str, shape, fill=None) -> np.ndarray:
+        """A float32 array of ``shape`` from the renderer's scratch memory (kept between renders:
+        fresh memory costs a page fault per page on first write), filled with ``fill`` unless
+        None."""
+        size = int(np.prod(shape))
+        mem = self.scratch.get(name)
+        if mem is None or mem.size < size:
+            mem = self.scratch[name] = np.empty(max(size, 1), np.float32)
+        out = mem[:size].reshape(shape)
+        if fill is not None:
+            out.fill(fill)
+        return out
+
+    def layers(self, kern, x, agree, cover, colour, sharp, window=None, name="front") -> list:
+        """The blurred layers (far to near) of the pixels of ``colour`` where ``cover`` > 0
+        (all within ``window``, (row0, row1, col0, col1), when given)."""
+        h, w = self.shape
+        c1 = self.channels + 1
+        n = self.n
+        xf, motion, aperture = self.params
+        q = self.buffer(name + " rungs", (h, w))
+        s = self.buffer(name + " shares", (h, w))
+        stripes = (h + self.stripe - 1) // self.stripe
+        boxes = np.empty((stripes, 2 * n + 1, 4), np.int64)
+        boxes[..., 0::2] = np.iinfo(np.int64).max
+        boxes[..., 1::2] = -1
+        window = np.array((0, h, 0, w) if window is None else window, np.int64)
+        kern.rungs(x, agree, cover, sharp, window, xf, motion, aperture, SHARP_PX, SHARP_RAMP_PX, SHARP_RESAMPLED_PX2,
+                   self.moments, self.stripe, q, s, boxes)
+        lo = boxes[..., 0::2].min(axis=0)
+        hi = boxes[..., 1::2].max(axis=0)
+        shift = np.zeros(2 * n + 1, np.int64)
+        y0 = np.zeros(2 * n + 1, np.int64)
+        x0 = np.zeros(2 * n + 1, np.int64)
+        rows = np.zeros(2 * n + 1, np.int64)
+        cols = np.zeros(2 * n + 1, np.int64)
+        offset = np.zeros(2 * n + 1, np.int64)
+        used = []
+        total = 0
+        for k in range(2 * n + 1):
+            if hi[k, 0] < 0:
                 continue
-            pad = int(math.ceil(abs(radius))) + 1
-            y0, y1 = max(0, rows[0] - pad), min(h, rows[-1] + pad + 1)
-            x0, x1 = max(0, cols[0] - pad), min(w, cols[-1] + pad + 1)
-            qq = q[y0:y1, x0:x1]
-            tent = ((qq >= j - 0.5) & (qq < j + 0.5)).astype(np.float32)  # the layer's own pixels
-            if abs(radius) >= 1.0:  # a soft edge: what lies behind must reach under this layer and nearer ones
-                _extend_under(acc[:, y0:y1, x0:x1], (qq >= j - 0.5).astype(np.float32), abs(float(radius)), threads)
-            layer = [None] * (c + 1)
+            radius = float(self.radii[abs(k - n)])
+            f = int(self.factors[abs(k - n)])
+            pad = int(math.ceil(radius)) + 1
+            if f == 1:
+                ya, yb = max(0, lo[k, 0] - pad), min(h, hi[k, 0] + pad + 1)
+                xa, xb = max(0, lo[k, 1] - pad), min(w, hi[k, 1] + pad + 1)
+            else:  # cells of f x f pixels, from a multiple of f
+                ya, yb = max(0, (lo[k, 0] - pad) // f * f), -(-(hi[k, 0] + pad + 1) // f) * f
+                xa, xb = max(0, (lo[k, 1] - pad) // f * f), -(-(hi[k, 1] + pad + 1) // f) * f
+            shift[k], y0[k], x0[k] = f.bit_length() - 1, ya, xa
+            rows[k], cols[k] = (yb - ya) // f, (xb - xa) // f
+            offset[k] = total
+            total += c1 * rows[k] * cols[k]
+            used.append(k)
+        buf = self.buffer(name + " layers", (total,), 0.0)
+        kern.scatter(colour, sharp, s, cover, q, window, n, shift, y0, x0, rows, cols, offset, self.stripe, buf)
+        out = []
+        for k in used:
+            cells = buf[offset[k]:offset[k] + c1 * rows[k] * cols[k]].reshape(rows[k], cols[k], c1)
+            radius = float(self.radii[abs(k - n)])
+            f = 1 << int(shift[k])
+            disc = radius if f == 1 else math.sqrt(max(radius * radius - f * f / 3.0, 0.0)) / f
+            if disc >= 0.5:
+                cells = _filter(cells, disc_kernel(disc))
+            out.append(_Layer(k, f, int(y0[k]), int(x0[k]), cells))
+        return out
 
-            def blur(i, y0=y0, y1=y1, x0=x0, x1=x1, tent=tent, radius=abs(float(radius))):
-                layer[i] = _blur(cv2.multiply(prem[i, y0:y1, x0:x1], tent), radius)
 
-            def over(i, y0=y0, y1=y1, x0=x0, x1=x1):
-                # "over": a nearer layer (later) covers what is already there by its coverage.
-                region = acc[i, y0:y1, x0:x1]
-                cv2.multiply(region, cover, dst=region)
-                cv2.add(region, layer[i], dst=region)
+def _filter(cells: np.ndarray, kernel: np.ndarray) -> np.ndarray:
+    """``cells`` (rows, cols, n) convolved with ``kernel``, zero outside."""
+    if cells.shape[2] <= 4:
+        out = cv2.filter2D(cells, -1, kernel, borderType=cv2.BORDER_CONSTANT)
+        return out if out.ndim == 3 else out[..., None]
+    return np.stack([cv2.filter2D(np.ascontiguousarray(cells[..., i]), -1, kernel, borderType=cv2.BORDER_CONSTANT)
+                     for i in range(cells.shape[2])], axis=2)
 
-            run_threads([lambda i=i: blur(i) for i in range(c + 1)], threads)
-            cover = np.float32(1.0) - layer[c]
-            run_threads([lambda i=i: over(i) for i in range(c + 1)], threads)
-        alpha = acc[c]
-        inv = np.zeros((h, w), np.float32)
-        np.divide(np.float32(1.0), alpha, out=inv, where=alpha > WEIGHT_FLOOR)
-        planes = [acc[i] * inv for i in range(c)]
-        return planes[0][..., None] if c == 1 else cv2.merge(planes)
+
+def _composite(layers: list, grid: _Grid, kern) -> np.ndarray:
+    """(h, w, C + 1): ``layers`` composited far to near. A layer covers ("over") what lies
+    behind it, except the layer of the rung just behind: the two rungs around a pixel's radius
+    are one surface, which does not hide itself. Consecutive layers on one reduced grid are
+    composited there first, as one group (the composite of a group is a premultiplied layer
+    too, with the group's transmission)."""
+    h, w = grid.shape
+    c = grid.channels
+    acc = grid.buffer("composite", (h, w, c + 1), 0.0)
+    prev = None
+    i = 0
+    while i < len(layers):
+        j = i
+        while j < len(layers) and layers[j].f == layers[i].f:
+            j += 1
+        group = layers[i:j]
+        f = group[0].f
+        if f == 1:
+            for lay in group:
+                behind, py, px = _EMPTY3, 0, 0
+                if prev is not None and lay.k == prev.k + 1:
+                    behind, py, px = prev.full(), prev.y0, prev.x0
+                kern.over(acc, lay.y0, lay.x0, lay.cells, behind, py, px, _EMPTY2, _EMPTY2, False)
+                prev = lay
+        else:
+            uy0 = min(lay.y0 for lay in group)
+            uy1 = max(lay.extent[1] for lay in group)
+            ux0 = min(lay.x0 for lay in group)
+            ux1 = max(lay.extent[3] for lay in group)
+            rows, cols = (uy1 - uy0) // f, (ux1 - ux0) // f
+            g = np.zeros((rows, cols, c + 1), np.float32)
+            trans = np.ones((rows, cols), np.float32)
+            adjacent = prev is not None and group[0].k == prev.k + 1
+            skip = np.zeros((rows, cols), np.float32) if adjacent else _EMPTY2
+            last = None
+            for n_in, lay in enumerate(group):
+                behind, py, px = _EMPTY3, 0, 0
+                if last is not None and lay.k == last.k + 1:
+                    behind, py, px = last.cells, (last.y0 - uy0) // f, (last.x0 - ux0) // f
+                kern.over(g, (lay.y0 - uy0) // f, (lay.x0 - ux0) // f, lay.cells, behind, py, px, trans, skip, n_in == 0)
+                last = lay
+            # Onto the full-resolution composite: acc = group + transmission * acc (+ the skip term).
+            size = (ux1 - ux0, uy1 - uy0)
+            behind, py, px = (prev.full(), prev.y0, prev.x0) if adjacent else (_EMPTY3, 0, 0)
+            kern.merge(acc, uy0, ux0, _resize(g, size), _resize(trans, size), _resize(skip, size) if adjacent else _EMPTY2,
+                       behind, py, px)
+            prev = group[-1]
+        i = j
+    return acc
+
+
+def _sum_layers(layers: list, shape, c: int) -> tuple:
+    """(y0, x0, cells): the layers summed over the frame's part they reach (the background: it
+    only fills what the surfaces leave uncovered, so it needs no order)."""
+    h, w = shape
+    y0 = min(lay.y0 for lay in layers)
+    x0 = min(lay.x0 for lay in layers)
+    y1 = min(h, max(lay.extent[1] for lay in layers))
+    x1 = min(w, max(lay.extent[3] for lay in layers))
+    out = np.zeros((y1 - y0, x1 - x0, c + 1), np.float32)
+    for lay in layers:
+        cells = lay.full()
+        ey0, ey1, ex0, ex1 = lay.extent
+        ey1, ex1 = min(ey1, y1), min(ex1, x1)
+        out[ey0 - y0:ey1 - y0, ex0 - x0:ex1 - x0] += cells[:ey1 - ey0, :ex1 - ex0]
+    return y0, x0, out
 
 
 def resolve_aperture(calibration, aperture=None, f_number=None, ring_device=None) -> float:
@@ -486,16 +778,37 @@ def resolve_aperture(calibration, aperture=None, f_number=None, ring_device=None
     return aperture_from_f_number(f_number, ring_device)
 
 
+def estimation_range(calibration, zmin_m=None, zmax_m=None, *, reference="center") -> tuple[float, float]:
+    """The depth range (metres) over which depth-aware refocusing estimates its depth map:
+    ``zmin_m`` and ``zmax_m`` where given, else the calibration's valid range. A calibration
+    without an upper bound (one from the optics) reaches as far as the views still move by
+    :data:`FAR_MOTION_PX` from where they see infinity: ``1/(Z - z0) = FAR_MOTION_PX / R``.
+
+    Examples
+    --------
+    >>> from lfring.calibration import RingCalibration
+    >>> from lfring.optics import load_device
+    >>> cal = RingCalibration.from_optics(load_device("prototype").binned(2))
+    >>> lo, hi = estimation_range(cal)
+    >>> round(lo, 3) == round(cal.valid_depth_range_m[0], 3), cal.valid_depth_range_m[1], round(hi, 1)
+    (True, None, 4.4)
+    """
+    lo, hi = calibration.valid_depth_range_m
+    lo = float(lo if zmin_m is None else zmin_m)
+    if zmax_m is not None:
+        return lo, float(zmax_m)
+    if hi is None:
+        hi = calibration.depth_origin_m + aperture_radius_px(calibration, reference) / FAR_MOTION_PX
+        hi = max(hi, 2.0 * lo)
+    return lo, float(hi)
+
+
 def _depth_map(arr, calibration, depth, zmin_m, zmax_m, reference) -> np.ndarray:
     """The depth map of the views in the reference frame: given, or estimated."""
     h, w = arr.shape[1:3]
     if depth is None:
-        lo, hi = calibration.valid_depth_range_m
-        zmin_m = lo if zmin_m is None else zmin_m
-        zmax_m = hi if zmax_m is None else zmax_m
-        if zmax_m is None:
-            raise InvalidInputError("the calibration has no upper depth bound: give zmax_m (or a depth map as depth=)")
-        depth = estimate_depth(arr, calibration, zmin_m=float(zmin_m), zmax_m=float(zmax_m), reference=reference)
+        zmin_m, zmax_m = estimation_range(calibration, zmin_m, zmax_m, reference=reference)
+        depth = estimate_depth(arr, calibration, zmin_m=zmin_m, zmax_m=zmax_m, reference=reference)
     elif zmin_m is not None or zmax_m is not None:
         raise InvalidInputError("zmin_m/zmax_m set the range of the depth estimation: give them or a depth map, not both")
     if isinstance(depth, DepthResult):

@@ -91,13 +91,23 @@ def _depth_range(calibration, zmin_m, zmax_m) -> tuple[float, float]:
 
 def viewer_data(views, calibration, *, zmin_m=None, zmax_m=None, num_planes=None, reference="center", depth=None,
                 min_confidence: float = 0.5, boxes=None, unchecked_mask=None, image_format: str = "jpeg",
-                quality: int = 85, metadata=None, focus_m=None) -> dict:
+                quality: int = 85, metadata=None, focus_m=None, method: str = "depth-aware", aperture=None,
+                f_number=None) -> dict:
     """Everything the page shows, as a JSON-ready dict (images as data: URIs); see :func:`viewer_html`."""
     from lfring import all_in_focus, estimate_depth, focal_stack
     from lfring.depth.io import colorize_depth
+    from lfring.focus import METHODS, resolve_aperture
     from lfring.io.writers import encode_image
 
     _check_options(num_planes, min_confidence, image_format, quality)
+    m = METHODS.lookup(method)
+    # A method with a depth of field renders from the page's depth map at the aperture (resolved
+    # here for the metadata); any other refuses those options (focal_stack says which takes them).
+    if "aperture" in m.options:
+        aperture, f_number_given = resolve_aperture(calibration, aperture, f_number), f_number
+        f_number = None
+    else:
+        f_number_given = None
     box_list = _check_boxes(boxes)
     shape_hw = tuple(np.shape(views)[1:3])
     unchecked = None if unchecked_mask is None else _overlay_png(unchecked_mask, shape_hw)
@@ -115,7 +125,11 @@ def viewer_data(views, calibration, *, zmin_m=None, zmax_m=None, num_planes=None
     zs = zs[(zs >= lo - 1e-9) & (zs <= hi + 1e-9)]
     if zs.size < 2:
         raise InvalidInputError(f"the depth result's hypotheses hold fewer than two depths within {lo:g}..{hi:g} m")
-    stack = focal_stack(views, calibration, zs, reference=reference)
+    # The stack as lfring refocus makes it: depth-aware (by default) from the depth map above.
+    options = {"aperture": aperture, "f_number": f_number}
+    if "depth" in m.options:
+        options["depth"] = depth
+    stack = focal_stack(views, calibration, zs, reference=reference, method=m.name, **options)
     h, w = stack.shape[1:3]
     depth_m = np.asarray(depth.depth_m, dtype=np.float64)
     conf = np.asarray(depth.confidence, dtype=np.float64)
@@ -158,6 +172,9 @@ def viewer_data(views, calibration, *, zmin_m=None, zmax_m=None, num_planes=None
             "stack_planes": len(zs),
             "depth_hypotheses": len(depth.depths_m),
             "depth_step_px": float(depth.step_px),
+            "refocus_method": m.name,
+            "aperture": aperture,
+            **({"f_number": float(f_number_given)} if f_number_given is not None else {}),
             "units": "depth in metres from the main lens (readout in millimetres); confidence in [0, 1]",
             **(metadata or {}),
             "calibration_model": calibration.to_dict(),
@@ -167,7 +184,8 @@ def viewer_data(views, calibration, *, zmin_m=None, zmax_m=None, num_planes=None
 
 def viewer_html(views, calibration, *, zmin_m=None, zmax_m=None, num_planes=None, reference="center", depth=None,
                 min_confidence: float = 0.5, boxes=None, unchecked_mask=None, image_format: str = "jpeg",
-                quality: int = 85, title: str = "lfring viewer", metadata=None, focus_m=None) -> str:
+                quality: int = 85, title: str = "lfring viewer", metadata=None, focus_m=None, method: str = "depth-aware",
+                aperture=None, f_number=None) -> str:
     """The viewer of one frame as a self-contained HTML page.
 
     Parameters
@@ -200,7 +218,16 @@ def viewer_html(views, calibration, *, zmin_m=None, zmax_m=None, num_planes=None
     focus_m : float, optional
         Depth the page opens focused at (its nearest frame); default: the middle of the range.
     metadata : dict, optional
-        JSON-ready entries shown in the page's metadata panel (input file, calibration name...).
+        JSON-ready entries shown in the page's metadata panel (input file, calibration name...);
+        the panel also says which method and aperture made the focal stack.
+    method : str
+        The refocusing method of the focal stack (:func:`lfring.refocus`): 'depth-aware' (the
+        default, as ``lfring refocus``'s) renders every frame from the depth map above as a lens
+        of ``aperture`` would; 'shift-and-add' averages the views (out-of-focus objects as
+        copies).
+    aperture, f_number : float, optional
+        'depth-aware': the lens's aperture (1, the default: the one the views span), or the
+        main lens's f-number instead (:func:`lfring.focus.resolve_aperture`).
 
     Returns
     -------
@@ -211,7 +238,8 @@ def viewer_html(views, calibration, *, zmin_m=None, zmax_m=None, num_planes=None
 
     data = viewer_data(views, calibration, zmin_m=zmin_m, zmax_m=zmax_m, num_planes=num_planes, reference=reference,
                        depth=depth, min_confidence=min_confidence, boxes=boxes, unchecked_mask=unchecked_mask,
-                       image_format=image_format, quality=quality, metadata=metadata, focus_m=focus_m)
+                       image_format=image_format, quality=quality, metadata=metadata, focus_m=focus_m, method=method,
+                       aperture=aperture, f_number=f_number)
     # "<" escaped so that no string in the data can close the script element.
     payload = json.dumps(data, separators=(",", ":"), default=json_default).replace("<", "\\u003c")
     return _template().replace("__LF_TITLE__", html.escape(str(title))).replace("__LF_DATA__", payload)

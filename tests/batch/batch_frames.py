@@ -55,7 +55,10 @@ def digest(folder: Path) -> dict[str, str]:
             for p in sorted(folder.rglob("*")) if p.is_file()}
 
 
-def expected_refocus(frame: Path, cal_path: Path, depth_m: float) -> np.ndarray:
+def expected_refocus(frame: Path, cal_path: Path, depth_m: float, method: str = "depth-aware") -> np.ndarray:
+    """What the batch writes for ``frame`` refocused at ``depth_m`` with its default settings:
+    lfring.refocus with the batch's default method (depth-aware, from a depth map estimated with
+    estimate_depth's defaults over the calibration's range), 8-bit sRGB."""
     from lfring import RingCalibration, demosaic, load_raw, split_views
     from lfring.focus import refocus
     from lfring.io.writers import encode_image
@@ -64,7 +67,7 @@ def expected_refocus(frame: Path, cal_path: Path, depth_m: float) -> np.ndarray:
     views = split_views(demosaic(load_raw(frame)), cal.layout)
     from lfring.core.warping import DEFAULT_INTERPOLATION
 
-    return encode_image(refocus(views, cal, depth_m, interpolation=DEFAULT_INTERPOLATION), 8, "srgb")
+    return encode_image(refocus(views, cal, depth_m, interpolation=DEFAULT_INTERPOLATION, method=method), 8, "srgb")
 
 
 def load_calibration(p):

@@ -1,7 +1,7 @@
 """`lfring batch`: failures named once, exit codes, usage errors."""
 
 import pytest
-from batch_frames import CORRUPT, N_FRAMES, make_folder, render_frames
+from batch_frames import CORRUPT, N_FRAMES, load_calibration, make_folder, render_frames
 
 from lfring.cli.main import main
 
@@ -57,3 +57,45 @@ def test_cli_usage_errors_exit_2(frames, tmp_path, capsys, args, text):
     assert text in err and "Traceback" not in err
     assert main(["batch", str(tmp_path / "nothing_here"), "-o", str(tmp_path / "o"), "--refocus", "0.5"]) == 2
     assert "no such file" in capsys.readouterr().err
+
+
+def test_cli_batch_refocuses_as_lfring_refocus_and_records_the_method(frames, tmp_path, capsys):
+    """`lfring batch --refocus` uses lfring refocus's default method (depth-aware), each record
+    says which method and aperture made the images, and a folder refocused by one method is not
+    taken as done by the other."""
+    import json
+
+    import cv2
+    import numpy as np
+    from batch_frames import expected_refocus
+
+    d, cal_path = frames
+    out = tmp_path / "o"
+    args = ["batch", str(d / "scene.png"), "-o", str(out), "--refocus", "0.5", "--calib", str(cal_path), "--workers", "1",
+            "--no-progress"]
+    assert main(args) == 0
+    rec = json.loads((out / "scene.lfring.json").read_text())
+    assert rec["settings"]["refocus_method"] == "depth-aware" and rec["info"]["refocus_method"] == "depth-aware"
+    assert rec["info"]["aperture"] == 1.0
+    img = cv2.cvtColor(cv2.imread(str(out / "scene_refocus_0.5m.png")), cv2.COLOR_BGR2RGB)
+    np.testing.assert_array_equal(img, expected_refocus(d / "scene.png", cal_path, 0.5))
+    # The same folder with shift-and-add: not done, its images were made by another method.
+    assert main([*args, "--method", "shift-and-add"]) == 1
+    assert "other settings" in capsys.readouterr().err
+    assert main([*args, "--method", "shift-and-add", "--overwrite"]) == 0
+    rec = json.loads((out / "scene.lfring.json").read_text())
+    assert rec["info"]["refocus_method"] == "shift-and-add" and rec["info"]["aperture"] is None
+    img = cv2.cvtColor(cv2.imread(str(out / "scene_refocus_0.5m.png")), cv2.COLOR_BGR2RGB)
+    np.testing.assert_array_equal(img, expected_refocus(d / "scene.png", cal_path, 0.5, method="shift-and-add"))
+    # An f-number becomes the aperture of the calibration's device (the prototype's optics).
+    assert main([*args, "--f-number", "4", "--overwrite"]) == 0
+    from lfring.focus import resolve_aperture
+    from lfring.optics import load_device
+
+    rec = json.loads((out / "scene.lfring.json").read_text())
+    assert rec["info"]["f_number"] == 4.0
+    assert rec["info"]["aperture"] == pytest.approx(resolve_aperture(load_calibration(cal_path), f_number=4.0))
+    assert rec["info"]["aperture"] == pytest.approx(resolve_aperture(load_calibration(cal_path), f_number=4.0,
+                                                                     ring_device=load_device("prototype")))
+    assert main([*args, "--method", "shift-and-add", "--aperture", "0.5"]) == 2
+    assert "--method depth-aware" in capsys.readouterr().err

@@ -33,3 +33,30 @@ def test_legacy_key_is_the_key_of_records_before_output_keys():
     # (its default interpolation was cubic then).
     assert BatchSettings(refocus_m=(0.5,), interpolation="cubic").legacy_key() == "6e76e9ced5695793"
     assert BatchSettings(refocus_m=(0.5,), pattern="RGGB").legacy_key() is None
+
+
+def test_refocusing_method_options():
+    with pytest.raises(InvalidInputError, match="refocus_method must be one of"):
+        BatchSettings(refocus_m=(0.5,), refocus_method="bokeh")
+    with pytest.raises(InvalidInputError, match="for refocus_method='depth-aware'"):
+        BatchSettings(refocus_m=(0.5,), refocus_method="shift-and-add", aperture=0.5)
+    with pytest.raises(InvalidInputError, match="not both"):
+        BatchSettings(refocus_m=(0.5,), aperture=0.5, f_number=2.8)
+    with pytest.raises(InvalidInputError, match="aperture must be"):
+        BatchSettings(refocus_m=(0.5,), aperture=-1.0)
+    assert BatchSettings(refocus_m=(0.5,)).refocus_method == "depth-aware"  # as lfring refocus
+
+
+def test_refocus_keys_hold_the_method_and_its_aperture():
+    """A folder refocused by one method is not done for another, nor for another aperture or
+    depth range; shift-and-add's keys are the ones of the folders made before refocusing had a
+    method (all of them shift-and-add), so those stay done for it."""
+    sa = BatchSettings(refocus_m=(0.5,), refocus_method="shift-and-add").output_keys()["refocus_0.5m"]
+    assert sa == "17bef21df6197085"  # what lfring computed before methods were a setting
+    keys = {BatchSettings(refocus_m=(0.5,), **kw).output_keys()["refocus_0.5m"]
+            for kw in ({}, {"aperture": 0.5}, {"f_number": 2.8}, {"viewer": True, "zmin_m": 0.3, "zmax_m": 0.8})}
+    assert len(keys) == 4 and sa not in keys
+    viewers = {BatchSettings(viewer=True, refocus_method=m).output_keys()["viewer"] for m in ("depth-aware", "shift-and-add")}
+    assert len(viewers) == 2
+    d = BatchSettings(refocus_m=(0.5,), f_number=2.8).describe()
+    assert d["refocus_method"] == "depth-aware" and d["f_number"] == 2.8

@@ -73,6 +73,24 @@ def test_refocus_frame_without_calibration(tmp_path, capsys, prototype):
     assert "614 x 460 px but the calibration is for 2456 x 1842" in capsys.readouterr().err
 
 
+def test_refocus_sidecar_says_which_method_and_aperture(tmp_path):
+    """Every sidecar names the method and the aperture that made its image: depth-aware's,
+    resolved from --f-number through the calibration's device; shift-and-add has none."""
+    cal = Path(__file__).resolve().parents[2] / "calib" / "twin_binned2.json"
+    out = tmp_path / "f.png"
+    assert main(["refocus", str(SCENE), "--depth", "0.5", "--calib", str(cal), "--f-number", "2.8", "--zmin", "0.3",
+                 "--zmax", "0.9", "-o", str(out)]) == 0
+    from lfring.focus.depth_aware import aperture_from_f_number
+    from lfring.optics import load_device
+
+    side = json.loads(Path(str(out) + ".json").read_text())
+    assert side["method"] == "depth-aware" and side["f_number"] == 2.8
+    assert side["aperture"] == pytest.approx(aperture_from_f_number(2.8, load_device("prototype")))
+    assert main(["refocus", str(SCENE), "--depth", "0.5", "--method", "shift-and-add", "-o", str(tmp_path / "s.png")]) == 0
+    side = json.loads((tmp_path / "s.png.json").read_text())
+    assert side["method"] == "shift-and-add" and side["aperture"] is None
+
+
 def test_sweep_metadata_holds_the_depths_as_written(tmp_path):
     """A sweep's depths were written as 0.44999999999999996; infinity is the documented "inf"."""
     out = tmp_path / "st" / "s.png"

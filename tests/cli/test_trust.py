@@ -245,14 +245,16 @@ def test_python_m_lfring():
     (["depth", str(SCENE), "--zmin", "0.49", "--zmax", "0.5", "-o", "d/"], "give --planes >= 3", "num_planes"),
     (["depth", str(SCENE), "--zmin", "0.49", "--zmax", "0.5", "-o", "d/"], "or use --method local", "method='local'"),
     (["inspect", str(SCENE), "--plane", "0.3", "--tolerance", "-1", "-o", "r/"], "--tolerance must be", "tolerance_m"),
-    (["refocus", str(SCENE), "--depth", "0.5", "--f-number", "4", "--calib", str(DATA.parents[1] / "calib" / "twin_binned2.json")],
-     "or --aperture", "ring_device="),
+    # The built-in calibration records its device now (--f-number works with it): a copy without one.
+    (["refocus", str(SCENE), "--depth", "0.5", "--f-number", "4", "--calib", "no_device.json"], "or --aperture", "ring_device="),
 ])
 def test_cli_errors_name_options_not_parameters(tmp_path, args, says, not_says):
     """What the user saw: errors that name the library's parameters. The CLI says its options."""
     import subprocess
     import sys
 
+    twin = json.loads((DATA.parents[1] / "calib" / "twin_binned2.json").read_text())
+    (tmp_path / "no_device.json").write_text(json.dumps({k: v for k, v in twin.items() if k != "device"}))
     proc = subprocess.run([sys.executable, "-m", "lfring", *args], capture_output=True, text=True, cwd=tmp_path, timeout=300)
     assert proc.returncode == 2
     assert says in proc.stderr and not_says not in proc.stderr, proc.stderr

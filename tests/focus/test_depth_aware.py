@@ -280,3 +280,129 @@ def test_homographies_that_are_not_translations():
     # The all-in-focus colour samples the views where shift-and-add does (the general warp).
     np.testing.assert_allclose(dof.colour[inner], refocus(views, cal, z)[inner], atol=2e-3)
     np.testing.assert_allclose(dof.colour[inner], texture[inner], atol=2e-2)
+
+
+# -- continuous depth: a slanted textured plane --------------------------------------------------
+SLANT_X = (0.5, 2.5)  # x = 1/Z from the left column to the right one: radii up to 5.7 px focused at x = 1.5
+
+
+def _smooth_texture(seed, channels=3):
+    rng = np.random.default_rng(seed)
+    tex = cv2.GaussianBlur(rng.random((N + 128, N + 128, channels)).astype(np.float32), (0, 0), 1.2)
+    tex = (tex - tex.mean()) / tex.std() * 0.12 + 0.45
+    return np.clip(tex, 0.0, 1.0).reshape(N + 128, N + 128, channels).astype(np.float32)
+
+
+def _slanted_image(tex, offset, x_focus):
+    """The plane x = a + b X (X the reference column) seen from aperture position ``offset`` (in
+    the units of DIRS) in the frame refocused at ``x_focus``: reference point X appears at
+    u = X + GAIN (x(X) - x_focus) offset, solved for X (linear in X)."""
+    a, b = SLANT_X[0], (SLANT_X[1] - SLANT_X[0]) / (N - 1)
+    yy, xx = np.mgrid[0:N, 0:N].astype(np.float64)
+    cols = (xx - GAIN * (a - x_focus) * offset[0]) / (1.0 + GAIN * b * offset[0])
+    rows = yy - GAIN * (a + b * cols - x_focus) * offset[1]
+    out = cv2.remap(tex, (cols + 64).astype(np.float32), (rows + 64).astype(np.float32), cv2.INTER_LINEAR,
+                    borderMode=cv2.BORDER_REFLECT)
+    return out.reshape(N, N, tex.shape[2])
+
+
+def _slanted_plane(seed=7, x_focus=1.5, samples=700):
+    """Four views of the plane with its exact depth map, and the ground truth focused at
+    ``x_focus``: the average over an aperture disc through the views of what a pinhole there
+    sees (a Vogel spiral of ``samples`` points), as lfring.synth.render_conventional builds it."""
+    tex = _smooth_texture(seed)
+    views = np.stack([_slanted_image(tex, d, 0.0) for d in DIRS])
+    i = np.arange(samples)
+    points = np.sqrt(2.0) * np.sqrt((i + 0.5) / samples)[:, None] * np.column_stack(
+        [np.cos(i * np.pi * (3 - np.sqrt(5))), np.sin(i * np.pi * (3 - np.sqrt(5)))])
+    truth = np.mean([_slanted_image(tex, e, x_focus) for e in points], axis=0).astype(np.float32)
+    depth = np.broadcast_to(1.0 / np.linspace(*SLANT_X, N), (N, N)).copy()
+    return views, depth, truth
+
+
+@pytest.mark.parametrize("x_focus", [1.5, 0.8, 2.2])
+def test_a_slanted_plane_blurs_without_seams(x_focus):
+    """A plane whose blur radius grows steadily across the frame, refocused with its exact depth
+    against the image through the whole aperture: close to it everywhere, with no contour where
+    the radius crosses from one layer's to the next. Layers that each take the pixels nearest
+    their radius leave dark lines there (the error's mean along an iso-depth column peaks), and
+    shift-and-add shows copies."""
+    cal = _calibration()
+    views, depth, truth = _slanted_plane(x_focus=x_focus)
+    out = refocus(views, cal, 1.0 / x_focus, method="depth-aware", depth=depth)
+    sa = refocus(views, cal, 1.0 / x_focus)
+    inner = (slice(8, N - 8), slice(8, N - 8))
+    psnr = 10 * np.log10(1.0 / np.mean((out[inner] - truth[inner]) ** 2))
+    psnr_sa = 10 * np.log10(1.0 / np.mean((sa[inner] - truth[inner]) ** 2))
+    assert psnr > 40.0 and psnr > psnr_sa + 10.0, (psnr, psnr_sa)
+    # A seam runs along an iso-depth line, here a column: the error averaged down each column.
+    column_error = (out - truth)[inner].mean(axis=(0, 2))
+    assert np.abs(column_error).max() < 0.006, np.abs(column_error).max()
+
+
+def test_the_blur_changes_continuously_with_the_focus_and_the_depth():
+    """A small change of the focus depth, or of the depth map, changes the image a little: no
+    pixel jumps from one layer to another."""
+    cal = _calibration()
+    views, depth, _ = _slanted_plane(samples=1)
+    z = 1.0 / 1.5
+    a = refocus(views, cal, z, method="depth-aware", depth=depth)
+    b = refocus(views, cal, z * 1.002, method="depth-aware", depth=depth)
+    c = refocus(views, cal, z, method="depth-aware", depth=depth * 1.002)
+    # 0.2 % of the focus distance moves every radius by under 0.01 px.
+    assert np.abs(a - b).max() < 0.01 and np.abs(a - c).max() < 0.01, (np.abs(a - b).max(), np.abs(a - c).max())
+
+
+def test_a_uniform_scene_stays_uniform_whatever_the_depth_map():
+    """Every weight is normalised: a uniform scene renders uniform for any depth map (steps,
+    slopes, noise, views valid only in discs), at any focus and aperture; a dark speck, a halo or
+    a seam would show as a departure."""
+    rng = np.random.default_rng(11)
+    yy, xx = np.mgrid[0:N, 0:N]
+    depth = 1.0 / (0.6 + 1.8 * xx / N + 0.3 * rng.standard_normal((N, N)).clip(-1.5, 1.5))
+    depth[20:50, 30:70] = 0.4
+    depth[60:80, 10:40] = 3.0
+    cal = _calibration(tuple((N / 2, N / 2, N / 2 - 6) for _ in range(4)))
+    views = np.full((4, N, N, 3), 0.6, np.float32)
+    seen = refocus(views, cal, FAR_M)[..., 0] > 0.3
+    for focus, aperture in ((FAR_M, 1.0), (NEAR_M, 1.0), (1.0, 2.5), (0.7, 0.3)):
+        out = refocus(views, cal, focus, method="depth-aware", depth=depth, aperture=aperture)
+        # 0.6 wherever anything is rendered; nothing only where no view sees the pixel at its
+        # own depth (a few pixels at the discs' edge, where the depth map is noise).
+        rendered = out[..., 0] > 0
+        np.testing.assert_allclose(out[rendered], 0.6, atol=1e-5)
+        assert (seen & ~rendered).mean() < 0.002, (seen & ~rendered).mean()
+
+
+def test_no_seam_follows_the_views_disc_rims():
+    """Views that differ in brightness by more than the agreement tolerance (each its own
+    vignetting) and fade out at their discs' rims: the all-in-focus image of a plane changes
+    across every rim no faster than shift-and-add's average of the same views, although a
+    different number of views sees each pixel and they disagree."""
+    cal = _calibration(tuple((N / 2 + dx, N / 2 + dy, N / 2 - 10) for dx, dy in ((-6, -4), (5, -6), (-4, 6), (6, 5))))
+    gains = np.array((0.84, 1.0, 1.12, 0.93), np.float32)
+    ramp = np.broadcast_to(np.linspace(0.3, 0.6, N + 32, dtype=np.float32)[None, :, None], (N + 32, N + 32, 3))
+    views, _, _ = _scene(np.ascontiguousarray(ramp), np.ascontiguousarray(ramp), with_near=False)
+    views = (views * gains[:, None, None, None]).astype(np.float32)
+    depth = np.full((N, N), FAR_M)
+    sa = refocus(views, cal, FAR_M)[..., 0]
+    out = refocus(views, cal, FAR_M, method="depth-aware", depth=depth, aperture=0.0)[..., 0]
+    inner = cv2.erode((sa > 0.1).astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+
+    def steepest(img):
+        step = np.zeros_like(img)
+        step[:, 1:] = np.abs(np.diff(img, axis=1))
+        step[1:, :] = np.maximum(step[1:, :], np.abs(np.diff(img, axis=0)))
+        return float(step[inner].max())
+
+    assert steepest(out) < 1.25 * steepest(sa), (steepest(out), steepest(sa))
+
+
+def test_f_number_works_with_the_built_in_calibration():
+    """The shipped calibration of the twin records the device it was made from, so an f-number
+    can be turned into an aperture without naming the device."""
+    from pathlib import Path
+
+    cal = RingCalibration.load(Path(__file__).resolve().parents[2] / "calib" / "twin_binned2.json")
+    assert cal.device == "prototype"
+    assert resolve_aperture(cal, f_number=2.8) == pytest.approx(aperture_from_f_number(2.8, load_device("prototype")), rel=1e-6)

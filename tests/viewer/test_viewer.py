@@ -347,3 +347,36 @@ def test_inspect_viewer_shows_the_defects_and_the_unchecked_area(tmp_path, brows
     assert browser.find_element("id", "lf-focus-depth").text == f"{d['depths_m'][k]:.3f}"
     shot_dir = Path(os.environ.get(SCREENSHOT_DIR_ENV) or tmp_path)
     assert browser.save_screenshot(str(shot_dir / "viewer_inspect.png"))
+
+
+def test_the_stack_is_refocused_as_lfring_refocus_and_says_how(scene):
+    """The focal stack is depth-aware by default (as lfring refocus), from the page's own depth
+    map, and the metadata panel says which method and aperture made it; shift-and-add on demand."""
+    from lfring import estimate_depth
+    from lfring.focus import focal_stack
+    from lfring.viewer import viewer_html
+
+    views, cal, _ = scene
+    depth = estimate_depth(views, cal, zmin_m=0.3, zmax_m=1.0, num_planes=5)
+    pages = {m: json.loads(re.search(r'type="application/json">(.*?)</script>',
+                                     viewer_html(views, cal, depth=depth, method=m, aperture=0.7 if m == "depth-aware" else None),
+                                     re.S).group(1))
+             for m in ("depth-aware", "shift-and-add")}
+    assert pages["depth-aware"]["metadata"]["refocus_method"] == "depth-aware"
+    assert pages["depth-aware"]["metadata"]["aperture"] == 0.7
+    assert pages["shift-and-add"]["metadata"]["refocus_method"] == "shift-and-add"
+    assert pages["shift-and-add"]["metadata"]["aperture"] is None
+    zs = pages["depth-aware"]["depths_m"]
+
+    def frame(d, i):
+        raw = base64.b64decode(d["frames"][i].split(",", 1)[1])
+        return cv2.imdecode(np.frombuffer(raw, np.uint8), cv2.IMREAD_COLOR)[..., ::-1].astype(np.float32)
+
+    from lfring.io.writers import encode_image
+
+    for m, kw in (("depth-aware", {"aperture": 0.7, "depth": depth}), ("shift-and-add", {})):
+        want = encode_image(focal_stack(views, cal, zs[:1], method=m, **kw)[0], 8, "srgb").astype(np.float32)
+        assert np.abs(frame(pages[m], 0) - want).mean() < 2.0, m  # JPEG's loss only
+    assert np.abs(frame(pages["depth-aware"], 0) - frame(pages["shift-and-add"], 0)).mean() > 2.0
+    with pytest.raises(InvalidInputError, match="for method='depth-aware'"):
+        viewer_html(views, cal, depth=depth, method="shift-and-add", aperture=0.5)

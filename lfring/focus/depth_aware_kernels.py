@@ -1,0 +1,215 @@
+"""The compiled per-pixel passes of the depth-aware renderer (:mod:`lfring.focus.depth_aware`):
+numba, cached on disk, imported on first use.
+
+A render makes three passes over the pixels: :func:`rungs` (every pixel's blur radius and its
+place between two rungs of the ladder, and every rung's bounding box), :func:`scatter` (every
+pixel's premultiplied colour and coverage shared between its two rungs, each rung on its own
+grid) and :func:`finish` (the composite divided by its coverage, the background filling what
+the surfaces leave uncovered); between them, OpenCV blurs every rung's layer and :func:`over`
+and :func:`merge` composite the layers. Rows run in parallel stripes; a stripe's height is a
+multiple of every rung's grid factor, so no two stripes write the same cell. Colour and
+coverage are interleaved (C + 1 values per pixel), one cache line for all of a pixel.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+__all__ = ["finish", "merge", "over", "rungs", "scatter"]
+
+_JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
+
+
+@njit(parallel=True, **_JIT)
+def rungs(x, agree, cover, sharp, window, x_f, motion, aperture, sharp_px, ramp_px, share_px2, moments, stripe,
+          q, s, boxes):
+    """Per pixel of inverse depth ``x`` (h, w), where ``cover`` > 0: ``s`` the share of the
+    shift-and-add image ``sharp`` (h, w, C; 0 where it is empty, or 0 in every channel: there
+    no view covered it) and ``q`` the signed fractional rung of its
+    blur radius (between the rungs whose blurs' second ``moments`` enclose its disc's, linear in
+    that moment; negative behind the focus); ``boxes`` (stripes, 2 n + 1, 4)
+    receives per stripe and signed rung (index + n) the least and largest row and column of its
+    pixels (rows, then columns; unset boxes keep their values). Only the pixels of ``window``
+    (row0, row1, col0, col1) are visited (``q`` and ``s`` are left as they are elsewhere).
+
+    ``motion`` is R (px of view motion per unit x at aperture 1); the radius is ``aperture *
+    motion * (x - x_f)``, less the share ``s`` that shift-and-add's copies already spread
+    (their second moment ``d^2`` plus ``share_px2``, d the view motion)."""
+    r0, r1, c0, c1 = window[0], window[1], window[2], window[3]
+    n = moments.shape[0] - 1
+    with_sharp = sharp.shape[0] == x.shape[0]
+    n_stripes = (r1 + stripe - 1) // stripe
+    for b in prange(r0 // stripe, n_stripes):
+        for y in range(max(r0, b * stripe), min(r1, (b + 1) * stripe)):
+            for xx in range(c0, c1):
+                if cover[y, xx] <= 0.0:
+                    q[y, xx] = 0.0
+                    s[y, xx] = 0.0
+                    continue
+                d = motion * (x[y, xx] - x_f)
+                rho = aperture * d
+                share = 0.0
+                if with_sharp:
+                    for ch in range(sharp.shape[2]):
+                        if sharp[y, xx, ch] != 0.0:
+                            share = min(max((sharp_px + ramp_px - abs(d)) / ramp_px, 0.0), 1.0) * agree[y, xx]
+                            break
+                m = max(0.5 * rho * rho - share * (d * d + share_px2), 0.0)
+                # The fractional index of m in the increasing moments (np.interp's).
+                frac = float(n)
+                for i in range(1, n + 1):
+                    if m <= moments[i]:
+                        frac = (i - 1) + (m - moments[i - 1]) / (moments[i] - moments[i - 1])
+                        break
+                sign = -1 if rho < 0.0 else 1
+                q[y, xx] = sign * frac
+                s[y, xx] = share
+                lo = int(frac)
+                for step in range(2):
+                    if step == 1 and (frac <= lo or lo >= n):
+                        break
+                    k = n + sign * (lo + step)
+                    if boxes[b, k, 0] > y:
+                        boxes[b, k, 0] = y
+                    if boxes[b, k, 1] < y:
+                        boxes[b, k, 1] = y
+                    if boxes[b, k, 2] > xx:
+                        boxes[b, k, 2] = xx
+                    if boxes[b, k, 3] < xx:
+                        boxes[b, k, 3] = xx
+
+
+@njit(parallel=True, **_JIT)
+def scatter(colour, sharp, s, cover, q, window, n, shift, y0, x0, rows, cols, offset, stripe, buf):
+    """Add every pixel's premultiplied colour ``colour + s (sharp - colour)`` times ``cover``, and
+    ``cover``, to the two rungs around its fractional rung ``q`` (weights ``1 - t`` and ``t``),
+    each rung ``k`` (signed rung + ``n``) on its grid reduced ``2 ** shift[k]`` times (area
+    averaging) within its box (origin ``y0[k]``, ``x0[k]`` in full-resolution pixels, multiples
+    of the factor; ``rows[k]`` x ``cols[k]`` cells of C + 1 values) at ``buf[offset[k]:]``;
+    the pixels of ``window`` (row0, row1, col0, col1). ``sharp`` may be empty (no shift-and-add
+    image)."""
+    h, _, c = colour.shape
+    c1 = c + 1
+    with_sharp = sharp.shape[0] == h
+    r0, r1, col0, col1 = window[0], window[1], window[2], window[3]
+    n_stripes = (r1 + stripe - 1) // stripe
+    for b in prange(r0 // stripe, n_stripes):
+        v = np.empty(c1, np.float32)
+        for y in range(max(r0, b * stripe), min(r1, (b + 1) * stripe)):
+            for xx in range(col0, col1):
+                cv = cover[y, xx]
+                if cv <= 0.0:
+                    continue
+                sh = s[y, xx]
+                for ch in range(c):
+                    col = colour[y, xx, ch]
+                    if with_sharp and sh > 0.0:
+                        col += sh * (sharp[y, xx, ch] - col)
+                    v[ch] = col * cv
+                v[c] = cv
+                sq = q[y, xx]
+                frac = abs(sq)
+                lo = int(frac)
+                t = frac - lo
+                sign = -1 if sq < 0.0 else 1
+                for m in range(2):
+                    if m == 1 and (t <= 0.0 or lo >= n):
+                        break
+                    k = n + sign * (lo + m)
+                    f = shift[k]
+                    cy = (y >> f) - (y0[k] >> f)
+                    cx = (xx >> f) - (x0[k] >> f)
+                    scale = np.float32((t if m == 1 else 1.0 - t) / (1 << (2 * f)))
+                    base = offset[k] + (cy * cols[k] + cx) * c1
+                    for ch in range(c1):
+                        buf[base + ch] += scale * v[ch]
+
+
+@njit(parallel=True, **_JIT)
+def over(acc, oy, ox, layer, prev, py, px, trans, skip, first):
+    """Composite ``layer`` (rows, cols, C + 1: premultiplied colour and coverage a), placed at
+    (``oy``, ``ox``) of ``acc``, over it: ``acc = (1 - a) acc + layer + a prev``, where ``prev``
+    (placed at ``py``, ``px``; zero outside it, or empty) is the layer of the rung just behind,
+    which ``layer`` does not cover. ``trans`` (``acc``'s rows and columns, or empty) is
+    multiplied by ``1 - a``; ``skip`` (or empty) is set to ``a`` (``first``) or multiplied by
+    ``1 - a``."""
+    rows, cols, c1 = layer.shape
+    ph, pw = prev.shape[0], prev.shape[1]
+    with_trans = trans.shape[0] > 0
+    with_skip = skip.shape[0] > 0
+    for i in prange(rows):
+        y = oy + i
+        for j in range(cols):
+            x = ox + j
+            a = layer[i, j, c1 - 1]
+            keep = np.float32(1.0) - a
+            for ch in range(c1):
+                acc[y, x, ch] = acc[y, x, ch] * keep + layer[i, j, ch]
+            pi, pj = y - py, x - px
+            if 0 <= pi < ph and 0 <= pj < pw:
+                for ch in range(c1):
+                    acc[y, x, ch] += a * prev[pi, pj, ch]
+            if with_trans:
+                trans[y, x] *= keep
+            if with_skip:
+                if first:
+                    skip[y, x] = a
+                else:
+                    skip[y, x] *= keep
+
+
+@njit(parallel=True, **_JIT)
+def merge(acc, oy, ox, group, trans, skip, prev, py, px):
+    """A group of layers composited on their own (``group``: premultiplied, ``trans``: their
+    transmission, ``skip``: the first one's coverage times the later ones' transmission, or
+    empty), placed at (``oy``, ``ox``), over ``acc``: ``acc = trans acc + group + skip prev``
+    (``prev`` as in :func:`over`); cells past ``acc``'s edge are left out."""
+    h, w, c1 = acc.shape
+    rows, cols = group.shape[0], group.shape[1]
+    ph, pw = prev.shape[0], prev.shape[1]
+    with_skip = skip.shape[0] > 0
+    for i in prange(max(0, -oy), min(rows, h - oy)):
+        y = oy + i
+        for j in range(max(0, -ox), min(cols, w - ox)):
+            x = ox + j
+            t = trans[i, j]
+            for ch in range(c1):
+                acc[y, x, ch] = acc[y, x, ch] * t + group[i, j, ch]
+            if with_skip:
+                pi, pj = y - py, x - px
+                if 0 <= pi < ph and 0 <= pj < pw:
+                    sk = skip[i, j]
+                    for ch in range(c1):
+                        acc[y, x, ch] += sk * prev[pi, pj, ch]
+
+
+@njit(parallel=True, **_JIT)
+def finish(acc, back, by, bx, floor, out):
+    """``out`` (h, w, C) = the composite ``acc`` (h, w, C + 1: premultiplied colour and
+    coverage) with the background ``back`` (same layout, summed, placed at (``by``, ``bx``), or
+    empty) filling the coverage it lacks, divided by the coverage; 0 where the coverage is at
+    most ``floor``."""
+    h, w, c1 = acc.shape
+    c = c1 - 1
+    bh, bw = back.shape[0], back.shape[1]
+    for y in prange(h):
+        for xx in range(w):
+            alpha = acc[y, xx, c]
+            den = alpha
+            fill = np.float32(0.0)
+            bi, bj = y - by, xx - bx
+            with_back = 0 <= bi < bh and 0 <= bj < bw
+            if with_back:
+                fill = min(max(np.float32(1.0) - alpha, np.float32(0.0)), np.float32(1.0))
+                den += fill * back[bi, bj, c]
+            if den > floor:
+                inv = np.float32(1.0) / den
+                for ch in range(c):
+                    num = acc[y, xx, ch]
+                    if with_back:
+                        num += fill * back[bi, bj, ch]
+                    out[y, xx, ch] = num * inv
+            else:
+                for ch in range(c):
+                    out[y, xx, ch] = 0.0
