@@ -17,10 +17,11 @@ import numpy as np
 
 from lfring.core.backend import require_torch
 from lfring.core.validate import check_number
+from lfring.core.viewstack import cached_view_masks, calibration_cache
 from lfring.errors import InvalidInputError
 
-__all__ = ["COUNT_DTYPES", "count_levels", "download", "download_maps", "frames_dtype", "is_tensor", "normalised",
-           "to_device"]
+__all__ = ["COUNT_DTYPES", "check_frames", "count_levels", "device_masks", "download", "download_maps", "frames_dtype",
+           "is_tensor", "normalised", "to_device"]
 
 # The integer view stacks the torch backends take (raw counts), by their dtype's name.
 COUNT_DTYPES = ("uint8", "uint16")
@@ -35,6 +36,22 @@ def is_tensor(x) -> bool:
 def frames_dtype(frames) -> str:
     """The dtype's name of a NumPy or torch view stack ('float32', 'uint8', ...)."""
     return str(frames.dtype).replace("torch.", "")
+
+
+def check_frames(frames) -> tuple[tuple[int, ...], bool]:
+    """The shape of a NumPy or torch view stack for the torch backends, as (B, V, h, w, C), and
+    whether it was one frame: (V, h, w, C) or (V, h, w) (one channel) is a frame, (B, V, h, w, C)
+    a batch; 1 to 4 channels, views of 2 x 2 px or more."""
+    shape = tuple(int(n) for n in frames.shape)
+    single = len(shape) in (3, 4)
+    if len(shape) == 3:
+        shape = shape + (1,)
+    if single:
+        shape = (1,) + shape
+    if len(shape) != 5 or shape[1] < 1 or min(shape[2:4]) < 2 or not 1 <= shape[4] <= 4:
+        raise InvalidInputError(f"views must be (V, h, w, C) or a batch (B, V, h, w, C) of 1 to 4 channels, got shape "
+                                f"{tuple(frames.shape)}")
+    return shape, single
 
 
 def count_levels(dtype: str, levels=None) -> tuple[float, float]:
@@ -109,3 +126,16 @@ def download_maps(maps) -> list[np.ndarray]:
     """Several maps of one shape and dtype copied to the host in one copy (stacked on the device)."""
     torch = require_torch()
     return list(download(torch.stack(list(maps))))
+
+
+def device_masks(calibration, view_shape, device, *, taper: float | None = None):
+    """:func:`lfring.core.viewstack.cached_view_masks` (the default taper unless given) as a
+    float32 tensor on ``device``, uploaded once per calibration, view shape, taper and device."""
+    torch = require_torch()
+    shape = tuple(int(n) for n in view_shape)
+    kw = {} if taper is None else {"taper": float(taper)}
+
+    def make():
+        return torch.from_numpy(np.array(cached_view_masks(calibration, shape, **kw), np.float32)).to(device)
+
+    return calibration_cache(calibration, ("device_masks", shape, kw.get("taper"), str(torch.device(device))), make)

@@ -31,8 +31,8 @@ import numpy as np
 
 from lfring.core.backend import require_torch, resolve_device
 from lfring.core.filters import BoxTorch, normalised_luminance
-from lfring.core.transfer import download_maps, to_device
-from lfring.core.viewstack import WEIGHT_FLOOR, cached_view_masks, calibration_cache
+from lfring.core.transfer import device_masks, download_maps, is_tensor, to_device
+from lfring.core.viewstack import WEIGHT_FLOOR, calibration_cache
 from lfring.depth.aggregation import GUIDED_EPS, GuidedTorch
 from lfring.depth.costs.lcn import LCN_EPS, LCN_FLOOR, window_weights
 from lfring.depth.costs.lcn_halves import (HALVES_GAIN, HALVES_MEDIAN_SAMPLE, HALVES_MIN_SUPPORT, HALVES_POOR,
@@ -41,13 +41,14 @@ from lfring.depth.costs.lcn_occlusion import OCCLUSION_PENALTY, leavable_views, 
 from lfring.depth.plan import baseline_axis, in_reference_frame, other_reference
 from lfring.depth.refine import (FGS_ATTENUATION, FGS_ITERATIONS, FGS_LAMBDA, FGS_SIGMA, FILL_WEIGHT_FLOOR,
                                  MEDIAN_COARSE_BINS, MEDIAN_FINE_BINS, MEDIAN_RADIUS_PX, MEDIAN_SIGMA, MIN_CONFIDENCE)
+from lfring.depth.selection import Finisher
 from lfring.depth.sgm import EDGE_SCALE, P1_SCALE, P2_SCALE, PATHS
 from lfring.errors import LfringWarning
 
-__all__ = ["CHUNK_BYTES", "MAX_PLANES", "PATH_PROGRAMS", "SCALE_SAMPLE", "aggregate_device", "consistent_device", "cost_scale_device",
-           "fgs_device", "fill_from_farther_side_device", "finish_device", "guide_device", "index_device",
+__all__ = ["CHUNK_BYTES", "MAX_PLANES", "PATH_PROGRAMS", "SCALE_SAMPLE", "DeviceFinisher", "aggregate_device", "consistent_device", "cost_scale_device",
+           "engine_runs_on", "fgs_device", "fill_from_farther_side_device", "finish_device", "guide_device", "index_device",
            "kernels_run_on", "lcn_sources_device", "luminance_device", "refine_index_device", "run_semiglobal_gpu",
-           "select_device", "semiglobal_device", "wants_consistency", "weighted_median_device"]
+           "select_device", "semiglobal_device", "weighted_median_device"]
 
 # Temporaries of the chunked passes (hypotheses at a time) stay under about this many bytes.
 CHUNK_BYTES = 256 << 20
@@ -81,11 +82,6 @@ def kernels_run_on(device) -> bool:
     except ImportError:  # pragma: no cover - the torch extra is not installed
         return False
     return tk.runs_on(device)
-
-
-def wants_consistency(settings, n_views: int) -> bool:
-    """Whether the 'sgm' method runs its left-right check: as asked, by default for two views."""
-    return n_views == 2 if settings.consistency is None else bool(settings.consistency)
 
 
 # -- sizes of the kernels' blocks ----------------------------------------------------------------
@@ -138,11 +134,6 @@ def _cached(calibration, key, device, make):
     torch = require_torch()
     return calibration_cache(calibration, ("gpu", key, str(device)),
                              lambda: torch.from_numpy(np.ascontiguousarray(make())).to(device))
-
-
-def _masks(calibration, shape, taper, device):
-    return _cached(calibration, ("masks", tuple(shape), float(taper)), device,
-                   lambda: np.array(cached_view_masks(calibration, shape, taper=taper), np.float32))
 
 
 def _inverse_maps(hs, device):
@@ -488,7 +479,7 @@ def index_device(frame, lum, calibration, plan, settings, subpixel_box_px: int, 
     torch = require_torch()
     dev = frame.device
     v, h, w = lum.shape
-    masks = _masks(calibration, (h, w), plan.taper, dev)
+    masks = device_masks(calibration, (h, w), dev, taper=plan.taper)
     hinv = _inverse_maps(plan.hs, dev)
     cost = settings.cost
     if cost.lcn:
@@ -724,22 +715,36 @@ def semiglobal_device(frame, calibration, plan, settings, finisher, progress, *,
         return finish_device(finisher, torch.nan_to_num(index, nan=0.0), confidence, missing, nviews, filled)
 
 
+class DeviceFinisher(Finisher):
+    """A :class:`lfring.depth.selection.Finisher` whose depth, confidence and index are torch
+    tensors on the device (set by the GPU engine): what a batch of frames collects there."""
+
+
+def engine_runs_on(device, plan) -> bool:
+    """Whether the GPU engine takes a sweep of ``plan`` on ``device``: its kernels run there and
+    they hold the plan's hypotheses (:data:`MAX_PLANES`)."""
+    return kernels_run_on(device) and len(plan.depths) <= MAX_PLANES
+
+
 def run_semiglobal_gpu(views, calibration, plan, settings, finisher, progress, *, consistency: bool,
                        subpixel_box_px: int, consistency_steps: float) -> dict | None:
     """The 'sgm' engine's contract (:func:`lfring.depth.engines.semiglobal.run_semiglobal`) on the
-    torch backend's device: the views (V, h, w, C) float32 are uploaded once, the maps come back
-    in one copy into the finisher; the returned fields as the reference's. None where the kernels
-    cannot run on the device (no Triton, a CPU device in a process with CUDA) or the hypotheses
-    are more than the kernels hold (:data:`MAX_PLANES`): the caller runs the reference."""
-    dev = resolve_device(settings.device)
-    if not kernels_run_on(dev) or len(plan.depths) > MAX_PLANES:
+    torch backend's device: NumPy views (V, h, w, C) float32 are uploaded once and the maps come
+    back in one copy into the finisher; a float32 tensor on the device with a
+    :class:`DeviceFinisher` keeps them there. The returned fields as the reference's. None where
+    the engine does not run on the device (:func:`engine_runs_on`): the caller runs the reference."""
+    dev = views.device if is_tensor(views) else resolve_device(settings.device)
+    if not engine_runs_on(dev, plan):
         return None
-    frame = to_device(views, dev)
+    frame = views if is_tensor(views) else to_device(views, dev)
     maps = semiglobal_device(frame, calibration, plan, settings, finisher, progress, consistency=consistency,
                              subpixel_box_px=subpixel_box_px, consistency_steps=consistency_steps)
-    depth, conf, index, filled = download_maps(maps)
-    np.copyto(finisher.depth, depth)
-    np.copyto(finisher.conf, conf)
-    np.copyto(finisher.index, index)
+    if isinstance(finisher, DeviceFinisher):
+        finisher.depth, finisher.conf, finisher.index, filled = maps
+    else:
+        depth, conf, index, filled = download_maps(maps)
+        np.copyto(finisher.depth, depth)
+        np.copyto(finisher.conf, conf)
+        np.copyto(finisher.index, index)
     progress.done()
     return dict(depth_filled_m=filled, paths=settings.paths, consistency=consistency)

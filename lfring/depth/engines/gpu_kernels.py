@@ -346,41 +346,51 @@ def fgs_kernel(coef_ptr, x_ptr, inter_ptr, n_lines, n_steps, stride_line, stride
     pid = tl.program_id(0)
     line = pid * LINES + tl.arange(0, LINES)[None, :]
     ok = line < n_lines
-    img = tl.arange(0, IMAGES)[:, None].to(tl.int64) * image_stride
     at = line.to(tl.int64) * stride_line
-    a_prev = tl.load(coef_ptr + at, mask=ok, other=0.0)
+    # Pointers carried from step to step (one add each per step).
+    cp = coef_ptr + at
+    ip = inter_ptr + at
+    xp = x_ptr + tl.arange(0, IMAGES)[:, None].to(tl.int64) * image_stride + at
+    a_prev = tl.load(cp, mask=ok, other=0.0)
     inter = a_prev / (1.0 - a_prev)
-    tl.store(inter_ptr + at, inter, mask=ok)
-    x = tl.load(x_ptr + img + at, mask=ok, other=0.0) / (1.0 - a_prev)
-    tl.store(x_ptr + img + at, x, mask=ok)
-    at += stride_step
-    a_next = tl.load(coef_ptr + at, mask=ok, other=0.0)
-    x_next = tl.load(x_ptr + img + at, mask=ok, other=0.0)
+    tl.store(ip, inter, mask=ok)
+    x = tl.load(xp, mask=ok, other=0.0) / (1.0 - a_prev)
+    tl.store(xp, x, mask=ok)
+    cp += stride_step
+    ip += stride_step
+    xp += stride_step
+    a_next = tl.load(cp, mask=ok, other=0.0)
+    x_next = tl.load(xp, mask=ok, other=0.0)
     for s in range(1, n_steps):
         a_cur = a_next
         v = x_next
-        here = at
-        at += stride_step
-        a_next = tl.load(coef_ptr + at, mask=ok, other=0.0)  # the next step's (slack past the line's end)
-        x_next = tl.load(x_ptr + img + at, mask=ok, other=0.0)
+        i_here = ip
+        x_here = xp
+        cp += stride_step
+        ip += stride_step
+        xp += stride_step
+        a_next = tl.load(cp, mask=ok, other=0.0)  # the next step's (slack past the line's end)
+        x_next = tl.load(xp, mask=ok, other=0.0)
         if COLUMNS:
             denom = 1.0 - ((a_prev + a_cur) + inter * a_prev)
         else:
             denom = (1.0 - (a_cur + a_prev)) - inter * a_prev
         inter = a_cur / denom
-        tl.store(inter_ptr + here, inter, mask=ok)
+        tl.store(i_here, inter, mask=ok)
         x = (v - x * a_prev) / denom
-        tl.store(x_ptr + img + here, x, mask=ok)
+        tl.store(x_here, x, mask=ok)
         a_prev = a_cur
-    at -= 2 * stride_step
-    f_next = tl.load(inter_ptr + at, mask=ok, other=0.0)
-    v_next = tl.load(x_ptr + img + at, mask=ok, other=0.0)
+    ip -= 2 * stride_step
+    xp -= 2 * stride_step
+    f_next = tl.load(ip, mask=ok, other=0.0)
+    v_next = tl.load(xp, mask=ok, other=0.0)
     for s in range(1, n_steps):
         f = f_next
         v = v_next
-        here = at
-        at -= stride_step
-        f_next = tl.load(inter_ptr + at, mask=ok, other=0.0)  # the next step's (slack before the line's start)
-        v_next = tl.load(x_ptr + img + at, mask=ok, other=0.0)
+        x_here = xp
+        ip -= stride_step
+        xp -= stride_step
+        f_next = tl.load(ip, mask=ok, other=0.0)  # the next step's (slack before the line's start)
+        v_next = tl.load(xp, mask=ok, other=0.0)
         x = v - f * x
-        tl.store(x_ptr + img + here, x, mask=ok)
+        tl.store(x_here, x, mask=ok)

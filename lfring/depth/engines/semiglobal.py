@@ -210,6 +210,7 @@ SEMIGLOBAL = DepthEngine(
     lcn_aggregate_px=SGM_AGGREGATE_PX,
     whole_volume=True,
     options=frozenset({"paths", "consistency"}),
+    device_frames=True,
 )
 
 SEMIGLOBAL_REFERENCE = DepthEngine(
