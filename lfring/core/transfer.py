@@ -96,7 +96,8 @@ def to_device(array, device):
     runs asynchronously on the current stream); on the CPU the array's own memory (read-only
     use)."""
     torch = require_torch()
-    t = torch.from_numpy(np.ascontiguousarray(array))
+    a = np.ascontiguousarray(array)
+    t = torch.from_numpy(a if a.flags.writeable else a.copy())  # torch warns on read-only memory
     if torch.device(device).type != "cuda":
         return t.to(device)
     return t.pin_memory().to(device, non_blocking=True)

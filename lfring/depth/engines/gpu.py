@@ -131,9 +131,7 @@ def _launch(kernel, grid, *args, num_warps=4, **constants):
 # -- device caches -------------------------------------------------------------------------------
 def _cached(calibration, key, device, make):
     """A tensor on ``device`` made once per calibration, key and device from the array ``make()``."""
-    torch = require_torch()
-    return calibration_cache(calibration, ("gpu", key, str(device)),
-                             lambda: torch.from_numpy(np.ascontiguousarray(make())).to(device))
+    return calibration_cache(calibration, ("gpu", key, str(device)), lambda: to_device(make(), device))
 
 
 def _inverse_maps(hs, device):
