@@ -9,7 +9,8 @@ StereoSGBM on the twin's views 0 and 1 in the same processes, the peer for the t
 
 Times are medians within each process (21 frames, 3 sweeps at 1060 x 1060 x 64 planes, 7 at the
 twin's 704 x 704 views and on the twin's three-depth scene); each round prints one line per
-checkout, and the last lines the medians over the rounds.
+checkout, and the last lines the medians over the rounds, with a digest of the twin's default
+depth map (equal digests: the same numbers to the bit).
 """
 
 from __future__ import annotations
@@ -69,6 +70,13 @@ def probe() -> None:
         out["depth_twin_default_s"] = _median(
             lambda: lfring.estimate_depth(t.views, t.cal, zmin_m=ZMIN, zmax_m=ZMAX, reference=0), 7)
         out["sgbm_twin_s"] = _median(lambda: sgbm_depth(t.views, t.cal, ZMIN, ZMAX), 7)
+        # The same numbers, not only the same time: a digest of the twin's default depth map.
+        import hashlib
+
+        res = lfring.estimate_depth(t.views, t.cal, zmin_m=ZMIN, zmax_m=ZMAX, reference=0)
+        digest = hashlib.sha256(np.ascontiguousarray(res.depth_m).tobytes()).hexdigest()[:12]
+        print(json.dumps({**{k: round(v, 4) for k, v in out.items()}, "depth_twin_default_sha256": digest}))
+        return
     print(json.dumps({k: round(v, 4) for k, v in out.items()}))
 
 
@@ -93,9 +101,10 @@ def main() -> None:
             results[tree].append(json.loads(res.stdout.strip().splitlines()[-1]))
     print(f"load {os.getloadavg()[0]:.2f}")
     for tree in trees:
-        keys = results[tree][0].keys()
+        keys = [k for k, v in results[tree][0].items() if not isinstance(v, str)]
+        digests = sorted({r[k] for r in results[tree] for k, v in r.items() if isinstance(v, str)})
         print("median over rounds", Path(tree).name, json.dumps({k: round(float(np.median([r[k] for r in results[tree]])), 4)
-                                                                for k in keys}))
+                                                                for k in keys}), *digests)
 
 
 if __name__ == "__main__":

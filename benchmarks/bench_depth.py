@@ -10,7 +10,10 @@ runs, every method timed first, one after the other; the last column divides by 
 
 A second table times 4 views of 1060 x 1060 (the paper's sub-aperture size; random texture, the
 prototype's optics calibration with views valid everywhere) at exactly 64 planes, medians of 3 runs,
-and gives the peak memory of one call at 128 planes (in a fresh process).
+beside StereoSGBM on a 1060 x 1060 pair with 64 disparities in the same run, with the default at
+1, 2, 4, 8, 16 threads (those the machine has) for its thread scaling, and gives the peak memory of
+one call at 128 planes (in a fresh process). The four random views do not correspond, so almost no
+pixel takes the halves of the 'lcn-halves' cost there: a real scene costs more (the twin's row).
 
     python benchmarks/bench_depth.py
 """
@@ -70,6 +73,7 @@ def main() -> None:
     runs = {
         "lfring, defaults (sgm over lcn-halves, 1 px spacing)": est(),
         "lfring, defaults, threads=1": est(threads=1),
+        "lfring, method='sgm-reference' (the float32 reference of the default)": est(method="sgm-reference"),
         "lfring, cost='lcn' (all views only: the former default)": est(cost="lcn"),
         "lfring, method='local' (lcn, box 15 px: the former defaults)": est(method="local"),
         "lfring, method='local', aggregation='guided'": est(method="local", aggregation="guided"),
@@ -121,17 +125,31 @@ def big_views(side: int = 1060, planes: int = 64, runs: int = 3) -> None:
     peak memory at 128 planes."""
     views, cal = _big(side)
     print(f"\n4 views of {side} x {side} x 3 float32, {planes} planes, depth range {ZMIN}-{ZMAX} m; median of {runs} runs")
-    print("| what | median s | min s | max s |")
-    print("|---|---|---|---|")
-    for name, kw in (("estimate_depth, defaults (sgm)", {}), ("estimate_depth, defaults, threads=1", {"threads": 1}),
-                     ("estimate_depth, cost='lcn'", {"cost": "lcn"}),
-                     ("estimate_depth, method='local'", {"method": "local"}),
-                     ("estimate_depth, method='local', cost='zncc', aggregation='guided'",
-                      {"method": "local", "cost": "zncc", "aggregation": "guided"})):
+    print("| what | median s | min s | max s | / SGBM |")
+    print("|---|---|---|---|---|")
+    a8 = [np.rint(cv2.cvtColor(views[k], cv2.COLOR_RGB2GRAY) * 255).astype(np.uint8) for k in (0, 1)]
+    sgbm = cv2.StereoSGBM_create(minDisparity=0, numDisparities=planes, blockSize=5, P1=200, P2=800, uniquenessRatio=5,
+                                 mode=cv2.STEREO_SGBM_MODE_SGBM)
+    sgbm_s = bench(lambda: sgbm.compute(a8[0], a8[1]), runs)[0]
+    print(f"| OpenCV StereoSGBM, a {side} x {side} pair, {planes} disparities, block 5 | {sgbm_s:.2f} | | | 1.00 |")
+    cores = os.cpu_count() or 1
+    rows = [("estimate_depth, defaults (sgm)", {}), ("estimate_depth, method='sgm-reference'", {"method": "sgm-reference"})]
+    rows += [(f"estimate_depth, defaults, threads={t}", {"threads": t}) for t in sorted({1, 2, 4, 8, 16, cores}) if t <= cores]
+    rows += [("estimate_depth, cost='lcn'", {"cost": "lcn"}), ("estimate_depth, method='local'", {"method": "local"}),
+             ("estimate_depth, method='local', cost='zncc', aggregation='guided'",
+              {"method": "local", "cost": "zncc", "aggregation": "guided"})]
+    times = {}
+    for name, kw in rows:
         med, lo, hi = bench(lambda kw=kw: estimate_depth(views, cal, zmin_m=ZMIN, zmax_m=ZMAX, num_planes=planes, **kw), runs)
-        print(f"| {name} | {med:.2f} | {lo:.2f} | {hi:.2f} |")
+        times[name] = med
+        print(f"| {name} | {med:.2f} | {lo:.2f} | {hi:.2f} | {med / sgbm_s:.2f} |")
+    one = times.get("estimate_depth, defaults, threads=1")
+    if one:
+        print("\nthread scaling of the default, time(1 thread) / time(t threads): " + ", ".join(
+            f"{t}: {one / times[f'estimate_depth, defaults, threads={t}']:.2f}"
+            for t in sorted({1, 2, 4, 8, 16, cores}) if t <= cores))
     print("\npeak memory of one call at 128 planes (rise of VmHWM over the resident set before it, fresh process):")
-    for method in ("sgm", "local"):
+    for method in ("sgm", "sgm-reference", "local"):
         out = subprocess.run([sys.executable, __file__, "--memory", str(side), "128", method], capture_output=True, text=True,
                              check=True, env={**os.environ, "MALLOC_MMAP_THRESHOLD_": "65536"})
         print(f"- method={method!r}: {out.stdout.strip()} MiB")

@@ -92,6 +92,10 @@ def sgbm_method(views, cal, data):
 METHODS = [
     Method("lfring estimate_depth, defaults", "all", lfring_method()),
     Method("lfring estimate_depth, defaults", "pair", lfring_method()),
+    Method("lfring estimate_depth, method='sgm-reference' (the float32 reference of the default)", "all",
+           lfring_method(method="sgm-reference")),
+    Method("lfring estimate_depth, method='sgm-reference' (the float32 reference of the default)", "pair",
+           lfring_method(method="sgm-reference")),
     Method("lfring estimate_depth, defaults, its own filled map", "all", lfring_method(filled=True)),
     Method("lfring estimate_depth, defaults, its own filled map", "pair", lfring_method(filled=True)),
     Method("lfring estimate_depth, cost='lcn' (all views only)", "all", lfring_method(cost="lcn")),

@@ -48,7 +48,7 @@ def main(argv=None) -> int:
             image = lfring.demosaic(lfring.load_raw(path))
             # One calibration per camera and binning; the built-in one matches the twin's frames.
             cal = calibration or default_calibration((image.shape[1], image.shape[0]))[0]
-            views = lfring.split_views(image, cal.layout)
+            views = lfring.split_views(image, cal)
             # The device (binned to the frame) converts defect areas to mm^2; optional.
             device = load_device("prototype")
             device = device.binned(device.sensor_width_px // image.shape[1])

@@ -10,7 +10,10 @@ grab loop):
 
     python examples/live_refocus.py data/synthetic/part_*.png --depth 0.3 --repeat 5 -o live_out/
 
-It prints a line per frame with the time of each step and ends with the frame rate.
+It prints a line per frame with the time of each step and ends with the frame rate. A frame
+that cannot be used (unreadable, truncated, of another size, or not a ring frame for the
+calibration: an ordinary photograph) gets one ERROR line and the loop goes on; the exit code is
+then 2. --no-check skips the ring-frame check (a check costs about a refocus).
 """
 
 from __future__ import annotations
@@ -26,10 +29,11 @@ from lfring.io.writers import encode_image, write_image
 
 
 def frames(paths: list[str], repeat: int):
-    """Stand-in for a camera: yields (name, raw frame) pairs, `repeat` rounds over the files."""
+    """Stand-in for a camera: yields (name, path) pairs, `repeat` rounds over the files (the
+    loop reads each; a camera would hand over the frame itself)."""
     for r in range(repeat):
         for p in paths:
-            yield f"{Path(p).stem}#{r}", lfring.load_raw(p)
+            yield f"{Path(p).stem}#{r}", p
 
 
 def main(argv=None) -> int:
@@ -39,6 +43,7 @@ def main(argv=None) -> int:
     ap.add_argument("--calib", default=None, help="calibration JSON (default: the built-in one for the frame size)")
     ap.add_argument("--repeat", type=int, default=1, help="rounds over the files, to see a steady frame rate")
     ap.add_argument("-o", "--output", default=None, help="folder for the refocused PNGs (default: not written)")
+    ap.add_argument("--no-check", action="store_true", help="skip the check that each frame is a ring frame")
     args = ap.parse_args(argv)
     if not (args.depth > 0) or args.repeat < 1:
         ap.error("--depth must be positive metres and --repeat at least 1")
@@ -47,14 +52,23 @@ def main(argv=None) -> int:
         out.mkdir(parents=True, exist_ok=True)
 
     refocuser = cal = None
-    n, t_all = 0, time.perf_counter()
-    for name, frame in frames(args.frames, args.repeat):
+    n, bad, t_all = 0, 0, time.perf_counter()
+    for name, path in frames(args.frames, args.repeat):
         t0 = time.perf_counter()
-        image = lfring.demosaic(frame)  # float32 RGB in [0, 1]
-        if cal is None:  # the first frame decides the calibration (and so the frame size)
-            cal = lfring.RingCalibration.load(args.calib) if args.calib else default_calibration(image.shape[1::-1])[0]
-        cal.check_frame(image.shape, what=name)  # every frame must match it
-        views = lfring.split_views(image, cal.layout)  # (4, h, w, 3)
+        try:
+            image = lfring.demosaic(lfring.load_raw(path))  # float32 RGB in [0, 1]
+            if cal is None:  # the first good frame decides the calibration (and so the frame size)
+                cal = lfring.RingCalibration.load(args.calib) if args.calib else default_calibration(image.shape[1::-1])[0]
+            cal.check_frame(image.shape, what=name)  # every frame must match it
+            if not args.no_check:
+                checked = lfring.check_frame(image, cal)  # an ordinary photograph has no discs of light
+                if not checked.ok:
+                    raise lfring.InvalidInputError(f"not a ring frame for the calibration: {checked.message}")
+            views = lfring.split_views(image, cal)  # (4, h, w, 3)
+        except (lfring.LfringError, OSError) as exc:  # a bad frame: say so and take the next one
+            print(f"ERROR {name}: {exc}")
+            bad += 1
+            continue
         t1 = time.perf_counter()
         if refocuser is None:  # built once: the per-frame work is four warps and a sum
             refocuser = lfring.Refocuser(cal, args.depth, interpolation="linear")
@@ -67,8 +81,9 @@ def main(argv=None) -> int:
         print(f"{name}: demosaic+split {1e3 * (t1 - t0):.1f} ms, refocus {1e3 * (t2 - t1):.1f} ms{note}, "
               f"mean level {img.mean():.3f}")
     elapsed = time.perf_counter() - t_all
-    print(f"{n} frames at {args.depth:g} m in {elapsed:.2f} s: {n / elapsed:.1f} frames/s (reading from disk included)")
-    return 0
+    print(f"{n} frames at {args.depth:g} m in {elapsed:.2f} s: {n / elapsed:.1f} frames/s (reading from disk included)"
+          + (f"; {bad} frames could not be used" if bad else ""))
+    return 2 if bad else 0
 
 
 if __name__ == "__main__":

@@ -7,8 +7,11 @@ a source checkout imported without installing has them beside the package.
 from __future__ import annotations
 
 from importlib import resources
-from importlib.abc import Traversable
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # importlib.abc.Traversable is deprecated from Python 3.12 and gone in 3.14
+    from importlib.resources.abc import Traversable
 
 
 def calib_dir() -> Traversable:

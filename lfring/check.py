@@ -22,7 +22,8 @@ from lfring.core.validate import check_int
 from lfring.errors import InvalidInputError, LfringWarning
 from lfring.core.filters import luminance
 
-__all__ = ["AGREEMENT_THRESHOLD", "CHECK_DOWNSAMPLE", "FrameCheck", "check_frame", "draw_layout"]
+__all__ = ["AGREEMENT_THRESHOLD", "CHECK_DOWNSAMPLE", "FLAT_TEXTURE", "MIN_DISC_CONTRAST", "FrameCheck", "check_frame",
+           "draw_layout"]
 
 AGREEMENT_THRESHOLD = 0.3
 """Smallest view agreement (the least, over the pairs of views, ZNCC of their high-passed
@@ -38,6 +39,19 @@ turned image.)"""
 
 CHECK_DOWNSAMPLE = 4
 """Views are reduced by this factor (area averaging) before the check."""
+
+MIN_DISC_CONTRAST = 0.5
+"""Smallest disc contrast (:attr:`FrameCheck.disc_contrast`) of a frame that is taken as a ring
+frame: the ring's views are discs of light with dark between them. Every bundled frame of the
+twin scores near 0.9; an image that fills the sensor (a photograph, a gradient) scores near 0,
+so a frame whose views happen to agree (a smooth gradient does) is still refused."""
+
+FLAT_TEXTURE = 0.12
+"""Largest texture (:attr:`FrameCheck.texture`) of a flat field: the RMS of the views'
+high-passed luminance (at the check's downsampled scale) over their mean luminance, inside the
+discs. Flat frames of the twin score at most about 0.05 (noise and the falloff of the light
+inside the discs, at every noise preset and binning), its scenes, targets and parts at least
+about 0.25, so the threshold leaves a margin of two on each side."""
 
 CLIPPED_LEVEL = 0.99
 DARK_LEVEL = 0.01
@@ -55,7 +69,9 @@ class FrameCheck:
     Attributes
     ----------
     ok : bool
-        The views agree as a ring frame's do (``agreement >= threshold``).
+        A ring frame to process: discs of light (``disc_contrast`` at least
+        :data:`MIN_DISC_CONTRAST`, when measured), with texture (not a flat field), whose
+        views agree as a ring frame's do (``agreement >= threshold``).
     agreement : float
         The least pairwise ZNCC of the views' high-passed luminance at ``best_depth_m``, in
         [-1, 1]: every pair of views must agree (two pairs that do, such as the columns of a
@@ -77,6 +93,22 @@ class FrameCheck:
         One line that says what was found and, when not ok, what to do.
     raw : dict
         Pattern, levels and bit depth when the check was given a RawFrame.
+    reason : str
+        Why the frame is not a ring frame to process: ``'no_discs'`` (the disc contrast is
+        below :data:`MIN_DISC_CONTRAST`), ``'flat_field'`` (a flat (white) frame of the camera:
+        discs without texture, see :data:`FLAT_TEXTURE`; told only of a whole frame, whose
+        discs are seen) or ``'views_disagree'``; ``''`` when ``ok``.
+    texture : float
+        The least, over the views, RMS of the high-passed luminance over the mean luminance
+        inside the discs (near 0 for a flat field); NaN for a frame without light.
+    fit_px, fit_depth_m : float
+        How well the frame fits the calibration (``check_frame(..., measure_fit=True)``): the
+        median over square tiles of the views (corrected as the calibration says) of how far each
+        tile of a view still lies from its place in view 0 at the one depth that fits them best
+        (``fit_depth_m``, metres), in pixels. On a frame of a plane at one depth (a target) it
+        is the calibration's error there (hundredths of a pixel when the calibration fits the
+        camera, tenths when it misses the lenses' distortion); on a scene it also holds the
+        scene's departures from that depth. NaN when not measured.
     """
 
     ok: bool
@@ -90,6 +122,16 @@ class FrameCheck:
     disc_contrast: float
     message: str
     raw: dict = field(default_factory=dict)
+    reason: str = ""
+    texture: float = float("nan")
+    fit_px: float = float("nan")
+    fit_depth_m: float = float("nan")
+
+    @property
+    def flat_field(self) -> bool:
+        """The frame is a flat (white) frame of this camera: good for a calibration's or a
+        layout's flat, with no scene to refocus or measure."""
+        return self.reason == "flat_field"
 
 
 def _image_of(frame):
@@ -160,7 +202,8 @@ def _soft_discs(layout, f: int) -> np.ndarray:
     return _discs(shrunk, f).astype(np.float32)
 
 
-def check_frame(frame, calibration, *, threshold: float = AGREEMENT_THRESHOLD, downsample: int = CHECK_DOWNSAMPLE) -> FrameCheck:
+def check_frame(frame, calibration, *, threshold: float = AGREEMENT_THRESHOLD, downsample: int = CHECK_DOWNSAMPLE,
+                measure_fit: bool = False) -> FrameCheck:
     """Check that ``frame`` is a ring frame of the camera ``calibration`` describes.
 
     Parameters
@@ -173,6 +216,9 @@ def check_frame(frame, calibration, *, threshold: float = AGREEMENT_THRESHOLD, d
         Agreement below it makes ``ok`` False (see :data:`AGREEMENT_THRESHOLD`).
     downsample : int
         Views are reduced by this factor first.
+    measure_fit : bool
+        Also measure how well the views fit the calibration at the best depth (``fit_px``), at
+        full resolution (about as long again as the check).
 
     Returns
     -------
@@ -190,7 +236,7 @@ def check_frame(frame, calibration, *, threshold: float = AGREEMENT_THRESHOLD, d
     ``downsample`` pixels of view motion apart: 7 depths for the built-in calibration.
     """
     from lfring.depth.hypotheses import depth_hypotheses
-    from lfring.views import split_views
+    from lfring.views import correct_views, split_views
 
     downsample = check_int(downsample, "downsample", minimum=1)
     image, views, info = _image_of(frame)
@@ -219,11 +265,16 @@ def check_frame(frame, calibration, *, threshold: float = AGREEMENT_THRESHOLD, d
             mean_in, mean_out = a / n_in, max(total - a, 0.0) / n_out
             contrast = (mean_in - mean_out) / (mean_in + mean_out) if mean_in + mean_out > 0 else 0.0
 
+    if image is not None:
+        # Exposure is judged on the views as recorded; agreement on the views the calibration's
+        # homographies relate (its lens distortion undone, its flat field divided out).
+        lum = correct_views(lum[..., None], calibration)[..., 0]
     f = downsample
     h, w = layout.view_shape
     small = _small(lum, f)
     hp = np.stack([s - cv2.GaussianBlur(s, (0, 0), _HIGHPASS_SIGMA_PX) for s in small]).astype(np.float32)
     masks = _soft_discs(layout, f)
+    texture = _texture(small, hp, masks)
     scale = np.diag([(w // f) / w, (h // f) / h, 1.0])
     lo, hi = calibration.valid_depth_range_m
     hi = 4 * lo if hi is None else hi
@@ -243,17 +294,81 @@ def check_frame(frame, calibration, *, threshold: float = AGREEMENT_THRESHOLD, d
         agreement = finite[best_z]
     else:
         best_z, agreement = None, float("nan")
-    ok = bool(np.isfinite(agreement) and agreement >= threshold)
-    if ok:
-        message = f"the views agree (ZNCC {agreement:.2f} at {best_z:.3g} m, threshold {threshold:g}): a ring frame for this calibration"
+    agree = bool(np.isfinite(agreement) and agreement >= threshold)
+    disagree = (f"the views do not agree at any depth from {zmin:.3g} to {zmax:.3g} m (ZNCC {agreement:.2f}, a ring "
+                f"frame scores above {threshold:g})")
+    how = "check it with 'lfring check', or pass --no-check to process it anyway"
+    if np.isfinite(contrast) and contrast < MIN_DISC_CONTRAST:
+        reason = "no_discs"
+        dark_too = " (or too dark to show them)" if dark > 0.9 else ""
+        message = (f"no discs of light{dark_too}: the frame is as bright between the views' discs as inside them (disc "
+                   f"contrast {contrast:.2f}, a ring frame's is above {MIN_DISC_CONTRAST:g}), so it is an image that "
+                   "fills the sensor (an ordinary photograph, a gradient, another camera), not a frame of this ring "
+                   f"camera and layout{'' if agree else '; and ' + disagree}; {how}")
+    elif np.isfinite(texture) and texture < FLAT_TEXTURE and np.isfinite(contrast):  # discs seen, without texture
+        reason = "flat_field"
+        message = (f"a flat field: the views are discs of light without texture ({texture:.3f} of their mean, a scene's is "
+                   f"above {FLAT_TEXTURE:g}), a flat (white) frame of this camera with no scene to refocus or measure; "
+                   "use it as the flat of a calibration or a layout detection")
+    elif not agree:
+        reason = "views_disagree"
+        message = (f"{disagree}: not a frame of this ring camera and layout (an ordinary photograph, another camera or "
+                   f"binning, or a frame without texture); {how}")
     else:
-        message = (f"the views do not agree at any depth from {zmin:.3g} to {zmax:.3g} m (ZNCC {agreement:.2f}, a ring "
-                   f"frame scores above {threshold:g}): not a frame of this ring camera and layout (an ordinary photograph, "
-                   "another camera or binning, or a frame without texture); check it with 'lfring check', "
-                   "or pass --no-check to process it anyway")
-    return FrameCheck(ok=ok, agreement=agreement, best_depth_m=best_z, agreement_by_depth=by_depth, threshold=threshold,
-                      size_px=size, clipped_fraction=clipped, dark_fraction=dark, disc_contrast=contrast, message=message,
-                      raw=info)
+        reason = ""
+        message = f"the views agree (ZNCC {agreement:.2f} at {best_z:.3g} m, threshold {threshold:g}): a ring frame for this calibration"
+    ok = not reason
+    fit, fit_z = _fit_px(lum, calibration, best_z) if measure_fit and ok else (float("nan"), float("nan"))
+    return FrameCheck(ok=ok, agreement=agreement, best_depth_m=best_z, agreement_by_depth=by_depth,
+                      threshold=threshold, size_px=size, clipped_fraction=clipped, dark_fraction=dark, disc_contrast=contrast,
+                      message=message, raw=info, reason=reason, texture=texture, fit_px=fit, fit_depth_m=fit_z)
+
+
+def _texture(small: np.ndarray, hp: np.ndarray, masks: np.ndarray) -> float:
+    """The least, over the views, RMS of ``hp`` over the mean of ``small`` where ``masks`` is 1."""
+    out = []
+    for s, h, m in zip(small, hp, masks):
+        inside = m >= 1.0
+        if np.count_nonzero(inside) < _MIN_SAMPLES:
+            continue
+        mean = float(s[inside].mean(dtype=np.float64))
+        if mean <= MIN_TEXTURE:
+            continue  # no light: no texture to speak of
+        out.append(float(np.sqrt(np.mean(np.square(h[inside], dtype=np.float64)))) / mean)
+    return min(out) if out else float("nan")
+
+
+def _fit_px(lum: np.ndarray, calibration, depth_m: float) -> tuple[float, float]:
+    """Median over the tiles of every view (onto view 0) of their remaining shift at the single
+    depth that fits them best: measured at ``depth_m`` (a depth tried), then the depth refined
+    by least squares along the views' motion with depth."""
+    from lfring.calibration.planes import local_shifts
+
+    masks = calibration.layout.masks()
+    h, w = calibration.layout.view_shape
+    z0 = calibration.depth_origin_m
+    x = 1.0 / (depth_m - z0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", LfringWarning)
+        hs = calibration.homographies(depth_m, reference=0)
+        hs2 = calibration.homographies(z0 + 1.0 / (x * 1.01), reference=0)
+    centre = np.array([w / 2.0, h / 2.0])
+    tile = max(16, round(min(h, w) / 22))
+    shifts, motion = [], []
+    for k in range(1, len(lum)):
+        warped = cv2.warpPerspective(lum[k], hs[k], (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        seen = cv2.warpPerspective(masks[k].view(np.uint8), hs[k], (w, h), flags=cv2.INTER_NEAREST) > 0
+        _, d = local_shifts(lum[0], warped, seen & masks[0], tile_px=tile)
+        ck = np.linalg.solve(hs[k], np.append(centre, 1.0))
+        a, b = hs[k] @ ck, hs2[k] @ ck
+        shifts.append(d)
+        motion.append(np.broadcast_to((b[:2] / b[2] - a[:2] / a[2]) / (0.01 * x), d.shape))
+    if not shifts or not sum(len(d) for d in shifts):
+        return float("nan"), float("nan")
+    d, g = np.concatenate(shifts), np.concatenate(motion)
+    # Moving the depth by dx moves view k's content by g_k dx: the dx that cancels the shifts best.
+    dx = -float(np.sum(g * d)) / max(float(np.sum(g * g)), 1e-12)
+    return float(np.median(np.hypot(*(d + g * dx).T))), float(z0 + 1.0 / (x + dx))
 
 
 def draw_layout(image: np.ndarray, layout) -> np.ndarray:

@@ -5,6 +5,10 @@ same size, in the frame *after* the optional 180-degree rotation (the frame the 
 numbered in: for the ring 0 top-left, 1 top-right, 2 bottom-left, 3 bottom-right), plus an
 optional valid disc per view. Any number of views from ``MIN_VIEWS`` to ``MAX_VIEWS`` is
 accepted: :func:`grid_layout` tiles the views of a stereo pair or a grid of cameras.
+
+Split with a calibration (:func:`split_views`, :func:`correct_views`), each view is also
+corrected as the calibration says: its lens distortion undone by one remap (tables made once per
+calibration) and its vignetting divided out by a flat field.
 """
 
 from __future__ import annotations
@@ -16,11 +20,14 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from lfring.core.lens import FlatField, remap_views, undistortion_maps
+from lfring.core.protocols import Calibration
 from lfring.core.validate import check_choice, check_int, is_integer
+from lfring.core.viewstack import calibration_cache
 from lfring.errors import EstimationError, FileFormatError, InvalidInputError
 
-__all__ = ["Layout", "split_views", "read_views", "layout_from_circles", "grid_layout", "detect_layout", "DETECT_KINDS", "MIN_VIEWS",
-           "MAX_VIEWS"]
+__all__ = ["Layout", "split_views", "correct_views", "flat_field_from_frame", "read_views", "layout_from_circles",
+           "grid_layout", "detect_layout", "DETECT_KINDS", "MIN_VIEWS", "MAX_VIEWS"]
 
 LAYOUT_VERSION = 1
 # Views a layout (and so a calibration, refocusing and depth) may hold: two for any parallax,
@@ -196,15 +203,23 @@ class Layout:
         return cls.from_dict(read_json_object(path, "layout"), source=str(path))
 
 
-def split_views(image: np.ndarray, layout: Layout) -> np.ndarray:
-    """Cut the views out of a raw-frame image.
+def split_views(image: np.ndarray, layout, *, flat=None) -> np.ndarray:
+    """Cut the views out of a raw-frame image (and, given a calibration, undo its lenses).
 
     Parameters
     ----------
     image : ndarray, (H, W) or (H, W, C), floating
         The whole frame as it came from the camera (before rotation), e.g. the output of
         :func:`lfring.demosaic`.
-    layout : Layout
+    layout : Layout or RingCalibration
+        Where the views lie. Given a calibration, its layout, and then each view is corrected as
+        the calibration says (:func:`correct_views`): its lens distortion undone (one cached
+        remap per view) and its vignetting divided out when the calibration carries a flat
+        field, so that refocusing and depth see the views the calibration's homographies
+        relate. Given a layout alone, the views are only cut.
+    flat : FlatField or ndarray (H, W[, C]), optional
+        A flat (white) frame's field, or the frame itself: the views are divided by it (instead
+        of the calibration's own), which makes every view equally bright at every pixel.
 
     Returns
     -------
@@ -214,14 +229,29 @@ def split_views(image: np.ndarray, layout: Layout) -> np.ndarray:
     Examples
     --------
     The bundled scene of the twin (data/synthetic, paths relative to the repository root) cut
-    with the layout of the built-in calibration for its frame size:
+    with the built-in calibration for its frame size:
 
     >>> import lfring
     >>> cal = lfring.RingCalibration.load("twin_binned2")
-    >>> views = split_views(lfring.demosaic(lfring.load_raw("data/synthetic/scene.png")), cal.layout)
+    >>> views = split_views(lfring.demosaic(lfring.load_raw("data/synthetic/scene.png")), cal)
     >>> views.shape, views.dtype, bool(views.min() >= 0.0 and views.max() <= 1.0)
     ((4, 705, 705, 3), dtype('float32'), True)
     """
+    cal = layout if isinstance(layout, Calibration) else None
+    lay = cal.layout if cal is not None else layout
+    if not isinstance(lay, Layout):
+        raise InvalidInputError(f"split_views needs a Layout or a RingCalibration, got {type(layout).__name__}")
+    out = _cut(image, lay)
+    if isinstance(flat, np.ndarray):
+        flat = flat_field_from_frame(flat, lay if cal is None else cal)
+    if flat is not None and not isinstance(flat, FlatField):
+        raise InvalidInputError(f"flat must be a FlatField or a flat frame (H, W[, C]) image, got {type(flat).__name__}")
+    if cal is not None:
+        return correct_views(out, cal, flat_field=flat)
+    return out if flat is None else flat.apply(out)
+
+
+def _cut(image, layout: Layout) -> np.ndarray:
     arr = np.asarray(image)
     if arr.ndim == 2:
         arr = arr[..., None]
@@ -244,6 +274,59 @@ def split_views(image: np.ndarray, layout: Layout) -> np.ndarray:
     for k, (x, y, _, _) in enumerate(layout.rects):
         out[k] = arr[y : y + h, x : x + w]
     return out
+
+
+def correct_views(views, calibration, *, flat_field=None) -> np.ndarray:
+    """Views cut with ``calibration``'s layout, corrected as the calibration says: each view's
+    lens distortion undone (``calibration.distortion``: a bilinear remap per view, its tables
+    made once per calibration and view shape), then divided by a flat field (``flat_field``, or
+    the calibration's own; none: left as they are).
+
+    Parameters
+    ----------
+    views : (V, h, w, C) float32
+    calibration : RingCalibration
+    flat_field : FlatField, optional
+
+    Returns
+    -------
+    (V, h, w, C) float32
+        A new array when anything was corrected, else ``views`` itself.
+    """
+    dist = calibration.distortion
+    out = views
+    if dist is not None:
+        shape = tuple(int(n) for n in out.shape[1:3])
+        maps = calibration_cache(calibration, ("undistortion maps", shape), lambda: _fixed_point_maps(dist, shape))
+        out = np.empty_like(views)
+        for k in range(len(views)):
+            # The fixed-point tables are what cv2.remap makes of float maps at every call.
+            res = cv2.remap(views[k], maps[k][0], maps[k][1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+            out[k] = res.reshape(views[k].shape)
+    flat = flat_field if flat_field is not None else calibration.flat_field
+    if flat is not None:
+        out = flat.apply(out)
+    return out
+
+
+def _fixed_point_maps(distortions, shape) -> list:
+    mx, my = undistortion_maps(distortions, shape)
+    return [cv2.convertMaps(mx[k], my[k], cv2.CV_16SC2) for k in range(len(mx))]
+
+
+def flat_field_from_frame(image, layout) -> FlatField:
+    """The :class:`~lfring.core.lens.FlatField` of a flat (uniformly lit white) frame: cut with
+    ``layout`` (a Layout, or a calibration whose distortion is then undone, as the frames it
+    will correct are), its luminance relative to its brightest level."""
+    if isinstance(layout, Calibration):
+        views = _cut(image, layout.layout)
+        if layout.distortion is not None:
+            shape = views.shape[1:3]
+            mx, my = undistortion_maps(layout.distortion, shape)
+            views = remap_views(views, mx, my)
+    else:
+        views = _cut(image, layout)
+    return FlatField.from_views(views)
 
 
 def read_views(paths) -> np.ndarray:

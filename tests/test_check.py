@@ -81,3 +81,52 @@ def test_draw_layout(cal):
     x, y, w, h = cal.layout.rects[0]
     assert tuple(out[y, x + 5]) == (255, 220, 0)  # the rectangle, yellow
     assert tuple(out[y + h // 2, x + 1]) == (0, 255, 0)  # the disc touches its left edge, green
+
+
+def _gradient(kind: str) -> np.ndarray:
+    """A smooth RGB gradient filling a 2456 x 1842 frame, as 8-bit counts."""
+    h, w = 1842, 2456
+    x = np.linspace(0, 1, w)[None, :].repeat(h, 0)
+    ramp = x if kind == "horizontal" else (x + np.linspace(0, 1, h)[:, None]) / 2
+    return (np.stack([ramp, 0.8 * ramp, 0.6 * ramp], -1) * 255).astype(np.uint8)
+
+
+@pytest.mark.parametrize("kind", ["horizontal", "diagonal"])
+def test_a_gradient_has_no_discs_and_is_refused(cal, kind):
+    """Its views may agree (a horizontal ramp's quadrants do), but there are no discs of light."""
+    res = check_frame(_gradient(kind).astype(np.float32) / 255, cal)
+    assert abs(res.disc_contrast) < 0.05
+    assert not res.ok and res.reason == "no_discs" and "no discs" in res.message and "--no-check" in res.message
+
+
+@pytest.mark.parametrize("kind", ["horizontal"])
+def test_cli_check_and_refocus_refuse_a_gradient(tmp_path, kind):
+    """What the user did: a gradient PNG of the sensor's size through `lfring check` (exit 1) and
+    `lfring refocus` (exit 2, nothing written)."""
+    import subprocess
+    import sys
+
+    frame = tmp_path / "gradient.png"
+    cv2.imwrite(str(frame), _gradient(kind)[..., ::-1])
+    check = subprocess.run([sys.executable, "-m", "lfring", "check", str(frame)], capture_output=True, text=True,
+                           cwd=tmp_path, timeout=300)
+    assert check.returncode == 1, check.stdout + check.stderr
+    assert "disc contrast" in check.stdout and "NOT a ring frame" in check.stdout and "no discs" in check.stdout
+    refocus = subprocess.run([sys.executable, "-m", "lfring", "refocus", str(frame), "--depth", "0.5",
+                              "--method", "shift-and-add"], capture_output=True, text=True, cwd=tmp_path, timeout=300)
+    assert refocus.returncode == 2 and "no discs" in refocus.stderr and "Traceback" not in refocus.stderr
+    assert not list(tmp_path.glob("gradient_refocus*"))
+
+
+def test_the_flat_frame_is_recognised_as_a_flat_field(cal):
+    res = check_frame(load_raw(DATA / "flat.png"), cal)
+    assert res.disc_contrast > 0.8 and res.texture < 0.05
+    assert not res.ok and res.flat_field and res.reason == "flat_field" and "flat field" in res.message
+
+
+@pytest.mark.parametrize("name", ["scene.png", "target_0.3m.png", "part_good.png", "hard.png"])
+def test_scenes_have_texture(cal, name):
+    from lfring.check import FLAT_TEXTURE
+
+    res = check_frame(load_raw(DATA / name), cal)
+    assert res.ok and res.reason == "" and not res.flat_field and res.texture > 2 * FLAT_TEXTURE

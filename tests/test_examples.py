@@ -61,3 +61,29 @@ def test_defect_check_example(tmp_path):
     assert proc.returncode == 3 and proc.stdout.strip().splitlines()[-1] == "0 of 1 parts failed, 1 cannot be judged, 0 could not be read"
     proc = run(good)
     assert proc.returncode == 0 and proc.stdout.strip().splitlines()[-1] == "all 1 parts passed"
+
+
+def test_live_refocus_reports_bad_frames_and_goes_on(tmp_path):
+    """What the user fed the loop: a truncated frame, a JPEG, a frame of another size and an
+    ordinary photograph between two good frames. One ERROR line each, no traceback, the good
+    frames refocused, exit code 2."""
+    good = DATA / "part_good.png"
+    data = good.read_bytes()
+    (tmp_path / "trunc.png").write_bytes(data[: len(data) // 3])
+    (tmp_path / "trunc.png.json").write_bytes((DATA / "part_good.png.json").read_bytes())
+    counts = cv2.imread(str(good), cv2.IMREAD_UNCHANGED)
+    cv2.imwrite(str(tmp_path / "frame.jpg"), (counts >> 4).astype(np.uint8))
+    cv2.imwrite(str(tmp_path / "small.png"), counts[:900, :1200])
+    (tmp_path / "small.png.json").write_bytes((DATA / "part_good.png.json").read_bytes())
+    rng = np.random.default_rng(0)
+    photo = cv2.resize((rng.random((46, 61, 3)) * 255).astype(np.uint8), (2456, 1842), interpolation=cv2.INTER_CUBIC)
+    cv2.imwrite(str(tmp_path / "photo.png"), photo)
+    names = [good, *(tmp_path / n for n in ("trunc.png", "frame.jpg", "small.png", "photo.png")), good]
+    proc = subprocess.run([sys.executable, str(ROOT / "examples" / "live_refocus.py"), *map(str, names), "--depth", "0.3"],
+                          check=False, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
+    lines = proc.stdout.strip().splitlines()
+    errors = [ln for ln in lines if ln.startswith("ERROR ")]
+    assert [e.split(":")[0] for e in errors] == ["ERROR trunc#0", "ERROR frame#0", "ERROR small#0", "ERROR photo#0"]
+    assert "not a ring frame" in errors[3]
+    assert lines[-1].startswith("2 frames at 0.3 m in ") and lines[-1].endswith("4 frames could not be used")

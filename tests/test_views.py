@@ -135,3 +135,24 @@ def test_read_views_stacks_separate_images(tmp_path):
         read_views([paths[0], tmp_path / "small.png"])
     with pytest.raises(InvalidInputError, match="2 to 100 view images, got 1"):
         read_views(paths[:1])
+
+
+def test_splitting_with_a_calibration_corrects_the_views(prototype):
+    """A calibration without distortion or flat field cuts exactly what its layout cuts; a flat
+    frame given to the split divides every view to the same brightness."""
+    from lfring.calibration import RingCalibration
+
+    dev = prototype.binned(4)
+    cal = RingCalibration.from_optics(dev)
+    r = render(dev, target_scene(dev, 0.5, seed=1), binning=1, pattern=None, noise="none")
+    np.testing.assert_array_equal(split_views(r.image, cal), split_views(r.image, cal.layout))
+    flat = render(dev, flat_scene(dev), binning=1, pattern=None, noise="none").image
+    fielded = split_views(flat, cal, flat=flat)
+    inside = cal.layout.masks()
+    inside &= split_views(flat, cal.layout)[..., 1] > 0.5 * flat.max()
+    inside[:, :3] = inside[:, -3:] = inside[:, :, :3] = inside[:, :, -3:] = False  # the smoothing's border
+    lum = fielded[..., 1][inside]
+    assert float(lum.max() - lum.min()) < 0.02
+    assert np.array_equal(split_views(flat, cal.layout, flat=flat), fielded)
+    with pytest.raises(InvalidInputError, match="Layout or a RingCalibration"):
+        split_views(flat, "twin_binned2")

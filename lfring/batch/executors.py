@@ -1,20 +1,35 @@
 """Where a batch's frames run: a pool of local worker processes (or this process alone, for one
-worker) or a Dask cluster, each behind the same small face (``submit``, ``shutdown`` and a
-``wait`` that returns the finished futures)."""
+worker) or a Dask cluster, each behind the same small face (``submit``, ``shutdown``,
+``terminate`` and a ``wait`` that returns the finished futures).
+
+The local workers start with Ctrl-C blocked: the terminal sends it to every process of the
+group, and a worker that took it would die with a traceback of its own. The process that runs
+the batch takes it and stops the workers (:meth:`LocalPool.terminate`).
+"""
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
+from lfring.core.signals import blocked_in_children, held_signals
 from lfring.errors import InvalidInputError
 
-__all__ = ["EXECUTORS", "DaskExecutor", "InProcess", "dask_client", "dask_wait", "local_executor"]
+__all__ = ["EXECUTORS", "STOP_TIMEOUT_S", "WAIT_SLICE_S", "DaskExecutor", "InProcess", "LocalPool", "dask_client",
+           "dask_wait", "held_wait", "local_executor"]
 
 log = logging.getLogger("lfring.batch")
 
 EXECUTORS = ("local", "dask")
+
+STOP_TIMEOUT_S = 2.0
+"""How long a stopped worker gets to exit on SIGTERM before it is killed."""
+
+WAIT_SLICE_S = 0.2
+"""The local pool's wait for finished frames runs in slices this long, Ctrl-C and SIGTERM held
+within each: a stop takes effect between slices, never inside the futures' locks."""
 
 _DASK_HINT = 'install it with: python3 -m pip install -c constraints.txt ".[dask]"  (or: pip install "dask[distributed]")'
 
@@ -36,25 +51,76 @@ class InProcess:
         fut: Future = Future()
         try:
             fut.set_result(fn(*args))
-        except BaseException as exc:  # noqa: BLE001 - delivered through the future like a pool does
+        except Exception as exc:  # noqa: BLE001 - delivered through the future like a pool does
             fut.set_exception(exc)
         return fut
 
     def shutdown(self, **kwargs):
         """Nothing to stop (the pool's signature)."""
 
+    def terminate(self):
+        """Nothing to stop: an interrupted frame stops with this process."""
+
+
+class LocalPool:
+    """A pool of spawned worker processes that never see Ctrl-C, and can be stopped at once."""
+
+    def __init__(self, workers: int):
+        import multiprocessing as mp
+
+        threads = max(1, (os.cpu_count() or 1) // workers)
+        # spawn, not fork: forking a process whose OpenCV thread pool is running can deadlock.
+        self._pool = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"),
+                                         initializer=_init_worker, initargs=(threads,))
+
+    def submit(self, fn, *args):
+        """Submit ``fn(*args)``; its future. Workers start here, with Ctrl-C blocked (a signal
+        that comes meanwhile takes effect when the submission is complete)."""
+        with held_signals(), blocked_in_children():
+            return self._pool.submit(fn, *args)
+
+    def shutdown(self, wait: bool = True, cancel_futures: bool = False):
+        """Let the workers finish their frames and stop (ProcessPoolExecutor's shutdown)."""
+        self._pool.shutdown(wait=wait, cancel_futures=cancel_futures)
+
+    def terminate(self):
+        """Stop now: pending frames are cancelled, running ones lost, the workers ended (SIGTERM,
+        then SIGKILL after :data:`STOP_TIMEOUT_S`) and waited for. A second Ctrl-C meanwhile
+        takes effect once they are gone."""
+        import time
+
+        with held_signals():
+            # The executor keeps its processes by pid; Python 3.14 has terminate_workers() for this.
+            procs = list((getattr(self._pool, "_processes", None) or {}).values())
+            self._pool.shutdown(wait=False, cancel_futures=True)
+            for p in procs:
+                with contextlib.suppress(ValueError, ProcessLookupError, OSError):
+                    p.terminate()
+            deadline = time.monotonic() + STOP_TIMEOUT_S
+            for p in procs:
+                with contextlib.suppress(ValueError, OSError):
+                    p.join(max(0.0, deadline - time.monotonic()))
+                    if p.is_alive():
+                        p.kill()
+                        p.join(STOP_TIMEOUT_S)
+
+
+def held_wait(fs, return_when=FIRST_COMPLETED):
+    """:func:`concurrent.futures.wait` in slices of :data:`WAIT_SLICE_S`, Ctrl-C and SIGTERM held
+    within each: interrupted inside the futures' locks, a wait would leave one of them taken,
+    and the pool's manager thread (which sets the results) blocked for ever."""
+    while True:
+        with held_signals():
+            done, not_done = wait(fs, timeout=WAIT_SLICE_S, return_when=return_when)
+        if done or not not_done:
+            return done, not_done
+
 
 def local_executor(workers: int):
     """A pool of ``workers`` spawned processes (this process alone for one) and its ``wait``."""
-    import multiprocessing as mp
-
     if workers == 1:
         return InProcess(), wait
-    threads = max(1, (os.cpu_count() or 1) // workers)
-    # spawn, not fork: forking a process whose OpenCV thread pool is running can deadlock.
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"), initializer=_init_worker,
-                               initargs=(threads,))
-    return pool, wait
+    return LocalPool(workers), held_wait
 
 
 def dask_client(workers: int, scheduler: str | None):
@@ -101,6 +167,9 @@ class DaskExecutor:
 
     def shutdown(self, **kwargs):
         """Nothing to stop: the caller closes the client and the cluster."""
+
+    def terminate(self):
+        """Nothing to stop here: the caller closes the client and the cluster."""
 
 
 def dask_wait(futures, return_when=FIRST_COMPLETED):

@@ -39,6 +39,12 @@ class FrameResult:
     timings_s: dict = field(default_factory=dict)
     error: str | None = None
     worker: str = ""
+    left_out: str = ""
+    """Why a frame that is no scene to process was left out (a flat field), else ''."""
+
+
+class _LeftOut(Exception):
+    """A frame that is not to be processed, and not an error: a flat field."""
 
 
 _WORKER_CACHE: dict = {}
@@ -77,7 +83,8 @@ def process_frame(input_path: str, settings: BatchSettings, outputs: dict[str, s
 
     Returns a :class:`FrameResult` whose ``files`` maps each output kind of
     :meth:`BatchSettings.outputs` to the encoded file's bytes; on failure ``ok`` is False and
-    ``error`` says why in one line.
+    ``error`` says why in one line; a flat field (which the frame check recognises) is not
+    processed: ``ok`` is False and ``left_out`` says so.
     """
     t_start = time.perf_counter()
     timings: dict[str, float] = {}
@@ -89,6 +96,9 @@ def process_frame(input_path: str, settings: BatchSettings, outputs: dict[str, s
             warnings.simplefilter("always")
             files, info = _process(input_path, settings, outputs, timings)
             caught = [str(w.message) for w in wlist]
+    except _LeftOut as exc:
+        timings["total"] = time.perf_counter() - t_start
+        return FrameResult(input_path, False, timings_s=timings, worker=worker, left_out=str(exc))
     except (LfringError, OSError, ValueError, MemoryError) as exc:
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         timings["total"] = time.perf_counter() - t_start
@@ -125,9 +135,11 @@ def _process(input_path, settings: BatchSettings, outputs, timings) -> tuple[dic
         from lfring.check import check_frame
 
         checked = check_frame(image, cal)
+        if checked.flat_field:
+            raise _LeftOut("a flat field (a white frame of the camera, no scene to process)")
         if not checked.ok:
             raise InvalidInputError(f"{input_path}: {checked.message}")
-    views = split_views(image, cal.layout)
+    views = split_views(image, cal)  # the calibration's lens distortion undone, its flat field divided
     if not np.all(np.isfinite(views)):
         raise InvalidInputError(f"{input_path}: the frame holds NaN or infinite values")
     timings["load"] = time.perf_counter() - t

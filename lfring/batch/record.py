@@ -4,7 +4,8 @@ the manifest, the one writer into OUTDIR, the folder's lock and the resume decis
 A frame's record ``<name>.lfring.json`` is written ``pending`` before its outputs and ``done``
 after them; :func:`decide_resume` reads it, with the input's identity (size and modification
 time), to skip what is done, compute only what is missing and refuse files this tool did not
-make.
+make. The single-frame commands keep a record of the same form per output set
+(:mod:`lfring.cli.outputs`).
 """
 
 from __future__ import annotations
@@ -152,7 +153,8 @@ class ResumeDecision:
 
 
 def decide_resume(planned: dict[str, str], planned_keys: dict[str, str], record: dict | None, identity: dict,
-                  existing: frozenset | set, *, record_exists: bool, overwrite: bool, settings_key: str = "") -> ResumeDecision:
+                  existing: frozenset | set, *, record_exists: bool, overwrite: bool, settings_key: str = "",
+                  maker: str = "lfring batch") -> ResumeDecision:
     """Decide, without touching any file, what a run does with one frame.
 
     Parameters
@@ -172,6 +174,9 @@ def decide_resume(planned: dict[str, str], planned_keys: dict[str, str], record:
     overwrite : bool
     settings_key : str
         :meth:`BatchSettings.legacy_key`, for records written before per-output keys.
+    maker : str
+        The command whose records these are, as the reasons name it (the single-frame commands
+        keep their output sets with the same records).
 
     Returns
     -------
@@ -183,6 +188,7 @@ def decide_resume(planned: dict[str, str], planned_keys: dict[str, str], record:
 
     Examples
     --------
+    >>> from lfring.batch import decide_resume
     >>> done = {"outputs": {"refocus_0.5m": "a_refocus_0.5m.png"}, "output_keys": {"refocus_0.5m": "k5"},
     ...         "input_identity": {"size_bytes": 1}, "status": "done"}
     >>> decide_resume({"refocus_0.5m": "a_refocus_0.5m.png", "refocus_1m": "a_refocus_1m.png"},
@@ -197,7 +203,7 @@ def decide_resume(planned: dict[str, str], planned_keys: dict[str, str], record:
     if record is None:
         if present or record_exists:
             what = present[0] if present else "its record"
-            return ResumeDecision("refuse", reason=f"{what} exists and was not made by lfring batch; pass --overwrite to replace it")
+            return ResumeDecision("refuse", reason=f"{what} exists and was not made by {maker}; pass overwrite=True to replace it")
         return ResumeDecision("run", kinds)
     ours = dict(record.get("outputs") or {})
     done_keys = dict(record.get("output_keys") or {})
@@ -209,7 +215,7 @@ def decide_resume(planned: dict[str, str], planned_keys: dict[str, str], record:
     if record.get("input_identity") != identity:
         if present:
             return ResumeDecision("refuse", reason=f"outputs exist ({present[0]}...) and the input changed since; "
-                                                   "pass --overwrite to replace them")
+                                                   "pass overwrite=True to replace them")
         return ResumeDecision("run", kinds)
     todo = tuple(k for k in kinds if not (done_keys.get(k) == planned_keys[k] and ours.get(k) == planned[k]
                                           and planned[k] in existing))
@@ -221,9 +227,9 @@ def decide_resume(planned: dict[str, str], planned_keys: dict[str, str], record:
         if rel not in existing:
             continue
         if rel not in owner:
-            return ResumeDecision("refuse", reason=f"{rel} exists and was not made by lfring batch; pass --overwrite to replace it")
+            return ResumeDecision("refuse", reason=f"{rel} exists and was not made by {maker}; pass overwrite=True to replace it")
         if pending_keys.get(owner[rel]) != planned_keys[k]:
             return ResumeDecision("refuse", reason=f"outputs exist ({rel}...) and other settings made them (or an "
-                                                   "earlier lfring's default depth cost); pass --overwrite to replace them")
+                                                   "earlier lfring's default depth cost); pass overwrite=True to replace them")
         # else: our own run with these settings, cut short: its file may be replaced
     return ResumeDecision("run", todo)

@@ -37,6 +37,7 @@ from lfring.batch.record import (
     read_record,
 )
 from lfring.batch.settings import BatchSettings
+from lfring.core.signals import held_signals
 from lfring.core.validate import check_choice, check_int
 from lfring.errors import InvalidInputError
 
@@ -51,8 +52,9 @@ class BatchReport:
 
     ``done``, ``skipped`` and ``failed`` are input paths; ``errors`` maps each failed input to
     its one-line error; ``not_frames`` lists (path, reason) of files in folder inputs left out
-    because they are not frames; ``elapsed_s`` is the wall time; ``frames_per_s`` counts processed
-    (not skipped) frames.
+    because they are not frames; ``left_out`` lists (path, reason) of frames read and left out
+    because they hold no scene (flat fields); ``elapsed_s`` is the wall time; ``frames_per_s``
+    counts processed (not skipped) frames.
     """
 
     outdir: str
@@ -63,6 +65,7 @@ class BatchReport:
     elapsed_s: float = 0.0
     manifest: str = ""
     not_frames: list = field(default_factory=list)
+    left_out: list = field(default_factory=list)
 
     @property
     def ok(self) -> bool:
@@ -87,11 +90,14 @@ class BatchReport:
         -------
         str
         """
-        n = len(self.done) + len(self.skipped) + len(self.failed)
+        n = len(self.done) + len(self.skipped) + len(self.failed) + len(self.left_out)
         rate = f", {self.frames_per_s:.2f} frames/s" if self.done else ""
         left = f"; {len(self.not_frames)} files that are not frames left out" if self.not_frames else ""
+        flats = ""
+        if self.left_out:
+            flats = f"; {len(self.left_out)} left out ({', '.join(sorted({why.split(' (')[0] for _, why in self.left_out}))})"
         return (f"{n} frames: {len(self.done)} done, {len(self.skipped)} skipped (already done), "
-                f"{len(self.failed)} failed in {self.elapsed_s:.1f} s{rate}; outputs in {self.outdir}{left}")
+                f"{len(self.failed)} failed in {self.elapsed_s:.1f} s{rate}{flats}; outputs in {self.outdir}{left}")
 
 
 @dataclass
@@ -210,14 +216,24 @@ def _progress(todo, progress):
 
 def _finish(run: _Run, job: BatchJob, res: FrameResult) -> None:
     """Write a worker's files for one frame, then its record and manifest line."""
+    if res.left_out:  # not a scene: nothing to write, and no pending record of this run (a rerun looks again)
+        rec_path = run.out / (job.stem + RECORD_SUFFIX)
+        if (read_record(rec_path) or {}).get("run") == run.run_id:
+            with contextlib.suppress(OSError):
+                rec_path.unlink()
+        run.report.left_out.append((job.input, res.left_out))
+        log.info("%s: left out: %s", job.input, res.left_out)
+        run.entry(job, "left_out", reason=res.left_out, timings_s=res.timings_s, worker=res.worker)
+        return
     if not res.ok:
         run.fail(job, res.error, record_it=True, timings_s=res.timings_s, worker=res.worker)
         return
     t_w = time.perf_counter()
     try:
-        for kind in run.todo_kinds[job.input]:
-            run.writer.write(run.plan[job.input][kind], res.files[kind])
-        run.record(job, "done", info=res.info, timings_s=res.timings_s)
+        with held_signals():  # a frame's files and its record, all or none of them new
+            for kind in run.todo_kinds[job.input]:
+                run.writer.write(run.plan[job.input][kind], res.files[kind])
+            run.record(job, "done", info=res.info, timings_s=res.timings_s)
     except OSError as exc:
         run.fail(job, f"cannot write its outputs: {exc.strerror or exc}", record_it=True)
         return
@@ -264,7 +280,8 @@ def _execute(run: _Run, todo: list[BatchJob], *, workers: int, executor: str, sc
             for fut in done_set:
                 job = pending.pop(fut)
                 try:
-                    res: FrameResult = fut.result()
+                    with held_signals():  # taking the result takes the future's lock
+                        res: FrameResult = fut.result()
                 except Exception as exc:  # noqa: BLE001 - a worker died (crash, killed): retry once elsewhere
                     if job.input not in retried and executor == "local" and not isinstance(pool, InProcess):
                         retried.add(job.input)
@@ -283,6 +300,13 @@ def _execute(run: _Run, todo: list[BatchJob], *, workers: int, executor: str, sc
                 if bar is not None:
                     bar.update(1)
                     bar.set_postfix(failed=len(run.report.failed), refresh=False)
+    except BaseException:
+        # Interrupted (Ctrl-C, SIGTERM) or failed: the workers stop now, their frames stay pending
+        # for a rerun; waiting for them could take as long as a frame.
+        if pool is not None:
+            pool.terminate()
+            pool = None
+        raise
     finally:
         if bar is not None:
             bar.close()
@@ -352,9 +376,11 @@ def run_batch(
     0.5 m into a temporary folder, then the same run again, which finds it done:
 
     >>> import os, tempfile
+    >>> import lfring.batch
+    >>> settings = lfring.batch.BatchSettings(refocus_m=(0.5,))
     >>> with tempfile.TemporaryDirectory() as out:
-    ...     first = run_batch(["data/synthetic/scene.png"], out, BatchSettings(refocus_m=(0.5,)), workers=1, progress=False)
-    ...     again = run_batch(["data/synthetic/scene.png"], out, BatchSettings(refocus_m=(0.5,)), workers=1, progress=False)
+    ...     first = lfring.batch.run_batch(["data/synthetic/scene.png"], out, settings, workers=1, progress=False)
+    ...     again = lfring.batch.run_batch(["data/synthetic/scene.png"], out, settings, workers=1, progress=False)
     ...     files = sorted(os.listdir(out))
     >>> first.exit_code, len(first.done), len(again.done), len(again.skipped)
     (0, 1, 0, 1)

@@ -8,6 +8,8 @@ elsewhere, or from the geometry of a regular grid of views.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from lfring.calibration.model import VariableHomography, fit_variable_homography
@@ -15,7 +17,7 @@ from lfring.calibration.ring import RingCalibration
 from lfring.core.validate import check_number
 from lfring.errors import InvalidInputError
 from lfring.optics.device import RingDevice
-from lfring.optics.views import optical_homography_model, optical_layout, view_cameras
+from lfring.optics.views import ideal_discs_px, lens_distortions, optical_homography_model, optical_layout, view_cameras
 from lfring.views import Layout, grid_layout
 
 __all__ = ["calibration_from_grid", "calibration_from_optics", "calibration_from_plane_homographies"]
@@ -39,7 +41,9 @@ def calibration_from_optics(device: RingDevice, *, layout: Layout | None = None,
     -------
     RingCalibration
         ``source='optics'``, valid from twice the entrance-pupil distance to infinity, with
-        the device's distances in ``provenance``.
+        the device's distances in ``provenance``; for a device whose mini-lenses distort
+        (``device.lenses``), their distortions, exactly, and the layout's circles the
+        undistorted views' discs.
 
     Examples
     --------
@@ -51,9 +55,14 @@ def calibration_from_optics(device: RingDevice, *, layout: Layout | None = None,
     layout = layout or optical_layout(device, rotate180=rotate180)
     a, b, z0 = optical_homography_model(device, layout, reference=0)
     s = view_cameras(device).depth_origin_m
+    distortion = lens_distortions(device, layout)
+    if distortion is not None:
+        circles = tuple((cx - x, cy - y, r) for (cx, cy, r), (x, y, _, _) in zip(ideal_discs_px(device), layout.rects))
+        layout = dataclasses.replace(layout, circles=circles)
     return RingCalibration(
         model=VariableHomography(a, b, z0, 0),
         layout=layout,
+        distortion=distortion,
         valid_depth_range_m=(round(2 * s, 6), None),
         source="optics",
         device=device.name,

@@ -10,8 +10,9 @@ import numpy as np
 
 from lfring.calibration.build import calibration_from_plane_homographies
 from lfring.calibration.ring import RingCalibration
-from lfring.errors import InvalidInputError
-from lfring.views import Layout, detect_layout, split_views
+from lfring.core.lens import remap_views, undistortion_maps
+from lfring.errors import EstimationError, InvalidInputError
+from lfring.views import Layout, detect_layout, flat_field_from_frame, split_views
 
 __all__ = ["calibrate", "check_disparity_sign", "load_image"]
 
@@ -48,6 +49,8 @@ def calibrate(
     black_level=None,
     white_level=None,
     device=None,
+    distortion: bool = True,
+    carry_flat: bool = False,
 ) -> RingCalibration:
     """Calibrate refocusing in metric depth from frames of a textured planar target.
 
@@ -76,12 +79,23 @@ def calibrate(
         Constrain each B_k to rank 1.
     device : RingDevice, optional
         The camera's description, for z0 = s with two planes.
+    distortion : bool
+        Estimate each view's lens distortion jointly with the homographies
+        (:func:`lfring.calibration.distortion.estimate_distortion`) and keep it when it matters:
+        when it changes some plane's view-to-reference map by more than
+        :data:`~lfring.calibration.distortion.NEGLIGIBLE_DISTORTION_PX` beyond a homography and
+        explains a good part of the views' misregistration. The homographies are then measured
+        again on the undistorted views. False: the views are used as they are cut.
+    carry_flat : bool
+        Keep the flat frame's field (each view's vignetting) in the calibration, so that the
+        views split with it are flat-fielded (needs ``flat``).
 
     Returns
     -------
     RingCalibration
         With per-plane residuals (model vs measurement) in pixels, leave-one-out errors for
-        three or more planes, and the alignment diagnostics in ``provenance``.
+        three or more planes, and the alignment diagnostics in ``provenance`` (with the
+        distortion's: the views' misregistration before and after it is undone).
 
     Examples
     --------
@@ -104,6 +118,8 @@ def calibrate(
     """
     from lfring.calibration.planes import estimate_plane_homographies
 
+    if carry_flat and flat is None:
+        raise InvalidInputError("carry_flat needs the flat frame (flat=...)")
     if not isinstance(frames_by_depth, dict) or len(frames_by_depth) < 2:
         raise InvalidInputError("calibrate needs frames of the target at two or more distinct depths, as {depth_m: frame}")
     depths = [float(d) for d in frames_by_depth]
@@ -142,15 +158,32 @@ def calibrate(
         raise InvalidInputError(f"the layout is for {layout.raw_width_px} x {layout.raw_height_px} px frames, the targets are {shape[1]} x {shape[0]} px")
     masks = layout.masks()
     flat_views = split_views(flat_img, layout) if flat_img is not None else None
+    views = {d: split_views(images[d][0], layout) for d in sorted(images)}
     measured, diag = {}, []
     for d in sorted(images):
-        img, name = images[d]
-        est = estimate_plane_homographies(split_views(img, layout), reference=reference, masks=masks, method=method,
-                                          flat_views=flat_views)
+        est = estimate_plane_homographies(views[d], reference=reference, masks=masks, method=method, flat_views=flat_views)
         measured[d] = est.H_ref_from_view
-        diag.append({"depth_m": d, "file": name, "alignment_residual_px": est.residual_px.tolist(),
+        diag.append({"depth_m": d, "file": images[d][1], "alignment_residual_px": est.residual_px.tolist(),
                      "correlation": est.correlation.tolist()})
-        log.info("plane %.4g m (%s): alignment residual %s px", d, name, np.round(est.residual_px, 3).tolist())
+        log.info("plane %.4g m (%s): alignment residual %s px", d, images[d][1], np.round(est.residual_px, 3).tolist())
+    lens = None
+    dist_diag = {"estimated": False}
+    if distortion:
+        lens, layout, dist_diag = _lens_distortion(views, measured, layout, masks, flat_views, reference)
+    if lens is not None:
+        # The homographies again, between the undistorted views (the alignment residual "after").
+        mx, my = undistortion_maps(lens, layout.view_shape)
+        masks = layout.masks()
+        flat_u = None if flat_views is None else remap_views(flat_views, mx, my)
+        for i, d in enumerate(sorted(images)):
+            est = estimate_plane_homographies(remap_views(views[d], mx, my), reference=reference, masks=masks,
+                                              method=method, flat_views=flat_u)
+            measured[d] = est.H_ref_from_view
+            diag[i]["alignment_residual_before_px"] = diag[i]["alignment_residual_px"]
+            diag[i]["alignment_residual_px"] = est.residual_px.tolist()
+            diag[i]["correlation"] = est.correlation.tolist()
+            log.info("plane %.4g m: alignment residual %s px after undoing the distortion", d,
+                     np.round(est.residual_px, 3).tolist())
     z0, how = depth_origin_m, "given"
     if z0 is None and len(measured) == 2:
         if device is not None:
@@ -164,11 +197,43 @@ def calibrate(
     cal = calibration_from_plane_homographies(
         measured, reference=reference, depth_origin_m=z0, layout=layout, pattern=_common(raws, "pattern", pattern),
         rank1=rank1, provenance={"method": method, "flat": None if flat is None else str(flat), "planes": diag,
-                                 "depth_origin": how},
+                                 "depth_origin": how, "distortion": dist_diag},
     )
-    return dataclasses.replace(cal, device=None if device is None else device.name,
-                               black_level=_common(raws, "black_level", black_level),
-                               white_level=_common(raws, "white_level", white_level))
+    cal = dataclasses.replace(cal, device=None if device is None else device.name, distortion=lens,
+                              black_level=_common(raws, "black_level", black_level),
+                              white_level=_common(raws, "white_level", white_level))
+    if carry_flat:
+        cal = dataclasses.replace(cal, flat_field=flat_field_from_frame(flat_img, cal))
+    return cal
+
+
+def _lens_distortion(views, measured, layout, masks, flat_views, reference):
+    """Each view's distortion fitted to the planes, or None when it does not matter (see
+    :func:`calibrate`); the layout (its circles those of the undistorted views when kept) and
+    the diagnostics for the provenance."""
+    from lfring.calibration.distortion import KEEP_RATIO, NEGLIGIBLE_DISTORTION_PX, estimate_distortion, undistorted_circles
+
+    if layout.circles is None:
+        log.warning("the layout has no valid discs: the lens distortion is not estimated")
+        return None, layout, {"estimated": False, "reason": "the layout has no valid discs"}
+    try:
+        fit = estimate_distortion(views, measured, reference=reference, masks=masks, circles=layout.circles,
+                                  flat_views=flat_views)
+    except EstimationError as exc:
+        # The homographies were measured; only the finer model could not be: say so, go on without it.
+        log.warning("the lens distortion could not be estimated (%s); the views are used as they are cut", exc)
+        return None, layout, {"estimated": False, "reason": str(exc)}
+    kept = not fit.negligible and fit.rms_px < KEEP_RATIO * fit.rms_before_px
+    info = {"estimated": True, "modelled": kept, "effect_px": fit.effect_px, "tiles_rms_before_px": fit.rms_before_px,
+            "tiles_rms_after_px": fit.rms_px, "tiles": fit.correspondences, "rounds": fit.rounds,
+            "negligible_px": NEGLIGIBLE_DISTORTION_PX}
+    log.info("lens distortion: changes the views' maps by up to %.3f px beyond a homography; tiles misregistered by "
+             "%.3f px RMS with homographies alone, %.3f px with the distortion: %s", fit.effect_px, fit.rms_before_px,
+             fit.rms_px, "modelled" if kept else "not modelled (negligible)")
+    if not kept:
+        return None, layout, info
+    layout = dataclasses.replace(layout, circles=undistorted_circles(layout.circles, fit.distortion))
+    return fit.distortion, layout, info
 
 
 def check_disparity_sign(h_by_depth: dict, names: dict, view_shape_hw) -> None:

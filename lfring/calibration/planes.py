@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from lfring.core.lens import FLAT_FLOOR
 from lfring.core.registry import Registry
 from lfring.core.validate import check_choice, check_int, check_number, check_view_index
 from lfring.errors import EstimationError, InvalidInputError
@@ -30,6 +31,7 @@ __all__ = [
     "MODELS",
     "PlaneHomographies",
     "estimate_plane_homographies",
+    "local_shifts",
     "phase_correlation_translations",
 ]
 
@@ -45,8 +47,6 @@ _MAX_CLIPPED_FRACTION = 0.5
 _DARK_LEVEL = 0.01
 #: ... and a view is refused when more than this fraction of its valid pixels is black.
 _MAX_DARK_FRACTION = 0.9
-#: flat-field values below this fraction of the flat's bright level are not divided by.
-_FLAT_FLOOR = 0.2
 #: RMS relative contrast of the (lightly smoothed) texture below which a view is textureless.
 _MIN_CONTRAST = 0.01
 #: phase-correlation peak strength (OpenCV's 'response', 0..1) below which no common shift exists.
@@ -344,7 +344,7 @@ def _prepare(views, masks, flat_views, reference):
                 raise InvalidInputError(
                     f"flat_views: view {k} of the flat is clipped at full scale; take the flat with a shorter exposure"
                 )
-            ok = flat[k] > _FLAT_FLOOR * bright
+            ok = flat[k] > FLAT_FLOOR * bright
             valid[k] &= ok
             lum[k] = np.where(ok, lum[k] / np.where(ok, flat[k], 1.0), 0.0)
     return lum, valid, int(reference)
@@ -580,6 +580,83 @@ def _tile_residual(ref_img, warped, overlap, radius) -> float:
         return float("nan")
     d = np.asarray(shifts)
     return float(np.sqrt(np.mean(np.sum(d * d, axis=1))))
+
+
+def local_shifts(reference, image, valid, *, tile_px: int, smoothing_px=(2.5, 1.0), iterations: int = 8):
+    """Where each square tile of ``reference`` lies in ``image``: the shift d with
+    ``reference(x) ~ g image(x + d) + o`` over the tile (Lucas-Kanade with gain and offset,
+    iterated to convergence, coarse to fine over the smoothings).
+
+    Parameters
+    ----------
+    reference, image : (h, w) float32
+        Two images of one textured plane in one pixel frame (``image`` warped into the
+        reference's frame by a near-correct transform).
+    valid : (h, w) bool
+        Where both are valid; only tiles entirely inside (after a 3 px erosion) are measured.
+    tile_px : int
+        Side of the tiles, which tile the image without overlap.
+    smoothing_px : sequence of float
+        Gaussian prefilters, widest first: the wide one widens the basin (shifts of a few
+        pixels converge), the last sets the precision.
+    iterations : int
+        Most Gauss-Newton steps per smoothing.
+
+    Returns
+    -------
+    centres : (N, 2) float64
+        (x, y) of each measured tile's centre.
+    shifts : (N, 2) float64
+        Its shift d in pixels; where a tile did not converge (or ran more than a quarter of
+        its side away) it is left out.
+    """
+    from scipy.ndimage import map_coordinates
+
+    tile = check_int(tile_px, "tile_px", minimum=8)
+    ok_mask = cv2.erode(valid.view(np.uint8), np.ones((7, 7), np.uint8)).view(bool)
+    h, w = reference.shape
+    starts = np.array([(x0, y0) for y0 in range(0, h - tile + 1, tile) for x0 in range(0, w - tile + 1, tile)
+                       if ok_mask[y0 : y0 + tile, x0 : x0 + tile].all()], dtype=np.float64).reshape(-1, 2)
+    n = len(starts)
+    half = (tile - 1) / 2.0
+    d = np.zeros((n, 2))
+    good = np.ones(n, bool)
+    # Every tile at once: a patch one pixel wider on each side (central differences) per tile.
+    grid = np.arange(-1, tile + 1, dtype=np.float64)
+    for sg in smoothing_px:
+        a = cv2.GaussianBlur(reference, (0, 0), sg)
+        b = cv2.GaussianBlur(image, (0, 0), sg).astype(np.float64)
+        iy = starts[:, 1, None].astype(int) + np.arange(tile)[None, :]
+        ix = starts[:, 0, None].astype(int) + np.arange(tile)[None, :]
+        ref = a[iy[:, :, None], ix[:, None, :]].astype(np.float64).reshape(n, -1)
+        active = good.copy()
+        for _ in range(iterations):
+            if not active.any():
+                break
+            idx = np.nonzero(active)[0]
+            ys = starts[idx, 1, None, None] + d[idx, 1, None, None] + grid[None, :, None]
+            xs = starts[idx, 0, None, None] + d[idx, 0, None, None] + grid[None, None, :]
+            ys, xs = np.broadcast_arrays(ys, xs)
+            p = map_coordinates(b, [ys.ravel(), xs.ravel()], order=1, mode="nearest").reshape(ys.shape)
+            patch = p[:, 1:-1, 1:-1].reshape(len(idx), -1)
+            gx = (0.5 * (p[:, 1:-1, 2:] - p[:, 1:-1, :-2])).reshape(len(idx), -1)
+            gy = (0.5 * (p[:, 2:, 1:-1] - p[:, :-2, 1:-1])).reshape(len(idx), -1)
+            A = np.stack([patch, np.ones_like(patch), gx, gy], axis=2)  # (m, T*T, 4)
+            At = A.transpose(0, 2, 1)
+            normal = At @ A
+            rhs = (At @ ref[idx][..., None])[..., 0]
+            ok = np.abs(np.linalg.det(normal)) > 1e-12
+            sol = np.zeros((len(idx), 4))
+            sol[ok] = np.linalg.solve(normal[ok], rhs[ok][..., None])[..., 0]
+            ok &= np.abs(sol[:, 0]) > 1e-6
+            step = np.zeros((len(idx), 2))
+            step[ok] = sol[ok, 2:] / sol[ok, :1]
+            d[idx] += step
+            bad = ~ok | ~np.all(np.isfinite(d[idx]), axis=1) | (np.hypot(*d[idx].T) > tile / 4)
+            good[idx[bad]] = False
+            active[idx[bad | (np.hypot(*step.T) < 1e-4)]] = False
+    centres = starts[good] + half
+    return centres.reshape(-1, 2), d[good].reshape(-1, 2)
 
 
 # ------------------------------------------------------------------------------------------------

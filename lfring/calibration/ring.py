@@ -17,6 +17,7 @@ import numpy as np
 
 from lfring.calibration.model import PlaneFit, VariableHomography
 from lfring.core.geometry import check_reference, to_reference
+from lfring.core.lens import Distortion, FlatField
 from lfring.core.validate import check_choice, check_view_index, is_integer, is_number
 from lfring.errors import InvalidInputError, LfringWarning
 from lfring.views import Layout
@@ -59,6 +60,16 @@ class RingCalibration:
     black_level, white_level : float or None
         Levels in counts of the frames it was made from, when known: frames without their own
         (no sidecar, no option) are read with them.
+    distortion : tuple of Distortion, or None
+        Each view's lens distortion (ideal pixel -> recorded pixel, in the pixels of the views
+        the layout cuts), when the calibration models it: :func:`lfring.split_views` given the
+        calibration undoes it, and the model's homographies relate the undistorted views. The
+        layout's circles are then the valid discs of the undistorted views. None: the views are
+        used as they are cut.
+    flat_field : FlatField or None
+        Each view's vignetting (its response to a flat, white field, in the undistorted views),
+        when the calibration carries it: :func:`lfring.split_views` given the calibration
+        divides the views by it.
 
     Examples
     --------
@@ -100,11 +111,27 @@ class RingCalibration:
     provenance: dict = field(default_factory=dict)
     black_level: float | tuple[float, float, float, float] | None = None
     white_level: float | None = None
+    distortion: tuple | None = None
+    flat_field: FlatField | None = None
 
     def __post_init__(self) -> None:
         check_choice(self.source, "calibration source", SOURCES)
         if self.model.num_views != self.layout.num_views:
             raise InvalidInputError(f"the model has {self.model.num_views} views but the layout {self.layout.num_views}")
+        if self.distortion is not None:
+            dist = tuple(self.distortion) if not isinstance(self.distortion, (str, dict)) else ()
+            if len(dist) != self.layout.num_views or not all(isinstance(d, Distortion) for d in dist):
+                raise InvalidInputError(f"distortion must be one lfring.core.lens.Distortion per view "
+                                        f"({self.layout.num_views}), got {self.distortion!r}")
+            object.__setattr__(self, "distortion", None if all(d.is_identity for d in dist) else dist)
+        if self.flat_field is not None:
+            if not isinstance(self.flat_field, FlatField):
+                raise InvalidInputError(f"flat_field must be a lfring.core.lens.FlatField, got {type(self.flat_field).__name__}")
+            if self.flat_field.response.shape != (self.layout.num_views, *self.layout.view_shape):
+                raise InvalidInputError(
+                    f"the flat field is for {self.flat_field.num_views} views of {self.flat_field.view_shape[1]} x "
+                    f"{self.flat_field.view_shape[0]} px, the layout cuts {self.layout.num_views} of "
+                    f"{self.layout.view_shape[1]} x {self.layout.view_shape[0]} px")
         rng = self.valid_depth_range_m
         if isinstance(rng, (str, bytes)) or not hasattr(rng, "__len__") or len(rng) != 2 \
                 or not all(_is_finite_number(v) for v in (rng[0], *([] if rng[1] is None else [rng[1]]))):
@@ -216,14 +243,17 @@ class RingCalibration:
                 f"select_views keeps the model's base view {m.reference} (its homographies map into it), got {views!r}"
             )
         a, b, base = m.A[idx], m.B[idx], idx.index(m.reference)
+        dist = None if self.distortion is None else tuple(self.distortion[k] for k in idx)
+        flat = None if self.flat_field is None else FlatField(self.flat_field.response[idx])
         return replace(self, model=VariableHomography(a, b, m.depth_origin_m, base), layout=layout,
-                       provenance={**self.provenance, "views_selected": idx})
+                       provenance={**self.provenance, "views_selected": idx}, distortion=dist, flat_field=flat)
 
     def __repr__(self) -> str:
         """One line: where it comes from, its views and depths (the arrays stay out)."""
+        extra = "".join(f", {name}=True" for name in ("distortion", "flat_field") if getattr(self, name) is not None)
         return (f"{type(self).__qualname__}(source={self.source!r}, num_views={self.num_views}, "
                 f"view_shape={self.layout.view_shape}, depth_origin_m={self.depth_origin_m:.6g}, "
-                f"valid_depth_range_m={self.valid_depth_range_m!r}, device={self.device!r})")
+                f"valid_depth_range_m={self.valid_depth_range_m!r}, device={self.device!r}{extra})")
 
 
 def _is_finite_number(value) -> bool:

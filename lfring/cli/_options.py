@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import functools
 import logging
+from pathlib import Path
 
 import click
 
@@ -124,15 +125,25 @@ def read_frame(raw: str, levels: RawLevels | None = None, calibration=None):
     return frame
 
 
-def load_views(raw, calib: str | None, levels: RawLevels | None = None, *, check: bool = True):
+def flat_option(fn):
+    """Adds --flat FILE: the views are divided by a flat (white) frame's, which takes each view's
+    vignetting out (the command receives the path as ``flat``)."""
+    return click.option("--flat", "flat", type=click.Path(dir_okay=False), default=None, metavar="FILE",
+                        help="Flat (white) frame of the camera: the views are divided by it (each view's vignetting). "
+                             "Default: the calibration's flat field, when it carries one.")(fn)
+
+
+def load_views(raw, calib: str | None, levels: RawLevels | None = None, *, check: bool = True, flat: str | None = None):
     """Load, demosaic and split a raw frame; the calibration from --calib or the built-in
-    default for the frame's size (logged). Unless ``check`` is False, refuse a frame that does
-    not look like a ring frame for the calibration (:func:`lfring.check.check_frame`). Several
-    paths are separate view images instead (see :func:`load_view_files`)."""
+    default for the frame's size (logged). The split undoes the calibration's lens distortion
+    and divides by the flat field (``flat``, a flat frame's path, else the calibration's own).
+    Unless ``check`` is False, refuse a frame that does not look like a ring frame for the
+    calibration (:func:`lfring.check.check_frame`). Several paths are separate view images
+    instead (see :func:`load_view_files`)."""
     from lfring.calibration import RingCalibration
     from lfring.calibration.defaults import default_calibration
     from lfring.io.demosaic import demosaic
-    from lfring.views import split_views
+    from lfring.views import flat_field_from_frame, split_views
 
     if not isinstance(raw, str):
         if len(raw) > 1:
@@ -150,7 +161,12 @@ def load_views(raw, calib: str | None, levels: RawLevels | None = None, *, check
     cal.check_frame(image.shape, what=f"frame {raw}")
     if check:
         require_ring_frame(image, cal, raw)
-    return split_views(image, cal.layout), cal, name
+    flat_field = None
+    if flat:
+        flat_image = demosaic(read_frame(flat, levels, cal))
+        cal.check_frame(flat_image.shape, what=f"flat frame {flat}")
+        flat_field = flat_field_from_frame(flat_image, cal)
+    return split_views(image, cal, flat=flat_field), cal, name
 
 
 def load_view_files(paths, calib: str | None):
@@ -187,3 +203,27 @@ def progress_bar(total: int, desc: str, unit: str):
 
     quiet = not logging.getLogger("lfring").isEnabledFor(logging.INFO)
     return tqdm(total=total, desc=desc, unit=unit, disable=quiet or not sys.stderr.isatty(), leave=False, dynamic_ncols=True)
+
+
+def note_first_compile() -> None:
+    """Say, once per machine, that the depth kernels are being compiled: numba compiles them on
+    their first use and keeps them on disk, so only the very first depth estimate is slow, and
+    silent without this note. Looks for numba's cache index of every kernel module."""
+    import os
+    import sys
+
+    import lfring.depth
+
+    root = Path(lfring.depth.__file__).parent
+    tag = f"py{sys.version_info.major}{sys.version_info.minor}"
+    where = [Path(d) for d in (os.environ.get("NUMBA_CACHE_DIR"), Path.home() / ".cache" / "numba") if d]
+
+    def cached(module: Path) -> bool:
+        for d in (module.parent / "__pycache__", *where):
+            if d.is_dir() and next(d.rglob(f"{module.stem}.*.{tag}.nbi"), None) is not None:
+                return True
+        return False
+
+    if not all(cached(m) for m in root.rglob("*kernels.py")):
+        logging.getLogger("lfring.cli").info("compiling the depth kernels once (numba keeps them on disk): this first "
+                                             "run takes longer")

@@ -54,7 +54,9 @@ def command(ctx, inputs, outdir, calib, refocus_m, depth_map, zmin, zmax, planes
     done with the same settings are skipped, and a rerun that adds an output (another --refocus
     depth, --depth) computes only what is missing; a bad frame is reported by name and the rest
     go on. Folder walks leave out files that are not frames (sidecars, *_truth/ folders, images
-    of a size no calibration fits): one line says how many, -v lists them.
+    of a size no calibration fits): one line says how many, -v lists them; flat (white) frames
+    are read and left out with that reason. Ctrl-C or SIGTERM stops the workers at once (exit
+    code 130 or 143); what was written is whole, and a rerun goes on from there.
     Exit code: 0 all frames done or skipped, 1 some failed, 2 bad usage.
     """
     from lfring.batch import BatchSettings, run_batch

@@ -11,9 +11,16 @@ import click
 import numpy as np
 
 from lfring.cli._options import get_device, raw_options
+from lfring.cli.outputs import OutputSet
+from lfring.errors import InvalidInputError
 
 log = logging.getLogger("lfring.cli.calibrate")
 WARN_PX = 0.3
+"""Residual (px) above which a calibration gets a warning: check the target, focus and depths."""
+MAX_RESIDUAL_PX = 0.5
+"""Residual (px) above which a calibration is refused unless --force: the views of a planar
+target at its depth align to a small fraction of a pixel (the twin's to about 0.01 px); a frame
+that is not one (a scene with depth, a part) leaves residuals of a pixel or more."""
 
 
 def _floaty(text: str) -> bool:
@@ -41,20 +48,30 @@ def _floaty(text: str) -> bool:
 @click.option("--method", type=click.Choice(["ecc", "sift"]), default="ecc", show_default=True,
               help="Per-plane homographies: direct alignment (ECC) or SIFT + RANSAC.")
 @click.option("--rank1", is_flag=True, help="Constrain each B_k to rank 1.")
+@click.option("--no-distortion", "no_distortion", is_flag=True,
+              help="Do not estimate the mini-lenses' distortion (use the views as they are cut).")
+@click.option("--carry-flat", "carry_flat", is_flag=True,
+              help="Keep the --flat frame's field (each view's vignetting) in the calibration: views split with it "
+                   "are flat-fielded.")
+@click.option("--force", is_flag=True, help=f"Write the calibration even when a residual exceeds {MAX_RESIDUAL_PX} px "
+              "(frames that do not look like a planar target at their depth).")
 @click.option("--overwrite", is_flag=True, help="Replace an existing output file.")
 @raw_options
-def command(frames, depths, output, flat, layout_file, depth_origin, device_name, method, rank1, overwrite, levels):
+def command(frames, depths, output, flat, layout_file, depth_origin, device_name, method, rank1, no_distortion, carry_flat,
+            force, overwrite, levels):
     """Calibrate refocusing in metric depth from FRAMES of a textured planar target.
 
     Example: lfring calibrate near.png far.png --depths 0.3 1.0 --flat white.png -o calib/mycam.json
 
-    Prints the residual of every view and plane in pixels and warns above 0.3 px. Refuses
+    Estimates each view's lens distortion with the homographies and keeps it when it matters;
+    prints the views' misregistration before and after undoing it, and the residual of every
+    view and plane in pixels, warns above 0.3 px and refuses above 0.5 px (a frame that is not
+    a planar target at its depth) unless --force. Refuses
     depths whose order contradicts the ring (views of nearer planes lie farther apart). The
     calibration records the device and the frames' Bayer pattern and levels: later commands
     read frames without a sidecar with them.
     """
     from lfring.calibration import calibrate
-    from lfring.io.writers import check_writable
     from lfring.views import Layout
 
     frames = list(frames)
@@ -76,6 +93,8 @@ def command(frames, depths, output, flat, layout_file, depth_origin, device_name
         raise click.BadParameter(f"depths must be distinct, got {zs}", param_hint="--depths")
     if flat and layout_file:
         raise click.UsageError("give --flat or --layout, not both")
+    if carry_flat and not flat:
+        raise click.UsageError("--carry-flat needs --flat FILE")
     device = get_device(device_name) if device_name else None
     if depth_origin == "auto":
         z0 = None
@@ -88,25 +107,54 @@ def command(frames, depths, output, flat, layout_file, depth_origin, device_name
             z0 = float(depth_origin)
         except ValueError:
             raise click.BadParameter(f"expected auto, optics or metres, got {depth_origin!r}", param_hint="--depth-origin") from None
-    check_writable([output], overwrite=overwrite)
+    outputs = OutputSet([output], name=Path(output).stem, overwrite=overwrite)
+    outputs.check()
     layout = Layout.load(layout_file) if layout_file else None
     cal = calibrate(dict(zip(zs, frames)), flat=flat, layout=layout, depth_origin_m=z0, method=method, rank1=rank1,
-                    device=device, **levels.as_kwargs())
+                    device=device, distortion=not no_distortion, carry_flat=carry_flat, **levels.as_kwargs())
     click.echo(f"z0 = {cal.depth_origin_m:.6f} m ({cal.provenance.get('depth_origin')}); valid depth range "
                f"{cal.valid_depth_range_m[0]:g} to {cal.valid_depth_range_m[1]:g} m; reference view {cal.model.reference}")
     click.echo(f"{'plane [m]':>10} " + " ".join(f"{'view ' + str(k) + ' px':>10}" for k in range(cal.num_views))
                + (f" {'leave-one-out px':>17}" if cal.planes and cal.planes[0].leave_one_out_px is not None else ""))
-    worst = 0.0
+    worst, worst_z = 0.0, None
     for p, diag in zip(cal.planes, cal.provenance["planes"]):
         line = f"{p.depth_m:10.4g} " + " ".join(f"{r:10.3f}" for r in p.residual_px)
         if p.leave_one_out_px is not None:
             line += f" {np.max(p.leave_one_out_px):17.3f}"
         click.echo(line)
+        if "alignment_residual_before_px" in diag:
+            click.echo(f"{'before':>10} " + " ".join(f"{r:10.3f}" for r in diag["alignment_residual_before_px"]))
         click.echo(f"{'alignment':>10} " + " ".join(f"{r:10.3f}" for r in diag["alignment_residual_px"]))
-        worst = max(worst, float(np.max(p.residual_px)), float(np.max(diag["alignment_residual_px"])))
-        if p.leave_one_out_px is not None:
-            worst = max(worst, float(np.max(p.leave_one_out_px)))
+        plane_worst = max(float(np.max(p.residual_px)), float(np.max(diag["alignment_residual_px"])),
+                          float(np.max(p.leave_one_out_px)) if p.leave_one_out_px is not None else 0.0)
+        if plane_worst > worst:
+            worst, worst_z = plane_worst, p.depth_m
+    _echo_distortion(cal)
+    if worst > MAX_RESIDUAL_PX and not force:
+        frame = dict(zip(zs, frames)).get(worst_z, "a frame")
+        raise InvalidInputError(
+            f"largest residual {worst:.3f} px (plane {worst_z:g} m, {frame}) exceeds {MAX_RESIDUAL_PX} px: it does not look "
+            "like a planar target at that depth (check the frame, the target's texture, focus and the depths); "
+            f"{output} is not written; pass --force to write it anyway")
     if worst > WARN_PX:
         log.warning("largest residual %.3f px exceeds %.1f px: check the target's texture, focus and the depths", worst, WARN_PX)
-    cal.save(output)
+    with outputs.writing() as stage:
+        cal.save(stage(output))
     log.info("wrote %s", output)
+
+
+def _echo_distortion(cal) -> None:
+    """One line on the lens distortion: modelled or not, and the views' misregistration (RMS over
+    the target's tiles) with homographies alone and with the distortion undone."""
+    info = cal.provenance.get("distortion") or {}
+    if not info.get("estimated"):
+        click.echo("distortion not estimated" + (f" ({info['reason']})" if info.get("reason") else ""))
+        return
+    before, after = info["tiles_rms_before_px"], info["tiles_rms_after_px"]
+    if info.get("modelled"):
+        click.echo(f"distortion modelled: views misregistered by {before:.3f} px RMS with homographies alone, {after:.3f} px "
+                   f"with each view's distortion undone (it moves the views' maps by up to {info['effect_px']:.3f} px); "
+                   "the 'alignment' rows are measured on the undistorted views, 'before' on the views as cut")
+    else:
+        click.echo(f"distortion negligible, not modelled: it would move the views' maps by at most {info['effect_px']:.3f} px "
+                   f"(misregistration {before:.3f} px RMS, {after:.3f} px with it)")

@@ -7,10 +7,14 @@ import logging
 from pathlib import Path
 
 import click
+import numpy as np
 
 from lfring.cli._options import raw_options, read_frame
+from lfring.cli.outputs import OutputSet
 
 log = logging.getLogger("lfring.cli.check")
+
+_VERDICTS = {"": "ring frame", "flat_field": "a flat field of this camera, not a scene"}
 
 
 @click.command("check")
@@ -32,14 +36,15 @@ def command(ctx, frame, calib, output, overwrite, levels):
     """
     from lfring.calibration import RingCalibration
     from lfring.calibration.defaults import default_calibration
-    from lfring.check import check_frame, draw_layout
+    from lfring.check import FLAT_TEXTURE, check_frame, draw_layout
     from lfring.io.demosaic import demosaic
-    from lfring.io.writers import check_writable, write_image
+    from lfring.io.writers import write_image
 
     out = Path(output) if output else Path(f"{Path(frame).stem}_check.png")
     if out.suffix.lower() != ".png":
         raise click.BadParameter(f"the overlay must end in .png, got {out.name!r}", param_hint="-o")
-    check_writable([out], overwrite=overwrite)
+    outputs = OutputSet([out], name=out.stem, overwrite=overwrite)
+    outputs.check()
     cal = RingCalibration.load(calib) if calib else None
     raw = read_frame(frame, levels, cal)
     image = demosaic(raw, method="bilinear")
@@ -48,7 +53,7 @@ def command(ctx, frame, calib, output, overwrite, levels):
         cal, cal_name = default_calibration(size)
     else:
         cal_name = calib
-    res = check_frame(image, cal)
+    res = check_frame(image, cal, measure_fit=True)
     black = raw.black_level if not isinstance(raw.black_level, tuple) else ",".join(f"{b:g}" for b in raw.black_level)
     lines = [
         f"frame        {frame}: {size[0]} x {size[1]} px, "
@@ -60,9 +65,15 @@ def command(ctx, frame, calib, output, overwrite, levels):
         f"layout fit   disc contrast {res.disc_contrast:.2f} (1: dark between the discs, 0: light everywhere)",
         f"agreement    {res.agreement:.2f} at {res.best_depth_m:.3g} m (ring frames score above {res.threshold:g})"
         if res.best_depth_m is not None else f"agreement    none measurable (threshold {res.threshold:g})",
-        f"verdict      {'ring frame' if res.ok else 'NOT a ring frame for this calibration'}: {res.message}",
+        f"texture      {res.texture:.3f} of the mean inside the discs (a flat field's is below {FLAT_TEXTURE:g})",
+        f"fit          views {res.fit_px:.3f} px from the calibration's homographies at {res.fit_depth_m:.4g} m "
+        f"(median over tiles; lens distortion {'undone' if cal.distortion is not None else 'not modelled'}"
+        f"{', flat field divided' if cal.flat_field is not None else ''})" if np.isfinite(res.fit_px)
+        else "fit          not measured (not a ring frame to process)",
+        f"verdict      {_VERDICTS.get(res.reason, 'NOT a ring frame for this calibration')}: {res.message}",
     ]
-    write_image(out, draw_layout(image, cal.layout))
+    with outputs.writing() as stage:
+        write_image(stage(out), draw_layout(image, cal.layout))
     for line in lines:
         click.echo(line)
     click.echo(f"overlay      {out}")

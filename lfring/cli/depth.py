@@ -10,20 +10,31 @@ import numpy as np
 
 from lfring.depth.costs import COSTS
 from lfring.depth.plan import DEPTH_TAPER
-from lfring.cli._options import check_option, load_views, progress_bar, raw_options
+from lfring.cli._options import check_option, flat_option, load_views, note_first_compile, progress_bar, raw_options
+from lfring.cli.outputs import OutputSet
 
 log = logging.getLogger("lfring.cli.depth")
+
+MANY_PLANES = 300
+"""Depth hypotheses above which ``lfring depth`` warns that the sweep takes long (a range whose
+near end is a typo, say) and names the calibration's range and --planes."""
+
+MAX_PLANES = 1000
+"""Depth hypotheses above which ``lfring depth`` refuses unless --planes says how many."""
 
 
 @click.command("depth")
 @click.argument("raw", nargs=-1, required=True, type=click.Path(dir_okay=False))
-@click.option("--zmin", type=float, required=True, metavar="M", help="Nearest depth searched [m from the main lens].")
-@click.option("--zmax", type=float, required=True, metavar="M", help="Farthest depth searched [m].")
+@click.option("--zmin", type=float, default=None, metavar="M",
+              help="Nearest depth searched [m from the main lens] (default: the calibration's valid range).")
+@click.option("--zmax", type=float, default=None, metavar="M", help="Farthest depth searched [m] (default: the calibration's "
+              "valid range).")
 @click.option("-o", "--output", "outdir", type=click.Path(file_okay=False), required=True, metavar="DIR", help="Output folder.")
 @click.option("--calib", type=click.Path(dir_okay=False), default=None, metavar="FILE",
               help="Calibration JSON (default: the built-in one for the frame's size).")
 @click.option("--planes", type=int, default=None, metavar="N",
-              help="Number of depth hypotheses (default: at most 1 px of view motion apart).")
+              help=f"Number of depth hypotheses (default: at most 1 px of view motion apart; above {MAX_PLANES} "
+                   "planes the default is refused, a range that asks for so many is likely a typo).")
 @click.option("--reference", default="center", show_default=True, metavar="center|INDEX", help="Frame of the depth map.")
 @click.option("--cost", type=click.Choice(list(COSTS)), default=None,
               help="Photo-consistency cost (default: lcn-halves for --method sgm, lcn for local). lcn: locally "
@@ -46,16 +57,20 @@ log = logging.getLogger("lfring.cli.depth")
               help="Share of each view's disc radius over which its weight rises from 0 (a smaller share measures "
                    "more of the dark periphery; inspection uses 0.15).")
 @click.option("--backend", type=click.Choice(["numpy", "torch"]), default="numpy", show_default=True, help="Compute backend.")
-@click.option("--device", default=None, metavar="cpu|cuda", help="Torch device (default: cuda when present).")
+@click.option("--torch-device", "torch_device", default=None, metavar="cpu|cuda",
+              help="With --backend torch: the torch device (default: cuda when present).")
+@click.option("--device", "old_torch_device", default=None, hidden=True, metavar="cpu|cuda",
+              help="Former name of --torch-device.")
 @click.option("--min-confidence", type=click.FloatRange(0.0, 1.0), default=0.5, show_default=True,
               help="Pixels below this confidence are black in the preview and left out of the point cloud.")
 @click.option("--device-file", "device_name", default=None, metavar="NAME|FILE",
-              help="Device description for the point cloud (default: the calibration's, else prototype).")
+              help="Device description (optics) for the point cloud (default: the calibration's, else prototype).")
 @click.option("--overwrite", is_flag=True, help="Replace existing output files.")
 @raw_options
 @check_option
+@flat_option
 def command(raw, zmin, zmax, outdir, calib, planes, reference, cost, aggregation, method, scan_paths, consistency, threads,
-            rim_taper, backend, device, min_confidence, device_name, overwrite, levels, no_check):
+            rim_taper, backend, torch_device, old_torch_device, min_confidence, device_name, overwrite, levels, no_check, flat):
     """Depth map of RAW in metres with confidence, by plane sweep over the views.
 
     RAW is one raw frame, or several images: separate views in the view order of --calib (a
@@ -65,59 +80,88 @@ def command(raw, zmin, zmax, outdir, calib, planes, reference, cost, aggregation
     _confidence.tiff (0..1), _depth_preview.png (colour bar in metres), _points.ply (metric
     camera coordinates) and _depth.json (settings, hypotheses, calibration used); with the
     default --method sgm also _depth_filled.tiff (the unknown pixels filled from their image
-    region: an estimate, not a measurement).
+    region: an estimate, not a measurement). The files appear together, or none of them.
     """
-    from lfring.depth import estimate_depth
-    from lfring.depth.io import depth_to_points, write_depth_preview, write_depth_tiff, write_pfm, write_ply
     from lfring.core.geometry import check_reference
-    from lfring.io.writers import check_writable, write_float_tiff, write_json
-    from lfring.optics.device import load_device
+    from lfring.depth import estimate_depth
+    from lfring.depth.hypotheses import depth_hypotheses
+    from lfring.depth.io import device_for, write_depth_preview, write_depth_tiff, write_pfm, write_ply
+    from lfring.errors import LfringError
+    from lfring.io.writers import write_float_tiff, write_json
 
+    if old_torch_device is not None:
+        if torch_device is not None:
+            raise click.UsageError("give --torch-device (--device is its former name), not both")
+        log.warning("--device is now --torch-device in lfring depth (in lfring calibrate --device names the optics)")
+        torch_device = old_torch_device
+    if torch_device is not None and backend != "torch":
+        raise click.UsageError(f"--torch-device {torch_device} goes with --backend torch (the numpy backend runs on the CPU)")
     out = Path(outdir)
     stem, raw = Path(raw[0]).stem, raw[0] if len(raw) == 1 else list(raw)  # several: separate view images
-    names = ["depth.tiff", "depth.pfm", "confidence.tiff", "depth_preview.png", "points.ply", "depth.json"]
+    names = ["depth.tiff", "depth.pfm", "confidence.tiff", "depth_preview.png", "depth.json"]
     if method == "sgm":
         names.append("depth_filled.tiff")
     paths = {k: out / f"{stem}_{k}" for k in names}
-    check_writable(paths.values(), overwrite=overwrite)
-    views, cal, cal_name = load_views(raw, calib, levels, check=not no_check)
+    OutputSet([*paths.values(), out / f"{stem}_points.ply"], name=f"{stem}_depth", overwrite=overwrite).check()
+    views, cal, cal_name = load_views(raw, calib, levels, check=not no_check, flat=flat)
     ref = check_reference(reference, cal.num_views)
+    lo, hi = cal.valid_depth_range_m
+    zmin = lo if zmin is None else zmin
+    if zmax is None:
+        if hi is None:
+            raise click.UsageError(f"the calibration {cal_name} has no upper depth bound: give --zmax (metres)")
+        zmax = hi
+    if planes is None:
+        n = len(depth_hypotheses(cal, zmin, zmax))
+        span = f"--zmin {zmin:g} to --zmax {zmax:g} m"
+        valid = f"the calibration's valid range is {lo:g} to {hi:g} m" if hi is not None else f"the calibration starts at {lo:g} m"
+        if n > MAX_PLANES:
+            raise click.UsageError(f"{span} asks for {n} depth planes (1 px of view motion apart), more than {MAX_PLANES}: "
+                                   f"is a bound a typo? ({valid}); narrow the range, or give --planes N to sweep N planes")
+        if n > MANY_PLANES:
+            log.warning("%s asks for %d depth planes (1 px of view motion apart): this takes long (%s; --planes N "
+                        "sweeps fewer)", span, n, valid)
+    # The point cloud needs the optics: --device-file, else the calibration's device, else the
+    # prototype, binned to the frame's size when that matches.
+    try:
+        dev = device_for(cal, device_name)
+    except LfringError as exc:
+        if device_name:
+            raise
+        dev = None
+        log.warning("%s: the point cloud is not written (--device-file names the camera's optics)", exc)
+    if dev is not None:
+        if not (device_name or cal.device):
+            log.info("the calibration names no device and no --device-file was given: the point cloud uses the prototype's optics")
+        paths["points.ply"] = out / f"{stem}_points.ply"
+    outputs = OutputSet(paths.values(), name=f"{stem}_depth", overwrite=overwrite)
+    note_first_compile()
     with progress_bar(100, "depth", "%") as bar:
         res = estimate_depth(views, cal, zmin_m=zmin, zmax_m=zmax, num_planes=planes, reference=ref, cost=cost,
-                             aggregation=aggregation, method=method, rim_taper=rim_taper, backend=backend, device=device,
-                             threads=threads, paths=int(scan_paths), consistency=consistency,
+                             aggregation=aggregation, method=method, rim_taper=rim_taper, backend=backend,
+                             device=torch_device, threads=threads, paths=int(scan_paths), consistency=consistency,
                              progress=lambda f: bar.update(max(0, round(100 * f) - bar.n)))
-    out.mkdir(parents=True, exist_ok=True)
-    write_depth_tiff(paths["depth.tiff"], res.depth_m)
-    if res.depth_filled_m is not None:
-        write_depth_tiff(paths["depth_filled.tiff"], res.depth_filled_m)
-    write_pfm(paths["depth.pfm"], res.depth_m)
-    write_float_tiff(paths["confidence.tiff"], res.confidence)
-    write_depth_preview(paths["depth_preview.png"], res.depth_m, confidence=res.confidence, zmin_m=zmin, zmax_m=zmax,
-                        title=f"{stem}: depth (m)", min_confidence=min_confidence)
-    # The point cloud needs the optics: the calibration's device, else the prototype, binned to
-    # the frame's size when that matches.
     n_points = 0
-    if not (device_name or cal.device):
-        log.info("the calibration names no device and no --device-file was given: the point cloud uses the prototype's optics")
-    dev = load_device(device_name or cal.device or "prototype")
-    scale = dev.sensor_width_px // cal.raw_size[0]
-    dev = dev.binned(scale) if scale > 1 else dev
-    if (dev.sensor_width_px, dev.sensor_height_px) == cal.raw_size:
-        rgb = views.mean(axis=0) if ref == "center" else views[ref]
-        pts, cols = depth_to_points(res.depth_m, dev, cal.layout, ref, colors=np.clip(rgb, 0, 1), confidence=res.confidence,
-                                    min_confidence=min_confidence)
-        write_ply(paths["points.ply"], pts, cols)
-        n_points = len(pts)
-    else:
-        log.warning("no device description matches %d x %d px frames: the point cloud is not written", *cal.raw_size)
-    write_json(paths["depth.json"], {
-        "input": raw, "calibration": cal_name, "reference": ref, "zmin_m": zmin, "zmax_m": zmax,
-        "hypotheses_m": res.depths_m, "step_px": res.step_px, "cost": res.cost, "aggregation": aggregation, "method": method,
-        "paths": res.paths, "consistency": res.consistency, "rim_taper": rim_taper, "backend": backend,
-        "units": "depth in metres from the main lens; NaN where unknown", "points": n_points,
-        "confidence_median": float(np.median(res.confidence)),
-    })
+    with outputs.writing() as stage:
+        write_depth_tiff(stage(paths["depth.tiff"]), res.depth_m)
+        if res.depth_filled_m is not None:
+            write_depth_tiff(stage(paths["depth_filled.tiff"]), res.depth_filled_m)
+        write_pfm(stage(paths["depth.pfm"]), res.depth_m)
+        write_float_tiff(stage(paths["confidence.tiff"]), res.confidence)
+        write_depth_preview(stage(paths["depth_preview.png"]), res.depth_m, confidence=res.confidence, zmin_m=zmin,
+                            zmax_m=zmax, title=f"{stem}: depth (m)", min_confidence=min_confidence)
+        if dev is not None:
+            rgb = views.mean(axis=0) if ref == "center" else views[ref]
+            pts, cols = res.to_points(cal, colors=np.clip(rgb, 0, 1), min_confidence=min_confidence, device=dev)
+            write_ply(stage(paths["points.ply"]), pts, cols)
+            n_points = len(pts)
+        write_json(stage(paths["depth.json"]), {
+            "input": raw, "calibration": cal_name, "reference": ref, "zmin_m": zmin, "zmax_m": zmax,
+            "hypotheses_m": res.depths_m, "step_px": res.step_px, "cost": res.cost, "aggregation": aggregation,
+            "method": method, "paths": res.paths, "consistency": res.consistency, "rim_taper": rim_taper,
+            "backend": backend, "units": "depth in metres from the main lens; NaN where unknown", "points": n_points,
+            "confidence_median": float(np.median(res.confidence)),
+        })
     log.info("%s: %d hypotheses %.2f px apart; depth %.3f-%.3f m; %d points", raw, len(res.depths_m), res.step_px,
              float(np.nanmin(res.depth_m)), float(np.nanmax(res.depth_m)), n_points)
     click.echo(str(paths["depth.tiff"]))

@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 import logging
 
+from pathlib import Path
+
 import click
 import numpy as np
 
@@ -30,9 +32,13 @@ _ROWS = (
 
 
 def _save_figure(fig, path: str, overwrite: bool) -> None:
+    from lfring.cli.outputs import OutputSet
     from lfring.optics.figures import save_figure
 
-    save_figure(fig, path, overwrite=overwrite)
+    outputs = OutputSet([path], name=Path(path).stem, overwrite=overwrite)
+    outputs.check()
+    with outputs.writing() as stage:
+        save_figure(fig, stage(path), overwrite=True)
     log.info("wrote %s", path)
 
 

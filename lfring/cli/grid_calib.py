@@ -5,6 +5,7 @@ from __future__ import annotations
 import logging
 import math
 import re
+from pathlib import Path
 
 import click
 
@@ -68,14 +69,16 @@ def command(size, grid, positions, disparity_scale, disparity_offset, depth_orig
         lfring depth left.png right.png --calib pair.json --zmin 2 --zmax 50 --reference 0 -o out/
     """
     from lfring.calibration import RingCalibration
-    from lfring.io.writers import check_writable
+    from lfring.cli.outputs import OutputSet
 
     w, h = _size(size, "--size", "WxH")
     pos = _positions(grid, positions)
     cal = RingCalibration.from_grid((h, w), pos, disparity_scale_px_m=disparity_scale, disparity_offset_px=disparity_offset,
                                     depth_origin_m=depth_origin)
-    check_writable([output], overwrite=overwrite)
-    cal.save(output)
+    outputs = OutputSet([output], name=Path(output).stem, overwrite=overwrite)
+    outputs.check()
+    with outputs.writing() as stage:
+        cal.save(stage(output))
     lo, _ = cal.valid_depth_range_m
     log.info("%d views of %d x %d px; valid beyond %.4g m", cal.num_views, w, h, lo)
     click.echo(str(output))

@@ -9,7 +9,8 @@ from pathlib import Path
 
 import click
 
-from lfring.cli._options import check_option, load_views, raw_options
+from lfring.cli._options import check_option, flat_option, load_views, raw_options
+from lfring.cli.outputs import OutputSet
 from lfring.inspect import MIN_COVERAGE
 
 log = logging.getLogger("lfring.cli.inspect")
@@ -85,9 +86,10 @@ def _read_depth(path: str):
 @click.option("--overwrite", is_flag=True, help="Replace existing output files.")
 @raw_options
 @check_option
+@flat_option
 @click.pass_context
 def command(ctx, raw, plane, tolerance, outdir, calib, roi, reference_depth, min_area, min_confidence, min_coverage, zmin,
-            zmax, reference, backend, device_name, viewer, overwrite, levels, no_check):
+            zmax, reference, backend, device_name, viewer, overwrite, levels, no_check, flat):
     """Check that the part in RAW lies on the working plane within the tolerance.
 
     Writes DIR/<name>_inspect.png (refocused at the plane, the plane tinted green, defect boxes:
@@ -103,19 +105,20 @@ def command(ctx, raw, plane, tolerance, outdir, calib, roi, reference_depth, min
     from lfring.errors import LfringError
     from lfring.core.geometry import check_reference
     from lfring.inspect import annotate, inspect_frame, report
-    from lfring.io.writers import check_writable, write_image, write_json
+    from lfring.io.writers import write_image, write_json
     from lfring.optics.device import load_device
 
     # A frame that is not a ring frame for the calibration cannot be judged (exit 3 with the
     # check's reason), rather than refused as bad input: the line needs a verdict for every part.
-    views, cal, cal_name = load_views(raw, calib, levels, check=False)
+    views, cal, cal_name = load_views(raw, calib, levels, check=False, flat=flat)
     frame_check = None if no_check else check_frame(views, cal)
     ref = check_reference(reference, cal.num_views)
     out = Path(outdir)
     stem = Path(raw).stem
     png, js = out / f"{stem}_inspect.png", out / f"{stem}_inspect.json"
     html = out / f"{stem}_viewer.html"
-    check_writable([png, js, *([html] if viewer else [])], overwrite=overwrite)
+    outputs = OutputSet([png, js, *([html] if viewer else [])], name=f"{stem}_inspect", overwrite=overwrite)
+    outputs.check()
     target = _read_depth(reference_depth) if reference_depth else None
     # The optics give areas in mm^2: the calibration's device, else the prototype, binned to
     # the frame's size when that matches; without a match areas are left in pixels.
@@ -138,21 +141,21 @@ def command(ctx, raw, plane, tolerance, outdir, calib, roi, reference_depth, min
     if frame_check is not None and not frame_check.ok and res.verdict != "cannot_judge":
         res = dataclasses.replace(res, verdict="cannot_judge", defects=(),
                                   reason=f"not a ring frame for this calibration: {frame_check.message}")
-    out.mkdir(parents=True, exist_ok=True)
-    write_image(png, annotate(res))
-    write_json(js, report(res, raw=str(raw), calibration=cal_name, reference_depth=reference_depth,
-                          annotated_image=str(png)))
-    if viewer:
-        import warnings
+    with outputs.writing() as stage:
+        write_image(stage(png), annotate(res))
+        write_json(stage(js), report(res, raw=str(raw), calibration=cal_name, reference_depth=reference_depth,
+                                     annotated_image=str(png)))
+        if viewer:
+            import warnings
 
-        from lfring.errors import LfringWarning
-        from lfring.viewer import inspection_overlays, write_viewer
+            from lfring.errors import LfringWarning
+            from lfring.viewer import inspection_overlays, write_viewer
 
-        with warnings.catch_warnings():  # the band's range was warned about by the inspection
-            warnings.simplefilter("ignore", LfringWarning)
-            write_viewer(html, views, cal, reference=ref, min_confidence=min_confidence, overwrite=True, title=Path(raw).name,
-                         metadata={"input": str(raw), "calibration": cal_name, "plane_m": plane, "tolerance_m": tolerance},
-                         **inspection_overlays(res))
+            with warnings.catch_warnings():  # the band's range was warned about by the inspection
+                warnings.simplefilter("ignore", LfringWarning)
+                write_viewer(stage(html), views, cal, reference=ref, min_confidence=min_confidence, overwrite=True,
+                             title=Path(raw).name, metadata={"input": str(raw), "calibration": cal_name, "plane_m": plane,
+                                                             "tolerance_m": tolerance}, **inspection_overlays(res))
     for i, d in enumerate(res.defects, 1):
         x, y, w, h = d.bbox_px
         log.info("defect %d: %s %+.1f mm at x=%d y=%d (%d x %d px), %d px, confidence %.2f", i, d.kind, d.deviation_m * 1e3,

@@ -10,6 +10,7 @@ import warnings
 import click
 
 from lfring import __version__
+from lfring.cli.words import CliFormatter, cli_words
 from lfring.errors import LfringError
 
 # command name -> module in lfring.cli defining a click command called ``command``.
@@ -45,10 +46,25 @@ class _LfringGroup(click.Group):
         try:
             return super().invoke(ctx)
         except LfringError as exc:
-            raise CliError(str(exc)) from None
+            raise CliError(cli_words(str(exc))) from None
         except OSError as exc:  # any file-system failure: one line naming the path, never a traceback
             where = f": {exc.filename}" if exc.filename else ""
             raise CliError(f"{exc.strerror or exc}{where}") from None
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised where the command is, so that it stops as for Ctrl-C: workers ended,
+    temporary files removed, nothing partial left (a KeyboardInterrupt, which the library lets
+    through)."""
+
+
+def _terminate(signum, frame):
+    raise Terminated()
+
+
+#: Exit codes of a command stopped by Ctrl-C and by SIGTERM (128 + the signal's number, as a shell says).
+EXIT_INTERRUPTED = 130
+EXIT_TERMINATED = 143
 
 
 class CliError(click.ClickException):
@@ -78,6 +94,8 @@ def cli(verbose: int, quiet: bool) -> None:
     """
     # Third-party loggers stay at WARNING; lfring's own at INFO (DEBUG with -vv).
     logging.basicConfig(level=logging.WARNING, format="lfring: %(levelname)s: %(message)s", stream=sys.stderr, force=True)
+    for handler in logging.getLogger().handlers:  # library messages name API parameters: say the options instead
+        handler.setFormatter(CliFormatter("lfring: %(levelname)s: %(message)s"))
     level = logging.WARNING if quiet else (logging.INFO if verbose < 2 else logging.DEBUG)
     logging.getLogger("lfring").setLevel(level)
     # Library warnings (a depth outside the calibrated range, say) become one log line each.
@@ -107,15 +125,34 @@ def hoist_verbosity(args: list[str]) -> list[str]:
 
 
 def main(argv=None) -> int:
-    """Entry point of the ``lfring`` script; returns the exit code."""
+    """Entry point of the ``lfring`` script; returns the exit code (130 after Ctrl-C, 143
+    after SIGTERM, each with one line on stderr and no traceback)."""
+    import signal
+    import threading
+
     args = hoist_verbosity(sys.argv[1:] if argv is None else argv)
+    ours = threading.current_thread() is threading.main_thread() and signal.getsignal(signal.SIGTERM) == signal.SIG_DFL
+    if ours:
+        signal.signal(signal.SIGTERM, _terminate)
+    try:
+        return _run(args)
+    finally:
+        if ours:
+            signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
+def _run(args: list[str]) -> int:
     try:
         rv = cli.main(args=args, prog_name="lfring", standalone_mode=False)
     except click.exceptions.Exit as exc:
         return exc.exit_code
-    except click.Abort:
+    except (click.Abort, KeyboardInterrupt) as exc:
+        stop = exc if isinstance(exc, KeyboardInterrupt) else exc.__cause__
+        if isinstance(stop, Terminated):
+            click.echo("lfring: terminated", err=True)
+            return EXIT_TERMINATED
         click.echo("lfring: aborted", err=True)
-        return 130
+        return EXIT_INTERRUPTED
     except click.ClickException as exc:
         exc.show()
         return exc.exit_code

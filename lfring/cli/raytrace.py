@@ -12,7 +12,7 @@ import numpy as np
 from lfring.cli._options import device_option, get_device
 from lfring.errors import DeviceError, InvalidInputError
 from lfring.io.atomic import atomic_write_text
-from lfring.io.writers import check_writable
+from lfring.cli.outputs import OutputSet
 from lfring.optics.positions import METHODS, design, evaluate
 from lfring.optics.raytrace import APERTURES, LOWER, MISSED_RING, STOPPED_MAIN, UPPER, bundle_stats, trace
 
@@ -21,15 +21,13 @@ log = logging.getLogger(__name__)
 _FIGURE_SUFFIXES = (".png", ".pdf", ".svg")
 
 
-def _check_outputs(output: Path, overwrite: bool) -> Path:
+def _check_outputs(output: Path) -> Path:
     """Validate the figure path and return its JSON sidecar path; nothing is written yet."""
     if output.suffix.lower() not in _FIGURE_SUFFIXES:
         raise InvalidInputError(
             f"the figure file must end in {', '.join(_FIGURE_SUFFIXES)}; got {output.name!r}"
         )
-    sidecar = output.with_suffix(".json")
-    check_writable([output, sidecar], overwrite=overwrite)
-    return sidecar
+    return output.with_suffix(".json")
 
 
 @click.command("raytrace")
@@ -79,7 +77,9 @@ def command(ctx, object_size_m, distance_m, output, num_points, rays_per_point, 
     """
     if not 50 <= dpi <= 600:
         raise InvalidInputError(f"--dpi must be between 50 and 600 dots per inch, got {dpi}")
-    sidecar = _check_outputs(output, overwrite)
+    sidecar = _check_outputs(output)
+    outputs = OutputSet([output, sidecar], name=output.stem, overwrite=overwrite)
+    outputs.check()
     device = get_device(device_name)
 
     if use_device_positions:
@@ -136,7 +136,7 @@ def command(ctx, object_size_m, distance_m, output, num_points, rays_per_point, 
 
     title = (f"{device.name}: b = {b * 1e3:.3f} mm, c = {c * 1e3:.3f} mm ({how}); object "
              f"{object_size_m:g} m at Z = {distance_m:g} m; main-lens stop {rt.stop_radius_m * 1e3:.3g} mm")
-    save_figure(raytrace_figure(rt, title=title), output, overwrite=overwrite, dpi=dpi)
+    figure = raytrace_figure(rt, title=title)
     info = {
         "device": device.name,
         "positions": "device" if use_device_positions else method,
@@ -156,5 +156,7 @@ def command(ctx, object_size_m, distance_m, output, num_points, rays_per_point, 
         "bundles": st.rows(),
         "figure": output.name,
     }
-    atomic_write_text(sidecar, json.dumps(info, indent=2) + "\n")
+    with outputs.writing() as stage:
+        save_figure(figure, stage(output), overwrite=True, dpi=dpi)
+        atomic_write_text(stage(sidecar), json.dumps(info, indent=2) + "\n")
     log.info("wrote %s and %s", output, sidecar)

@@ -9,7 +9,17 @@ from pathlib import Path
 import click
 import numpy as np
 
-from lfring.cli._options import check_option, load_views, parse_depths, parse_range, progress_bar, raw_options
+from lfring.cli._options import (
+    check_option,
+    flat_option,
+    load_views,
+    note_first_compile,
+    parse_depths,
+    parse_range,
+    progress_bar,
+    raw_options,
+)
+from lfring.cli.outputs import OutputSet
 from lfring.core.warping import DEFAULT_INTERPOLATION
 
 log = logging.getLogger("lfring.cli.refocus")
@@ -46,7 +56,8 @@ def _depths(depth, depths, sweep) -> list[float]:
         zs = list(parse_depths(depths, param_hint="--depths"))
     else:
         start, stop, n = parse_range(sweep, with_count=True)
-        zs = list(np.linspace(start, stop, n))
+        # Rounded to 12 significant digits: the depths as written (0.45, not 0.44999999999999996).
+        zs = [float(f"{z:.12g}") for z in np.linspace(start, stop, n)]
     for z in zs:
         if not (z > 0 and not math.isnan(z)):
             raise click.BadParameter(f"depths must be positive metres (or inf), got {z!r}", param_hint="depth")
@@ -87,8 +98,9 @@ def _depths(depth, depths, sweep) -> list[float]:
 @click.option("--overwrite", is_flag=True, help="Replace existing output files.")
 @raw_options
 @check_option
+@flat_option
 def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolation, method, aperture, f_number, zmin, zmax,
-            bit_depth, encoding, overwrite, levels, no_check):
+            bit_depth, encoding, overwrite, levels, no_check, flat):
     """Refocus RAW at metric depth: lfring refocus raw.png --depth 0.5
 
     RAW is one raw frame, or several images: separate views in the view order of --calib (a
@@ -99,7 +111,8 @@ def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolat
     --method shift-and-add averages the views instead. A focal stack (--depths or --sweep) is
     written as numbered images, a multi-page TIFF (depths in its metadata) and an animated GIF
     (each frame captioned with its depth); the depth map is estimated once for the stack.
-    Every output gets a JSON sidecar (OUTPUT.json) naming the calibration used. Depths nearer
+    Every output gets a JSON sidecar (OUTPUT.json) naming the calibration used; its depth_m is
+    in metres, or the string "inf" for --depth inf (JSON has no infinity). Depths nearer
     than where the views overlap are refused (the error names the nearest that works); frames
     that are not ring frames for the calibration are refused unless --no-check.
     """
@@ -108,14 +121,16 @@ def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolat
     from lfring.calibration.overlap import INFINITE_DEPTH_M, check_renderable
     from lfring.errors import LfringWarning
     from lfring.core.geometry import check_reference
-    from lfring.io.writers import check_writable, write_gif, write_image, write_json, write_tiff_stack
+    from lfring.io.writers import write_gif, write_image, write_json, write_tiff_stack
     from lfring.focus import Refocuser, all_in_focus, focal_stack
 
     zs = _depths(depth, depths, sweep)
     bits = int(bit_depth)
     stem, raw = Path(raw[0]).stem, raw[0] if len(raw) == 1 else list(raw)  # several: separate view images
     if output is None:
-        base = Path(f"{stem}_refocus_{zs[0]:g}m.png" if len(zs) == 1 else f"{stem}_stack.png")
+        # The method is in the default name: its images differ, and neither replaces the other's.
+        how = "" if method == "depth-aware" else f"_{method}"
+        base = Path(f"{stem}_refocus_{zs[0]:g}m{how}.png" if len(zs) == 1 else f"{stem}_stack{how}.png")
     else:
         base = Path(output)
     if base.suffix.lower() not in (".png", ".tif", ".tiff"):
@@ -130,10 +145,11 @@ def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolat
     aif_path = base.with_name(base.stem + "_all_in_focus" + base.suffix) if aif else None
     sidecars = [Path(str(p) + ".json") for p in outs + ([aif_path] if aif else [])]
     all_outputs = [*outs, *extra, *sidecars, *([aif_path] if aif else [])]
-    check_writable(all_outputs, overwrite=overwrite)
+    outputs = OutputSet(all_outputs, name=base.stem + ("_stack" if len(zs) > 1 else ""), overwrite=overwrite)
+    outputs.check()
     if method != "depth-aware" and any(v is not None for v in (aperture, f_number, zmin, zmax)):
         raise click.UsageError("--aperture, --f-number, --zmin and --zmax are for --method depth-aware")
-    views, cal, cal_name = load_views(raw, calib, levels, check=not no_check)
+    views, cal, cal_name = load_views(raw, calib, levels, check=not no_check, flat=flat)
     ref = check_reference(reference, cal.num_views)
     dof = {}
     if method == "depth-aware":
@@ -141,8 +157,9 @@ def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolat
             raise click.UsageError("the calibration has no upper depth bound: give --zmax for the depth estimation "
                                    "(or --method shift-and-add)")
         dof = {"aperture": aperture, "f_number": f_number, "zmin_m": zmin, "zmax_m": zmax}
+        note_first_compile()
     check_renderable(cal, zs, reference=ref)
-    check_writable(all_outputs, overwrite=overwrite)  # again: loading took a while
+    outputs.check()  # again: loading took a while
 
     # inf renders as the model's limit H = A (see INFINITE_DEPTH_M).
     render_zs = [INFINITE_DEPTH_M if math.isinf(z) else z for z in zs]
@@ -156,7 +173,7 @@ def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolat
             "units": "depth in metres from the main lens"}
     meta.update({k: v for k, v in dof.items() if v is not None})
     stack = []
-    with warnings.catch_warnings(), progress_bar(len(zs), "refocus", "depth") as bar:
+    with outputs.writing() as stage, warnings.catch_warnings(), progress_bar(len(zs), "refocus", "depth") as bar:
         warnings.simplefilter("ignore", LfringWarning)
         if method == "depth-aware":  # one depth map for the whole stack
             images = focal_stack(views, cal, render_zs, reference=ref, interpolation=interpolation, method=method, **dof)
@@ -164,23 +181,25 @@ def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolat
             images = (Refocuser(cal, zr, reference=ref, view_shape=views.shape[1:3], interpolation=interpolation)(views)
                       for zr in render_zs)
         for p, z, img in zip(outs, zs, images):
-            write_image(p, encode(img, bits, encoding))
-            write_json(str(p) + ".json", {**meta, "depth_m": z if math.isfinite(z) else "inf"})
-            log.info("wrote %s (%.4g m)", p, z)
+            write_image(stage(p), encode(img, bits, encoding))
+            write_json(stage(str(p) + ".json"), {**meta, "depth_m": z if math.isfinite(z) else "inf"})
+            log.info("made %s (%.4g m)", p, z)
             if len(zs) > 1:
                 stack.append(img)
             bar.update(1)
-    if len(zs) > 1:
-        write_tiff_stack(extra[0], np.stack([encode(s, bits, encoding) for s in stack]),
-                         metadata={"depths_m": [z if math.isfinite(z) else "inf" for z in zs]})
-        labels = [f"{z:.4g} m" if math.isfinite(z) else "inf" for z in zs]
-        write_gif(extra[1], np.stack([caption(encode(s, 8, "srgb"), t) for s, t in zip(stack, labels)]), frame_ms=250)
-        log.info("wrote %s and %s", *extra)
-    if aif:
-        img, chosen = all_in_focus(views, cal, render_zs if len(zs) > 1 else None, reference=ref)
-        write_image(aif_path, encode(img, bits, encoding))
-        write_json(str(aif_path) + ".json", {**meta, "all_in_focus_depths_m": zs if len(zs) > 1 else "calibrated range",
-                                              "chosen_depth_range_m": [float(np.nanmin(chosen)), float(np.nanmax(chosen))]})
-        log.info("wrote %s", aif_path)
+        if len(zs) > 1:
+            write_tiff_stack(stage(extra[0]), np.stack([encode(s, bits, encoding) for s in stack]),
+                             metadata={"depths_m": [z if math.isfinite(z) else "inf" for z in zs]})
+            labels = [f"{z:.4g} m" if math.isfinite(z) else "inf" for z in zs]
+            write_gif(stage(extra[1]), np.stack([caption(encode(s, 8, "srgb"), t) for s, t in zip(stack, labels)]),
+                      frame_ms=250)
+        if aif:
+            img, chosen = all_in_focus(views, cal, render_zs if len(zs) > 1 else None, reference=ref)
+            write_image(stage(aif_path), encode(img, bits, encoding))
+            write_json(stage(str(aif_path) + ".json"), {
+                **meta, "all_in_focus_depths_m": zs if len(zs) > 1 else "calibrated range",
+                "chosen_depth_range_m": [float(np.nanmin(chosen)), float(np.nanmax(chosen))]})
+    log.info("wrote %s", ", ".join(map(str, all_outputs)) if len(all_outputs) <= 4 else
+             f"{len(all_outputs)} files in {base.parent}")
     for p in outs:
         click.echo(str(p))

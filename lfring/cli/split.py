@@ -11,6 +11,7 @@ import click
 import numpy as np
 
 from lfring.cli._options import raw_options, read_frame
+from lfring.cli.outputs import OutputSet
 
 log = logging.getLogger("lfring.cli.split")
 
@@ -41,7 +42,7 @@ def command(raw, outdir, layout_file, flat_file, rotate180, method, fmt, overwri
     """
     from lfring.io.demosaic import demosaic
     from lfring.io.raw import load_raw
-    from lfring.io.writers import check_writable, write_image, write_json
+    from lfring.io.writers import write_image, write_json
     from lfring.views import Layout, detect_layout, split_views
 
     if layout_file and flat_file:
@@ -66,27 +67,27 @@ def command(raw, outdir, layout_file, flat_file, rotate180, method, fmt, overwri
     ext = "png" if fmt == "png" else "tiff"
     paths = [out / f"{stem}_view{k}.{ext}" for k in range(layout.num_views)]
     layout_path, side_path = out / f"{stem}_layout.json", out / f"{stem}_views.json"
-    check_writable([*paths, layout_path, side_path], overwrite=overwrite)
-    out.mkdir(parents=True, exist_ok=True)
+    outputs = OutputSet([*paths, layout_path, side_path], name=f"{stem}_views", overwrite=overwrite)
+    outputs.check()
+    with outputs.writing() as stage:
+        def write(k: int) -> None:
+            v = views[k] if views.shape[-1] == 3 else views[k, ..., 0]
+            write_image(stage(paths[k]), np.rint(np.clip(v, 0.0, 1.0) * 65535.0).astype(np.uint16))
 
-    def write(k: int) -> None:
-        v = views[k] if views.shape[-1] == 3 else views[k, ..., 0]
-        write_image(paths[k], np.rint(np.clip(v, 0.0, 1.0) * 65535.0).astype(np.uint16))
-
-    # Encoding dominates; the encoders release the GIL, so the views are written in parallel.
-    with ThreadPoolExecutor(max_workers=min(4, os.cpu_count() or 1)) as pool:
-        list(pool.map(write, range(layout.num_views)))
-    layout.save(layout_path)
-    write_json(side_path, {
-        "input": str(raw),
-        "layout_source": source,
-        "layout_file": layout_path.name,
-        "views": [p.name for p in paths],
-        "view_order": "0 top-left, 1 top-right, 2 bottom-left, 3 bottom-right",
-        "values": "linear, (counts - black) / (white - black) scaled to 0..65535",
-        "pattern": frame.pattern,
-        "black_level": frame.black_level,
-        "white_level": frame.white_level,
-        "demosaic": method,
-    })
+        # Encoding dominates; the encoders release the GIL, so the views are written in parallel.
+        with ThreadPoolExecutor(max_workers=min(4, os.cpu_count() or 1)) as pool:
+            list(pool.map(write, range(layout.num_views)))
+        layout.save(stage(layout_path))
+        write_json(stage(side_path), {
+            "input": str(raw),
+            "layout_source": source,
+            "layout_file": layout_path.name,
+            "views": [p.name for p in paths],
+            "view_order": "0 top-left, 1 top-right, 2 bottom-left, 3 bottom-right",
+            "values": "linear, (counts - black) / (white - black) scaled to 0..65535",
+            "pattern": frame.pattern,
+            "black_level": frame.black_level,
+            "white_level": frame.white_level,
+            "demosaic": method,
+        })
     log.info("%s: %d views of %d x %d px (%s) -> %s", raw, layout.num_views, layout.view_shape[1], layout.view_shape[0], source, out)

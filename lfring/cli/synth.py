@@ -117,16 +117,30 @@ def command(preset, outdir, depth, scene_file, defects, defect_size, part_depth,
     result = render(device, scene, settings)
     conv_paths = [conventional_paths(raw_path, z, f_number=f_number, aperture_scale=aperture_scale)
                   for z in conventional_focus]
-    from lfring.io.writers import check_writable
+    from lfring.cli.outputs import OutputSet
 
-    check_writable([p for paths in conv_paths for p in paths], overwrite=overwrite)
-    written = write_render(result, raw_path, preset=preset, overwrite=overwrite)
-    for z, paths in zip(conventional_focus, conv_paths):
-        written += write_conventional(scene, device, z, paths, binning=binning, f_number=f_number,
-                                      aperture_scale=aperture_scale, samples=conventional_samples)
-    for p in written:
+    outputs = OutputSet([*render_paths(result, raw_path), *(p for paths in conv_paths for p in paths)], name=name,
+                        overwrite=overwrite)
+    outputs.check()
+    with outputs.writing() as stage:
+        write_render(result, stage(raw_path), preset=preset, overwrite=True)
+        for z, paths in zip(conventional_focus, conv_paths):
+            write_conventional(scene, device, z, [stage(p) for p in paths], binning=binning, f_number=f_number,
+                               aperture_scale=aperture_scale, samples=conventional_samples)
+    for p in outputs.paths:
         log.info("wrote %s", p)
     click.echo(str(raw_path))
+
+
+def render_paths(result, raw_path: Path) -> list[Path]:
+    """The files :func:`write_render` writes for ``result`` at ``raw_path``: the raw frame, its
+    sidecar, and the ground-truth folder's depth maps, truth.json and layout.json."""
+    from lfring.io.raw import sidecar_path
+
+    raw_path = Path(raw_path)
+    truth = raw_path.with_name(raw_path.stem + "_truth")
+    return [raw_path, sidecar_path(raw_path), *(truth / f"depth_view{k}.tiff" for k in range(result.layout.num_views)),
+            truth / "truth.json", truth / "layout.json"]
 
 
 def write_render(result, raw_path: Path, *, preset: str = "", overwrite: bool = False) -> list[Path]:

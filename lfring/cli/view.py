@@ -7,7 +7,8 @@ from pathlib import Path
 
 import click
 
-from lfring.cli._options import load_views
+from lfring.cli._options import check_option, load_views, note_first_compile, raw_options
+from lfring.cli.outputs import OutputSet
 
 log = logging.getLogger("lfring.cli.view")
 
@@ -29,25 +30,31 @@ log = logging.getLogger("lfring.cli.view")
 @click.option("-o", "--output", type=click.Path(dir_okay=False), default=None, metavar="FILE",
               help="Output .html (default: RAW's name with _viewer.html in the current folder).")
 @click.option("--overwrite", is_flag=True, help="Replace an existing file.")
-def command(raw, calib, zmin, zmax, planes, reference, min_confidence, image_format, quality, output, overwrite):
+@raw_options
+@check_option
+def command(raw, calib, zmin, zmax, planes, reference, min_confidence, image_format, quality, output, overwrite, levels,
+            no_check):
     """Write an interactive viewer of RAW: lfring view frame.png -o viewer.html
 
     One HTML file with everything inline (no network, no server): a focal stack over the depth
     range, the all-in-focus image, the depth map and its confidence. Click a point to refocus at
-    its depth; the cursor reads the depth in mm; arrow keys step the focus.
+    its depth; the cursor reads the depth in mm; arrow keys step the focus. Frames that are not
+    ring frames for the calibration are refused unless --no-check.
     """
     from lfring.core.geometry import check_reference
-    from lfring.io.writers import check_writable
     from lfring.viewer import write_viewer
 
     out = Path(output) if output is not None else Path(f"{Path(raw).stem}_viewer.html")
     if out.suffix.lower() not in (".html", ".htm"):
         raise click.BadParameter(f"output must end in .html, got {out.name!r}", param_hint="-o")
-    check_writable([out], overwrite=overwrite)
-    views, cal, cal_name = load_views(raw, calib)
+    outputs = OutputSet([out], name=out.stem, overwrite=overwrite)
+    outputs.check()
+    views, cal, cal_name = load_views(raw, calib, levels, check=not no_check)
     ref = check_reference(reference, cal.num_views)
-    write_viewer(out, views, cal, zmin_m=zmin, zmax_m=zmax, num_planes=planes, reference=ref,
-                 min_confidence=min_confidence, image_format=image_format, quality=quality, overwrite=True,
-                 title=Path(raw).name, metadata={"input": str(raw), "calibration": cal_name})
+    note_first_compile()
+    with outputs.writing() as stage:
+        write_viewer(stage(out), views, cal, zmin_m=zmin, zmax_m=zmax, num_planes=planes, reference=ref,
+                     min_confidence=min_confidence, image_format=image_format, quality=quality, overwrite=True,
+                     title=Path(raw).name, metadata={"input": str(raw), "calibration": cal_name})
     log.info("wrote %s (%.1f MB)", out, out.stat().st_size / 1e6)
     click.echo(str(out))

@@ -12,4 +12,5 @@ twins): each question answered once, in one place that the stages import.
 - :mod:`lfring.core.geometry`: homography helpers.
 - :mod:`lfring.core.records`: short reprs of records that hold arrays.
 - :mod:`lfring.core.backend`: the backends and the lazy import of torch.
+- :mod:`lfring.core.signals`: Ctrl-C and SIGTERM held around work that must not be cut in two.
 """

@@ -18,10 +18,13 @@ __all__ = ["Calibration", "check_calibration"]
 
 @runtime_checkable
 class Calibration(Protocol):
-    """The calibration contract of the processing stages (see :class:`lfring.RingCalibration`)."""
+    """The calibration contract of the processing stages (see :class:`lfring.RingCalibration`):
+    ``distortion`` and ``flat_field`` (None, or one per view) are what the split undoes."""
 
     layout: object
     valid_depth_range_m: tuple
+    distortion: object
+    flat_field: object
 
     @property
     def depth_origin_m(self) -> float:

@@ -24,6 +24,7 @@ from lfring.views import Layout
 __all__ = [
     "colorize_depth",
     "depth_to_points",
+    "device_for",
     "read_pfm",
     "read_ply",
     "depth_preview_png", "write_depth_preview",
@@ -203,7 +204,8 @@ def colorize_depth(depth_m, *, zmin_m=None, zmax_m=None, confidence=None, min_co
     Examples
     --------
     >>> import numpy as np
-    >>> rgb = colorize_depth(np.array([[0.5, 1.0, np.nan]], np.float32), zmin_m=0.5, zmax_m=1.0)
+    >>> import lfring.depth.io
+    >>> rgb = lfring.depth.io.colorize_depth(np.array([[0.5, 1.0, np.nan]], np.float32), zmin_m=0.5, zmax_m=1.0)
     >>> rgb[0].tolist()  # near: red; far: blue; unknown: black
     [[183, 29, 2], [66, 75, 181], [0, 0, 0]]
     """
@@ -288,6 +290,38 @@ def _colour_bytes(colors, shape_hw) -> np.ndarray:
         # Processing images are float in [0, 1]; PLY stores 8 bits. Out-of-range values clip.
         return np.rint(np.clip(np.nan_to_num(c, nan=0.0), 0.0, 1.0) * 255.0).astype(np.uint8)
     raise InvalidInputError(f"colors must be uint8 or float in [0, 1], got dtype {c.dtype}")
+
+
+def device_for(calibration, device=None) -> RingDevice:
+    """The optics of the frames ``calibration`` describes: ``device`` (a RingDevice, a built-in
+    name or a device file), else the device the calibration names, else the prototype; binned
+    to the calibration's frame size when it is a binned sensor's.
+
+    Raises
+    ------
+    InvalidInputError
+        No such device matches the calibration's frame size: pass ``device=`` the optics of the
+        camera.
+
+    Examples
+    --------
+    >>> import lfring
+    >>> dev = lfring.depth.io.device_for(lfring.RingCalibration.load("twin_binned2"))
+    >>> (dev.sensor_width_px, dev.sensor_height_px)
+    (2456, 1842)
+    """
+    from lfring.optics.device import load_device
+
+    dev = device if isinstance(device, RingDevice) else load_device(device or calibration.device or "prototype")
+    size = tuple(calibration.raw_size)
+    scale = dev.sensor_width_px // size[0] if size[0] else 0
+    if scale > 1:
+        dev = dev.binned(scale)
+    if (dev.sensor_width_px, dev.sensor_height_px) != size:
+        raise InvalidInputError(f"the device {dev.name!r} has a {dev.sensor_width_px} x {dev.sensor_height_px} px sensor, "
+                                f"which no binning turns into the calibration's {size[0]} x {size[1]} px frames; "
+                                "pass device= the optics of the camera")
+    return dev
 
 
 def depth_to_points(

@@ -65,6 +65,43 @@ class DepthResult:
 
     __repr__ = record_repr
 
+    def to_points(self, calibration, *, colors=None, min_confidence: float = 0.0, device=None):
+        """Metric 3D points of the map's known pixels, as ``lfring depth`` writes them to PLY.
+
+        Parameters
+        ----------
+        calibration : RingCalibration
+            The calibration the map was estimated with.
+        colors : (h, w, 3) ndarray, optional
+            uint8, or float in [0, 1]: e.g. the views' mean for the 'center' reference.
+        min_confidence : float
+            Keep only pixels at least this confident.
+        device : RingDevice or str, optional
+            The camera's optics; by default the device the calibration names (else the
+            prototype), binned to its frames (:func:`lfring.depth.io.device_for`).
+
+        Returns
+        -------
+        points : (N, 3) float64
+            (X, Y, Z) in metres: X right, Y down, Z forward from the main lens.
+        colors : (N, 3) uint8 or None
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> import lfring
+        >>> cal = lfring.RingCalibration.load("twin_binned2")
+        >>> views = lfring.split_views(lfring.demosaic(lfring.load_raw("data/synthetic/scene.png")), cal.layout)
+        >>> depth = lfring.estimate_depth(views, cal, zmin_m=0.3, zmax_m=1.0, method="local")
+        >>> points, colors = depth.to_points(cal, colors=views.mean(axis=0), min_confidence=0.5)
+        >>> points.shape[1], colors.dtype.name, bool(0.25 < np.median(points[:, 2]) < 1.05)
+        (3, 'uint8', True)
+        """
+        from lfring.depth.io import depth_to_points, device_for
+
+        return depth_to_points(self.depth_m, device_for(calibration, device), calibration.layout, self.reference,
+                               colors=colors, confidence=self.confidence, min_confidence=min_confidence)
+
 
 class RunningMinimum:
     """Streamed argmin over hypotheses with what refinement and confidence need, per pixel:

@@ -118,7 +118,7 @@ def refocus(views, calibration, depth_m: float, *, reference="center", interpola
     >>> views = lfring.split_views(lfring.demosaic(lfring.load_raw("data/synthetic/scene.png")), cal.layout)
     >>> sharpness = lambda img: cv2.Laplacian(img.mean(axis=2), cv2.CV_32F).var()
     >>> book = (slice(250, 450), slice(420, 600))  # rows, columns of the book in the centre frame
-    >>> at_book, at_cup = refocus(views, cal, 0.5), refocus(views, cal, 0.3)
+    >>> at_book, at_cup = lfring.refocus(views, cal, 0.5), lfring.refocus(views, cal, 0.3)
     >>> at_book.shape, bool(sharpness(at_book[book]) > 3 * sharpness(at_cup[book]))
     ((705, 705, 3), True)
     """
@@ -153,7 +153,7 @@ def focal_stack(views, calibration, depths_m, *, reference="center", interpolati
     >>> import cv2, numpy as np, lfring
     >>> cal = lfring.RingCalibration.load("twin_binned2")
     >>> views = lfring.split_views(lfring.demosaic(lfring.load_raw("data/synthetic/scene.png")), cal.layout)
-    >>> stack = focal_stack(views, cal, [0.3, 0.5, 1.0])
+    >>> stack = lfring.focal_stack(views, cal, [0.3, 0.5, 1.0])
     >>> book = (slice(250, 450), slice(420, 600))
     >>> stack.shape, int(np.argmax([cv2.Laplacian(s[book].mean(axis=2), cv2.CV_32F).var() for s in stack]))
     ((3, 705, 705, 3), 1)
@@ -220,7 +220,7 @@ def all_in_focus(views, calibration, depths_m=None, *, depth_map_m=None, referen
     >>> import numpy as np, lfring
     >>> cal = lfring.RingCalibration.load("twin_binned2")
     >>> views = lfring.split_views(lfring.demosaic(lfring.load_raw("data/synthetic/scene.png")), cal.layout)
-    >>> image, depth_m = all_in_focus(views, cal)
+    >>> image, depth_m = lfring.all_in_focus(views, cal)
     >>> book, cup = (slice(250, 450), slice(420, 600)), (slice(150, 350), slice(80, 280))
     >>> round(float(np.nanmedian(depth_m[book])), 1), round(float(np.nanmedian(depth_m[cup])), 1)
     (0.5, 0.3)

@@ -66,9 +66,9 @@ class Refocuser:
 
     Examples
     --------
-    >>> from lfring.calibration.defaults import default_calibration
-    >>> cal, _ = default_calibration((2456, 1842))
-    >>> r = Refocuser(cal, 0.5)
+    >>> import lfring
+    >>> cal = lfring.RingCalibration.load("twin_binned2")
+    >>> r = lfring.Refocuser(cal, 0.5)
     >>> import numpy as np
     >>> views = np.full((4, *cal.layout.view_shape, 3), 0.5, np.float32)
     >>> out = r(views)

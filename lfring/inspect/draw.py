@@ -76,25 +76,53 @@ def annotate(result: InspectionResult, *, tint: float = 0.35, scale: int = 1) ->
     if roi:
         x, y, rw, rh = (v * scale for v in roi)
         cv2.rectangle(out, (x, y), (x + rw - 1, y + rh - 1), _ROI_RGB, thick)
+    s = result.settings
+    if result.verdict == "pass":
+        verdict, banner_rgb = "PASS", _PLANE_RGB
+    elif result.verdict == "fail":
+        verdict, banner_rgb = f"FAIL: {len(result.defects)} defect(s)", _BUMP_RGB
+    else:
+        verdict, banner_rgb = f"CANNOT JUDGE: {(result.reason or '').split(':')[0]}", _JUDGE_RGB
+    line = int(22 * font / 0.4)
+    banner = [(text, (8, (i + 1) * line + 4 * i)) for i, text in enumerate((
+        verdict, f"checked {result.coverage * 100:.0f} % of the part (unchecked: hatched)",
+        f"plane {s['plane_m']:.3f} m  tolerance {s['tolerance_m'] * 1e3:.1f} mm"))]
+    banner_box = _union([_text_box(t, org, font * 1.2, thick) for t, org in banner])
     for i, d in enumerate(result.defects, 1):
         x, y, bw, bh = (v * scale for v in d.bbox_px)
         colour = _BUMP_RGB if d.kind == "bump" else _DENT_RGB
         cv2.rectangle(out, (x, y), (x + bw - 1, y + bh - 1), colour, thick)
         label = f"{i} {d.kind} {d.deviation_m * 1e3:+.1f} mm"
-        ty = y - 4 if y > 20 else y + bh + int(14 * font / 0.4)
-        _text(out, label, (x, ty), font, colour, thick)
-    s = result.settings
-    if result.verdict == "pass":
-        verdict, colour = "PASS", _PLANE_RGB
-    elif result.verdict == "fail":
-        verdict, colour = f"FAIL: {len(result.defects)} defect(s)", _BUMP_RGB
-    else:
-        verdict, colour = f"CANNOT JUDGE: {(result.reason or '').split(':')[0]}", _JUDGE_RGB
-    line = int(22 * font / 0.4)
-    for i, text in enumerate((verdict, f"checked {result.coverage * 100:.0f} % of the part (unchecked: hatched)",
-                              f"plane {s['plane_m']:.3f} m  tolerance {s['tolerance_m'] * 1e3:.1f} mm")):
-        _text(out, text, (8, (i + 1) * line + 4 * i), font * 1.2, colour, thick)
+        _text(out, label, _label_origin(label, (x, y, bw, bh), font, thick, banner_box, (w, h)), font, colour, thick)
+    for text, org in banner:
+        _text(out, text, org, font * 1.2, banner_rgb, thick)
     return out
+
+
+def _text_box(text, org, font, thick) -> tuple[int, int, int, int]:
+    """(x0, y0, x1, y1) that ``_text`` covers when drawn at ``org`` (its baseline's start)."""
+    (tw, th), base = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, font, thick + 2)
+    return org[0] - thick, org[1] - th - thick, org[0] + tw + thick, org[1] + base + thick
+
+
+def _union(boxes):
+    return min(b[0] for b in boxes), min(b[1] for b in boxes), max(b[2] for b in boxes), max(b[3] for b in boxes)
+
+
+def _overlap(a, b) -> bool:
+    return a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]
+
+
+def _label_origin(label, box, font, thick, banner_box, size_wh) -> tuple[int, int]:
+    """Where a defect's label goes: above its box, else below it, else below the banner; never
+    over the banner and inside the image where it fits."""
+    x, y, bw, bh = box
+    (tw, th), base = cv2.getTextSize(label, cv2.FONT_HERSHEY_SIMPLEX, font, thick + 2)
+    x = max(0, min(x, size_wh[0] - tw - 1))
+    for ty in (y - 4, y + bh + th + 4):
+        if th <= ty <= size_wh[1] - base - 1 and not _overlap(_text_box(label, (x, ty), font, thick), banner_box):
+            return x, ty
+    return x, banner_box[3] + th + 4
 
 
 def _text(img, text, org, font, colour, thick) -> None:

@@ -30,7 +30,7 @@ only confident pixels (textured, seen alike by the views) can raise an alarm.
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -304,6 +304,22 @@ def _check_inputs(views, calibration, *, plane_m, tolerance_m, roi, reference_de
     box = _check_roi(roi, shape)
     target = None if reference_depth_m is None else _check_reference_depth(reference_depth_m, shape, z0)
     return _Checked(arr, plane, tol, ref, box, target, threshold, coverage)
+
+
+def _target_near_plane(calibration, chk: _Checked, zmin_m, zmax_m) -> _Checked:
+    """A golden part's depth map judged where it shows the part: its depths in the band around
+    the working plane (the given band, else :func:`default_depth_band`), the rest (the belt
+    behind the part, the frame's corners) left out as a plane's out-of-band surfaces are."""
+    if chk.target is None:
+        return chk
+    auto_lo, auto_hi = default_depth_band(calibration, chk.plane_m, chk.plane_m, chk.tolerance_m)
+    lo = auto_lo if zmin_m is None else _positive(zmin_m, "zmin_m")
+    hi = auto_hi if zmax_m is None else _positive(zmax_m, "zmax_m")
+    with np.errstate(invalid="ignore"):
+        near = (chk.target > lo) & (chk.target < hi)
+    if not near.any():  # a map of another plane, or in mm: the band's own checks say so
+        return chk
+    return replace(chk, target=np.where(near, chk.target, np.float32(np.nan)).astype(np.float32))
 
 
 def _plan_band(calibration, chk: _Checked, zmin_m, zmax_m, num_planes) -> tuple[float, float, int]:
@@ -611,18 +627,19 @@ def inspect_frame(
     >>> cal = lfring.RingCalibration.load("twin_binned2")
     >>> def views_of(path):
     ...     return lfring.split_views(lfring.demosaic(lfring.load_raw(path)), cal.layout)
-    >>> result = inspect_frame(views_of("data/synthetic/part_defects.png"), cal, plane_m=0.3, tolerance_m=0.008)
+    >>> result = lfring.inspect_frame(views_of("data/synthetic/part_defects.png"), cal, plane_m=0.3, tolerance_m=0.008)
     >>> result.verdict, result.coverage > 0.9
     ('fail', True)
     >>> [(d.kind, round(d.deviation_m * 1000)) for d in result.defects]  # deviation in mm
     [('bump', 14), ('dent', -13)]
-    >>> inspect_frame(views_of("data/synthetic/part_good.png"), cal, plane_m=0.3, tolerance_m=0.008).verdict
+    >>> lfring.inspect_frame(views_of("data/synthetic/part_good.png"), cal, plane_m=0.3, tolerance_m=0.008).verdict
     'pass'
     """
     chk = _check_inputs(views, calibration, plane_m=plane_m, tolerance_m=tolerance_m, roi=roi,
                         reference_depth_m=reference_depth_m, reference=reference, min_area_px=min_area_px,
                         min_confidence=min_confidence, percentile=percentile, opening_px=opening_px,
                         consistency_threshold=consistency_threshold, min_coverage=min_coverage)
+    chk = _target_near_plane(calibration, chk, zmin_m, zmax_m)
     zlo, zhi, num_planes = _plan_band(calibration, chk, zmin_m, zmax_m, num_planes)
     footprint_mm = _footprint_mm(device, calibration, chk.plane_m)  # checks the device before the work
 

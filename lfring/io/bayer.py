@@ -50,6 +50,7 @@ def mosaic(rgb: np.ndarray, pattern: str) -> np.ndarray:
     Examples
     --------
     >>> import numpy as np
+    >>> from lfring.io.bayer import mosaic
     >>> rgb = np.zeros((2, 2, 3), np.float32); rgb[..., 0] = 1.0
     >>> mosaic(rgb, "RGGB")
     array([[1., 0.],

@@ -106,18 +106,16 @@ def demosaic(frame: RawFrame, *, method: str = "edge-aware") -> np.ndarray:
 
     Examples
     --------
-    >>> import numpy as np
-    >>> from lfring.io.raw import RawFrame
+    >>> import numpy as np, lfring
     >>> counts = np.full((4, 4), 4095, np.uint16)
-    >>> rgb = demosaic(RawFrame(mosaic=counts, pattern="RGGB", bit_depth=12), method="bilinear")
+    >>> rgb = lfring.demosaic(lfring.RawFrame(mosaic=counts, pattern="RGGB", bit_depth=12), method="bilinear")
     >>> rgb.shape, rgb.dtype, float(rgb.min())
     ((4, 4, 3), dtype('float32'), 1.0)
 
     The twin's flat (white) frame in data/synthetic: linear light, about 0.8 at the centre of
     the first view's disc (the render's exposure), 0 outside the discs:
 
-    >>> from lfring.io.raw import load_raw
-    >>> rgb = demosaic(load_raw("data/synthetic/flat.png"))
+    >>> rgb = lfring.demosaic(lfring.load_raw("data/synthetic/flat.png"))
     >>> rgb.shape, rgb.dtype, [round(float(c), 2) for c in rgb[426, 733]], rgb[10, 10].tolist()
     ((1842, 2456, 3), dtype('float32'), [0.8, 0.8, 0.8], [0.0, 0.0, 0.0])
     """

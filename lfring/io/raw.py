@@ -114,8 +114,8 @@ class RawFrame:
 
     Examples
     --------
-    >>> import numpy as np
-    >>> frame = RawFrame(mosaic=np.zeros((4, 6), np.uint16), pattern="RGGB", bit_depth=12)
+    >>> import numpy as np, lfring
+    >>> frame = lfring.RawFrame(mosaic=np.zeros((4, 6), np.uint16), pattern="RGGB", bit_depth=12)
     >>> frame.white_level, frame.shape
     (4095.0, (4, 6))
     """
@@ -305,22 +305,21 @@ def load_raw(
     A 12-bit GRBG mosaic stored in a 16-bit PNG, its levels given in a sidecar:
 
     >>> import json, os, tempfile
-    >>> import cv2, numpy as np
+    >>> import cv2, numpy as np, lfring
     >>> path = os.path.join(tempfile.mkdtemp(), "frame.png")
     >>> _ = cv2.imwrite(path, np.full((4, 6), 2079, np.uint16))
     >>> with open(path + ".json", "w") as f:
     ...     json.dump({"pattern": "GRBG", "black_level": 64, "white_level": 4095, "bit_depth": 12}, f)
-    >>> frame = load_raw(path)
+    >>> frame = lfring.load_raw(path)
     >>> frame.mosaic.shape, frame.pattern, frame.black_level, frame.white_level
     ((4, 6), 'GRBG', 64.0, 4095.0)
-    >>> from lfring.io.demosaic import demosaic
-    >>> round(float(demosaic(frame, method="bilinear")[2, 3, 1]), 4)  # (2079 - 64) / (4095 - 64)
+    >>> round(float(lfring.demosaic(frame, method="bilinear")[2, 3, 1]), 4)  # (2079 - 64) / (4095 - 64)
     0.4999
 
     A frame of the synthetic twin bundled in data/synthetic (paths relative to the repository
     root), its levels read from its sidecar ``scene.png.json``:
 
-    >>> frame = load_raw("data/synthetic/scene.png")
+    >>> frame = lfring.load_raw("data/synthetic/scene.png")
     >>> frame.shape, frame.pattern, frame.black_level, frame.white_level, frame.bit_depth
     ((1842, 2456), 'RGGB', 64.0, 4095.0, 12)
     """

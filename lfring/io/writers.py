@@ -45,7 +45,7 @@ def check_writable(paths, *, overwrite: bool) -> None:
     existing = [str(p) for p in paths if p.exists()]
     if existing and not overwrite:
         more = f" (and {len(existing) - 1} more)" if len(existing) > 1 else ""
-        raise InvalidInputError(f"{existing[0]}{more} exists; pass --overwrite (overwrite=True) to replace")
+        raise InvalidInputError(f"{existing[0]}{more} exists; pass overwrite=True to replace it")
 
 
 def encode_image(image: np.ndarray, bit_depth: int = 8, encoding: str = "srgb") -> np.ndarray:
@@ -55,6 +55,8 @@ def encode_image(image: np.ndarray, bit_depth: int = 8, encoding: str = "srgb") 
 
     Examples
     --------
+    >>> import numpy as np
+    >>> from lfring.io.writers import encode_image
     >>> encode_image(np.array([[[0.0], [0.5], [1.0]]], np.float32)).tolist()
     [[0, 188, 255]]
     >>> encode_image(np.array([[[0.5]]], np.float32), 16, "linear").tolist()

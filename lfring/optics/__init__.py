@@ -10,12 +10,13 @@ from lfring.optics.positions import (
     evaluate,
     sweep,
 )
-from lfring.optics.device import RingDevice, builtin_devices, load_device, save_device
+from lfring.optics.device import MiniLens, RingDevice, builtin_devices, load_device, save_device
 from lfring.optics.raytrace import RayTrace, bundle_stats, trace
 
 __all__ = [
     "METHODS",
     "Design",
+    "MiniLens",
     "RayTrace",
     "RingDevice",
     "Sweep",

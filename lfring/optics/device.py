@@ -25,7 +25,7 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover - exercised only on Python 3.10
     import tomli as tomllib
 
-__all__ = ["RingDevice", "load_device", "save_device", "builtin_devices"]
+__all__ = ["MiniLens", "RingDevice", "load_device", "save_device", "builtin_devices"]
 
 _LENGTH_FIELDS = (
     "main_focal_length_m",
@@ -38,6 +38,108 @@ _LENGTH_FIELDS = (
 _OPTIONAL_LENGTHS = ("sensor_width_m", "sensor_height_m", "aperture_radius_m", "ring_distance_m", "sensor_distance_m")
 #: Relative disagreement allowed between a declared sensor size and pixels times pitch.
 SENSOR_SIZE_TOLERANCE = 0.01
+#: Largest tilt of a mini-lens in its seat, degrees: "a little", where the thin-lens picture holds.
+MAX_TILT_DEG = 10.0
+
+
+@dataclass(frozen=True)
+class MiniLens:
+    """How one real mini-lens departs from the ideal thin lens of the paraxial model.
+
+    Parameters
+    ----------
+    k1, k2 : float
+        Radial distortion, OpenCV's convention, on normalised coordinates: the sensor offset
+        from the lens's axis divided by the sensor distance c (the tangent of the ray's angle
+        behind the lens). Negative is barrel.
+    p1, p2 : float
+        Decentring (tangential) distortion, on the same coordinates.
+    decentre_m : (float, float)
+        (dx, dy) of the lens's centre from its nominal place (+-hml, +-hml), metres: the view's
+        projection centre, principal point and disc move with it.
+    tilt_deg : (float, float)
+        Rotation of the lens in its seat about the x and then the y axis, degrees (at most
+        ``MAX_TILT_DEG``). The chief ray through a thin lens's centre keeps its line, so a tilt
+        moves where the distortion is centred and nothing else (its slight defocus and
+        vignetting changes are not modelled).
+    transmission : float
+        Share of the light it lets through relative to an ideal lens, in (0, 1].
+    falloff : (float, float, float)
+        (strength, dx, dy): an extra radial fall-off of its view, ``1 / (1 + strength rho^2)^2``,
+        rho the distance from the view's disc centre moved by (dx, dy) disc radii, in disc radii
+        (as :attr:`lfring.synth.RenderSettings.view_falloff`).
+
+    Notes
+    -----
+    The distortion of view k, in view pixels, is :func:`lfring.optics.views.lens_distortions`:
+    a :class:`lfring.core.lens.LensDistortion` centred where the lens's centre projects onto
+    the sensor, with ``scale_px`` = c over the pixel pitch.
+    """
+
+    k1: float = 0.0
+    k2: float = 0.0
+    p1: float = 0.0
+    p2: float = 0.0
+    decentre_m: tuple[float, float] = (0.0, 0.0)
+    tilt_deg: tuple[float, float] = (0.0, 0.0)
+    transmission: float = 1.0
+    falloff: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        for key in ("k1", "k2", "p1", "p2"):
+            object.__setattr__(self, key, check_number(getattr(self, key), f"mini-lens '{key}'", error=DeviceError))
+        object.__setattr__(self, "decentre_m", _numbers(self.decentre_m, "decentre_m", 2))
+        tilt = _numbers(self.tilt_deg, "tilt_deg", 2)
+        if max(abs(t) for t in tilt) > MAX_TILT_DEG:
+            raise DeviceError(f"mini-lens 'tilt_deg' must be at most {MAX_TILT_DEG:g} degrees about each axis, got {tilt}")
+        object.__setattr__(self, "tilt_deg", tilt)
+        object.__setattr__(self, "transmission", check_number(self.transmission, "mini-lens 'transmission'", above=0.0,
+                                                              maximum=1.0, error=DeviceError))
+        fall = _numbers(self.falloff, "falloff", 3)
+        if fall[0] < 0 or max(abs(fall[1]), abs(fall[2])) > 1:
+            raise DeviceError(f"mini-lens 'falloff' must be (strength >= 0, dx, dy) with |dx|, |dy| <= 1, got {fall}")
+        object.__setattr__(self, "falloff", fall)
+
+    @property
+    def distorts(self) -> bool:
+        """True when the lens moves image points (a distortion coefficient is not 0)."""
+        return any((self.k1, self.k2, self.p1, self.p2))
+
+    @property
+    def is_ideal(self) -> bool:
+        """True when the lens is the paraxial model's (every field at its default)."""
+        return self == MiniLens()
+
+    def to_dict(self) -> dict[str, Any]:
+        """The fields that differ from an ideal lens (tuples as lists)."""
+        ideal = MiniLens()
+        return {f.name: (list(v) if isinstance(v, tuple) else v)
+                for f in fields(self) if (v := getattr(self, f.name)) != getattr(ideal, f.name)}
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any], *, source: str = "mini-lens") -> MiniLens:
+        """Build from a table of the fields, with errors that name the bad key."""
+        if not isinstance(data, dict):
+            raise DeviceError(f"{source}: expected a table of mini-lens keys, got {type(data).__name__}")
+        known = [f.name for f in fields(cls)]
+        unknown = sorted(set(data) - set(known))
+        if unknown:
+            raise DeviceError(f"{source}: unknown key(s) {', '.join(repr(k) for k in unknown)}; valid keys are "
+                              f"{', '.join(known)}")
+        try:
+            return cls(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in data.items()})
+        except DeviceError as exc:
+            raise DeviceError(f"{source}: {exc}") from None
+
+
+def _numbers(value, key: str, count: int) -> tuple[float, ...]:
+    try:
+        items = tuple(value)
+    except TypeError:
+        items = ()
+    if len(items) != count:
+        raise DeviceError(f"mini-lens '{key}' must be {count} numbers, got {value!r}")
+    return tuple(check_number(v, f"mini-lens '{key}'", error=DeviceError) for v in items)
 
 
 @dataclass(frozen=True)
@@ -72,6 +174,10 @@ class RingDevice:
         :func:`lfring.optics.design`, then :meth:`with_positions`).
     description : str
         Free text.
+    lenses : tuple of four MiniLens, or None
+        How each real mini-lens (view order) departs from the ideal one: distortion,
+        decentring, tilt, transmission and fall-off. None: four ideal lenses. In a file, four
+        ``[[lenses]]`` tables.
 
     Notes
     -----
@@ -97,10 +203,16 @@ class RingDevice:
     ring_distance_m: float | None = None
     sensor_distance_m: float | None = None
     description: str = ""
+    lenses: tuple[MiniLens, ...] | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name:
             raise DeviceError(f"device 'name' must be a non-empty string, got {self.name!r}")
+        if self.lenses is not None:
+            lenses = tuple(self.lenses) if not isinstance(self.lenses, (str, dict)) else ()
+            if len(lenses) != 4 or not all(isinstance(lens, MiniLens) for lens in lenses):
+                raise DeviceError(f"device 'lenses' must be four MiniLens records (one per view), got {self.lenses!r}")
+            object.__setattr__(self, "lenses", None if all(lens.is_ideal for lens in lenses) else lenses)
         for key in _LENGTH_FIELDS:
             _metres(key, getattr(self, key), above=0.0)
         for key in _OPTIONAL_LENGTHS:
@@ -149,9 +261,26 @@ class RingDevice:
 
     @property
     def lens_centres_m(self) -> np.ndarray:
-        """(4, 2) mini-lens centres (x, y) in metres, view order 0 TL, 1 TR, 2 BL, 3 BR."""
+        """(4, 2) mini-lens centres (x, y) in metres, view order 0 TL, 1 TR, 2 BL, 3 BR (each
+        lens's ``decentre_m`` included)."""
         h = self.mini_lens_offset_m
-        return np.array([[-h, -h], [h, -h], [-h, h], [h, h]], dtype=np.float64)
+        centres = np.array([[-h, -h], [h, -h], [-h, h], [h, h]], dtype=np.float64)
+        if self.lenses is not None:
+            centres += np.array([lens.decentre_m for lens in self.lenses], dtype=np.float64)
+        return centres
+
+    def lens(self, view: int) -> MiniLens:
+        """The mini-lens of view ``view`` (an ideal one when the device describes none)."""
+        return MiniLens() if self.lenses is None else self.lenses[view]
+
+    @property
+    def distorts(self) -> bool:
+        """True when some mini-lens distorts its view."""
+        return self.lenses is not None and any(lens.distorts for lens in self.lenses)
+
+    def with_lenses(self, lenses) -> RingDevice:
+        """A copy of the device with these four mini-lenses (view order; None: ideal ones)."""
+        return dataclasses.replace(self, lenses=None if lenses is None else tuple(lenses))
 
     @property
     def has_positions(self) -> bool:
@@ -203,6 +332,9 @@ class RingDevice:
             value = getattr(self, f.name)
             if value is None:
                 continue
+            if f.name == "lenses":
+                out[f.name] = [lens.to_dict() for lens in value]
+                continue
             out[f.name] = int(value) if f.name.endswith("_px") else value
         return out
 
@@ -226,7 +358,16 @@ class RingDevice:
         missing = [k for k in required if k not in data]
         if missing:
             raise DeviceError(f"{source}: missing key(s) {', '.join(repr(k) for k in missing)}")
+        data = dict(data)
+        if "lenses" in data:
+            lenses = data["lenses"]
+            if not isinstance(lenses, list) or len(lenses) != 4:
+                raise DeviceError(f"{source}: key 'lenses' must be four tables (one per view, [[lenses]] in TOML), "
+                                  f"got {lenses!r}")
+            data["lenses"] = tuple(MiniLens.from_dict(t, source=f"{source}: lenses[{i}]") for i, t in enumerate(lenses))
         for key, value in data.items():
+            if key == "lenses":
+                continue
             if key in ("name", "description"):
                 if not isinstance(value, str):
                     raise DeviceError(f"{source}: key '{key}' must be a string, got {value!r}")
@@ -269,7 +410,8 @@ def load_device(name_or_path: str | Path) -> RingDevice:
 
     Examples
     --------
-    >>> dev = load_device("prototype")
+    >>> import lfring.optics
+    >>> dev = lfring.optics.load_device("prototype")
     >>> round(dev.main_focal_length_m * 1e3, 3)
     16.0
     """
@@ -307,8 +449,11 @@ def save_device(device: RingDevice, path: str | Path) -> Path:
         text = json.dumps(data, indent=2) + "\n"
     elif path.suffix.lower() == ".toml":
         lines = []
+        lenses = data.pop("lenses", None)
         for key, value in data.items():
             lines.append(f"{key} = {json.dumps(value) if isinstance(value, str) else repr(value)}")
+        for lens in lenses or ():
+            lines += ["", "[[lenses]]"] + [f"{key} = {value!r}" for key, value in lens.items()]
         text = "\n".join(lines) + "\n"
     else:
         raise DeviceError(f"device files are .toml or .json, got {path.name!r}")

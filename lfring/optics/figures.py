@@ -241,7 +241,7 @@ def save_figure(fig: Figure, path: str | Path, *, overwrite: bool = False, dpi: 
     if path.suffix.lower() not in _FORMATS:
         raise InvalidInputError(f"figure file must end in {', '.join(_FORMATS)}; got {path.name!r}")
     if path.exists() and not overwrite:
-        raise InvalidInputError(f"{path} exists; pass overwrite=True (--overwrite) to replace it")
+        raise InvalidInputError(f"{path} exists; pass overwrite=True to replace it")
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=dpi, format=path.suffix.lower()[1:])
     return path

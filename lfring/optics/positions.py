@@ -322,8 +322,8 @@ def design(device: RingDevice, *, object_size_m: float, distance_m: float, metho
 
     Examples
     --------
-    >>> from lfring.optics import load_device
-    >>> d = design(load_device("prototype"), object_size_m=0.1, distance_m=0.3)
+    >>> import lfring.optics
+    >>> d = lfring.optics.design(lfring.optics.load_device("prototype"), object_size_m=0.1, distance_m=0.3)
     >>> round(d.ring_distance_m * 1e3, 2), round(d.sensor_distance_m * 1e3, 3)
     (37.37, 6.616)
     >>> round(d.disparity_px, 1), round(d.overlap, 3)

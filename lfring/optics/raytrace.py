@@ -273,6 +273,7 @@ def trace(
     Examples
     --------
     >>> from lfring.optics import load_device
+    >>> from lfring.optics.raytrace import UPPER, bundle_stats, trace
     >>> rt = trace(load_device("prototype"), object_size_m=0.1, distance_m=0.3)
     >>> st = bundle_stats(rt)
     >>> round(float(st.mean_height_m[-1, UPPER]) * 1e3, 3)  # H2,a = hs/2 for this design

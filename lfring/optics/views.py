@@ -17,14 +17,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lfring.errors import InvalidInputError
 from lfring.core.geometry import to_reference
+from lfring.core.lens import LensDistortion
+from lfring.errors import InvalidInputError
 from lfring.optics.device import RingDevice
-from lfring.optics.paraxial import sensor_to_pixel
+from lfring.optics.paraxial import pixel_to_sensor, sensor_to_pixel
 from lfring.views import Layout, layout_from_circles
 
 __all__ = [
     "ViewCameras",
+    "ideal_discs_px",
+    "lens_distortions",
     "lit_region",
     "optical_homographies",
     "optical_homography_model",
@@ -89,6 +92,77 @@ def view_cameras(device: RingDevice) -> ViewCameras:
     )
 
 
+def lens_distortions(device: RingDevice, layout: Layout | None = None) -> tuple[LensDistortion, ...] | None:
+    """Each view's distortion by its mini-lens (``device.lenses``), or None when no lens distorts.
+
+    Parameters
+    ----------
+    device : RingDevice
+        With lens positions set.
+    layout : Layout, optional
+        Express each distortion in the pixels of the views this layout cuts (the erect frame's
+        rectangles); by default in raw pixels of the erect frame.
+
+    Returns
+    -------
+    tuple of LensDistortion (view order), or None
+        Centred where each lens's centre projects onto the sensor, ``scale_px`` the sensor
+        distance c in pixels (so the coefficients are the device's, on OpenCV's normalised
+        coordinates), tilted as the lens is.
+
+    Examples
+    --------
+    >>> import dataclasses
+    >>> from lfring.optics.device import MiniLens, load_device
+    >>> dev = load_device("prototype").binned(2)
+    >>> lens_distortions(dev) is None
+    True
+    >>> dev = dev.with_lenses([MiniLens(k1=-1.5)] + [MiniLens()] * 3)
+    >>> d = lens_distortions(dev)[0]
+    >>> [round(v, 1) for v in d.centre_px], round(d.scale_px, 1), d.k1
+    ([807.5, 500.5], 2646.5, -1.5)
+    """
+    if not device.distorts:
+        return None
+    _, c = device.require_positions()
+    centres = sensor_to_pixel(device, device.lens_centres_m)
+    scale = c / device.pixel_pitch_m
+    out = []
+    for k in range(len(centres)):
+        lens = device.lens(k)
+        d = LensDistortion((float(centres[k, 0]), float(centres[k, 1])), scale, lens.k1, lens.k2, lens.p1, lens.p2,
+                           tilt_rad=(float(np.radians(lens.tilt_deg[0])), float(np.radians(lens.tilt_deg[1]))))
+        if layout is not None:
+            x, y = layout.rects[k][:2]
+            d = d.shifted(-x, -y)
+        out.append(d)
+    return tuple(out)
+
+
+def ideal_discs_px(device: RingDevice) -> list[tuple[float, float, float]]:
+    """Each view's valid disc (cx, cy, r) in raw pixels of the erect frame as ideal mini-lenses
+    would record it: the image of the main-lens iris, where half the light cone gets through."""
+    centres, radius = _iris_disc_px(device)
+    return [(float(cx), float(cy), float(radius)) for cx, cy in centres]
+
+
+def _recorded_discs(device: RingDevice) -> list[tuple[float, float, float]]:
+    """Each view's valid disc (cx, cy, r) in raw pixels as the sensor records it: the iris's
+    image through the ideal lens (:func:`_iris_disc_px`), moved by the lens's distortion (the
+    circle through the distorted rim that fits it best)."""
+    centres, radius = _iris_disc_px(device)
+    dist = lens_distortions(device)
+    if dist is None:
+        return [(float(cx), float(cy), float(radius)) for cx, cy in centres]
+    t = np.linspace(0.0, 2 * np.pi, 720, endpoint=False)
+    out = []
+    for k, (cx, cy) in enumerate(centres):
+        rim = dist[k].distort(np.stack([cx + radius * np.cos(t), cy + radius * np.sin(t)], axis=-1))
+        centre = rim.mean(axis=0)
+        out.append((float(centre[0]), float(centre[1]), float(np.mean(np.hypot(*(rim - centre).T)))))
+    return out
+
+
 def quadrant_rects(device: RingDevice) -> list[tuple[int, int, int, int]]:
     """(x, y, w, h) of the sensor quadrant each mini-lens lights, in view order."""
     w, h = device.sensor_width_px, device.sensor_height_px
@@ -125,10 +199,14 @@ def _footprint_radius_m(device: RingDevice) -> float:
 
 def optical_layout(device: RingDevice, *, rotate180: bool = False) -> Layout:
     """The layout the optics predicts: each view's valid disc is the image of the main-lens iris
-    through its mini-lens (where half the light cone gets through), and the views are the
-    squares around those discs (:func:`lfring.views.layout_from_circles`)."""
-    centres, radius = _iris_disc_px(device)
-    circles = [(cx, cy, radius) for cx, cy in centres]
+    through its mini-lens (where half the light cone gets through; moved by the lens's
+    distortion when it has one), and the views are the squares around those discs
+    (:func:`lfring.views.layout_from_circles`)."""
+    if device.distorts:
+        circles = _recorded_discs(device)
+    else:
+        centres, radius = _iris_disc_px(device)
+        circles = [(cx, cy, radius) for cx, cy in centres]
     try:
         return layout_from_circles(circles, device.sensor_width_px, device.sensor_height_px, rotate180=rotate180)
     except InvalidInputError as exc:
@@ -228,6 +306,9 @@ def lit_region(device: RingDevice, view: int) -> tuple[int, int, int, int]:
     r_foot = _footprint_radius_m(device)
     centres, _ = _iris_disc_px(device)
     radius = (device.effective_aperture_radius_m + r_foot) * c / b / device.pixel_pitch_m + 1.0
+    dist = lens_distortions(device)
+    if dist is not None:  # the lens moves the lit disc's rim by at most this much
+        radius += dist[view].displacement_px(float(np.hypot(*(centres[view] - dist[view].centre_px))) + radius) + 1.0
     qx, qy, qw, qh = quadrant_rects(device)[view]
     cx, cy = centres[view]
     x0 = max(qx, int(np.floor(cx - radius)))
@@ -237,21 +318,47 @@ def lit_region(device: RingDevice, view: int) -> tuple[int, int, int, int]:
     return x0, y0, max(0, x1 - x0), max(0, y1 - y0)
 
 
-def vignetting_region(device: RingDevice, view: int, rect: tuple[int, int, int, int]) -> np.ndarray:
+def vignetting_region(device: RingDevice, view: int, rect: tuple[int, int, int, int], *, ideal_px=None) -> np.ndarray:
     """(h, w) float32 vignetting of mini-lens ``view`` over the raw-pixel rectangle ``rect``
-    (see :func:`vignetting`)."""
+    (see :func:`vignetting`).
+
+    A pixel's light comes along its chief ray, which a distorting lens bends: the cone is the
+    one of the pixel's ideal position (``LensDistortion.undistort``; ``ideal_px``, (h, w, 2) raw
+    pixels, when the caller has them). The lens's ``transmission`` and ``falloff`` multiply it.
+    """
     b, c = device.require_positions()
     r_foot = _footprint_radius_m(device)
     r_iris = device.effective_aperture_radius_m
     x, y, w, h = rect
     tp = device.pixel_pitch_m
-    px = ((np.arange(x, x + w) + 0.5 - device.sensor_width_px / 2.0) * tp)[None, :]
-    py = ((np.arange(y, y + h) + 0.5 - device.sensor_height_px / 2.0) * tp)[:, None]
+    lens = device.lens(view)
+    if ideal_px is None and lens.distorts:
+        ideal_px = lens_distortions(device)[view].undistort_box(x, y, w, h)
+    if ideal_px is None:
+        px = ((np.arange(x, x + w) + 0.5 - device.sensor_width_px / 2.0) * tp)[None, :]
+        py = ((np.arange(y, y + h) + 0.5 - device.sensor_height_px / 2.0) * tp)[:, None]
+    else:
+        sensor = pixel_to_sensor(device, ideal_px)
+        px, py = sensor[..., 0], sensor[..., 1]
     m = device.lens_centres_m[view]
     yl = np.hypot(m[0] + (m[0] - px) * b / c, m[1] + (m[1] - py) * b / c)
     frac = _disc_overlap(yl, r_foot, r_iris) / (np.pi * r_foot**2)
     cos4 = (c * c / (c * c + (px - m[0]) ** 2 + (py - m[1]) ** 2)) ** 2
-    return (frac * cos4).astype(np.float32)
+    out = frac * cos4
+    if lens.transmission != 1.0:
+        out = out * lens.transmission
+    if lens.falloff[0] > 0:
+        strength, ox, oy = lens.falloff
+        centres, radius = _iris_disc_px(device)
+        cx, cy = centres[view]
+        if ideal_px is None:
+            ux = np.arange(x, x + w, dtype=np.float64)[None, :]
+            uy = np.arange(y, y + h, dtype=np.float64)[:, None]
+        else:
+            ux, uy = ideal_px[..., 0], ideal_px[..., 1]
+        rho2 = ((ux - (cx + ox * radius)) / radius) ** 2 + ((uy - (cy + oy * radius)) / radius) ** 2
+        out = out / (1.0 + strength * rho2) ** 2
+    return np.broadcast_to(out, (h, w)).astype(np.float32)
 
 
 def _disc_overlap(d: np.ndarray, r1: float, r2: float) -> np.ndarray:

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from lfring.core.validate import is_integer
 from lfring.errors import InvalidInputError
 from lfring.optics.device import RingDevice
 from lfring.optics.paraxial import blur_diameter_m
@@ -72,6 +73,11 @@ class SurfaceRenderer:
         self.cams: ViewCameras = view_cameras(device)
         self.tp = device.pixel_pitch_m
         self._textures: dict[int, tuple] = {}
+        # Each camera's lens distortion in raw pixels (None: pinhole cameras), the region over
+        # which its pixels' ideal positions are kept, and those positions.
+        self.distortions = None
+        self.regions: list | None = None
+        self._ideal: dict = {}
         s = self.cams.depth_origin_m
         for idx, surf in enumerate(scene.surfaces):
             znear = surf.depth_range_m[0]
@@ -91,8 +97,35 @@ class SurfaceRenderer:
         out[finite] = blur_diameter_m(self.dev, z[finite]) / self.tp
         return out
 
+    # -- real mini-lenses ----------------------------------------------------------------------
+    def ideal_px(self, view, x0: int, y0: int, w: int, h: int) -> np.ndarray | None:
+        """(h, w, 2) float64 ideal (pinhole) raw-pixel position of every pixel of the box: where
+        the chief ray that reaches the pixel through its distorting mini-lens would land through
+        an ideal one. None for an ideal lens. Computed once per view over its region."""
+        if self.distortions is None or not is_integer(view) or view >= len(self.distortions):
+            return None
+        if view not in self._ideal:
+            rx, ry, rw, rh = self.regions[view]
+            ideal = self.distortions[view].undistort_box(rx, ry, rw, rh)
+            yy, xx = np.mgrid[ry : ry + rh, rx : rx + rw]
+            self._ideal[view] = ideal, float(np.max(np.hypot(ideal[..., 0] - xx, ideal[..., 1] - yy), initial=0.0))
+        rx, ry = self.regions[view][:2]
+        return self._ideal[view][0][y0 - ry : y0 - ry + h, x0 - rx : x0 - rx + w]
+
+    def distortion_margin_px(self, view) -> float:
+        """How far the lens of ``view`` moves any point of its region (0 for an ideal lens)."""
+        if self.ideal_px(view, 0, 0, 0, 0) is None:
+            return 0.0
+        return self._ideal[view][1]
+
     def _pixel_rays(self, view: int, x0: int, y0: int, w: int, h: int):
         dev = self.dev
+        ideal = self.ideal_px(view, x0, y0, w, h)
+        if ideal is not None:  # each pixel's chief ray, bent by its lens: (h, w) directions
+            xs = (ideal[..., 0] + 0.5 - dev.sensor_width_px / 2.0) * self.tp
+            ys = (ideal[..., 1] + 0.5 - dev.sensor_height_px / 2.0) * self.tp
+            return ((xs - self.cams.principal_points_m[view, 0]) / self.cams.focal_m,
+                    (ys - self.cams.principal_points_m[view, 1]) / self.cams.focal_m)
         xs = (np.arange(x0, x0 + w) + 0.5 - dev.sensor_width_px / 2.0) * self.tp
         ys = (np.arange(y0, y0 + h) + 0.5 - dev.sensor_height_px / 2.0) * self.tp
         dx = (xs - self.cams.principal_points_m[view, 0]) / self.cams.focal_m
@@ -154,6 +187,7 @@ class SurfaceRenderer:
         corners = plane.corners_m()
         zs = corners[:, 2]
         margin = 2 + (np.ceil(self.blur_px(zs).max() / 2) if self.settings.defocus else 0)
+        margin += np.ceil(self.distortion_margin_px(view)) if self.distortions is not None else 0
         box = self._bbox(view, corners, region, margin)
         if box is None:
             return None
@@ -174,11 +208,22 @@ class SurfaceRenderer:
         else:
             denom = n[0] * dx + n[1] * dy + n[2]
             depth = (self.cams.depth_origin_m + float(n @ (p0 - cam)) / denom).astype(np.float32)
+        ideal = self.ideal_px(view, x0, y0, w, h)
         warped = []
         for tex, (tx, ty) in zip(levels, steps):
             a = np.column_stack([tx * u, ty * v, tl + 0.5 * (tx * u + ty * v) - cam])
             hmat = pix_from_sensor @ k @ a
-            warped.append(cv2.warpPerspective(tex, hmat, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT))
+            if ideal is None:
+                warped.append(cv2.warpPerspective(tex, hmat, (w, h), flags=cv2.INTER_LINEAR,
+                                                  borderMode=cv2.BORDER_CONSTANT))
+                continue
+            # A distorting lens: each pixel samples the texel its bent chief ray meets.
+            inv = np.linalg.inv(hmat)
+            bx, by = ideal[..., 0] - x0, ideal[..., 1] - y0
+            den = inv[2, 0] * bx + inv[2, 1] * by + inv[2, 2]
+            mx = ((inv[0, 0] * bx + inv[0, 1] * by + inv[0, 2]) / den).astype(np.float32)
+            my = ((inv[1, 0] * bx + inv[1, 1] * by + inv[1, 2]) / den).astype(np.float32)
+            warped.append(cv2.remap(tex, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT))
         if len(warped) == 1:
             acc = warped[0]
         else:
@@ -232,6 +277,7 @@ class SurfaceRenderer:
         cx, cy = part.center_m
         corners = np.array([[cx + sx * wm / 2, cy + sy * hm / 2, z] for sx in (-1, 1) for sy in (-1, 1) for z in (zlo, zhi)])
         margin = 2 + (np.ceil(self.blur_px(np.array([zlo, zhi])).max() / 2) if self.settings.defocus else 0)
+        margin += np.ceil(self.distortion_margin_px(view)) if self.distortions is not None else 0
         box = self._bbox(view, corners, region, margin)
         if box is None:
             return None

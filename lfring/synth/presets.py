@@ -3,6 +3,7 @@ scene and inspection parts, plus scenes described in TOML files."""
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 from pathlib import Path
 
@@ -11,8 +12,8 @@ import numpy as np
 from lfring.core.validate import check_number
 from lfring.errors import FileFormatError, InvalidInputError, LfringFileNotFoundError
 from lfring.optics import paraxial
-from lfring.optics.device import RingDevice
-from lfring.optics.views import view_cameras
+from lfring.optics.device import MiniLens, RingDevice
+from lfring.optics.views import lens_distortions, optical_layout, view_cameras
 from lfring.synth.scene import Bump, HeightField, Plane, Scene
 from lfring.synth.textures import Texture
 
@@ -31,6 +32,8 @@ __all__ = [
     "hard_scene",
     "HARD_VIEW_FALLOFF",
     "load_scene",
+    "real_lenses",
+    "rim_displacement_px",
 ]
 
 PRESETS = ("flat", "target", "scene", "part", "hard")
@@ -39,6 +42,73 @@ PRESETS = ("flat", "target", "scene", "part", "hard")
 #: (strength, dx, dy), from a mild centred fall-off to one that leaves about 30 % at the disc's
 #: rim around a centre a quarter radius off, so the four views differ in brightness by place.
 HARD_VIEW_FALLOFF = ((0.15, 0.0, 0.0), (0.6, 0.3, -0.2), (0.35, -0.25, 0.3), (0.9, 0.1, 0.25))
+
+
+def real_lenses(device: RingDevice, *, rim_fraction: float = 0.03, seed: int = 0) -> RingDevice:
+    """``device`` fitted with four real mini-lenses, each its own: barrel distortion with some
+    decentring, a lens a little off its place and tilted, and its own transmission and fall-off.
+
+    Parameters
+    ----------
+    device : RingDevice
+        With lens positions set (the distortion is scaled on its views' discs).
+    rim_fraction : float
+        The most any view's distortion moves a point of its disc's rim, as a fraction of the
+        disc's radius; the other views move theirs by 55 to 95 % of that.
+    seed : int
+        Draws the lenses.
+
+    Returns
+    -------
+    RingDevice
+        With ``lenses`` set (:class:`lfring.optics.MiniLens`).
+
+    Examples
+    --------
+    >>> from lfring.optics import load_device
+    >>> dev = real_lenses(load_device("prototype").binned(2))
+    >>> round(max(rim_displacement_px(dev)) / min(r for _, _, r in optical_layout(dev).circles), 3)
+    0.03
+    """
+    check_number(rim_fraction, "rim_fraction", minimum=0.0, maximum=0.2, what="a fraction of the disc's radius")
+    device.require_positions()
+    rng = np.random.default_rng(seed)
+    shares = np.concatenate([[1.0], rng.uniform(0.55, 0.95, 3)])[rng.permutation(4)]
+    lenses = []
+    for _ in range(4):
+        k1 = -rng.uniform(0.6, 1.0)
+        lenses.append(MiniLens(
+            k1=k1, k2=k1 * rng.uniform(-0.4, 0.4) * 50.0, p1=k1 * rng.uniform(-0.08, 0.08), p2=k1 * rng.uniform(-0.08, 0.08),
+            decentre_m=tuple(rng.uniform(-8e-6, 8e-6, 2)), tilt_deg=tuple(rng.uniform(-2.0, 2.0, 2)),
+            transmission=float(rng.uniform(0.88, 1.0)),
+            falloff=(float(rng.uniform(0.1, 0.5)), float(rng.uniform(-0.15, 0.15)), float(rng.uniform(-0.15, 0.15)))))
+    dev = device.with_lenses(lenses)
+    radius = min(r for _, _, r in optical_layout(device).circles)
+    # The rim displacement is linear in the coefficients (up to the tilt): two scalings land it.
+    for _ in range(3):
+        rims = rim_displacement_px(dev)
+        scaled = []
+        for lens, rim, share in zip(dev.lenses, rims, shares):
+            f = rim_fraction * radius * share / rim if rim > 0 else 0.0
+            scaled.append(dataclasses.replace(lens, k1=lens.k1 * f, k2=lens.k2 * f, p1=lens.p1 * f, p2=lens.p2 * f))
+        dev = device.with_lenses(scaled)
+    return dev
+
+
+def rim_displacement_px(device: RingDevice) -> list[float]:
+    """How far each view's lens moves the points of its valid disc's rim, at most, in pixels
+    (0 for ideal lenses)."""
+    dist = lens_distortions(device)
+    if dist is None:
+        return [0.0] * 4
+    from lfring.optics.views import ideal_discs_px
+
+    out = []
+    for d, (cx, cy, r) in zip(dist, ideal_discs_px(device)):
+        t = np.linspace(0.0, 2 * np.pi, 720, endpoint=False)
+        pts = np.stack([cx + r * np.cos(t), cy + r * np.sin(t)], axis=-1)
+        out.append(float(np.max(np.hypot(*(d.distort(pts) - pts).T))))
+    return out
 
 
 def field_radius_m(device: RingDevice, depth_m: float) -> float:

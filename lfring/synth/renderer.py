@@ -2,9 +2,11 @@
 
 Each view renders its surfaces as layers (:mod:`lfring.synth.layers`): premultiplied colour,
 coverage and depth, blurred by their own defocus disc (:mod:`lfring.synth.defocus`, the blur
-varying with depth across slanted and curved surfaces), composited front to back. Then come
-per-view vignetting and the iris field stop, the optional 180-degree rotation, and the sensor
-(:mod:`lfring.synth.sensor`: the Bayer mosaic, shot and read noise, quantisation).
+varying with depth across slanted and curved surfaces), composited front to back. Through real
+mini-lenses (``RingDevice.lenses``) each pixel's chief ray is bent by its lens's distortion
+before it meets the scene. Then come per-view vignetting (each lens's own, with its
+transmission and fall-off) and the iris field stop, the optional 180-degree rotation, and the
+sensor (:mod:`lfring.synth.sensor`: the Bayer mosaic, shot and read noise, quantisation).
 
 The views render on parallel threads (the heavy loops are OpenCV's and NumPy's, which release
 the GIL) while the noise is drawn on another; every thread writes its own part of the outputs,
@@ -22,7 +24,7 @@ import numpy as np
 from lfring.core.validate import check_int
 from lfring.errors import InvalidInputError
 from lfring.optics.device import RingDevice
-from lfring.optics.views import lit_region, optical_layout, vignetting_region
+from lfring.optics.views import lens_distortions, lit_region, optical_layout, vignetting_region
 from lfring.synth.layers import BLOCK_ROWS, SurfaceRenderer, default_workers, over
 from lfring.synth.result import RenderResult
 from lfring.synth.scene import Scene
@@ -55,15 +57,20 @@ class _FrameRenderer(SurfaceRenderer):
     def __init__(self, device: RingDevice, scene: Scene, settings: RenderSettings):
         super().__init__(device, scene, settings)
         self.regions = [lit_region(device, k) for k in range(4)]
+        self.distortions = lens_distortions(device)
         self.erect_layout = optical_layout(device) if settings.view_falloff is not None else None
         self._vignetting: dict[int, np.ndarray] = {}
-        self.vignetting_source = (
-            _mirror_sources(device, self.regions) if settings.vignetting else [(k, 1, 1) for k in range(4)]
-        )
+        if not settings.vignetting:
+            self.vignetting_source = [(k, 1, 1) for k in range(4)]
+        elif device.lenses is not None:  # lenses of their own: no view mirrors another
+            self.vignetting_source = [(k, 1, 1) for k in range(4)]
+        else:
+            self.vignetting_source = _mirror_sources(device, self.regions)
 
     def prepare_vignetting(self, view: int) -> None:
         """Compute the vignetting of a view that is not a mirror image of another."""
-        self._vignetting[view] = vignetting_region(self.dev, view, self.regions[view])
+        self._vignetting[view] = vignetting_region(self.dev, view, self.regions[view],
+                                                   ideal_px=self.ideal_px(view, *self.regions[view]))
 
     def prepare_tasks(self) -> list:
         """Per-render work the views share (texture rasters, vignetting maps), largest first."""
@@ -295,5 +302,5 @@ def _render(device: RingDevice, scene: Scene, settings: RenderSettings, *, timin
         timings.update(stages)
     return RenderResult(
         raw=raw, image=image, views=views, views_sharp=views_sharp, depth_m=depth_views,
-        layout=layout, device=dev, settings=settings, scene=scene,
+        layout=layout, device=dev, settings=settings, scene=scene, distortion=lens_distortions(dev, layout),
     )

@@ -85,7 +85,7 @@ def _depth_range(calibration, zmin_m, zmax_m) -> tuple[float, float]:
     lo = lo if zmin_m is None else zmin_m
     hi = hi if zmax_m is None else zmax_m
     if hi is None:
-        raise InvalidInputError("the calibration has no upper depth bound: give zmax_m (--zmax)")
+        raise InvalidInputError("the calibration has no upper depth bound: give zmax_m")
     return float(lo), float(hi)
 
 

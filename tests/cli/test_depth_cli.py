@@ -27,23 +27,26 @@ def test_depth_cli_outputs(tmp_path, capsys):
     assert 0.29 < np.median(pts[:, 2]) < 1.0
     assert (out / "scene_depth_preview.png").read_bytes()[:4] == b"\x89PNG"
     assert (side["cost"], side["method"], side["rim_taper"]) == ("lcn-halves", "sgm", 0.05)
-    assert main(["depth", str(SCENE), "--zmin", "0.3", "--zmax", "1.0", "-o", str(out)]) == 2  # no overwrite
+    # The same command again replaces its own files; other settings do not without --overwrite.
+    assert main(["depth", str(SCENE), "--zmin", "0.3", "--zmax", "1.0", "-o", str(out), "--paths", "8"]) == 2
     assert "exists" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize(
     "args, text",
+    # The CLI names its options (--zmax, --planes, --rim-taper, --method), not the library's
+    # parameters (zmax_m, num_planes, rim_taper, method=).
     [
-        (["--zmin", "1.0", "--zmax", "0.5"], "smaller than zmax"),
+        (["--zmin", "1.0", "--zmax", "0.5"], "smaller than --zmax"),
         (["--zmin", "0.01", "--zmax", "0.5"], "depth origin"),
-        (["--zmin", "0.3", "--zmax", "0.5", "--planes", "0"], "num_planes"),
+        (["--zmin", "0.3", "--zmax", "0.5", "--planes", "0"], "--planes"),
         (["--zmin", "0.3", "--zmax", "0.5", "--reference", "9"], "reference"),
-        (["--zmin", "0.3", "--zmax", "0.5", "--rim-taper", "1.5"], "rim_taper"),
-        (["--zmin", "0.3", "--zmax", "0.5", "--rim-taper", "nan"], "rim_taper"),
-        (["--zmin", "0.3", "--zmax", "0.5", "--cost", "lcn-halves", "--method", "local"], "needs method='sgm'"),
-        (["--zmin", "0.3", "--zmax", "0.5", "--method", "local", "--paths", "8"], "belong to method='sgm'"),
-        (["--zmin", "0.3", "--zmax", "0.5", "--method", "local", "--consistency"], "belong to method='sgm'"),
-        (["--zmin", "0.3", "--zmax", "0.5", "--planes", "2"], "give num_planes >= 3"),
+        (["--zmin", "0.3", "--zmax", "0.5", "--rim-taper", "1.5"], "--rim-taper"),
+        (["--zmin", "0.3", "--zmax", "0.5", "--rim-taper", "nan"], "--rim-taper"),
+        (["--zmin", "0.3", "--zmax", "0.5", "--cost", "lcn-halves", "--method", "local"], "needs --method sgm"),
+        (["--zmin", "0.3", "--zmax", "0.5", "--method", "local", "--paths", "8"], "belong to --method sgm"),
+        (["--zmin", "0.3", "--zmax", "0.5", "--method", "local", "--consistency"], "belong to --method sgm"),
+        (["--zmin", "0.3", "--zmax", "0.5", "--planes", "2"], "give --planes >= 3"),
         (["--zmin", "0.3", "--zmax", "0.5", "--paths", "6"], "'6' is not one of"),
         (["--zmin", "0.3", "--zmax", "0.5", "--threads", "0"], "--threads"),
         (["--zmin", "0.3", "--zmax", "0.5", "--min-confidence", "-5"], "--min-confidence"),
@@ -53,3 +56,66 @@ def test_depth_cli_errors(tmp_path, capsys, args, text):
     assert main(["depth", str(SCENE), *args, "-o", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err
     assert text in err and "Traceback" not in err
+
+
+def _lfring(*args, cwd):
+    import subprocess
+    import sys
+
+    return subprocess.run([sys.executable, "-m", "lfring", *map(str, args)], capture_output=True, text=True, cwd=cwd,
+                          timeout=600)
+
+
+def test_depth_range_defaults_to_the_calibrations_as_refocus_does(tmp_path):
+    scene = Path(__file__).resolve().parents[2] / "data" / "synthetic" / "scene.png"
+    proc = _lfring("depth", scene, "--method", "local", "-o", "d", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    meta = json.loads((tmp_path / "d" / "scene_depth.json").read_text())
+    assert (meta["zmin_m"], meta["zmax_m"]) == (0.3, 1.0)  # the built-in calibration's valid range
+
+
+def test_depth_refuses_a_range_of_very_many_planes_and_warns_of_many(tmp_path):
+    """What the user typed: --zmin 0.03 (for 0.3) swept 1541 planes for 43 s without a word."""
+    scene = Path(__file__).resolve().parents[2] / "data" / "synthetic" / "scene.png"
+    proc = _lfring("depth", scene, "--zmin", "0.03", "--zmax", "1.0", "-o", "d", cwd=tmp_path)
+    assert proc.returncode == 2 and "depth planes" in proc.stderr and "typo" in proc.stderr and "--planes" in proc.stderr
+    assert "valid range is 0.3 to 1 m" in proc.stderr and not (tmp_path / "d").exists()
+    from lfring.cli.depth import MANY_PLANES, MAX_PLANES
+
+    assert MANY_PLANES < MAX_PLANES
+
+
+def test_torch_device_is_named_so_and_not_ignored(tmp_path):
+    scene = Path(__file__).resolve().parents[2] / "data" / "synthetic" / "scene.png"
+    proc = _lfring("depth", scene, "--method", "local", "--torch-device", "cuda", "-o", "d", cwd=tmp_path)
+    assert proc.returncode == 2 and "goes with --backend torch" in proc.stderr
+    old = _lfring("depth", scene, "--method", "local", "--device", "cuda", "-o", "d", cwd=tmp_path)
+    assert old.returncode == 2 and "--device is now --torch-device" in old.stderr and "goes with --backend torch" in old.stderr
+    assert "--torch-device" in _lfring("depth", "--help", cwd=tmp_path).stdout
+
+
+def test_first_compile_is_announced_once(tmp_path, monkeypatch, caplog):
+    """numba compiles the depth kernels on their first use, once per machine: said when no
+    compiled kernel is cached, silent once they are."""
+    import logging
+    import sys
+
+    import lfring.depth
+    from lfring.cli._options import note_first_compile
+
+    pkg = tmp_path / "depth"
+    (pkg / "__pycache__").mkdir(parents=True)
+    (pkg / "__init__.py").write_text("")
+    (pkg / "sgm_kernels.py").write_text("")
+    monkeypatch.setattr(lfring.depth, "__file__", str(pkg / "__init__.py"))
+    monkeypatch.setenv("HOME", str(tmp_path))
+    monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
+    with caplog.at_level(logging.INFO, logger="lfring"):
+        note_first_compile()
+    assert "compiling the depth kernels once" in caplog.text
+    caplog.clear()
+    tag = f"py{sys.version_info.major}{sys.version_info.minor}"
+    (pkg / "__pycache__" / f"sgm_kernels.aggregate-12.{tag}.nbi").write_bytes(b"")
+    with caplog.at_level(logging.INFO, logger="lfring"):
+        note_first_compile()
+    assert "compiling" not in caplog.text

@@ -27,7 +27,10 @@ def test_design_table_sweep_range_and_plots(tmp_path, capsys):
     assert main(["design", "--object-size", "0.1", "--range", "0.3:1.0", "--json"]) == 0
     rng = json.loads(capsys.readouterr().out)
     assert 0.3 < rng["focus_distance_m"] < 1.0 and len(rng["points"]) == 50
-    assert main(["design", "--object-size", "0.1", "--sweep", "0.1:2.0:12", "--plot", str(png)]) == 2
+    # The same plot again replaces its own file; another one does not without --overwrite.
+    assert main(["design", "--object-size", "0.1", "--sweep", "0.1:2.0:12", "--plot", str(png)]) == 0
+    capsys.readouterr()
+    assert main(["design", "--object-size", "0.1", "--sweep", "0.1:2.0:13", "--plot", str(png)]) == 2
     assert "exists" in capsys.readouterr().err
 
 

@@ -51,10 +51,12 @@ def test_good_part_passes_and_defects_fail(tmp_path, capsys):
     assert rep["verdict"] == "fail" and rep["reason"] is None and rep["coverage"] > 0.8
     assert "fail (2 defects, checked" in capsys.readouterr().out
 
-    # No overwrite without --overwrite (exit 2, nothing replaced); with it, an ROI around the
-    # first defect finds only that one.
+    # The same check again replaces its own report; other settings do not without --overwrite
+    # (exit 2, nothing replaced); with it, an ROI around the first defect finds only that one.
+    assert _run(BAD, "--plane", "0.3", "--tolerance", "0.008", "-o", out) == 1
+    capsys.readouterr()
     before = (out / "part_defects_inspect.json").read_bytes()
-    assert _run(BAD, "--plane", "0.3", "--tolerance", "0.008", "-o", out) == 2
+    assert _run(BAD, "--plane", "0.3", "--tolerance", "0.01", "-o", out) == 2
     assert "exists" in capsys.readouterr().err and (out / "part_defects_inspect.json").read_bytes() == before
     b = rep["defects"][0]["bbox_px"]
     roi = f"{b['x'] - 10},{b['y'] - 10},{b['w'] + 20},{b['h'] + 20}"
@@ -66,16 +68,16 @@ def test_good_part_passes_and_defects_fail(tmp_path, capsys):
 @pytest.mark.parametrize(
     "args, text",
     [
-        (["--tolerance", "0"], "tolerance_m must be a positive"),
-        (["--tolerance", "nan"], "tolerance_m must be a positive"),
-        (["--tolerance", "-0.01"], "tolerance_m must be a positive"),
+        (["--tolerance", "0"], "--tolerance must be a positive"),
+        (["--tolerance", "nan"], "--tolerance must be a positive"),
+        (["--tolerance", "-0.01"], "--tolerance must be a positive"),
         (["--tolerance", "0.01", "--roi", "600,600,200,200"], "roi (x=600, y=600, w=200, h=200) does not fit"),
         (["--tolerance", "0.01", "--roi", "1,2,3"], "X,Y,W,H"),
         (["--tolerance", "0.01", "--reference", "7"], "reference"),
         (["--tolerance", "0.01", "--reference-depth", "missing.pfm"], "not found"),
         (["--tolerance", "ten"], "not a valid float"),
-        (["--tolerance", "0.01", "--min-coverage", "1.5"], "min_coverage must be a number in [0, 1], got 1.5"),
-        (["--tolerance", "0.01", "--min-coverage", "-0.1"], "min_coverage must be a number in [0, 1]"),
+        (["--tolerance", "0.01", "--min-coverage", "1.5"], "--min-coverage must be a number in [0, 1], got 1.5"),
+        (["--tolerance", "0.01", "--min-coverage", "-0.1"], "--min-coverage must be a number in [0, 1]"),
     ],
 )
 def test_bad_input_exits_2(tmp_path, capsys, args, text):
@@ -147,7 +149,9 @@ def test_cannot_judge_exits_3_with_the_reason(tmp_path, capsys, frame, plane, re
     # No part found: none of it checked; a part found but too little checked: below min_coverage.
     assert rep["coverage"] == 0.0 if reason != "too few confident pixels" else 0.5 < rep["coverage"] < 0.8
     assert (out / f"{stem}_inspect.png").read_bytes()[:4] == b"\x89PNG"
-    assert sorted(p.name for p in out.iterdir()) == [f"{stem}_inspect.json", f"{stem}_inspect.png"]
+    # The report, its image and the record of the set (what made them from which inputs).
+    assert sorted(p.name for p in out.iterdir()) == [f"{stem}_inspect.json", f"{stem}_inspect.lfring.json",
+                                                     f"{stem}_inspect.png"]
 
 
 def test_min_coverage_option(tmp_path, capsys):

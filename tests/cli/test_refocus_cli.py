@@ -19,7 +19,10 @@ def test_refocus_sample_with_default_calibration(tmp_path, monkeypatch, capsys):
     assert img.dtype == np.uint8 and img.shape == (705, 705, 3)
     side = json.loads((tmp_path / "scene_refocus_0.5m.png.json").read_text())
     assert side["calibration"] == "twin_binned2" and side["depth_m"] == 0.5 and side["encoding"] == "srgb"
-    # No overwrite without --overwrite.
+    # The same command again replaces its own outputs; a file it did not make is not replaced
+    # without --overwrite.
+    assert main(["refocus", str(SCENE), "--depth", "0.5"]) == 0
+    (tmp_path / "scene_refocus_0.5m.lfring.json").unlink()
     assert main(["refocus", str(SCENE), "--depth", "0.5"]) == 2
 
 
@@ -68,3 +71,16 @@ def test_refocus_frame_without_calibration(tmp_path, capsys, prototype):
     cal = Path(__file__).resolve().parents[2] / "calib" / "twin_binned2.json"
     assert main(["refocus", str(tmp_path / "small.png"), "--depth", "0.5", "--calib", str(cal), "-o", str(tmp_path / "o.png")]) == 2
     assert "614 x 460 px but the calibration is for 2456 x 1842" in capsys.readouterr().err
+
+
+def test_sweep_metadata_holds_the_depths_as_written(tmp_path):
+    """A sweep's depths were written as 0.44999999999999996; infinity is the documented "inf"."""
+    out = tmp_path / "st" / "s.png"
+    assert main(["refocus", str(SCENE), "--sweep", "0.3:1.0:15", "--method", "shift-and-add", "-o", str(out)]) == 0
+    side = (out.parent / "s_003_0.45m.png.json").read_text()
+    assert '"depth_m": 0.45' in side and "0.4499999" not in side
+    import tifffile
+
+    with tifffile.TiffFile(out.parent / "s_stack.tif") as tif:
+        assert "0.4499999" not in tif.pages[0].description and "0.45" in tif.pages[0].description
+    assert "0.4499999" not in "".join(p.name for p in out.parent.iterdir())

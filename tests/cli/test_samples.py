@@ -24,7 +24,8 @@ def test_manifest_lists_every_file_with_its_hash():
         for name, digest in s["files"].items():
             assert sha256(DATA / name) == digest, name
     assert set(MANIFEST["samples"]) == set(SAMPLES) == {
-        "flat", "target_0.3m", "target_0.5m", "target_1m", "scene", "part_good", "part_defects", "hard"}
+        "flat", "target_0.3m", "target_0.5m", "target_1m", "scene", "part_good", "part_defects", "hard",
+        "lens_flat", "lens_target_0.3m", "lens_target_1m"}
 
 
 def test_sample_set_stays_small():

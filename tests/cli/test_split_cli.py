@@ -41,6 +41,10 @@ def test_split_with_flat_and_layout(frames, tmp_path, capsys):
     assert main(["split", str(d / "scene.png"), "--flat", str(d / "flat.png"), "-o", str(tmp_path / "b")]) == 2
     assert "exists" in capsys.readouterr().err
     assert (tmp_path / "b" / "scene_view0.png").read_bytes() == before
+    # The same split again replaces its own views with the same ones.
+    assert main(["split", str(d / "scene.png"), "--layout", str(d / "scene_truth" / "layout.json"),
+                 "-o", str(tmp_path / "b"), "--method", "bilinear"]) == 0
+    assert (tmp_path / "b" / "scene_view0.png").read_bytes() == before
 
 
 def _err(capsys):

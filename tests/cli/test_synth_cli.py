@@ -30,9 +30,12 @@ def test_synth_target_writes_raw_sidecar_and_truth(tmp_path, capsys):
     lay = Layout.from_dict(truth["layout"])
     for z in (0.31, 0.77, 3.0):
         np.testing.assert_allclose(a + b / (z - z0), optical_homographies(dev, lay, z), atol=1e-9)
-    # A second run refuses to overwrite, names the file, and leaves it alone.
+    # The same run again replaces its own files with the same ones; a run with other settings
+    # refuses to overwrite, names the file, and leaves it alone.
     before = raw.read_bytes()
-    assert main(args) == 2
+    assert main(args) == 0 and raw.read_bytes() == before
+    capsys.readouterr()
+    assert main([*args, "--seed", "4"]) == 2
     assert "exists" in capsys.readouterr().err
     assert raw.read_bytes() == before
     assert main([*args, "--overwrite", "--seed", "4"]) == 0
@@ -82,8 +85,10 @@ def test_synth_hard_with_conventional_images(tmp_path):
                                    samples=meta["samples"])
         np.testing.assert_array_equal(img, want)
         assert (truth / f"conventional_{z}m_f4.png").stat().st_size > 1000
-    # Without the options, nothing conventional is written; a second run refuses to overwrite.
-    assert main(args) == 2
+    # Without the options, nothing conventional is written; the same run again replaces its own
+    # files, a run with other settings refuses to overwrite them.
+    assert main(args) == 0
+    assert main([*args[:-1], "2.8"]) == 2
 
 
 @pytest.mark.parametrize(

@@ -238,3 +238,37 @@ def test_quiet_after_the_subcommand(tmp_path, capsys):
 def test_python_m_lfring():
     res = subprocess.run([sys.executable, "-m", "lfring", "--version"], capture_output=True, text=True)
     assert res.returncode == 0 and "lfring, version" in res.stdout
+
+
+@pytest.mark.parametrize("args, says, not_says", [
+    (["view", str(SCENE), "--zmin", "1.0", "--zmax", "0.5"], "--zmin (1.0) must be smaller than --zmax (0.5)", "zmin_m"),
+    (["depth", str(SCENE), "--zmin", "0.49", "--zmax", "0.5", "-o", "d/"], "give --planes >= 3", "num_planes"),
+    (["depth", str(SCENE), "--zmin", "0.49", "--zmax", "0.5", "-o", "d/"], "or use --method local", "method='local'"),
+    (["inspect", str(SCENE), "--plane", "0.3", "--tolerance", "-1", "-o", "r/"], "--tolerance must be", "tolerance_m"),
+    (["refocus", str(SCENE), "--depth", "0.5", "--f-number", "4", "--calib", str(DATA.parents[1] / "calib" / "twin_binned2.json")],
+     "or --aperture", "ring_device="),
+])
+def test_cli_errors_name_options_not_parameters(tmp_path, args, says, not_says):
+    """What the user saw: errors that name the library's parameters. The CLI says its options."""
+    import subprocess
+    import sys
+
+    proc = subprocess.run([sys.executable, "-m", "lfring", *args], capture_output=True, text=True, cwd=tmp_path, timeout=300)
+    assert proc.returncode == 2
+    assert says in proc.stderr and not_says not in proc.stderr, proc.stderr
+
+
+def test_missing_pattern_is_an_error_that_names_the_option(tmp_path):
+    """The README says so: a single-channel frame without a pattern is refused (a guessed
+    pattern would swap colours silently), and the error names --pattern, not load_raw()."""
+    import subprocess
+    import sys
+
+    import tifffile
+
+    tifffile.imwrite(tmp_path / "grey.tif", np.zeros((1842, 2456), np.uint16))
+    proc = subprocess.run([sys.executable, "-m", "lfring", "refocus", "grey.tif", "--depth", "0.5"], capture_output=True,
+                          text=True, cwd=tmp_path, timeout=300)
+    assert proc.returncode == 2 and "Pass --pattern with one of RGGB" in proc.stderr and "load_raw" not in proc.stderr
+    readme = (DATA.parents[1] / "README.md").read_text()
+    assert "the pattern has no default" in readme

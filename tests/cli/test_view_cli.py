@@ -35,10 +35,11 @@ def test_view_writes_one_page_with_the_requested_stack(tmp_path, capsys):
 @pytest.mark.parametrize(
     "args, text",
     [
-        (["--zmin", "1.0", "--zmax", "0.5"], "smaller than zmax"),
-        (["--planes", "1"], "num_planes"),
+        # The CLI names its options, not the library's parameters (zmax_m, num_planes, min_confidence).
+        (["--zmin", "1.0", "--zmax", "0.5"], "smaller than --zmax"),
+        (["--planes", "1"], "--planes"),
         (["--reference", "9"], "reference"),
-        (["--min-confidence", "3"], "min_confidence"),
+        (["--min-confidence", "3"], "--min-confidence"),
         (["-o", "x.png"], ".html"),
     ],
 )
@@ -47,3 +48,27 @@ def test_view_bad_options_are_one_line(tmp_path, capsys, args, text):
     assert main(["view", str(SCENE), *args]) == 2
     err = capsys.readouterr().err
     assert text in err and "Traceback" not in err
+
+
+def test_view_reads_frames_as_every_command_does(tmp_path):
+    """What the README promises of every command that reads frames: --pattern, --black-level,
+    --white-level and --no-check; the refusal of a photograph names --no-check, which works."""
+    import subprocess
+    import sys
+
+    import cv2
+    import numpy as np
+
+    help_text = subprocess.run([sys.executable, "-m", "lfring", "view", "--help"], capture_output=True, text=True,
+                               timeout=120).stdout
+    for opt in ("--pattern", "--black-level", "--white-level", "--no-check"):
+        assert opt in help_text
+    rng = np.random.default_rng(0)
+    photo = cv2.resize((rng.random((46, 61, 3)) * 255).astype(np.uint8), (2456, 1842), interpolation=cv2.INTER_CUBIC)
+    cv2.imwrite(str(tmp_path / "photo.png"), photo)
+    cmd = [sys.executable, "-m", "lfring", "view", str(tmp_path / "photo.png"), "--planes", "3", "-o", str(tmp_path / "p.html")]
+    refused = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert refused.returncode == 2 and "--no-check" in refused.stderr and not (tmp_path / "p.html").exists()
+    forced = subprocess.run([*cmd, "--no-check"], capture_output=True, text=True, timeout=300)
+    assert forced.returncode == 0, forced.stderr
+    assert (tmp_path / "p.html").exists()

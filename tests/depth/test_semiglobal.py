@@ -116,7 +116,8 @@ def test_background_beside_a_nearer_square_keeps_its_depth():
 @pytest.mark.parametrize("method, spied", [
     ("sgm-reference", {"lfring.depth.engines.semiglobal": ("refine_index", "take_halves", "box_mean_of_finite")}),
     ("sgm", {"lfring.depth.engines.semiglobal": ("refine_index",),
-             "lfring.depth.engines.fused_kernels": ("sweep_volume", "sweep_halves", "horizontal_paths", "vertical_paths")}),
+             "lfring.depth.engines.fused_volume": ("sweep_volume", "sweep_halves"),
+             "lfring.depth.engines.fused_paths": ("horizontal_paths", "vertical_paths")}),
 ])
 def test_threads_bound_every_compiled_kernel_of_the_semi_global_method(twin, monkeypatch, method, spied):
     """threads=1: the refinement's and the halves' kernels (which take numba's thread count) run

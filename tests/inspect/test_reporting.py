@@ -50,3 +50,47 @@ def test_cannot_judge_report_and_drawing(parts, tmp_path):
     unchecked = good.part & ~good.reliable
     assert hatch[unchecked].mean() > 0.15 and hatch[good.reliable & good.part].sum() == 0
     assert json.loads(json.dumps(report(good)))["coverage"] == pytest.approx(good.coverage, abs=1e-4)
+
+
+def test_a_defect_label_never_overprints_the_banner(parts):
+    """A defect at the top-left corner, under the banner: its label goes below its box, and the
+    banner's text stays whole (the same pixels in the banner's colour as with the defect
+    elsewhere)."""
+    import dataclasses
+
+    r, cal, views, truth, res = parts["two"]
+    dent = dataclasses.replace(res.defects[0], kind="dent", deviation_m=-0.019)
+    top = dataclasses.replace(res, defects=(dataclasses.replace(dent, bbox_px=(12, 0, 30, 20)),))
+    away = dataclasses.replace(res, defects=(dataclasses.replace(dent, bbox_px=(500, 500, 30, 20)),))
+    a, b = annotate(top), annotate(away)
+    banner_rgb = np.array((255, 40, 40), np.uint8)  # FAIL is red; the dent and its label are blue
+    rows = slice(0, 90)
+    assert ((a[rows] == banner_rgb).all(axis=-1) == (b[rows] == banner_rgb).all(axis=-1)).all()
+    # The label (blue) is not drawn among the banner's three lines (below the 20 px box, down to
+    # the banner's last line), but below them.
+    label = (a == np.array((40, 140, 255), np.uint8)).all(axis=-1)
+    assert not label[21:100, :300].any() and label[100:160, :300].any()
+
+
+def test_golden_depth_judges_the_part_not_the_belt_behind_it(tmp_path):
+    """What the user did: a golden part's depth map from `lfring depth`, then `lfring inspect
+    --reference-depth` on a part with a bump and a dent. The belt around the part (a different
+    depth, measured differently at the discs' rims) raised false defects in the frame's corners;
+    only the part is judged now."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    data = Path(__file__).resolve().parents[2] / "data" / "synthetic"
+    run = lambda *a: subprocess.run([sys.executable, "-m", "lfring", *map(str, a)], capture_output=True, text=True,
+                                    cwd=tmp_path, timeout=600)
+    assert run("depth", data / "part_good.png", "--method", "local", "-o", "golden").returncode == 0
+    proc = run("inspect", data / "part_defects.png", "--plane", "0.3", "--tolerance", "0.008", "--reference-depth",
+               "golden/part_good_depth.tiff", "-o", "report")
+    assert proc.returncode == 1, proc.stderr
+    rep = json.loads((tmp_path / "report" / "part_defects_inspect.json").read_text())
+    assert [d["kind"] for d in rep["defects"]] == ["bump", "dent"]
+    assert all(10 < abs(d["max_deviation_mm"]) < 17 for d in rep["defects"])
+    good = run("inspect", data / "part_good.png", "--plane", "0.3", "--tolerance", "0.008", "--reference-depth",
+               "golden/part_good_depth.tiff", "-o", "report")
+    assert good.returncode == 0, good.stdout + good.stderr

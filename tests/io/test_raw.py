@@ -34,7 +34,10 @@ def _write_tiff_dng(path, data, tags, photometric=32803):
         (50714, "H", 1, 64, True),  # BlackLevel
         (50717, "H", 1, 4095, True),  # WhiteLevel
     ]
-    tifffile.imwrite(path, data, photometric=photometric, subfiletype=0, extratags=base + tags, metadata=None)
+    # Samples per pixel said explicitly: newer tifffile releases no longer take the last axis
+    # of a LinearRaw image as its samples, and write a stack of grey pages instead.
+    contig = {"planarconfig": "contig"} if data.ndim == 3 else {}
+    tifffile.imwrite(path, data, photometric=photometric, subfiletype=0, extratags=base + tags, metadata=None, **contig)
     return path
 
 

@@ -64,7 +64,8 @@ def test_check_writable(tmp_path):
     f.write_text("x")
     with pytest.raises(InvalidInputError, match="is a file, not a folder"):
         check_writable([f / "deeper" / "out.png"], overwrite=True)
-    with pytest.raises(InvalidInputError, match="exists; pass --overwrite"):
+    # The library names its parameter; the CLI says --overwrite (lfring.cli.words).
+    with pytest.raises(InvalidInputError, match="exists; pass overwrite=True"):
         check_writable([f], overwrite=False)
     with pytest.raises(InvalidInputError, match="it is a folder"):
         check_writable([tmp_path], overwrite=True)

@@ -1,4 +1,5 @@
-"""The semi-global method with 16-bit costs in fused passes (:mod:`lfring.depth.engines.fused_kernels`).
+"""The semi-global method with 16-bit costs in fused passes (:mod:`lfring.depth.engines.fused_volume`,
+:mod:`lfring.depth.engines.fused_paths`).
 
 The same method as the float32 reference (:func:`lfring.depth.engines.semiglobal.semiglobal_index`):
 the 'lcn' cost of all views and of the halves aggregated over a box, the halves taken where no
@@ -155,7 +156,8 @@ def fused_index(views, calibration, plan, settings, subpixel_box_px: int, on_sta
     if (settings.backend != "numpy" or not cost.lcn or cost.leave_one_out or settings.aggregation != "box"
             or settings.paths != 4):
         return None
-    from lfring.depth.engines import fused_kernels as fk
+    from lfring.depth.engines import fused_paths, fused_volume
+    from lfring.depth.engines.fused_common import PENALTY_MAX
 
     h, w = views.shape[1:3]
     plan_key = ("fused_shift_plan", plan.reference, tuple(np.round(plan.depths, 12)), (h, w))
@@ -170,7 +172,14 @@ def fused_index(views, calibration, plan, settings, subpixel_box_px: int, on_sta
     weighted = _padded(src * masks, remaps, pad)
     all_valid = cached_view_masks(calibration, (h, w), "all_valid", _all_valid, taper=plan.taper) and \
         all(r is None for r in remaps)
-    mpad = weighted if all_valid else _padded(np.asarray(masks, np.float32), remaps, pad)
+    def padded_masks():
+        m = _padded(np.asarray(masks, np.float32), remaps, pad)
+        return m, *_runs_of_ones(m)
+
+    if all_valid:
+        mpad, ones_lo, ones_hi = weighted, np.zeros((1, 1), np.int64), np.zeros((1, 1), np.int64)
+    else:  # the masks resampled and padded, and their runs of ones: the same for every frame
+        mpad, ones_lo, ones_hi = calibration_cache(calibration, (plan_key, "masks", plan.taper, pad), padded_masks)
     iy = np.floor(shifts[..., 1]).astype(np.int64)
     ix = np.floor(shifts[..., 0]).astype(np.int64)
     fy = (shifts[..., 1] - iy).astype(np.float32)
@@ -187,7 +196,6 @@ def fused_index(views, calibration, plan, settings, subpixel_box_px: int, on_sta
     ptr = np.cumsum([0] + [len(half) for half in halves]).astype(np.int64)
     rad = settings.aggregate_px // 2
     floor = np.float32(WEIGHT_FLOOR)
-    ones_lo, ones_hi = _runs_of_ones(mpad) if not all_valid else (np.zeros((1, 1), np.int64),) * 2
     geometry = (weighted, mpad, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, views_idx)
 
     # A first estimate of the cost's scale, on a few rows: the unit of the integer costs.
@@ -196,7 +204,7 @@ def fused_index(views, calibration, plan, settings, subpixel_box_px: int, on_sta
     ncol = (w + stride - 1) // stride
     sample_best = np.empty((len(rows), ncol), np.float32)
     sample_spread = np.empty((len(rows), ncol), np.float32)
-    fk.sample_costs(*geometry, rows, stride, rad, floor, sample_best, sample_spread)
+    fused_volume.sample_costs(*geometry, rows, stride, rad, floor, sample_best, sample_spread)
     spread = sample_spread[np.isfinite(sample_spread)]
     first = float(np.median(spread)) if spread.size else 1.0
     unit = (first if first > 0 and math.isfinite(first) else 1.0) / UNITS_PER_SCALE
@@ -206,7 +214,7 @@ def fused_index(views, calibration, plan, settings, subpixel_box_px: int, on_sta
     total = np.empty((h, w), np.float32)
     count = np.empty((h, w), np.float32)
     nviews = np.empty((h, w), np.float32)
-    fk.sweep_volume(*geometry, rad, STRIP_ROWS, floor, np.float32(unit), vol, best, total, count, nviews)
+    fused_volume.sweep_volume(*geometry, rad, STRIP_ROWS, floor, np.float32(unit), vol, best, total, count, nviews)
     stage(0.35)
     # The penalties follow the cost of all views, before the halves are taken, as in the reference.
     scale = _scale(best, total, count)
@@ -216,21 +224,21 @@ def fused_index(views, calibration, plan, settings, subpixel_box_px: int, on_sta
         sample = sample[np.isfinite(sample)]
         if sample.size:
             poor = best > HALVES_POOR * float(np.median(sample))
-            fk.sweep_halves(*geometry, flat, ptr, rad, STRIP_ROWS, floor, np.float32(OCCLUSION_PENALTY),
+            fused_volume.sweep_halves(*geometry, flat, ptr, rad, STRIP_ROWS, floor, np.float32(OCCLUSION_PENALTY),
                             np.float32(HALVES_MIN_SUPPORT), np.float32(HALVES_GAIN), np.float32(unit), poor, best, vol)
-    p1 = int(round(min(P1_SCALE * scale / unit, fk.PENALTY_MAX)))
-    p2 = int(round(min(max(P2_SCALE * scale / unit, p1), fk.PENALTY_MAX)))
+    p1 = int(round(min(P1_SCALE * scale / unit, PENALTY_MAX)))
+    p2 = int(round(min(max(P2_SCALE * scale / unit, p1), PENALTY_MAX)))
     guide = guide_image(views, plan)
     erode = settings.aggregate_px // 2
     stage(0.5)
     paths = np.empty((h, n, w), np.uint16)
-    fk.horizontal_paths(vol, guide, True, p1, p2, np.float32(EDGE_SCALE), erode, paths)
+    fused_paths.horizontal_paths(vol, guide, True, p1, p2, np.float32(EDGE_SCALE), erode, paths)
     stage(0.7)
     index = np.empty((h, w), np.float32)
     confidence = np.empty((h, w), np.float32)
     # As few blocks as threads: every block pays a fixed cost per row and hypothesis.
     block = max(MIN_COLUMN_BLOCK, -(-w // max(1, settings.threads)))
-    fk.vertical_paths(vol, paths, guide, True, p1, p2, np.float32(EDGE_SCALE), erode, subpixel_box_px // 2,
+    fused_paths.vertical_paths(vol, paths, guide, True, p1, p2, np.float32(EDGE_SCALE), erode, subpixel_box_px // 2,
                       int(plan.exclude), block, WEIGHT_FLOOR, index, confidence)
     stage(1.0)
     return index, confidence, nviews, guide

@@ -1,0 +1,206 @@
+"""Every command's outputs as one set: all of them, or none.
+
+A command names its outputs before it works (:class:`OutputSet`), writes them into a hidden
+staging folder beside them (:meth:`OutputSet.writing` hands out the staged paths) and, when all
+are written, renames them into place together, with Ctrl-C and SIGTERM held, and keeps a record
+``<set>.lfring.json`` of what it made from which inputs with which settings: the record of
+:mod:`lfring.batch.record`, read by its :func:`~lfring.batch.record.decide_resume`. An
+interrupted command leaves nothing (its staging folder goes); a rerun with the same inputs and
+settings replaces its own outputs; a file the command did not make, or made from other inputs
+or with other settings, is replaced only with ``--overwrite``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import os
+import shutil
+import socket
+import tempfile
+from collections.abc import Callable, Iterable, Iterator
+from pathlib import Path
+
+import click
+
+from lfring.batch.record import RECORD_SUFFIX, RECORD_VERSION, decide_resume, file_identity, read_record
+from lfring.core.signals import held_signals
+from lfring.errors import InvalidInputError
+from lfring.io.atomic import atomic_write_text
+from lfring.io.writers import check_writable, json_default
+
+__all__ = ["STAGING_PREFIX", "OutputSet", "record_path"]
+
+STAGING_PREFIX = ".lfring-stage-"
+"""Hidden folders of outputs being written: ``<prefix><pid>-<random>`` in the set's folder."""
+
+# Options that change no output: a rerun that differs only in them replaces its own outputs.
+_NOT_SETTINGS = frozenset({"overwrite", "progress", "threads"})
+
+
+def record_path(folder: str | Path, name: str) -> Path:
+    """Where the record of the output set ``name`` lies in ``folder``."""
+    return Path(folder) / f"{name}{RECORD_SUFFIX}"
+
+
+def _jsonable(value):
+    if hasattr(value, "as_kwargs"):  # RawLevels
+        return value.as_kwargs()
+    if isinstance(value, (tuple, list)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, Path):
+        return str(value)
+    return value
+
+
+def _input_files(params: dict) -> list[str]:
+    """The files a command reads, among its arguments and options (paths that name files)."""
+    out: list[str] = []
+    for value in params.values():
+        for v in value if isinstance(value, (tuple, list)) else (value,):
+            if isinstance(v, (str, Path)) and str(v) and os.path.isfile(v) and str(v) not in out:
+                out.append(str(v))
+    return out
+
+
+class OutputSet:
+    """The outputs of one command run, written as a set.
+
+    Parameters
+    ----------
+    paths : iterable of path
+        Every file the command will write.
+    name : str
+        The set's name: its record is ``<folder of the first path>/<name>.lfring.json``.
+    overwrite : bool
+        Replace files the command did not make (or made from other inputs or settings).
+    ctx : click.Context, optional
+        The command's context (default: the current one): its name, and its parameters as the
+        inputs (those that name files) and the settings of the set.
+    """
+
+    def __init__(self, paths: Iterable, *, name: str, overwrite: bool, ctx: click.Context | None = None):
+        self.paths = [Path(p) for p in paths]
+        if not self.paths:
+            raise ValueError("an output set needs at least one path")
+        self.folder = self.paths[0].parent
+        self.record = record_path(self.folder, name)
+        self.overwrite = overwrite
+        ctx = ctx or click.get_current_context()
+        self.command = f"lfring {ctx.info_name}"
+        params = {k: _jsonable(v) for k, v in sorted(ctx.params.items()) if k not in _NOT_SETTINGS}
+        ours = {os.path.abspath(p) for p in [*self.paths, self.record]}
+        self.inputs = [f for f in _input_files(ctx.params) if os.path.abspath(f) not in ours]
+        self.settings = params
+        self.key = hashlib.sha256(json.dumps({"command": self.command, **params}, sort_keys=True,
+                                             default=str).encode()).hexdigest()[:16]
+        self._root = Path(os.path.commonpath([str(p.parent.absolute()) for p in [*self.paths, self.record]]))
+
+    def _rel(self, p: Path) -> str:
+        return os.path.relpath(p.absolute(), self._root)
+
+    def check(self) -> None:
+        """Refuse, before any work, outputs that cannot be written or may not be replaced.
+
+        Raises
+        ------
+        InvalidInputError
+            Naming the first file and why (a folder in the way, a file this command did not make
+            or made from other inputs or with other settings, without ``--overwrite``).
+        """
+        check_writable([*self.paths, self.record], overwrite=True)
+        self._clear_stale_staging()
+        planned = {self._rel(p): self._rel(p) for p in self.paths}
+        existing = {rel for rel in planned if (self._root / rel).exists()}
+        identity = {p: file_identity(p) for p in self.inputs}
+        rec = read_record(self.record)
+        if rec is not None and rec.get("command") != self.command:
+            rec = None  # another command's record: its files are not ours
+        decision = decide_resume(planned, dict.fromkeys(planned, self.key), rec, identity, existing,
+                                 record_exists=self.record.exists(), overwrite=self.overwrite, maker=self.command)
+        if decision.action != "refuse":
+            return
+        first = next((p for p in self.paths if self._rel(p) in existing), self.record)
+        if rec is None:
+            more = len(existing) - 1 if first != self.record else len(existing)
+            raise InvalidInputError(f"{first}{f' (and {more} more)' if more > 0 else ''} exists; pass --overwrite to "
+                                    f"replace it (it was not made by {self.command})")
+        if rec.get("input_identity") != identity:
+            raise InvalidInputError(f"{first} exists and was made by {self.command} from inputs that have changed since; "
+                                    "pass --overwrite to replace it")
+        raise InvalidInputError(f"{first} exists and was made by {self.command} with other settings; pass --overwrite to "
+                                "replace it, or -o to write elsewhere")
+
+    def _clear_stale_staging(self) -> None:
+        """Staging folders of runs that were killed (their process is gone) are removed."""
+        host = socket.gethostname()
+        for d in self._root.glob(STAGING_PREFIX + "*") if self._root.is_dir() else ():
+            parts = d.name[len(STAGING_PREFIX):].split("-")
+            try:
+                pid = int(parts[0])
+                os.kill(pid, 0)
+            except (ValueError, IndexError):
+                continue
+            except ProcessLookupError:
+                if parts[1:2] == [host.replace("-", "")[:32]]:
+                    shutil.rmtree(d, ignore_errors=True)
+            except PermissionError:
+                continue
+
+    @contextlib.contextmanager
+    def writing(self) -> Iterator[Callable[[str | Path], Path]]:
+        """Stage the outputs: the block writes each output to ``stage(path)``; when it ends
+        without error all of them are renamed into place at once and the record written. On an
+        error or an interrupt the staged files are removed and the old outputs stay as they were.
+
+        Yields
+        ------
+        stage : callable
+            Path of an output -> the path to write it to (same name, in the staging folder).
+        """
+        self.check()  # again: the files may have appeared while the command worked
+        self._root.mkdir(parents=True, exist_ok=True)
+        host = socket.gethostname().replace("-", "")[:32]
+        staging = Path(tempfile.mkdtemp(prefix=f"{STAGING_PREFIX}{os.getpid()}-{host}-", dir=self._root))
+        staged = {p.absolute(): staging / self._rel(p) for p in self.paths}
+
+        def stage(path) -> Path:
+            target = staged.get(Path(path).absolute())
+            if target is None:
+                raise ValueError(f"{path} is not an output of this set")
+            target.parent.mkdir(parents=True, exist_ok=True)
+            return target
+
+        try:
+            try:
+                yield stage
+            except OSError as exc:  # name the user's file, not the staged one
+                final = {str(v): str(k) for k, v in staged.items()}
+                if exc.filename is not None and str(exc.filename) in final and exc.errno is not None:
+                    raise type(exc)(exc.errno, exc.strerror, final[str(exc.filename)]) from None
+                raise
+            missing = [str(p) for p, s in staged.items() if not s.exists()]
+            if missing:
+                raise RuntimeError(f"outputs not written: {', '.join(missing)}")  # pragma: no cover - a bug
+            with held_signals():
+                self._write_record("pending")
+                for final, s in staged.items():
+                    final.parent.mkdir(parents=True, exist_ok=True)
+                    os.replace(s, final)
+                self._write_record("done")
+        finally:
+            shutil.rmtree(staging, ignore_errors=True)
+
+    def _write_record(self, status: str) -> None:
+        from lfring import __version__
+
+        rels = [self._rel(p) for p in self.paths]
+        keys = dict.fromkeys(rels, self.key)
+        atomic_write_text(self.record, json.dumps({
+            "lfring_batch_record": RECORD_VERSION, "command": self.command, "status": status, "input": self.inputs,
+            "input_identity": {p: file_identity(p) for p in self.inputs}, "settings_key": self.key,
+            "settings": self.settings, "outputs": dict(zip(rels, rels)),
+            "output_keys": keys if status == "done" else {}, "pending_keys": {} if status == "done" else keys,
+            "lfring_version": __version__,
+        }, indent=2, default=json_default) + "\n")

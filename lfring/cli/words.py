@@ -1,0 +1,64 @@
+"""The library's words in the command line's: its messages name API parameters (``zmin_m``,
+``overwrite=True``), which the CLI turns into its options (``--zmin``, ``--overwrite``) before
+a user reads them, in errors, log lines and warnings alike.
+
+:data:`API_TO_CLI` is the one table; :func:`cli_words` applies it.
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+
+__all__ = ["API_TO_CLI", "CliFormatter", "cli_words"]
+
+API_TO_CLI: tuple[tuple[str, str], ...] = (
+    # Whole phrases first: a hint that names a call, or a parameter the CLI has no option for.
+    (r"load_raw\(\.\.\., pattern=\.\.\.\)", "--pattern"),
+    (r"pass ring_device=, or use aperture=", "use a calibration made with lfring calibrate --device, or --aperture"),
+    (r" \(or a depth map as depth=\)", ""),
+    (r"\bpass black_level=\.\.\. and white_level=\.\.\.", "pass --black-level and --white-level"),
+    (r"\bpass black_level=\.\.\. / white_level=\.\.\.", "pass --black-level / --white-level"),
+    (r"\((by|from) argument\)", r"(\1 the command line)"),
+    (r"\bmethod='(\w+)'", r"--method \1"),
+    (r"\boverwrite=True\b", "--overwrite"),
+    # Parameters and their options.
+    (r"\bzmin_m\b", "--zmin"),
+    (r"\bzmax_m\b", "--zmax"),
+    (r"\bnum_planes\b", "--planes"),
+    (r"\btolerance_m\b", "--tolerance"),
+    (r"\bplane_m\b", "--plane"),
+    (r"\bmin_confidence\b", "--min-confidence"),
+    (r"\bmin_coverage\b", "--min-coverage"),
+    (r"\bmin_area_px\b", "--min-area"),
+    (r"\breference_depth_m\b", "--reference-depth"),
+    (r"\brim_taper\b", "--rim-taper"),
+    (r"\baperture_scale\b", "--aperture-scale"),
+    (r"\bf_number\b", "--f-number"),
+    (r"\baperture=", "--aperture"),
+    (r"\bdevice=", "--device-file"),
+)
+"""(regular expression, replacement) pairs, applied in order."""
+
+_RULES = tuple((re.compile(p), r) for p, r in API_TO_CLI)
+
+
+def cli_words(message: str) -> str:
+    """``message`` with the library's parameter names replaced by the CLI's options.
+
+    >>> cli_words("zmin_m (1.0) must be smaller than zmax_m (0.5)")
+    '--zmin (1.0) must be smaller than --zmax (0.5)'
+    >>> cli_words("give num_planes >= 3, widen the depth range, or use method='local'")
+    'give --planes >= 3, widen the depth range, or use --method local'
+    """
+    for pattern, replacement in _RULES:
+        message = pattern.sub(replacement, message)
+    return message
+
+
+class CliFormatter(logging.Formatter):
+    """A log formatter whose lines speak the CLI's words (:func:`cli_words`)."""
+
+    def formatMessage(self, record: logging.LogRecord) -> str:  # noqa: N802 - logging's name
+        """The record's line as :class:`logging.Formatter` makes it, in the CLI's words."""
+        return cli_words(super().formatMessage(record))

@@ -1,0 +1,70 @@
+"""Ctrl-C and SIGTERM around work that must not be cut in two: a set of files renamed into place,
+a worker process being started.
+
+:func:`held_signals` holds SIGINT and SIGTERM for the length of a block and delivers them after
+it, as if they had come then; :func:`blocked_in_children` starts processes with SIGINT blocked,
+so that a Ctrl-C (which the terminal sends to every process of its group) reaches only the
+process that owns them, which stops them itself.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import signal
+import threading
+from collections.abc import Iterator
+
+__all__ = ["HELD_SIGNALS", "blocked_in_children", "held_signals"]
+
+HELD_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM") if hasattr(signal, name))
+"""The signals that ask a run to stop: Ctrl-C and a polite kill."""
+
+
+@contextlib.contextmanager
+def held_signals(signums=HELD_SIGNALS) -> Iterator[None]:
+    """Hold ``signums`` while the block runs; each that came is delivered, once, when it ends.
+
+    Only the main thread receives Python's signal handlers: elsewhere this does nothing. A
+    signal that is ignored (``SIG_IGN``) stays ignored.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    came: list[int] = []
+    old = {}
+    for s in signums:
+        h = signal.getsignal(s)
+        if h in (signal.SIG_IGN, None):
+            continue
+        old[s] = h
+        signal.signal(s, lambda signum, frame: came.append(signum))
+    try:
+        yield
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+        for s in dict.fromkeys(came):
+            h = old[s]
+            if callable(h):
+                h(s, None)
+            else:  # SIG_DFL: the default action, now
+                signal.raise_signal(s)
+
+
+@contextlib.contextmanager
+def blocked_in_children(signums=(signal.SIGINT,)) -> Iterator[None]:
+    """Processes started in the block (from this thread) start with ``signums`` blocked.
+
+    A child inherits its parent's signal mask across fork and exec; Python never unblocks it, so
+    such a worker never sees a Ctrl-C meant for the run (no ``KeyboardInterrupt`` traceback of
+    its own); the run stops it. Python handlers of this process still run for signals that come
+    meanwhile (another thread receives them), so pair it with :func:`held_signals`.
+    """
+    if not hasattr(signal, "pthread_sigmask"):  # pragma: no cover - not POSIX
+        yield
+        return
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, set(signums))
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)

@@ -1,0 +1,45 @@
+"""What the fused semi-global passes share (:mod:`lfring.depth.engines.fused_volume`,
+:mod:`lfring.depth.engines.fused_paths`): the integer cost representation and the numba
+settings of their kernels.
+
+A cost is held in uint16 units of a fraction of the path penalty: a path's value exceeds its cost
+by at most the large-jump penalty, so a sum of four paths fits in 16 bits when the cost is
+clipped to :data:`COST_MAX` and the penalties stay below :data:`PENALTY_MAX`.
+"""
+
+from __future__ import annotations
+
+from numba import njit
+
+__all__ = ["COST_MAX", "COST_ZERO", "FAST", "INLINE", "JIT", "PARALLEL", "PENALTY_MAX", "TILE", "UNKNOWN", "reflect"]
+
+# Fast maths without "no infinities": unknown costs are inf until they are quantised.
+FAST = {"nsz", "arcp", "contract", "afn"}
+JIT = dict(cache=True, nogil=True, fastmath=FAST, error_model="numpy")
+PARALLEL = dict(JIT, parallel=True)
+# Small row helpers are inlined into their callers: a call per row and hypothesis costs more than
+# the row itself on the short rows of a span or a block of columns.
+INLINE = dict(JIT, inline="always")
+# Side of the square tiles of a transposition.
+TILE = 16
+# A cost that no two views saw: never a winner; the paths see the pixel's mean known cost there.
+UNKNOWN = 65535
+# The largest cost and penalty kept: 4 * (COST_MAX + PENALTY_MAX) < 2**16.
+COST_MAX = 12000
+PENALTY_MAX = 4000
+# The integer that stands for a cost of 0: where the views agree, float rounding makes the cost
+# slightly negative, and those values keep their place below the others. The paths' sums carry
+# it once per path, the box means once; the distinctness measures take it off.
+COST_ZERO = 1024
+
+
+@njit(inline="always")
+def reflect(i, n):
+    """Index i folded into [0, n) as OpenCV's BORDER_REFLECT_101."""
+    if n == 1:
+        return 0
+    while i < 0 or i >= n:
+        i = -i if i < 0 else 2 * n - 2 - i
+    return i
+
+

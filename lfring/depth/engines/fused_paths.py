@@ -1,0 +1,420 @@
+"""The scan paths and the selection of the fused semi-global passes (see
+:mod:`lfring.depth.engines.fused`):
+
+1. :func:`horizontal_paths`: per row, the volume eroded (shiftable windows) and the left-right
+   and right-left scan paths, summed into a (h, N, w) uint16 accumulator.
+2. :func:`vertical_paths`: per block of columns, the top-down path, then the bottom-up one, at
+   whose every pixel the sum of the paths is complete: the winner, its parabola on the wider box
+   of the cost and the confidence are taken there, and the sum is never written back.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+from lfring.depth.engines.fused_common import COST_ZERO, INLINE, JIT, PARALLEL, TILE, UNKNOWN, reflect
+
+__all__ = ["horizontal_paths", "vertical_paths"]
+
+
+@njit(**INLINE)
+def _min_into(row, out):
+    for x in range(out.shape[0]):
+        out[x] = min(out[x], row[x])
+
+
+@njit(**JIT)
+def _eroded_rows(vol, y, rad, x0, x1, ext, out):
+    """out (N, x1 - x0) = the least of ``vol`` (h, N, w) over rows y - rad .. y + rad and columns
+    x - rad .. x + rad (clipped at the image's edges, as a replicated border), for columns x0..x1;
+    ``ext`` a scratch row of x1 - x0 + 2 rad values."""
+    h, n, w = vol.shape
+    m = x1 - x0
+    r0 = max(0, y - rad)
+    r1 = min(h, y + rad + 1)
+    c0 = max(0, x0 - rad)
+    c1 = min(w, x1 + rad)
+    lo = c0 - (x0 - rad)  # columns of ext before the image's first (replicated)
+    for d in range(n):
+        cm = ext[lo:lo + c1 - c0]
+        cm[:] = vol[r0, d, c0:c1]
+        for r in range(r0 + 1, r1):
+            _min_into(vol[r, d, c0:c1], cm)
+        for j in range(lo):
+            ext[j] = ext[lo]
+        for j in range(lo + c1 - c0, m + 2 * rad):
+            ext[j] = ext[lo + c1 - c0 - 1]
+        o = out[d]
+        o[:] = ext[0:m]
+        for k in range(1, 2 * rad + 1):
+            _min_into(ext[k:k + m], o)
+
+
+@njit(**JIT)
+def _fill_unknown(e, fill):
+    """Each column's unknown costs replaced by the mean of its known ones (0 when none is)."""
+    n, m = e.shape
+    total = np.zeros(m, np.int64)
+    count = np.zeros(m, np.int64)
+    for d in range(n):
+        row = e[d]
+        for x in range(m):
+            known = row[x] != UNKNOWN
+            total[x] += np.int64(row[x]) if known else 0
+            count[x] += 1 if known else 0
+    missing = False
+    for x in range(m):
+        c = count[x]
+        fill[x] = (total[x] + c // 2) // c if c > 0 else 0
+        missing |= c < n
+    if not missing:
+        return
+    for d in range(n):
+        row = e[d]
+        for x in range(m):
+            row[x] = np.uint16(fill[x]) if row[x] == UNKNOWN else row[x]
+
+
+@njit(**INLINE)
+def _p2_row(guide_a, guide_b, use_guide, p1, p2, edge_scale, out):
+    """The large-jump penalty between neighbours with guide values a and b, as an integer."""
+    for x in range(out.shape[0]):
+        v = np.float32(p2)
+        if use_guide:
+            v = np.float32(p2) / (np.float32(1.0) + abs(guide_a[x] - guide_b[x]) / np.float32(edge_scale))
+            v = v if v > np.float32(p1) else np.float32(p1)
+        out[x] = np.int32(v + np.float32(0.5))
+
+
+@njit(**JIT)
+def _step_line(e, prev, cur, pmin, cmin, p1, p2e):
+    """One step of a path along a line of pixels processed side by side: ``e`` (N, m) costs,
+    ``prev`` the previous pixels' path values (N, m), ``pmin`` their least, ``p2e`` the
+    large-jump penalties; writes ``cur`` and its least ``cmin``."""
+    n, m = e.shape
+    for x in range(m):
+        cmin[x] = 1 << 30
+    for d in range(n):
+        dm = d - 1 if d > 0 else d
+        dp = d + 1 if d < n - 1 else d
+        here = prev[d]
+        below = prev[dm]
+        above = prev[dp]
+        cost = e[d]
+        out = cur[d]
+        least = cmin
+        for x in range(m):
+            best = here[x]
+            t = below[x] + p1
+            best = t if t < best else best
+            t = above[x] + p1
+            best = t if t < best else best
+            t = pmin[x] + p2e[x]
+            best = t if t < best else best
+            v = np.int32(cost[x]) + best - pmin[x]
+            out[x] = v
+            least[x] = v if v < least[x] else least[x]
+
+
+@njit(**INLINE)
+def _path_step(c, prev, cur, pmin, jump, p1):
+    """One step of a path at one pixel: ``cur = c + min(prev, prev[d -+ 1] + p1, jump) - pmin``
+    over the hypotheses (the ends' missing neighbour is the hypothesis itself); returns the least
+    of ``cur``."""
+    n = c.shape[0]
+    if n == 1:
+        cur[0] = c[0] + min(prev[0], jump) - pmin
+        return cur[0]
+    cur[0] = c[0] + min(min(prev[0], prev[1] + p1), jump) - pmin
+    for d in range(1, n - 1):
+        best = min(min(prev[d], prev[d - 1] + p1), min(prev[d + 1] + p1, jump))
+        cur[d] = c[d] + best - pmin
+    cur[n - 1] = c[n - 1] + min(min(prev[n - 1], prev[n - 2] + p1), jump) - pmin
+    least = cur[0]
+    for d in range(1, n):
+        least = min(least, cur[d])
+    return least
+
+
+@njit(**JIT)
+def _horizontal_row(vol, y, guide, use_guide, p1, p2, edge_scale, erode_rad, total):
+    """The two horizontal paths of row ``y`` (see :func:`horizontal_paths`)."""
+    h, n, w = vol.shape
+    e = np.empty((n, w), np.uint16)
+    ext = np.empty(w + 2 * erode_rad, np.uint16)
+    fill = np.empty(w, np.int64)
+    _eroded_rows(vol, y, erode_rad, 0, w, ext, e)
+    _fill_unknown(e, fill)
+    # One pixel per step: its N costs side by side (transposed in tiles, which stay in the cache).
+    c = np.empty((w, n), np.int32)
+    for x0 in range(0, w, TILE):
+        x1 = min(w, x0 + TILE)
+        for d0 in range(0, n, TILE):
+            d1 = min(n, d0 + TILE)
+            for x in range(x0, x1):
+                for d in range(d0, d1):
+                    c[x, d] = e[d, x]
+    acc = np.empty((w, n), np.int32)
+    bufs = np.empty((2, n), np.int32)
+    p2f = np.float32(p2)
+    p1f = np.float32(p1)
+    for direction in range(2):
+        pmin = np.int32(0)
+        for i in range(w):
+            x = i if direction == 0 else w - 1 - i
+            prev = bufs[(i + 1) % 2]
+            cur = bufs[i % 2]
+            cx = c[x]
+            if i == 0:
+                for d in range(n):
+                    cur[d] = cx[d]
+                pmin = cur[0]
+                for d in range(1, n):
+                    pmin = min(pmin, cur[d])
+            else:
+                xp = x - 1 if direction == 0 else x + 1
+                p2e = np.int32(p2)
+                if use_guide:
+                    v = p2f / (np.float32(1.0) + abs(guide[y, x] - guide[y, xp]) / np.float32(edge_scale))
+                    v = v if v > p1f else p1f
+                    p2e = np.int32(v + np.float32(0.5))
+                pmin = _path_step(cx, prev, cur, pmin, pmin + p2e, p1)
+            ax = acc[x]
+            if direction == 0:
+                for d in range(n):
+                    ax[d] = cur[d]
+            else:
+                for d in range(n):
+                    ax[d] += cur[d]
+    for d0 in range(0, n, TILE):
+        d1 = min(n, d0 + TILE)
+        for x0 in range(0, w, TILE):
+            x1 = min(w, x0 + TILE)
+            for d in range(d0, d1):
+                row = total[y, d]
+                for x in range(x0, x1):
+                    row[x] = np.uint16(acc[x, d])
+
+
+@njit(**PARALLEL)
+def horizontal_paths(vol, guide, use_guide, p1, p2, edge_scale, erode_rad, total):
+    """The left-right and right-left paths of every row of the eroded volume: ``total`` (h, N, w)
+    uint16 = their sum."""
+    for y in prange(vol.shape[0]):
+        _horizontal_row(vol, y, guide, use_guide, p1, p2, edge_scale, erode_rad, total)
+
+
+@njit(**INLINE)
+def _ext_row(row, x0, m, rad, out):
+    """out[j] = row[reflect(x0 - rad + j)] for j < m + 2 rad (BORDER_REFLECT_101)."""
+    w = row.shape[0]
+    a = x0 - rad
+    lo = max(0, -a)
+    hi = min(m + 2 * rad, w - a)
+    out[lo:hi] = row[a + lo:a + hi]
+    for j in range(lo):
+        out[j] = row[reflect(a + j, w)]
+    for j in range(hi, m + 2 * rad):
+        out[j] = row[reflect(a + j, w)]
+
+
+@njit(**INLINE)
+def _raw_update(vol, r, d, x0, m, rad, sign, ext, col_sum, col_cnt):
+    """col_sum, col_cnt += sign * (known cost, 1) of row ``r`` of hypothesis ``d``."""
+    _ext_row(vol[r, d], x0, m, rad, ext)
+    for j in range(m + 2 * rad):
+        v = ext[j]
+        known = v != UNKNOWN
+        col_sum[j] += sign * (np.int32(v) if known else 0)
+        col_cnt[j] += sign * (1 if known else 0)
+
+
+@njit(**INLINE)
+def _parabola(cm, c0, cp):
+    den = np.float64(cm) - 2.0 * np.float64(c0) + np.float64(cp)
+    if den > 0.0:
+        return min(0.5, max(-0.5, 0.5 * (np.float64(cm) - np.float64(cp)) / den))
+    return 0.0
+
+
+@njit(**INLINE)
+def _end_offset(c_end, c_next, c_after, inward):
+    den = c_end - 2.0 * c_next + c_after
+    if den > 0.0 and np.isfinite(den):
+        return inward * min(0.5, max(0.0, 1.0 + 0.5 * (c_end - c_after) / den))
+    return 0.0
+
+
+@njit(**INLINE)
+def _distinctness(b, s):
+    if np.isfinite(b) and np.isfinite(s) and s > 0.0:
+        return np.float32(min(1.0, max(0.0, 1.0 - np.float64(b) / np.float64(s))))
+    return np.float32(0.0)
+
+
+@njit(**JIT)
+def _vertical_block(vol, total, guide, use_guide, p1, p2, edge_scale, erode_rad, raw_rad, exclude, floor, x0, x1,
+                    index, conf):
+    """The two vertical paths and the selection of columns x0..x1 (see :func:`vertical_paths`)."""
+    h, n, w = vol.shape
+    m = x1 - x0
+    e = np.empty((n, m), np.uint16)
+    ext = np.empty(m + 2 * max(erode_rad, raw_rad), np.uint16)
+    fill = np.empty(m, np.int64)
+    state = np.zeros((2, n, m), np.int32)
+    mins = np.zeros((2, m), np.int32)
+    p2e = np.zeros(m, np.int32)
+    col_sum = np.zeros((n, m + 2 * raw_rad), np.int32)
+    col_cnt = np.zeros((n, m + 2 * raw_rad), np.int32)
+    raw = np.empty((n, m), np.float32)
+    for direction in range(2):
+        for i in range(h):
+            y = i if direction == 0 else h - 1 - i
+            prev = state[(i + 1) % 2]
+            cur = state[i % 2]
+            pmin = mins[(i + 1) % 2]
+            cmin = mins[i % 2]
+            _eroded_rows(vol, y, erode_rad, x0, x1, ext, e)
+            _fill_unknown(e, fill)
+            if i == 0:
+                # Zero state: the first row takes its cost alone.
+                prev[:] = 0
+                pmin[:] = 0
+                p2e[:] = 0
+            else:
+                yp = y - 1 if direction == 0 else y + 1
+                _p2_row(guide[y, x0:x1], guide[yp, x0:x1], use_guide, p1, p2, edge_scale, p2e)
+            _step_line(e, prev, cur, pmin, cmin, p1, p2e)
+            if direction == 0:
+                for d in range(n):
+                    row = total[y, d, x0:x1]
+                    cr = cur[d]
+                    for x in range(m):
+                        row[x] = np.uint16(np.int32(row[x]) + cr[x])
+                continue
+            # The wider box's column sums over rows y - raw_rad .. y + raw_rad (reflected), kept
+            # running from row to row upwards.
+            for d in range(n):
+                if i == 0:
+                    col_sum[d] = 0
+                    col_cnt[d] = 0
+                    for k in range(y - raw_rad, y + raw_rad + 1):
+                        _raw_update(vol, reflect(k, h), d, x0, m, raw_rad, 1, ext, col_sum[d], col_cnt[d])
+                else:
+                    _raw_update(vol, reflect(y + raw_rad + 1, h), d, x0, m, raw_rad, -1, ext, col_sum[d], col_cnt[d])
+                    _raw_update(vol, reflect(y - raw_rad, h), d, x0, m, raw_rad, 1, ext, col_sum[d], col_cnt[d])
+            _select_row(vol, total, cur, y, x0, x1, raw_rad, exclude, floor, col_sum, col_cnt, raw, index, conf)
+
+
+@njit(**PARALLEL)
+def vertical_paths(vol, total, guide, use_guide, p1, p2, edge_scale, erode_rad, raw_rad, exclude, block, floor,
+                   index, conf):
+    """The top-down and bottom-up paths of every block of ``block`` columns, added to the
+    horizontal paths' ``total``; at every pixel of the bottom-up pass the winner of the sum, its
+    sub-hypothesis offset from the parabola through the wider box's mean known cost ('raw') at
+    the winner and its neighbours, and the confidence (the sum's distinctness times the raw
+    curve's): ``index`` and ``conf`` (h, w) float32."""
+    w = vol.shape[2]
+    nblocks = (w + block - 1) // block
+    for b in prange(nblocks):
+        x0 = b * block
+        _vertical_block(vol, total, guide, use_guide, p1, p2, edge_scale, erode_rad, raw_rad, exclude, floor, x0,
+                        min(w, x0 + block), index, conf)
+
+
+@njit(**INLINE)
+def _raw_row(col_sum, col_cnt, centre, rad, area, floor, out):
+    """out[x] = the mean known cost of the box around x (its column sums ``col_sum``,
+    ``col_cnt``), inf where the centre is unknown: the mean over the known pixels with the share
+    of known pixels floored at ``floor``, as the seen-pixel mean of the reference."""
+    m = out.shape[0]
+    ssum = np.int32(0)
+    csum = np.int32(0)
+    for j in range(2 * rad):
+        ssum += col_sum[j]
+        csum += col_cnt[j]
+    inv_area = np.float32(1.0 / area)
+    for x in range(m):
+        ssum += col_sum[x + 2 * rad]
+        csum += col_cnt[x + 2 * rad]
+        share = np.float32(csum) * inv_area
+        share = share if share > floor else floor
+        out[x] = np.float32(ssum) * inv_area / share if centre[x] != UNKNOWN else np.float32(np.inf)
+        ssum -= col_sum[x]
+        csum -= col_cnt[x]
+
+
+@njit(**JIT)
+def _select_row(vol, total, cur, y, x0, x1, raw_rad, exclude, floor, col_sum, col_cnt, raw, index, conf):
+    """Winner, offset and confidence of the pixels x0..x1 of row ``y`` from the complete sum
+    (``total`` + the bottom-up path ``cur``) and the raw cost's box mean."""
+    h, n, w = vol.shape
+    m = x1 - x0
+    area = (2 * raw_rad + 1) ** 2
+    for d in range(n):
+        _raw_row(col_sum[d], col_cnt[d], vol[y, d, x0:x1], raw_rad, area, np.float32(floor), raw[d])
+    big = np.int32(1 << 30)
+    best = np.full(m, big, np.int32)
+    tie = np.full(m, np.inf, np.float32)
+    arg = np.zeros(m, np.int64)
+    for d in range(n):
+        trow = total[y, d, x0:x1]
+        cr = cur[d]
+        rr = raw[d]
+        for x in range(m):
+            v = np.int32(trow[x]) + cr[x]
+            # Integer sums tie where float ones would not: the raw cost breaks the tie.
+            better = (v < best[x]) | ((v == best[x]) & (rr[x] < tie[x]))
+            best[x] = v if better else best[x]
+            tie[x] = rr[x] if better else tie[x]
+            arg[x] = d if better else arg[x]
+    # The second best of the sum away from the winner, and the raw curve's best and second.
+    second = np.full(m, big, np.int32)
+    rbest = np.full(m, np.inf, np.float32)
+    rarg = np.zeros(m, np.int64)
+    for d in range(n):
+        trow = total[y, d, x0:x1]
+        cr = cur[d]
+        rr = raw[d]
+        for x in range(m):
+            v = np.int32(trow[x]) + cr[x]
+            if abs(d - arg[x]) > exclude and v < second[x]:
+                second[x] = v
+            if rr[x] < rbest[x]:
+                rbest[x] = rr[x]
+                rarg[x] = d
+    rsecond = np.full(m, np.inf, np.float32)
+    for d in range(n):
+        rr = raw[d]
+        for x in range(m):
+            if abs(d - rarg[x]) > exclude and rr[x] < rsecond[x]:
+                rsecond[x] = rr[x]
+    for x in range(m):
+        k = arg[x]
+        off = 0.0
+        if 0 < k < n - 1:
+            cm = np.float64(raw[k - 1, x])
+            c0 = np.float64(raw[k, x])
+            cp = np.float64(raw[k + 1, x])
+            if not (np.isfinite(cm) and np.isfinite(c0) and np.isfinite(cp)):
+                acc = 0.0
+                cnt = 0
+                for d in range(n):
+                    if np.isfinite(raw[d, x]):
+                        acc += raw[d, x]
+                        cnt += 1
+                f = acc / cnt if cnt > 0 else 0.0
+                cm = cm if np.isfinite(cm) else f
+                c0 = c0 if np.isfinite(c0) else f
+                cp = cp if np.isfinite(cp) else f
+            off = _parabola(cm, c0, cp)
+        elif n >= 3:
+            inward = 1 if k == 0 else -1
+            off = _end_offset(np.float64(raw[k, x]), np.float64(raw[k + inward, x]), np.float64(raw[k + 2 * inward, x]),
+                              inward)
+        index[y, x0 + x] = np.float32(k + off)
+        # The distinctness of costs counted from zero: each of the four paths carries COST_ZERO.
+        s2 = np.float64(second[x] - 4 * COST_ZERO) if second[x] < big else np.inf
+        conf[y, x0 + x] = _distinctness(np.float64(best[x] - 4 * COST_ZERO), s2) * \
+            _distinctness(np.float64(rbest[x]) - COST_ZERO, np.float64(rsecond[x]) - COST_ZERO)

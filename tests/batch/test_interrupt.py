@@ -1,0 +1,156 @@
+"""`lfring batch` stopped by Ctrl-C or SIGTERM at any moment: it exits promptly with 130 (143 for
+SIGTERM), prints no traceback, leaves no worker running and no partial file, and a rerun
+completes."""
+
+import json
+import os
+import random
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import cv2
+import pytest
+from batch_frames import copy_frame
+
+TRIES = 20
+EXIT_WITHIN_S = 10.0
+
+
+@pytest.fixture(scope="module")
+def small_frames(tmp_path_factory):
+    """Four small frames of the twin (8 x 8 binned) and their calibration."""
+    from lfring.calibration import RingCalibration
+    from lfring.cli.main import main
+    from lfring.optics import load_device
+
+    d = tmp_path_factory.mktemp("small")
+    for name, seed in (("scene", 3), ("part", 4)):
+        preset = ["scene"] if name == "scene" else ["part", "--defects", "0.015"]
+        assert main(["-q", "synth", *preset, "--binning", "8", "--noise", "low", "--seed", str(seed), "--name", name,
+                     "-o", str(d / "render")]) == 0
+    cal = d / "cal_binned8.json"
+    RingCalibration.from_optics(load_device("prototype").binned(8)).save(cal)
+    for i in range(4):
+        copy_frame(d / "render" / ("scene.png" if i % 2 == 0 else "part.png"), d / "in" / f"f{i}.png")
+    return d / "in", cal
+
+
+def _children(pid: int) -> set[int]:
+    """The live descendants of ``pid`` (Linux /proc)."""
+    out, todo = set(), [pid]
+    while todo:
+        p = todo.pop()
+        for task in Path(f"/proc/{p}/task").glob("*"):
+            try:
+                kids = {int(k) for k in (task / "children").read_text().split()}
+            except (OSError, ValueError):
+                continue
+            todo.extend(kids - out)
+            out |= kids
+    return out
+
+
+def _catches_sigterm(pid: int) -> bool:
+    """The CLI is up: it installed its SIGTERM handler (bit 15 of SigCgt)."""
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("SigCgt:"):
+                return bool(int(line.split()[1], 16) >> (signal.SIGTERM - 1) & 1)
+    except OSError:
+        pass
+    return False
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = next(line for line in Path(f"/proc/{pid}/status").read_text().splitlines() if line.startswith("State:"))
+    except (OSError, StopIteration):
+        return False
+    return "Z" not in state.split()[1]
+
+
+def _default_sigint():
+    """In the child: Ctrl-C as a terminal delivers it (a shell starts background jobs, and so
+    maybe this test, with SIGINT ignored, which a Python program keeps)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+def _batch(inp, cal, out):
+    return [sys.executable, "-m", "lfring", "batch", str(inp), "-o", str(out), "--calib", str(cal), "--refocus", "0.5",
+            "--workers", "2", "--no-progress", "--interpolation", "linear"]
+
+
+def _check_no_partial_output(out: Path, view_shape):
+    assert not (out / ".lfring-batch.lock").exists()
+    leftovers = [p for p in out.rglob("*") if ".lfring-tmp" in p.parts or ".part" in p.name]
+    assert leftovers == []
+    for png in out.rglob("*.png"):
+        img = cv2.imread(str(png), cv2.IMREAD_UNCHANGED)
+        assert img is not None and img.shape[:2] == tuple(view_shape), png  # a whole image
+    for rec in out.rglob("*.lfring.json"):
+        json.loads(rec.read_text())
+
+
+@pytest.mark.skipif(not Path("/proc/self/task").exists(), reason="needs Linux /proc to follow the workers")
+def test_interrupted_batch_stops_cleanly_and_resumes(small_frames, tmp_path):
+    from lfring.calibration import RingCalibration
+
+    inp, cal = small_frames
+    view_shape = RingCalibration.load(cal).layout.view_shape
+    rng = random.Random(31)
+    env = {**os.environ, "PYTHONWARNINGS": "error"}
+    codes = []
+    for i in range(TRIES):
+        sig = signal.SIGINT if i % 2 == 0 else signal.SIGTERM
+        to_group = i % 4 < 2  # a terminal's Ctrl-C (and `timeout`) signals the whole group; `kill PID` one process
+        out = tmp_path / f"out{i}"
+        proc = subprocess.Popen(_batch(inp, cal, out), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                start_new_session=True, env=env, preexec_fn=_default_sigint)
+        seen: set[int] = set()
+        stop = threading.Event()
+
+        def follow(pid=proc.pid, seen=seen, stop=stop):
+            while not stop.is_set() and proc.poll() is None:
+                seen.update(_children(pid))
+                time.sleep(0.01)
+
+        watcher = threading.Thread(target=follow)
+        watcher.start()
+        t0 = time.monotonic()
+        while not _catches_sigterm(proc.pid) and proc.poll() is None and time.monotonic() - t0 < 60:
+            time.sleep(0.005)
+        time.sleep(rng.uniform(0.0, 2.5))
+        sent = time.monotonic()
+        if proc.poll() is None:
+            (os.killpg if to_group else os.kill)(proc.pid, sig)
+        try:
+            _, err = proc.communicate(timeout=EXIT_WITHIN_S)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.communicate()
+            pytest.fail(f"try {i}: still running {EXIT_WITHIN_S} s after {sig.name}")
+        finally:
+            stop.set()
+            watcher.join()
+        waited = time.monotonic() - sent
+        codes.append(proc.returncode)
+        assert "Traceback" not in err and "Error" not in err.replace("lfring: error:", ""), f"try {i}:\n{err}"
+        if proc.returncode != 0:  # it may have finished before the signal came
+            assert proc.returncode == 128 + sig, f"try {i}: exit {proc.returncode} after {sig.name}:\n{err}"
+            assert waited < EXIT_WITHIN_S
+        deadline = time.monotonic() + 3
+        while any(_alive(p) for p in seen) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert not [p for p in seen if _alive(p)], f"try {i}: workers left running after {sig.name}"
+        _check_no_partial_output(out, view_shape)
+        if i % 10 == 9:  # the rerun completes what was cut short
+            rerun = subprocess.run(_batch(inp, cal, out), capture_output=True, text=True, timeout=300)
+            assert rerun.returncode == 0, rerun.stderr
+            assert "0 failed" in rerun.stdout
+            _check_no_partial_output(out, view_shape)
+            assert sorted(p.name for p in out.glob("*_refocus_0.5m.png")) == [f"f{k}_refocus_0.5m.png" for k in range(4)]
+    assert codes.count(0) <= TRIES // 4, f"too few runs were interrupted: {codes}"

@@ -1,0 +1,125 @@
+"""Each command's outputs appear as a set or not at all: an interrupted command leaves nothing
+(the user's SIGINT 2 s into `lfring depth`, and into a focal sweep), the rerun completes, and a
+rerun with the same inputs and settings replaces the command's own files."""
+
+import json
+import os
+import random
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+SCENE = ROOT / "data" / "synthetic" / "scene.png"
+
+
+def _up(pid: int) -> bool:
+    """The CLI is running its command: it installed its SIGTERM handler."""
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("SigCgt:"):
+                return bool(int(line.split()[1], 16) >> (signal.SIGTERM - 1) & 1)
+    except OSError:
+        pass
+    return False
+
+
+def _default_sigint():
+    """In the child: Ctrl-C as a terminal delivers it (a shell starts background jobs, and so
+    maybe this test, with SIGINT ignored, which a Python program keeps)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+def _interrupt(cmd, cwd, delay_s, sig):
+    proc = subprocess.Popen(cmd, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=_default_sigint)
+    t0 = time.monotonic()
+    while not _up(proc.pid) and proc.poll() is None and time.monotonic() - t0 < 60:
+        time.sleep(0.005)
+    time.sleep(delay_s)
+    if proc.poll() is None:
+        proc.send_signal(sig)
+    _, err = proc.communicate(timeout=30)
+    return proc.returncode, err
+
+
+def _files(folder: Path) -> list[str]:
+    return sorted(str(p.relative_to(folder)) for p in folder.rglob("*") if p.is_file()) if folder.exists() else []
+
+
+DEPTH_SET = ["scene_confidence.tiff", "scene_depth.json", "scene_depth.lfring.json", "scene_depth.pfm", "scene_depth.tiff",
+             "scene_depth_preview.png", "scene_points.ply"]
+
+
+@pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="needs Linux /proc to see the command start")
+def test_interrupted_depth_leaves_nothing_and_the_rerun_completes(tmp_path):
+    cmd = [sys.executable, "-m", "lfring", "depth", str(SCENE), "--zmin", "0.3", "--zmax", "1.0", "--method", "local",
+           "-o", "d/"]
+    rng = random.Random(4)
+    for i, sig in enumerate([signal.SIGINT, signal.SIGTERM]):
+        shutil.rmtree(tmp_path / "d", ignore_errors=True)
+        code, err = _interrupt(cmd, tmp_path, rng.uniform(0.0, 2.5) if i else 2.0, sig)
+        assert "Traceback" not in err
+        files = _files(tmp_path / "d")
+        if code == 0:  # done before the signal came: the whole set
+            assert files == DEPTH_SET
+        else:
+            assert code == 128 + sig, err
+            assert files == [], f"{sig.name} left {files}"  # nothing partial, no staging folder either
+    rerun = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert rerun.returncode == 0, rerun.stderr
+    assert _files(tmp_path / "d") == DEPTH_SET
+    # The same command once more replaces its own set.
+    again = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert again.returncode == 0, again.stderr
+    rec = json.loads((tmp_path / "d" / "scene_depth.lfring.json").read_text())
+    assert rec["command"] == "lfring depth" and rec["status"] == "done" and sorted(rec["outputs"]) == [
+        f for f in DEPTH_SET if f != "scene_depth.lfring.json"]
+    # Other settings, or a file it did not make, need --overwrite.
+    other = subprocess.run([*cmd[:-2], "--min-confidence", "0.9", "-o", "d/"], cwd=tmp_path, capture_output=True, text=True,
+                           timeout=300)
+    assert other.returncode == 2 and "with other settings; pass --overwrite" in other.stderr
+    (tmp_path / "d" / "scene_depth.lfring.json").unlink()
+    foreign = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert foreign.returncode == 2 and "exists; pass --overwrite" in foreign.stderr
+
+
+@pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="needs Linux /proc to see the command start")
+def test_interrupted_focal_sweep_leaves_nothing(tmp_path):
+    cmd = [sys.executable, "-m", "lfring", "refocus", str(SCENE), "--sweep", "0.3:1.0:8", "--method", "shift-and-add",
+           "-o", "stack/scene.png"]
+    for delay, sig in ((1.0, signal.SIGINT), (2.0, signal.SIGTERM)):
+        shutil.rmtree(tmp_path / "stack", ignore_errors=True)
+        code, err = _interrupt(cmd, tmp_path, delay, sig)
+        files = _files(tmp_path / "stack")
+        assert "Traceback" not in err
+        if code != 0:
+            assert code == 128 + sig and files == [], files
+        else:
+            assert len(files) == 8 * 2 + 3
+    done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    files = _files(tmp_path / "stack")
+    assert len(files) == 8 * 2 + 3 and "scene_stack.tif" in files and "scene_stack.gif" in files
+    assert "scene_stack.lfring.json" in files
+
+
+def test_a_failing_command_leaves_no_staging_folder(tmp_path, capsys, monkeypatch):
+    """An error while writing (here a full disk) removes what was staged and names the user's file."""
+    from lfring.cli.main import main
+    from lfring.io import writers
+
+    def full(*args, **kwargs):
+        raise OSError(28, "No space left on device", str(args[0]))
+
+    monkeypatch.setattr(writers.cv2, "imwrite", full)
+    monkeypatch.chdir(tmp_path)
+    assert main(["refocus", str(SCENE), "--depth", "0.5", "--method", "shift-and-add"]) == 2
+    err = capsys.readouterr().err
+    assert "No space left on device" in err and ".lfring-stage" not in err
+    assert os.listdir(tmp_path) == []
