@@ -7,7 +7,10 @@ x86-64; :data:`AVAILABLE` says whether it is); the stages import it on first use
 them through Triton's interpreter on CPU tensors instead (the same kernels, slowly: for the
 tests, within :func:`interpreted_on_cpu`). The choice is made once, at the first import, because
 Triton reads ``TRITON_INTERPRET`` when it is itself first imported: :data:`INTERPRETED` holds it
-and :func:`runs_on` says whether the kernels run on a given device.
+and :func:`runs_on` says whether the kernels run on a given device. The choice is the process's
+own (Triton's knob): the environment is left as it was, so subprocesses choose for themselves,
+and a ``TRITON_INTERPRET`` set by the caller is obeyed. Outside :func:`interpreted_on_cpu` no
+stage runs a kernel on a CPU tensor, so the choice changes nothing else.
 """
 
 from __future__ import annotations
@@ -22,12 +25,22 @@ import numpy as np
 try:
     import torch
 
-    if not torch.cuda.is_available() and "triton" not in sys.modules:
+    _choose = not torch.cuda.is_available() and "triton" not in sys.modules and "TRITON_INTERPRET" not in os.environ
+    if _choose:
         # No device for compiled kernels: Triton's interpreter runs them on CPU tensors. It must
         # be chosen before Triton is first imported (its library functions are made then).
-        os.environ.setdefault("TRITON_INTERPRET", "1")
-    import triton
-    import triton.language as tl
+        os.environ["TRITON_INTERPRET"] = "1"
+    try:
+        import triton
+        import triton.language as tl
+    finally:
+        if _choose:
+            # The choice stays with this process (Triton's knob), not with the environment that
+            # subprocesses inherit.
+            del os.environ["TRITON_INTERPRET"]
+    if _choose:
+        triton.knobs.runtime.interpret = True
+        os.environ.pop("TRITON_INTERPRET", None)  # the knob's setter writes it back
 except ImportError:  # pragma: no cover - the torch extra without Triton (not Linux x86-64)
     triton = tl = None
 
