@@ -107,7 +107,7 @@ def command(frames, depths, output, flat, layout_file, depth_origin, device_name
             z0 = float(depth_origin)
         except ValueError:
             raise click.BadParameter(f"expected auto, optics or metres, got {depth_origin!r}", param_hint="--depth-origin") from None
-    outputs = OutputSet([output], name=Path(output).stem, overwrite=overwrite)
+    outputs = OutputSet([output], name=Path(output).name, overwrite=overwrite)
     outputs.check()
     layout = Layout.load(layout_file) if layout_file else None
     cal = calibrate(dict(zip(zs, frames)), flat=flat, layout=layout, depth_origin_m=z0, method=method, rank1=rank1,

@@ -43,7 +43,7 @@ def command(ctx, frame, calib, output, overwrite, levels):
     out = Path(output) if output else Path(f"{Path(frame).stem}_check.png")
     if out.suffix.lower() != ".png":
         raise click.BadParameter(f"the overlay must end in .png, got {out.name!r}", param_hint="-o")
-    outputs = OutputSet([out], name=out.stem, overwrite=overwrite)
+    outputs = OutputSet([out], name=out.name, overwrite=overwrite)
     outputs.check()
     cal = RingCalibration.load(calib) if calib else None
     raw = read_frame(frame, levels, cal)

@@ -35,7 +35,7 @@ def _save_figure(fig, path: str, overwrite: bool) -> None:
     from lfring.cli.outputs import OutputSet
     from lfring.optics.figures import save_figure
 
-    outputs = OutputSet([path], name=Path(path).stem, overwrite=overwrite)
+    outputs = OutputSet([path], name=Path(path).name, overwrite=overwrite)
     outputs.check()
     with outputs.writing() as stage:
         save_figure(fig, stage(path), overwrite=True)

@@ -75,7 +75,7 @@ def command(size, grid, positions, disparity_scale, disparity_offset, depth_orig
     pos = _positions(grid, positions)
     cal = RingCalibration.from_grid((h, w), pos, disparity_scale_px_m=disparity_scale, disparity_offset_px=disparity_offset,
                                     depth_origin_m=depth_origin)
-    outputs = OutputSet([output], name=Path(output).stem, overwrite=overwrite)
+    outputs = OutputSet([output], name=Path(output).name, overwrite=overwrite)
     outputs.check()
     with outputs.writing() as stage:
         cal.save(stage(output))

@@ -137,7 +137,12 @@ def main(argv=None) -> int:
     try:
         return _run(args)
     finally:
-        if ours:
+        if ours and argv is None:
+            # The command is over and the script exits with its code: a signal now would only cut
+            # the interpreter's exit short (killed by it, or a traceback from a KeyboardInterrupt).
+            signal.signal(signal.SIGTERM, signal.SIG_IGN)
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+        elif ours:  # called from Python: SIGTERM is the caller's again
             signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 

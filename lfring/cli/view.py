@@ -47,7 +47,7 @@ def command(raw, calib, zmin, zmax, planes, reference, min_confidence, image_for
     out = Path(output) if output is not None else Path(f"{Path(raw).stem}_viewer.html")
     if out.suffix.lower() not in (".html", ".htm"):
         raise click.BadParameter(f"output must end in .html, got {out.name!r}", param_hint="-o")
-    outputs = OutputSet([out], name=out.stem, overwrite=overwrite)
+    outputs = OutputSet([out], name=out.name, overwrite=overwrite)
     outputs.check()
     views, cal, cal_name = load_views(raw, calib, levels, check=not no_check)
     ref = check_reference(reference, cal.num_views)
