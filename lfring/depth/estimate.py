@@ -16,7 +16,9 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from lfring.core.backend import check_backend
+from lfring.core.backend import check_backend, require_torch, resolve_device
+from lfring.core.transfer import (check_frames, count_levels, download, download_maps, frames_dtype, is_tensor,
+                                  normalised, to_device)
 from lfring.core.protocols import check_calibration
 from lfring.core.validate import (check_bool, check_callable, check_choice, check_fraction, check_int, check_odd_px,
                                   check_threads)
@@ -42,6 +44,7 @@ def estimate_depth(
     reference="center",
     backend: str = "numpy",
     device=None,
+    levels=None,
     cost: str | None = None,
     aggregation: str = "box",
     window_px: int = 9,
@@ -59,7 +62,10 @@ def estimate_depth(
     Parameters
     ----------
     views : (V, h, w, C) float32 in [0, 1]
-        Cut with the calibration's layout (:func:`lfring.split_views`).
+        Cut with the calibration's layout (:func:`lfring.split_views`). The torch backend also
+        takes a batch (B, V, h, w, C), torch tensors, and raw counts (uint8, uint16; see
+        ``levels``): a batch is estimated in one go and its maps come as (B, h, w); tensors give
+        a result of tensors on the device, NumPy arrays one of arrays.
     calibration : RingCalibration
     zmin_m, zmax_m : float
         Depth range in metres from the main lens; zmin_m must lie beyond z0.
@@ -69,8 +75,15 @@ def estimate_depth(
     reference : 'center' or int
         Frame of the depth map.
     backend : {'numpy', 'torch'}, device : str, optional
-        The torch backend runs the same algorithm with torch and kornia, on ``device`` (CUDA when
-        present by default).
+        The torch backend is the GPU path: on ``device`` (CUDA when present by default; the
+        device of tensor views) the 'sgm' method runs as fused Triton kernels, device-resident
+        from the uploaded views to the maps, which come back in one copy
+        (:mod:`lfring.depth.engines.gpu`); the other methods, and every method on a CPU device,
+        run the same algorithms with torch and kornia.
+    levels : (black, white), optional
+        Raw-count views (torch backend): they travel to the device as integers and become
+        ``(count - black) / (white - black)`` there; by default black 0 and white the dtype's
+        largest count. Float views take none.
     cost : str, optional
         Photo-consistency, one of :data:`lfring.depth.costs.COSTS`; by default the engine's
         ('lcn-halves' for 'sgm', 'lcn' for 'local'). 'lcn': the variance across views of their
@@ -138,6 +151,7 @@ def estimate_depth(
     Returns
     -------
     DepthResult
+        Its maps (h, w), or (B, h, w) for a batch; torch tensors on the device for tensor views.
 
     Notes
     -----
@@ -182,6 +196,14 @@ def estimate_depth(
     check_callable(progress, "progress", what="a callable progress(fraction)")
     check_calibration(calibration)
     rim_taper = check_fraction(rim_taper, "rim_taper", hint=" (a fraction of the disc radius)")
+    if backend == "torch" and (levels is not None or is_tensor(views) or np.ndim(views) == 5
+                               or np.asarray(views).dtype != np.float32):
+        return _estimate_frames(views, calibration, engine, depth_cost, levels, progress, dict(
+            zmin_m=zmin_m, zmax_m=zmax_m, num_planes=num_planes, reference=reference, device=device,
+            aggregation=aggregation, window_px=window_px, aggregate_px=aggregate_px, min_views=min_views,
+            rim_taper=rim_taper, threads=threads, paths=paths, consistency=consistency))
+    if levels is not None:
+        raise InvalidInputError("levels are the black and white counts of integer views on the torch backend")
     arr = check_views(views)
     calibration.check_fits(arr.shape)
     min_views = check_int(min_views, "min_views", minimum=1, maximum=arr.shape[0], hint=f" (there are {arr.shape[0]} views)")
@@ -197,3 +219,62 @@ def estimate_depth(
     extra = engine.run(arr, calibration, plan, settings, finisher, Progress(progress, arr.shape[1]))
     return finisher.result(depths_m=plan.depths, step_px=plan.step_px, reference=plan.reference, cost=depth_cost.name,
                            aggregation=aggregation, method=engine.name, **extra)
+
+
+def _estimate_frames(views, calibration, engine, depth_cost, levels, progress, options) -> DepthResult:
+    """The torch backend's path for a batch (B, V, h, w, C), tensors and raw counts: the views go
+    to the device once (integers as integers) and every frame is estimated there; an engine that
+    runs on the device (``DepthEngine.device_frames``) keeps its maps there, the others take each
+    frame on the host. The maps are stacked and, for NumPy views, copied to the host once."""
+    torch = require_torch()
+    from lfring.depth.engines import gpu
+
+    tensor_in = is_tensor(views)
+    if not tensor_in:
+        views = np.asarray(views)
+    shape, single = check_frames(views)
+    b, v, h, w, c = shape
+    offset, scale = count_levels(frames_dtype(views), levels)
+    dev = resolve_device(options["device"] if options["device"] is not None or not tensor_in else views.device)
+    raw = (views if tensor_in else to_device(views, dev)).to(dev).reshape(shape)
+    frames = normalised(raw, offset, scale)
+    calibration.check_fits(shape[1:])
+    min_views = check_int(options["min_views"], "min_views", minimum=1, maximum=v, hint=f" (there are {v} views)")
+    if not bool(torch.isfinite(frames).all()):
+        raise InvalidInputError("views contain NaN or infinite values")
+    plan = plan_sweep(frames[0], calibration, options["zmin_m"], options["zmax_m"], options["num_planes"],
+                      options["reference"], options["rim_taper"])
+    aggregate_px = options["aggregate_px"]
+    if aggregate_px is None:
+        aggregate_px = engine.lcn_aggregate_px if depth_cost.lcn else options["window_px"]
+    threads = options["threads"]
+    settings = DepthSettings(cost=depth_cost, aggregation=options["aggregation"], window_px=options["window_px"],
+                             aggregate_px=aggregate_px, min_views=min_views,
+                             threads=max(1, cv2.getNumThreads()) if threads is None else threads, backend="torch",
+                             device=dev, paths=options["paths"], consistency=options["consistency"])
+    on_device = engine.device_frames and gpu.engine_runs_on(dev, plan)
+    maps, extras = [], []
+    for k in range(b):
+        args = (plan.depths, calibration.depth_origin_m, (h, w), min_views)
+        finisher = gpu.DeviceFinisher(*args) if on_device else Finisher(*args)
+        report = Progress(None if progress is None else (lambda f, k=k: progress((k + f) / b)), h)
+        frame = frames[k] if on_device else download(frames[k])
+        extra = engine.run(frame, calibration, plan, settings, finisher, report)
+        filled = extra.pop("depth_filled_m", None)
+        maps.append([finisher.depth, finisher.conf, finisher.index] + ([] if filled is None else [filled]))
+        extras.append(extra)
+    if on_device:  # tensors on the device: one copy to the host for NumPy views
+        stacked = [torch.stack([m[i] for m in maps]) for i in range(len(maps[0]))]
+        if not tensor_in:
+            stacked = download_maps(stacked)
+    else:  # arrays on the host: one copy to the device for tensor views
+        stacked = [np.stack([m[i] for m in maps]) for i in range(len(maps[0]))]
+        if tensor_in:
+            stacked = list(to_device(np.stack(stacked), dev))
+    if single:
+        stacked = [m[0] for m in stacked]
+    fields = dict(depth_m=stacked[0], confidence=stacked[1], hypothesis_index=stacked[2])
+    if len(stacked) > 3:
+        fields["depth_filled_m"] = stacked[3]
+    return DepthResult(depths_m=plan.depths, step_px=plan.step_px, reference=plan.reference, cost=depth_cost.name,
+                       aggregation=options["aggregation"], method=engine.name, **fields, **extras[0])

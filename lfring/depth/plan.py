@@ -21,8 +21,8 @@ from lfring.core.warping import warp_image
 from lfring.depth.hypotheses import depth_hypotheses, view_motion_px
 from lfring.errors import LfringWarning
 
-__all__ = ["DEPTH_TAPER", "DepthSettings", "Progress", "SweepPlan", "guide_image", "in_reference_frame", "plan_sweep",
-           "sweep_masks"]
+__all__ = ["DEPTH_TAPER", "DepthSettings", "Progress", "SweepPlan", "baseline_axis", "guide_image", "in_reference_frame",
+           "other_reference", "plan_sweep", "sweep_masks"]
 
 # Fraction of a view's disc radius over which its weight rises from 0 to 1 in the sweep
 # (lfring.core.viewstack.view_masks). The refocusing taper (lfring.core.viewstack.TAPER, 15 %) hides seams in an image;
@@ -142,3 +142,23 @@ def guide_image(views, plan) -> np.ndarray:
         g = luminance(views[plan.reference:plan.reference + 1])[0]
     top = float(np.percentile(g, 99.5))
     return np.clip(g / max(top, 1e-6), 0, 1).astype(np.float32)
+
+
+def other_reference(plan) -> int:
+    """The view whose viewpoint lies farthest from the reference's (the largest baseline sees an
+    occlusion from the other side): the second frame of the semi-global method's left-right
+    check."""
+    hs = plan.hs[len(plan.depths) // 2]
+    centre = np.array([0.0, 0.0, 1.0])
+    moved = [np.hypot(*(p[:2] / p[2])) for p in (np.linalg.inv(hk) @ centre for hk in hs)]
+    return int(np.argmax(moved))
+
+
+def baseline_axis(plan, view: int) -> int:
+    """1 when ``view`` moves the reference's pixels mostly along rows as the depth changes (a
+    horizontal baseline), 0 when mostly along columns."""
+    h, w = plan.masks.shape[1:3]
+    centre = np.array([w / 2.0, h / 2.0, 1.0])
+    near, far = plan.hs[0, view] @ centre, plan.hs[-1, view] @ centre
+    dx, dy = far[:2] / far[2] - near[:2] / near[2]
+    return 1 if abs(dx) >= abs(dy) else 0

@@ -26,7 +26,7 @@ import numpy as np
 from lfring.core.validate import check_int, check_number
 from lfring.errors import InvalidInputError
 
-__all__ = ["MIN_CONFIDENCE", "fill_from_farther_side", "refine_index"]
+__all__ = ["FGS_ATTENUATION", "FGS_ITERATIONS", "FILL_WEIGHT_FLOOR", "MIN_CONFIDENCE", "fill_from_farther_side", "refine_index"]
 
 # Pixels below this confidence (1 - best / second best of the aggregated cost) are not trusted.
 MIN_CONFIDENCE = 0.05
@@ -36,8 +36,12 @@ MEDIAN_SIGMA = 25.5
 # Fast global smoother for the holes: regularisation and guide range sigma (8-bit levels).
 FGS_LAMBDA = 200.0
 FGS_SIGMA = 8.0
+# OpenCV's defaults of the smoother, which refine_index keeps: each of its iterations is a pass
+# along the rows and one along the columns, with the regularisation cut by this factor after it.
+FGS_ATTENUATION = 0.25
+FGS_ITERATIONS = 3
 # Normalised convolution: below this smoothed weight a pixel has no support at all.
-_FILL_WEIGHT_FLOOR = 1e-6
+FILL_WEIGHT_FLOOR = 1e-6
 # The weighted median bins the values: their range is cut into at most this many units (one per
 # hypothesis when the range allows), each split into MEDIAN_FINE_BINS bins; the answer is the
 # weighted mean of the values in the median's bin.
@@ -155,12 +159,13 @@ def refine_index(index, confidence, guide, *, min_confidence: float = MIN_CONFID
     refined = weighted_median(d, known, g8 if g8.ndim == 2 else cv2.cvtColor(g8, cv2.COLOR_RGB2GRAY), radius_px, sigma)
     if not known.any():
         return refined, refined.copy()
-    weight = np.where(known, np.maximum(c, _FILL_WEIGHT_FLOOR), 0).astype(np.float32)
-    fgs = cv2.ximgproc.createFastGlobalSmootherFilter(g8, float(fill_lambda), float(fill_sigma))
+    weight = np.where(known, np.maximum(c, FILL_WEIGHT_FLOOR), 0).astype(np.float32)
+    fgs = cv2.ximgproc.createFastGlobalSmootherFilter(g8, float(fill_lambda), float(fill_sigma), FGS_ATTENUATION,
+                                                     FGS_ITERATIONS)
     num = fgs.filter(np.where(known, refined, 0).astype(np.float32) * weight)
     den = fgs.filter(weight)
     with np.errstate(invalid="ignore", divide="ignore"):
-        interp = np.where(den > _FILL_WEIGHT_FLOOR, num / den, np.nan)
+        interp = np.where(den > FILL_WEIGHT_FLOOR, num / den, np.nan)
     filled = np.where(known, refined, interp).astype(np.float32)
     return refined, filled
 

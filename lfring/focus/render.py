@@ -48,8 +48,8 @@ def _method(name, backend, options):
 
 
 def refocus(views, calibration, depth_m: float, *, reference="center", interpolation: str = DEFAULT_INTERPOLATION,
-            backend: str = "numpy", device=None, method: str = "shift-and-add", aperture=None, f_number=None,
-            ring_device=None, depth=None, zmin_m=None, zmax_m=None) -> np.ndarray:
+            backend: str = "numpy", device=None, levels=None, method: str = "shift-and-add", aperture=None,
+            f_number=None, ring_device=None, depth=None, zmin_m=None, zmax_m=None) -> np.ndarray:
     """Refocus the views at ``depth_m`` metres from the main lens.
 
     Parameters
@@ -65,10 +65,16 @@ def refocus(views, calibration, depth_m: float, *, reference="center", interpola
         Frame of the result: the virtual central view (default) or a view index.
     interpolation : {'linear', 'cubic'}
     backend : {'numpy', 'torch'}
-        'torch' runs on ``device`` (CUDA when present by default) through kornia, and also
-        takes batches (B, V, h, w, C); see :func:`lfring.focus.shift_and_add.refocus_torch`.
+        'torch' is the GPU path: it runs on ``device`` (CUDA when present by default, one
+        Triton kernel there; kornia on a CPU) and also takes batches (B, V, h, w, C), torch
+        tensors (a tensor in, a tensor out, on the device) and raw counts (uint8, uint16,
+        normalised on the device with ``levels``); see
+        :func:`lfring.focus.shift_and_add.refocus_torch`.
     device : str, optional
         For the torch backend, e.g. 'cuda' or 'cpu'.
+    levels : (black, white), optional
+        For raw-count views on the torch backend: the counts of black and white (by default 0
+        and the dtype's largest count).
     method : str
         One of :data:`lfring.focus.methods.METHODS`. 'shift-and-add' averages the views aligned at ``depth_m``: objects elsewhere appear as V
         displaced copies. 'depth-aware' renders what a lens whose aperture spans the views
@@ -120,7 +126,10 @@ def refocus(views, calibration, depth_m: float, *, reference="center", interpola
                                       zmin_m=zmin_m, zmax_m=zmax_m))
     if backend == "torch":
         check_renderable(calibration, depth_m, reference=reference)  # as the Refocuser does
-        return refocus_torch(views, calibration, depth_m, reference=reference, device=device, interpolation=interpolation)
+        return refocus_torch(views, calibration, depth_m, reference=reference, device=device, interpolation=interpolation,
+                             levels=levels)
+    if levels is not None:
+        raise InvalidInputError("levels are the black and white counts of integer views on the torch backend")
     arr = check_views(views)
     sharp = Refocuser(calibration, depth_m, reference=reference, view_shape=arr.shape[1:3], interpolation=interpolation)(arr)
     if m.prepare is None:

@@ -14,6 +14,8 @@ import numpy as np
 
 from lfring.calibration.overlap import check_renderable
 from lfring.core.backend import require_torch, resolve_device
+from lfring.core.transfer import (check_frames, count_levels, device_masks, download, frames_dtype, is_tensor, normalised,
+                                  to_device)
 from lfring.core.shift import ShiftEngine
 from lfring.core.validate import check_threads
 from lfring.core.viewstack import WEIGHT_FLOOR, cached_view_masks, check_views, inverse_weight
@@ -183,33 +185,76 @@ class Refocuser:
         return acc[..., None] if c == 1 else acc
 
 
-def refocus_torch(frames, calibration, depth_m: float, *, reference="center", device=None, interpolation: str = "linear"):
-    """Refocus one frame's views (V, h, w, C) or a batch of frames (B, V, h, w, C).
+def refocus_torch(frames, calibration, depth_m: float, *, reference="center", device=None, interpolation: str = "linear",
+                  levels=None):
+    """Refocus one frame's views (V, h, w, C) or a batch of frames (B, V, h, w, C) with torch.
 
-    NumPy input gives NumPy output (float32); a torch tensor gives a tensor on ``device``.
+    NumPy input gives NumPy output (float32); a torch tensor gives a tensor on ``device`` (by
+    default its own). Views are float32 in [0, 1] or raw counts (uint8, uint16): counts travel to
+    the device as integers and become ``(count - black) / (white - black)`` there, ``levels`` =
+    (black, white), by default (0, the dtype's largest count). NumPy input travels through pinned
+    memory, and the result comes back in one copy.
+
+    On a CUDA device, bilinear refocusing is one Triton kernel
+    (:mod:`lfring.focus.shift_and_add_kernels`): every output pixel reads its views' taps, in
+    their dtype, once. Elsewhere (a CPU device, 'nearest', no Triton) kornia warps the views.
     ``interpolation`` is 'linear' (or 'nearest'); see :func:`lfring.refocus`.
     """
     torch = require_torch()
-    from kornia.geometry.transform import warp_perspective
-
     if interpolation not in ("linear", "nearest"):
         raise InvalidInputError(f"the torch backend interpolates 'linear' or 'nearest', got {interpolation!r}")
-    is_tensor = isinstance(frames, torch.Tensor)
-    dev = resolve_device(device if device is not None else (frames.device if is_tensor else None))
-    x = frames if is_tensor else torch.from_numpy(np.ascontiguousarray(frames))
-    if x.dtype != torch.float32:
-        raise InvalidInputError(f"views must be float32, got {x.dtype}")
-    single = x.ndim == 4
-    if single:
-        x = x[None]
-    if x.ndim != 5:
-        raise InvalidInputError(f"expected (V, h, w, C) or (B, V, h, w, C) views, got shape {tuple(x.shape)}")
-    b, v, h, w, c = x.shape
-    masks = torch.from_numpy(np.array(cached_view_masks(calibration, (h, w)))).to(dev)  # writable copy of the read-only cache  # (V, h, w)
-    hs = torch.from_numpy(calibration.homographies(depth_m, reference=reference)).to(dev, torch.float32)
+    tensor_in = is_tensor(frames)
+    if not tensor_in:
+        frames = np.asarray(frames)
+    offset, scale = count_levels(frames_dtype(frames), levels)
+    shape, single = check_frames(frames)
+    b, v, h, w, c = shape
+    dev = resolve_device(device if device is not None or not tensor_in else frames.device)
+    hs = calibration.homographies(depth_m, reference=reference)
     if hs.shape[0] != v:
         raise InvalidInputError(f"the calibration has {hs.shape[0]} views, the frames {v}")
-    x = x.to(dev)
+    raw = (frames if tensor_in else to_device(frames, dev)).to(dev).reshape(shape)
+    masks = device_masks(calibration, (h, w), dev)
+    with torch.no_grad():
+        if interpolation == "linear" and _kernels_run_on(dev):
+            out = _refocus_kernel(raw.contiguous(), masks, hs, offset, scale)
+        else:
+            out = _refocus_kornia(torch, normalised(raw, offset, scale), masks, hs, interpolation)
+    if single:
+        out = out[0]
+    return out if tensor_in else download(out)
+
+
+def _kernels_run_on(device) -> bool:
+    try:
+        from lfring.core import triton_kernels
+    except ImportError:  # pragma: no cover - the torch extra is not installed
+        return False
+    return triton_kernels.runs_on(device)
+
+
+def _refocus_kernel(raw, masks, hs, offset: float, scale: float):
+    """The refocus kernel over a batch (B, V, h, w, C) of any dtype on its device."""
+    torch = require_torch()
+    from lfring.core import triton_kernels as tk
+    from lfring.focus.shift_and_add_kernels import refocus_kernel
+
+    b, v, h, w, c = raw.shape
+    out = torch.empty((b, h, w, c), dtype=torch.float32, device=raw.device)
+    hinv = np.linalg.inv(np.asarray(hs, np.float64)).reshape(v, 9).astype(np.float32)
+    hinv = torch.from_numpy(hinv).to(raw.device)
+    block = min(tk.next_power_of_2(h * w), 1 << 20) if tk.INTERPRETED else 256
+    tk.launch(refocus_kernel, (-(-h * w // block), b), raw, masks, hinv, out, v, h, w, c, float(offset), float(scale),
+              WEIGHT_FLOOR, CH=tk.next_power_of_2(c), BLOCK=block, num_warps=1 if tk.INTERPRETED else 4)
+    return out
+
+
+def _refocus_kornia(torch, x, masks, hs, interpolation: str):
+    """Shift-and-add of a float32 batch (B, V, h, w, C) by kornia's warps."""
+    from kornia.geometry.transform import warp_perspective
+
+    b, v, h, w, c = x.shape
+    hs = torch.from_numpy(np.asarray(hs)).to(x.device, torch.float32)
     # (B, V, h, w, C) -> (B*V, C+1, h, w): the masked views and their masks warp together.
     src = torch.cat([x * masks[None, :, :, :, None], masks[None, :, :, :, None].expand(b, v, h, w, 1)], dim=-1)
     src = src.permute(0, 1, 4, 2, 3).reshape(b * v, c + 1, h, w)
@@ -218,10 +263,7 @@ def refocus_torch(frames, calibration, depth_m: float, *, reference="center", de
     warped = warped.reshape(b, v, c + 1, h, w).sum(dim=1)
     weight = warped[:, c:]
     out = torch.where(weight > WEIGHT_FLOOR, warped[:, :c] / weight.clamp_min(WEIGHT_FLOOR), torch.zeros_like(warped[:, :c]))
-    out = out.permute(0, 2, 3, 1)
-    if single:
-        out = out[0]
-    return out if is_tensor else out.cpu().numpy()
+    return out.permute(0, 2, 3, 1)
 
 
 SHIFT_AND_ADD = RefocusMethod(

@@ -46,3 +46,23 @@ def test_backend_errors(twin, device):
         refocus(views.astype(np.float64), cal, 0.5, backend="torch", device=device)
     with pytest.raises(InvalidInputError, match="linear"):
         refocus(views, cal, 0.5, backend="torch", device=device, interpolation="cubic")
+
+
+def test_the_refocus_kernel_matches_numpy(twin, device):
+    """The Triton kernel (CUDA compiled; the CPU interpreted in a process without CUDA): a batch
+    of uint8 counts with levels, normalised inside the kernel, as the NumPy refocus of the float
+    views they stand for; a float32 frame as its NumPy refocus."""
+    tk = pytest.importorskip("lfring.core.triton_kernels")
+    if not tk.AVAILABLE or (device == "cpu" and not tk.INTERPRETED):
+        pytest.skip("no Triton, or a process with CUDA (which runs no kernel on CPU tensors)")
+    views, cal = twin
+    levels = (16, 240)
+    counts = np.stack([np.round(16 + f * 224) for f in (views, views[:, :, :, ::-1])]).astype(np.uint8)
+    floats = (counts.astype(np.float32) - 16) / 224
+    with tk.interpreted_on_cpu():
+        got = refocus(torch.from_numpy(counts).to(device), cal, 0.5, backend="torch", levels=levels)
+        one = refocus(views, cal, 0.5, backend="torch", device=device)
+    assert isinstance(got, torch.Tensor) and got.device.type == device and got.shape == (2, *views.shape[1:])
+    for k in range(2):
+        np.testing.assert_allclose(got[k].cpu().numpy(), refocus(floats[k], cal, 0.5), rtol=0, atol=1e-4)
+    assert isinstance(one, np.ndarray) and np.abs(one - refocus(views, cal, 0.5)).max() < 1e-4

@@ -33,6 +33,11 @@ class DepthEngine:
         It holds the whole cost volume (costs that choose over it need that).
     options : frozenset of str
         The engine-specific options of ``estimate_depth`` it reads ('paths', 'consistency').
+    device_frames : bool
+        On the torch backend, where its GPU kernels run on the device
+        (:func:`lfring.depth.engines.gpu.kernels_run_on`), ``run`` also takes one frame's views
+        as a float32 tensor on the device with a :class:`lfring.depth.engines.gpu.DeviceFinisher`,
+        and leaves its maps there: batches of frames stay on the device.
     """
 
     name: str
@@ -42,3 +47,4 @@ class DepthEngine:
     lcn_aggregate_px: int
     whole_volume: bool = False
     options: frozenset = frozenset()
+    device_frames: bool = False

@@ -24,6 +24,7 @@ from lfring.depth.aggregation import box_mean_of_finite, least_over_windows
 from lfring.depth.costs.lcn_halves import take_halves, view_halves
 from lfring.depth.engines.base import DepthEngine
 from lfring.depth.engines.fused import fused_index
+from lfring.depth.engines.gpu import run_semiglobal_gpu
 from lfring.depth.plan import guide_image
 from lfring.depth.refine import fill_from_farther_side, refine_index
 from lfring.depth.sgm import P1_SCALE, P2_SCALE, cost_scale, select, sgm_aggregate, sgm_aggregate_torch
@@ -61,6 +62,11 @@ def run_semiglobal(views, calibration, plan, settings, finisher, progress, *, fu
             f"({zmin_m:g}..{zmax_m:g} m) have none; give num_planes >= {SGM_MIN_PLANES}, widen the depth range, "
             "or use method='local'")
     check = views.shape[0] == 2 if settings.consistency is None else bool(settings.consistency)
+    if settings.backend == "torch" and fused:  # the GPU engine; None where its kernels cannot run on the device
+        out = run_semiglobal_gpu(views, calibration, plan, settings, finisher, progress, consistency=check,
+                                 subpixel_box_px=SUBPIXEL_BOX_PX, consistency_steps=CONSISTENCY_STEPS)
+        if out is not None:
+            return out
     with numba_threads(settings.threads):  # every compiled kernel of the method, not only the optimisation's
         filled = _optimise(views, calibration, plan, settings, finisher, consistency=check, report=progress, fused=fused)
     progress.done()
@@ -204,6 +210,7 @@ SEMIGLOBAL = DepthEngine(
     lcn_aggregate_px=SGM_AGGREGATE_PX,
     whole_volume=True,
     options=frozenset({"paths", "consistency"}),
+    device_frames=True,
 )
 
 SEMIGLOBAL_REFERENCE = DepthEngine(
