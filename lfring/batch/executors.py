@@ -103,6 +103,12 @@ class LocalPool:
                     if p.is_alive():
                         p.kill()
                         p.join(STOP_TIMEOUT_S)
+            # The pool's manager thread notices the dead workers and closes its wake-up pipe; left
+            # running, it races the interpreter's exit hook, which writes to that pipe (an
+            # OSError traceback at exit when the pipe closes in between).
+            manager = getattr(self._pool, "_executor_manager_thread", None)
+            if manager is not None:
+                manager.join(STOP_TIMEOUT_S)
 
 
 def held_wait(fs, return_when=FIRST_COMPLETED):
