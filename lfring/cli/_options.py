@@ -125,6 +125,16 @@ def read_frame(raw: str, levels: RawLevels | None = None, calibration=None):
     return frame
 
 
+def aperture_options(fn):
+    """--aperture A and --f-number N: the depth of field of depth-aware refocusing."""
+    fn = click.option("--f-number", "f_number", type=float, default=None, metavar="N",
+                      help="depth-aware: the main lens's f-number instead of --aperture (needs a calibration made "
+                           "from a described device, as the built-in ones are).")(fn)
+    return click.option("--aperture", type=float, default=None, metavar="A",
+                        help="depth-aware: aperture radius, 1 = the aperture the four views span (default), 0 = all "
+                             "in focus.")(fn)
+
+
 def flat_option(fn):
     """Adds --flat FILE: the views are divided by a flat (white) frame's, which takes each view's
     vignetting out (the command receives the path as ``flat``)."""

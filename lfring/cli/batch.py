@@ -6,7 +6,7 @@ import logging
 
 import click
 
-from lfring.cli._options import check_option, parse_depths, raw_options
+from lfring.cli._options import aperture_options, check_option, parse_depths, raw_options
 from lfring.core.warping import DEFAULT_INTERPOLATION
 
 log = logging.getLogger("lfring.cli.batch")
@@ -26,11 +26,7 @@ log = logging.getLogger("lfring.cli.batch")
                    "there is one, else one estimated over --zmin..--zmax or the calibration's range); "
                    "shift-and-add averages the views (out-of-focus objects as four copies; much faster). Each frame's "
                    "record says which method and aperture made its images.")
-@click.option("--aperture", type=float, default=None, metavar="A",
-              help="depth-aware: aperture radius, 1 = the aperture the four views span (default), 0 = all in focus.")
-@click.option("--f-number", "f_number", type=float, default=None, metavar="N",
-              help="depth-aware: the main lens's f-number instead of --aperture (needs a calibration made from a "
-                   "described device, as the built-in ones are).")
+@aperture_options
 @click.option("--depth", "depth_map", is_flag=True, help="Depth map of every frame over --zmin..--zmax.")
 @click.option("--zmin", type=float, default=None, metavar="M", help="Nearest depth searched [m], with --depth or --viewer.")
 @click.option("--zmax", type=float, default=None, metavar="M", help="Farthest depth searched [m], with --depth or --viewer.")

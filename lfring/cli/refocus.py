@@ -10,6 +10,7 @@ import click
 import numpy as np
 
 from lfring.cli._options import (
+    aperture_options,
     check_option,
     flat_option,
     load_views,
@@ -84,11 +85,7 @@ def _depths(depth, depths, sweep) -> list[float]:
                    "depth map estimated over --zmin..--zmax; out of focus measured closer to it than shift-and-add on a "
                    "real light field and on the twin, the same in focus, much slower per depth); shift-and-add: the "
                    "views' average (out-of-focus objects as four copies).")
-@click.option("--aperture", type=float, default=None, metavar="A",
-              help="depth-aware: aperture radius, 1 = the aperture the four views span (default), 0 = all in focus.")
-@click.option("--f-number", "f_number", type=float, default=None, metavar="N",
-              help="depth-aware: the main lens's f-number instead of --aperture (needs a calibration made from a "
-                   "described device).")
+@aperture_options
 @click.option("--zmin", type=float, default=None, metavar="M", help="depth-aware: nearest depth of the depth estimation [m] "
               "(default: the calibration's valid range).")
 @click.option("--zmax", type=float, default=None, metavar="M", help="depth-aware: farthest depth of the depth estimation [m] "

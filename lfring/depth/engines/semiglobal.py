@@ -25,7 +25,7 @@ from lfring.depth.costs.lcn_halves import take_halves, view_halves
 from lfring.depth.engines.base import DepthEngine
 from lfring.depth.engines.fused import fused_index
 from lfring.depth.engines.gpu import run_semiglobal_gpu
-from lfring.depth.plan import guide_image
+from lfring.depth.plan import baseline_axis, guide_image, other_reference
 from lfring.depth.refine import fill_from_farther_side, refine_index
 from lfring.depth.sgm import P1_SCALE, P2_SCALE, cost_scale, select, sgm_aggregate, sgm_aggregate_torch
 from lfring.depth.sweep import run_sweep
@@ -73,25 +73,6 @@ def run_semiglobal(views, calibration, plan, settings, finisher, progress, *, fu
     return dict(depth_filled_m=filled, paths=settings.paths, consistency=check)
 
 
-def _other_reference(plan) -> int:
-    """The view whose viewpoint lies farthest from the reference's (the largest baseline sees an
-    occlusion from the other side): the consistency check's second frame."""
-    hs = plan.hs[len(plan.depths) // 2]
-    centre = np.array([0.0, 0.0, 1.0])
-    moved = [np.hypot(*(p[:2] / p[2])) for p in (np.linalg.inv(hk) @ centre for hk in hs)]
-    return int(np.argmax(moved))
-
-
-def _baseline_axis(plan, view: int) -> int:
-    """1 when ``view`` moves the reference's pixels mostly along rows as the depth changes (a
-    horizontal baseline), 0 when mostly along columns."""
-    h, w = plan.masks.shape[1:3]
-    centre = np.array([w / 2.0, h / 2.0, 1.0])
-    near, far = plan.hs[0, view] @ centre, plan.hs[-1, view] @ centre
-    dx, dy = far[:2] / far[2] - near[:2] / near[2]
-    return 1 if abs(dx) >= abs(dy) else 0
-
-
 def _consistent(calibration, plan, index, other_plan, other_index, tolerance: float) -> np.ndarray:
     """(h, w) bool: pixels whose depth, seen from the other reference frame at that depth, is
     the depth found there (to ``tolerance`` hypotheses): the left-right check of stereo."""
@@ -132,7 +113,7 @@ def _optimise(views, calibration, plan, settings, fin, consistency=True, report=
     share = 0.5 if consistency else 1.0  # of the work, per reference frame
     index, confidence, nviews, guide = _index(views, calibration, plan, settings, report, 0.0, share, fused)
     if consistency:
-        other = dataclasses.replace(plan, reference=_other_reference(plan))
+        other = dataclasses.replace(plan, reference=other_reference(plan))
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", LfringWarning)
             other = dataclasses.replace(other, hs=calibration.homographies(plan.depths, reference=other.reference))
@@ -145,7 +126,7 @@ def _optimise(views, calibration, plan, settings, fin, consistency=True, report=
         # see): the filled map takes the farther side along the baseline there, the smoother's
         # interpolation elsewhere, which spread the nearer surface over the occluded background:
         # fewer bad pixels in depth_filled_m on real stereo pairs, and no more on the twin's pairs.
-        behind = fill_from_farther_side(refined, ~keep, axis=_baseline_axis(plan, other.reference))
+        behind = fill_from_farther_side(refined, ~keep, axis=baseline_axis(plan, other.reference))
         filled = np.where(~keep & np.isfinite(behind), behind, filled).astype(np.float32)
     index = np.where(np.isfinite(refined), refined, np.nan if consistency else index).astype(np.float32)
     filled = np.where(np.isfinite(filled), filled, index).astype(np.float32)  # never unknown where index is known
