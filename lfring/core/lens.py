@@ -17,6 +17,7 @@ illumination measured on a flat (white) frame; dividing by it makes the views eq
 
 from __future__ import annotations
 
+import abc
 import math
 from dataclasses import dataclass, field
 
@@ -57,7 +58,7 @@ _GRID_STEP_PX = 8
 
 
 @dataclass(frozen=True)
-class Distortion:
+class Distortion(abc.ABC):
     """A map of one view's pixels from where a pinhole camera would put a point (ideal) to where
     the lens puts it (recorded), about a centre and normalised by a length: the common part of
     :class:`LensDistortion` (a lens's physical model) and :class:`PolynomialDistortion` (what a
@@ -82,12 +83,13 @@ class Distortion:
     __repr__ = record_repr
 
     @property
+    @abc.abstractmethod
     def is_identity(self) -> bool:
         """True when the map moves no point."""
-        raise NotImplementedError
 
+    @abc.abstractmethod
     def _normalised_forward(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        raise NotImplementedError
+        """The distorted normalised positions of the undistorted ones ``(x, y)``."""
 
     def shifted(self, dx_px: float, dy_px: float):
         """The same distortion in a pixel frame whose origin is moved: ``centre + (dx, dy)``
