@@ -6,13 +6,13 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-__all__ = ["finite_box_mean"]
+__all__ = ["finite_box_mean", "reflect"]
 
 _JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")  # numpy: no zero-division checks, so loops vectorise
 
 
-@njit(**_JIT)
-def _reflect(i, n):
+@njit(inline="always")
+def reflect(i, n):
     """Index i folded into [0, n) as OpenCV's BORDER_REFLECT_101 (gfedcb|abcdefgh|gfedcba)."""
     if n == 1:
         return 0
@@ -45,9 +45,9 @@ def finite_box_mean(c, radius, floor, blocks, out):
         pre_n = np.empty(w + size, np.float64)
         fold = np.empty(w + 2 * radius, np.int64)
         for j in range(w + 2 * radius):
-            fold[j] = _reflect(j - radius, w)
+            fold[j] = reflect(j - radius, w)
         for k in range(y0 - radius, y0 + radius + 1):
-            r = _reflect(k, h)
+            r = reflect(k, h)
             for x in range(w):
                 v = c[r, x]
                 ok = abs(v) < big
@@ -55,8 +55,8 @@ def finite_box_mean(c, radius, floor, blocks, out):
                 col_n[x] += 1.0 if ok else 0.0
         for y in range(y0, y1):
             if y > y0:
-                r_in = _reflect(y + radius, h)
-                r_out = _reflect(y - radius - 1, h)
+                r_in = reflect(y + radius, h)
+                r_out = reflect(y - radius - 1, h)
                 for x in range(w):
                     v = c[r_in, x]
                     u = c[r_out, x]

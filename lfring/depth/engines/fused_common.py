@@ -9,9 +9,7 @@ clipped to :data:`COST_MAX` and the penalties stay below :data:`PENALTY_MAX`.
 
 from __future__ import annotations
 
-from numba import njit
-
-__all__ = ["COST_MAX", "COST_ZERO", "FAST", "INLINE", "JIT", "PARALLEL", "PENALTY_MAX", "TILE", "UNKNOWN", "reflect"]
+__all__ = ["COST_MAX", "COST_ZERO", "FAST", "INLINE", "JIT", "PARALLEL", "PENALTY_MAX", "TILE", "UNKNOWN"]
 
 # Fast maths without "no infinities": unknown costs are inf until they are quantised.
 FAST = {"nsz", "arcp", "contract", "afn"}
@@ -33,13 +31,5 @@ PENALTY_MAX = 4000
 COST_ZERO = 1024
 
 
-@njit(inline="always")
-def reflect(i, n):
-    """Index i folded into [0, n) as OpenCV's BORDER_REFLECT_101."""
-    if n == 1:
-        return 0
-    while i < 0 or i >= n:
-        i = -i if i < 0 else 2 * n - 2 - i
-    return i
 
 

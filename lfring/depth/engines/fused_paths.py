@@ -13,7 +13,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from lfring.depth.engines.fused_common import COST_ZERO, INLINE, JIT, PARALLEL, TILE, UNKNOWN, reflect
+from lfring.depth.aggregation_kernels import reflect
+from lfring.depth.engines.fused_common import COST_ZERO, INLINE, JIT, PARALLEL, TILE, UNKNOWN
 
 __all__ = ["horizontal_paths", "vertical_paths"]
 

@@ -17,7 +17,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from lfring.depth.engines.fused_common import COST_MAX, COST_ZERO, INLINE, JIT, PARALLEL, UNKNOWN, reflect
+from lfring.depth.aggregation_kernels import reflect
+from lfring.depth.engines.fused_common import COST_MAX, COST_ZERO, INLINE, JIT, PARALLEL, UNKNOWN
 
 __all__ = ["sample_costs", "sweep_halves", "sweep_volume"]
 
