@@ -15,6 +15,7 @@ from pathlib import Path
 import cv2
 import pytest
 from batch_frames import copy_frame
+from child_processes import default_sigint, handles_sigterm
 
 TRIES = 20
 EXIT_WITHIN_S = 10.0
@@ -54,16 +55,6 @@ def _children(pid: int) -> set[int]:
     return out
 
 
-def _catches_sigterm(pid: int) -> bool:
-    """The CLI is up: it installed its SIGTERM handler (bit 15 of SigCgt)."""
-    try:
-        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-            if line.startswith("SigCgt:"):
-                return bool(int(line.split()[1], 16) >> (signal.SIGTERM - 1) & 1)
-    except OSError:
-        pass
-    return False
-
 
 def _alive(pid: int) -> bool:
     try:
@@ -72,11 +63,6 @@ def _alive(pid: int) -> bool:
         return False
     return "Z" not in state.split()[1]
 
-
-def _default_sigint():
-    """In the child: Ctrl-C as a terminal delivers it (a shell starts background jobs, and so
-    maybe this test, with SIGINT ignored, which a Python program keeps)."""
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 def _batch(inp, cal, out):
@@ -109,7 +95,7 @@ def test_interrupted_batch_stops_cleanly_and_resumes(small_frames, tmp_path):
         to_group = i % 4 < 2  # a terminal's Ctrl-C (and `timeout`) signals the whole group; `kill PID` one process
         out = tmp_path / f"out{i}"
         proc = subprocess.Popen(_batch(inp, cal, out), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                                start_new_session=True, env=env, preexec_fn=_default_sigint)
+                                start_new_session=True, env=env, preexec_fn=default_sigint)
         seen: set[int] = set()
         stop = threading.Event()
 
@@ -121,7 +107,7 @@ def test_interrupted_batch_stops_cleanly_and_resumes(small_frames, tmp_path):
         watcher = threading.Thread(target=follow)
         watcher.start()
         t0 = time.monotonic()
-        while not _catches_sigterm(proc.pid) and proc.poll() is None and time.monotonic() - t0 < 60:
+        while not handles_sigterm(proc.pid) and proc.poll() is None and time.monotonic() - t0 < 60:
             time.sleep(0.005)
         time.sleep(rng.uniform(0.0, 2.5))
         sent = time.monotonic()

@@ -13,33 +13,19 @@ import time
 from pathlib import Path
 
 import pytest
+from child_processes import default_sigint, handles_sigterm
 
 ROOT = Path(__file__).resolve().parents[2]
 SCENE = ROOT / "data" / "synthetic" / "scene.png"
 
 
-def _up(pid: int) -> bool:
-    """The CLI is running its command: it installed its SIGTERM handler."""
-    try:
-        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-            if line.startswith("SigCgt:"):
-                return bool(int(line.split()[1], 16) >> (signal.SIGTERM - 1) & 1)
-    except OSError:
-        pass
-    return False
-
-
-def _default_sigint():
-    """In the child: Ctrl-C as a terminal delivers it (a shell starts background jobs, and so
-    maybe this test, with SIGINT ignored, which a Python program keeps)."""
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 def _interrupt(cmd, cwd, delay_s, sig):
     proc = subprocess.Popen(cmd, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            preexec_fn=_default_sigint)
+                            preexec_fn=default_sigint)
     t0 = time.monotonic()
-    while not _up(proc.pid) and proc.poll() is None and time.monotonic() - t0 < 60:
+    while not handles_sigterm(proc.pid) and proc.poll() is None and time.monotonic() - t0 < 60:
         time.sleep(0.005)
     time.sleep(delay_s)
     if proc.poll() is None:
