@@ -8,7 +8,7 @@ import logging
 from lfring.core.validate import check_choice
 from lfring.errors import InvalidInputError
 
-__all__ = ["BACKENDS", "check_backend", "require_torch", "resolve_device"]
+__all__ = ["BACKENDS", "check_backend", "kernels_run_on", "require_torch", "resolve_device"]
 
 BACKENDS = ("numpy", "torch")
 
@@ -44,3 +44,14 @@ def resolve_device(device):
                                                          device)
         return torch.device("cpu")
     return dev
+
+
+def kernels_run_on(device) -> bool:
+    """Whether lfring's Triton kernels run on tensors of ``device`` (a torch device): compiled on
+    CUDA, interpreted on the CPU where :mod:`lfring.core.triton_kernels` says so; False without
+    Triton, where the stages take their torch paths."""
+    try:
+        from lfring.core import triton_kernels
+    except ImportError:  # pragma: no cover - the torch extra is not installed
+        return False
+    return triton_kernels.runs_on(device)

@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 
 from lfring.calibration.overlap import check_renderable
-from lfring.core.backend import require_torch, resolve_device
+from lfring.core.backend import kernels_run_on, require_torch, resolve_device
 from lfring.core.transfer import (check_frames, count_levels, device_masks, download, frames_dtype, is_tensor, normalised,
                                   to_device)
 from lfring.core.shift import ShiftEngine
@@ -216,21 +216,13 @@ def refocus_torch(frames, calibration, depth_m: float, *, reference="center", de
     raw = (frames if tensor_in else to_device(frames, dev)).to(dev).reshape(shape)
     masks = device_masks(calibration, (h, w), dev)
     with torch.no_grad():
-        if interpolation == "linear" and _kernels_run_on(dev):
+        if interpolation == "linear" and kernels_run_on(dev):
             out = _refocus_kernel(raw.contiguous(), masks, hs, offset, scale)
         else:
             out = _refocus_kornia(torch, normalised(raw, offset, scale), masks, hs, interpolation)
     if single:
         out = out[0]
     return out if tensor_in else download(out)
-
-
-def _kernels_run_on(device) -> bool:
-    try:
-        from lfring.core import triton_kernels
-    except ImportError:  # pragma: no cover - the torch extra is not installed
-        return False
-    return triton_kernels.runs_on(device)
 
 
 def _refocus_kernel(raw, masks, hs, offset: float, scale: float):

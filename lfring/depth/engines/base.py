@@ -35,7 +35,7 @@ class DepthEngine:
         The engine-specific options of ``estimate_depth`` it reads ('paths', 'consistency').
     device_frames : bool
         On the torch backend, where its GPU kernels run on the device
-        (:func:`lfring.depth.engines.gpu.kernels_run_on`), ``run`` also takes one frame's views
+        (:func:`lfring.core.backend.kernels_run_on`), ``run`` also takes one frame's views
         as a float32 tensor on the device with a :class:`lfring.depth.engines.gpu.DeviceFinisher`,
         and leaves its maps there: batches of frames stay on the device.
     """

@@ -29,7 +29,7 @@ import warnings
 
 import numpy as np
 
-from lfring.core.backend import require_torch, resolve_device
+from lfring.core.backend import kernels_run_on, require_torch, resolve_device
 from lfring.core.filters import BoxTorch, normalised_luminance
 from lfring.core.transfer import device_masks, download_maps, is_tensor, to_device
 from lfring.core.viewstack import WEIGHT_FLOOR, calibration_cache
@@ -47,7 +47,7 @@ from lfring.errors import LfringWarning
 
 __all__ = ["CHUNK_BYTES", "MAX_PLANES", "PATH_PROGRAMS", "SCALE_SAMPLE", "DeviceFinisher", "aggregate_device", "consistent_device", "cost_scale_device",
            "engine_runs_on", "fgs_device", "fill_from_farther_side_device", "finish_device", "guide_device", "index_device",
-           "kernels_run_on", "lcn_sources_device", "luminance_device", "refine_index_device", "run_semiglobal_gpu",
+           "lcn_sources_device", "luminance_device", "refine_index_device", "run_semiglobal_gpu",
            "select_device", "semiglobal_device", "weighted_median_device"]
 
 # Temporaries of the chunked passes (hypotheses at a time) stay under about this many bytes.
@@ -72,16 +72,6 @@ def _triton():
     from lfring.core import triton_kernels
 
     return triton_kernels
-
-
-def kernels_run_on(device) -> bool:
-    """Whether the engine's kernels run on ``device`` (a torch device): compiled on CUDA, or
-    interpreted on the CPU in a process without CUDA; False without Triton."""
-    try:
-        tk = _triton()
-    except ImportError:  # pragma: no cover - the torch extra is not installed
-        return False
-    return tk.runs_on(device)
 
 
 # -- sizes of the kernels' blocks ----------------------------------------------------------------
