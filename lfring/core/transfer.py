@@ -20,7 +20,7 @@ from lfring.core.validate import check_number
 from lfring.core.viewstack import cached_view_masks, calibration_cache
 from lfring.errors import InvalidInputError
 
-__all__ = ["COUNT_DTYPES", "check_frames", "count_levels", "device_masks", "download", "download_maps", "frames_dtype",
+__all__ = ["COUNT_DTYPES", "check_frames", "count_levels", "device_masks", "download", "download_maps", "frames_dtype", "inverse_maps",
            "is_tensor", "normalised", "to_device"]
 
 # The integer view stacks the torch backends take (raw counts), by their dtype's name.
@@ -101,6 +101,14 @@ def to_device(array, device):
     if torch.device(device).type != "cuda":
         return t.to(device)
     return t.pin_memory().to(device, non_blocking=True)
+
+
+def inverse_maps(hs, device):
+    """(..., 9) float32 tensor on ``device`` of the inverses of the homographies ``hs`` (..., 3, 3):
+    the maps from reference pixels to view pixels, which the kernels sample through."""
+    torch = require_torch()
+    inv = np.linalg.inv(np.asarray(hs, np.float64))
+    return torch.from_numpy(np.ascontiguousarray(inv.reshape(*inv.shape[:-2], 9), np.float32)).to(device)
 
 
 def normalised(frames, offset: float, scale: float):

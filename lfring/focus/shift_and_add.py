@@ -14,8 +14,8 @@ import numpy as np
 
 from lfring.calibration.overlap import check_renderable
 from lfring.core.backend import kernels_run_on, require_torch, resolve_device
-from lfring.core.transfer import (check_frames, count_levels, device_masks, download, frames_dtype, is_tensor, normalised,
-                                  to_device)
+from lfring.core.transfer import (check_frames, count_levels, device_masks, download, frames_dtype, inverse_maps, is_tensor,
+                                  normalised, to_device)
 from lfring.core.shift import ShiftEngine
 from lfring.core.validate import check_threads
 from lfring.core.viewstack import WEIGHT_FLOOR, cached_view_masks, check_views, inverse_weight
@@ -233,8 +233,7 @@ def _refocus_kernel(raw, masks, hs, offset: float, scale: float):
 
     b, v, h, w, c = raw.shape
     out = torch.empty((b, h, w, c), dtype=torch.float32, device=raw.device)
-    hinv = np.linalg.inv(np.asarray(hs, np.float64)).reshape(v, 9).astype(np.float32)
-    hinv = torch.from_numpy(hinv).to(raw.device)
+    hinv = inverse_maps(hs, raw.device)
     block = min(tk.next_power_of_2(h * w), 1 << 20) if tk.INTERPRETED else 256
     tk.launch(refocus_kernel, (-(-h * w // block), b), raw, masks, hinv, out, v, h, w, c, float(offset), float(scale),
               WEIGHT_FLOOR, CH=tk.next_power_of_2(c), BLOCK=block, num_warps=1 if tk.INTERPRETED else 4)

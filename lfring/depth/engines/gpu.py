@@ -31,7 +31,7 @@ import numpy as np
 
 from lfring.core.backend import kernels_run_on, require_torch, resolve_device
 from lfring.core.filters import BoxTorch, normalised_luminance
-from lfring.core.transfer import device_masks, download_maps, is_tensor, to_device
+from lfring.core.transfer import device_masks, download_maps, inverse_maps, is_tensor, to_device
 from lfring.core.viewstack import WEIGHT_FLOOR, calibration_cache
 from lfring.depth.aggregation import GUIDED_EPS, GuidedTorch
 from lfring.depth.costs.lcn import LCN_EPS, LCN_FLOOR, window_weights
@@ -122,13 +122,6 @@ def _launch(kernel, grid, *args, num_warps=4, **constants):
 def _cached(calibration, key, device, make):
     """A tensor on ``device`` made once per calibration, key and device from the array ``make()``."""
     return calibration_cache(calibration, ("gpu", key, str(device)), lambda: to_device(make(), device))
-
-
-def _inverse_maps(hs, device):
-    """(N, V, 9) float32 maps from reference pixels to view pixels (what warpPerspective samples)."""
-    torch = require_torch()
-    inv = np.linalg.inv(np.asarray(hs, np.float64))
-    return torch.from_numpy(np.ascontiguousarray(inv.reshape(*inv.shape[:-2], 9), np.float32)).to(device)
 
 
 # -- small statistics without a host round trip ----------------------------------------------------
@@ -468,7 +461,7 @@ def index_device(frame, lum, calibration, plan, settings, subpixel_box_px: int, 
     dev = frame.device
     v, h, w = lum.shape
     masks = device_masks(calibration, (h, w), dev, taper=plan.taper)
-    hinv = _inverse_maps(plan.hs, dev)
+    hinv = inverse_maps(plan.hs, dev)
     cost = settings.cost
     if cost.lcn:
         weights = _cached(calibration, ("window_weights", (h, w), settings.window_px, float(plan.taper)), dev,
