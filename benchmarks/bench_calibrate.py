@@ -19,7 +19,6 @@ refocused flat field's uniformity with and without the calibration's flat field.
 
 from __future__ import annotations
 
-import dataclasses
 import platform
 import statistics
 import sys
