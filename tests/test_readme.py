@@ -201,11 +201,10 @@ def test_readme_commands_run_twice_in_a_row(tmp_path):
 
     (tmp_path / "data").symlink_to(ROOT / "data")
     main_job = shlex_split(_quick_start_commands()[0].split("&&", 1)[1])
-    # Left out: commands that read a calibration an earlier README command makes (not run here).
-    made_earlier = [c[c.index("--calib") + 1] for c in _more_commands() if "--calib" in c
-                    and not c[c.index("--calib") + 1].startswith(("data/", "calib/")) and c[c.index("--calib") + 1].endswith(".json")]
-    commands = [main_job, *(c for c in _more_commands() if c[1] in TWICE and "--sweep" not in c
-                            and not any(m in c for m in made_earlier))]
+    # Left out: commands that read a file another README command makes (not all of those run here).
+    made = {c[c.index("-o") + 1] for c in _more_commands() if "-o" in c}
+    reads_made = lambda c: any(a in made for i, a in enumerate(c) if c[i - 1] != "-o")  # noqa: E731
+    commands = [main_job, *(c for c in _more_commands() if c[1] in TWICE and "--sweep" not in c and not reads_made(c))]
     assert [c[1] for c in commands[:4]] == ["refocus"] * 3 + ["check"]
     for round_ in (1, 2):
         for cmd in commands:
