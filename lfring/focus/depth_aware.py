@@ -60,13 +60,14 @@ from lfring.core.filters import luminance
 from lfring.core.validate import check_number
 from lfring.core.warping import translations
 from lfring.depth.estimate import estimate_depth
+from lfring.depth.hypotheses import view_motion_px
 from lfring.depth.selection import DepthResult
 from lfring.focus.base import RefocusMethod
 
 __all__ = [
     "AGREE_TOL", "BACK_EDGE_PX", "BACK_STEP_PX", "COARSE_DISC_PX", "DEPTH_TOL_PX", "GEOMETRIC_STEP", "LINEAR_UNTIL_PX",
     "MIN_DEPTH_VIEWS", "OCCLUSION_PX", "SHARP_PX", "SHARP_RAMP_PX", "SHARP_RESAMPLED_PX2", "SPREAD_TOL", "DepthOfField", "DEPTH_AWARE",
-    "FAR_MOTION_PX", "aperture_from_f_number", "aperture_radius_px", "coc_radius_px", "depth_of_field", "disc_kernel",
+    "DERIVED_RANGE_MAX_MOTION", "FAR_MOTION_PX", "aperture_from_f_number", "aperture_radius_px", "coc_radius_px", "depth_of_field", "disc_kernel",
     "estimation_range", "prepare_depth_aware", "resolve_aperture",
 ]
 
@@ -101,8 +102,14 @@ OCCLUSION_PX = 1.0
 BACK_STEP_PX = 2.0
 BACK_EDGE_PX = 2
 # Depth estimated for a calibration without an upper bound reaches as far as the views still
-# move by this many pixels from where they see infinity (estimation_range).
+# move by this many pixels from where they see infinity (estimation_range) ...
 FAR_MOTION_PX = 0.5
+# ... provided that, from the range's near end to there, no view moves by more than this fraction
+# of the views' smaller side: the views then still share most of what they see at the near end,
+# and the range is one of depths the calibration was made for. A view grid's open range starts
+# where neighbouring views stop overlapping; closed that way it would hold every disparity the
+# views can show (as many planes as the views are wide), not the scene's depths.
+DERIVED_RANGE_MAX_MOTION = 0.5
 # For calibrations that are not translations, view sampling positions are interpolated linearly
 # in 1/(Z - z0) between knots this many pixels of view motion apart.
 KNOT_STEP_PX = 0.25
@@ -779,10 +786,25 @@ def resolve_aperture(calibration, aperture=None, f_number=None, ring_device=None
 
 
 def estimation_range(calibration, zmin_m=None, zmax_m=None, *, reference="center") -> tuple[float, float]:
-    """The depth range (metres) over which depth-aware refocusing estimates its depth map:
+    """The depth range (metres) over which depth-aware refocusing estimates its depth map, the
+    one rule for every entry point (:func:`lfring.refocus`, ``lfring refocus``, ``lfring
+    batch``, the viewer).
+
     ``zmin_m`` and ``zmax_m`` where given, else the calibration's valid range. A calibration
-    without an upper bound (one from the optics) reaches as far as the views still move by
-    :data:`FAR_MOTION_PX` from where they see infinity: ``1/(Z - z0) = FAR_MOTION_PX / R``.
+    without an upper bound gets a far end where the views still move by :data:`FAR_MOTION_PX`
+    from where they see infinity (``1/(Z - z0) = FAR_MOTION_PX / R``, R of
+    :func:`aperture_radius_px`), when that range is one of depths: when no view moves over it
+    by more than :data:`DERIVED_RANGE_MAX_MOTION` of the views' smaller side. A calibration
+    from the optics qualifies (its range starts at the device's nearest depth, and the views
+    move by a small part of their size out to infinity); a view grid's by default does not
+    (its range starts where neighbouring views stop overlapping, so closed at the far end it
+    would hold every disparity the views can show): its scene's range must be given.
+
+    Raises
+    ------
+    InvalidInputError
+        The calibration has no upper bound and none can be derived: give ``zmax_m`` (or use
+        shift-and-add, which needs no depth map).
 
     Examples
     --------
@@ -792,14 +814,32 @@ def estimation_range(calibration, zmin_m=None, zmax_m=None, *, reference="center
     >>> lo, hi = estimation_range(cal)
     >>> round(lo, 3) == round(cal.valid_depth_range_m[0], 3), cal.valid_depth_range_m[1], round(hi, 1)
     (True, None, 4.4)
+    >>> pair = RingCalibration.from_grid((64, 96), [(0, 0), (1, 0)], disparity_scale_px_m=120.0)
+    >>> estimation_range(pair, zmax_m=20.0)
+    (1.25, 20.0)
+    >>> estimation_range(pair)  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    lfring.errors.InvalidInputError: the calibration has no upper depth bound, and none follows from it: ... as zmax_m ...
     """
     lo, hi = calibration.valid_depth_range_m
     lo = float(lo if zmin_m is None else zmin_m)
     if zmax_m is not None:
         return lo, float(zmax_m)
-    if hi is None:
-        hi = calibration.depth_origin_m + aperture_radius_px(calibration, reference) / FAR_MOTION_PX
-        hi = max(hi, 2.0 * lo)
+    if hi is not None:
+        return lo, float(hi)
+    hi = calibration.depth_origin_m + aperture_radius_px(calibration, reference) / FAR_MOTION_PX
+    hi = max(hi, 2.0 * lo)
+    view_shape = calibration.layout.view_shape
+    move = view_motion_px(calibration, [lo, hi], view_shape)
+    side = min(view_shape)
+    if move > DERIVED_RANGE_MAX_MOTION * side:
+        raise InvalidInputError(
+            f"the calibration has no upper depth bound, and none follows from it: from its near end ({lo:g} m) to where "
+            f"the views stop moving ({hi:.4g} m) they move by {move:.0f} px, more than {DERIVED_RANGE_MAX_MOTION:g} x "
+            f"their size ({side} px), which is every disparity they can show rather than the scene's depths. Give the "
+            f"scene's farthest depth as zmax_m (and its nearest as zmin_m), or use method='shift-and-add'"
+        )
     return lo, float(hi)
 
 
