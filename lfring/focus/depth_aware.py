@@ -822,6 +822,8 @@ def estimation_range(calibration, zmin_m=None, zmax_m=None, *, reference="center
     ...
     lfring.errors.InvalidInputError: the calibration has no upper depth bound, and none follows from it: ... as zmax_m ...
     """
+    zmin_m = check_number(zmin_m, "zmin_m", above=0.0, allow_none=True, what="a distance in metres")
+    zmax_m = check_number(zmax_m, "zmax_m", above=0.0, allow_none=True, what="a distance in metres")
     lo, hi = calibration.valid_depth_range_m
     lo = float(lo if zmin_m is None else zmin_m)
     if zmax_m is not None:
@@ -838,7 +840,8 @@ def estimation_range(calibration, zmin_m=None, zmax_m=None, *, reference="center
             f"the calibration has no upper depth bound, and none follows from it: from its near end ({lo:g} m) to where "
             f"the views stop moving ({hi:.4g} m) they move by {move:.0f} px, more than {DERIVED_RANGE_MAX_MOTION:g} x "
             f"their size ({side} px), which is every disparity they can show rather than the scene's depths. Give the "
-            f"scene's farthest depth as zmax_m (and its nearest as zmin_m), or use method='shift-and-add'"
+            f"scene's farthest depth as zmax_m (and its nearest as zmin_m); refocusing by method='shift-and-add' needs "
+            f"no depth map"
         )
     return lo, float(hi)
 
