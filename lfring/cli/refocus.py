@@ -89,7 +89,8 @@ def _depths(depth, depths, sweep) -> list[float]:
 @click.option("--zmin", type=float, default=None, metavar="M", help="depth-aware: nearest depth of the depth estimation [m] "
               "(default: the calibration's valid range).")
 @click.option("--zmax", type=float, default=None, metavar="M", help="depth-aware: farthest depth of the depth estimation [m] "
-              "(default: the calibration's valid range; required without an upper bound).")
+              "(default: the calibration's valid range; without an upper bound, where the views stop moving when the "
+              "range up to there is one of depths, as for a calibration from the optics; else required).")
 @click.option("--bit-depth", type=click.Choice(["8", "16"]), default="8", show_default=True, help="Bits per sample.")
 @click.option("--encoding", type=click.Choice(["srgb", "linear"]), default="srgb", show_default=True,
               help="Write display-ready sRGB values, or linear light.")
@@ -121,6 +122,7 @@ def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolat
     from lfring.core.geometry import check_reference
     from lfring.io.writers import write_gif, write_image, write_json, write_tiff_stack
     from lfring.focus import Refocuser, all_in_focus, focal_stack, resolve_aperture
+    from lfring.focus.depth_aware import estimation_range
 
     zs = _depths(depth, depths, sweep)
     bits = int(bit_depth)
@@ -151,9 +153,9 @@ def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolat
     ref = check_reference(reference, cal.num_views)
     dof = {}
     if method == "depth-aware":
-        if zmax is None and cal.valid_depth_range_m[1] is None:
-            raise click.UsageError("the calibration has no upper depth bound: give --zmax for the depth estimation "
-                                   "(or --method shift-and-add)")
+        # The depth estimation's range, by the rule every entry point follows (refused here,
+        # before the long work, when the calibration gives none); the sidecar records it.
+        zmin, zmax = estimation_range(cal, zmin, zmax, reference=ref)
         dof = {"aperture": aperture, "f_number": f_number, "zmin_m": zmin, "zmax_m": zmax}
         note_first_compile()
     check_renderable(cal, zs, reference=ref)

@@ -20,7 +20,7 @@ API_TO_CLI: tuple[tuple[str, str], ...] = (
     (r"\bpass black_level=\.\.\. and white_level=\.\.\.", "pass --black-level and --white-level"),
     (r"\bpass black_level=\.\.\. / white_level=\.\.\.", "pass --black-level / --white-level"),
     (r"\((by|from) argument\)", r"(\1 the command line)"),
-    (r"\bmethod='(\w+)'", r"--method \1"),
+    (r"\bmethod='([\w-]+)'", r"--method \1"),
     (r"\boverwrite=True\b", "--overwrite"),
     # Parameters and their options.
     (r"\bzmin_m\b", "--zmin"),
@@ -50,6 +50,8 @@ def cli_words(message: str) -> str:
     '--zmin (1.0) must be smaller than --zmax (0.5)'
     >>> cli_words("give num_planes >= 3, widen the depth range, or use method='local'")
     'give --planes >= 3, widen the depth range, or use --method local'
+    >>> cli_words("give zmax_m, or refocus by method='shift-and-add'")
+    'give --zmax, or refocus by --method shift-and-add'
     """
     for pattern, replacement in _RULES:
         message = pattern.sub(replacement, message)
