@@ -18,7 +18,8 @@ log = logging.getLogger("lfring.cli.view")
 @click.option("--calib", type=click.Path(dir_okay=False), default=None, metavar="FILE",
               help="Calibration JSON (default: the built-in one for the frame's size).")
 @click.option("--zmin", type=float, default=None, metavar="M", help="Nearest depth [m] (default: the calibration's range).")
-@click.option("--zmax", type=float, default=None, metavar="M", help="Farthest depth [m] (default: the calibration's range).")
+@click.option("--zmax", type=float, default=None, metavar="M", help="Farthest depth [m] (default: the calibration's range; without an upper bound, "
+              "as lfring refocus derives it, where the calibration allows).")
 @click.option("--planes", type=int, default=None, metavar="N",
               help="Depth hypotheses, one stack frame each (default: one pixel of view motion apart).")
 @click.option("--reference", default="center", show_default=True, metavar="center|0..3", help="Frame of the viewer.")

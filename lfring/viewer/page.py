@@ -80,15 +80,6 @@ def _check_options(num_planes, min_confidence, image_format, quality):
     check_int(quality, "quality", minimum=1, maximum=100)
 
 
-def _depth_range(calibration, zmin_m, zmax_m) -> tuple[float, float]:
-    lo, hi = calibration.valid_depth_range_m
-    lo = lo if zmin_m is None else zmin_m
-    hi = hi if zmax_m is None else zmax_m
-    if hi is None:
-        raise InvalidInputError("the calibration has no upper depth bound: give zmax_m")
-    return float(lo), float(hi)
-
-
 def viewer_data(views, calibration, *, zmin_m=None, zmax_m=None, num_planes=None, reference="center", depth=None,
                 min_confidence: float = 0.5, boxes=None, unchecked_mask=None, image_format: str = "jpeg",
                 quality: int = 85, metadata=None, focus_m=None, method: str = "depth-aware", aperture=None,
@@ -97,6 +88,7 @@ def viewer_data(views, calibration, *, zmin_m=None, zmax_m=None, num_planes=None
     from lfring import all_in_focus, estimate_depth, focal_stack
     from lfring.depth.io import colorize_depth
     from lfring.focus import METHODS, resolve_aperture
+    from lfring.focus.depth_aware import estimation_range
     from lfring.io.writers import encode_image
 
     _check_options(num_planes, min_confidence, image_format, quality)
@@ -115,7 +107,9 @@ def viewer_data(views, calibration, *, zmin_m=None, zmax_m=None, num_planes=None
         raise InvalidInputError("the stack's planes are the given depth result's hypotheses: give num_planes or depth, not both")
     if depth is not None and zmin_m is None and zmax_m is None:
         zmin_m, zmax_m = float(np.min(depth.depths_m)), float(np.max(depth.depths_m))
-    lo, hi = _depth_range(calibration, zmin_m, zmax_m)
+    # The page's depth map is what its depth-aware stack renders from: its range follows the
+    # rule of depth-aware refocusing everywhere.
+    lo, hi = estimation_range(calibration, zmin_m, zmax_m, reference=reference)
     check_number(focus_m, "focus_m", minimum=lo, maximum=hi, allow_none=True, what="a depth in metres")
     if depth is None:
         depth = estimate_depth(views, calibration, zmin_m=lo, zmax_m=hi, num_planes=num_planes, reference=reference)
@@ -194,7 +188,9 @@ def viewer_html(views, calibration, *, zmin_m=None, zmax_m=None, num_planes=None
     calibration : RingCalibration
     zmin_m, zmax_m : float, optional
         Depth range of the focal stack and of the depth sweep [m from the main lens]. Default:
-        the range of ``depth``'s hypotheses when given, else the calibration's valid range.
+        the range of ``depth``'s hypotheses when given, else depth-aware refocusing's
+        (:func:`lfring.focus.depth_aware.estimation_range`: the calibration's valid range,
+        or without an upper bound one derived where the calibration allows it).
     num_planes : int, optional
         Depth hypotheses of the sweep, evenly spaced in disparity (default: one pixel of view
         motion apart); the focal stack has a frame at each.
