@@ -11,6 +11,7 @@ from lfring.core.validate import check_choice, check_fraction, check_int, check_
 from lfring.core.warping import DEFAULT_INTERPOLATION, INTERPOLATIONS
 from lfring.depth import ENGINES, SGM_MIN_PLANES
 from lfring.errors import InvalidInputError
+from lfring.focus.depth_aware import estimation_range
 from lfring.focus.methods import METHODS
 from lfring.io.writers import json_default
 
@@ -30,7 +31,8 @@ class BatchSettings:
         'depth-aware' (the default, as ``lfring refocus``'s) renders them from the frame's depth
         map, the batch's own when it makes one, else one estimated with ``depth_method`` and
         ``planes`` over ``zmin_m``..``zmax_m`` (by default
-        :func:`lfring.focus.depth_aware.estimation_range`); 'shift-and-add' averages the views.
+        :func:`lfring.focus.depth_aware.estimation_range`, which refuses a calibration that
+        gives no range when the settings are made); 'shift-and-add' averages the views.
     aperture, f_number : float, optional
         'depth-aware': the lens's aperture (1, the default: the aperture the views span), or
         the main lens's f-number instead (:func:`lfring.focus.resolve_aperture`); each frame's
@@ -124,6 +126,12 @@ class BatchSettings:
         elif self.aperture is not None or self.f_number is not None:
             owners = ", ".join(f"refocus_method={m.name!r}" for m in METHODS.values() if "aperture" in m.options)
             raise InvalidInputError(f"aperture and f_number are for {owners}")
+        # A depth map the batch does not make (--depth) is estimated per frame, for depth-aware
+        # refocusing and for the viewer, over depth-aware refocusing's range: a calibration that
+        # gives none is refused here, before any frame is read or any file written.
+        needs_range = self.viewer or (zs and "depth" in METHODS[self.refocus_method].options)
+        if needs_range and not self.depth and self.calibration is not None:
+            estimation_range(self.calibration, self.zmin_m, self.zmax_m, reference=self.reference)
         # The viewer's depth map, when the batch makes none, is the semi-global default.
         least = SGM_MIN_PLANES if (self.depth and self.depth_method == "sgm") or self.viewer else 2
         if self.planes is not None:
