@@ -99,3 +99,31 @@ def test_cli_batch_refocuses_as_lfring_refocus_and_records_the_method(frames, tm
                                                                      ring_device=load_device("prototype")))
     assert main([*args, "--method", "shift-and-add", "--aperture", "0.5"]) == 2
     assert "--method depth-aware" in capsys.readouterr().err
+
+
+def test_an_optics_calibration_gets_one_depth_range_from_refocus_batch_and_the_api(frames, tmp_path):
+    """A calibration from the optics has no upper depth bound and gets the far end of
+    lfring.focus.depth_aware.estimation_range everywhere: lfring refocus takes it without
+    --zmax (its sidecar records the range), and its image is lfring batch's and lfring.refocus's."""
+    import json
+
+    import cv2
+    import numpy as np
+    from batch_frames import expected_refocus
+
+    from lfring.focus.depth_aware import estimation_range
+
+    d, cal_path = frames
+    cal = load_calibration(cal_path)
+    assert cal.source == "optics" and cal.valid_depth_range_m[1] is None
+    lo, hi = estimation_range(cal)
+    single = tmp_path / "r.png"
+    assert main(["refocus", str(d / "scene.png"), "--depth", "0.5", "--calib", str(cal_path), "-o", str(single)]) == 0
+    side = json.loads((tmp_path / "r.png.json").read_text())
+    assert (side["zmin_m"], side["zmax_m"]) == (lo, hi)
+    out = tmp_path / "o"
+    assert main(["batch", str(d / "scene.png"), "-o", str(out), "--refocus", "0.5", "--calib", str(cal_path), "--workers",
+                 "1", "--no-progress"]) == 0
+    cli = cv2.imread(str(single))
+    np.testing.assert_array_equal(cli, cv2.imread(str(out / "scene_refocus_0.5m.png")))
+    np.testing.assert_array_equal(cv2.cvtColor(cli, cv2.COLOR_BGR2RGB), expected_refocus(d / "scene.png", cal_path, 0.5))

@@ -60,3 +60,23 @@ def test_refocus_keys_hold_the_method_and_its_aperture():
     assert len(viewers) == 2
     d = BatchSettings(refocus_m=(0.5,), f_number=2.8).describe()
     assert d["refocus_method"] == "depth-aware" and d["f_number"] == 2.8
+
+
+def test_a_calibration_without_a_depth_range_is_refused_when_a_depth_map_must_be_estimated():
+    """The frames' depth maps for depth-aware refocusing and the viewer are estimated over
+    lfring.focus.depth_aware.estimation_range: a grid pair's open range is refused at once,
+    unless the batch is given the range or needs no depth map."""
+    from lfring.calibration import RingCalibration
+    from lfring.optics import load_device
+
+    pair = RingCalibration.from_grid((64, 96), [(0, 0), (1, 0)], disparity_scale_px_m=120.0)
+    for kw in ({"refocus_m": (12.0,)}, {"viewer": True}, {"refocus_m": (12.0,), "aperture": 0.5}):
+        with pytest.raises(InvalidInputError, match="no upper depth bound, and none follows from it"):
+            BatchSettings(calibration=pair, **kw)
+    for kw in ({"refocus_m": (12.0,), "refocus_method": "shift-and-add"}, {"all_in_focus": True},
+               {"refocus_m": (12.0,), "zmax_m": 30.0}, {"refocus_m": (12.0,), "zmin_m": 6.0},
+               {"refocus_m": (12.0,), "viewer": True, "depth": True, "zmin_m": 6.0, "zmax_m": 30.0}):
+        BatchSettings(calibration=pair, **kw)
+    # A calibration from the optics gets its far end, as everywhere; a bounded one its range.
+    BatchSettings(refocus_m=(0.5,), viewer=True, calibration=RingCalibration.from_optics(load_device("prototype").binned(4)))
+    BatchSettings(refocus_m=(0.5,), viewer=True, calibration=RingCalibration.load("twin_binned2"))

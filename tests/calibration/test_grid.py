@@ -275,3 +275,55 @@ def test_ten_by_ten_grid_refocus_and_depth_of_a_plane():
     np.testing.assert_allclose(out[10:-10, 10:-10], tex[PAD + 10 : PAD + shape[0] - 10, PAD + 10 : PAD + shape[1] - 10], atol=1e-5)
     res = estimate_depth(views, cal, zmin_m=SCALE_PX_M / 3, zmax_m=SCALE_PX_M / 1)
     np.testing.assert_allclose(SCALE_PX_M / res.depth_m[12:-12, 12:-12], 2.0, atol=0.1)
+
+
+def test_a_grid_pair_without_a_depth_range_is_refused_alike_by_the_api_refocus_and_batch(tmp_path, capsys):
+    """The grid's open range starts where its views stop overlapping: no far end follows from
+    it (lfring.focus.depth_aware.estimation_range), and every entry point of depth-aware
+    refocusing says so, writing nothing; given the scene's range they all take it."""
+    from lfring.batch import BatchSettings
+    from lfring.focus.depth_aware import estimation_range
+
+    shape = (64, 96)
+    views, _, _, _ = _scene([(0, 0), (1, 0)], np.array([0.5, 0.0]), shape, seed=5)
+    cal = RingCalibration.from_grid(shape, [(0, 0), (1, 0)], disparity_scale_px_m=SCALE_PX_M)
+    cal_path = tmp_path / "pair.json"
+    cal.save(cal_path)
+    refusal = r"no upper depth bound, and none follows from it.*farthest depth as zmax_m.*shift-and-add"
+    with pytest.raises(InvalidInputError, match=refusal):
+        estimation_range(cal)
+    with pytest.raises(InvalidInputError, match=refusal):
+        refocus(views, cal, 12.0, method="depth-aware")
+    with pytest.raises(InvalidInputError, match=refusal):
+        BatchSettings(refocus_m=(12.0,), calibration=cal)
+    # The CLIs: exit 2, one line naming their options, no traceback, no output.
+    paths = []
+    for k, v in enumerate(views):
+        paths.append(str(tmp_path / f"v{k}.png"))
+        cv2.imwrite(paths[-1], np.rint(v[..., ::-1] * 65535).astype(np.uint16))
+    assert main(["refocus", *paths, "--calib", str(cal_path), "--depth", "12", "-o", str(tmp_path / "r.png")]) == 2
+    err = capsys.readouterr().err
+    assert "--zmax" in err and "--method shift-and-add" in err and "Traceback" not in err
+    assert not (tmp_path / "r.png").exists() and not (tmp_path / "r.png.json").exists()
+    frame = tmp_path / "pair.png"  # the views side by side: the grid's raw frame
+    cv2.imwrite(str(frame), np.rint(np.concatenate(list(views), axis=1)[..., ::-1] * 65535).astype(np.uint16))
+    out = tmp_path / "batch"
+    assert main(["batch", str(frame), "-o", str(out), "--refocus", "12", "--calib", str(cal_path), "--workers", "1",
+                 "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "no upper depth bound" in err and "--zmax" in err and "Traceback" not in err
+    assert not out.exists()
+    # Shift-and-add needs no depth map: the batch takes the pair.
+    assert main(["batch", str(frame), "-o", str(out), "--refocus", "12", "--method", "shift-and-add", "--calib",
+                 str(cal_path), "--workers", "1", "--no-progress", "--no-check"]) == 0
+    assert (out / "pair_refocus_12m.png").is_file()
+    # Given the scene's near end (6 m, 20 px of disparity), the far end follows from it (1 px at
+    # 120 m), for the API and the CLI alike; the sidecar records the range.
+    lo, hi = estimation_range(cal, zmin_m=6.0)
+    assert (lo, hi) == pytest.approx((6.0, 120.0))
+    assert main(["refocus", *paths, "--calib", str(cal_path), "--depth", "12", "--zmin", "6",
+                 "-o", str(tmp_path / "r.png")]) == 0
+    side = json.loads((tmp_path / "r.png.json").read_text())
+    assert (side["zmin_m"], side["zmax_m"]) == (lo, hi)
+    api = refocus(views, cal, 12.0, method="depth-aware", zmin_m=6.0)
+    assert api.shape == (64, 96, 3) and np.all(np.isfinite(api))

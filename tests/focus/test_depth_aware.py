@@ -406,3 +406,37 @@ def test_f_number_works_with_the_built_in_calibration():
     cal = RingCalibration.load(Path(__file__).resolve().parents[2] / "calib" / "twin_binned2.json")
     assert cal.device == "prototype"
     assert resolve_aperture(cal, f_number=2.8) == pytest.approx(aperture_from_f_number(2.8, load_device("prototype")), rel=1e-6)
+
+
+def test_the_depth_range_of_a_calibration_without_an_upper_bound():
+    """estimation_range: the optics' open range gets a far end where the views stop moving,
+    over which they move by a small part of their size; a grid's (open from where its views
+    stop overlapping) would hold every disparity they can show, and is refused saying what to
+    give, unless its near end is given."""
+    from lfring.depth.hypotheses import depth_hypotheses, view_motion_px
+    from lfring.focus.depth_aware import DERIVED_RANGE_MAX_MOTION, FAR_MOTION_PX, estimation_range
+
+    optics = RingCalibration.from_optics(load_device("prototype").binned(2))
+    lo, hi = estimation_range(optics)
+    assert lo == optics.valid_depth_range_m[0]
+    assert hi == pytest.approx(optics.depth_origin_m + aperture_radius_px(optics) / FAR_MOTION_PX)
+    side = min(optics.layout.view_shape)
+    assert view_motion_px(optics, [lo, hi], optics.layout.view_shape) < 0.25 * side < DERIVED_RANGE_MAX_MOTION * side
+    assert estimation_range(optics, zmax_m=2.0) == (lo, 2.0)
+    # A bounded calibration: its range as it is, or as given.
+    cal = _calibration()
+    assert estimation_range(cal) == (0.4, 3.0) and estimation_range(cal, 0.5, 2.5) == (0.5, 2.5)
+    # Grids: a pair, and a 10 x 10 grid whose outer views would move by nine times their width.
+    pair = RingCalibration.from_grid((64, 96), [(0, 0), (1, 0)], disparity_scale_px_m=120.0)
+    grid = RingCalibration.from_grid((40, 48), [(x, y) for y in range(10) for x in range(10)], disparity_scale_px_m=120.0)
+    for g in (pair, grid):
+        with pytest.raises(InvalidInputError, match=r"no upper depth bound, and none follows from it.*as zmax_m.*"
+                                                    r"method='shift-and-add'"):
+            estimation_range(g)
+    assert estimation_range(pair, zmax_m=20.0) == (1.25, 20.0)
+    # From a near end the scene has (20 px of disparity), the far end follows: 1 px at 120 m.
+    lo, hi = estimation_range(pair, zmin_m=6.0)
+    assert (lo, hi) == pytest.approx((6.0, 120.0)) and len(depth_hypotheses(pair, lo, hi)) == 20
+    for bad in ({"zmin_m": -1.0}, {"zmax_m": float("nan")}, {"zmax_m": "far"}):
+        with pytest.raises(InvalidInputError, match="must be a distance in metres"):
+            estimation_range(pair, **bad)

@@ -380,3 +380,23 @@ def test_the_stack_is_refocused_as_lfring_refocus_and_says_how(scene):
     assert np.abs(frame(pages["depth-aware"], 0) - frame(pages["shift-and-add"], 0)).mean() > 2.0
     with pytest.raises(InvalidInputError, match="for method='depth-aware'"):
         viewer_html(views, cal, depth=depth, method="shift-and-add", aperture=0.5)
+
+
+def test_the_depth_range_is_depth_aware_refocusings():
+    """The page's depth map (which its depth-aware stack renders from) takes the range of
+    lfring.focus.depth_aware.estimation_range: a grid pair's open range is refused as by
+    lfring.refocus, and given its near end the far end follows as for refocusing."""
+    from lfring.calibration import RingCalibration
+    from lfring.focus import refocus
+    from lfring.focus.depth_aware import estimation_range
+    from lfring.viewer import viewer_html
+
+    rng = np.random.default_rng(2)
+    tex = cv2.GaussianBlur(rng.random((64, 120, 3), dtype=np.float32), (0, 0), 1.0)
+    views = np.stack([tex[:, 12:108], tex[:, 8:104]])  # 4 px of disparity: 30 m at 120 px m
+    cal = RingCalibration.from_grid((64, 96), [(0, 0), (1, 0)], disparity_scale_px_m=120.0)
+    for call in (lambda: viewer_html(views, cal), lambda: refocus(views, cal, 30.0, method="depth-aware")):
+        with pytest.raises(InvalidInputError, match="no upper depth bound, and none follows from it"):
+            call()
+    d = json.loads(re.search(r'type="application/json">(.*?)</script>', viewer_html(views, cal, zmin_m=8.0), re.S).group(1))
+    assert (d["zmin_m"], d["zmax_m"]) == estimation_range(cal, zmin_m=8.0)
