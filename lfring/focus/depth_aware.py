@@ -57,7 +57,6 @@ from lfring.errors import InvalidInputError
 from lfring.core.geometry import apply_homography, check_reference, to_reference
 from lfring.core.viewstack import WEIGHT_FLOOR, cached_view_masks, check_views
 from lfring.core.filters import luminance
-from lfring.core.threads import run_threads
 from lfring.core.validate import check_number
 from lfring.core.warping import translations
 from lfring.depth.estimate import estimate_depth
@@ -668,24 +667,16 @@ class _Grid:
             used.append(k)
         buf = self.buffer(name + " layers", (total,), 0.0)
         kern.scatter(colour, sharp, s, cover, q, window, n, shift, y0, x0, rows, cols, offset, self.stripe, buf)
-        out = {}
-
-        def blur(k):
+        out = []
+        for k in used:
             cells = buf[offset[k]:offset[k] + c1 * rows[k] * cols[k]].reshape(rows[k], cols[k], c1)
             radius = float(self.radii[abs(k - n)])
             f = 1 << int(shift[k])
             disc = radius if f == 1 else math.sqrt(max(radius * radius - f * f / 3.0, 0.0)) / f
             if disc >= 0.5:
                 cells = _filter(cells, disc_kernel(disc))
-            out[k] = _Layer(k, f, int(y0[k]), int(x0[k]), cells)
-
-        # One task a layer on OpenCV's threads (its filter runs on one), the costliest first.
-        def cost(k):
-            taps = 2 * math.ceil(self.radii[abs(k - n)] / (1 << int(shift[k]))) + 1
-            return rows[k] * cols[k] * taps * taps
-
-        run_threads([lambda k=k: blur(k) for k in sorted(used, key=cost, reverse=True)], max(1, cv2.getNumThreads()))
-        return [out[k] for k in used]
+            out.append(_Layer(k, f, int(y0[k]), int(x0[k]), cells))
+        return out
 
 
 def _filter(cells: np.ndarray, kernel: np.ndarray) -> np.ndarray:
