@@ -56,7 +56,6 @@ import numpy as np
 from lfring.errors import InvalidInputError
 from lfring.core.geometry import apply_homography, check_reference, to_reference
 from lfring.core.viewstack import WEIGHT_FLOOR, cached_view_masks, check_views
-from lfring.core.filters import luminance
 from lfring.core.validate import check_number
 from lfring.core.warping import translations
 from lfring.depth.estimate import estimate_depth
@@ -367,28 +366,22 @@ class DepthOfField:
         """(h, w) bool: whether a surface nearer than ``x`` by more than :data:`OCCLUSION_PX`
         of view motion lands on the view pixel (``mx``, ``my``) (``nearest``: the depth map
         splatted into the view)."""
-        h, w = self.view_shape
-        ui = np.rint(mx).astype(np.int64)
-        vi = np.rint(my).astype(np.int64)
-        inside = (ui >= 0) & (ui < w) & (vi >= 0) & (vi < h)
-        tol = np.float32(OCCLUSION_PX / max(self.radius_px, 1e-12))
-        out = np.zeros((h, w), bool)
-        out[inside] = nearest[vi[inside], ui[inside]] > x[inside] + tol
+        from lfring.focus import depth_aware_kernels as kern
+
+        out = np.empty(self.view_shape, bool)
+        kern.occluded(mx, my, x, nearest, OCCLUSION_PX / max(self.radius_px, 1e-12), out)
         return out
 
     def _splat(self, maps) -> list:
         """Per view, (h, w) float32: the largest inverse depth of the reference pixels that land
         on each view pixel (nearest wins, widened by one pixel), -inf where none does."""
-        h, w = self.view_shape
-        x = self.x.ravel()
+        from lfring.focus import depth_aware_kernels as kern
+
         out = []
         for mx, my in maps:
-            ui = np.rint(mx).astype(np.int64).ravel()
-            vi = np.rint(my).astype(np.int64).ravel()
-            inside = (ui >= 0) & (ui < w) & (vi >= 0) & (vi < h)
-            nearest = np.full(h * w, -np.inf, np.float32)
-            np.maximum.at(nearest, (vi * w + ui)[inside], x[inside])
-            out.append(cv2.dilate(nearest.reshape(h, w), np.ones((3, 3), np.uint8)))
+            nearest = np.full(self.view_shape, -np.inf, np.float32)
+            kern.splat_max(mx, my, self.x, nearest)
+            out.append(cv2.dilate(nearest, np.ones((3, 3), np.uint8)))
         return out
 
     def _measured(self, k_views: int, masks: np.ndarray):
@@ -417,6 +410,8 @@ class DepthOfField:
         return self._sampling_maps(k_views, self.x)
 
     def _all_in_focus(self, arr: np.ndarray, masks: np.ndarray):
+        from lfring.focus import depth_aware_kernels as kern
+
         v, h, w, c = arr.shape
         warped = np.empty((v, h, w, c), np.float32)
         weight = np.empty((v, h, w), np.float32)
@@ -427,41 +422,12 @@ class DepthOfField:
             warped[k] = out.reshape(h, w, c)
             weight[k] = cv2.remap(masks[k], mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
         nearest = self._splat(maps)
-        present = weight > WEIGHT_FLOOR
-        visible = np.stack([~self._occluded(mx, my, self.x, nk) for (mx, my), nk in zip(maps, nearest)]) & present
-        # Where every view that sees the pixel is occluded by the depth map, trust the photometry alone.
-        visible |= present & ~visible.any(axis=0)
-        # (Into a new array: for one channel the luminance is a view of the warped views.)
-        lum = np.divide(luminance(warped), weight, out=np.zeros((v, h, w), np.float32), where=present)
-        # Every statistic below weighs a view by how much of it is valid there, so that a view
-        # fading out at its disc's rim fades out of the mean too: no seam follows the rim.
-        wv = np.where(visible, weight, 0.0).astype(np.float32)
-        # A robust centre: each view weighted by the weight of the views that agree with it (to
-        # the fourth power, so that three agreeing views outweigh a fourth that sees something
-        # else; two groups of two weigh the same).
-        close = np.exp(-0.5 * ((lum[:, None] - lum[None, :]) / np.float32(AGREE_TOL)) ** 2)  # (V, V, h, w)
-        support = np.einsum("jvhw,jhw->vhw", close, wv, optimize=True)
-        support *= support
-        support *= support
-        support *= wv
-        total = support.sum(axis=0)
-        mean_lum = (wv * lum).sum(axis=0) / np.maximum(wv.sum(axis=0), WEIGHT_FLOOR)
-        med = np.where(total > 0, (support * lum).sum(axis=0) / np.maximum(total, 1e-30), mean_lum).astype(np.float32)
-        dev = np.abs(lum - med)
-        # The tolerance grows with the views' spread about the centre: a view far out of a
-        # majority is left out, views with no majority among them are averaged.
-        spread = np.sqrt((wv * dev * dev).sum(axis=0) / np.maximum(wv.sum(axis=0), WEIGHT_FLOOR))
-        tol = np.maximum(np.float32(AGREE_TOL), np.float32(SPREAD_TOL) * spread)
-        phi = np.where(visible, np.clip(2.0 - dev / tol, 0.0, 1.0), 0.0).astype(np.float32)
-        # Agreement for the in-focus blend: every view that sees the pixel, occluded or not, each
-        # by its weight.
-        dis = np.clip(dev / np.float32(AGREE_TOL) - 1.0, 0.0, 1.0) * np.clip(weight, 0.0, 1.0)
-        agree = np.where(present, 1.0 - dis, 1.0).min(axis=0)
-        num = np.einsum("vhw,vhwc->hwc", phi, warped, optimize=True)
-        den = (phi * weight).sum(axis=0)
-        seen = den > WEIGHT_FLOOR
-        colour = np.where(seen[..., None], num / np.where(seen, den, 1.0)[..., None], 0.0).astype(np.float32)
-        return colour, np.where(present.any(axis=0), agree, 0.0).astype(np.float32), seen, nearest
+        visible = np.stack([~self._occluded(mx, my, self.x, nk) for (mx, my), nk in zip(maps, nearest)])
+        colour = np.empty((h, w, c), np.float32)
+        agree = np.empty((h, w), np.float32)
+        seen = np.empty((h, w), bool)
+        kern.robust_mean(warped, weight, visible, AGREE_TOL, SPREAD_TOL, WEIGHT_FLOOR, colour, agree, seen)
+        return colour, agree, seen, nearest
 
     # -- the background under occlusion edges --------------------------------------------------
     def _background(self, arr: np.ndarray, masks: np.ndarray, nearest: list):

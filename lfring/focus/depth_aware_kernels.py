@@ -9,6 +9,11 @@ the surfaces leave uncovered); between them, OpenCV blurs every rung's layer and
 and :func:`merge` composite the layers. Rows run in parallel stripes; a stripe's height is a
 multiple of every rung's grid factor, so no two stripes write the same cell. Colour and
 coverage are interleaved (C + 1 values per pixel), one cache line for all of a pixel.
+
+The renderer's all-in-focus colour, made once per depth map, has its own: :func:`splat_max`
+(the depth map seen from each view), :func:`occluded` (which views a nearer surface hides a
+pixel from) and :func:`robust_mean` (the views' robust mean, one pass over the pixels instead
+of a dozen whole-frame arrays).
 """
 
 from __future__ import annotations
@@ -16,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-__all__ = ["finish", "merge", "over", "rungs", "scatter"]
+__all__ = ["finish", "merge", "occluded", "over", "robust_mean", "rungs", "scatter", "splat_max"]
 
 _JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
 
@@ -213,3 +218,120 @@ def finish(acc, back, by, bx, floor, out):
             else:
                 for ch in range(c):
                     out[y, xx, ch] = 0.0
+
+
+@njit(parallel=True, **_JIT)
+def occluded(mx, my, x, nearest, tol, out):
+    """``out`` (h, w) bool: whether the view pixel (``mx``, ``my``) (rounded) that a reference
+    pixel of inverse depth ``x`` samples holds a surface nearer by more than ``tol`` (in x):
+    ``nearest`` is the depth map splatted into the view; False outside the view."""
+    h, w = out.shape
+    vh, vw = nearest.shape
+    for y in prange(h):
+        for xx in range(w):
+            u = int(np.rint(mx[y, xx])) if np.isfinite(mx[y, xx]) else -1
+            v = int(np.rint(my[y, xx])) if np.isfinite(my[y, xx]) else -1
+            out[y, xx] = 0 <= u < vw and 0 <= v < vh and nearest[v, u] > x[y, xx] + tol
+
+
+@njit(parallel=True, **_JIT)
+def robust_mean(warped, weight, visible, agree_tol, spread_tol, floor, colour, agree, seen):
+    """The views' robust mean at every pixel (the all-in-focus colour of
+    :class:`lfring.focus.depth_aware.DepthOfField`), from the views sampled there ``warped`` (V,
+    h, w, C; premultiplied by ``weight`` (V, h, w), how much of each view is valid there) and
+    ``visible`` (V, h, w; no nearer surface hides the pixel from the view).
+
+    Every statistic weighs a view by its weight, so that a view fading out at its disc's rim
+    fades out of it. The centre is robust: each view's luminance (mean of the channels)
+    weighted by the summed weight of the views within about ``agree_tol`` of it, to the fourth
+    power, so three agreeing views outweigh a fourth; a view whose luminance is off the centre
+    by more than ``tol = max(agree_tol, spread_tol * spread)`` (spread: the views' rms deviation
+    about it) loses weight linearly, none left at twice that. Where no view is visible, those
+    that are present (weight > ``floor``) count. Writes ``colour`` (h, w, C; 0 where not
+    ``seen``), ``agree`` (h, w: 1 less the worst view's excess deviation over ``agree_tol``,
+    every present view by its weight, occluded or not; 0 where none is present) and ``seen``
+    (h, w: the views' weight in the mean exceeds ``floor``)."""
+    v, h, w, c = warped.shape
+    inv_c = 1.0 / c
+    for y in prange(h):
+        lum = np.empty(v)
+        wv = np.empty(v)
+        support = np.empty(v)
+        phi = np.empty(v)
+        for xx in range(w):
+            any_present = False
+            any_visible = False
+            for k in range(v):
+                present = weight[k, y, xx] > floor
+                any_present = any_present or present
+                any_visible = any_visible or (present and visible[k, y, xx])
+            for k in range(v):
+                wk = weight[k, y, xx]
+                present = wk > floor
+                s = 0.0
+                for ch in range(c):
+                    s += warped[k, y, xx, ch]
+                lum[k] = s * inv_c / wk if present else 0.0
+                sees = present and (visible[k, y, xx] or not any_visible)
+                wv[k] = wk if sees else 0.0
+            total = 0.0
+            sum_wv = 0.0
+            sum_wl = 0.0
+            for k in range(v):
+                acc = 0.0
+                for j in range(v):
+                    dl = (lum[j] - lum[k]) / agree_tol
+                    acc += np.exp(-0.5 * dl * dl) * wv[j]
+                acc *= acc
+                support[k] = acc * acc * wv[k]
+                total += support[k]
+                sum_wv += wv[k]
+                sum_wl += wv[k] * lum[k]
+            if total > 0.0:
+                med = 0.0
+                for k in range(v):
+                    med += support[k] * lum[k]
+                med /= max(total, 1e-30)
+            else:
+                med = sum_wl / max(sum_wv, floor)
+            var = 0.0
+            for k in range(v):
+                dev = lum[k] - med
+                var += wv[k] * dev * dev
+            tol = max(agree_tol, spread_tol * np.sqrt(var / max(sum_wv, floor)))
+            worst = 1.0
+            den = 0.0
+            for k in range(v):
+                dev = abs(lum[k] - med)
+                phi[k] = min(max(2.0 - dev / tol, 0.0), 1.0) if wv[k] > 0.0 else 0.0
+                wk = weight[k, y, xx]
+                if wk > floor:
+                    dis = min(max(dev / agree_tol - 1.0, 0.0), 1.0) * min(max(wk, 0.0), 1.0)
+                    worst = min(worst, 1.0 - dis)
+                den += phi[k] * wk
+            agree[y, xx] = worst if any_present else 0.0
+            seen[y, xx] = den > floor
+            for ch in range(c):
+                num = 0.0
+                if den > floor:
+                    for k in range(v):
+                        num += phi[k] * warped[k, y, xx, ch]
+                    num /= den
+                colour[y, xx, ch] = num
+
+
+@njit(**_JIT)
+def splat_max(mx, my, x, out):
+    """``out`` (view rows, cols; filled by the caller) = the largest ``x`` (h, w) of the
+    reference pixels whose view pixel (``mx``, ``my``), rounded, it is. Serial: pixels land
+    on one another."""
+    h, w = x.shape
+    vh, vw = out.shape
+    for y in range(h):
+        for xx in range(w):
+            if not (np.isfinite(mx[y, xx]) and np.isfinite(my[y, xx])):
+                continue
+            u = int(np.rint(mx[y, xx]))
+            v = int(np.rint(my[y, xx]))
+            if 0 <= u < vw and 0 <= v < vh and x[y, xx] > out[v, u]:
+                out[v, u] = x[y, xx]

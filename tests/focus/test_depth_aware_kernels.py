@@ -1,0 +1,101 @@
+"""The depth-aware renderer's compiled passes against plain NumPy versions of the same rules."""
+
+import numpy as np
+import pytest
+
+from lfring.core.viewstack import WEIGHT_FLOOR
+from lfring.focus import depth_aware_kernels as kern
+from lfring.focus.depth_aware import AGREE_TOL, SPREAD_TOL
+
+
+def _robust_mean_numpy(warped, weight, visible):
+    """The views' robust mean, written array by array (the rules of ``kern.robust_mean``)."""
+    present = weight > WEIGHT_FLOOR
+    visible = visible & present
+    visible |= present & ~visible.any(axis=0)
+    lum = np.divide(warped.mean(axis=3), weight, out=np.zeros(weight.shape), where=present)
+    wv = np.where(visible, weight, 0.0)
+    close = np.exp(-0.5 * ((lum[:, None] - lum[None, :]) / AGREE_TOL) ** 2)
+    support = np.einsum("jvhw,jhw->vhw", close, wv) ** 4 * wv
+    total = support.sum(axis=0)
+    mean_lum = (wv * lum).sum(axis=0) / np.maximum(wv.sum(axis=0), WEIGHT_FLOOR)
+    med = np.where(total > 0, (support * lum).sum(axis=0) / np.maximum(total, 1e-30), mean_lum)
+    dev = np.abs(lum - med)
+    spread = np.sqrt((wv * dev * dev).sum(axis=0) / np.maximum(wv.sum(axis=0), WEIGHT_FLOOR))
+    tol = np.maximum(AGREE_TOL, SPREAD_TOL * spread)
+    phi = np.where(visible, np.clip(2.0 - dev / tol, 0.0, 1.0), 0.0)
+    dis = np.clip(dev / AGREE_TOL - 1.0, 0.0, 1.0) * np.clip(weight, 0.0, 1.0)
+    agree = np.where(present.any(axis=0), np.where(present, 1.0 - dis, 1.0).min(axis=0), 0.0)
+    num = np.einsum("vhw,vhwc->hwc", phi, warped)
+    den = (phi * weight).sum(axis=0)
+    seen = den > WEIGHT_FLOOR
+    colour = np.where(seen[..., None], num / np.where(seen, den, 1.0)[..., None], 0.0)
+    return colour, agree, seen
+
+
+@pytest.mark.parametrize("channels", [1, 3])
+def test_robust_mean_matches_the_array_rules(channels):
+    rng = np.random.default_rng(7)
+    v, h, w = 4, 24, 32
+    base = rng.random((1, h, w, channels))
+    # Views that agree up to noise, one that sees something else on a third of the pixels, a
+    # weight that fades at a rim and is zero in a corner, and occlusions.
+    views = base + 0.01 * rng.standard_normal((v, h, w, channels))
+    views[2, :, : w // 3] += 0.5
+    weight = np.clip(rng.random((v, h, w)) * 3.0, 0.0, 1.0)
+    weight[:, :4, :4] = 0.0
+    weight[1, :, -5:] = np.linspace(1.0, 0.0, 5)
+    visible = rng.random((v, h, w)) > 0.1
+    visible[:, 5, :] = False  # no view visible: the present ones count
+    warped = (views * weight[..., None]).astype(np.float32)
+    weight = weight.astype(np.float32)
+    colour = np.empty((h, w, channels), np.float32)
+    agree = np.empty((h, w), np.float32)
+    seen = np.empty((h, w), bool)
+    kern.robust_mean(warped, weight, visible, AGREE_TOL, SPREAD_TOL, WEIGHT_FLOOR, colour, agree, seen)
+    want_colour, want_agree, want_seen = _robust_mean_numpy(warped.astype(np.float64), weight.astype(np.float64), visible)
+    assert np.array_equal(seen, want_seen) and seen.mean() > 0.9 and not seen[:4, :4].any()
+    np.testing.assert_allclose(colour, want_colour, atol=1e-5)
+    np.testing.assert_allclose(agree, want_agree, atol=1e-5)
+    # Where all four views see the pixel well, the odd one is left out: the colour is the
+    # others' (the base), and the views do not agree.
+    clear = (visible & (weight > 0.9)).all(axis=0)
+    odd, rest = clear.copy(), clear.copy()
+    odd[:, w // 3:] = False
+    rest[:, : w // 3] = False
+    assert odd.sum() > 20 and rest.sum() > 20
+    assert np.abs(colour[odd] - base[0][odd]).max() < 0.05
+    assert agree[odd].max() < 0.15 and agree[rest].min() > 0.9
+
+def test_occluded_is_a_nearer_surface_at_the_rounded_view_pixel():
+    rng = np.random.default_rng(3)
+    h, w = 20, 30
+    x = rng.random((h, w)).astype(np.float32)
+    nearest = rng.random((h, w)).astype(np.float32)
+    my, mx = np.mgrid[0:h, 0:w].astype(np.float32)
+    mx = mx + rng.uniform(-3.0, 3.0, (h, w)).astype(np.float32)
+    my = my + rng.uniform(-3.0, 3.0, (h, w)).astype(np.float32)
+    out = np.empty((h, w), bool)
+    kern.occluded(mx, my, x, nearest, 0.1, out)
+    u, vv = np.rint(mx).astype(int), np.rint(my).astype(int)
+    inside = (u >= 0) & (u < w) & (vv >= 0) & (vv < h)
+    want = np.zeros((h, w), bool)
+    want[inside] = nearest[vv[inside], u[inside]] > x[inside] + 0.1
+    assert np.array_equal(out, want) and want.any() and (~inside).any() and not out[~inside].any()
+
+
+def test_splat_max_keeps_the_nearest_of_the_pixels_that_land_together():
+    rng = np.random.default_rng(5)
+    h, w = 20, 30
+    x = rng.random((h, w)).astype(np.float32)
+    my, mx = np.mgrid[0:h, 0:w].astype(np.float32)
+    mx = (mx * 0.5 + rng.uniform(-2.0, 2.0, (h, w))).astype(np.float32)  # about two pixels on each view pixel
+    my = (my + rng.uniform(-2.0, 2.0, (h, w))).astype(np.float32)
+    out = np.full((h, w), -np.inf, np.float32)
+    kern.splat_max(mx, my, x, out)
+    u, vv = np.rint(mx).astype(int).ravel(), np.rint(my).astype(int).ravel()
+    inside = (u >= 0) & (u < w) & (vv >= 0) & (vv < h)
+    want = np.full(h * w, -np.inf, np.float32)
+    np.maximum.at(want, (vv * w + u)[inside], x.ravel()[inside])
+    assert np.array_equal(out.ravel(), want)
+    assert np.isinf(out[:, -5:]).all() and np.isfinite(out[:, 5:10]).mean() > 0.8
