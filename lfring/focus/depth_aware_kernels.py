@@ -253,6 +253,7 @@ def robust_mean(warped, weight, visible, agree_tol, spread_tol, floor, colour, a
     (h, w: the views' weight in the mean exceeds ``floor``)."""
     v, h, w, c = warped.shape
     inv_c = 1.0 / c
+    inv_tol = 1.0 / agree_tol
     for y in prange(h):
         lum = np.empty(v)
         wv = np.empty(v)
@@ -274,15 +275,24 @@ def robust_mean(warped, weight, visible, agree_tol, spread_tol, floor, colour, a
                 lum[k] = s * inv_c / wk if present else 0.0
                 sees = present and (visible[k, y, xx] or not any_visible)
                 wv[k] = wk if sees else 0.0
+            # Each view's support: the weight of the views close to it (itself included), the
+            # closeness of a pair computed once.
+            for k in range(v):
+                support[k] = wv[k]
+            for k in range(v):
+                if wv[k] <= 0.0:
+                    continue
+                for j in range(k + 1, v):
+                    if wv[j] > 0.0:
+                        dl = np.float32((lum[j] - lum[k]) * inv_tol)
+                        close = np.exp(np.float32(-0.5) * dl * dl)  # float32: a closeness
+                        support[k] += close * wv[j]
+                        support[j] += close * wv[k]
             total = 0.0
             sum_wv = 0.0
             sum_wl = 0.0
             for k in range(v):
-                acc = 0.0
-                for j in range(v):
-                    dl = (lum[j] - lum[k]) / agree_tol
-                    acc += np.exp(-0.5 * dl * dl) * wv[j]
-                acc *= acc
+                acc = support[k] * support[k]
                 support[k] = acc * acc * wv[k]
                 total += support[k]
                 sum_wv += wv[k]
