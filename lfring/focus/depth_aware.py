@@ -438,6 +438,8 @@ class DepthOfField:
         nearest pixel across the step's); ``colour_b`` its colour, from the views that see it
         there (they look behind the edge from their places in the aperture), else extended from
         around; ``distance_px`` how far the pixel lies from the step."""
+        from lfring.focus import depth_aware_kernels as kern
+
         x = self.x
         step = np.float32(BACK_STEP_PX / max(self.radius_px, 1e-12))
         k = 2 * BACK_EDGE_PX + 1
@@ -457,18 +459,23 @@ class DepthOfField:
         num = np.zeros((h, w, c), np.float32)
         den = np.zeros((h, w), np.float32)
         for k, (mx, my) in enumerate(self._sampling_maps(v, xb)):
-            sees = (~self._occluded(mx, my, xb, nearest[k])) & under
+            hidden = self._occluded(mx, my, xb, nearest[k])
             src = arr[k] if np.all(masks[k] == 1.0) else arr[k] * masks[k][..., None]
             val = cv2.remap(src, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0).reshape(h, w, c)
             wk = cv2.remap(masks[k], mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-            num += np.where(sees[..., None], val, 0.0)
-            den += np.where(sees, wk, 0.0)
+            kern.add_seen(val, wk, under, hidden, num, den)
         known = den > WEIGHT_FLOOR
-        colour = np.where(known[..., None], num / np.where(known, den, 1.0)[..., None], 0.0)
+        colour = np.zeros((h, w, c), np.float32)
+        np.divide(num, den[..., None], out=colour, where=known[..., None])
         # The seeds are the farther surface itself, as the reference sees it.
         colour[seeds] = self.colour[seeds]
-        source = (known | seeds).astype(np.float32)
-        colour = np.stack(_fill_from_around([np.ascontiguousarray(colour[..., i]) for i in range(c)], source), axis=2)
+        source = known | seeds
+        # Filled from around over the box of what has or needs a background (nothing outside
+        # it is a source), not the whole frame.
+        rows, cols = np.flatnonzero((source | under).any(axis=1)), np.flatnonzero((source | under).any(axis=0))
+        box = (slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1))
+        colour[box] = np.stack(_fill_from_around([np.ascontiguousarray(colour[box + (i,)]) for i in range(c)],
+                                                 source[box].astype(np.float32)), axis=2)
         return (under, xb.astype(np.float32), np.ascontiguousarray(colour, dtype=np.float32), dist.astype(np.float32),
                 (float(xb[under].min()), float(xb[under].max())))
 

@@ -12,7 +12,7 @@ coverage are interleaved (C + 1 values per pixel), one cache line for all of a p
 
 The renderer's all-in-focus colour, made once per depth map, has its own: :func:`splat_max`
 (the depth map seen from each view), :func:`occluded` (which views a nearer surface hides a
-pixel from) and :func:`robust_mean` (the views' robust mean, one pass over the pixels instead
+pixel from), :func:`add_seen` (the background's samples) and :func:`robust_mean` (the views' robust mean, one pass over the pixels instead
 of a dozen whole-frame arrays).
 """
 
@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-__all__ = ["finish", "merge", "occluded", "over", "robust_mean", "rungs", "scatter", "splat_max"]
+__all__ = ["add_seen", "finish", "merge", "occluded", "over", "robust_mean", "rungs", "scatter", "splat_max"]
 
 _JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
 
@@ -345,3 +345,16 @@ def splat_max(mx, my, x, out):
             v = int(np.rint(my[y, xx]))
             if 0 <= u < vw and 0 <= v < vh and x[y, xx] > out[v, u]:
                 out[v, u] = x[y, xx]
+
+
+@njit(parallel=True, **_JIT)
+def add_seen(val, weight, wanted, hidden, num, den):
+    """``num += val`` (h, w, C) and ``den += weight`` (h, w) where ``wanted`` and not ``hidden``
+    (a view's samples of the background that it sees)."""
+    h, w, c = val.shape
+    for y in prange(h):
+        for xx in range(w):
+            if wanted[y, xx] and not hidden[y, xx]:
+                for ch in range(c):
+                    num[y, xx, ch] += val[y, xx, ch]
+                den[y, xx] += weight[y, xx]
