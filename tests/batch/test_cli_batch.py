@@ -140,3 +140,7 @@ def test_an_optics_calibration_gets_one_depth_range_from_refocus_batch_and_the_a
     assert main(["refocus", str(d / "scene.png"), "--depth", "0.5", "--all-in-focus", "--calib", str(cal_path),
                  "-o", str(tmp_path / "a.png")]) == 0
     assert (tmp_path / "a_all_in_focus.png").exists()
+    # So does lfring depth without --zmax.
+    assert main(["depth", str(d / "scene.png"), "--calib", str(cal_path), "--method", "local", "-o", str(tmp_path / "dep")]) == 0
+    rec = json.loads((tmp_path / "dep" / "scene_depth.json").read_text())
+    assert (rec["zmin_m"], rec["zmax_m"]) == (lo, hi)

@@ -311,6 +311,9 @@ def test_a_grid_pair_without_a_depth_range_is_refused_alike_by_the_api_refocus_a
     err = capsys.readouterr().err
     assert "--depth Z1,Z2" in err and "depths_m" not in err and "Traceback" not in err
     assert not list(tmp_path.glob("aif*"))
+    assert main(["depth", str(tmp_path / "a0.png"), str(tmp_path / "a1.png"), "--calib", str(cal_path_aif), "--reference", "0",
+                 "-o", str(tmp_path / "dep")]) == 2
+    assert "no upper depth bound, and none follows from it: give --zmax" in capsys.readouterr().err
     # The CLIs: exit 2, one line naming their options, no traceback, no output.
     paths = []
     for k, v in enumerate(views):
