@@ -28,7 +28,7 @@ MAX_PLANES = 1000
 @click.option("--zmin", type=float, default=None, metavar="M",
               help="Nearest depth searched [m from the main lens] (default: the calibration's valid range).")
 @click.option("--zmax", type=float, default=None, metavar="M", help="Farthest depth searched [m] (default: the calibration's "
-              "valid range).")
+              "valid range; for one open to infinity, where the views stop moving).")
 @click.option("-o", "--output", "outdir", type=click.Path(file_okay=False), required=True, metavar="DIR", help="Output folder.")
 @click.option("--calib", type=click.Path(dir_okay=False), default=None, metavar="FILE",
               help="Calibration JSON (default: the built-in one for the frame's size).")
@@ -86,7 +86,8 @@ def command(raw, zmin, zmax, outdir, calib, planes, reference, cost, aggregation
     from lfring.depth import estimate_depth
     from lfring.depth.hypotheses import depth_hypotheses
     from lfring.depth.io import device_for, write_depth_preview, write_depth_tiff, write_pfm, write_ply
-    from lfring.errors import LfringError
+    from lfring.errors import InvalidInputError, LfringError
+    from lfring.focus.depth_aware import estimation_range
     from lfring.io.writers import write_float_tiff, write_json
 
     if old_torch_device is not None:
@@ -108,9 +109,13 @@ def command(raw, zmin, zmax, outdir, calib, planes, reference, cost, aggregation
     lo, hi = cal.valid_depth_range_m
     zmin = lo if zmin is None else zmin
     if zmax is None:
-        if hi is None:
-            raise click.UsageError(f"the calibration {cal_name} has no upper depth bound: give --zmax (metres)")
-        zmax = hi
+        # The range of depth-aware refocusing, by its one rule: a calibration open to infinity
+        # ends where the views stop moving, when that is a range of depths at all.
+        try:
+            zmin, zmax = estimation_range(cal, zmin, reference=ref)
+        except InvalidInputError:
+            raise click.UsageError(f"the calibration {cal_name} has no upper depth bound, and none follows from it: "
+                                   "give --zmax (metres)") from None
     if planes is None:
         n = len(depth_hypotheses(cal, zmin, zmax))
         span = f"--zmin {zmin:g} to --zmax {zmax:g} m"

@@ -21,6 +21,7 @@ API_TO_CLI: tuple[tuple[str, str], ...] = (
     (r"\bpass black_level=\.\.\. / white_level=\.\.\.", "pass --black-level / --white-level"),
     (r"\((by|from) argument\)", r"(\1 the command line)"),
     (r"\bmethod='([\w-]+)'", r"--method \1"),
+    (r"\bgive depths_m\b", "give the depths to choose from (--depth Z1,Z2,...)"),
     (r"\boverwrite=True\b", "--overwrite"),
     # Parameters and their options.
     (r"\bzmin_m\b", "--zmin"),

@@ -22,7 +22,7 @@ from lfring.core.viewstack import WEIGHT_FLOOR, cached_view_masks, check_views
 from lfring.core.warping import DEFAULT_INTERPOLATION, warp_views
 from lfring.depth.hypotheses import depth_hypotheses
 from lfring.errors import InvalidInputError, LfringWarning
-from lfring.focus.depth_aware import DepthOfField
+from lfring.focus.depth_aware import DepthOfField, estimation_range
 from lfring.focus.methods import METHODS
 from lfring.focus.shift_and_add import Refocuser, refocus_torch
 
@@ -190,8 +190,8 @@ def all_in_focus(views, calibration, depths_m=None, *, depth_map_m=None, referen
     views : (V, h, w, C) float32
     calibration : RingCalibration
     depths_m : sequence of float, optional
-        Depths to choose from (default: the calibration's valid range, evenly in disparity,
-        one pixel apart).
+        Depths to choose from (default: depth-aware refocusing's range,
+        :func:`lfring.focus.depth_aware.estimation_range`, evenly in disparity, one pixel apart).
     depth_map_m : (h, w) float, optional
         Depth of every reference pixel (from :func:`lfring.estimate_depth`, say): each pixel is
         then refocused at its own depth, taken from the nearest of ``depths_m``.
@@ -228,9 +228,13 @@ def all_in_focus(views, calibration, depths_m=None, *, depth_map_m=None, referen
     arr = check_views(views)
     h, w = arr.shape[1:3]
     if depths_m is None:
-        lo, hi = calibration.valid_depth_range_m
-        if hi is None:
-            raise InvalidInputError("give depths_m: the calibration has no upper depth bound")
+        # Depth-aware refocusing's range, by its one rule (a calibration open to infinity ends
+        # where the views stop moving, when that is a range of depths at all).
+        try:
+            lo, hi = estimation_range(calibration, reference=reference)
+        except InvalidInputError:
+            raise InvalidInputError("give depths_m: the calibration has no upper depth bound, and none follows from "
+                                    "it (see lfring.focus.depth_aware.estimation_range)") from None
         depths_m = depth_hypotheses(calibration, lo, hi)
     z = np.atleast_1d(np.asarray(depths_m, dtype=np.float64))
     calibration.check_depth(z)

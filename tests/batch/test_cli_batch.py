@@ -127,3 +127,20 @@ def test_an_optics_calibration_gets_one_depth_range_from_refocus_batch_and_the_a
     cli = cv2.imread(str(single))
     np.testing.assert_array_equal(cli, cv2.imread(str(out / "scene_refocus_0.5m.png")))
     np.testing.assert_array_equal(cv2.cvtColor(cli, cv2.COLOR_BGR2RGB), expected_refocus(d / "scene.png", cal_path, 0.5))
+    # The all-in-focus image takes its depths from the same range.
+    from lfring import demosaic, load_raw, split_views
+    from lfring.depth.hypotheses import depth_hypotheses
+    from lfring.focus import all_in_focus
+
+    views = split_views(demosaic(load_raw(d / "scene.png")), cal.layout)
+    _, chosen = all_in_focus(views, cal)
+    hyps = depth_hypotheses(cal, lo, hi)
+    picked = np.unique(chosen[np.isfinite(chosen)])
+    assert picked.size > 1 and np.isin(picked, hyps.astype(np.float32)).all()
+    assert main(["refocus", str(d / "scene.png"), "--depth", "0.5", "--all-in-focus", "--calib", str(cal_path),
+                 "-o", str(tmp_path / "a.png")]) == 0
+    assert (tmp_path / "a_all_in_focus.png").exists()
+    # So does lfring depth without --zmax.
+    assert main(["depth", str(d / "scene.png"), "--calib", str(cal_path), "--method", "local", "-o", str(tmp_path / "dep")]) == 0
+    rec = json.loads((tmp_path / "dep" / "scene_depth.json").read_text())
+    assert (rec["zmin_m"], rec["zmax_m"]) == (lo, hi)

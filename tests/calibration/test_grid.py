@@ -296,6 +296,24 @@ def test_a_grid_pair_without_a_depth_range_is_refused_alike_by_the_api_refocus_a
         refocus(views, cal, 12.0, method="depth-aware")
     with pytest.raises(InvalidInputError, match=refusal):
         BatchSettings(refocus_m=(12.0,), calibration=cal)
+    # The all-in-focus image's depths follow the same rule.
+    from lfring.focus import all_in_focus
+
+    with pytest.raises(InvalidInputError, match="give depths_m: the calibration has no upper depth bound, and none follows"):
+        all_in_focus(views, cal)
+    cal_path_aif = tmp_path / "pair_aif.json"
+    cal.save(cal_path_aif)
+    for k, v in enumerate(views):
+        cv2.imwrite(str(tmp_path / f"a{k}.png"), np.rint(v[..., ::-1] * 65535).astype(np.uint16))
+    capsys.readouterr()
+    assert main(["refocus", str(tmp_path / "a0.png"), str(tmp_path / "a1.png"), "--calib", str(cal_path_aif), "--depth", "12",
+                 "--method", "shift-and-add", "--all-in-focus", "-o", str(tmp_path / "aif.png")]) == 2
+    err = capsys.readouterr().err
+    assert "--depth Z1,Z2" in err and "depths_m" not in err and "Traceback" not in err
+    assert not list(tmp_path.glob("aif*"))
+    assert main(["depth", str(tmp_path / "a0.png"), str(tmp_path / "a1.png"), "--calib", str(cal_path_aif), "--reference", "0",
+                 "-o", str(tmp_path / "dep")]) == 2
+    assert "no upper depth bound, and none follows from it: give --zmax" in capsys.readouterr().err
     # The CLIs: exit 2, one line naming their options, no traceback, no output.
     paths = []
     for k, v in enumerate(views):
