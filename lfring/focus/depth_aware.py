@@ -326,15 +326,17 @@ class DepthOfField:
     def _sampling_maps(self, k_views: int, x: np.ndarray):
         """Per view, the (mapx, mapy) float32 view pixel that every reference pixel samples at
         the inverse depth ``x`` (h, w)."""
+        from lfring.focus import depth_aware_kernels as kern
+
         cal, (h, w) = self.calibration, self.view_shape
         z0 = cal.depth_origin_m
         lo, hi = float(x.min()), float(x.max())
         if hi - lo < 1e-9:
             hi = lo + 1e-6
-        yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
         ends = to_reference(cal.model(z0 + 1.0 / np.array([lo, hi])), self.reference)  # (2, V, 3, 3)
         shifts = translations(ends, (h, w))
         if shifts is not None:  # affine in x: exact from the two ends
+            yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
             slope = (shifts[1] - shifts[0]) / (hi - lo)
             dx = (x - np.float32(lo))
             return [(xx + np.float32(shifts[0, k, 0]) + dx * np.float32(slope[k, 0]),
@@ -345,22 +347,11 @@ class DepthOfField:
         motion = max(np.abs(apply_homography(inv_ends[0, k], corners) - apply_homography(inv_ends[1, k], corners)).max()
                      for k in range(k_views))
         knots = np.linspace(lo, hi, max(2, int(math.ceil(motion / KNOT_STEP_PX)) + 1))
-        inv = np.linalg.inv(to_reference(cal.model(z0 + 1.0 / knots), self.reference))  # (K, V, 3, 3)
-        seg = np.clip(np.searchsorted(knots, x.ravel(), side="right") - 1, 0, len(knots) - 2)
-        pts = np.stack([xx.ravel(), yy.ravel()], axis=1).astype(np.float64)
-        out = [np.empty((h * w, 2), np.float32) for _ in range(k_views)]
-        order = np.argsort(seg, kind="stable")
-        bounds = np.searchsorted(seg[order], np.arange(len(knots)))
-        for j in range(len(knots) - 1):
-            idx = order[bounds[j]:bounds[j + 1]]
-            if idx.size == 0:
-                continue
-            t = ((x.ravel()[idx] - knots[j]) / (knots[j + 1] - knots[j]))[:, None]
-            for k in range(k_views):
-                a = apply_homography(inv[j, k], pts[idx])
-                b = apply_homography(inv[j + 1, k], pts[idx])
-                out[k][idx] = a + t * (b - a)
-        return [(o[:, 0].reshape(h, w), o[:, 1].reshape(h, w)) for o in out]
+        inv = np.ascontiguousarray(np.linalg.inv(to_reference(cal.model(z0 + 1.0 / knots), self.reference))[:, :k_views])
+        map_x = np.empty((k_views, h, w), np.float32)
+        map_y = np.empty((k_views, h, w), np.float32)
+        kern.knot_maps(np.ascontiguousarray(x, dtype=np.float32), knots, inv, map_x, map_y)
+        return [(map_x[k], map_y[k]) for k in range(k_views)]
 
     def _occluded(self, mx, my, x, nearest) -> np.ndarray:
         """(h, w) bool: whether a surface nearer than ``x`` by more than :data:`OCCLUSION_PX`

@@ -10,7 +10,9 @@ and :func:`merge` composite the layers. Rows run in parallel stripes; a stripe's
 multiple of every rung's grid factor, so no two stripes write the same cell. Colour and
 coverage are interleaved (C + 1 values per pixel), one cache line for all of a pixel.
 
-The renderer's all-in-focus colour, made once per depth map, has its own: :func:`splat_max`
+The renderer's all-in-focus colour, made once per depth map, has its own: :func:`knot_maps`
+(where each view sees every pixel at its depth, for calibrations that are not translations),
+:func:`splat_max`
 (the depth map seen from each view), :func:`occluded` (which views a nearer surface hides a
 pixel from), :func:`add_seen` (the background's samples) and :func:`robust_mean` (the views' robust mean, one pass over the pixels instead
 of a dozen whole-frame arrays).
@@ -21,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-__all__ = ["add_seen", "finish", "merge", "occluded", "over", "robust_mean", "rungs", "scatter", "splat_max"]
+__all__ = ["add_seen", "finish", "knot_maps", "merge", "occluded", "over", "robust_mean", "rungs", "scatter", "splat_max"]
 
 _JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
 
@@ -358,3 +360,37 @@ def add_seen(val, weight, wanted, hidden, num, den):
                 for ch in range(c):
                     num[y, xx, ch] += val[y, xx, ch]
                 den[y, xx] += weight[y, xx]
+
+
+@njit(parallel=True, **_JIT)
+def knot_maps(x, knots, inv, map_x, map_y):
+    """``map_x``, ``map_y`` (V, h, w): the view pixel that every reference pixel samples at its
+    inverse depth ``x`` (h, w), linear in x between the increasing ``knots`` (K) where ``inv``
+    (K, V, 3, 3) maps reference pixels into each view (a homography per knot and view)."""
+    h, w = x.shape
+    n_knots = knots.shape[0]
+    v = inv.shape[1]
+    for y in prange(h):
+        for xx in range(w):
+            xv = x[y, xx]
+            # The segment, as np.searchsorted(knots, xv, side="right") - 1 clipped to 0..K-2.
+            j = 0
+            hi = n_knots - 1
+            while hi - j > 1:
+                mid = (j + hi) // 2
+                if knots[mid] <= xv:
+                    j = mid
+                else:
+                    hi = mid
+            t = (xv - knots[j]) / (knots[j + 1] - knots[j])
+            for k in range(v):
+                a = inv[j, k]
+                b = inv[j + 1, k]
+                wa = a[2, 0] * xx + a[2, 1] * y + a[2, 2]
+                wb = b[2, 0] * xx + b[2, 1] * y + b[2, 2]
+                ax = (a[0, 0] * xx + a[0, 1] * y + a[0, 2]) / wa
+                ay = (a[1, 0] * xx + a[1, 1] * y + a[1, 2]) / wa
+                bx = (b[0, 0] * xx + b[0, 1] * y + b[0, 2]) / wb
+                by = (b[1, 0] * xx + b[1, 1] * y + b[1, 2]) / wb
+                map_x[k, y, xx] = ax + t * (bx - ax)
+                map_y[k, y, xx] = ay + t * (by - ay)

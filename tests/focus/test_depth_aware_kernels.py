@@ -99,3 +99,29 @@ def test_splat_max_keeps_the_nearest_of_the_pixels_that_land_together():
     np.maximum.at(want, (vv * w + u)[inside], x.ravel()[inside])
     assert np.array_equal(out.ravel(), want)
     assert np.isinf(out[:, -5:]).all() and np.isfinite(out[:, 5:10]).mean() > 0.8
+
+
+def test_knot_maps_interpolate_the_knots_homographies_linearly_in_x():
+    from lfring.core.geometry import apply_homography
+
+    rng = np.random.default_rng(11)
+    h, w, v = 12, 17, 3
+    knots = np.linspace(0.5, 2.0, 5)
+    inv = np.tile(np.eye(3), (5, v, 1, 1))
+    inv[:, :, :2, 2] = knots[:, None, None] * rng.uniform(-3.0, 3.0, (1, v, 2))  # shifts growing with x
+    inv[:, :, 2, :2] = rng.uniform(-1e-3, 1e-3, (5, v, 2))  # and a little perspective
+    x = rng.uniform(0.5, 2.0, (h, w)).astype(np.float32)
+    x[0, :5] = knots[:5]  # on the knots themselves
+    map_x = np.empty((v, h, w), np.float32)
+    map_y = np.empty((v, h, w), np.float32)
+    kern.knot_maps(x, knots, inv, map_x, map_y)
+    yy, xx = np.mgrid[0:h, 0:w]
+    pts = np.stack([xx.ravel(), yy.ravel()], axis=1).astype(np.float64)
+    seg = np.clip(np.searchsorted(knots, x.ravel(), side="right") - 1, 0, len(knots) - 2)
+    t = ((x.ravel() - knots[seg]) / (knots[seg + 1] - knots[seg]))[:, None]
+    for k in range(v):
+        a = np.array([apply_homography(inv[j, k], p) for j, p in zip(seg, pts)])
+        b = np.array([apply_homography(inv[j + 1, k], p) for j, p in zip(seg, pts)])
+        want = a + t * (b - a)
+        np.testing.assert_allclose(map_x[k].ravel(), want[:, 0], atol=1e-4)
+        np.testing.assert_allclose(map_y[k].ravel(), want[:, 1], atol=1e-4)
