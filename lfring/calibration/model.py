@@ -10,7 +10,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import minimize_scalar
 
 from lfring.core.validate import check_view_index
 from lfring.errors import EstimationError, InvalidInputError
@@ -147,6 +146,8 @@ def fit_variable_homography(
         grid = np.linspace(lo, hi, 41)
         costs = [cost(g) for g in grid]
         i = int(np.argmin(costs))
+        from scipy.optimize import minimize_scalar  # here, not at import: it is much of every command's start-up
+
         res = minimize_scalar(cost, bounds=(grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]), method="bounded",
                               options={"xatol": 1e-7})
         z0 = float(res.x)

@@ -8,7 +8,6 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
-from scipy.optimize import brentq
 
 from lfring.core.registry import Registry
 from lfring.core.validate import check_int
@@ -425,6 +424,8 @@ def design_working_range(
     hi = lo + 1.0
     if top_minus_edge(lo) <= 0 or top_minus_edge(hi) >= 0:
         raise DesignError("no ring position fits the object to the sensor over this range")
+    from scipy.optimize import brentq  # here, not at import: see lfring.calibration.model
+
     b = brentq(top_minus_edge, lo, hi, xtol=1e-15, rtol=1e-14)
     c = c_of_b(b)
     # The plane in sharpest focus: b2 = c Fml / (c - Fml), Z from b1 = b - b2.
