@@ -12,10 +12,10 @@ coverage are interleaved (C + 1 values per pixel), one cache line for all of a p
 
 The renderer's all-in-focus colour, made once per depth map, has its own: :func:`knot_maps`
 (where each view sees every pixel at its depth, for calibrations that are not translations),
-:func:`splat_max`
-(the depth map seen from each view), :func:`occluded` (which views a nearer surface hides a
-pixel from), :func:`add_seen` (the background's samples) and :func:`robust_mean` (the views' robust mean, one pass over the pixels instead
-of a dozen whole-frame arrays).
+:func:`splat_max` (the depth map seen from each view), :func:`occluded` (which views a nearer
+surface hides a pixel from), :func:`add_seen` (the background's samples) and
+:func:`robust_mean` (the views' robust mean: one pass over the pixels, not a dozen whole-frame
+arrays).
 """
 
 from __future__ import annotations
