@@ -137,6 +137,12 @@ def main(argv=None) -> int:
     try:
         return _run(args)
     finally:
+        # A KeyboardInterrupt that escaped code run from a string (the methods that dataclasses
+        # build with exec, when Ctrl-C comes during an import) leaves CPython's "unhandled
+        # KeyboardInterrupt" mark set though _run handled it; run as `python -m lfring`, the
+        # interpreter then kills itself with SIGINT at exit instead of returning our code.
+        # Running any code from a string clears the mark.
+        eval("None")
         if ours and argv is None:
             # The command is over and the script exits with its code: a signal now would only cut
             # the interpreter's exit short (killed by it, or a traceback from a KeyboardInterrupt).
