@@ -463,7 +463,8 @@ class DepthOfField:
         source = known | seeds
         # Filled from around over the box of what has or needs a background (nothing outside
         # it is a source), not the whole frame.
-        rows, cols = np.flatnonzero((source | under).any(axis=1)), np.flatnonzero((source | under).any(axis=0))
+        involved = source | under
+        rows, cols = np.flatnonzero(involved.any(axis=1)), np.flatnonzero(involved.any(axis=0))
         box = (slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1))
         colour[box] = np.stack(_fill_from_around([np.ascontiguousarray(colour[box + (i,)]) for i in range(c)],
                                                  source[box].astype(np.float32)), axis=2)

@@ -222,6 +222,19 @@ def finish(acc, back, by, bx, floor, out):
                     out[y, xx, ch] = 0.0
 
 
+@njit(inline="always")
+def _view_pixel(mx, my, vh, vw):
+    """The view pixel (column, row) nearest the sampling position (``mx``, ``my``) in a view of
+    ``vh`` x ``vw``, or (-1, -1) where it lies outside or is not finite."""
+    if not (np.isfinite(mx) and np.isfinite(my)):
+        return -1, -1
+    u = int(np.rint(mx))
+    v = int(np.rint(my))
+    if 0 <= u < vw and 0 <= v < vh:
+        return u, v
+    return -1, -1
+
+
 @njit(parallel=True, **_JIT)
 def occluded(mx, my, x, nearest, tol, out):
     """``out`` (h, w) bool: whether the view pixel (``mx``, ``my``) (rounded) that a reference
@@ -231,9 +244,8 @@ def occluded(mx, my, x, nearest, tol, out):
     vh, vw = nearest.shape
     for y in prange(h):
         for xx in range(w):
-            u = int(np.rint(mx[y, xx])) if np.isfinite(mx[y, xx]) else -1
-            v = int(np.rint(my[y, xx])) if np.isfinite(my[y, xx]) else -1
-            out[y, xx] = 0 <= u < vw and 0 <= v < vh and nearest[v, u] > x[y, xx] + tol
+            u, v = _view_pixel(mx[y, xx], my[y, xx], vh, vw)
+            out[y, xx] = u >= 0 and nearest[v, u] > x[y, xx] + tol
 
 
 @njit(parallel=True, **_JIT)
@@ -341,11 +353,8 @@ def splat_max(mx, my, x, out):
     vh, vw = out.shape
     for y in range(h):
         for xx in range(w):
-            if not (np.isfinite(mx[y, xx]) and np.isfinite(my[y, xx])):
-                continue
-            u = int(np.rint(mx[y, xx]))
-            v = int(np.rint(my[y, xx]))
-            if 0 <= u < vw and 0 <= v < vh and x[y, xx] > out[v, u]:
+            u, v = _view_pixel(mx[y, xx], my[y, xx], vh, vw)
+            if u >= 0 and x[y, xx] > out[v, u]:
                 out[v, u] = x[y, xx]
 
 
