@@ -205,14 +205,34 @@ def require_ring_frame(image, cal, raw) -> None:
         raise InvalidInputError(f"{raw}: {res.message}")
 
 
+class _SilentBar:
+    """What :func:`progress_bar` gives where no bar is shown: it counts and draws nothing, and,
+    unlike a disabled tqdm, has no finaliser, in which a Ctrl-C or SIGTERM that lands there
+    would be printed as an ignored exception's traceback instead of stopping the command."""
+
+    def __init__(self):
+        self.n = 0
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+    def update(self, n=1):
+        self.n += n
+
+
 def progress_bar(total: int, desc: str, unit: str):
     """A tqdm bar on stderr, shown only when stderr is a terminal and lfring is not quiet."""
     import sys
 
+    quiet = not logging.getLogger("lfring").isEnabledFor(logging.INFO)
+    if quiet or not sys.stderr.isatty():
+        return _SilentBar()
     from tqdm import tqdm
 
-    quiet = not logging.getLogger("lfring").isEnabledFor(logging.INFO)
-    return tqdm(total=total, desc=desc, unit=unit, disable=quiet or not sys.stderr.isatty(), leave=False, dynamic_ncols=True)
+    return tqdm(total=total, desc=desc, unit=unit, leave=False, dynamic_ncols=True)
 
 
 def note_first_compile() -> None:
