@@ -17,7 +17,7 @@ def atomic_path(path: str | Path, *, tmp_dir: str | Path | None = None) -> Itera
     system); on success it is renamed onto ``path``.
 
     The temporary file keeps the target's suffix so that writers choosing a format by extension
-    (OpenCV, tifffile, imageio) work unchanged. On error the temporary file is removed.
+    (OpenCV, tifffile) work unchanged. On error the temporary file is removed.
     """
     path = Path(path)
     where = path.parent if tmp_dir is None else Path(tmp_dir)

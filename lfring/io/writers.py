@@ -12,7 +12,7 @@ import tifffile
 
 from lfring.core.validate import check_choice
 from lfring.errors import FileFormatError, InvalidInputError
-from lfring.io.atomic import atomic_path, atomic_write_text
+from lfring.io.atomic import atomic_path, atomic_write_bytes, atomic_write_text
 
 __all__ = [
     "IMAGE_SUFFIXES", "check_writable", "encode_file", "encode_float_tiff", "encode_image", "write_float_tiff", "write_gif",
@@ -137,17 +137,24 @@ def write_tiff_stack(path: str | Path, frames: np.ndarray, *, metadata: dict | N
 
 def write_gif(path: str | Path, frames: np.ndarray, *, frame_ms: int = 250, loop: int = 0) -> Path:
     """Write (N, H, W) or (N, H, W, 3) uint8 frames as an animated GIF (``loop=0``: forever),
-    atomically."""
-    import imageio.v3 as iio
+    atomically.
+
+    The GIF is encoded in memory first and written in one step, so an interrupt during the
+    encoding leaves no file and no writer behind that would try to finish it later.
+    """
+    import io
+
+    from PIL import Image
 
     arr = np.asarray(frames)
     if arr.dtype != np.uint8:
         raise InvalidInputError(f"write_gif takes uint8 frames (GIF has 8 bits per sample), got {arr.dtype}")
     if not (arr.ndim == 3 or (arr.ndim == 4 and arr.shape[3] == 3)) or arr.shape[0] < 1:
         raise InvalidInputError(f"write_gif takes (N, H, W) or (N, H, W, 3) frames, got shape {arr.shape}")
-    with atomic_path(path) as tmp:
-        iio.imwrite(tmp, arr, extension=".gif", duration=int(frame_ms), loop=int(loop))
-    return Path(path)
+    images = [Image.fromarray(frame) for frame in arr]
+    bio = io.BytesIO()
+    images[0].save(bio, format="GIF", save_all=True, append_images=images[1:], duration=int(frame_ms), loop=int(loop))
+    return atomic_write_bytes(path, bio.getvalue())
 
 
 def encode_file(image: np.ndarray, suffix: str, *, png_compression: int = 1) -> bytes:

@@ -231,8 +231,8 @@ def test_cli_depth_aware_stack_is_labelled(tmp_path, capsys):
     import json
     from pathlib import Path
 
-    import imageio.v3 as iio
     import tifffile
+    from gif_frames import read_gif
 
     from lfring.cli.main import main
 
@@ -244,7 +244,7 @@ def test_cli_depth_aware_stack_is_labelled(tmp_path, capsys):
     assert side["method"] == "depth-aware" and side["aperture"] == 0.5 and side["zmax_m"] == 0.9
     with tifffile.TiffFile(tmp_path / "s_stack.tif") as tif:
         assert "0.6" in tif.pages[0].description  # the depths in the TIFF's metadata
-    gif = iio.imread(tmp_path / "s_stack.gif")
+    gif = read_gif(tmp_path / "s_stack.gif")
     corner = gif[:, :40, :120].astype(int)
     assert gif.shape[0] == 2 and corner.max() >= 200  # the caption's white text
     # Depth-of-field options need the depth-aware method.
