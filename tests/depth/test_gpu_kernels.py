@@ -156,6 +156,54 @@ def test_volume_passes_are_the_references(kernel_device):
     np.testing.assert_allclose(got.cpu().numpy(), boxed, rtol=1e-5, atol=1e-6)
 
 
+@pytest.mark.parametrize("k", [1, 5, 15, 41])
+def test_box_ratios_are_opencvs_box_means(k, kernel_device):
+    """The sweep's box means (cv2.boxFilter, BORDER_REFLECT_101) and what each mode makes of
+    them: the all-views mean where seen, a half's candidate kept where less, the mean of the
+    finite costs; k = 41 reflects more than once on this 18-row volume (the pooling path)."""
+    from lfring.core.viewstack import WEIGHT_FLOOR
+    from lfring.depth.engines import gpu_kernels as gk
+
+    rng = np.random.default_rng(k)
+    c, h, w = 3, 18, 45
+    cost = (rng.random((c, h, w)) * 2).astype(np.float32)
+    seen = (rng.random((c, h, w)) > 0.3).astype(np.float32)
+    cost[seen == 0] = 0.0
+
+    def box(x):
+        return cv2.boxFilter(x, -1, (k, k), borderType=cv2.BORDER_REFLECT_101)
+
+    cols = torch.empty((2, c, h, w), dtype=torch.float32, device=kernel_device)
+    out = torch.empty((c, h, w), dtype=torch.float32, device=kernel_device)
+    gpu._box_ratio(_on(cost, kernel_device), _on(seen, kernel_device), k, out, gk.BOX_MEAN, cols)
+    want = np.stack([np.where(s > 0.5, box(a) / np.maximum(box(s), WEIGHT_FLOOR), np.inf) for a, s in zip(cost, seen)])
+    np.testing.assert_allclose(out.cpu().numpy(), want, rtol=1e-5, atol=1e-6)
+    assert np.array_equal(np.isinf(out.cpu().numpy()), seen == 0)
+
+    least = np.where(rng.random((c, h, w)) > 0.5, np.inf, rng.random((c, h, w)) * 4).astype(np.float32)
+    out = _on(least.copy(), kernel_device)  # from_numpy shares the array's memory on the CPU
+    gpu._box_ratio(_on(cost, kernel_device), _on(seen, kernel_device), k, out, gk.BOX_HALF, cols, scale=1.3,
+                   min_support=0.6)
+    want = least.copy()
+    for i in range(c):
+        support = box(seen[i])
+        counts = (seen[i] > 0.5) & (support >= 0.6)
+        cand = 1.3 * box(cost[i]) / np.where(counts, support, 1.0)
+        keep = counts & (cand < want[i])
+        want[i][keep] = cand[keep]
+    got = out.cpu().numpy()
+    np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-6)
+    assert 0 < np.mean(got != least) < 1  # some candidates taken, some not
+
+    volume = np.where(seen > 0.5, cost, np.inf).astype(np.float32)
+    part = _on(volume.copy(), kernel_device)
+    gpu._box_ratio(part, part, k, part, gk.BOX_FINITE, cols)
+    want = volume.copy()
+    for s in want:
+        box_mean_of_finite(s, k)
+    np.testing.assert_allclose(part.cpu().numpy(), want, rtol=1e-5, atol=1e-6)
+
+
 def test_kernels_compile_for_a_gpu():
     """Every kernel compiles to a cubin for an H100 (sm_90), without a GPU, with its blocks of
     the GPU's sizes, and spills no register: the checks the interpreter cannot make."""
@@ -172,6 +220,11 @@ def test_kernels_compile_for_a_gpu():
             (gk.lcn_kernel, dict(src_ptr=P, msk_ptr=P, hinv_ptr=P, cost_ptr=P, seen_ptr=P, nv_ptr=P, n_views="i32",
                                  members="i32", h="i32", w="i32", d0="i32", n_chunk="i32", floor="fp32"),
              dict(WRITE_NV=True, BLOCK=256), 4),
+            (gk.box_columns_kernel, dict(num_ptr=P, den_ptr=P, col_num_ptr=P, col_den_ptr=P, h="i32", w="i32"),
+             dict(FINITE=True, K=15, BLOCK=256), 1),
+            (gk.box_ratio_kernel, dict(num_ptr=P, den_ptr=P, col_num_ptr=P, col_den_ptr=P, out_ptr=P, h="i32", w="i32",
+                                       floor="fp32", scale="fp32", min_support="fp32"),
+             dict(MODE=gk.BOX_HALF, K=5, BLOCK=256), 1),
             (gk.path_kernel, dict(cost_ptr=P, total_ptr=P, pen_ptr=P, p1_ptr=P, scratch_ptr=P, n="i32", h="i32",
                                   w="i32", line0="i32", n_lines="i32", n_steps="i32"),
              dict(HORIZONTAL=False, REVERSE=True, SLOPE=-1, FIRST=False, N_PAD=64, LINES=32), 8),
@@ -202,4 +255,4 @@ def test_kernels_compile_for_a_gpu():
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600,
                           env={**os.environ, "TRITON_DEFAULT_FP_FUSION": "0"})
     assert done.returncode == 0, done.stderr[-3000:]
-    assert done.stdout.count(" ok") == 6
+    assert done.stdout.count(" ok") == 8

@@ -232,6 +232,36 @@ def _box_mean(x, k: int):
     return torch.nn.functional.avg_pool2d(y, (1, k), stride=1)[:, 0]
 
 
+def _box_ratio(num, den, k: int, out, mode: int, cols, *, scale: float = 1.0, min_support: float = 0.0) -> None:
+    """The k x k box means of the (C, h, w) chunks ``num`` and ``den`` and what ``mode`` makes of
+    them into ``out`` (:func:`lfring.depth.engines.gpu_kernels.box_ratio_kernel`), through the
+    (2, >= C, h, w) scratch ``cols``. Windows that reflect more than once (a radius of the
+    image's side or more) take the pooling path."""
+    torch = require_torch()
+    c, h, w = num.shape
+    kernels = _kernels()
+    if k // 2 >= min(h, w):
+        finite = torch.isfinite(num) if mode == kernels.BOX_FINITE else None
+        if finite is not None:
+            num, den = torch.where(finite, num, 0.0), finite.to(torch.float32)
+        m_num, m_den = _box_mean(num, k), _box_mean(den, k)
+        if mode == kernels.BOX_HALF:
+            counts = (den > 0.5) & (m_den >= min_support)
+            cand = scale * m_num / torch.where(counts, m_den, 1.0)
+            out.copy_(torch.where(counts & (cand < out), cand, out))
+        else:
+            own = finite if finite is not None else den > 0.5
+            out.copy_(torch.where(own, m_num / m_den.clamp_min(WEIGHT_FLOOR), float("inf")))
+        return
+    block = _pixel_block(h * w)
+    grid = (_cdiv(h * w, block), c)
+    col_num, col_den = cols[0, :c], cols[1, :c]
+    _launch(kernels.box_columns_kernel, grid, num, den, col_num, col_den, h, w, FINITE=mode == kernels.BOX_FINITE, K=k,
+            BLOCK=block, num_warps=_warps(block))
+    _launch(kernels.box_ratio_kernel, grid, num, den, col_num, col_den, out, h, w, WEIGHT_FLOOR, float(scale),
+            float(min_support), MODE=mode, K=k, BLOCK=block, num_warps=_warps(block))
+
+
 def _chunk(per_hypothesis_bytes: int, n: int) -> int:
     return int(max(1, min(n, CHUNK_BYTES // max(per_hypothesis_bytes, 1))))
 
@@ -252,6 +282,7 @@ def _sweep_lcn(src, masks, hinv, halves, aggregate_px: int):
     chunk = _chunk(12 * hw * 4, n)
     cost = torch.empty((chunk, h, w), dtype=torch.float32, device=dev)
     seen = torch.empty_like(cost)
+    cols = torch.empty((2, chunk, h, w), dtype=torch.float32, device=dev)
     block = _pixel_block(hw)
     grid = (_cdiv(hw, block),)
     kernel = _kernels().lcn_kernel
@@ -260,22 +291,17 @@ def _sweep_lcn(src, masks, hinv, halves, aggregate_px: int):
         c = min(chunk, n - d0)
         _launch(kernel, grid, src, masks, hinv, cost, seen, nviews, v, everyone, h, w, d0, c, WEIGHT_FLOOR,
                 WRITE_NV=True, BLOCK=block, num_warps=_warps(block))
-        ok = seen[:c] > 0.5
-        agg = _box_mean(cost[:c], aggregate_px) / _box_mean(seen[:c], aggregate_px).clamp_min(WEIGHT_FLOOR)
-        volume[d0:d0 + c] = torch.where(ok, agg, float("inf"))
+        _box_ratio(cost[:c], seen[:c], aggregate_px, volume[d0:d0 + c], _kernels().BOX_MEAN, cols)
         if not halves:
             continue
-        least = torch.full((c, h, w), float("inf"), dtype=torch.float32, device=dev)
+        least = half_volume[d0:d0 + c]
+        least.fill_(float("inf"))
         for half in halves:
             members = sum(1 << k for k in half)
             _launch(kernel, grid, src, masks, hinv, cost, seen, nviews, v, members, h, w, d0, c, WEIGHT_FLOOR,
                     WRITE_NV=False, BLOCK=block, num_warps=_warps(block))
-            own = seen[:c] > 0.5
-            support = _box_mean(seen[:c], aggregate_px)
-            counts = own & (support >= HALVES_MIN_SUPPORT)
-            cand = OCCLUSION_PENALTY * _box_mean(cost[:c], aggregate_px) / torch.where(counts, support, 1.0)
-            least = torch.where(counts & (cand < least), cand, least)
-        half_volume[d0:d0 + c] = least
+            _box_ratio(cost[:c], seen[:c], aggregate_px, least, _kernels().BOX_HALF, cols, scale=OCCLUSION_PENALTY,
+                       min_support=HALVES_MIN_SUPPORT)
     return volume, half_volume, nviews
 
 
@@ -362,12 +388,10 @@ def _box_mean_of_finite(volume, box_px: int) -> None:
     torch = require_torch()
     n, h, w = volume.shape
     chunk = _chunk(8 * h * w * 4, n)
+    cols = torch.empty((2, min(chunk, n), h, w), dtype=torch.float32, device=volume.device)
     for d0 in range(0, n, chunk):
         part = volume[d0:d0 + chunk]
-        finite = torch.isfinite(part)
-        num = _box_mean(torch.where(finite, part, 0.0), box_px)
-        den = _box_mean(finite.to(torch.float32), box_px).clamp_min(WEIGHT_FLOOR)
-        part.copy_(torch.where(finite, num / den, float("inf")))
+        _box_ratio(part, part, box_px, part, _kernels().BOX_FINITE, cols)
 
 
 def _fill_unknown(volume) -> None:

@@ -7,6 +7,10 @@ imports it on first use only.
   outside), with its mask: the general sweep and the guide of the 'center' frame.
 - :func:`lcn_kernel`: the 'lcn' cost of a set of views (all, or a half) at a chunk of
   hypotheses, straight from the views (the warp is fused in), and where it counts.
+- :func:`box_columns_kernel`, :func:`box_ratio_kernel`: the sweep's box means (OpenCV's
+  BORDER_REFLECT_101 borders, summed in ``avg_pool2d``'s order: each column's k rows over k,
+  then k columns over k) with the ratio that uses them, two passes over a chunk instead of a
+  padded copy, four pooling passes and the element-wise operations between them.
 - :func:`fill_kernel`: unknown costs replaced by their pixel's mean known cost.
 - :func:`path_kernel`: one scan path of the semi-global aggregation, one program per block of
   lines that walks them step by step with their running state on chip; the paths add up in
@@ -24,9 +28,9 @@ selection and the smoother give the reference's numbers (to the order of float s
 
 from __future__ import annotations
 
-from lfring.core.triton_kernels import jit, project, reduce_min, reduce_sum, sample, taps, tl
+from lfring.core.triton_kernels import device_function, jit, project, reduce_min, reduce_sum, sample, taps, tl
 
-__all__ = ["fgs_kernel", "fill_kernel", "lcn_kernel", "median_kernel", "path_kernel", "select_kernel", "warp_kernel"]
+__all__ = ["BOX_FINITE", "BOX_HALF", "BOX_MEAN", "box_columns_kernel", "box_ratio_kernel", "fgs_kernel", "fill_kernel", "lcn_kernel", "median_kernel", "path_kernel", "select_kernel", "warp_kernel"]
 
 # A cost that can never win: the padded hypotheses of a block (a constant the kernels can read).
 _BIG = tl.constexpr(1e30) if tl is not None else 1e30
@@ -97,6 +101,89 @@ def lcn_kernel(src_ptr, msk_ptr, hinv_ptr, cost_ptr, seen_ptr, nv_ptr, n_views, 
             nv = tl.maximum(nv, cn_all)
     if WRITE_NV:
         tl.store(nv_ptr + p, nv, mask=inside)
+
+
+# What box_ratio_kernel makes of the box means (its MODE).
+BOX_MEAN = 0  # mean(num) / max(mean(den), floor) where den > 0.5 at the pixel, inf elsewhere
+BOX_HALF = 1  # a half's candidate scale * mean(num) / mean(den), kept where it counts and is less
+BOX_FINITE = 2  # the mean of num's finite values where num is finite, inf elsewhere (den = finite)
+
+
+@device_function
+def _reflect(i, n):
+    """OpenCV's BORDER_REFLECT_101 index of ``i`` along an axis of ``n`` (one reflection: the
+    box's radius is less than ``n``)."""
+    i = tl.where(i < 0, -i, i)
+    return tl.where(i >= n, 2 * n - 2 - i, i)
+
+
+@jit
+def box_columns_kernel(num_ptr, den_ptr, col_num_ptr, col_den_ptr, h, w, FINITE: tl.constexpr, K: tl.constexpr,
+                       BLOCK: tl.constexpr):
+    """The first pass of the box means of slice ``program_id(1)`` of ``num`` and ``den`` (C, h,
+    w): each pixel's sum over the K rows centred on it, over K, into ``col_num`` and ``col_den``.
+    With ``FINITE``: of num's finite values and of their count (``den`` is not read)."""
+    pid = tl.program_id(0)
+    hw = h * w
+    p = pid * BLOCK + tl.arange(0, BLOCK)
+    inside = p < hw
+    y = p // w
+    x = p % w
+    base = tl.cast(tl.program_id(1), tl.int64) * hw
+    s_num = tl.zeros([BLOCK], tl.float32)
+    s_den = tl.zeros([BLOCK], tl.float32)
+    for dy in tl.static_range(K):
+        o = base + _reflect(y + (dy - K // 2), h) * w + x
+        a = tl.load(num_ptr + o, mask=inside, other=0.0)
+        if FINITE:
+            known = tl.abs(a) < float("inf")
+            s_num += tl.where(known, a, 0.0)
+            s_den += tl.where(known, 1.0, 0.0)
+        else:
+            s_num += a
+            s_den += tl.load(den_ptr + o, mask=inside, other=0.0)
+    tl.store(col_num_ptr + base + p, s_num / K, mask=inside)
+    tl.store(col_den_ptr + base + p, s_den / K, mask=inside)
+
+
+@jit
+def box_ratio_kernel(num_ptr, den_ptr, col_num_ptr, col_den_ptr, out_ptr, h, w, floor, scale, min_support,
+                     MODE: tl.constexpr, K: tl.constexpr, BLOCK: tl.constexpr):
+    """The second pass: the box means of slice ``program_id(1)`` (the K column sums centred on
+    each pixel, over K) and what MODE makes of them into ``out`` (C, h, w): BOX_MEAN
+    ``mean(num) / max(mean(den), floor)`` where ``den`` > 0.5 at the pixel, inf elsewhere;
+    BOX_HALF ``scale * mean(num) / mean(den)`` where ``den`` > 0.5 at the pixel and
+    ``mean(den) >= min_support``, stored where less than ``out``; BOX_FINITE
+    ``mean(num) / max(mean(den), floor)`` where ``num`` is finite at the pixel, inf elsewhere
+    (``out`` may be ``num``: each pixel reads only itself there)."""
+    pid = tl.program_id(0)
+    hw = h * w
+    p = pid * BLOCK + tl.arange(0, BLOCK)
+    inside = p < hw
+    y = p // w
+    x = p % w
+    base = tl.cast(tl.program_id(1), tl.int64) * hw
+    s_num = tl.zeros([BLOCK], tl.float32)
+    s_den = tl.zeros([BLOCK], tl.float32)
+    for dx in tl.static_range(K):
+        o = base + y * w + _reflect(x + (dx - K // 2), w)
+        s_num += tl.load(col_num_ptr + o, mask=inside, other=0.0)
+        s_den += tl.load(col_den_ptr + o, mask=inside, other=0.0)
+    m_num = s_num / K
+    m_den = s_den / K
+    o = base + p
+    if MODE == 2:
+        own = tl.load(num_ptr + o, mask=inside, other=0.0)
+        out = tl.where(tl.abs(own) < float("inf"), m_num / tl.maximum(m_den, floor), float("inf"))
+        tl.store(out_ptr + o, out, mask=inside)
+    elif MODE == 1:
+        counts = (tl.load(den_ptr + o, mask=inside, other=0.0) > 0.5) & (m_den >= min_support)
+        cand = scale * m_num / tl.where(counts, m_den, 1.0)
+        least = tl.load(out_ptr + o, mask=inside, other=0.0)
+        tl.store(out_ptr + o, cand, mask=inside & counts & (cand < least))
+    else:
+        own = tl.load(den_ptr + o, mask=inside, other=0.0) > 0.5
+        tl.store(out_ptr + o, tl.where(own, m_num / tl.maximum(m_den, floor), float("inf")), mask=inside)
 
 
 # -- the semi-global paths -----------------------------------------------------------------------
