@@ -56,14 +56,15 @@ def _eroded_rows(vol, y, rad, x0, x1, ext, out):
 def _fill_unknown(e, fill):
     """Each column's unknown costs replaced by the mean of its known ones (0 when none is)."""
     n, m = e.shape
-    total = np.zeros(m, np.int64)
-    count = np.zeros(m, np.int64)
+    # int32 sums (N uint16 costs fit while N < 32768): int64 would halve the vectors' lanes.
+    total = np.zeros(m, np.int32)
+    count = np.zeros(m, np.int32)
     for d in range(n):
         row = e[d]
         for x in range(m):
             known = row[x] != UNKNOWN
-            total[x] += np.int64(row[x]) if known else 0
-            count[x] += 1 if known else 0
+            total[x] = np.int32(total[x] + (np.int32(row[x]) if known else np.int32(0)))
+            count[x] = np.int32(count[x] + (np.int32(1) if known else np.int32(0)))
     missing = False
     for x in range(m):
         c = count[x]
@@ -105,15 +106,17 @@ def _step_line(e, prev, cur, pmin, cmin, p1, p2e):
         cost = e[d]
         out = cur[d]
         least = cmin
+        # Every sum cast back to int32: numba widens int32 arithmetic to int64, which halves
+        # the lanes of the vectorised loop (the values stay far inside int32).
         for x in range(m):
             best = here[x]
-            t = below[x] + p1
+            t = np.int32(below[x] + p1)
             best = t if t < best else best
-            t = above[x] + p1
+            t = np.int32(above[x] + p1)
             best = t if t < best else best
-            t = pmin[x] + p2e[x]
+            t = np.int32(pmin[x] + p2e[x])
             best = t if t < best else best
-            v = np.int32(cost[x]) + best - pmin[x]
+            v = np.int32(np.int32(cost[x]) + best - pmin[x])
             out[x] = v
             least[x] = v if v < least[x] else least[x]
 
@@ -124,14 +127,18 @@ def _path_step(c, prev, cur, pmin, jump, p1):
     over the hypotheses (the ends' missing neighbour is the hypothesis itself); returns the least
     of ``cur``."""
     n = c.shape[0]
+    p1 = np.int32(p1)
+    jump = np.int32(jump)
+    pmin = np.int32(pmin)
     if n == 1:
         cur[0] = c[0] + min(prev[0], jump) - pmin
         return cur[0]
-    cur[0] = c[0] + min(min(prev[0], prev[1] + p1), jump) - pmin
+    cur[0] = c[0] + min(min(prev[0], np.int32(prev[1] + p1)), jump) - pmin
+    # int32 throughout, as in _step_line.
     for d in range(1, n - 1):
-        best = min(min(prev[d], prev[d - 1] + p1), min(prev[d + 1] + p1, jump))
-        cur[d] = c[d] + best - pmin
-    cur[n - 1] = c[n - 1] + min(min(prev[n - 1], prev[n - 2] + p1), jump) - pmin
+        best = min(min(prev[d], np.int32(prev[d - 1] + p1)), min(np.int32(prev[d + 1] + p1), jump))
+        cur[d] = np.int32(c[d] + best - pmin)
+    cur[n - 1] = c[n - 1] + min(min(prev[n - 1], np.int32(prev[n - 2] + p1)), jump) - pmin
     least = cur[0]
     for d in range(1, n):
         least = min(least, cur[d])
@@ -224,11 +231,12 @@ def _ext_row(row, x0, m, rad, out):
 def _raw_update(vol, r, d, x0, m, rad, sign, ext, col_sum, col_cnt):
     """col_sum, col_cnt += sign * (known cost, 1) of row ``r`` of hypothesis ``d``."""
     _ext_row(vol[r, d], x0, m, rad, ext)
+    sign = np.int32(sign)
     for j in range(m + 2 * rad):
         v = ext[j]
         known = v != UNKNOWN
-        col_sum[j] += sign * (np.int32(v) if known else 0)
-        col_cnt[j] += sign * (1 if known else 0)
+        col_sum[j] = np.int32(col_sum[j] + sign * (np.int32(v) if known else np.int32(0)))
+        col_cnt[j] = np.int32(col_cnt[j] + (sign if known else np.int32(0)))
 
 
 @njit(**INLINE)
