@@ -333,25 +333,31 @@ def vertical_paths(vol, total, guide, use_guide, p1, p2, edge_scale, erode_rad, 
 
 
 @njit(**INLINE)
-def _raw_row(col_sum, col_cnt, centre, rad, area, floor, out):
+def _raw_row(col_sum, col_cnt, centre, rad, area, floor, sums, counts, out):
     """out[x] = the mean known cost of the box around x (its column sums ``col_sum``,
     ``col_cnt``), inf where the centre is unknown: the mean over the known pixels with the share
-    of known pixels floored at ``floor``, as the seen-pixel mean of the reference."""
+    of known pixels floored at ``floor``, as the seen-pixel mean of the reference. ``sums``,
+    ``counts``: int32 scratch rows of the output's length."""
     m = out.shape[0]
+    # The running sums first (a serial chain of integer adds), then the divisions, which
+    # vectorise in a loop of their own.
     ssum = np.int32(0)
     csum = np.int32(0)
     for j in range(2 * rad):
-        ssum += col_sum[j]
-        csum += col_cnt[j]
+        ssum = np.int32(ssum + col_sum[j])
+        csum = np.int32(csum + col_cnt[j])
+    for x in range(m):
+        ssum = np.int32(ssum + col_sum[x + 2 * rad])
+        csum = np.int32(csum + col_cnt[x + 2 * rad])
+        sums[x] = ssum
+        counts[x] = csum
+        ssum = np.int32(ssum - col_sum[x])
+        csum = np.int32(csum - col_cnt[x])
     inv_area = np.float32(1.0 / area)
     for x in range(m):
-        ssum += col_sum[x + 2 * rad]
-        csum += col_cnt[x + 2 * rad]
-        share = np.float32(csum) * inv_area
+        share = np.float32(counts[x]) * inv_area
         share = share if share > floor else floor
-        out[x] = np.float32(ssum) * inv_area / share if centre[x] != UNKNOWN else np.float32(np.inf)
-        ssum -= col_sum[x]
-        csum -= col_cnt[x]
+        out[x] = np.float32(sums[x]) * inv_area / share if centre[x] != UNKNOWN else np.float32(np.inf)
 
 
 @njit(**JIT)
@@ -361,8 +367,10 @@ def _select_row(vol, total, cur, y, x0, x1, raw_rad, exclude, floor, col_sum, co
     h, n, w = vol.shape
     m = x1 - x0
     area = (2 * raw_rad + 1) ** 2
+    sums = np.empty(m, np.int32)
+    counts = np.empty(m, np.int32)
     for d in range(n):
-        _raw_row(col_sum[d], col_cnt[d], vol[y, d, x0:x1], raw_rad, area, np.float32(floor), raw[d])
+        _raw_row(col_sum[d], col_cnt[d], vol[y, d, x0:x1], raw_rad, area, np.float32(floor), sums, counts, raw[d])
     big = np.int32(1 << 30)
     best = np.full(m, big, np.int32)
     tie = np.full(m, np.inf, np.float32)
