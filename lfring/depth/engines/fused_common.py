@@ -9,7 +9,7 @@ clipped to :data:`COST_MAX` and the penalties stay below :data:`PENALTY_MAX`.
 
 from __future__ import annotations
 
-__all__ = ["COST_MAX", "COST_ZERO", "FAST", "INLINE", "JIT", "PARALLEL", "PENALTY_MAX", "TILE", "UNKNOWN"]
+__all__ = ["COST_MAX", "COST_ZERO", "FAST", "INLINE", "JIT", "PARALLEL", "PENALTY_MAX", "UNKNOWN"]
 
 # Fast maths without "no infinities": unknown costs are inf until they are quantised.
 FAST = {"nsz", "arcp", "contract", "afn"}
@@ -18,8 +18,6 @@ PARALLEL = dict(JIT, parallel=True)
 # Small row helpers are inlined into their callers: a call per row and hypothesis costs more than
 # the row itself on the short rows of a span or a block of columns.
 INLINE = dict(JIT, inline="always")
-# Side of the square tiles of a transposition.
-TILE = 16
 # A cost that no two views saw: never a winner; the paths see the pixel's mean known cost there.
 UNKNOWN = 65535
 # The largest cost and penalty kept: 4 * (COST_MAX + PENALTY_MAX) < 2**16.
