@@ -97,11 +97,13 @@ def _hsum(col, rad, tmp, out):
     for x in range(rad):
         tmp[x] = col[reflect(x - rad, w)]
         tmp[w + rad + x] = col[reflect(w + x, w)]
+    # One shifted row at a time, in the order of additions of a sum per pixel (so the same
+    # floats): the loops vectorise over the pixels, where the sum per pixel did not.
     for x in range(w):
-        s = tmp[x]
-        for k in range(1, 2 * rad + 1):
-            s += tmp[x + k]
-        out[x] = s
+        out[x] = tmp[x]
+    for k in range(1, 2 * rad + 1):
+        for x in range(w):
+            out[x] += tmp[x + k]
 
 
 # -- per-pixel terms of one row at one hypothesis ------------------------------------------------
@@ -547,8 +549,8 @@ def _box_span(rows, q0, y, rad, h, ta, w, ordered, col, tmp, out):
     for x in range(rad):
         tmp[x] = col[reflect(x - rad, sw)] if ta == 0 else col[0]
         tmp[sw + rad + x] = col[reflect(sw + x, sw)] if ta + sw == w else col[sw - 1]
-    for x in range(sw):
-        acc = tmp[x]
-        for k in range(1, 2 * rad + 1):
-            acc += tmp[x + k]
-        out[x] = acc
+    for x in range(sw):  # as _hsum: shifted rows, the same order of additions
+        out[x] = tmp[x]
+    for k in range(1, 2 * rad + 1):
+        for x in range(sw):
+            out[x] += tmp[x + k]
