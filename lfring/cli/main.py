@@ -131,6 +131,11 @@ def main(argv=None) -> int:
     import threading
 
     args = hoist_verbosity(sys.argv[1:] if argv is None else argv)
+    if argv is None:
+        # Ctrl-C inside an import can drop the file the interpreter's loader was reading
+        # unclosed: its ResourceWarning (an error under -W error) is the interpreter's, not the
+        # command's, and would come after our one line. Only a script run sets this filter.
+        warnings.filterwarnings("ignore", category=ResourceWarning, module=r"importlib\._bootstrap")
     ours = threading.current_thread() is threading.main_thread() and signal.getsignal(signal.SIGTERM) == signal.SIG_DFL
     if ours:
         signal.signal(signal.SIGTERM, _terminate)
