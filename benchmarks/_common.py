@@ -1,5 +1,6 @@
 """Shared by the depth benchmarks: the twin's scene as bench_depth.py renders it, OpenCV's
-StereoSGBM with the Middlebury SDK's hole filling, and the machine line."""
+StereoSGBM with the Middlebury SDK's hole filling, the machine line, and the GPU benchmarks'
+check for a CUDA device."""
 
 from __future__ import annotations
 
@@ -11,6 +12,20 @@ import cv2
 import numpy as np
 
 ZMIN, ZMAX = 0.27, 1.1  # depth range of the twin's three-depth scene [m]
+
+
+def cuda_torch():
+    """torch where a CUDA device is present; else None, having printed that the GPU path cannot
+    be judged here."""
+    try:
+        import torch
+    except ImportError:
+        print("cannot judge: no CUDA device (torch is not installed)")
+        return None
+    if not torch.cuda.is_available():
+        print("cannot judge: no CUDA device")
+        return None
+    return torch
 
 
 def machine_line() -> str:

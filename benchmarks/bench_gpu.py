@@ -21,7 +21,7 @@ import sys
 
 import cv2
 import numpy as np
-from _common import ZMAX, ZMIN, machine_line, twin_scene
+from _common import ZMAX, ZMIN, cuda_torch, machine_line, twin_scene
 from _timing import bench
 
 from lfring.calibration import RingCalibration
@@ -58,13 +58,8 @@ def agreement(a, b) -> str:
 
 
 def main() -> int:
-    try:
-        import torch
-    except ImportError:
-        print("cannot judge: no CUDA device (torch is not installed)")
-        return 0
-    if not torch.cuda.is_available():
-        print("cannot judge: no CUDA device")
+    torch = cuda_torch()
+    if torch is None:
         return 0
     sync = torch.cuda.synchronize
 

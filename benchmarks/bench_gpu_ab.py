@@ -26,23 +26,15 @@ RUNS = 15
 
 def probe(out: str) -> None:
     """In a fresh process whose sys.path starts with one checkout: time it, save its maps."""
-    import cv2
     import numpy as np
     import torch
+    from _common import ZMAX, ZMIN
+    from bench_gpu import big_views
 
-    from lfring.calibration import RingCalibration
     from lfring.depth import estimate_depth
-    from lfring.optics import load_device
-    from lfring.views import layout_from_circles
 
-    dev = load_device("prototype")
-    w, h = dev.sensor_width_px, dev.sensor_height_px
-    circles = [(1228.0 + dx, 921.0 + dy, SIDE / 2) for dy in (0, h / 2) for dx in (0, w / 2)]
-    disc = layout_from_circles(circles, w, h)
-    cal = RingCalibration.from_optics(dev, layout=type(disc)(w, h, disc.rects, False, None))
-    rng = np.random.default_rng(0)
-    views = cv2.GaussianBlur(rng.random((4 * SIDE, SIDE, 3), dtype=np.float32), (0, 0), 1.5).reshape(4, SIDE, SIDE, 3)
-    kw = dict(zmin_m=0.27, zmax_m=1.1, num_planes=64, backend="torch", device="cuda")
+    views, cal = big_views(SIDE)
+    kw = dict(zmin_m=ZMIN, zmax_m=ZMAX, num_planes=64, backend="torch", device="cuda")
     for _ in range(3):
         r = estimate_depth(views, cal, **kw)
     times = []
@@ -66,13 +58,9 @@ def main(argv: list[str]) -> int:
     ap.add_argument("after")
     ap.add_argument("--rounds", type=int, default=2)
     args = ap.parse_args(argv)
-    try:
-        import torch
-    except ImportError:
-        print("cannot judge: no CUDA device (torch is not installed)")
-        return 0
-    if not torch.cuda.is_available():
-        print("cannot judge: no CUDA device")
+    from _common import cuda_torch
+
+    if cuda_torch() is None:
         return 0
     trees = {"before": Path(args.before).resolve(), "after": Path(args.after).resolve()}
     medians = {name: [] for name in trees}
