@@ -117,19 +117,23 @@ def _reflect(i, n):
     return tl.where(i >= n, 2 * n - 2 - i, i)
 
 
+@device_function
+def _slice_pixels(h, w, BLOCK: tl.constexpr):
+    """This program's block of pixels in slice ``program_id(1)`` of a (C, h, w) tensor: their
+    flat index in the slice, which lie inside it, their row and column, and the slice's
+    offset."""
+    hw = h * w
+    p = tl.program_id(0) * BLOCK + tl.arange(0, BLOCK)
+    return p, p < hw, p // w, p % w, tl.cast(tl.program_id(1), tl.int64) * hw
+
+
 @jit
 def box_columns_kernel(num_ptr, den_ptr, col_num_ptr, col_den_ptr, h, w, FINITE: tl.constexpr, K: tl.constexpr,
                        BLOCK: tl.constexpr):
     """The first pass of the box means of slice ``program_id(1)`` of ``num`` and ``den`` (C, h,
     w): each pixel's sum over the K rows centred on it, over K, into ``col_num`` and ``col_den``.
     With ``FINITE``: of num's finite values and of their count (``den`` is not read)."""
-    pid = tl.program_id(0)
-    hw = h * w
-    p = pid * BLOCK + tl.arange(0, BLOCK)
-    inside = p < hw
-    y = p // w
-    x = p % w
-    base = tl.cast(tl.program_id(1), tl.int64) * hw
+    p, inside, y, x, base = _slice_pixels(h, w, BLOCK)
     s_num = tl.zeros([BLOCK], tl.float32)
     s_den = tl.zeros([BLOCK], tl.float32)
     for dy in tl.static_range(K):
@@ -156,13 +160,7 @@ def box_ratio_kernel(num_ptr, den_ptr, col_num_ptr, col_den_ptr, out_ptr, h, w, 
     ``mean(den) >= min_support``, stored where less than ``out``; BOX_FINITE
     ``mean(num) / max(mean(den), floor)`` where ``num`` is finite at the pixel, inf elsewhere
     (``out`` may be ``num``: each pixel reads only itself there)."""
-    pid = tl.program_id(0)
-    hw = h * w
-    p = pid * BLOCK + tl.arange(0, BLOCK)
-    inside = p < hw
-    y = p // w
-    x = p % w
-    base = tl.cast(tl.program_id(1), tl.int64) * hw
+    p, inside, y, x, base = _slice_pixels(h, w, BLOCK)
     s_num = tl.zeros([BLOCK], tl.float32)
     s_den = tl.zeros([BLOCK], tl.float32)
     for dx in tl.static_range(K):
@@ -172,17 +170,16 @@ def box_ratio_kernel(num_ptr, den_ptr, col_num_ptr, col_den_ptr, out_ptr, h, w, 
     m_num = s_num / K
     m_den = s_den / K
     o = base + p
-    if MODE == 2:
-        own = tl.load(num_ptr + o, mask=inside, other=0.0)
-        out = tl.where(tl.abs(own) < float("inf"), m_num / tl.maximum(m_den, floor), float("inf"))
-        tl.store(out_ptr + o, out, mask=inside)
-    elif MODE == 1:
+    if MODE == 1:
         counts = (tl.load(den_ptr + o, mask=inside, other=0.0) > 0.5) & (m_den >= min_support)
         cand = scale * m_num / tl.where(counts, m_den, 1.0)
         least = tl.load(out_ptr + o, mask=inside, other=0.0)
         tl.store(out_ptr + o, cand, mask=inside & counts & (cand < least))
     else:
-        own = tl.load(den_ptr + o, mask=inside, other=0.0) > 0.5
+        if MODE == 2:
+            own = tl.abs(tl.load(num_ptr + o, mask=inside, other=0.0)) < float("inf")
+        else:
+            own = tl.load(den_ptr + o, mask=inside, other=0.0) > 0.5
         tl.store(out_ptr + o, tl.where(own, m_num / tl.maximum(m_den, floor), float("inf")), mask=inside)
 
 
