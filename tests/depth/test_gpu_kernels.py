@@ -160,7 +160,7 @@ def test_volume_passes_are_the_references(kernel_device):
 def test_box_ratios_are_opencvs_box_means(k, kernel_device):
     """The sweep's box means (cv2.boxFilter, BORDER_REFLECT_101) and what each mode makes of
     them: the all-views mean where seen, a half's candidate kept where less, the mean of the
-    finite costs; k = 41 reflects more than once on this 18-row volume (the pooling path)."""
+    finite costs; k = 41 reflects more than once on this 18-row volume."""
     from lfring.core.viewstack import WEIGHT_FLOOR
     from lfring.depth.engines import gpu_kernels as gk
 

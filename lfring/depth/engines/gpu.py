@@ -216,43 +216,12 @@ def guide_device(lum, masks, hinv_mid, reference):
 
 
 # -- the sweep -----------------------------------------------------------------------------------
-def _box_mean(x, k: int):
-    """The mean of (C, h, w) ``x`` over k x k boxes with OpenCV's BORDER_REFLECT_101 (as
-    ``cv2.boxFilter``), separable."""
-    torch = require_torch()
-    if k == 1:
-        return x
-    c, h, w = x.shape
-    box = BoxTorch(torch, (h, w), k, 1, x.device)
-    if box.general:
-        return box(x[:, None])[:, 0]
-    p = k // 2
-    xp = torch.nn.functional.pad(x[:, None], (p, p, p, p), mode="reflect")
-    y = torch.nn.functional.avg_pool2d(xp, (k, 1), stride=1)
-    return torch.nn.functional.avg_pool2d(y, (1, k), stride=1)[:, 0]
-
-
 def _box_ratio(num, den, k: int, out, mode: int, cols, *, scale: float = 1.0, min_support: float = 0.0) -> None:
     """The k x k box means of the (C, h, w) chunks ``num`` and ``den`` and what ``mode`` makes of
     them into ``out`` (:func:`lfring.depth.engines.gpu_kernels.box_ratio_kernel`), through the
-    (2, >= C, h, w) scratch ``cols``. Windows that reflect more than once (a radius of the
-    image's side or more) take the pooling path."""
-    torch = require_torch()
+    (2, >= C, h, w) scratch ``cols``."""
     c, h, w = num.shape
     kernels = _kernels()
-    if k // 2 >= min(h, w):
-        finite = torch.isfinite(num) if mode == kernels.BOX_FINITE else None
-        if finite is not None:
-            num, den = torch.where(finite, num, 0.0), finite.to(torch.float32)
-        m_num, m_den = _box_mean(num, k), _box_mean(den, k)
-        if mode == kernels.BOX_HALF:
-            counts = (den > 0.5) & (m_den >= min_support)
-            cand = scale * m_num / torch.where(counts, m_den, 1.0)
-            out.copy_(torch.where(counts & (cand < out), cand, out))
-        else:
-            own = finite if finite is not None else den > 0.5
-            out.copy_(torch.where(own, m_num / m_den.clamp_min(WEIGHT_FLOOR), float("inf")))
-        return
     block = _pixel_block(h * w)
     grid = (_cdiv(h * w, block), c)
     col_num, col_den = cols[0, :c], cols[1, :c]

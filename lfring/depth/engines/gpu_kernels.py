@@ -111,10 +111,11 @@ BOX_FINITE = 2  # the mean of num's finite values where num is finite, inf elsew
 
 @device_function
 def _reflect(i, n):
-    """OpenCV's BORDER_REFLECT_101 index of ``i`` along an axis of ``n`` (one reflection: the
-    box's radius is less than ``n``)."""
-    i = tl.where(i < 0, -i, i)
-    return tl.where(i >= n, 2 * n - 2 - i, i)
+    """OpenCV's BORDER_REFLECT_101 index of ``i`` along an axis of ``n``, however far outside
+    (reflected again and again: periodic in 2 n - 2; 0 where n is 1)."""
+    period = tl.maximum(2 * n - 2, 1)
+    i = tl.abs(i) % period
+    return tl.where(i >= n, period - i, i)
 
 
 @device_function
