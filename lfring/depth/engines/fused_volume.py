@@ -463,7 +463,10 @@ def _halves_span(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_
     bt = np.empty(sw, np.float32)
     bs = np.empty(sw, np.float32)
     tmp = np.empty(sw + 2 * rad, np.float32)
-    least = np.empty((m, n, sw), np.float32)
+    # Each row's least cost of a half is quantised as soon as it is complete (only its float
+    # minimum over the hypotheses is needed later): 16 bits a value keep the strip in cache.
+    least = np.empty((m, n, sw), np.uint16)
+    l_row = np.empty(sw, np.float32)
     hbest = np.full((m, sw), inf, np.float32)
     own_all = np.empty((n_halves, nq), np.bool_)
     for d in range(n):
@@ -477,7 +480,6 @@ def _halves_span(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_
                 own_all[h_i, r] = _all_set(ho_rows[h_i, r])
         for i in range(m):
             y = y0 + i
-            l_row = least[i, d]
             for x in range(sw):
                 l_row[x] = inf
             for h_i in range(n_halves):
@@ -490,14 +492,14 @@ def _halves_span(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_
             hb = hbest[i]
             for x in range(sw):
                 hb[x] = min(hb[x], l_row[x])
-    q = np.empty(sw, np.uint16)
+            _quantise(l_row, inv_unit, least[i, d])
     for i in range(m):
         y = y0 + i
         pr = poor[y]
         br = best[y]
         hb = hbest[i]
         for d in range(n):
-            _quantise(least[i, d], inv_unit, q)
+            q = least[i, d]
             o = out[y, d]
             for x in range(xa, xb):
                 j = x - ta
