@@ -103,12 +103,15 @@ def shift_plan(hs, view_shape):
     return shifts, remaps
 
 
-def _edges(shift: float, n: int) -> np.ndarray:
-    """(n,) weight of a zero-padded line of ones sampled at ``x + shift`` (bilinear)."""
-    i = int(np.floor(shift))
-    f = shift - i
+def _edges(shifts: np.ndarray, n: int) -> np.ndarray:
+    """(..., n) float32 weight of a zero-padded line of ones sampled at ``x + shift`` (bilinear),
+    for every shift of ``shifts``."""
+    shifts = np.asarray(shifts, np.float64)[..., None]
+    i = np.floor(shifts)
+    f = shifts - i
     pos = np.arange(n) + i
-    return (np.where((pos >= 0) & (pos < n), 1.0 - f, 0.0) + np.where((pos + 1 >= 0) & (pos + 1 < n), f, 0.0))
+    return (np.where((pos >= 0) & (pos < n), 1.0 - f, 0.0) +
+            np.where((pos + 1 >= 0) & (pos + 1 < n), f, 0.0)).astype(np.float32)
 
 
 def _padded(images, remaps, pad):
@@ -185,8 +188,8 @@ def fused_index(views, calibration, plan, settings, subpixel_box_px: int, on_sta
     fy = (shifts[..., 1] - iy).astype(np.float32)
     fx = (shifts[..., 0] - ix).astype(np.float32)
     if all_valid:
-        edge_y = np.array([[_edges(shifts[i, k, 1], h) for k in range(v)] for i in range(n)], np.float32)
-        edge_x = np.array([[_edges(shifts[i, k, 0], w) for k in range(v)] for i in range(n)], np.float32)
+        edge_y = _edges(shifts[..., 1], h)
+        edge_x = _edges(shifts[..., 0], w)
     else:
         edge_y = np.zeros((1, 1, 1), np.float32)
         edge_x = np.zeros((1, 1, 1), np.float32)
