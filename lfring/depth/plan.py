@@ -16,7 +16,7 @@ import numpy as np
 
 from lfring.core.filters import luminance
 from lfring.core.geometry import check_reference
-from lfring.core.viewstack import WEIGHT_FLOOR, cached_view_masks
+from lfring.core.viewstack import WEIGHT_FLOOR, cached_view_masks, calibration_cache
 from lfring.core.warping import warp_image
 from lfring.depth.hypotheses import depth_hypotheses, view_motion_px
 from lfring.errors import LfringWarning
@@ -69,6 +69,7 @@ class SweepPlan:
     step_px: float  # largest view motion between neighbouring hypotheses
     exclude: int  # the second minimum is looked for more than this many hypotheses away
     taper: float  # rim taper of the masks (sweep_masks)
+    calibration: object = None  # what the plan was made from: the key of what is cached for it
 
 
 def plan_sweep(views, calibration, zmin_m, zmax_m, num_planes, reference, taper) -> SweepPlan:
@@ -83,7 +84,7 @@ def plan_sweep(views, calibration, zmin_m, zmax_m, num_planes, reference, taper)
     step = view_motion_px(calibration, depths, shape)
     # The second minimum is looked for more than one pixel of motion away from the best.
     exclude = max(1, int(np.ceil(1.0 / max(step, 1e-6))))
-    return SweepPlan(depths, hs, sweep_masks(calibration, shape, taper), ref, step, exclude, taper)
+    return SweepPlan(depths, hs, sweep_masks(calibration, shape, taper), ref, step, exclude, taper, calibration)
 
 
 class Progress:
@@ -126,11 +127,28 @@ def in_reference_frame(lum, plan) -> np.ndarray:
     h, w = lum.shape[1:3]
     mid = len(plan.depths) // 2
     acc = np.zeros((h, w), np.float32)
-    wsum = np.zeros((h, w), np.float32)
     for k in range(len(lum)):
         acc += warp_image(lum[k] * plan.masks[k], plan.hs[mid, k], (w, h))
-        wsum += warp_image(plan.masks[k], plan.hs[mid, k], (w, h))
-    return acc / np.maximum(wsum, WEIGHT_FLOOR)
+    return acc / _reference_weight(plan, mid)
+
+
+def _reference_weight(plan, mid: int) -> np.ndarray:
+    """(h, w) float32: the views' masks warped into the reference frame at hypothesis ``mid``,
+    summed and floored at WEIGHT_FLOOR; made once per calibration, masks and homographies."""
+    h, w = plan.masks.shape[1:3]
+
+    def make():
+        wsum = np.zeros((h, w), np.float32)
+        for k in range(len(plan.masks)):
+            wsum += warp_image(plan.masks[k], plan.hs[mid, k], (w, h))
+        out = np.maximum(wsum, WEIGHT_FLOOR)
+        out.setflags(write=False)
+        return out
+
+    if plan.calibration is None:
+        return make()
+    key = ("sweep reference weight", plan.masks.shape, plan.taper, np.ascontiguousarray(plan.hs[mid]).tobytes())
+    return calibration_cache(plan.calibration, key, make)
 
 
 def guide_image(views, plan) -> np.ndarray:
