@@ -123,9 +123,12 @@ def estimate_depth(
         volume is optimised semi-globally (:mod:`lfring.depth.engines.semiglobal`: along
         ``paths`` scan lines a penalty for every change of depth, lowered across image edges),
         which fills weak texture and keeps gross outliers away, with shiftable windows so that a
-        surface's texture does not spread its depth over the pixels beside it. It holds the cost
-        volume three times over at its peak (the cost, its eroded copy and the optimised one),
-        and needs hypotheses more than one pixel of view motion apart (``InvalidInputError``
+        surface's texture does not spread its depth over the pixels beside it. Its float32
+        reference ('sgm-reference') holds the cost volume three times over at its peak (the
+        cost, its eroded copy and the optimised one); the default's fused passes hold it twice
+        in 16 bits, and keep those two volumes with the calibration object for its next call of
+        the same size when they take at most ``lfring.depth.engines.fused.KEEP_VOLUMES_BYTES``.
+        It needs hypotheses more than one pixel of view motion apart (``InvalidInputError``
         otherwise). The result is refined by an edge-aware weighted median;
         ``DepthResult.depth_filled_m`` also fills the unconfident pixels
         (:mod:`lfring.depth.refine`). 'local': winner-take-all on the aggregated cost of each

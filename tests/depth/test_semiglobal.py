@@ -259,3 +259,47 @@ def test_a_calibration_from_planes_takes_the_fused_passes_after_one_resampling()
     tilted = hs.copy()
     tilted[:, 1] = np.array([[1.0, 0.01, 0.0], [0.0, 1.0, 0.0], [1e-4, 0.0, 1.0]]) @ tilted[:, 1]
     assert shift_plan(tilted, (h, w)) is None
+
+
+def test_the_volumes_kept_with_the_calibration_change_no_answer(prototype, monkeypatch):
+    """The fused passes keep their two 16-bit volumes with the calibration for its next call:
+    a second call, a call with another number of planes in between, calls from two threads at
+    once and calls that keep nothing all give the first call's maps to the bit; the kept
+    volumes are the last call's, and nothing is kept over the size limit."""
+    import threading
+
+    from lfring.core.viewstack import calibration_cache
+    from lfring.depth.engines import fused
+    from lfring.synth.presets import three_depth_scene
+
+    r = render(prototype, three_depth_scene(), binning=8, seed=2, noise="realistic")
+    cal = RingCalibration.from_optics(r.device, layout=r.layout)
+    kw = dict(zmin_m=0.28, zmax_m=1.1)
+
+    def maps(result):
+        return np.stack([result.depth_m, result.confidence, result.depth_filled_m])
+
+    first = maps(estimate_depth(r.views, cal, **kw))
+    kept = calibration_cache(cal, "fused volumes", list)
+    assert len(kept) == 1 and all(v.dtype == np.uint16 and v.shape[::2] == first.shape[1:] for v in kept[0])
+    n = kept[0][0].shape[1]
+    np.testing.assert_array_equal(maps(estimate_depth(r.views, cal, **kw)), first)
+    other = estimate_depth(r.views, cal, num_planes=n + 7, **kw)
+    assert kept[0][0].shape[1] == n + 7 and len(other.depths_m) == n + 7
+    np.testing.assert_array_equal(maps(estimate_depth(r.views, cal, **kw)), first)
+    out = [None, None]
+
+    def run(i):
+        out[i] = maps(estimate_depth(r.views, cal, threads=1, **kw))
+
+    threads = [threading.Thread(target=run, args=(i,)) for i in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    for got in out:
+        np.testing.assert_array_equal(got, first)
+    monkeypatch.setattr(fused, "KEEP_VOLUMES_BYTES", 0)
+    fresh = RingCalibration.from_optics(r.device, layout=r.layout)
+    np.testing.assert_array_equal(maps(estimate_depth(r.views, fresh, **kw)), first)
+    assert calibration_cache(fresh, "fused volumes", list) == []

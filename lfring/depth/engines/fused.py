@@ -31,7 +31,7 @@ from lfring.depth.costs.lcn_occlusion import OCCLUSION_PENALTY
 from lfring.depth.plan import guide_image
 from lfring.depth.sgm import EDGE_SCALE, P1_SCALE, P2_SCALE
 
-__all__ = ["RESAMPLE_TOL_PX", "UNITS_PER_SCALE", "fused_index", "shift_plan"]
+__all__ = ["KEEP_VOLUMES_BYTES", "RESAMPLE_TOL_PX", "UNITS_PER_SCALE", "fused_index", "shift_plan"]
 
 # Integer steps per unit of the cost's scale (the small penalty P1 is one scale unit): fine
 # enough that rounding moves no decision of the paths, coarse enough that four paths of the
@@ -46,6 +46,11 @@ STRIP_ROWS = 16
 MIN_COLUMN_BLOCK = 32
 # Rows sampled for a first estimate of the cost's scale (which sets the integer unit).
 SCALE_SAMPLE_ROWS = 16
+# The call's two 16-bit volumes (the costs and the horizontal paths' sums) are kept with the
+# calibration for its next call, when together they take at most this many bytes: fresh memory
+# costs a page fault per page on its first write (the kernel zeroes it; on a virtual machine the
+# host may have to back it too), which on large frames was a large and erratic part of a call.
+KEEP_VOLUMES_BYTES = 512 << 20
 
 
 def _all_valid(masks) -> bool:
@@ -212,7 +217,7 @@ def fused_index(views, calibration, plan, settings, subpixel_box_px: int, on_sta
     first = float(np.median(spread)) if spread.size else 1.0
     unit = (first if first > 0 and math.isfinite(first) else 1.0) / UNITS_PER_SCALE
 
-    vol = np.empty((h, n, w), np.uint16)
+    vol, paths = _volumes(calibration, (h, n, w))
     best = np.empty((h, w), np.float32)
     total = np.empty((h, w), np.float32)
     count = np.empty((h, w), np.float32)
@@ -234,7 +239,6 @@ def fused_index(views, calibration, plan, settings, subpixel_box_px: int, on_sta
     guide = guide_image(views, plan)
     erode = settings.aggregate_px // 2
     stage(0.5)
-    paths = np.empty((h, n, w), np.uint16)
     fused_paths.horizontal_paths(vol, guide, True, p1, p2, np.float32(EDGE_SCALE), erode, paths)
     stage(0.7)
     index = np.empty((h, w), np.float32)
@@ -243,8 +247,30 @@ def fused_index(views, calibration, plan, settings, subpixel_box_px: int, on_sta
     block = max(MIN_COLUMN_BLOCK, -(-w // max(1, settings.threads)))
     fused_paths.vertical_paths(vol, paths, guide, True, p1, p2, np.float32(EDGE_SCALE), erode, subpixel_box_px // 2,
                       int(plan.exclude), block, WEIGHT_FLOOR, index, confidence)
+    _keep_volumes(calibration, (vol, paths))
     stage(1.0)
     return index, confidence, nviews, guide
+
+
+def _volumes(calibration, shape) -> tuple:
+    """Two uint16 volumes of ``shape`` for one call: those the calibration's last call left
+    (:data:`KEEP_VOLUMES_BYTES`) when they have that shape, else new ones. A call takes them
+    out of the cache, so calls running at once never share them."""
+    kept = calibration_cache(calibration, "fused volumes", list)
+    try:
+        vols = kept.pop()
+    except IndexError:
+        vols = None
+    if vols is not None and vols[0].shape == tuple(shape):
+        return vols
+    return np.empty(shape, np.uint16), np.empty(shape, np.uint16)
+
+
+def _keep_volumes(calibration, vols) -> None:
+    if sum(v.nbytes for v in vols) <= KEEP_VOLUMES_BYTES:
+        kept = calibration_cache(calibration, "fused volumes", list)
+        kept.clear()
+        kept.append(vols)
 
 
 def _scale(best, total, count) -> float:
