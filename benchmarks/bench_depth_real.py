@@ -24,7 +24,8 @@ is the fraction filled. The rows "its own filled map" score lfring's ``depth_fil
 (nothing left to fill), what a user who wants no holes gets. Times: median of RUNS calls after a warm-up, every method timed one after the
 other; "/ SGBM" divides by SGBM's median on the same data. Peak memory: the rise of the
 process's peak resident set (VmHWM, reset through /proc/self/clear_refs after a warm-up call)
-over its resident set before the call, in a fresh process per method and dataset with glibc's
+over its resident set before the call, on a calibration object of its own (what the warm-up's
+calibration keeps between calls is not reused), in a fresh process per method and dataset with glibc's
 mmap threshold fixed at 64 KiB (so freed blocks go back to the system), so OpenCV's and every
 thread's allocations count.
 
@@ -232,12 +233,19 @@ def _status_kib(key: str) -> int:
 def child(folder: str, method_index: int) -> None:
     meta = json.loads((Path(folder) / "meta.json").read_text())
     views = np.load(Path(folder) / "views.npy")
-    cal = RingCalibration.load(Path(folder) / "calibration.json")
-    data = make_data(meta["name"], views, cal, zmin_m=meta["zmin_m"], zmax_m=meta["zmax_m"])
-    data.disparity_range_px = tuple(meta["disparity_range_px"])
     method = METHODS[method_index]
-    v, c = method_inputs(method, data)
-    method.run(v, c, data)  # warm-up: caches, thread pools, lazy imports
+
+    def inputs():
+        cal = RingCalibration.load(Path(folder) / "calibration.json")
+        data = make_data(meta["name"], views, cal, zmin_m=meta["zmin_m"], zmax_m=meta["zmax_m"])
+        data.disparity_range_px = tuple(meta["disparity_range_px"])
+        return (*method_inputs(method, data), data)
+
+    method.run(*inputs())  # warm-up: thread pools, lazy imports, compiled kernels
+    # A fresh calibration object for the measured call: what the warm-up's calibration keeps
+    # between calls (masks, the fused engine's volumes) is resident but not reused, so the
+    # rise is what one call on a new calibration needs.
+    v, c, data = inputs()
     Path("/proc/self/clear_refs").write_text("5")  # resets VmHWM to the current resident set
     before = _status_kib("VmRSS")
     method.run(v, c, data)
