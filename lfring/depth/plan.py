@@ -69,7 +69,7 @@ class SweepPlan:
     step_px: float  # largest view motion between neighbouring hypotheses
     exclude: int  # the second minimum is looked for more than this many hypotheses away
     taper: float  # rim taper of the masks (sweep_masks)
-    calibration: object = None  # what the plan was made from: the key of what is cached for it
+    calibration: object  # what the plan was made from: the key of what is cached for it
 
 
 def plan_sweep(views, calibration, zmin_m, zmax_m, num_planes, reference, taper) -> SweepPlan:
@@ -145,8 +145,6 @@ def _reference_weight(plan, mid: int) -> np.ndarray:
         out.setflags(write=False)
         return out
 
-    if plan.calibration is None:
-        return make()
     key = ("sweep reference weight", plan.masks.shape, plan.taper, np.ascontiguousarray(plan.hs[mid]).tobytes())
     return calibration_cache(plan.calibration, key, make)
 
