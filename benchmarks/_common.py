@@ -28,6 +28,25 @@ def cuda_torch():
     return torch
 
 
+def random_views(side: int):
+    """4 random-texture views of side x side px (float32 RGB) and a calibration from the
+    prototype's optics whose views are valid everywhere: the large case of the depth and GPU
+    benchmarks."""
+    from lfring.calibration import RingCalibration
+    from lfring.optics import load_device
+    from lfring.views import layout_from_circles
+
+    dev = load_device("prototype")
+    w, h = dev.sensor_width_px, dev.sensor_height_px
+    circles = [(1228.0 + dx, 921.0 + dy, side / 2) for dy in (0, h / 2) for dx in (0, w / 2)]
+    disc = layout_from_circles(circles, w, h)
+    square = type(disc)(w, h, disc.rects, False, None)  # views valid everywhere
+    cal = RingCalibration.from_optics(dev, layout=square)
+    rng = np.random.default_rng(0)
+    views = cv2.GaussianBlur(rng.random((4 * side, side, 3), dtype=np.float32), (0, 0), 1.5).reshape(4, side, side, 3)
+    return views, cal
+
+
 def machine_line() -> str:
     return (f"machine: {platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}, "
             f"OpenCV {cv2.__version__}, load {os.getloadavg()[0]:.2f}")

@@ -27,15 +27,12 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from _common import ZMAX, ZMIN, machine_line, twin_scene
+from _common import ZMAX, ZMIN, machine_line, random_views, twin_scene
 from _timing import bench
 
-from lfring.calibration import RingCalibration
 from lfring.depth import estimate_depth
 from lfring.depth.metrics import evaluation_mask
-from lfring.optics import load_device
 from lfring.focus import Refocuser
-from lfring.views import layout_from_circles
 
 RUNS = 9
 
@@ -108,22 +105,10 @@ def main() -> None:
     big_views()
 
 
-def _big(side: int):
-    dev = load_device("prototype")
-    w, h = dev.sensor_width_px, dev.sensor_height_px
-    circles = [(1228.0 + dx, 921.0 + dy, side / 2) for dy in (0, h / 2) for dx in (0, w / 2)]
-    disc = layout_from_circles(circles, w, h)
-    square = type(disc)(w, h, disc.rects, False, None)  # views valid everywhere
-    cal = RingCalibration.from_optics(dev, layout=square)
-    rng = np.random.default_rng(0)
-    views = cv2.GaussianBlur(rng.random((4 * side, side, 3), dtype=np.float32), (0, 0), 1.5).reshape(4, side, side, 3)
-    return views, cal
-
-
 def big_views(side: int = 1060, planes: int = 64, runs: int = 3) -> None:
     """4 views of side x side px at exactly ``planes`` hypotheses (reference 'center'), and the
     peak memory at 128 planes."""
-    views, cal = _big(side)
+    views, cal = random_views(side)
     print(f"\n4 views of {side} x {side} x 3 float32, {planes} planes, depth range {ZMIN}-{ZMAX} m; median of {runs} runs")
     print("| what | median s | min s | max s | / SGBM |")
     print("|---|---|---|---|---|")
@@ -165,8 +150,8 @@ def _status_kib(field: str) -> int:
 def memory(side: int, planes: int, method: str) -> None:
     """Print the rise of the peak resident set of one estimate_depth call (after a warm-up on a
     small frame, so that numba's compiled kernels are loaded)."""
-    views, cal = _big(side)
-    small, small_cal = _big(64)
+    views, cal = random_views(side)
+    small, small_cal = random_views(64)
     estimate_depth(small, small_cal, zmin_m=ZMIN, zmax_m=ZMAX, num_planes=8, method=method)
     before = _status_kib("VmRSS")
     Path("/proc/self/clear_refs").write_text("5")  # resets VmHWM to the current resident set

@@ -19,34 +19,16 @@ from __future__ import annotations
 
 import sys
 
-import cv2
 import numpy as np
-from _common import ZMAX, ZMIN, cuda_torch, machine_line, twin_scene
+from _common import ZMAX, ZMIN, cuda_torch, machine_line, random_views, twin_scene
 from _timing import bench
 
-from lfring.calibration import RingCalibration
 from lfring.depth import estimate_depth
 from lfring.focus import refocus
-from lfring.optics import load_device
-from lfring.views import layout_from_circles
 
 RUNS = 5
 SIDE = 1060
 BATCH = 16
-
-
-def big_views(side: int = SIDE):
-    """4 random-texture views of side x side px and a calibration with views valid everywhere
-    (bench_depth.py's large case)."""
-    dev = load_device("prototype")
-    w, h = dev.sensor_width_px, dev.sensor_height_px
-    circles = [(1228.0 + dx, 921.0 + dy, side / 2) for dy in (0, h / 2) for dx in (0, w / 2)]
-    disc = layout_from_circles(circles, w, h)
-    square = type(disc)(w, h, disc.rects, False, None)
-    cal = RingCalibration.from_optics(dev, layout=square)
-    rng = np.random.default_rng(0)
-    views = cv2.GaussianBlur(rng.random((4 * side, side, 3), dtype=np.float32), (0, 0), 1.5).reshape(4, side, side, 3)
-    return views, cal
 
 
 def agreement(a, b) -> str:
@@ -75,7 +57,7 @@ def main() -> int:
     print("| what | CPU median | GPU median | CPU / GPU |")
     print("|---|---|---|---|")
 
-    views, cal = big_views()
+    views, cal = random_views(SIDE)
     kw = dict(zmin_m=ZMIN, zmax_m=ZMAX, num_planes=64)
     cpu_s = bench(lambda: estimate_depth(views, cal, **kw), RUNS)[0]
     gpu_s = timed(lambda: estimate_depth(views, cal, backend="torch", **kw))[0]

@@ -28,12 +28,11 @@ def probe(out: str) -> None:
     """In a fresh process whose sys.path starts with one checkout: time it, save its maps."""
     import numpy as np
     import torch
-    from _common import ZMAX, ZMIN
-    from bench_gpu import big_views
+    from _common import ZMAX, ZMIN, random_views
 
     from lfring.depth import estimate_depth
 
-    views, cal = big_views(SIDE)
+    views, cal = random_views(SIDE)
     kw = dict(zmin_m=ZMIN, zmax_m=ZMAX, num_planes=64, backend="torch", device="cuda")
     for _ in range(3):
         r = estimate_depth(views, cal, **kw)

@@ -6,7 +6,7 @@ selection), the refinement, and the rest of the call, at 1, 2, 4, ... up to all 
     python benchmarks/bench_threads.py --runs 5 --case twin --threads 1 16
 
 Each pass is timed by wrapping its module function (wall time, the calls in between are what
-"rest" holds). Cases: bench_depth.py's random-texture 4 x 1060^2 views at 64 planes, and the
+"rest" holds). Cases: the random-texture (``_common.random_views``) 4 x 1060^2 views at 64 planes, and the
 twin's three-depth scene with its defaults. Medians of ``--runs`` calls after a warm-up; the
 depth map of every thread count is compared with the first count's map (the engine's answer
 does not depend on the thread count; the ratio column divides the first count's time by each).
@@ -23,8 +23,7 @@ import time
 import warnings
 
 import numpy as np
-from _common import ZMAX, ZMIN, machine_line, twin_scene
-from bench_depth import _big
+from _common import ZMAX, ZMIN, machine_line, random_views, twin_scene
 
 from lfring.depth import estimate_depth
 from lfring.depth.engines import fused_paths, fused_volume, semiglobal
@@ -57,7 +56,7 @@ def _timed(spent: dict):
 def _cases(which: str):
     out = {}
     if which in ("big", "all"):
-        views, cal = _big(1060)
+        views, cal = random_views(1060)
         out["4 x 1060^2 x 64 planes"] = (views, cal, dict(zmin_m=ZMIN, zmax_m=ZMAX, num_planes=64))
     if which in ("twin", "all"):
         t = twin_scene()
