@@ -303,3 +303,96 @@ def test_the_volumes_kept_with_the_calibration_change_no_answer(prototype, monke
     fresh = RingCalibration.from_optics(r.device, layout=r.layout)
     np.testing.assert_array_equal(maps(estimate_depth(r.views, fresh, **kw)), first)
     assert calibration_cache(fresh, "fused volumes", list) == []
+
+
+@pytest.mark.parametrize("all_valid", [True, False])
+def test_the_halves_pass_gives_each_poor_pixel_the_same_cost_however_its_columns_are_grouped(all_valid):
+    """The halves pass computes a strip's runs of poor columns side by side in groups: a poor
+    pixel's costs must not depend on which other pixels are poor. On a frame wide enough for
+    several groups a strip, isolated poor pixels (at the image's corners and sides too), a run
+    and a run at the edge get exactly the costs they get when every pixel is poor; the other
+    pixels keep theirs. Every pixel's costs match the same rule written in float64 NumPy with
+    OpenCV's reflected box sums, within the last integer unit."""
+    from lfring.depth.engines import fused_volume
+    from lfring.depth.engines.fused_common import COST_MAX, COST_ZERO, UNKNOWN
+
+    rng = np.random.default_rng(7)
+    v, h, w, n, pad, rad, rows = 4, 37, 1400, 6, 4, 2, 16
+    src = np.zeros((v, h + 2 * pad + 1, w + 2 * pad + 1), np.float32)
+    src[:, pad:pad + h, pad:pad + w] = rng.random((v, h, w), dtype=np.float32)
+    if all_valid:
+        msk = src
+        edge_y = np.ones((n, v, h), np.float32)
+        edge_x = np.ones((n, v, w), np.float32)
+    else:  # masks with holes, no runs of ones known: every weight is interpolated
+        msk = np.zeros_like(src)
+        msk[:, pad:pad + h, pad:pad + w] = rng.random((v, h, w)) > 0.1
+        src *= msk
+        edge_y = edge_x = np.zeros((1, 1, 1), np.float32)
+    ones = np.zeros((v, h + 2 * pad + 1), np.int64)
+    shifts = rng.uniform(-pad + 1.5, pad - 1.5, (n, v, 2))
+    iy = np.floor(shifts[..., 1]).astype(np.int64)
+    ix = np.floor(shifts[..., 0]).astype(np.int64)
+    fy = (shifts[..., 1] - iy).astype(np.float32)
+    fx = (shifts[..., 0] - ix).astype(np.float32)
+    halves = np.array([0, 1, 2, 3, 0, 2, 1, 3], np.int64)
+    ptr = np.array([0, 2, 4, 6, 8], np.int64)
+    best = np.where(rng.random((h, w)) < 0.8, np.inf, 1e-6).astype(np.float32)  # 20 % never take the halves
+    before = rng.integers(COST_MAX // 2, COST_MAX, (h, n, w)).astype(np.uint16)
+
+    def run(poor):
+        out = before.copy()
+        fused_volume.sweep_halves(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones, ones,
+                                  np.arange(v, dtype=np.int64), halves, ptr, rad, rows, np.float32(1e-6),
+                                  np.float32(1.2), np.float32(0.3), np.float32(0.8), np.float32(1e-3), poor, best, out)
+        return out
+
+    def reference(poor):
+        """The same rule in float64 NumPy, with OpenCV's reflected box sums."""
+        yy, xx = np.mgrid[0:h, 0:w]
+        src64, msk64 = src.astype(np.float64), msk.astype(np.float64)
+        area = (2 * rad + 1) ** 2
+        hbest = np.full((h, w), np.inf)
+        least = np.empty((h, n, w))
+        for d in range(n):
+            a, wt = np.empty((v, h, w)), np.empty((v, h, w))
+            for k in range(v):
+                r, c = yy + iy[d, k] + pad, xx + ix[d, k] + pad
+                p, q, b = 1.0 - fy[d, k], float(fy[d, k]), float(fx[d, k])
+
+                def bilinear(img, r=r, c=c, p=p, q=q, b=b):
+                    return (1 - b) * (p * img[r, c] + q * img[r + 1, c]) + b * (p * img[r, c + 1] + q * img[r + 1, c + 1])
+
+                a[k] = bilinear(src64[k])
+                wt[k] = edge_x[d, k][None, :] * edge_y[d, k][:, None] if all_valid else bilinear(msk64[k])
+            seen = wt.sum(axis=0) >= 1.5
+            low = np.full((h, w), np.inf)
+            for j0, j1 in halves.reshape(-1, 2):
+                s1, s2, cn = a[j0] + a[j1], a[j0] ** 2 + a[j1] ** 2, wt[j0] + wt[j1]
+                own = (cn >= 1.5) & seen
+                term = np.where(own, (s2 - s1 * s1 / np.maximum(cn, 1e-6)) / np.maximum(cn - 1, 0.5), 0.0)
+                bt, bs = (cv2.boxFilter(x.astype(np.float64), -1, (2 * rad + 1, 2 * rad + 1), normalize=False,
+                                        borderType=cv2.BORDER_REFLECT_101) for x in (term, own))
+                ok = own & (bs >= 0.3 * area)
+                cost = 1.2 * bt / np.where(ok, bs, 1.0)
+                low = np.where(ok & (cost < low), cost, low)
+            hbest = np.minimum(hbest, low)
+            least[:, d] = np.where(np.isfinite(low), np.clip(np.floor(low / 1e-3 + COST_ZERO + 0.5), 0, COST_MAX), UNKNOWN)
+        take = (poor & (hbest < 0.8 * best))[:, None, :]
+        return np.where(take, np.minimum(before, least), before)
+
+    everywhere = run(np.ones((h, w), bool))
+    assert (everywhere != before).mean() > 0.3  # the halves were taken: the comparisons below mean something
+    want = reference(np.ones((h, w), bool))
+    diff = np.abs(everywhere.astype(np.int64) - want)
+    assert diff.max() <= 1 and (diff == 0).mean() > 0.995, (diff.max(), (diff == 0).mean())  # float32 rounding
+    poor = np.zeros((h, w), bool)
+    poor[::5, ::23] = True  # isolated pixels, more runs a strip than one group holds
+    poor[[0, 0, h - 1, h - 1], [0, w - 1, 0, w - 1]] = True  # the corners
+    poor[10, 1] = poor[20, w - 2] = True  # within the box's reach of a side
+    poor[16:19, 300:420] = True  # a run across two strips
+    poor[30:33, w - 60:] = True  # a run to the right side
+    got = run(poor)
+    mask = np.broadcast_to(poor[:, None, :], got.shape)
+    np.testing.assert_array_equal(got[mask], everywhere[mask])
+    np.testing.assert_array_equal(got[~mask], before[~mask])

@@ -9,7 +9,9 @@
    taken where a half agrees much better.
 
 Each step works on rows of one hypothesis at a time in small helpers whose loops run over
-contiguous pixels, so that they vectorise; strips of rows are the parallel tasks.
+contiguous pixels from index 0 (an index that might be negative is wrapped around by numba,
+which keeps a loop from vectorising), so that they vectorise; strips of rows are the parallel
+tasks.
 """
 
 from __future__ import annotations
@@ -20,7 +22,12 @@ from numba import njit, prange
 from lfring.depth.aggregation_kernels import reflect
 from lfring.depth.engines.fused_common import COST_MAX, COST_ZERO, INLINE, JIT, PARALLEL, UNKNOWN
 
-__all__ = ["sample_costs", "sweep_halves", "sweep_volume"]
+__all__ = ["HALVES_GROUP_COLUMNS", "sample_costs", "sweep_halves", "sweep_volume"]
+
+# The halves pass computes a strip's runs of poor columns side by side, up to this many columns
+# of terms at once (runs are often a few pixels wide, where per-run steps cost more than the
+# pixels; at this width a group's 16-bit least costs still fit a core's L2 cache).
+HALVES_GROUP_COLUMNS = 512
 
 
 @njit(**INLINE)
@@ -413,31 +420,50 @@ def sweep_halves(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_
             pr = poor[y]
             for x in range(w):
                 cols[x] |= pr[x]
+        span_a = np.empty(w, np.int64)
+        span_b = np.empty(w, np.int64)
+        n_spans = 0
         x = 0
         while x < w:
             if not cols[x]:
                 x += 1
                 continue
-            xa = x
             xb = x + 1
             last = x
             while xb < w and xb - last <= gap:
                 if cols[xb]:
                     last = xb
                 xb += 1
-            xb = last + 1
-            _halves_span(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, views, halves, half_ptr, rad, floor,
-                         penalty, min_support, gain, unit, poor, best, out, y0, y1, xa, xb)
-            x = xb
+            span_a[n_spans] = x
+            span_b[n_spans] = last + 1
+            n_spans += 1
+            x = last + 1
+        # Neighbouring spans are computed together up to HALVES_GROUP_COLUMNS columns of terms:
+        # fewer, longer row steps, and a working set that stays in the core's cache.
+        i = 0
+        while i < n_spans:
+            k = i + 1
+            width = span_b[i] - span_a[i] + 4 * rad
+            while k < n_spans and width + span_b[k] - span_a[k] + 4 * rad <= HALVES_GROUP_COLUMNS:
+                width += span_b[k] - span_a[k] + 4 * rad
+                k += 1
+            _halves_strip(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, views, halves, half_ptr, rad,
+                          floor, penalty, min_support, gain, unit, poor, best, out, y0, y1, span_a[i:k], span_b[i:k])
+            i = k
 
 
 @njit(**JIT)
-def _halves_span(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, views, halves, half_ptr, rad, floor, penalty,
-                 min_support, gain, unit, poor, best, out, y0, y1, xa, xb):
-    """:func:`sweep_halves` for the rows y0..y1 and the output columns xa..xb."""
+def _halves_strip(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, views, halves, half_ptr, rad, floor,
+                  penalty, min_support, gain, unit, poor, best, out, y0, y1, span_a, span_b):
+    """:func:`sweep_halves` for the rows y0..y1 and the output columns of its spans
+    (``span_a``..``span_b``). The spans' terms lie side by side in one row, each over its span
+    wider by the box's radius (so that its box sums are exact inside) with ``rad`` columns of
+    its own padding either side: every row-wide step runs once for all the spans, not once per
+    span (a strip's spans are often a few pixels wide, where the steps' fixed costs dominate)."""
     h, n, w = out.shape
     n_views = views.shape[0]
     n_halves = half_ptr.shape[0] - 1
+    n_spans = span_a.shape[0]
     inv_unit = np.float32(1.0 / unit)
     area = np.float32((2 * rad + 1) ** 2)
     inf = np.float32(np.inf)
@@ -445,73 +471,98 @@ def _halves_span(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_
     q1 = min(h, y1 + rad)
     nq = q1 - q0
     m = y1 - y0
-    # The terms over a span wider by the box's radius, so that its box sums are exact inside.
-    ta = max(0, xa - rad)
-    tb = min(w, xb + rad)
-    sw = tb - ta
-    t = np.empty(sw + 1, np.float32)
-    a_buf = np.empty((n_views, sw), np.float32)
-    w_buf = np.empty((n_views, sw), np.float32)
-    s1 = np.empty(sw, np.float32)
-    s2 = np.empty(sw, np.float32)
-    cn = np.empty(sw, np.float32)
-    seen_rows = np.empty((nq, sw), np.float32)
-    hc_rows = np.empty((n_halves, nq, sw), np.float32)
-    ho_rows = np.empty((n_halves, nq, sw), np.float32)
-    ordered = np.empty((2 * rad + 1, sw), np.float32)
-    col = np.empty(sw, np.float32)
-    bt = np.empty(sw, np.float32)
-    bs = np.empty(sw, np.float32)
-    tmp = np.empty(sw + 2 * rad, np.float32)
+    # Span i: image columns ta..tb at row positions base..base + (tb - ta).
+    ta = np.empty(n_spans, np.int64)
+    sw = np.empty(n_spans, np.int64)
+    base = np.empty(n_spans, np.int64)
+    total = 0
+    widest = 0
+    for i in range(n_spans):
+        ta[i] = max(0, span_a[i] - rad)
+        sw[i] = min(w, span_b[i] + rad) - ta[i]
+        base[i] = total + rad
+        total += sw[i] + 2 * rad
+        widest = max(widest, sw[i])
+    t = np.empty(widest + 1, np.float32)
+    # Zeros in the padding: no terms are made there, and its box sums are never used.
+    a_buf = np.zeros((n_views, total), np.float32)
+    w_buf = np.zeros((n_views, total), np.float32)
+    s1 = np.empty(total, np.float32)
+    s2 = np.empty(total, np.float32)
+    cn = np.empty(total, np.float32)
+    seen_rows = np.zeros((nq, total), np.float32)
+    hc_rows = np.zeros((n_halves, nq, total), np.float32)
+    ho_rows = np.zeros((n_halves, nq, total), np.float32)
+    ordered = np.empty((2 * rad + 1, total), np.float32)
+    col = np.empty(total, np.float32)
+    bt = np.empty(total, np.float32)
+    bs = np.empty(total, np.float32)
     # Each row's least cost of a half is quantised as soon as it is complete (only its float
     # minimum over the hypotheses is needed later): 16 bits a value keep the strip in cache.
-    least = np.empty((m, n, sw), np.uint16)
-    l_row = np.empty(sw, np.float32)
-    hbest = np.full((m, sw), inf, np.float32)
-    own_all = np.empty((n_halves, nq), np.bool_)
+    least = np.empty((m, n, total), np.uint16)
+    l_row = np.empty(total, np.float32)
+    hbest = np.full((m, total), inf, np.float32)
+    # Per half, span and row: whether the half sees every pixel of the span's row as its own.
+    own_all = np.empty((n_halves, n_spans, nq), np.bool_)
+    full = np.empty(n_spans, np.bool_)
     for d in range(n):
         for r in range(nq):
-            _view_span(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, q0 + r, d, views, ta, t,
-                       a_buf, w_buf)
+            for i in range(n_spans):
+                _view_span(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, q0 + r, d, views, ta[i],
+                           sw[i], base[i], t, a_buf, w_buf)
             _seen_row(w_buf, seen_rows[r])
             for h_i in range(n_halves):
                 _half_terms(a_buf, w_buf, halves, half_ptr, h_i, floor, seen_rows[r], s1, s2, cn, hc_rows[h_i, r],
                             ho_rows[h_i, r])
-                own_all[h_i, r] = _all_set(ho_rows[h_i, r])
-        for i in range(m):
-            y = y0 + i
-            for x in range(sw):
+                for i in range(n_spans):
+                    own_all[h_i, i, r] = _all_set(ho_rows[h_i, r, base[i]:base[i] + sw[i]])
+        for j in range(m):
+            y = y0 + j
+            for x in range(total):
                 l_row[x] = inf
             for h_i in range(n_halves):
-                _box_span(hc_rows[h_i], q0, y, rad, h, ta, w, ordered, col, tmp, bt)
-                if _window_all_set(own_all[h_i], q0, y, rad, h):  # every window the half's own
+                _box_spans(hc_rows[h_i], q0, y, rad, h, w, ta, sw, base, ordered, col, bt)
+                all_full = True
+                for i in range(n_spans):
+                    full[i] = _window_all_set(own_all[h_i, i], q0, y, rad, h)  # every window the half's own
+                    all_full &= full[i]
+                if all_full:
                     _fold_full(bt, penalty / area, l_row)
                     continue
-                _box_span(ho_rows[h_i], q0, y, rad, h, ta, w, ordered, col, tmp, bs)
-                _fold_half(bt, bs, ho_rows[h_i, y - q0], min_support * area, penalty, l_row)
-            hb = hbest[i]
-            for x in range(sw):
+                _box_spans(ho_rows[h_i], q0, y, rad, h, w, ta, sw, base, ordered, col, bs)
+                for i in range(n_spans):
+                    a, b = base[i], base[i] + sw[i]
+                    if full[i]:
+                        _fold_full(bt[a:b], penalty / area, l_row[a:b])
+                    else:
+                        _fold_half(bt[a:b], bs[a:b], ho_rows[h_i, y - q0, a:b], min_support * area, penalty, l_row[a:b])
+            hb = hbest[j]
+            for x in range(total):
                 hb[x] = min(hb[x], l_row[x])
-            _quantise(l_row, inv_unit, least[i, d])
-    for i in range(m):
-        y = y0 + i
+            _quantise(l_row, inv_unit, least[j, d])
+    for j in range(m):
+        y = y0 + j
         pr = poor[y]
         br = best[y]
-        hb = hbest[i]
+        hb = hbest[j]
         for d in range(n):
-            q = least[i, d]
+            q = least[j, d]
             o = out[y, d]
-            for x in range(xa, xb):
-                j = x - ta
-                take = pr[x] & (hb[j] < gain * br[x])
-                o[x] = min(o[x], q[j]) if take else o[x]
+            for i in range(n_spans):
+                xa, xb = span_a[i], span_b[i]
+                at = base[i] + xa - ta[i]
+                qs, hs = q[at:at + xb - xa], hb[at:at + xb - xa]
+                ps, bs_, os_ = pr[xa:xb], br[xa:xb], o[xa:xb]
+                for x in range(xb - xa):
+                    take = ps[x] & (hs[x] < gain * bs_[x])
+                    os_[x] = min(os_[x], qs[x]) if take else os_[x]
 
 
 @njit(**JIT)
-def _view_span(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, y, d, views, x0, t, a_buf,
+def _view_span(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, y, d, views, x0, m, at, t, a_buf,
                w_buf):
-    """:func:`_view_rows` for the columns x0 .. x0 + a_buf.shape[1] of the row."""
-    m = a_buf.shape[1]
+    """:func:`_view_rows` for the ``m`` columns from x0 of the row, into ``a_buf`` and ``w_buf``
+    from their column ``at``."""
     for j in range(views.shape[0]):
         k = views[j]
         r = y + iy[d, k] + pad
@@ -520,39 +571,45 @@ def _view_span(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo
         p = np.float32(1.0) - q
         b = np.float32(fx[d, k])
         a = np.float32(1.0) - b
-        _lerp(src[k, r, c0:c0 + m + 1], src[k, r + 1, c0:c0 + m + 1], p, q, t)
-        _shifted(t, a, b, a_buf[j])
+        tt = t[:m + 1]
+        _lerp(src[k, r, c0:c0 + m + 1], src[k, r + 1, c0:c0 + m + 1], p, q, tt)
+        _shifted(tt, a, b, a_buf[j, at:at + m])
         if all_valid:
-            _scaled(edge_x[d, k, x0:x0 + m], edge_y[d, k, y], w_buf[j])
+            _scaled(edge_x[d, k, x0:x0 + m], edge_y[d, k, y], w_buf[j, at:at + m])
         else:
             _weights(msk[k, r, c0:c0 + m + 1], msk[k, r + 1, c0:c0 + m + 1], ones_lo[k], ones_hi[k], r, c0, p, q, a, b,
-                     t, w_buf[j])
+                     tt, w_buf[j, at:at + m])
 
 
 @njit(**JIT)
-def _box_span(rows, q0, y, rad, h, ta, w, ordered, col, tmp, out):
-    """:func:`_box_row` over a span of columns from image column ``ta`` of an image ``w`` wide:
-    reflected at the image's edges where the span reaches them; its own ends (inside the image)
-    are wrong over ``rad`` columns, which the caller keeps out of use."""
+def _box_spans(rows, q0, y, rad, h, w, ta, sw, base, ordered, col, out):
+    """The box sums at row ``y`` of every span laid out by :func:`_halves_strip` (``rows``: its
+    rows of a quantity from image row ``q0``, reflected at the image's top and bottom): exact
+    over each span's columns but its ``rad`` outermost at a side inside the image, which the
+    caller keeps out of use. Where a span meets the image's side, its padding is the span's
+    columns reflected there."""
     c = y - q0
-    sw = col.shape[0]
+    total = col.shape[0]
     if y - rad >= 0 and y + rad < h:
         _vsum(rows, c - rad, 2 * rad + 1, col)
     else:
         for k in range(2 * rad + 1):
             ordered[k] = rows[reflect(y - rad + k, h) - q0]
         _vsum(ordered, 0, 2 * rad + 1, col)
-    if ta == 0 and sw == w:
-        _hsum(col, rad, tmp, out)
-        return
-    # Pad: reflected where the span meets the image's edge, anything elsewhere (never used).
-    for x in range(sw):
-        tmp[x + rad] = col[x]
-    for x in range(rad):
-        tmp[x] = col[reflect(x - rad, sw)] if ta == 0 else col[0]
-        tmp[sw + rad + x] = col[reflect(sw + x, sw)] if ta + sw == w else col[sw - 1]
-    for x in range(sw):  # as _hsum: shifted rows, the same order of additions
-        out[x] = tmp[x]
+    for i in range(ta.shape[0]):
+        b, n_i = base[i], sw[i]
+        if ta[i] == 0:
+            for x in range(rad):
+                col[b - rad + x] = col[b + reflect(x - rad, n_i)]
+        if ta[i] + n_i == w:
+            for x in range(rad):
+                col[b + n_i + x] = col[b + reflect(n_i + x, n_i)]
+    # As _hsum: shifted rows, the same order of additions (the first and last rad columns,
+    # padding, are left as they are). Indices count up from 0, which numba knows cannot wrap
+    # around: the loops vectorise.
+    inner = out[rad:total - rad]
+    for x in range(total - 2 * rad):
+        inner[x] = col[x]
     for k in range(1, 2 * rad + 1):
-        for x in range(sw):
-            out[x] += tmp[x + k]
+        for x in range(total - 2 * rad):
+            inner[x] += col[x + k]
