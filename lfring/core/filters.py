@@ -16,8 +16,12 @@ def luminance(views: np.ndarray) -> np.ndarray:
     v, h, w, c = views.shape
     if c == 1:
         return views[..., 0]
+    views = np.asarray(views, np.float32)  # transform writes into out only from float32
     mix = np.full((1, c), 1.0 / c, np.float32)
-    return np.stack([cv2.transform(views[k], mix).reshape(h, w) for k in range(v)])
+    out = np.empty((v, h, w), np.float32)
+    for k in range(v):  # into the output: no per-view copies stacked afterwards
+        cv2.transform(views[k], mix, dst=out[k])
+    return out
 
 
 def local_mean_sigma_px(view_shape) -> float:

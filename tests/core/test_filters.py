@@ -22,6 +22,11 @@ def test_luminance_is_the_mean_of_the_channels():
     v = np.random.default_rng(1).random((2, 4, 5, 3)).astype(np.float32)
     np.testing.assert_allclose(luminance(v), v.mean(axis=3), atol=1e-6)
     assert luminance(v[..., :1]).shape == (2, 4, 5)
+    # Other types and strided channels: float32 means all the same.
+    for other in (v.astype(np.float64), (v * 60000).astype(np.uint16), np.concatenate([v, v], axis=3)[..., 1:4]):
+        got = luminance(other)
+        assert got.dtype == np.float32
+        np.testing.assert_allclose(got, other.astype(np.float64).mean(axis=3), rtol=1e-6, atol=1e-6)
 
 
 def test_normalised_luminance_removes_each_views_vignetting_and_exposure():
