@@ -104,13 +104,33 @@ def _hsum(col, rad, tmp, out):
     for x in range(rad):
         tmp[x] = col[reflect(x - rad, w)]
         tmp[w + rad + x] = col[reflect(w + x, w)]
-    # One shifted row at a time, in the order of additions of a sum per pixel (so the same
-    # floats): the loops vectorise over the pixels, where the sum per pixel did not.
-    for x in range(w):
-        out[x] = tmp[x]
+    _shifted_sum(tmp, rad, out)
+
+
+@njit(**INLINE)
+def _shifted_sum(padded, rad, out):
+    """out[x] = sum of padded[x .. x + 2 rad]. One shifted row at a time, in the order of
+    additions of a sum per pixel (so the same floats), with indices from 0 (numba wraps an
+    index that may be negative around): the loops vectorise, where a sum per pixel did not."""
+    m = out.shape[0]
+    for x in range(m):
+        out[x] = padded[x]
     for k in range(1, 2 * rad + 1):
-        for x in range(w):
-            out[x] += tmp[x + k]
+        for x in range(m):
+            out[x] += padded[x + k]
+
+
+@njit(**INLINE)
+def _vbox(rows, q0, y, rad, h, ordered, col):
+    """col = the sum over image rows y - rad .. y + rad (reflected at the image's top and
+    bottom) of a quantity whose rows from image row ``q0`` are ``rows`` (``ordered``: a scratch
+    of 2 rad + 1 rows)."""
+    if y - rad >= 0 and y + rad < h:
+        _vsum(rows, y - rad - q0, 2 * rad + 1, col)
+    else:
+        for k in range(2 * rad + 1):
+            ordered[k] = rows[reflect(y - rad + k, h) - q0]
+        _vsum(ordered, 0, 2 * rad + 1, col)
 
 
 # -- per-pixel terms of one row at one hypothesis ------------------------------------------------
@@ -313,13 +333,7 @@ def _quantise(v, inv_unit, out):
 def _box_row(rows, q0, y, rad, h, ordered, col, tmp, out):
     """The box sum at row ``y`` of a quantity whose rows from image row ``q0`` are ``rows``
     (reflected at the image's top and bottom; ``ordered`` a scratch of 2 rad + 1 rows)."""
-    c = y - q0
-    if y - rad >= 0 and y + rad < h:
-        _vsum(rows, c - rad, 2 * rad + 1, col)
-    else:
-        for k in range(2 * rad + 1):
-            ordered[k] = rows[reflect(y - rad + k, h) - q0]
-        _vsum(ordered, 0, 2 * rad + 1, col)
+    _vbox(rows, q0, y, rad, h, ordered, col)
     _hsum(col, rad, tmp, out)
 
 
@@ -588,14 +602,8 @@ def _box_spans(rows, q0, y, rad, h, w, ta, sw, base, ordered, col, out):
     over each span's columns but its ``rad`` outermost at a side inside the image, which the
     caller keeps out of use. Where a span meets the image's side, its padding is the span's
     columns reflected there."""
-    c = y - q0
     total = col.shape[0]
-    if y - rad >= 0 and y + rad < h:
-        _vsum(rows, c - rad, 2 * rad + 1, col)
-    else:
-        for k in range(2 * rad + 1):
-            ordered[k] = rows[reflect(y - rad + k, h) - q0]
-        _vsum(ordered, 0, 2 * rad + 1, col)
+    _vbox(rows, q0, y, rad, h, ordered, col)
     for i in range(ta.shape[0]):
         b, n_i = base[i], sw[i]
         if ta[i] == 0:
@@ -604,12 +612,5 @@ def _box_spans(rows, q0, y, rad, h, w, ta, sw, base, ordered, col, out):
         if ta[i] + n_i == w:
             for x in range(rad):
                 col[b + n_i + x] = col[b + reflect(n_i + x, n_i)]
-    # As _hsum: shifted rows, the same order of additions (the first and last rad columns,
-    # padding, are left as they are). Indices count up from 0, which numba knows cannot wrap
-    # around: the loops vectorise.
-    inner = out[rad:total - rad]
-    for x in range(total - 2 * rad):
-        inner[x] = col[x]
-    for k in range(1, 2 * rad + 1):
-        for x in range(total - 2 * rad):
-            inner[x] += col[x + k]
+    # As _hsum (the first and last rad columns, padding, are left as they are).
+    _shifted_sum(col, rad, out[rad:total - rad])
