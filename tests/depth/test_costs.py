@@ -84,7 +84,7 @@ def test_the_halves_volume_needs_the_whole_volume_and_an_lcn_cost(twin):
         hs = cal.homographies(np.array([0.3, 0.5, 1.0]), reference=0)
     lum = np.zeros((4, h, w), np.float32)
     masks = np.ones((4, h, w), np.float32)
-    vol = np.empty((3, h, w), np.float32)
+    vol = np.zeros((3, h, w), np.float32)  # not empty: a signalling NaN in it would warn on the cast below
     with pytest.raises(ValueError, match="halves needs a volume"):
         sweep_strips(lum, masks, hs, aggregate_px=5, halves=vol)
     with pytest.raises(ValueError, match="halves needs a volume"):
