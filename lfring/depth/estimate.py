@@ -126,8 +126,10 @@ def estimate_depth(
         surface's texture does not spread its depth over the pixels beside it. Its float32
         reference ('sgm-reference') holds the cost volume three times over at its peak (the
         cost, its eroded copy and the optimised one); the default's fused passes hold it twice
-        in 16 bits, and keep those two volumes with the calibration object for its next call of
-        the same size when they take at most ``lfring.depth.engines.fused.KEEP_VOLUMES_BYTES``.
+        in 16 bits (three times, with its eroded copy, while that takes at most
+        ``lfring.depth.engines.fused.ERODED_VOLUME_BYTES``), and keep those volumes with the
+        calibration object for its next call of the same size when they take at most
+        ``lfring.depth.engines.fused.KEEP_VOLUMES_BYTES``.
         It needs hypotheses more than one pixel of view motion apart (``InvalidInputError``
         otherwise). The result is refined by an edge-aware weighted median;
         ``DepthResult.depth_filled_m`` also fills the unconfident pixels

@@ -305,6 +305,41 @@ def test_the_volumes_kept_with_the_calibration_change_no_answer(prototype, monke
     assert calibration_cache(fresh, "fused volumes", list) == []
 
 
+def test_the_eroded_volume_kept_between_the_passes_changes_no_answer(prototype, monkeypatch):
+    """The horizontal paths keep the eroded volume for the vertical ones below a size limit: the
+    kept volume is the cost's least over each 5 x 5 window (clipped at the image's sides), with
+    a pixel's unknown costs replaced by the rounded mean of its known ones, and the maps are
+    those of a call that keeps none and erodes every row again, to the bit."""
+    from scipy.ndimage import minimum_filter
+
+    from lfring.core.viewstack import calibration_cache
+    from lfring.depth.engines import fused
+    from lfring.depth.engines.fused_common import UNKNOWN
+    from lfring.synth.presets import three_depth_scene
+
+    r = render(prototype, three_depth_scene(), binning=8, seed=4, noise="realistic")
+    kw = dict(zmin_m=0.28, zmax_m=1.1)
+
+    def call(limit):
+        monkeypatch.setattr(fused, "ERODED_VOLUME_BYTES", limit)
+        cal = RingCalibration.from_optics(r.device, layout=r.layout)
+        got = estimate_depth(r.views, cal, **kw)
+        return np.stack([got.depth_m, got.confidence, got.depth_filled_m]), calibration_cache(cal, "fused volumes", list)
+
+    kept_maps, kept = call(fused.ERODED_VOLUME_BYTES)
+    none_maps, none = call(0)
+    assert len(kept[0]) == 3 and len(none[0]) == 2
+    np.testing.assert_array_equal(kept_maps, none_maps)
+    vol, _, eroded = kept[0]
+    least = minimum_filter(vol, size=(5, 1, 5), mode="nearest").astype(np.int64)  # (h, N, w)
+    known = least != UNKNOWN
+    count = known.sum(axis=1, keepdims=True)
+    mean = (np.where(known, least, 0).sum(axis=1, keepdims=True) + count // 2) // np.maximum(count, 1)
+    want = np.where(known, least, np.where(count > 0, mean, 0))
+    assert (~known).any() and known.any()  # both branches of the rule are exercised
+    np.testing.assert_array_equal(eroded, want)
+
+
 @pytest.mark.parametrize("all_valid", [True, False])
 def test_the_halves_pass_gives_each_poor_pixel_the_same_cost_however_its_columns_are_grouped(all_valid):
     """The halves pass computes a strip's runs of poor columns side by side in groups: a poor

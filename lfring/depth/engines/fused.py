@@ -9,7 +9,9 @@ is how it is computed: the views are shifted in row strips (every homography a t
 at most a fixed near-identity resampling of each view), the volume is held once, in 16-bit
 integers, and the erosion, the paths, the wider box and the selection run in passes that read it
 row by row or column block by column block, so memory traffic is a few passes over a 16-bit
-volume and every thread has independent work.
+volume and every thread has independent work. Beside it are the paths' sums and, up to a size
+(:data:`ERODED_VOLUME_BYTES`), the eroded volume, which the horizontal paths make and the vertical
+ones read.
 
 :func:`fused_index` answers None where it does not apply (another backend, cost or aggregation,
 eight paths, or homographies that are not translations up to a fixed resampling); the engine then
@@ -31,7 +33,7 @@ from lfring.depth.costs.lcn_occlusion import OCCLUSION_PENALTY
 from lfring.depth.plan import guide_image
 from lfring.depth.sgm import EDGE_SCALE, P1_SCALE, P2_SCALE
 
-__all__ = ["KEEP_VOLUMES_BYTES", "RESAMPLE_TOL_PX", "UNITS_PER_SCALE", "fused_index", "shift_plan"]
+__all__ = ["ERODED_VOLUME_BYTES", "KEEP_VOLUMES_BYTES", "RESAMPLE_TOL_PX", "UNITS_PER_SCALE", "fused_index", "shift_plan"]
 
 # Integer steps per unit of the cost's scale (the small penalty P1 is one scale unit): fine
 # enough that rounding moves no decision of the paths, coarse enough that four paths of the
@@ -51,6 +53,12 @@ SCALE_SAMPLE_ROWS = 16
 # costs a page fault per page on its first write (the kernel zeroes it; on a virtual machine the
 # host may have to back it too), which on large frames was a large and erratic part of a call.
 KEEP_VOLUMES_BYTES = 512 << 20
+# The horizontal paths keep the eroded volume for the vertical ones (which would otherwise erode
+# every row again in each of their two directions) when it takes at most this many bytes: a third
+# 16-bit volume, left out on the largest volumes so that a call's peak memory stays near two.
+ERODED_VOLUME_BYTES = 256 << 20
+# The eroded volume's stand-in where it is not kept.
+_NOT_KEPT = np.empty((0, 0, 0), np.uint16)
 
 
 def _all_valid(masks) -> bool:
@@ -217,7 +225,8 @@ def fused_index(views, calibration, plan, settings, subpixel_box_px: int, on_sta
     first = float(np.median(spread)) if spread.size else 1.0
     unit = (first if first > 0 and math.isfinite(first) else 1.0) / UNITS_PER_SCALE
 
-    vol, paths = _volumes(calibration, (h, n, w))
+    vol, paths, *kept = _volumes(calibration, (h, n, w), eroded=2 * h * n * w <= ERODED_VOLUME_BYTES)
+    eroded = kept[0] if kept else _NOT_KEPT
     best = np.empty((h, w), np.float32)
     total = np.empty((h, w), np.float32)
     count = np.empty((h, w), np.float32)
@@ -239,31 +248,32 @@ def fused_index(views, calibration, plan, settings, subpixel_box_px: int, on_sta
     guide = guide_image(views, plan)
     erode = settings.aggregate_px // 2
     stage(0.5)
-    fused_paths.horizontal_paths(vol, guide, True, p1, p2, np.float32(EDGE_SCALE), erode, paths)
+    fused_paths.horizontal_paths(vol, guide, True, p1, p2, np.float32(EDGE_SCALE), erode, paths, eroded)
     stage(0.7)
     index = np.empty((h, w), np.float32)
     confidence = np.empty((h, w), np.float32)
     # As few blocks as threads: every block pays a fixed cost per row and hypothesis.
     block = max(MIN_COLUMN_BLOCK, -(-w // max(1, settings.threads)))
-    fused_paths.vertical_paths(vol, paths, guide, True, p1, p2, np.float32(EDGE_SCALE), erode, subpixel_box_px // 2,
-                      int(plan.exclude), block, WEIGHT_FLOOR, index, confidence)
-    _keep_volumes(calibration, (vol, paths))
+    fused_paths.vertical_paths(vol, eroded, paths, guide, True, p1, p2, np.float32(EDGE_SCALE), erode,
+                               subpixel_box_px // 2, int(plan.exclude), block, WEIGHT_FLOOR, index, confidence)
+    _keep_volumes(calibration, (vol, paths, *kept))
     stage(1.0)
     return index, confidence, nviews, guide
 
 
-def _volumes(calibration, shape) -> tuple:
-    """Two uint16 volumes of ``shape`` for one call: those the calibration's last call left
-    (:data:`KEEP_VOLUMES_BYTES`) when they have that shape, else new ones. A call takes them
-    out of the cache, so calls running at once never share them."""
+def _volumes(calibration, shape, eroded: bool) -> tuple:
+    """The uint16 volumes of ``shape`` for one call, two or with ``eroded`` three: those the
+    calibration's last call left (:data:`KEEP_VOLUMES_BYTES`) when they match, else new ones. A
+    call takes them out of the cache, so calls running at once never share them."""
     kept = calibration_cache(calibration, "fused volumes", list)
     try:
         vols = kept.pop()
     except IndexError:
         vols = None
-    if vols is not None and vols[0].shape == tuple(shape):
+    count = 3 if eroded else 2
+    if vols is not None and vols[0].shape == tuple(shape) and len(vols) == count:
         return vols
-    return np.empty(shape, np.uint16), np.empty(shape, np.uint16)
+    return tuple(np.empty(shape, np.uint16) for _ in range(count))
 
 
 def _keep_volumes(calibration, vols) -> None:

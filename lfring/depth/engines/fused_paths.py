@@ -2,10 +2,12 @@
 :mod:`lfring.depth.engines.fused`):
 
 1. :func:`horizontal_paths`: per row, the volume eroded (shiftable windows) and the left-right
-   and right-left scan paths, summed into a (h, N, w) uint16 accumulator.
+   and right-left scan paths, summed into a (h, N, w) uint16 accumulator; the eroded volume is
+   kept for the next pass where the caller gives it a buffer.
 2. :func:`vertical_paths`: per block of columns, the top-down path, then the bottom-up one, at
    whose every pixel the sum of the paths is complete: the winner, its parabola on the wider box
-   of the cost and the confidence are taken there, and the sum is never written back.
+   of the cost and the confidence are taken there, and the sum is never written back. Without
+   the kept eroded volume each direction erodes its rows again.
 """
 
 from __future__ import annotations
@@ -146,10 +148,10 @@ def _path_step(c, prev, cur, pmin, jump, p1):
 
 
 @njit(**JIT)
-def _horizontal_row(vol, y, guide, use_guide, p1, p2, edge_scale, erode_rad, total):
+def _horizontal_row(vol, y, guide, use_guide, p1, p2, edge_scale, erode_rad, total, eroded):
     """The two horizontal paths of row ``y`` (see :func:`horizontal_paths`)."""
     h, n, w = vol.shape
-    e = np.empty((n, w), np.uint16)
+    e = eroded[y] if eroded.shape[0] == h else np.empty((n, w), np.uint16)
     ext = np.empty(w + 2 * erode_rad, np.uint16)
     fill = np.empty(w, np.int64)
     _eroded_rows(vol, y, erode_rad, 0, w, ext, e)
@@ -194,11 +196,12 @@ def _horizontal_row(vol, y, guide, use_guide, p1, p2, edge_scale, erode_rad, tot
 
 
 @njit(**PARALLEL)
-def horizontal_paths(vol, guide, use_guide, p1, p2, edge_scale, erode_rad, total):
+def horizontal_paths(vol, guide, use_guide, p1, p2, edge_scale, erode_rad, total, eroded):
     """The left-right and right-left paths of every row of the eroded volume: ``total`` (h, N, w)
-    uint16 = their sum."""
+    uint16 = their sum. ``eroded``: an (h, N, w) uint16 buffer that receives the eroded volume
+    (its unknown costs filled) for :func:`vertical_paths`, or an empty array."""
     for y in prange(vol.shape[0]):
-        _horizontal_row(vol, y, guide, use_guide, p1, p2, edge_scale, erode_rad, total)
+        _horizontal_row(vol, y, guide, use_guide, p1, p2, edge_scale, erode_rad, total, eroded)
 
 
 @njit(**INLINE)
@@ -251,10 +254,11 @@ def _distinctness(b, s):
 
 
 @njit(**JIT)
-def _vertical_block(vol, total, guide, use_guide, p1, p2, edge_scale, erode_rad, raw_rad, exclude, floor, x0, x1,
-                    index, conf):
+def _vertical_block(vol, eroded, total, guide, use_guide, p1, p2, edge_scale, erode_rad, raw_rad, exclude, floor, x0,
+                    x1, index, conf):
     """The two vertical paths and the selection of columns x0..x1 (see :func:`vertical_paths`)."""
     h, n, w = vol.shape
+    kept = eroded.shape[0] == h
     m = x1 - x0
     e = np.empty((n, m), np.uint16)
     ext = np.empty(m + 2 * max(erode_rad, raw_rad), np.uint16)
@@ -272,8 +276,11 @@ def _vertical_block(vol, total, guide, use_guide, p1, p2, edge_scale, erode_rad,
             cur = state[i % 2]
             pmin = mins[(i + 1) % 2]
             cmin = mins[i % 2]
-            _eroded_rows(vol, y, erode_rad, x0, x1, ext, e)
-            _fill_unknown(e, fill)
+            if kept:
+                e[:, :] = eroded[y, :, x0:x1]
+            else:
+                _eroded_rows(vol, y, erode_rad, x0, x1, ext, e)
+                _fill_unknown(e, fill)
             if i == 0:
                 # Zero state: the first row takes its cost alone.
                 prev[:] = 0
@@ -305,18 +312,19 @@ def _vertical_block(vol, total, guide, use_guide, p1, p2, edge_scale, erode_rad,
 
 
 @njit(**PARALLEL)
-def vertical_paths(vol, total, guide, use_guide, p1, p2, edge_scale, erode_rad, raw_rad, exclude, block, floor,
+def vertical_paths(vol, eroded, total, guide, use_guide, p1, p2, edge_scale, erode_rad, raw_rad, exclude, block, floor,
                    index, conf):
     """The top-down and bottom-up paths of every block of ``block`` columns, added to the
     horizontal paths' ``total``; at every pixel of the bottom-up pass the winner of the sum, its
     sub-hypothesis offset from the parabola through the wider box's mean known cost ('raw') at
     the winner and its neighbours, and the confidence (the sum's distinctness times the raw
-    curve's): ``index`` and ``conf`` (h, w) float32."""
+    curve's): ``index`` and ``conf`` (h, w) float32. ``eroded``: the eroded volume
+    :func:`horizontal_paths` kept, or an empty array (each row is eroded again)."""
     w = vol.shape[2]
     nblocks = (w + block - 1) // block
     for b in prange(nblocks):
         x0 = b * block
-        _vertical_block(vol, total, guide, use_guide, p1, p2, edge_scale, erode_rad, raw_rad, exclude, floor, x0,
+        _vertical_block(vol, eroded, total, guide, use_guide, p1, p2, edge_scale, erode_rad, raw_rad, exclude, floor, x0,
                         min(w, x0 + block), index, conf)
 
 
