@@ -431,3 +431,62 @@ def test_the_halves_pass_gives_each_poor_pixel_the_same_cost_however_its_columns
     mask = np.broadcast_to(poor[:, None, :], got.shape)
     np.testing.assert_array_equal(got[mask], everywhere[mask])
     np.testing.assert_array_equal(got[~mask], before[~mask])
+
+
+@pytest.mark.parametrize("block", [41, 9])
+def test_the_selection_fits_its_parabola_to_the_known_cost_s_box_mean(block):
+    """Where every hypothesis's summed paths tie (a flat eroded cost), the vertical pass's winner
+    is the hypothesis of the least box mean of the raw cost over the wider box (15 x 15, over its
+    known pixels, reflected at the image's sides) and its offset the parabola through that mean's
+    neighbours (the range's ends: the one-sided fit; unknown neighbours: the mean of the known
+    ones). Checked against NumPy on a cost with unknown pixels, in one block of columns and in
+    blocks whose edges lie inside the image."""
+    from lfring.core.viewstack import WEIGHT_FLOOR
+    from lfring.depth.engines import fused_paths
+    from lfring.depth.engines.fused_common import UNKNOWN
+
+    rng = np.random.default_rng(11)
+    h, n, w, rad = 23, 6, 41, 7
+    vol = rng.integers(1024, 6000, (h, n, w)).astype(np.uint16)
+    vol[rng.random((h, n, w)) < 0.15] = UNKNOWN
+    vol[:, :, 30:33] = UNKNOWN  # columns no hypothesis knows
+    eroded = np.full((h, n, w), 100, np.uint16)
+    total = np.zeros((h, n, w), np.uint16)
+    index = np.full((h, w), np.nan, np.float32)
+    conf = np.full((h, w), np.nan, np.float32)
+    guide = np.zeros((h, w), np.float32)
+    fused_paths.vertical_paths(vol, eroded, total, guide, True, 8, 32, np.float32(0.1), 2, rad, 1, block, WEIGHT_FLOOR,
+                               index, conf)
+
+    known = vol != UNKNOWN
+    padded = [np.pad(a.astype(np.int64), ((rad, rad), (0, 0), (rad, rad)), mode="reflect")
+              for a in (np.where(known, vol, 0), known)]
+    sums, counts = (np.lib.stride_tricks.sliding_window_view(p, (2 * rad + 1, 2 * rad + 1), axis=(0, 2)).sum(axis=(-2, -1))
+                    for p in padded)
+    area = (2 * rad + 1) ** 2
+    raw = sums / area / np.maximum(counts / area, WEIGHT_FLOOR)
+    raw = np.where(known, raw, np.inf)  # (h, n, w)
+    want = np.empty((h, w))
+    for y, x in np.ndindex(h, w):
+        with np.errstate(invalid="ignore"):  # inf - inf at the unknown columns: no fit there
+            c = raw[y, :, x]
+            k = int(np.argmin(c))
+            if 0 < k < n - 1:
+                fin = c[np.isfinite(c)]
+                fill = fin.mean() if fin.size else 0.0
+                cm, c0, cp = (v if np.isfinite(v) else fill for v in c[k - 1:k + 2])
+                den = cm - 2 * c0 + cp
+                off = float(np.clip(0.5 * (cm - cp) / den, -0.5, 0.5)) if den > 0 else 0.0
+            else:
+                inward = 1 if k == 0 else -1
+                c_end, c_next, c_after = c[k], c[k + inward], c[k + 2 * inward]
+                den = c_end - 2 * c_next + c_after
+                off = inward * float(np.clip(1 + 0.5 * (c_end - c_after) / den, 0, 0.5)) if den > 0 and np.isfinite(den) else 0.0
+            want[y, x] = k + off
+    # Winners whose two least means lie within float32 rounding of each other may go either way.
+    two = np.sort(raw, axis=1)[:, :2]
+    with np.errstate(invalid="ignore"):  # both unknown (inf): a tie the rule breaks the same way
+        clear = ~(two[:, 1] - two[:, 0] <= 1e-5 * two[:, 0])
+    assert clear.mean() > 0.95
+    np.testing.assert_allclose(index[clear], want[clear], atol=1e-4)
+    assert np.all(conf == 0.0)  # the summed paths tie everywhere: nothing is distinct

@@ -224,10 +224,9 @@ def _raw_update(vol, r, d, x0, m, rad, sign, ext, col_sum, col_cnt):
     _ext_row(vol[r, d], x0, m, rad, ext)
     sign = np.int32(sign)
     for j in range(m + 2 * rad):
-        v = ext[j]
-        known = v != UNKNOWN
-        col_sum[j] = np.int32(col_sum[j] + sign * (np.int32(v) if known else np.int32(0)))
-        col_cnt[j] = np.int32(col_cnt[j] + (sign if known else np.int32(0)))
+        v, k = _known_cost(ext[j])
+        col_sum[j] = np.int32(col_sum[j] + sign * v)
+        col_cnt[j] = np.int32(col_cnt[j] + sign * k)
 
 
 @njit(**INLINE)
@@ -306,8 +305,8 @@ def _vertical_block(vol, eroded, total, guide, use_guide, p1, p2, edge_scale, er
                     for k in range(y - raw_rad, y + raw_rad + 1):
                         _raw_update(vol, reflect(k, h), d, x0, m, raw_rad, 1, ext, col_sum[d], col_cnt[d])
                 else:
-                    _raw_update(vol, reflect(y + raw_rad + 1, h), d, x0, m, raw_rad, -1, ext, col_sum[d], col_cnt[d])
-                    _raw_update(vol, reflect(y - raw_rad, h), d, x0, m, raw_rad, 1, ext, col_sum[d], col_cnt[d])
+                    _raw_move(vol, reflect(y - raw_rad, h), reflect(y + raw_rad + 1, h), d, x0, m, raw_rad, col_sum[d],
+                              col_cnt[d])
             _select_row(vol, total, cur, y, x0, x1, raw_rad, exclude, floor, col_sum, col_cnt, raw, index, conf)
 
 
@@ -326,6 +325,45 @@ def vertical_paths(vol, eroded, total, guide, use_guide, p1, p2, edge_scale, ero
         x0 = b * block
         _vertical_block(vol, eroded, total, guide, use_guide, p1, p2, edge_scale, erode_rad, raw_rad, exclude, floor, x0,
                         min(w, x0 + block), index, conf)
+
+
+@njit(**INLINE)
+def _known_cost(v):
+    """(cost, 1) as int32 where ``v`` is known, (0, 0) where it is UNKNOWN."""
+    known = v != UNKNOWN
+    return (np.int32(v) if known else np.int32(0)), (np.int32(1) if known else np.int32(0))
+
+
+@njit(**INLINE)
+def _raw_move(vol, r_in, r_out, d, x0, m, rad, col_sum, col_cnt):
+    """col_sum, col_cnt += the (known cost, 1) of row ``r_in`` minus those of row ``r_out``, of
+    hypothesis ``d`` over the columns x0 - rad .. x0 + m + rad (reflected at the image's sides):
+    the window's step down one row in one pass over the sums, reading the rows in place."""
+    w = vol.shape[2]
+    a = x0 - rad
+    lo = max(0, -a)
+    hi = min(m + 2 * rad, w - a)
+    new = vol[r_in, d]
+    old = vol[r_out, d]
+    ni = new[a + lo:a + hi]
+    oi = old[a + lo:a + hi]
+    cs = col_sum[lo:hi]
+    cc = col_cnt[lo:hi]
+    for j in range(hi - lo):
+        _move_column(ni, oi, j, j, cs, cc)
+    for j in range(lo):
+        _move_column(new, old, reflect(a + j, w), j, col_sum, col_cnt)
+    for j in range(hi, m + 2 * rad):
+        _move_column(new, old, reflect(a + j, w), j, col_sum, col_cnt)
+
+
+@njit(**INLINE)
+def _move_column(new, old, x, j, col_sum, col_cnt):
+    """col_sum[j], col_cnt[j] += the (known cost, 1) of new[x] minus those of old[x]."""
+    vn, kn = _known_cost(new[x])
+    vo, ko = _known_cost(old[x])
+    col_sum[j] = np.int32(col_sum[j] + vn - vo)
+    col_cnt[j] = np.int32(col_cnt[j] + kn - ko)
 
 
 @njit(**INLINE)
