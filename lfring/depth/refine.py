@@ -53,22 +53,29 @@ def weighted_median(values: np.ndarray, known: np.ndarray, guide8: np.ndarray, r
     """(h, w) float32 weighted median of the ``known`` ``values`` over (2 radius + 1)^2 windows,
     weighted by ``exp(-|I_p - I_q|^2 / (2 sigma^2))`` of the uint8 guide; NaN where not known
     (the values there are never read)."""
-    from lfring.depth.refine_kernels import weighted_median as kernel
+    from lfring.depth import refine_kernels
 
-    out = np.empty(values.shape, np.float32)
     v = np.ascontiguousarray(values, np.float32)
     k = np.ascontiguousarray(known, np.bool_)
-    if not k.any():
+    lo, hi = refine_kernels.value_range(v, k)
+    return _median(v, k, float(lo), float(hi), guide8, radius_px, sigma)
+
+
+def _median(v, k, lo: float, hi: float, guide8, radius_px: int, sigma: float) -> np.ndarray:
+    """:func:`weighted_median` of float32 values with their known mask and its range."""
+    from lfring.depth import refine_kernels
+
+    out = np.empty(v.shape, np.float32)
+    if lo > hi:  # nothing is known
         out.fill(np.nan)
         return out
-    lo, hi = float(v[k].min()), float(v[k].max())
     coarse = int(min(MEDIAN_COARSE_BINS, math.ceil(hi - lo) + 1))
     fine_width = max((hi - lo) / max(coarse - 1, 1), 1e-6) / MEDIAN_FINE_BINS
     fine = coarse * MEDIAN_FINE_BINS
-    bins = np.clip(np.floor((np.where(k, v, lo) - lo) / fine_width), 0, fine - 1).astype(np.int32)
-    bins[~k] = -1
+    bins = np.empty(v.shape, np.int32)
+    refine_kernels.bin_values(v, k, np.float32(lo), np.float32(fine_width), fine, bins)
     lut = np.exp(-np.arange(256, dtype=np.float64) ** 2 / (2.0 * max(float(sigma), 1e-6) ** 2))
-    kernel(v, bins, np.ascontiguousarray(guide8, np.uint8), int(radius_px), lut, fine, out)
+    refine_kernels.weighted_median(v, bins, np.ascontiguousarray(guide8, np.uint8), int(radius_px), lut, fine, out)
     return out
 
 
@@ -154,19 +161,25 @@ def refine_index(index, confidence, guide, *, min_confidence: float = MIN_CONFID
         check_number(v, name, minimum=0.0)
     check_int(radius_px, "radius_px", minimum=1)
     radius_px = min(int(radius_px), max(d.shape))  # a wider window covers the same pixels
-    d = d.astype(np.float32)
-    known = np.isfinite(d) & np.isfinite(c) & (c >= min_confidence)
-    refined = weighted_median(d, known, g8 if g8.ndim == 2 else cv2.cvtColor(g8, cv2.COLOR_RGB2GRAY), radius_px, sigma)
-    if not known.any():
+    from lfring.depth import refine_kernels
+
+    d = np.ascontiguousarray(d, np.float32)
+    c = np.ascontiguousarray(c)
+    known = np.empty(d.shape, np.bool_)
+    refine_kernels.known_pixels(d, c, np.float32(min_confidence), known)
+    lo, hi = refine_kernels.value_range(d, known)
+    refined = _median(d, known, float(lo), float(hi), g8 if g8.ndim == 2 else cv2.cvtColor(g8, cv2.COLOR_RGB2GRAY),
+                      radius_px, sigma)
+    if lo > hi:  # nothing is known
         return refined, refined.copy()
-    weight = np.where(known, np.maximum(c, FILL_WEIGHT_FLOOR), 0).astype(np.float32)
+    weight = np.empty(d.shape, np.float32)
+    weighted = np.empty(d.shape, np.float32)
+    refine_kernels.fill_inputs(known, refined, c, np.float32(FILL_WEIGHT_FLOOR), weight, weighted)
     fgs = cv2.ximgproc.createFastGlobalSmootherFilter(g8, float(fill_lambda), float(fill_sigma), FGS_ATTENUATION,
                                                      FGS_ITERATIONS)
-    num = fgs.filter(np.where(known, refined, 0).astype(np.float32) * weight)
-    den = fgs.filter(weight)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        interp = np.where(den > FILL_WEIGHT_FLOOR, num / den, np.nan)
-    filled = np.where(known, refined, interp).astype(np.float32)
+    filled = np.empty(d.shape, np.float32)
+    refine_kernels.filled_map(known, refined, fgs.filter(weighted), fgs.filter(weight), np.float32(FILL_WEIGHT_FLOOR),
+                              filled)
     return refined, filled
 
 

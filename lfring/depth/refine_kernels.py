@@ -1,4 +1,8 @@
-"""The compiled kernel of :mod:`lfring.depth.refine`: numba, cached on disk after the first compile.
+"""The compiled kernels of :mod:`lfring.depth.refine`: numba, cached on disk after the first compile.
+
+Besides the weighted median, the refinement's per-pixel steps around it (which pixels are known,
+their range and bins, the smoother's inputs and the filled map) run here row-parallel, in float32
+as NumPy computes them: in NumPy they were serial passes that bound the call on many cores.
 
 Importing this module imports numba; :mod:`lfring.depth.refine` imports it on first use only.
 """
@@ -8,10 +12,87 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-__all__ = ["weighted_median"]
+__all__ = ["bin_values", "fill_inputs", "filled_map", "known_pixels", "value_range", "weighted_median"]
 
 
-@njit(parallel=True, cache=True, nogil=True, fastmath=False, error_model="numpy")
+KERNEL = dict(parallel=True, cache=True, nogil=True, fastmath=False, error_model="numpy")
+
+
+@njit(**KERNEL)
+def known_pixels(values, confidence, min_confidence, known):
+    """known = a finite value with a finite confidence of at least ``min_confidence`` (float32)."""
+    h, w = values.shape
+    for y in prange(h):
+        for x in range(w):
+            c = confidence[y, x]
+            known[y, x] = np.isfinite(values[y, x]) and np.isfinite(c) and c >= min_confidence
+
+
+@njit(**KERNEL)
+def value_range(values, known):
+    """(least, largest) of the known values; (inf, -inf) where none is."""
+    h, w = values.shape
+    lows = np.full(h, np.inf, np.float32)
+    highs = np.full(h, -np.inf, np.float32)
+    for y in prange(h):
+        lo = np.float32(np.inf)
+        hi = np.float32(-np.inf)
+        for x in range(w):
+            if known[y, x]:
+                lo = min(lo, values[y, x])
+                hi = max(hi, values[y, x])
+        lows[y] = lo
+        highs[y] = hi
+    lo = np.float32(np.inf)
+    hi = np.float32(-np.inf)
+    for y in range(h):
+        lo = min(lo, lows[y])
+        hi = max(hi, highs[y])
+    return lo, hi
+
+
+@njit(**KERNEL)
+def bin_values(values, known, lo, width, count, bins):
+    """bins = floor((value - lo) / width) clipped to [0, count - 1] (float32 steps) where known,
+    -1 elsewhere."""
+    h, w = values.shape
+    top = np.float32(count - 1)
+    for y in prange(h):
+        for x in range(w):
+            if known[y, x]:
+                q = np.floor((values[y, x] - lo) / width)
+                bins[y, x] = np.int32(min(max(q, np.float32(0.0)), top))
+            else:
+                bins[y, x] = -1
+
+
+@njit(**KERNEL)
+def fill_inputs(known, refined, confidence, floor, weight, weighted):
+    """The smoother's inputs: ``weight`` = the confidence floored at ``floor`` where known, 0
+    elsewhere; ``weighted`` = the refined value times it (0 where not known)."""
+    h, w = known.shape
+    zero = np.float32(0.0)
+    for y in prange(h):
+        for x in range(w):
+            k = known[y, x]
+            wt = max(confidence[y, x], floor) if k else zero
+            weight[y, x] = wt
+            weighted[y, x] = (refined[y, x] if k else zero) * wt
+
+
+@njit(**KERNEL)
+def filled_map(known, refined, num, den, floor, out):
+    """out = refined where known, else num / den where den > floor, else NaN."""
+    h, w = known.shape
+    for y in prange(h):
+        for x in range(w):
+            if known[y, x]:
+                out[y, x] = refined[y, x]
+            else:
+                out[y, x] = num[y, x] / den[y, x] if den[y, x] > floor else np.float32(np.nan)
+
+
+@njit(**KERNEL)
 def weighted_median(values, bins, guide, radius, lut, fine_bins, out):
     """Per pixel with a bin (``bins >= 0``; -1: unknown, NaN out), the weighted median of the
     known values in its (2 radius + 1)^2 window, weighted by ``lut[|guide_p - guide_q|]``.

@@ -136,3 +136,52 @@ def test_filled_is_nan_only_where_the_smoother_brings_no_weight():
     np.testing.assert_allclose(filled[reached], 5.0, atol=1e-4)
     assert np.isnan(refined).sum() == index.size - 1
     assert np.isnan(refine_index(index, np.zeros_like(conf), guide)[1]).all()
+
+
+def test_the_compiled_steps_around_the_median_are_numpy_s_to_the_bit():
+    """The known mask, the bins, the smoother's inputs and the filled map run as compiled
+    row-parallel passes: on values and confidences with NaN, infinities and pixels under the
+    threshold, both maps equal those of the same steps written in float32 NumPy (around the same
+    median kernel and smoother)."""
+    import cv2
+
+    from lfring.depth import refine as refine_module
+    from lfring.depth import refine_kernels
+
+    rng = np.random.default_rng(3)
+    h, w = 47, 53
+    index = rng.uniform(2.0, 9.0, (h, w)).astype(np.float32)
+    index[rng.random((h, w)) < 0.05] = np.nan
+    confidence = rng.uniform(0.0, 0.3, (h, w)).astype(np.float32)
+    confidence[rng.random((h, w)) < 0.05] = np.inf
+    confidence[rng.random((h, w)) < 0.05] = np.nan
+    guide = rng.random((h, w)).astype(np.float32)
+    refined, filled = refine_index(index, confidence, guide)
+
+    g8 = np.clip(np.rint(guide * 255.0), 0, 255).astype(np.uint8)
+    known = np.isfinite(index) & np.isfinite(confidence) & (confidence >= np.float32(refine_module.MIN_CONFIDENCE))
+    assert 0.2 < known.mean() < 0.9
+    lo, hi = float(index[known].min()), float(index[known].max())
+    coarse = int(min(refine_module.MEDIAN_COARSE_BINS, np.ceil(hi - lo) + 1))
+    width = max((hi - lo) / max(coarse - 1, 1), 1e-6) / refine_module.MEDIAN_FINE_BINS
+    fine = coarse * refine_module.MEDIAN_FINE_BINS
+    bins = np.clip(np.floor((np.where(known, index, np.float32(lo)) - np.float32(lo)) / np.float32(width)), 0,
+                   fine - 1).astype(np.int32)
+    bins[~known] = -1
+    lut = np.exp(-np.arange(256, dtype=np.float64) ** 2 / (2.0 * refine_module.MEDIAN_SIGMA ** 2))
+    want_refined = np.empty((h, w), np.float32)
+    refine_kernels.weighted_median(index, bins, g8, refine_module.MEDIAN_RADIUS_PX, lut, fine, want_refined)
+    floor = np.float32(refine_module.FILL_WEIGHT_FLOOR)
+    weight = np.where(known, np.maximum(confidence, floor), np.float32(0)).astype(np.float32)
+    fgs = cv2.ximgproc.createFastGlobalSmootherFilter(g8, refine_module.FGS_LAMBDA, refine_module.FGS_SIGMA,
+                                                     refine_module.FGS_ATTENUATION, refine_module.FGS_ITERATIONS)
+    num = fgs.filter(np.where(known, want_refined, np.float32(0)) * weight)
+    den = fgs.filter(weight)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        want_filled = np.where(known, want_refined, np.where(den > floor, num / den, np.float32(np.nan)))
+    np.testing.assert_array_equal(refined, want_refined)
+    np.testing.assert_array_equal(filled, want_filled)
+    assert np.isnan(refined[~known]).all() and np.isfinite(refined[known]).all()
+    # An empty map has no known pixel and no range.
+    empty = refine_index(np.zeros((0, 5), np.float32), np.zeros((0, 5), np.float32), np.zeros((0, 5)))
+    assert all(m.shape == (0, 5) for m in empty)
