@@ -19,7 +19,7 @@ import warnings
 
 import numpy as np
 
-from lfring.core.threads import numba_threads
+from lfring.core.threads import numba_threads, run_threads
 from lfring.depth.aggregation import box_mean_of_finite, least_over_windows
 from lfring.depth.costs.lcn_halves import take_halves, view_halves
 from lfring.depth.engines.base import DepthEngine
@@ -128,11 +128,19 @@ def _optimise(views, calibration, plan, settings, fin, consistency=True, report=
         # fewer bad pixels in depth_filled_m on real stereo pairs, and no more on the twin's pairs.
         behind = fill_from_farther_side(refined, ~keep, axis=baseline_axis(plan, other.reference))
         filled = np.where(~keep & np.isfinite(behind), behind, filled).astype(np.float32)
-    index = np.where(np.isfinite(refined), refined, np.nan if consistency else index).astype(np.float32)
-    filled = np.where(np.isfinite(filled), filled, index).astype(np.float32)  # never unknown where index is known
-    missing = np.where(np.isfinite(index), np.float32(0.0), np.float32(np.inf))
-    fin.rows(0, h, np.nan_to_num(index), confidence, missing, nviews)
-    return fin.depth_of(filled, nviews)
+    depth_filled = np.empty((h, w), np.float32)
+
+    def finish(r0: int, r1: int) -> None:  # a strip of rows: the whole-frame steps, shared among the threads
+        rows = slice(r0, r1)
+        known = np.where(np.isfinite(refined[rows]), refined[rows], np.nan if consistency else index[rows]).astype(np.float32)
+        fills = np.where(np.isfinite(filled[rows]), filled[rows], known).astype(np.float32)  # never unknown where known
+        missing = np.where(np.isfinite(known), np.float32(0.0), np.float32(np.inf))
+        fin.rows(r0, r1, np.nan_to_num(known), confidence[rows], missing, nviews[rows])
+        depth_filled[rows] = fin.depth_of(fills, nviews[rows])
+
+    step = -(-h // max(1, settings.threads))
+    run_threads([lambda r0=r0: finish(r0, min(h, r0 + step)) for r0 in range(0, h, step)], settings.threads)
+    return depth_filled
 
 
 def semiglobal_index(views, calibration, plan, settings, report=None, start=0.0, end=1.0):
