@@ -6,21 +6,23 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from lfring.core.threads import run_threads
 from lfring.core.viewstack import WEIGHT_FLOOR
 
 __all__ = ["BoxTorch", "box_filter", "local_mean_sigma_px", "luminance", "normalised_luminance"]
 
 
-def luminance(views: np.ndarray) -> np.ndarray:
-    """(V, h, w) float32 mean of the channels of (V, h, w, C) views."""
+def luminance(views: np.ndarray, threads: int = 1) -> np.ndarray:
+    """(V, h, w) float32 mean of the channels of (V, h, w, C) views; the views shared among
+    ``threads`` threads."""
     v, h, w, c = views.shape
     if c == 1:
         return views[..., 0]
     views = np.asarray(views, np.float32)  # transform writes into out only from float32
     mix = np.full((1, c), 1.0 / c, np.float32)
     out = np.empty((v, h, w), np.float32)
-    for k in range(v):  # into the output: no per-view copies stacked afterwards
-        cv2.transform(views[k], mix, dst=out[k])
+    # Into the output: no per-view copies stacked afterwards.
+    run_threads([lambda k=k: cv2.transform(views[k], mix, dst=out[k]) for k in range(v)], threads)
     return out
 
 

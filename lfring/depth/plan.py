@@ -16,6 +16,7 @@ import numpy as np
 
 from lfring.core.filters import luminance
 from lfring.core.geometry import check_reference
+from lfring.core.threads import run_threads
 from lfring.core.viewstack import WEIGHT_FLOOR, cached_view_masks, calibration_cache
 from lfring.core.warping import warp_image
 from lfring.depth.hypotheses import depth_hypotheses, view_motion_px
@@ -119,16 +120,23 @@ class Progress:
         self.at(1.0)
 
 
-def in_reference_frame(lum, plan) -> np.ndarray:
+def in_reference_frame(lum, plan, threads: int = 1) -> np.ndarray:
     """(h, w) float32 image of the reference frame from per-view images (V, h, w): the reference
-    view's own, or for 'center' the views' weighted mean at the middle hypothesis."""
+    view's own, or for 'center' the views' weighted mean at the middle hypothesis (the views
+    warped on ``threads`` threads, summed in their order)."""
     if plan.reference != "center":
         return lum[plan.reference]
     h, w = lum.shape[1:3]
     mid = len(plan.depths) // 2
+    warped = np.empty(lum.shape, np.float32)
+
+    def warp(k: int) -> None:
+        warp_image(lum[k] * plan.masks[k], plan.hs[mid, k], (w, h), dst=warped[k])
+
+    run_threads([lambda k=k: warp(k) for k in range(len(lum))], threads)
     acc = np.zeros((h, w), np.float32)
     for k in range(len(lum)):
-        acc += warp_image(lum[k] * plan.masks[k], plan.hs[mid, k], (w, h))
+        acc += warped[k]
     return acc / _reference_weight(plan, mid)
 
 
@@ -149,11 +157,12 @@ def _reference_weight(plan, mid: int) -> np.ndarray:
     return calibration_cache(plan.calibration, key, make)
 
 
-def guide_image(views, plan) -> np.ndarray:
+def guide_image(views, plan, threads: int = 1) -> np.ndarray:
     """(h, w) float32 luminance of the reference frame in [0, 1] (for 'center', the views' mean
-    at the middle hypothesis), for the edge-aware optimisation and refinement."""
+    at the middle hypothesis), for the edge-aware optimisation and refinement; the views shared
+    among ``threads`` threads."""
     if plan.reference == "center":
-        g = in_reference_frame(luminance(views), plan)
+        g = in_reference_frame(luminance(views, threads), plan, threads)
     else:  # the reference view's own: the others' luminance is not needed
         g = luminance(views[plan.reference:plan.reference + 1])[0]
     top = float(np.percentile(g, 99.5))

@@ -67,3 +67,27 @@ def test_strips_equal_whole_slices(prototype, reference, warp, cost):
     best = np.argmin(np.where(np.isfinite(volume), volume, np.inf), axis=0)
     assert np.mean(best[ok] == want[0][ok]) > 0.999
     np.testing.assert_allclose(np.take_along_axis(volume, best[None], 0)[0][ok], want[1][ok], rtol=1e-3, atol=1e-4)
+
+
+def test_the_reference_frame_image_is_the_views_warped_mean_on_any_number_of_threads():
+    """'center': each view's image times its mask, warped at the middle hypothesis, summed in the
+    views' order and divided by the warped masks' sum: the same numbers on one thread or three,
+    and the formula written out with the warping core; a view as reference: its own image."""
+    from lfring.calibration import RingCalibration
+    from lfring.core.warping import warp_image
+    from lfring.depth.plan import DEPTH_TAPER, in_reference_frame, plan_sweep
+
+    cal = RingCalibration.load("twin_binned2")
+    h, w = cal.layout.view_shape
+    views = np.random.default_rng(5).random((4, h, w, 1)).astype(np.float32)
+    plan = plan_sweep(views, cal, 0.3, 1.0, 8, "center", DEPTH_TAPER)
+    lum = views[..., 0]
+    one = in_reference_frame(lum, plan)
+    np.testing.assert_array_equal(in_reference_frame(lum, plan, threads=3), one)
+    mid = len(plan.depths) // 2
+    num = sum(warp_image(lum[k] * plan.masks[k], plan.hs[mid, k], (w, h)).astype(np.float64) for k in range(4))
+    den = sum(warp_image(plan.masks[k], plan.hs[mid, k], (w, h)).astype(np.float64) for k in range(4))
+    inside = den > 0.5
+    assert inside.mean() > 0.5
+    np.testing.assert_allclose(one[inside], num[inside] / den[inside], rtol=1e-5)
+    np.testing.assert_array_equal(in_reference_frame(lum, plan_sweep(views, cal, 0.3, 1.0, 8, 2, DEPTH_TAPER)), lum[2])

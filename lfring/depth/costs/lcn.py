@@ -37,7 +37,7 @@ def lcn_sources(views: np.ndarray, calibration, window_px: int, *, threads: int 
     :func:`sweep_masks` with ``taper``), to be multiplied by the mask before warping; views are
     shared among ``threads`` threads."""
     masks = sweep_masks(calibration, views.shape[1:3], taper)
-    lum = luminance(views)
+    lum = luminance(views, threads)
     out = np.empty(lum.shape, np.float32)
 
     weights = window_weights(calibration, views.shape[1:3], window_px, taper)

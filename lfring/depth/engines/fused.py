@@ -245,7 +245,7 @@ def fused_index(views, calibration, plan, settings, subpixel_box_px: int, on_sta
                             np.float32(HALVES_MIN_SUPPORT), np.float32(HALVES_GAIN), np.float32(unit), poor, best, vol)
     p1 = int(round(min(P1_SCALE * scale / unit, PENALTY_MAX)))
     p2 = int(round(min(max(P2_SCALE * scale / unit, p1), PENALTY_MAX)))
-    guide = guide_image(views, plan)
+    guide = guide_image(views, plan, settings.threads)
     erode = settings.aggregate_px // 2
     stage(0.5)
     fused_paths.horizontal_paths(vol, guide, True, p1, p2, np.float32(EDGE_SCALE), erode, paths, eroded)

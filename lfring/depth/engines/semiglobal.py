@@ -168,7 +168,7 @@ def semiglobal_index(views, calibration, plan, settings, report=None, start=0.0,
     # cost as well made the textured pixels' depth less precise.
     shifted = least_over_windows(volume, settings.aggregate_px, out=halves, threads=settings.threads)
     del halves
-    guide = guide_image(views, plan)
+    guide = guide_image(views, plan, settings.threads)
     if settings.backend == "torch":
         optimised = sgm_aggregate_torch(shifted, guide=guide, paths=settings.paths, device=settings.device, **penalties)
     else:
