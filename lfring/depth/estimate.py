@@ -20,6 +20,7 @@ from lfring.core.backend import check_backend, require_torch, resolve_device
 from lfring.core.transfer import (check_frames, count_levels, download, download_maps, frames_dtype, is_tensor,
                                   normalised, to_device)
 from lfring.core.protocols import check_calibration
+from lfring.core.threads import run_threads
 from lfring.core.validate import (check_bool, check_callable, check_choice, check_fraction, check_int, check_odd_px,
                                   check_threads)
 from lfring.core.viewstack import check_views
@@ -212,18 +213,30 @@ def estimate_depth(
     arr = check_views(views)
     calibration.check_fits(arr.shape)
     min_views = check_int(min_views, "min_views", minimum=1, maximum=arr.shape[0], hint=f" (there are {arr.shape[0]} views)")
-    if not np.all(np.isfinite(arr)):
+    threads = max(1, cv2.getNumThreads()) if threads is None else threads
+    if not _all_finite(arr, threads):
         raise InvalidInputError("views contain NaN or infinite values")
     plan = plan_sweep(arr, calibration, zmin_m, zmax_m, num_planes, reference, rim_taper)
     if aggregate_px is None:
         aggregate_px = engine.lcn_aggregate_px if depth_cost.lcn else window_px
     settings = DepthSettings(cost=depth_cost, aggregation=aggregation, window_px=window_px, aggregate_px=aggregate_px,
-                             min_views=min_views, threads=max(1, cv2.getNumThreads()) if threads is None else threads,
+                             min_views=min_views, threads=threads,
                              backend=backend, device=device, paths=paths, consistency=consistency)
     finisher = Finisher(plan.depths, calibration.depth_origin_m, arr.shape[1:3], min_views)
     extra = engine.run(arr, calibration, plan, settings, finisher, Progress(progress, arr.shape[1]))
     return finisher.result(depths_m=plan.depths, step_px=plan.step_px, reference=plan.reference, cost=depth_cost.name,
                            aggregation=aggregation, method=engine.name, **extra)
+
+
+def _all_finite(arr: np.ndarray, threads: int) -> bool:
+    """Whether every value of the views ``arr`` is finite (one view per task on ``threads``)."""
+    finite = [True] * len(arr)
+
+    def check(k: int) -> None:
+        finite[k] = bool(np.isfinite(arr[k]).all())
+
+    run_threads([lambda k=k: check(k) for k in range(len(arr))], threads)
+    return all(finite)
 
 
 def _estimate_frames(views, calibration, engine, depth_cost, levels, progress, options) -> DepthResult:

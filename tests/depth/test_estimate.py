@@ -90,6 +90,10 @@ def test_nan_views_and_out_of_range(twin):
     bad[1, 10, 10, 0] = np.nan
     with pytest.raises(InvalidInputError, match="NaN"):
         estimate_depth(bad, cal, zmin_m=0.3, zmax_m=0.5)
+    bad = views.copy()
+    bad[-1, -1, -1, -1] = -np.inf  # the last value of the last view, the views checked on three threads
+    with pytest.raises(InvalidInputError, match="infinite"):
+        estimate_depth(bad, cal, zmin_m=0.3, zmax_m=0.5, threads=3)
     cal2 = RingCalibration.from_plane_homographies({0.3: cal.model(0.3), 1.0: cal.model(1.0)}, layout=cal.layout,
                                                    depth_origin_m=cal.depth_origin_m)
     with pytest.warns(LfringWarning, match="outside the calibrated range"):

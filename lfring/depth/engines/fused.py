@@ -25,6 +25,7 @@ import math
 import cv2
 import numpy as np
 
+from lfring.core.threads import run_threads
 from lfring.core.viewstack import WEIGHT_FLOOR, cached_view_masks, calibration_cache
 from lfring.core.warping import TRANSLATION_TOL_PX
 from lfring.depth.costs.lcn_halves import (HALVES_GAIN, HALVES_MEDIAN_SAMPLE, HALVES_MIN_SUPPORT, HALVES_POOR,
@@ -127,16 +128,19 @@ def _edges(shifts: np.ndarray, n: int) -> np.ndarray:
             np.where((pos + 1 >= 0) & (pos + 1 < n), f, 0.0)).astype(np.float32)
 
 
-def _padded(images, remaps, pad):
-    """(V, h + 2 pad + 1, w + 2 pad + 1) float32: each image resampled (where it has a map) and
-    zero-padded."""
+def _padded(images, remaps, pad, scale=None, threads: int = 1):
+    """(V, h + 2 pad + 1, w + 2 pad + 1) float32: each image (times its ``scale`` image, where
+    given) resampled (where it has a map) and zero-padded; one view per task on ``threads``."""
     v, h, w = images.shape
     out = np.zeros((v, h + 2 * pad + 1, w + 2 * pad + 1), np.float32)
-    for k in range(v):
-        img = images[k]
+
+    def one(k: int) -> None:
+        img = images[k] if scale is None else images[k] * scale[k]
         if remaps[k] is not None:
             img = cv2.remap(img, remaps[k][0], remaps[k][1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
         out[k, pad:pad + h, pad:pad + w] = img
+
+    run_threads([lambda k=k: one(k) for k in range(v)], threads)
     return out
 
 
@@ -185,7 +189,7 @@ def fused_index(views, calibration, plan, settings, subpixel_box_px: int, on_sta
     masks = plan.masks
     src = cost.sources(views, calibration, plan, settings.window_px, settings.threads)
     pad = int(math.ceil(np.abs(shifts).max(initial=0.0))) + 2
-    weighted = _padded(src * masks, remaps, pad)
+    weighted = _padded(src, remaps, pad, scale=masks, threads=settings.threads)
     all_valid = cached_view_masks(calibration, (h, w), "all_valid", _all_valid, taper=plan.taper) and \
         all(r is None for r in remaps)
     def padded_masks():
@@ -200,9 +204,9 @@ def fused_index(views, calibration, plan, settings, subpixel_box_px: int, on_sta
     ix = np.floor(shifts[..., 0]).astype(np.int64)
     fy = (shifts[..., 1] - iy).astype(np.float32)
     fx = (shifts[..., 0] - ix).astype(np.float32)
-    if all_valid:
-        edge_y = _edges(shifts[..., 1], h)
-        edge_x = _edges(shifts[..., 0], w)
+    if all_valid:  # the same for every frame
+        edge_y, edge_x = calibration_cache(calibration, (plan_key, "edges"),
+                                           lambda: (_edges(shifts[..., 1], h), _edges(shifts[..., 0], w)))
     else:
         edge_y = np.zeros((1, 1, 1), np.float32)
         edge_x = np.zeros((1, 1, 1), np.float32)
