@@ -82,7 +82,8 @@ def plan_sweep(views, calibration, zmin_m, zmax_m, num_planes, reference, taper)
         warnings.simplefilter("ignore", LfringWarning)
         hs = calibration.homographies(depths, reference=ref)  # (N, V, 3, 3)
     shape = views.shape[1:3]
-    step = view_motion_px(calibration, depths, shape)
+    key = ("view motion", np.asarray(depths, np.float64).tobytes(), tuple(shape))  # the same for every frame
+    step = calibration_cache(calibration, key, lambda: view_motion_px(calibration, depths, shape))
     # The second minimum is looked for more than one pixel of motion away from the best.
     exclude = max(1, int(np.ceil(1.0 / max(step, 1e-6))))
     return SweepPlan(depths, hs, sweep_masks(calibration, shape, taper), ref, step, exclude, taper, calibration)
