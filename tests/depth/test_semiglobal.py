@@ -490,3 +490,19 @@ def test_the_selection_fits_its_parabola_to_the_known_cost_s_box_mean(block):
     assert clear.mean() > 0.95
     np.testing.assert_allclose(index[clear], want[clear], atol=1e-4)
     assert np.all(conf == 0.0)  # the summed paths tie everywhere: nothing is distinct
+
+
+@pytest.mark.parametrize("pair", [False, True])
+def test_the_maps_do_not_depend_on_the_thread_count(twin, pair):
+    """Every threaded step of the default engine splits its work without changing a number: one
+    thread and three give the same maps to the bit, on views large enough for several strips of
+    each step (four views; a pair with its left-right check)."""
+    from lfring.core.threads import STRIP_PIXELS
+
+    r, cal, views, *_ = twin
+    if pair:
+        views, cal = views[:2], cal.select_views([0, 1])
+    one, three = (estimate_depth(views, cal, zmin_m=0.3, zmax_m=1.0, threads=t) for t in (1, 3))
+    assert views.shape[1] * views.shape[2] >= 3 * STRIP_PIXELS  # several finishing strips
+    for name in ("depth_m", "confidence", "depth_filled_m", "hypothesis_index"):
+        np.testing.assert_array_equal(getattr(three, name), getattr(one, name))

@@ -19,7 +19,7 @@ import warnings
 
 import numpy as np
 
-from lfring.core.threads import numba_threads, run_threads
+from lfring.core.threads import STRIP_PIXELS, numba_threads, run_threads
 from lfring.depth.aggregation import box_mean_of_finite, least_over_windows
 from lfring.depth.costs.lcn_halves import take_halves, view_halves
 from lfring.depth.engines.base import DepthEngine
@@ -138,7 +138,9 @@ def _optimise(views, calibration, plan, settings, fin, consistency=True, report=
         fin.rows(r0, r1, np.nan_to_num(known), confidence[rows], missing, nviews[rows])
         depth_filled[rows] = fin.depth_of(fills, nviews[rows])
 
-    step = -(-h // max(1, settings.threads))
+    # A strip per thread, none under STRIP_PIXELS: on small frames many threads would each pay
+    # more in per-call overhead than their rows take.
+    step = max(-(-h // max(1, settings.threads)), STRIP_PIXELS // max(w, 1))
     run_threads([lambda r0=r0: finish(r0, min(h, r0 + step)) for r0 in range(0, h, step)], settings.threads)
     return depth_filled
 
