@@ -213,7 +213,7 @@ def estimate_depth(
     arr = check_views(views)
     calibration.check_fits(arr.shape)
     min_views = check_int(min_views, "min_views", minimum=1, maximum=arr.shape[0], hint=f" (there are {arr.shape[0]} views)")
-    threads = max(1, cv2.getNumThreads()) if threads is None else threads
+    threads = _thread_count(threads)
     if not _all_finite(arr, threads):
         raise InvalidInputError("views contain NaN or infinite values")
     plan = plan_sweep(arr, calibration, zmin_m, zmax_m, num_planes, reference, rim_taper)
@@ -226,6 +226,11 @@ def estimate_depth(
     extra = engine.run(arr, calibration, plan, settings, finisher, Progress(progress, arr.shape[1]))
     return finisher.result(depths_m=plan.depths, step_px=plan.step_px, reference=plan.reference, cost=depth_cost.name,
                            aggregation=aggregation, method=engine.name, **extra)
+
+
+def _thread_count(threads) -> int:
+    """The threads of a call: OpenCV's thread count when None is given."""
+    return max(1, cv2.getNumThreads()) if threads is None else threads
 
 
 def _all_finite(arr: np.ndarray, threads: int) -> bool:
@@ -268,7 +273,7 @@ def _estimate_frames(views, calibration, engine, depth_cost, levels, progress, o
     threads = options["threads"]
     settings = DepthSettings(cost=depth_cost, aggregation=options["aggregation"], window_px=options["window_px"],
                              aggregate_px=aggregate_px, min_views=min_views,
-                             threads=max(1, cv2.getNumThreads()) if threads is None else threads, backend="torch",
+                             threads=_thread_count(threads), backend="torch",
                              device=dev, paths=options["paths"], consistency=options["consistency"])
     on_device = engine.device_frames and gpu.engine_runs_on(dev, plan)
     maps, extras = [], []

@@ -22,8 +22,8 @@ from lfring.core.warping import warp_image
 from lfring.depth.hypotheses import depth_hypotheses, view_motion_px
 from lfring.errors import LfringWarning
 
-__all__ = ["DEPTH_TAPER", "DepthSettings", "Progress", "SweepPlan", "baseline_axis", "guide_image", "in_reference_frame",
-           "other_reference", "plan_sweep", "sweep_masks"]
+__all__ = ["DEPTH_TAPER", "DepthSettings", "Progress", "SweepPlan", "baseline_axis", "depths_key", "guide_image",
+           "in_reference_frame", "other_reference", "plan_sweep", "sweep_masks"]
 
 # Fraction of a view's disc radius over which its weight rises from 0 to 1 in the sweep
 # (lfring.core.viewstack.view_masks). The refocusing taper (lfring.core.viewstack.TAPER, 15 %) hides seams in an image;
@@ -73,6 +73,12 @@ class SweepPlan:
     calibration: object  # what the plan was made from: the key of what is cached for it
 
 
+def depths_key(depths_m) -> tuple:
+    """A hashable key of a list of depths for the caches kept with a calibration (rounded to
+    1e-12 m, so that depths computed twice the same way share their entries)."""
+    return tuple(np.round(np.asarray(depths_m, np.float64), 12))
+
+
 def plan_sweep(views, calibration, zmin_m, zmax_m, num_planes, reference, taper) -> SweepPlan:
     """The :class:`SweepPlan` of views (V, h, w, C) over ``zmin_m``..``zmax_m``."""
     ref = check_reference(reference, calibration.num_views)
@@ -82,7 +88,7 @@ def plan_sweep(views, calibration, zmin_m, zmax_m, num_planes, reference, taper)
         warnings.simplefilter("ignore", LfringWarning)
         hs = calibration.homographies(depths, reference=ref)  # (N, V, 3, 3)
     shape = views.shape[1:3]
-    key = ("view motion", np.asarray(depths, np.float64).tobytes(), tuple(shape))  # the same for every frame
+    key = ("view motion", depths_key(depths), tuple(shape))  # the same for every frame
     step = calibration_cache(calibration, key, lambda: view_motion_px(calibration, depths, shape))
     # The second minimum is looked for more than one pixel of motion away from the best.
     exclude = max(1, int(np.ceil(1.0 / max(step, 1e-6))))
@@ -131,8 +137,8 @@ def in_reference_frame(lum, plan, threads: int = 1) -> np.ndarray:
     mid = len(plan.depths) // 2
     warped = np.empty(lum.shape, np.float32)
 
-    def warp(k: int) -> None:
-        warp_image(lum[k] * plan.masks[k], plan.hs[mid, k], (w, h), dst=warped[k])
+    def warp(k: int) -> None:  # float32 in, so that OpenCV writes into the given output
+        warp_image(np.asarray(lum[k] * plan.masks[k], np.float32), plan.hs[mid, k], (w, h), dst=warped[k])
 
     run_threads([lambda k=k: warp(k) for k in range(len(lum))], threads)
     acc = np.zeros((h, w), np.float32)

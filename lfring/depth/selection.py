@@ -268,8 +268,8 @@ class Finisher:
         self.index[r0:r1] = np.where(seen, idx, np.float32(np.nan))
 
     def depth_of(self, idx, nviews) -> np.ndarray:
-        """Depth in metres (float32) of a whole map of fractional indices; NaN where the index
-        is NaN or fewer than ``min_views`` views see the pixel."""
+        """Depth in metres (float32) of a map (or a strip of rows) of fractional indices; NaN
+        where the index is NaN or fewer than ``min_views`` views see the pixel."""
         seen = nviews >= self.min_views - 0.5
         return np.where(seen, self._depth(np.asarray(idx, np.float32)), np.float32(np.nan)).astype(np.float32)
 

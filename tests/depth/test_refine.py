@@ -165,6 +165,7 @@ def test_the_compiled_steps_around_the_median_are_numpy_s_to_the_bit():
     coarse = int(min(refine_module.MEDIAN_COARSE_BINS, np.ceil(hi - lo) + 1))
     width = max((hi - lo) / max(coarse - 1, 1), 1e-6) / refine_module.MEDIAN_FINE_BINS
     fine = coarse * refine_module.MEDIAN_FINE_BINS
+    # NumPy casts a Python float to the array's float32 here (NumPy 1 by value, 2 as a weak scalar).
     bins = np.clip(np.floor((np.where(known, index, np.float32(lo)) - np.float32(lo)) / np.float32(width)), 0,
                    fine - 1).astype(np.int32)
     bins[~known] = -1

@@ -481,7 +481,8 @@ def test_the_selection_fits_its_parabola_to_the_known_cost_s_box_mean(block):
                 inward = 1 if k == 0 else -1
                 c_end, c_next, c_after = c[k], c[k + inward], c[k + 2 * inward]
                 den = c_end - 2 * c_next + c_after
-                off = inward * float(np.clip(1 + 0.5 * (c_end - c_after) / den, 0, 0.5)) if den > 0 and np.isfinite(den) else 0.0
+                fits = den > 0 and np.isfinite(den)
+                off = inward * float(np.clip(1 + 0.5 * (c_end - c_after) / den, 0, 0.5)) if fits else 0.0
             want[y, x] = k + off
     # Winners whose two least means lie within float32 rounding of each other may go either way.
     two = np.sort(raw, axis=1)[:, :2]
@@ -500,9 +501,9 @@ def test_the_maps_do_not_depend_on_the_thread_count(twin, pair):
     from lfring.core.threads import STRIP_PIXELS
 
     r, cal, views, *_ = twin
+    assert views.shape[1] * views.shape[2] >= 3 * STRIP_PIXELS  # several finishing strips
     if pair:
         views, cal = views[:2], cal.select_views([0, 1])
     one, three = (estimate_depth(views, cal, zmin_m=0.3, zmax_m=1.0, threads=t) for t in (1, 3))
-    assert views.shape[1] * views.shape[2] >= 3 * STRIP_PIXELS  # several finishing strips
     for name in ("depth_m", "confidence", "depth_filled_m", "hypothesis_index"):
         np.testing.assert_array_equal(getattr(three, name), getattr(one, name))

@@ -31,7 +31,7 @@ from lfring.core.warping import TRANSLATION_TOL_PX
 from lfring.depth.costs.lcn_halves import (HALVES_GAIN, HALVES_MEDIAN_SAMPLE, HALVES_MIN_SUPPORT, HALVES_POOR,
                                            view_halves)
 from lfring.depth.costs.lcn_occlusion import OCCLUSION_PENALTY
-from lfring.depth.plan import guide_image
+from lfring.depth.plan import depths_key, guide_image
 from lfring.depth.sgm import EDGE_SCALE, P1_SCALE, P2_SCALE
 
 __all__ = ["ERODED_VOLUME_BYTES", "KEEP_VOLUMES_BYTES", "RESAMPLE_TOL_PX", "UNITS_PER_SCALE", "fused_index", "shift_plan"]
@@ -56,8 +56,9 @@ SCALE_SAMPLE_ROWS = 16
 KEEP_VOLUMES_BYTES = 512 << 20
 # The horizontal paths keep the eroded volume for the vertical ones (which would otherwise erode
 # every row again in each of their two directions) when it takes at most this many bytes: a third
-# 16-bit volume, left out on the largest volumes so that a call's peak memory stays near two.
-ERODED_VOLUME_BYTES = 256 << 20
+# 16-bit volume, left out on the largest volumes so that a call's peak memory stays near two, and
+# small enough that the three are kept for the next call.
+ERODED_VOLUME_BYTES = KEEP_VOLUMES_BYTES // 3
 # The eroded volume's stand-in where it is not kept.
 _NOT_KEPT = np.empty((0, 0, 0), np.uint16)
 
@@ -180,7 +181,7 @@ def fused_index(views, calibration, plan, settings, subpixel_box_px: int, on_sta
     from lfring.depth.engines.fused_common import PENALTY_MAX
 
     h, w = views.shape[1:3]
-    plan_key = ("fused_shift_plan", plan.reference, tuple(np.round(plan.depths, 12)), (h, w))
+    plan_key = ("fused_shift_plan", plan.reference, depths_key(plan.depths), (h, w))
     planned = calibration_cache(calibration, plan_key, lambda: shift_plan(plan.hs, (h, w)))
     if planned is None:
         return None

@@ -147,11 +147,17 @@ def _path_step(c, prev, cur, pmin, jump, p1):
     return least
 
 
+@njit(**INLINE)
+def _kept(eroded, vol):
+    """Whether ``eroded`` is a volume of ``vol``'s shape (not the empty stand-in)."""
+    return eroded.shape[0] == vol.shape[0] and eroded.shape[1] == vol.shape[1] and eroded.shape[2] == vol.shape[2]
+
+
 @njit(**JIT)
 def _horizontal_row(vol, y, guide, use_guide, p1, p2, edge_scale, erode_rad, total, eroded):
     """The two horizontal paths of row ``y`` (see :func:`horizontal_paths`)."""
     h, n, w = vol.shape
-    e = eroded[y] if eroded.shape[0] == h else np.empty((n, w), np.uint16)
+    e = eroded[y] if _kept(eroded, vol) else np.empty((n, w), np.uint16)
     ext = np.empty(w + 2 * erode_rad, np.uint16)
     fill = np.empty(w, np.int64)
     _eroded_rows(vol, y, erode_rad, 0, w, ext, e)
@@ -205,12 +211,18 @@ def horizontal_paths(vol, guide, use_guide, p1, p2, edge_scale, erode_rad, total
 
 
 @njit(**INLINE)
+def _inside(x0, m, rad, w):
+    """For the columns x0 - rad .. x0 + m + rad of a row of ``w``: the first one ``a`` and the
+    positions lo..hi among them that lie inside the row (the others are reflected)."""
+    a = x0 - rad
+    return a, max(0, -a), min(m + 2 * rad, w - a)
+
+
+@njit(**INLINE)
 def _ext_row(row, x0, m, rad, out):
     """out[j] = row[reflect(x0 - rad + j)] for j < m + 2 rad (BORDER_REFLECT_101)."""
     w = row.shape[0]
-    a = x0 - rad
-    lo = max(0, -a)
-    hi = min(m + 2 * rad, w - a)
+    a, lo, hi = _inside(x0, m, rad, w)
     out[lo:hi] = row[a + lo:a + hi]
     for j in range(lo):
         out[j] = row[reflect(a + j, w)]
@@ -219,14 +231,13 @@ def _ext_row(row, x0, m, rad, out):
 
 
 @njit(**INLINE)
-def _raw_update(vol, r, d, x0, m, rad, sign, ext, col_sum, col_cnt):
-    """col_sum, col_cnt += sign * (known cost, 1) of row ``r`` of hypothesis ``d``."""
+def _raw_update(vol, r, d, x0, m, rad, ext, col_sum, col_cnt):
+    """col_sum, col_cnt += (known cost, 1) of row ``r`` of hypothesis ``d``."""
     _ext_row(vol[r, d], x0, m, rad, ext)
-    sign = np.int32(sign)
     for j in range(m + 2 * rad):
         v, k = _known_cost(ext[j])
-        col_sum[j] = np.int32(col_sum[j] + sign * v)
-        col_cnt[j] = np.int32(col_cnt[j] + sign * k)
+        col_sum[j] = np.int32(col_sum[j] + v)
+        col_cnt[j] = np.int32(col_cnt[j] + k)
 
 
 @njit(**INLINE)
@@ -257,7 +268,7 @@ def _vertical_block(vol, eroded, total, guide, use_guide, p1, p2, edge_scale, er
                     x1, index, conf):
     """The two vertical paths and the selection of columns x0..x1 (see :func:`vertical_paths`)."""
     h, n, w = vol.shape
-    kept = eroded.shape[0] == h
+    kept = _kept(eroded, vol)
     m = x1 - x0
     e = np.empty((n, m), np.uint16)
     ext = np.empty(m + 2 * max(erode_rad, raw_rad), np.uint16)
@@ -303,7 +314,7 @@ def _vertical_block(vol, eroded, total, guide, use_guide, p1, p2, edge_scale, er
                     col_sum[d] = 0
                     col_cnt[d] = 0
                     for k in range(y - raw_rad, y + raw_rad + 1):
-                        _raw_update(vol, reflect(k, h), d, x0, m, raw_rad, 1, ext, col_sum[d], col_cnt[d])
+                        _raw_update(vol, reflect(k, h), d, x0, m, raw_rad, ext, col_sum[d], col_cnt[d])
                 else:
                     _raw_move(vol, reflect(y - raw_rad, h), reflect(y + raw_rad + 1, h), d, x0, m, raw_rad, col_sum[d],
                               col_cnt[d])
@@ -340,9 +351,7 @@ def _raw_move(vol, r_in, r_out, d, x0, m, rad, col_sum, col_cnt):
     hypothesis ``d`` over the columns x0 - rad .. x0 + m + rad (reflected at the image's sides):
     the window's step down one row in one pass over the sums, reading the rows in place."""
     w = vol.shape[2]
-    a = x0 - rad
-    lo = max(0, -a)
-    hi = min(m + 2 * rad, w - a)
+    a, lo, hi = _inside(x0, m, rad, w)
     new = vol[r_in, d]
     old = vol[r_out, d]
     ni = new[a + lo:a + hi]

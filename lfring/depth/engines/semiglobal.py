@@ -132,15 +132,16 @@ def _optimise(views, calibration, plan, settings, fin, consistency=True, report=
 
     def finish(r0: int, r1: int) -> None:  # a strip of rows: the whole-frame steps, shared among the threads
         rows = slice(r0, r1)
-        known = np.where(np.isfinite(refined[rows]), refined[rows], np.nan if consistency else index[rows]).astype(np.float32)
-        fills = np.where(np.isfinite(filled[rows]), filled[rows], known).astype(np.float32)  # never unknown where known
-        missing = np.where(np.isfinite(known), np.float32(0.0), np.float32(np.inf))
-        fin.rows(r0, r1, np.nan_to_num(known), confidence[rows], missing, nviews[rows])
+        idx = np.where(np.isfinite(refined[rows]), refined[rows], np.nan if consistency else index[rows])
+        idx = idx.astype(np.float32)
+        fills = np.where(np.isfinite(filled[rows]), filled[rows], idx).astype(np.float32)  # never unknown where idx is known
+        missing = np.where(np.isfinite(idx), np.float32(0.0), np.float32(np.inf))
+        fin.rows(r0, r1, np.nan_to_num(idx), confidence[rows], missing, nviews[rows])
         depth_filled[rows] = fin.depth_of(fills, nviews[rows])
 
     # A strip per thread, none under STRIP_PIXELS: on small frames many threads would each pay
     # more in per-call overhead than their rows take.
-    step = max(-(-h // max(1, settings.threads)), STRIP_PIXELS // max(w, 1))
+    step = max(1, -(-h // max(1, settings.threads)), STRIP_PIXELS // max(w, 1))
     run_threads([lambda r0=r0: finish(r0, min(h, r0 + step)) for r0 in range(0, h, step)], settings.threads)
     return depth_filled
 
