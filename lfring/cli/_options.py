@@ -235,16 +235,21 @@ def progress_bar(total: int, desc: str, unit: str):
     return tqdm(total=total, desc=desc, unit=unit, leave=False, dynamic_ncols=True)
 
 
-def note_first_compile() -> None:
-    """Say, once per machine, that the depth kernels are being compiled: numba compiles them on
-    their first use and keeps them on disk, so only the very first depth estimate is slow, and
-    silent without this note. Looks for numba's cache index of every kernel module."""
+# The modules whose numba kernels the commands' default path compiles (numba caches them on
+# disk): the depth engine's, and the depth-aware renderer's besides for refocusing and the viewer.
+DEPTH_KERNELS = ("lfring.depth.engines.fused_volume", "lfring.depth.engines.fused_paths", "lfring.depth.refine_kernels")
+REFOCUS_KERNELS = (*DEPTH_KERNELS, "lfring.focus.depth_aware_kernels")
+
+
+def note_first_compile(modules=DEPTH_KERNELS) -> None:
+    """Say, once per machine, that the kernels of ``modules`` (dotted names) are being
+    compiled: numba compiles them on their first use and keeps them on disk, so only the very
+    first run is slow, and silent without this note. Looks for numba's cache index of every
+    module."""
+    import importlib.util
     import os
     import sys
 
-    import lfring.depth
-
-    root = Path(lfring.depth.__file__).parent
     tag = f"py{sys.version_info.major}{sys.version_info.minor}"
     where = [Path(d) for d in (os.environ.get("NUMBA_CACHE_DIR"), Path.home() / ".cache" / "numba") if d]
 
@@ -254,6 +259,6 @@ def note_first_compile() -> None:
                 return True
         return False
 
-    if not all(cached(m) for m in root.rglob("*kernels.py")):
-        logging.getLogger("lfring.cli").info("compiling the depth kernels once (numba keeps them on disk): this first "
-                                             "run takes longer")
+    if not all(cached(Path(importlib.util.find_spec(name).origin)) for name in modules):
+        logging.getLogger("lfring.cli").info("compiling the numerical kernels once (numba keeps them on disk): this "
+                                             "first run takes longer")

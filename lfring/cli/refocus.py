@@ -10,6 +10,7 @@ import click
 import numpy as np
 
 from lfring.cli._options import (
+    REFOCUS_KERNELS,
     aperture_options,
     check_option,
     flat_option,
@@ -157,7 +158,7 @@ def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolat
         # before the long work, when the calibration gives none); the sidecar records it.
         zmin, zmax = estimation_range(cal, zmin, zmax, reference=ref)
         dof = {"aperture": aperture, "f_number": f_number, "zmin_m": zmin, "zmax_m": zmax}
-        note_first_compile()
+        note_first_compile(REFOCUS_KERNELS)
     check_renderable(cal, zs, reference=ref)
     outputs.check()  # again: loading took a while
 

@@ -95,27 +95,54 @@ def test_torch_device_is_named_so_and_not_ignored(tmp_path):
 
 
 def test_first_compile_is_announced_once(tmp_path, monkeypatch, caplog):
-    """numba compiles the depth kernels on their first use, once per machine: said when no
-    compiled kernel is cached, silent once they are."""
+    """numba compiles the kernels on their first use, once per machine: said while a module the
+    command compiles has no cached kernel, silent once every one has."""
     import logging
     import sys
 
-    import lfring.depth
     from lfring.cli._options import note_first_compile
 
-    pkg = tmp_path / "depth"
+    pkg = tmp_path / "fakepkg"
     (pkg / "__pycache__").mkdir(parents=True)
     (pkg / "__init__.py").write_text("")
-    (pkg / "sgm_kernels.py").write_text("")
-    monkeypatch.setattr(lfring.depth, "__file__", str(pkg / "__init__.py"))
+    for stem in ("engine", "kernels"):
+        (pkg / f"{stem}.py").write_text("")
+    monkeypatch.syspath_prepend(str(tmp_path))
     monkeypatch.setenv("HOME", str(tmp_path))
     monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
-    with caplog.at_level(logging.INFO, logger="lfring"):
-        note_first_compile()
-    assert "compiling the depth kernels once" in caplog.text
-    caplog.clear()
     tag = f"py{sys.version_info.major}{sys.version_info.minor}"
-    (pkg / "__pycache__" / f"sgm_kernels.aggregate-12.{tag}.nbi").write_bytes(b"")
-    with caplog.at_level(logging.INFO, logger="lfring"):
-        note_first_compile()
-    assert "compiling" not in caplog.text
+    modules = ("fakepkg.engine", "fakepkg.kernels")
+    for cached, said in (((), True), (("kernels",), True), (("kernels", "engine"), False)):
+        for stem in cached:
+            (pkg / "__pycache__" / f"{stem}.run-12.{tag}.nbi").write_bytes(b"")
+        caplog.clear()
+        with caplog.at_level(logging.INFO, logger="lfring"):
+            note_first_compile(modules)
+        assert ("compiling the numerical kernels once" in caplog.text) == said, cached
+
+
+def test_the_first_compile_note_names_the_modules_the_main_job_compiles(tmp_path):
+    """The note's list of kernel modules is the one the default depth-aware refocus compiles
+    (a module it never compiles would keep the note on at every run; one it missed would leave
+    the first run's wait unexplained)."""
+    import subprocess
+    import sys
+
+    from lfring.cli._options import DEPTH_KERNELS, REFOCUS_KERNELS
+
+    script = "\n".join((
+        "import sys",
+        "from numba.core.dispatcher import Dispatcher",
+        "from lfring.cli.main import main",
+        "try:",
+        f"    main(['-q', 'refocus', {str(SCENE)!r}, '--depth', '0.5', '-o', {str(tmp_path / 'r.png')!r}])",
+        "except SystemExit as e:",
+        "    assert not e.code, e.code",
+        "print(sorted({n for n, m in list(sys.modules.items()) if n.startswith('lfring.') for v in vars(m).values()",
+        "              if isinstance(v, Dispatcher) and v.signatures and v.py_func.__module__ == n}))",
+    ))
+    res = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=600)
+    assert res.returncode == 0, res.stderr[-2000:]
+    compiled = res.stdout.strip().splitlines()[-1]
+    assert compiled == str(sorted(REFOCUS_KERNELS))
+    assert set(DEPTH_KERNELS) == {m for m in REFOCUS_KERNELS if m.startswith("lfring.depth.")}
