@@ -267,6 +267,26 @@ def _fill_from_around(planes: list, known: np.ndarray) -> list:
     return out
 
 
+def _remap_masks(masks: np.ndarray, maps) -> np.ndarray:
+    """(V, h, w) float32: every view's mask sampled (bilinearly, 0 outside) at its sampling map
+    of ``maps`` ((V, h, w) map_x and map_y)."""
+    map_x, map_y = maps
+    out = np.empty(map_x.shape, np.float32)
+    for k in range(len(map_x)):
+        cv2.remap(masks[k], map_x[k], map_y[k], cv2.INTER_LINEAR, dst=out[k], borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    return out
+
+
+def _remap_views(sources: list, maps) -> np.ndarray:
+    """(V, h, w, C) float32: every view of ``sources`` ((h, w, C) each, premultiplied by its
+    mask) sampled like :func:`_remap_masks`."""
+    map_x, map_y = maps
+    out = np.empty(map_x.shape + sources[0].shape[2:], np.float32)
+    for k in range(len(map_x)):
+        cv2.remap(sources[k], map_x[k], map_y[k], cv2.INTER_LINEAR, dst=out[k], borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    return out
+
+
 class DepthOfField:
     """Render a lens of any aperture focused at any depth from views and a depth map.
 
@@ -316,16 +336,17 @@ class DepthOfField:
         self.x = _inverse_depth(dm, z0).astype(np.float32)
         self.radius_px = aperture_radius_px(calibration, self.reference)
         masks = cached_view_masks(calibration, (h, w))
-        self.colour, self.agree, self.seen, nearest = self._all_in_focus(arr, masks)
-        self._back = self._background(arr, masks, nearest)
+        sources = [arr[k] if np.all(masks[k] == 1.0) else arr[k] * masks[k][..., None] for k in range(len(arr))]
+        self.colour, self.agree, self.seen, nearest = self._all_in_focus(sources, masks)
+        self._back = self._background(sources, masks, nearest)
         self._cover = self.seen.astype(np.float32)
         self._scratch: dict = {}
         self._x_range = (float(self.x[self.seen].min()), float(self.x[self.seen].max())) if self.seen.any() else (1.0, 1.0)
 
     # -- sampling the views --------------------------------------------------------------------
     def _sampling_maps(self, k_views: int, x: np.ndarray):
-        """Per view, the (mapx, mapy) float32 view pixel that every reference pixel samples at
-        the inverse depth ``x`` (h, w)."""
+        """(map_x, map_y), each (V, h, w) float32: the view pixel that every reference pixel
+        samples in each view at the inverse depth ``x`` (h, w)."""
         from lfring.focus import depth_aware_kernels as kern
 
         cal, (h, w) = self.calibration, self.view_shape
@@ -335,12 +356,14 @@ class DepthOfField:
             hi = lo + 1e-6
         ends = to_reference(cal.model(z0 + 1.0 / np.array([lo, hi])), self.reference)  # (2, V, 3, 3)
         shifts = translations(ends, (h, w))
+        map_x = np.empty((k_views, h, w), np.float32)
+        map_y = np.empty((k_views, h, w), np.float32)
         if shifts is not None:  # affine in x: exact from the two ends
-            yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
             slope = (shifts[1] - shifts[0]) / (hi - lo)
-            dx = (x - np.float32(lo))
-            return [(xx + np.float32(shifts[0, k, 0]) + dx * np.float32(slope[k, 0]),
-                     yy + np.float32(shifts[0, k, 1]) + dx * np.float32(slope[k, 1])) for k in range(k_views)]
+            kern.shift_maps(np.ascontiguousarray(x, dtype=np.float32), np.float32(lo),
+                            np.ascontiguousarray(shifts[0, :k_views], np.float32),
+                            np.ascontiguousarray(slope[:k_views], np.float32), map_x, map_y)
+            return map_x, map_y
         # General homographies: piecewise linear in x between knots.
         corners = np.array([[0, 0], [w - 1, 0], [0, h - 1], [w - 1, h - 1]], dtype=np.float64)
         inv_ends = np.linalg.inv(ends)
@@ -348,10 +371,8 @@ class DepthOfField:
                      for k in range(k_views))
         knots = np.linspace(lo, hi, max(2, int(math.ceil(motion / KNOT_STEP_PX)) + 1))
         inv = np.ascontiguousarray(np.linalg.inv(to_reference(cal.model(z0 + 1.0 / knots), self.reference))[:, :k_views])
-        map_x = np.empty((k_views, h, w), np.float32)
-        map_y = np.empty((k_views, h, w), np.float32)
         kern.knot_maps(np.ascontiguousarray(x, dtype=np.float32), knots, inv, map_x, map_y)
-        return [(map_x[k], map_y[k]) for k in range(k_views)]
+        return map_x, map_y
 
     def _occluded(self, mx, my, x, nearest) -> np.ndarray:
         """(h, w) bool: whether a surface nearer than ``x`` by more than :data:`OCCLUSION_PX`
@@ -364,30 +385,28 @@ class DepthOfField:
         return out
 
     def _splat(self, maps) -> list:
-        """Per view, (h, w) float32: the largest inverse depth of the reference pixels that land
-        on each view pixel (nearest wins, widened by one pixel), -inf where none does."""
+        """Per view of ``maps`` (:meth:`_sampling_maps`), (h, w) float32: the largest inverse
+        depth of the reference pixels that land on each view pixel (nearest wins, widened by one
+        pixel), -inf where none does."""
         from lfring.focus import depth_aware_kernels as kern
 
-        out = []
-        for mx, my in maps:
-            nearest = np.full(self.view_shape, -np.inf, np.float32)
-            kern.splat_max(mx, my, self.x, nearest)
-            out.append(cv2.dilate(nearest, np.ones((3, 3), np.uint8)))
-        return out
+        map_x, map_y = maps
+        nearest = np.full((len(map_x), *self.view_shape), -np.inf, np.float32)
+        kern.splat_max(map_x, map_y, self.x, nearest)
+        return [cv2.dilate(nk, np.ones((3, 3), np.uint8)) for nk in nearest]
 
     def _measured(self, k_views: int, masks: np.ndarray):
         """The depth map, continued from the nearest pixel that :data:`MIN_DEPTH_VIEWS` views'
         worth see at its own depth where fewer do (a depth one view alone sees was not
         measured: estimation picks such depths at the range's end, where the views drift off
         their discs), unless it continues that pixel's depth anyway; and the views' sampling
-        maps at it."""
+        maps at it, with the views' masks sampled there (V, h, w)."""
         maps = self._sampling_maps(k_views, self.x)
-        cover = sum(cv2.remap(masks[k], mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-                    for k, (mx, my) in enumerate(maps))
-        trust = np.clip(cover - (MIN_DEPTH_VIEWS - 1.0), 0.0, 1.0).astype(np.float32)
+        weight = _remap_masks(masks, maps)
+        trust = np.clip(weight.sum(axis=0) - (MIN_DEPTH_VIEWS - 1.0), 0.0, 1.0).astype(np.float32)
         measured = trust >= 1.0
         if measured.all() or not measured.any():
-            return maps
+            return maps, weight
         # The depth of the nearest measured pixel (not an average, which would invent depths
         # between a nearer surface and a farther one).
         _, labels = cv2.distanceTransformWithLabels((~measured).view(np.uint8), cv2.DIST_L2, 5,
@@ -398,22 +417,18 @@ class DepthOfField:
         near = np.clip(2.0 - np.abs(self.x - around) * np.float32(self.radius_px / DEPTH_TOL_PX), 0.0, 1.0)
         trust = np.maximum(trust, near)
         self.x = (around + trust * (self.x - around)).astype(np.float32)
-        return self._sampling_maps(k_views, self.x)
+        maps = self._sampling_maps(k_views, self.x)
+        return maps, _remap_masks(masks, maps)
 
-    def _all_in_focus(self, arr: np.ndarray, masks: np.ndarray):
+    def _all_in_focus(self, sources: list, masks: np.ndarray):
         from lfring.focus import depth_aware_kernels as kern
 
-        v, h, w, c = arr.shape
-        warped = np.empty((v, h, w, c), np.float32)
-        weight = np.empty((v, h, w), np.float32)
-        maps = self._measured(v, masks)
-        for k, (mx, my) in enumerate(maps):
-            src = arr[k] if np.all(masks[k] == 1.0) else arr[k] * masks[k][..., None]
-            out = cv2.remap(src, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-            warped[k] = out.reshape(h, w, c)
-            weight[k] = cv2.remap(masks[k], mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        v = len(sources)
+        (h, w), c = self.view_shape, sources[0].shape[2]
+        maps, weight = self._measured(v, masks)
+        warped = _remap_views(sources, maps)
         nearest = self._splat(maps)
-        visible = np.stack([~self._occluded(mx, my, self.x, nk) for (mx, my), nk in zip(maps, nearest)])
+        visible = np.stack([~self._occluded(mx, my, self.x, nk) for mx, my, nk in zip(*maps, nearest)])
         colour = np.empty((h, w, c), np.float32)
         agree = np.empty((h, w), np.float32)
         seen = np.empty((h, w), bool)
@@ -421,7 +436,7 @@ class DepthOfField:
         return colour, agree, seen, nearest
 
     # -- the background under occlusion edges --------------------------------------------------
-    def _background(self, arr: np.ndarray, masks: np.ndarray, nearest: list):
+    def _background(self, sources: list, masks: np.ndarray, nearest: list):
         """The farther surface continued under nearer ones near occlusion edges: (under, x_b,
         colour_b, distance_px), or None where the depth map has no step of :data:`BACK_STEP_PX`.
 
@@ -446,15 +461,13 @@ class DepthOfField:
         under = (x - xb) > step
         if not under.any():
             return None
-        v, h, w, c = arr.shape
+        v = len(sources)
+        (h, w), c = self.view_shape, sources[0].shape[2]
         num = np.zeros((h, w, c), np.float32)
         den = np.zeros((h, w), np.float32)
-        for k, (mx, my) in enumerate(self._sampling_maps(v, xb)):
-            hidden = self._occluded(mx, my, xb, nearest[k])
-            src = arr[k] if np.all(masks[k] == 1.0) else arr[k] * masks[k][..., None]
-            val = cv2.remap(src, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0).reshape(h, w, c)
-            wk = cv2.remap(masks[k], mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-            kern.add_seen(val, wk, under, hidden, num, den)
+        maps = self._sampling_maps(v, xb)
+        for k, (val, wk) in enumerate(zip(_remap_views(sources, maps), _remap_masks(masks, maps))):
+            kern.add_seen(val, wk, under, self._occluded(maps[0][k], maps[1][k], xb, nearest[k]), num, den)
         known = den > WEIGHT_FLOOR
         colour = np.zeros((h, w, c), np.float32)
         np.divide(num, den[..., None], out=colour, where=known[..., None])

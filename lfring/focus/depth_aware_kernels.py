@@ -10,8 +10,9 @@ and :func:`merge` composite the layers. Rows run in parallel stripes; a stripe's
 multiple of every rung's grid factor, so no two stripes write the same cell. Colour and
 coverage are interleaved (C + 1 values per pixel), one cache line for all of a pixel.
 
-The renderer's all-in-focus colour, made once per depth map, has its own: :func:`knot_maps`
-(where each view sees every pixel at its depth, for calibrations that are not translations),
+The renderer's all-in-focus colour, made once per depth map, has its own: :func:`shift_maps`
+and :func:`knot_maps` (where each view sees every pixel at its depth, for calibrations whose
+views move by translations and for the others),
 :func:`splat_max` (the depth map seen from each view), :func:`occluded` (which views a nearer
 surface hides a pixel from), :func:`add_seen` (the background's samples) and
 :func:`robust_mean` (the views' robust mean: one pass over the pixels, not a dozen whole-frame
@@ -23,7 +24,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-__all__ = ["add_seen", "finish", "knot_maps", "merge", "occluded", "over", "robust_mean", "rungs", "scatter", "splat_max"]
+__all__ = ["add_seen", "finish", "knot_maps", "merge", "occluded", "over", "robust_mean", "rungs", "scatter",
+           "shift_maps", "splat_max"]
 
 _JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
 
@@ -344,18 +346,37 @@ def robust_mean(warped, weight, visible, agree_tol, spread_tol, floor, colour, a
                 colour[y, xx, ch] = num
 
 
-@njit(**_JIT)
+@njit(parallel=True, **_JIT)
 def splat_max(mx, my, x, out):
-    """``out`` (view rows, cols; filled by the caller) = the largest ``x`` (h, w) of the
-    reference pixels whose view pixel (``mx``, ``my``), rounded, it is. Serial: pixels land
-    on one another."""
+    """``out`` (V, view rows, cols; filled by the caller) = per view, the largest ``x`` (h, w)
+    of the reference pixels whose view pixel (``mx``, ``my``: (V, h, w)), rounded, it is. The
+    views in parallel, each one's pixels in order: they land on one another."""
     h, w = x.shape
-    vh, vw = out.shape
-    for y in range(h):
-        for xx in range(w):
-            u, v = _view_pixel(mx[y, xx], my[y, xx], vh, vw)
-            if u >= 0 and x[y, xx] > out[v, u]:
-                out[v, u] = x[y, xx]
+    vh, vw = out.shape[1], out.shape[2]
+    for k in prange(out.shape[0]):
+        for y in range(h):
+            for xx in range(w):
+                u, v = _view_pixel(mx[k, y, xx], my[k, y, xx], vh, vw)
+                if u >= 0 and x[y, xx] > out[k, v, u]:
+                    out[k, v, u] = x[y, xx]
+
+
+@njit(parallel=True, **_JIT)
+def shift_maps(x, x0, shift, slope, map_x, map_y):
+    """``map_x``, ``map_y`` (V, h, w): the view pixel that every reference pixel samples at its
+    inverse depth ``x`` (h, w) where the views move by translations affine in x: view k's
+    shift ``shift[k]`` (x, y) at ``x0`` and ``slope[k]`` per unit x beyond it (float32
+    throughout, the column or row index plus the shift plus the slope times ``x - x0``)."""
+    h, w = x.shape
+    for y in prange(h):
+        fy = np.float32(y)
+        for k in range(shift.shape[0]):
+            sx, sy = shift[k, 0], shift[k, 1]
+            gx, gy = slope[k, 0], slope[k, 1]
+            for xx in range(w):
+                dx = x[y, xx] - x0
+                map_x[k, y, xx] = np.float32(xx) + sx + dx * gx
+                map_y[k, y, xx] = fy + sy + dx * gy
 
 
 @njit(parallel=True, **_JIT)

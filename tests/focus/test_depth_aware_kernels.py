@@ -85,20 +85,44 @@ def test_occluded_is_a_nearer_surface_at_the_rounded_view_pixel():
 
 
 def test_splat_max_keeps_the_nearest_of_the_pixels_that_land_together():
+    """Every view on its own (they run in parallel), each the largest x of the pixels that land
+    on a view pixel, as np.maximum.at gives it."""
     rng = np.random.default_rng(5)
     h, w = 20, 30
     x = rng.random((h, w)).astype(np.float32)
     my, mx = np.mgrid[0:h, 0:w].astype(np.float32)
-    mx = (mx * 0.5 + rng.uniform(-2.0, 2.0, (h, w))).astype(np.float32)  # about two pixels on each view pixel
-    my = (my + rng.uniform(-2.0, 2.0, (h, w))).astype(np.float32)
-    out = np.full((h, w), -np.inf, np.float32)
+    mx = np.stack([mx * 0.5 + rng.uniform(-2.0, 2.0, (h, w)),  # about two pixels on each view pixel
+                   mx + rng.uniform(-1.0, 1.0, (h, w))]).astype(np.float32)
+    my = np.stack([my + rng.uniform(-2.0, 2.0, (h, w)), my - 3.0]).astype(np.float32)
+    out = np.full((2, h, w), -np.inf, np.float32)
     kern.splat_max(mx, my, x, out)
-    u, vv = np.rint(mx).astype(int).ravel(), np.rint(my).astype(int).ravel()
-    inside = (u >= 0) & (u < w) & (vv >= 0) & (vv < h)
-    want = np.full(h * w, -np.inf, np.float32)
-    np.maximum.at(want, (vv * w + u)[inside], x.ravel()[inside])
-    assert np.array_equal(out.ravel(), want)
-    assert np.isinf(out[:, -5:]).all() and np.isfinite(out[:, 5:10]).mean() > 0.8
+    for k in range(2):
+        u, vv = np.rint(mx[k]).astype(int).ravel(), np.rint(my[k]).astype(int).ravel()
+        inside = (u >= 0) & (u < w) & (vv >= 0) & (vv < h)
+        want = np.full(h * w, -np.inf, np.float32)
+        np.maximum.at(want, (vv * w + u)[inside], x.ravel()[inside])
+        assert np.array_equal(out[k].ravel(), want)
+    assert np.isinf(out[0, :, -5:]).all() and np.isfinite(out[0, :, 5:10]).mean() > 0.8
+    assert np.isinf(out[1, -3:]).all() and np.isfinite(out[1, :-3]).mean() > 0.6
+
+
+def test_shift_maps_are_the_index_plus_the_shift_plus_the_slope_times_x():
+    """The translation case of the renderer's sampling maps, against its NumPy formula in
+    float32, to the bit."""
+    rng = np.random.default_rng(8)
+    h, w, v = 9, 14, 3
+    x = rng.uniform(0.5, 3.0, (h, w)).astype(np.float32)
+    shift = rng.uniform(-5.0, 5.0, (v, 2)).astype(np.float32)
+    slope = rng.uniform(-4.0, 4.0, (v, 2)).astype(np.float32)
+    x0 = np.float32(0.5)
+    map_x = np.empty((v, h, w), np.float32)
+    map_y = np.empty((v, h, w), np.float32)
+    kern.shift_maps(x, x0, shift, slope, map_x, map_y)
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    dx = x - x0
+    for k in range(v):
+        assert np.array_equal(map_x[k], xx + shift[k, 0] + dx * slope[k, 0])
+        assert np.array_equal(map_y[k], yy + shift[k, 1] + dx * slope[k, 1])
 
 
 def test_knot_maps_interpolate_the_knots_homographies_linearly_in_x():
