@@ -30,13 +30,16 @@ from lfring.errors import InvalidInputError
 from lfring.io.atomic import atomic_write_text
 from lfring.io.writers import check_writable, json_default
 
-__all__ = ["STAGING_PREFIX", "OutputSet", "record_path"]
+__all__ = ["OUTPUT_OPTIONS", "STAGING_PREFIX", "OutputSet", "record_path"]
 
 STAGING_PREFIX = ".lfring-stage-"
 """Hidden folders of outputs being written: ``<prefix><pid>-<random>`` in the set's folder."""
 
 # Options that change no output: a rerun that differs only in them replaces its own outputs.
 _NOT_SETTINGS = frozenset({"overwrite", "progress", "threads"})
+# The commands' parameters that name where their outputs go (-o and --plot); every other
+# parameter that names a file names an input.
+OUTPUT_OPTIONS = frozenset({"output", "outdir", "plot"})
 
 
 def record_path(folder: str | Path, name: str) -> Path:
@@ -78,20 +81,28 @@ class OutputSet:
     ctx : click.Context, optional
         The command's context (default: the current one): its name, and its parameters as the
         inputs (those that name files) and the settings of the set.
+    formerly : str, optional
+        The set's name in earlier versions of lfring: where this set has no record yet, a
+        record of that name that lists exactly this set's outputs is this set's (read for the
+        rerun's decision, and replaced by this set's record once the outputs are written).
     """
 
-    def __init__(self, paths: Iterable, *, name: str, overwrite: bool, ctx: click.Context | None = None):
+    def __init__(self, paths: Iterable, *, name: str, overwrite: bool, ctx: click.Context | None = None,
+                 formerly: str | None = None):
         self.paths = [Path(p) for p in paths]
         if not self.paths:
             raise ValueError("an output set needs at least one path")
         self.folder = self.paths[0].parent
         self.record = record_path(self.folder, name)
+        self._former = record_path(self.folder, formerly) if formerly and formerly != name else None
         self.overwrite = overwrite
         ctx = ctx or click.get_current_context()
         self.command = f"lfring {ctx.info_name}"
         params = {k: _jsonable(v) for k, v in sorted(ctx.params.items()) if k not in _NOT_SETTINGS}
-        ours = {os.path.abspath(p) for p in [*self.paths, self.record]}
-        self.inputs = [f for f in _input_files(ctx.params) if os.path.abspath(f) not in ours]
+        ours = {os.path.realpath(p) for p in [*self.paths, self.record]}
+        inputs = _input_files({k: v for k, v in ctx.params.items() if k not in OUTPUT_OPTIONS})
+        self._clashes = [f for f in inputs if os.path.realpath(f) in ours]
+        self.inputs = [f for f in inputs if os.path.realpath(f) not in ours]
         self.settings = params
         self.key = hashlib.sha256(json.dumps({"command": self.command, **params}, sort_keys=True,
                                              default=str).encode()).hexdigest()[:16]
@@ -109,28 +120,49 @@ class OutputSet:
             Naming the first file and why (a folder in the way, a file this command did not make
             or made from other inputs or with other settings, without ``--overwrite``).
         """
+        if self._clashes:
+            raise InvalidInputError(f"{self._clashes[0]} is an input of this command and would be one of its outputs "
+                                    f"(or their record): give -o another name")
         check_writable([*self.paths, self.record], overwrite=True)
         self._clear_stale_staging()
         planned = {self._rel(p): self._rel(p) for p in self.paths}
         existing = {rel for rel in planned if (self._root / rel).exists()}
         identity = {p: file_identity(p) for p in self.inputs}
-        rec = read_record(self.record)
+        former = self._former_record()
+        rec = read_record(self.record) if former is None else former
         if rec is not None and rec.get("command") != self.command:
             rec = None  # another command's record: its files are not ours
         decision = decide_resume(planned, dict.fromkeys(planned, self.key), rec, identity, existing,
-                                 record_exists=self.record.exists(), overwrite=self.overwrite, maker=self.command)
+                                 record_exists=self.record.exists() or former is not None, overwrite=self.overwrite,
+                                 maker=self.command)
         if decision.action != "refuse":
             return
         first = next((p for p in self.paths if self._rel(p) in existing), self.record)
         if rec is None:
             more = len(existing) - 1 if first != self.record else len(existing)
             raise InvalidInputError(f"{first}{f' (and {more} more)' if more > 0 else ''} exists; pass --overwrite to "
-                                    f"replace it (it was not made by {self.command})")
-        if rec.get("input_identity") != identity:
-            raise InvalidInputError(f"{first} exists and was made by {self.command} from inputs that have changed since; "
-                                    "pass --overwrite to replace it")
+                                    f"replace it (no record of {self.command} says it made it)")
+        made_from = rec.get("input_identity") or {}
+        if set(made_from) != set(identity):
+            raise InvalidInputError(f"{first} exists and was made by {self.command} from other input files "
+                                    f"({', '.join(sorted(made_from)) or 'none'}; this run reads "
+                                    f"{', '.join(sorted(identity)) or 'none'}); pass --overwrite to replace it, or -o to "
+                                    "write elsewhere")
+        if made_from != identity:
+            changed = sorted(f for f in identity if made_from.get(f) != identity[f])
+            raise InvalidInputError(f"{first} exists and was made by {self.command} from {', '.join(changed)} as it was "
+                                    "before it changed; pass --overwrite to replace it")
         raise InvalidInputError(f"{first} exists and was made by {self.command} with other settings; pass --overwrite to "
                                 "replace it, or -o to write elsewhere")
+
+    def _former_record(self) -> dict | None:
+        """The record of this set under its former name (see ``formerly``), or None."""
+        if self._former is None or self.record.exists():
+            return None
+        rec = read_record(self._former)
+        if rec is None or set((rec.get("outputs") or {}).values()) != {self._rel(p) for p in self.paths}:
+            return None
+        return rec
 
     def _clear_stale_staging(self) -> None:
         """Staging folders of runs that were killed (their process is gone) are removed."""
@@ -183,12 +215,15 @@ class OutputSet:
             missing = [str(p) for p, s in staged.items() if not s.exists()]
             if missing:
                 raise RuntimeError(f"outputs not written: {', '.join(missing)}")  # pragma: no cover - a bug
+            former = self._former_record() is not None
             with held_signals():
                 self._write_record("pending")
                 for final, s in staged.items():
                     final.parent.mkdir(parents=True, exist_ok=True)
                     os.replace(s, final)
                 self._write_record("done")
+                if former:
+                    self._former.unlink(missing_ok=True)
         finally:
             shutil.rmtree(staging, ignore_errors=True)
 

@@ -78,7 +78,7 @@ def command(ctx, object_size_m, distance_m, output, num_points, rays_per_point, 
     if not 50 <= dpi <= 600:
         raise InvalidInputError(f"--dpi must be between 50 and 600 dots per inch, got {dpi}")
     sidecar = _check_outputs(output)
-    outputs = OutputSet([output, sidecar], name=output.stem, overwrite=overwrite)
+    outputs = OutputSet([output, sidecar], name=output.name, formerly=output.stem, overwrite=overwrite)
     outputs.check()
     device = get_device(device_name)
 

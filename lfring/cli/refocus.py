@@ -146,7 +146,9 @@ def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolat
     aif_path = base.with_name(base.stem + "_all_in_focus" + base.suffix) if aif else None
     sidecars = [Path(str(p) + ".json") for p in outs + ([aif_path] if aif else [])]
     all_outputs = [*outs, *extra, *sidecars, *([aif_path] if aif else [])]
-    outputs = OutputSet(all_outputs, name=base.stem + ("_stack" if len(zs) > 1 else ""), overwrite=overwrite)
+    # The record is named after the output's whole name: a.png and a.tif are two sets.
+    set_stem = base.stem + ("_stack" if len(zs) > 1 else "")
+    outputs = OutputSet(all_outputs, name=set_stem + base.suffix, formerly=set_stem, overwrite=overwrite)
     outputs.check()
     if method != "depth-aware" and any(v is not None for v in (aperture, f_number, zmin, zmax)):
         raise click.UsageError("--aperture, --f-number, --zmin and --zmax are for --method depth-aware")

@@ -92,7 +92,7 @@ def test_interrupted_focal_sweep_leaves_nothing(tmp_path):
     assert done.returncode == 0, done.stderr
     files = _files(tmp_path / "stack")
     assert len(files) == 8 * 2 + 3 and "scene_stack.tif" in files and "scene_stack.gif" in files
-    assert "scene_stack.lfring.json" in files
+    assert "scene_stack.png.lfring.json" in files
 
 
 def test_a_failing_command_leaves_no_staging_folder(tmp_path, capsys, monkeypatch):
@@ -109,3 +109,80 @@ def test_a_failing_command_leaves_no_staging_folder(tmp_path, capsys, monkeypatc
     err = capsys.readouterr().err
     assert "No space left on device" in err and ".lfring-stage" not in err
     assert os.listdir(tmp_path) == []
+
+
+def test_outputs_of_one_stem_and_two_formats_have_records_of_their_own(tmp_path, capsys):
+    """a.png and a.tif are two output sets: each one's rerun replaces only its own files."""
+    from lfring.cli.main import main
+
+    run = ["refocus", str(SCENE), "--depth", "0.5", "--method", "shift-and-add", "-o"]
+    for name in ("a.png", "a.tif", "a.png", "a.tif"):
+        assert main([*run, str(tmp_path / name)]) == 0, capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "a.png", "a.png.json", "a.png.lfring.json", "a.tif", "a.tif.json", "a.tif.lfring.json"]
+
+
+def test_a_record_under_its_former_name_still_counts_once(tmp_path, capsys):
+    """Outputs whose record an earlier lfring named after the output's stem are still this
+    command's own on a rerun; the record then takes its present name."""
+    from lfring.cli.main import main
+
+    run = ["refocus", str(SCENE), "--depth", "0.5", "--method", "shift-and-add", "-o", str(tmp_path / "a.png")]
+    assert main(run) == 0
+    (tmp_path / "a.png.lfring.json").rename(tmp_path / "a.lfring.json")
+    assert main(run) == 0, capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.png", "a.png.json", "a.png.lfring.json"]
+    # A former record that lists other outputs is not this set's: left alone, and no licence.
+    (tmp_path / "a.png.lfring.json").unlink()
+    (tmp_path / "a.lfring.json").write_text(json.dumps({"lfring_batch_record": 1, "outputs": {"x.png": "x.png"}}))
+    assert main(run) == 2
+    assert "a.png (and 1 more) exists; pass --overwrite" in capsys.readouterr().err
+    assert (tmp_path / "a.lfring.json").exists()
+
+
+def test_an_output_that_is_an_input_is_refused(tmp_path, capsys):
+    """-o naming the raw frame (by any path) is refused, even with --overwrite, and the frame
+    stays as it was."""
+    from lfring.cli.main import main
+
+    raw = tmp_path / "scene.png"
+    shutil.copy(SCENE, raw)
+    before = raw.read_bytes()
+    for out in (raw, tmp_path / "." / "scene.png"):
+        assert main(["refocus", str(raw), "--depth", "0.5", "--method", "shift-and-add", "-o", str(out), "--overwrite"]) == 2
+        assert "is an input of this command and would be one of its outputs" in capsys.readouterr().err
+    assert main(["check", str(raw), "-o", str(raw), "--overwrite"]) == 2
+    assert raw.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.png"]
+
+
+def test_a_rerun_from_other_input_files_says_so(tmp_path, capsys):
+    """Outputs made from one file and asked again from another name both files, not a change."""
+    from lfring.cli.main import main
+
+    other = tmp_path / "copy.png"
+    shutil.copy(SCENE, other)
+    out = str(tmp_path / "r.png")
+    assert main(["refocus", str(SCENE), "--depth", "0.5", "--method", "shift-and-add", "-o", out]) == 0
+    assert main(["refocus", str(other), "--depth", "0.5", "--method", "shift-and-add", "-o", out]) == 2
+    err = capsys.readouterr().err
+    assert "from other input files" in err and str(SCENE) in err and str(other) in err and "changed" not in err
+    os.utime(SCENE, ns=(SCENE.stat().st_atime_ns, SCENE.stat().st_mtime_ns))  # untouched: the same identity
+    assert main(["refocus", str(SCENE), "--depth", "0.5", "--method", "shift-and-add", "-o", out]) == 0
+
+
+def test_every_command_s_output_options_are_known_as_outputs():
+    """The rule that tells outputs from inputs knows every command's -o and --plot parameter."""
+    import click
+
+    from lfring.cli.main import cli
+    from lfring.cli.outputs import OUTPUT_OPTIONS
+
+    seen = set()
+    ctx = click.Context(cli)
+    for name in cli.list_commands(ctx):
+        for p in cli.get_command(ctx, name).params:
+            if isinstance(p, click.Option) and {"-o", "--plot"} & set(p.opts):
+                assert p.name in OUTPUT_OPTIONS, (name, p.name)
+                seen.add(p.name)
+    assert seen == set(OUTPUT_OPTIONS)

@@ -46,10 +46,10 @@ def test_writes_png_and_sidecar(tmp_path, capsys):
     # Spreads and heights are logged in micrometres.
     assert re.search(r"source y0 = \+50\.0 mm, lens a: \d+ rays, spread 0\.000 um, mean hit \+2300\.000 um", err)
     assert "b = 37.369 mm, c = 6.616 mm" in err
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["rays.json", "rays.lfring.json", "rays.png"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["rays.json", "rays.png", "rays.png.lfring.json"]
     # The same command again replaces its own figure and sidecar (the README can be run twice).
     assert main(["raytrace", "--object-size", "0.1", "--distance", "0.3", "-o", str(out), *FAST]) == 0
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["rays.json", "rays.lfring.json", "rays.png"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["rays.json", "rays.png", "rays.png.lfring.json"]
 
 
 def test_refuses_to_overwrite(tmp_path, capsys):

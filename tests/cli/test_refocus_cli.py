@@ -22,7 +22,7 @@ def test_refocus_sample_with_default_calibration(tmp_path, monkeypatch, capsys):
     # The same command again replaces its own outputs; a file it did not make is not replaced
     # without --overwrite.
     assert main(["refocus", str(SCENE), "--depth", "0.5"]) == 0
-    (tmp_path / "scene_refocus_0.5m.lfring.json").unlink()
+    (tmp_path / "scene_refocus_0.5m.png.lfring.json").unlink()
     assert main(["refocus", str(SCENE), "--depth", "0.5"]) == 2
 
 
