@@ -9,6 +9,7 @@ Importing lfring never imports torch; the torch/kornia paths load on first use.
 """
 
 from lfring.errors import (
+    DepthRangeError,
     DesignError,
     DeviceError,
     EstimationError,
@@ -30,6 +31,7 @@ __version__ = "0.1.0"
 
 __all__ = [
     "Defect",
+    "DepthRangeError",
     "DepthResult",
     "DesignError",
     "DeviceError",

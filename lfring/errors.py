@@ -10,6 +10,7 @@ from __future__ import annotations
 __all__ = [
     "LfringError",
     "InvalidInputError",
+    "DepthRangeError",
     "DeviceError",
     "DesignError",
     "FileFormatError",
@@ -25,6 +26,29 @@ class LfringError(Exception):
 
 class InvalidInputError(LfringError, ValueError):
     """An argument has the wrong value, shape, dtype or unit."""
+
+
+class DepthRangeError(InvalidInputError):
+    """The depth range holds too few hypotheses for the depth method to judge an answer.
+
+    Attributes
+    ----------
+    zmin_m, zmax_m : float
+        The range's ends.
+    planes : int
+        Its hypotheses.
+    motion_px : float
+        The views' motion across it, in pixels.
+    planes_needed : int or None
+        The fewest hypotheses over the same range that the method works with; None where no
+        number does (the range itself is too narrow).
+    """
+
+    def __init__(self, message: str, *, zmin_m: float, zmax_m: float, planes: int, motion_px: float,
+                 planes_needed: int | None):
+        super().__init__(message)
+        self.zmin_m, self.zmax_m, self.planes, self.motion_px = zmin_m, zmax_m, planes, motion_px
+        self.planes_needed = planes_needed
 
 
 class DeviceError(InvalidInputError):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import logging
 from pathlib import Path
@@ -39,9 +40,29 @@ def parse_depths(text: str, *, param_hint: str) -> tuple[float, ...]:
     import re
 
     try:
-        return tuple(float(t) for t in re.split(r"[,\s]+", text.strip()) if t)
+        out = tuple(float(t) for t in re.split(r"[,\s]+", text.strip()) if t)
     except ValueError:
         raise click.BadParameter(f"expected comma-separated metres, got {text!r}", param_hint=param_hint) from None
+    if not out:
+        raise click.BadParameter(f"expected comma-separated metres, got no number in {text!r}", param_hint=param_hint)
+    return out
+
+
+@contextlib.contextmanager
+def depth_range_words(remedy):
+    """Turn a :class:`lfring.errors.DepthRangeError` raised inside the block into a usage error
+    that names the range and ``remedy`` (text, or a function of the hypotheses needed, None
+    where no number of them would do), in the words of the command at hand (the library's
+    message names options of ``lfring depth`` that other commands lack)."""
+    from lfring.errors import DepthRangeError
+
+    try:
+        yield
+    except DepthRangeError as exc:
+        raise click.UsageError(
+            f"--zmin {exc.zmin_m:g} .. --zmax {exc.zmax_m:g} m is too narrow to estimate depth over: the views move by "
+            f"{exc.motion_px:.2g} px across it, and the estimation judges each depth against others more than a pixel "
+            f"of motion away; {remedy(exc.planes_needed) if callable(remedy) else remedy}") from None
 
 
 device_option = click.option(

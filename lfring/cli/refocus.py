@@ -13,6 +13,7 @@ from lfring.cli._options import (
     REFOCUS_KERNELS,
     aperture_options,
     check_option,
+    depth_range_words,
     flat_option,
     load_views,
     note_first_compile,
@@ -53,16 +54,20 @@ def _depths(depth, depths, sweep) -> list[float]:
     if sum(given) != 1:
         raise click.UsageError("give exactly one of --depth Z, --depths Z1,Z2,... or --sweep START:STOP:N")
     if depth is not None:
-        zs = [depth]
+        zs, hint = [depth], "--depth"
     elif depths is not None:
-        zs = list(parse_depths(depths, param_hint="--depths"))
+        zs, hint = list(parse_depths(depths, param_hint="--depths")), "--depths"
     else:
         start, stop, n = parse_range(sweep, with_count=True)
         # Rounded to 12 significant digits: the depths as written (0.45, not 0.44999999999999996).
-        zs = [float(f"{z:.12g}") for z in np.linspace(start, stop, n)]
+        zs, hint = [float(f"{z:.12g}") for z in np.linspace(start, stop, n)], "--sweep"
     for z in zs:
         if not (z > 0 and not math.isnan(z)):
-            raise click.BadParameter(f"depths must be positive metres (or inf), got {z!r}", param_hint="depth")
+            raise click.BadParameter(f"depths must be positive metres (or inf), got {z!r}", param_hint=hint)
+    twice = sorted({z for z in zs if zs.count(z) > 1})
+    if twice:
+        raise click.BadParameter(f"{', '.join(f'{z:g} m' for z in twice)} would be made more than once: give each depth "
+                                 "once", param_hint=hint)
     return [float(z) for z in zs]
 
 
@@ -179,7 +184,8 @@ def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolat
     # shift-and-add has none (its copies sit on the rim of the aperture the views span).
     meta["aperture"] = resolve_aperture(cal, aperture, f_number) if method == "depth-aware" else None
     stack = []
-    with outputs.writing() as stage, warnings.catch_warnings(), progress_bar(len(zs), "refocus", "depth") as bar:
+    narrow = depth_range_words("widen the range, or use --method shift-and-add (it needs no depth map)")
+    with outputs.writing() as stage, narrow, warnings.catch_warnings(), progress_bar(len(zs), "refocus", "depth") as bar:
         warnings.simplefilter("ignore", LfringWarning)
         if method == "depth-aware":  # one depth map for the whole stack
             images = focal_stack(views, cal, render_zs, reference=ref, interpolation=interpolation, method=method, **dof)

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from lfring.cli._options import REFOCUS_KERNELS, check_option, load_views, note_first_compile, raw_options
+from lfring.cli._options import REFOCUS_KERNELS, check_option, depth_range_words, load_views, note_first_compile, raw_options
 from lfring.cli.outputs import OutputSet
 
 log = logging.getLogger("lfring.cli.view")
@@ -53,7 +53,8 @@ def command(raw, calib, zmin, zmax, planes, reference, min_confidence, image_for
     views, cal, cal_name = load_views(raw, calib, levels, check=not no_check)
     ref = check_reference(reference, cal.num_views)
     note_first_compile(REFOCUS_KERNELS)
-    with outputs.writing() as stage:
+    with outputs.writing() as stage, depth_range_words(
+            lambda n: "widen the range" if n is None else f"give --planes {n} or more, or widen the range"):
         write_viewer(stage(out), views, cal, zmin_m=zmin, zmax_m=zmax, num_planes=planes, reference=ref,
                      min_confidence=min_confidence, image_format=image_format, quality=quality, overwrite=True,
                      title=Path(raw).name, metadata={"input": str(raw), "calibration": cal_name})

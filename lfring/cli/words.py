@@ -23,6 +23,8 @@ API_TO_CLI: tuple[tuple[str, str], ...] = (
     (r"\bmethod='([\w-]+)'", r"--method \1"),
     (r"\bgive depths_m\b", "give the depths to choose from (--depth Z1,Z2,...)"),
     (r"\boverwrite=True\b", "--overwrite"),
+    (r" or None\b", ""),  # an option left out is the API's None
+    (r"\b(aperture|reference|workers|threads) must be\b", r"--\1 must be"),
     # Parameters and their options.
     (r"\bzmin_m\b", "--zmin"),
     (r"\bzmax_m\b", "--zmax"),
@@ -53,6 +55,8 @@ def cli_words(message: str) -> str:
     'give --planes >= 3, widen the depth range, or use --method local'
     >>> cli_words("give zmax_m, or refocus by method='shift-and-add'")
     'give --zmax, or refocus by --method shift-and-add'
+    >>> cli_words("num_planes must be an integer >= 3 or None, got 2")
+    '--planes must be an integer >= 3, got 2'
     """
     for pattern, replacement in _RULES:
         message = pattern.sub(replacement, message)

@@ -46,8 +46,13 @@ def test_refocus_stack_and_all_in_focus(tmp_path):
 @pytest.mark.parametrize(
     "args, text",
     [
-        (["--depth", "0"], "positive"),
+        (["--depth", "0"], "Invalid value for --depth: depths must be positive"),
         (["--depth", "nan"], "positive"),
+        (["--depths", ","], "Invalid value for --depths: expected comma-separated metres, got no number"),
+        (["--depths", " "], "got no number"),
+        (["--depths", "0.5,0.3,0.5"], "Invalid value for --depths: 0.5 m would be made more than once"),
+        (["--sweep", "0.3:0.3:3"], "Invalid value for --sweep: 0.3 m would be made more than once"),
+        (["--sweep", "-0.3:0.3:3"], "Invalid value for --sweep: depths must be positive"),
         (["--depth", "0.5", "--depths", "0.3,0.6"], "exactly one of"),
         (["--depth", "0.5", "--reference", "north"], "reference"),
         (["--depth", "0.5", "-o", "x.jpg"], ".png, .tif"),

@@ -242,7 +242,15 @@ def test_python_m_lfring():
 
 @pytest.mark.parametrize("args, says, not_says", [
     (["view", str(SCENE), "--zmin", "1.0", "--zmax", "0.5"], "--zmin (1.0) must be smaller than --zmax (0.5)", "zmin_m"),
-    (["depth", str(SCENE), "--zmin", "0.49", "--zmax", "0.5", "-o", "d/"], "give --planes >= 3", "num_planes"),
+    # Less than a pixel of view motion: no number of planes helps.
+    (["depth", str(SCENE), "--zmin", "0.49", "--zmax", "0.5", "-o", "d/"], "spans no more than one: widen it", "planes"),
+    (["depth", str(SCENE), "--zmin", "0.3", "--zmax", "0.35", "--planes", "3", "-o", "d/"], "give --planes >= 4",
+     "num_planes"),
+    # The refocus and viewer have no --planes and no --method local: their own words.
+    (["refocus", str(SCENE), "--depth", "0.3", "--zmin", "0.3", "--zmax", "0.31"],
+     "--zmin 0.3 .. --zmax 0.31 m is too narrow to estimate depth over", "--method local"),
+    (["view", str(SCENE), "--zmin", "0.3", "--zmax", "0.31"], "; widen the range\n", "--planes"),
+    (["view", str(SCENE), "--planes", "2"], "--planes must be an integer >= 3 (", "None"),
     (["depth", str(SCENE), "--zmin", "0.49", "--zmax", "0.5", "-o", "d/"], "or use --method local", "method='local'"),
     (["inspect", str(SCENE), "--plane", "0.3", "--tolerance", "-1", "-o", "r/"], "--tolerance must be", "tolerance_m"),
     # The built-in calibration records its device now (--f-number works with it): a copy without one.

@@ -507,3 +507,24 @@ def test_the_maps_do_not_depend_on_the_thread_count(twin, pair):
     one, three = (estimate_depth(views, cal, zmin_m=0.3, zmax_m=1.0, threads=t) for t in (1, 3))
     for name in ("depth_m", "confidence", "depth_filled_m", "hypothesis_index"):
         np.testing.assert_array_equal(getattr(three, name), getattr(one, name))
+
+
+def test_a_range_too_narrow_says_how_many_planes_would_do(twin):
+    """The semi-global method needs, for every hypothesis, others more than a pixel of view
+    motion away. Refused with the number of planes that gives that over the range (and that
+    number then works), or with none where the range spans a pixel or less."""
+    from lfring.errors import DepthRangeError
+
+    _, cal, views, *_ = twin
+    with pytest.raises(DepthRangeError) as err:
+        estimate_depth(views, cal, zmin_m=0.3, zmax_m=0.35, num_planes=3)
+    need = err.value.planes_needed
+    assert err.value.planes == 3 and 1.0 < err.value.motion_px < 3.0 and need is not None and need > 3
+    assert f"num_planes >= {need}" in str(err.value)
+    with pytest.raises(DepthRangeError):
+        estimate_depth(views, cal, zmin_m=0.3, zmax_m=0.35, num_planes=need - 1)
+    res = estimate_depth(views, cal, zmin_m=0.3, zmax_m=0.35, num_planes=need)
+    assert np.isfinite(res.depth_m).any()
+    with pytest.raises(DepthRangeError) as err:
+        estimate_depth(views, cal, zmin_m=0.3, zmax_m=0.305, num_planes=40)
+    assert err.value.motion_px <= 1.0 and err.value.planes_needed is None and "widen it" in str(err.value)

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 import warnings
 
 import numpy as np
@@ -29,7 +30,7 @@ from lfring.depth.plan import baseline_axis, guide_image, other_reference
 from lfring.depth.refine import fill_from_farther_side, refine_index
 from lfring.depth.sgm import P1_SCALE, P2_SCALE, cost_scale, select, sgm_aggregate, sgm_aggregate_torch
 from lfring.depth.sweep import run_sweep
-from lfring.errors import InvalidInputError, LfringWarning
+from lfring.errors import DepthRangeError, LfringWarning
 
 __all__ = ["CONSISTENCY_STEPS", "SEMIGLOBAL", "SEMIGLOBAL_REFERENCE", "SGM_AGGREGATE_PX", "SGM_MIN_PLANES", "SUBPIXEL_BOX_PX", "SWEEP_SHARE",
            "run_semiglobal", "semiglobal_index"]
@@ -49,6 +50,18 @@ CONSISTENCY_STEPS = 1
 SWEEP_SHARE = 0.3
 
 
+def _planes_needed(motion_px: float) -> int | None:
+    """The fewest hypotheses spread over ``motion_px`` of view motion among which every one has
+    others more than a pixel away (as the sweep plan spaces them and counts its ``exclude``);
+    None where the motion is a pixel or less and no number has."""
+    if motion_px <= 1.0:
+        return None
+    n = SGM_MIN_PLANES
+    while n < max(SGM_MIN_PLANES, math.ceil((n - 1) / motion_px) + 2):
+        n += 1
+    return n
+
+
 def run_semiglobal(views, calibration, plan, settings, finisher, progress, *, fused: bool = True) -> dict:
     """Optimise, select and refine (see the module's docstring); the finisher gets the depth and
     confidence, the returned fields the hole-filled map, the paths and whether the check ran.
@@ -56,11 +69,15 @@ def run_semiglobal(views, calibration, plan, settings, finisher, progress, *, fu
     :mod:`lfring.depth.engines.fused` wherever they apply; without, the float32 reference."""
     if len(plan.depths) < max(SGM_MIN_PLANES, plan.exclude + 2):
         zmin_m, zmax_m = float(plan.depths[0]), float(plan.depths[-1])
-        raise InvalidInputError(
+        motion = plan.step_px * (len(plan.depths) - 1)
+        needed = _planes_needed(motion)
+        remedy = (f"give num_planes >= {needed}, widen the depth range," if needed is not None else
+                  "the range spans no more than one: widen it,")
+        raise DepthRangeError(
             f"method='sgm' judges each answer against hypotheses more than one pixel of view motion away: "
-            f"{len(plan.depths)} hypotheses over {plan.step_px * (len(plan.depths) - 1):.2g} px of motion "
-            f"({zmin_m:g}..{zmax_m:g} m) have none; give num_planes >= {SGM_MIN_PLANES}, widen the depth range, "
-            "or use method='local'")
+            f"{len(plan.depths)} hypotheses over {motion:.2g} px of motion ({zmin_m:g}..{zmax_m:g} m) have none; "
+            f"{remedy} or use method='local'", zmin_m=zmin_m, zmax_m=zmax_m, planes=len(plan.depths), motion_px=motion,
+            planes_needed=needed)
     check = views.shape[0] == 2 if settings.consistency is None else bool(settings.consistency)
     if settings.backend == "torch" and fused:  # the GPU engine; None where its kernels cannot run on the device
         out = run_semiglobal_gpu(views, calibration, plan, settings, finisher, progress, consistency=check,
