@@ -530,6 +530,9 @@ def detect_layout(
     blobs = [(4 * x + 1.5, 4 * y + 1.5, 4 * r) for x, y, r in _rough_discs(cv2.GaussianBlur(small, (0, 0), sigma / 4), grid)]
     if kind == "auto":
         kind = "flat" if _uniform_inside(fine, blobs) else "scene"
+    elif kind == "flat" and not _uniform_inside(fine, blobs):
+        raise InvalidInputError("detect_layout: the frame is not a flat field: the inner half of its discs of light is "
+                                "not smooth (a scene or a target?)")
     base = fine if kind == "flat" else envelope
     circles = [_refine_disc(base, cx, cy, r) for cx, cy, r in blobs]
     if kind == "scene" and grid == (2, 2):
@@ -620,6 +623,9 @@ def _edge_points(fine: np.ndarray, cx: float, cy: float, r0: float) -> np.ndarra
     """(N, 2) points where the brightness along 360 rays from (cx, cy) falls to half its
     interior level, fitted as a + b r^2 over 0.3..0.75 r0 (the cos^4 fall-off) and extrapolated."""
     angles = np.linspace(0, 2 * np.pi, 360, endpoint=False)
+    if not 0 < r0 < max(fine.shape):
+        raise EstimationError(f"detect_layout: could not find the edge of a view's disc (a bright region {r0:.0f} px "
+                              "in radius, not a disc within the frame)")
     radii = np.arange(0.2 * r0, 1.5 * r0, 0.25, dtype=np.float64)
     mx = (cx + np.cos(angles)[:, None] * radii[None, :]).astype(np.float32)
     my = (cy + np.sin(angles)[:, None] * radii[None, :]).astype(np.float32)

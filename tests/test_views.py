@@ -84,6 +84,16 @@ def test_detect_errors():
         detect_layout(one, kind="white")
 
 
+def test_detect_as_flat_refuses_a_frame_with_texture_in_its_discs(prototype):
+    """kind='flat' on a target: refused as not a flat field (and the same frame's own kind,
+    'auto', finds it a scene and detects its discs)."""
+    r = render(prototype, target_scene(prototype, 0.5), binning=4, noise="low")
+    with pytest.raises(InvalidInputError, match="not a flat field"):
+        detect_layout(r.raw, kind="flat")
+    lay = detect_layout(r.raw)
+    assert np.abs(_raw_circles(lay)[:, :2] - _raw_circles(r.layout)[:, :2]).max() < 4.0
+
+
 def test_layout_round_trip_and_bad_files(tmp_path, prototype):
     r = render(prototype, flat_scene(prototype), binning=8)
     p = r.layout.save(tmp_path / "layout.json")

@@ -196,6 +196,7 @@ def load_views(raw, calib: str | None, levels: RawLevels | None = None, *, check
     if flat:
         flat_image = demosaic(read_frame(flat, levels, cal))
         cal.check_frame(flat_image.shape, what=f"flat frame {flat}")
+        require_flat_frame(flat_image, cal, flat)
         flat_field = flat_field_from_frame(flat_image, cal)
     return split_views(image, cal, flat=flat_field), cal, name
 
@@ -224,6 +225,17 @@ def require_ring_frame(image, cal, raw) -> None:
     logging.getLogger("lfring.cli").debug("%s: %s", raw, res.message)
     if not res.ok:
         raise InvalidInputError(f"{raw}: {res.message}")
+
+
+def require_flat_frame(image, cal, path) -> None:
+    """Raise (an InvalidInputError naming ``path``) unless the frame is a flat (white) frame of
+    the camera ``cal`` describes: discs of light without texture (:func:`lfring.check.check_frame`).
+    Dividing by anything else would print its texture into every view."""
+    from lfring.check import check_frame
+
+    res = check_frame(image, cal)
+    if not res.flat_field:
+        raise InvalidInputError(f"--flat {path} is not a flat (white) frame of this camera: {res.message}")
 
 
 class _SilentBar:

@@ -12,6 +12,7 @@ import numpy as np
 
 from lfring.cli._options import raw_options, read_frame
 from lfring.cli.outputs import OutputSet
+from lfring.errors import InvalidInputError
 
 log = logging.getLogger("lfring.cli.split")
 
@@ -57,7 +58,10 @@ def command(raw, outdir, layout_file, flat_file, rotate180, method, fmt, overwri
         flat = demosaic(load_raw(flat_file, **levels.as_kwargs()), method="bilinear")
         if flat.shape != image.shape:
             raise click.UsageError(f"the flat frame is {flat.shape[1]} x {flat.shape[0]} px, the raw frame {image.shape[1]} x {image.shape[0]} px")
-        layout, source = detect_layout(flat, kind="flat", rotate180=rotate180), f"detected on flat {flat_file}"
+        try:
+            layout, source = detect_layout(flat, kind="flat", rotate180=rotate180), f"detected on flat {flat_file}"
+        except InvalidInputError as exc:
+            raise InvalidInputError(f"--flat {flat_file}: {exc}") from None
     else:
         layout, source = detect_layout(image, rotate180=rotate180), "detected on the frame itself"
         log.warning("no --layout or --flat: layout detected on the frame itself, which is less precise")

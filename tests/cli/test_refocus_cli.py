@@ -107,3 +107,17 @@ def test_sweep_metadata_holds_the_depths_as_written(tmp_path):
     with tifffile.TiffFile(out.parent / "s_stack.tif") as tif:
         assert "0.4499999" not in tif.pages[0].description and "0.45" in tif.pages[0].description
     assert "0.4499999" not in "".join(p.name for p in out.parent.iterdir())
+
+
+def test_a_flat_that_is_not_a_flat_frame_is_refused(tmp_path, capsys):
+    """--flat divides every view by the given frame: a scene or a target there would print its
+    texture into the views, so only a flat (white) frame of the camera is taken."""
+    data = SCENE.parent
+    for frame in ("target_1m.png", "scene.png"):
+        assert main(["refocus", str(SCENE), "--depth", "0.5", "--method", "shift-and-add", "--flat", str(data / frame),
+                     "-o", str(tmp_path / "o.png")]) == 2
+        err = capsys.readouterr().err
+        assert f"--flat {data / frame} is not a flat (white) frame of this camera" in err and "Traceback" not in err
+    assert not any(tmp_path.iterdir())
+    assert main(["refocus", str(SCENE), "--depth", "0.5", "--method", "shift-and-add", "--flat", str(data / "flat.png"),
+                 "-o", str(tmp_path / "o.png")]) == 0
