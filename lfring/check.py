@@ -22,8 +22,8 @@ from lfring.core.validate import check_int
 from lfring.errors import InvalidInputError, LfringWarning
 from lfring.core.filters import luminance
 
-__all__ = ["AGREEMENT_THRESHOLD", "CHECK_DOWNSAMPLE", "FLAT_TEXTURE", "MIN_DISC_CONTRAST", "FrameCheck", "check_frame",
-           "draw_layout"]
+__all__ = ["AGREEMENT_THRESHOLD", "CHECK_DOWNSAMPLE", "FLAT_TEXTURE", "MIN_DISC_CONTRAST", "PROCESS_ANYWAY", "FrameCheck",
+           "check_frame", "draw_layout"]
 
 AGREEMENT_THRESHOLD = 0.3
 """Smallest view agreement (the least, over the pairs of views, ZNCC of their high-passed
@@ -45,6 +45,10 @@ MIN_DISC_CONTRAST = 0.5
 frame: the ring's views are discs of light with dark between them. Every bundled frame of the
 twin scores near 0.9; an image that fills the sensor (a photograph, a gradient) scores near 0,
 so a frame whose views happen to agree (a smooth gradient does) is still refused."""
+
+PROCESS_ANYWAY = "check it with 'lfring check', or pass --no-check to process it anyway"
+"""What a refusal of the processing commands tells the user to do (ends the message of a frame
+that is not a ring frame)."""
 
 FLAT_TEXTURE = 0.12
 """Largest texture (:attr:`FrameCheck.texture`) of a flat field: the RMS of the views'
@@ -297,7 +301,7 @@ def check_frame(frame, calibration, *, threshold: float = AGREEMENT_THRESHOLD, d
     agree = bool(np.isfinite(agreement) and agreement >= threshold)
     disagree = (f"the views do not agree at any depth from {zmin:.3g} to {zmax:.3g} m (ZNCC {agreement:.2f}, a ring "
                 f"frame scores above {threshold:g})")
-    how = "check it with 'lfring check', or pass --no-check to process it anyway"
+    how = PROCESS_ANYWAY
     if np.isfinite(contrast) and contrast < MIN_DISC_CONTRAST:
         reason = "no_discs"
         dark_too = " (or too dark to show them)" if dark > 0.9 else ""

@@ -112,9 +112,14 @@ def test_cli_check_and_refocus_refuse_a_gradient(tmp_path, kind):
                            cwd=tmp_path, timeout=300)
     assert check.returncode == 1, check.stdout + check.stderr
     assert "disc contrast" in check.stdout and "NOT a ring frame" in check.stdout and "no discs" in check.stdout
+    # The check itself does not send the user to the check; its agreement is the best of a few
+    # depths, not a depth it measured.
+    assert "lfring check'" not in check.stdout and "pass --no-check to the processing commands" in check.stdout
+    assert "the best of 7 depths tried from 0.15 to 2 m" in check.stdout
     refocus = subprocess.run([sys.executable, "-m", "lfring", "refocus", str(frame), "--depth", "0.5",
                               "--method", "shift-and-add"], capture_output=True, text=True, cwd=tmp_path, timeout=300)
     assert refocus.returncode == 2 and "no discs" in refocus.stderr and "Traceback" not in refocus.stderr
+    assert "check it with 'lfring check', or pass --no-check" in refocus.stderr
     assert not list(tmp_path.glob("gradient_refocus*"))
 
 

@@ -36,7 +36,7 @@ def command(ctx, frame, calib, output, overwrite, levels):
     """
     from lfring.calibration import RingCalibration
     from lfring.calibration.defaults import default_calibration
-    from lfring.check import FLAT_TEXTURE, check_frame, draw_layout
+    from lfring.check import FLAT_TEXTURE, PROCESS_ANYWAY, check_frame, draw_layout
     from lfring.io.demosaic import demosaic
     from lfring.io.writers import write_image
 
@@ -54,6 +54,7 @@ def command(ctx, frame, calib, output, overwrite, levels):
     else:
         cal_name = calib
     res = check_frame(image, cal, measure_fit=True)
+    tried = list(res.agreement_by_depth)
     black = raw.black_level if not isinstance(raw.black_level, tuple) else ",".join(f"{b:g}" for b in raw.black_level)
     lines = [
         f"frame        {frame}: {size[0]} x {size[1]} px, "
@@ -63,14 +64,17 @@ def command(ctx, frame, calib, output, overwrite, levels):
         f"exposure     {res.clipped_fraction:.2%} clipped, {res.dark_fraction:.2%} dark (inside the views' discs)",
         f"calibration  {cal_name} ({cal.raw_size[0]} x {cal.raw_size[1]} px, {cal.num_views} views)",
         f"layout fit   disc contrast {res.disc_contrast:.2f} (1: dark between the discs, 0: light everywhere)",
-        f"agreement    {res.agreement:.2f} at {res.best_depth_m:.3g} m (ring frames score above {res.threshold:g})"
+        f"agreement    {res.agreement:.2f} at {res.best_depth_m:.3g} m, the best of {len(tried)} depths tried from "
+        f"{min(tried):.3g} to {max(tried):.3g} m (ring frames score above {res.threshold:g}; not a depth measurement)"
         if res.best_depth_m is not None else f"agreement    none measurable (threshold {res.threshold:g})",
         f"texture      {res.texture:.3f} of the mean inside the discs (a flat field's is below {FLAT_TEXTURE:g})",
         f"fit          views {res.fit_px:.3f} px from the calibration's homographies at {res.fit_depth_m:.4g} m "
         f"(median over tiles; lens distortion {'undone' if cal.distortion is not None else 'not modelled'}"
         f"{', flat field divided' if cal.flat_field is not None else ''})" if np.isfinite(res.fit_px)
         else "fit          not measured (not a ring frame to process)",
-        f"verdict      {_VERDICTS.get(res.reason, 'NOT a ring frame for this calibration')}: {res.message}",
+        # This is the check the user was sent to: what to do is to look, or to skip it.
+        f"verdict      {_VERDICTS.get(res.reason, 'NOT a ring frame for this calibration')}: "
+        f"{res.message.replace('; ' + PROCESS_ANYWAY, '; pass --no-check to the processing commands to use it anyway')}",
     ]
     with outputs.writing() as stage:
         write_image(stage(out), draw_layout(image, cal.layout))
