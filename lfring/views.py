@@ -448,6 +448,10 @@ def grid_layout(view_shape: tuple[int, int], grid_positions) -> Layout:
 
 
 DETECT_KINDS = ("auto", "flat", "scene")
+# A frame detected as a flat has discs without texture: the RMS of the inner half of each disc,
+# high-passed at a sixteenth of its radius, over its mean, stays below this (above a flat's
+# noise and the residue of its lenses' vignetting, far below any scene's or target's texture).
+FLAT_DISC_TEXTURE = 0.05
 
 
 def detect_layout(
@@ -530,9 +534,9 @@ def detect_layout(
     blobs = [(4 * x + 1.5, 4 * y + 1.5, 4 * r) for x, y, r in _rough_discs(cv2.GaussianBlur(small, (0, 0), sigma / 4), grid)]
     if kind == "auto":
         kind = "flat" if _uniform_inside(fine, blobs) else "scene"
-    elif kind == "flat" and not _uniform_inside(fine, blobs):
-        raise InvalidInputError("detect_layout: the frame is not a flat field: the inner half of its discs of light is "
-                                "not smooth (a scene or a target?)")
+    elif kind == "flat" and _disc_texture(fine, blobs) > FLAT_DISC_TEXTURE:
+        raise InvalidInputError("detect_layout: the frame is not a flat field: the inner half of its discs of light "
+                                "shows texture (a scene or a target?)")
     base = fine if kind == "flat" else envelope
     circles = [_refine_disc(base, cx, cy, r) for cx, cy, r in blobs]
     if kind == "scene" and grid == (2, 2):
@@ -617,6 +621,19 @@ def _uniform_inside(fine: np.ndarray, blobs) -> bool:
         if patch.size == 0 or patch.std() > 0.08 * max(float(patch.mean()), 1e-6):
             return False
     return True
+
+
+def _disc_texture(fine: np.ndarray, blobs) -> float:
+    """The largest, over the discs, RMS of the inner half of a disc high-passed at a sixteenth
+    of its radius, over its mean (see :data:`FLAT_DISC_TEXTURE`)."""
+    worst = 0.0
+    for cx, cy, r in blobs:
+        patch = fine[max(0, int(cy - r / 2)):max(0, int(cy + r / 2)), max(0, int(cx - r / 2)):max(0, int(cx + r / 2))]
+        if patch.size == 0:
+            return float("inf")
+        hp = patch - cv2.GaussianBlur(patch, (0, 0), max(2.0, r / 16))
+        worst = max(worst, float(hp.std()) / max(float(patch.mean()), 1e-6))
+    return worst
 
 
 def _edge_points(fine: np.ndarray, cx: float, cy: float, r0: float) -> np.ndarray:
