@@ -20,7 +20,11 @@ from lfring.optics.device import RingDevice
 from lfring.optics.views import ideal_discs_px, lens_distortions, optical_homography_model, optical_layout, view_cameras
 from lfring.views import Layout, grid_layout
 
-__all__ = ["calibration_from_grid", "calibration_from_optics", "calibration_from_plane_homographies"]
+__all__ = ["calibration_from_grid", "calibration_from_optics", "calibration_from_plane_homographies", "check_grid_disparity"]
+
+GRID_DISPARITY_NAMES = ("disparity_scale_px_m", "disparity_offset_px", "depth_origin_m")
+"""How :func:`check_grid_disparity`'s messages name the grid's disparity model by default: the
+parameters of :func:`calibration_from_grid`."""
 
 
 def calibration_from_optics(device: RingDevice, *, layout: Layout | None = None, rotate180: bool = False) -> RingCalibration:
@@ -193,11 +197,7 @@ def calibration_from_grid(
             f"grid_positions must be (V, 2) finite (x, y) grid positions, got {got}; a stereo pair is [(0, 0), (1, 0)]"
         )
     layout = grid_layout(view_shape, pos)
-    scale = check_number(disparity_scale_px_m, "disparity_scale_px_m")
-    offset = check_number(disparity_offset_px, "disparity_offset_px")
-    z0 = check_number(depth_origin_m, "depth_origin_m")
-    if scale == 0:
-        raise InvalidInputError("disparity_scale_px_m must not be 0: the views would not move with depth")
+    scale, offset, z0 = check_grid_disparity(disparity_scale_px_m, disparity_offset_px, depth_origin_m)
     if valid_depth_range_m is None:
         valid_depth_range_m = (z0 + abs(scale) / max(layout.view_shape), None)
     rel = pos - pos[0]
@@ -214,6 +214,48 @@ def calibration_from_grid(
                     "disparity": "d(Z) = disparity_offset_px + disparity_scale_px_m / (Z - depth_origin_m) px per "
                                  "grid step; view k at grid position p_k: H_ref_from_view = translation by (p_k - p_ref) d(Z)"},
     )
+
+
+def check_grid_disparity(disparity_scale_px_m, disparity_offset_px, depth_origin_m, *,
+                         names: tuple[str, str, str] = GRID_DISPARITY_NAMES) -> tuple[float, float, float]:
+    """The disparity model of a grid of views, checked: each number finite, the scale not 0.
+
+    A scale of 0 would make the views' disparity the same at every depth: the calibration could
+    not tell one depth from another.
+
+    Parameters
+    ----------
+    disparity_scale_px_m, disparity_offset_px, depth_origin_m : float
+        As :func:`calibration_from_grid` takes them.
+    names : (str, str, str)
+        How the messages name the three numbers (the command line passes its options).
+
+    Returns
+    -------
+    (scale, offset, z0) : floats
+
+    Raises
+    ------
+    InvalidInputError
+        Naming the number at fault.
+
+    Examples
+    --------
+    >>> from lfring.calibration.build import check_grid_disparity
+    >>> check_grid_disparity(100, 0, 0)
+    (100.0, 0.0, 0.0)
+    >>> check_grid_disparity(0.0, 0, 0, names=("--disparity-scale", "--disparity-offset", "--depth-origin"))
+    Traceback (most recent call last):
+    ...
+    lfring.errors.InvalidInputError: --disparity-scale must not be 0: the views would not move with depth
+    """
+    scale_name, offset_name, origin_name = names
+    scale = check_number(disparity_scale_px_m, scale_name)
+    offset = check_number(disparity_offset_px, offset_name)
+    z0 = check_number(depth_origin_m, origin_name)
+    if scale == 0:
+        raise InvalidInputError(f"{scale_name} must not be 0: the views would not move with depth")
+    return scale, offset, z0
 
 
 def _is_numeric(value) -> bool:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 
 from lfring._resources import calib_dir
-from lfring.calibration.jsonio import builtin_calibrations, calibration_from_dict
+from lfring.calibration.jsonio import CALIBRATION_SUFFIX, builtin_calibrations, calibration_from_dict
 from lfring.calibration.ring import RingCalibration
 from lfring.errors import LfringFileNotFoundError
 
@@ -25,6 +25,7 @@ def default_calibration(raw_size: tuple[int, int]) -> tuple[RingCalibration, str
             "make one with lfring calibrate and pass it with --calib"
         )
     # Read from the package even when the working folder holds a file of the same name.
-    cals = [(calibration_from_dict(json.loads((calib_dir() / f"{n}.json").read_text()), source_name=n), n) for n in matches]
+    cals = [(calibration_from_dict(json.loads((calib_dir() / f"{n}{CALIBRATION_SUFFIX}").read_text()), source_name=n), n)
+            for n in matches]
     cals.sort(key=lambda c: c[0].source != "planes")
     return cals[0]

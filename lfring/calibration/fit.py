@@ -142,6 +142,7 @@ def calibrate(
                 f"all frames must have the same size: {name} is {img.shape[1]} x {img.shape[0]} px, "
                 f"the first is {shape[1]} x {shape[0]} px"
             )
+        _check_new_frame(img, name, float(d), images)
         images[float(d)] = (img, name)
     flat_img = None
     if flat is not None:
@@ -267,6 +268,23 @@ def check_disparity_sign(h_by_depth: dict, names: dict, view_shape_hw) -> None:
                 f"closer than those of the plane given as {far:g} m ({names.get(far, '?')}, {spread[far]:.1f} px); "
                 "views of nearer planes lie farther apart, so these depths look swapped: give each frame's depth "
                 "in the order of the frames"
+            )
+
+
+def _check_new_frame(img: np.ndarray, name: str, depth_m: float, images: dict) -> None:
+    """Refuse a frame whose pixels equal those of a frame already given for another depth.
+
+    One photograph cannot show the target at two depths: the same file given twice (or a copy
+    of it) would otherwise reach the fit and be refused there as swapped depths, a misleading
+    reason.
+    """
+    for other_m, (other, other_name) in images.items():
+        if other.shape == img.shape and np.array_equal(other, img):
+            near, far = sorted((other_m, depth_m))
+            files = other_name if other_name == name else f"{other_name} and {name}"
+            raise InvalidInputError(
+                f"the same frame is given for {near} m and {far} m ({files}): give a frame of the target "
+                "at each depth"
             )
 
 

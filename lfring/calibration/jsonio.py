@@ -25,6 +25,7 @@ from lfring.io.readers import read_json_object
 from lfring.views import Layout
 
 __all__ = [
+    "CALIBRATION_SUFFIX",
     "CALIBRATION_VERSION",
     "FLAT_FIELD_GRID_DIVISIONS",
     "READABLE_VERSIONS",
@@ -34,6 +35,10 @@ __all__ = [
     "load_calibration",
     "save_calibration",
 ]
+
+CALIBRATION_SUFFIX = ".json"
+"""How a calibration file's name ends: the files lfring writes, and what tells a file from the
+name of a built-in calibration (:func:`load_calibration`)."""
 
 CALIBRATION_VERSION = 2
 """Version of the calibration file format, written as ``lfring_calibration_version``. Version 2
@@ -282,7 +287,7 @@ def load_calibration(path: str | Path) -> RingCalibration:
                 f"(built-in: {', '.join(names) or 'none'}); give the path of a calibration file "
                 "(lfring calibrate makes one) or one of the built-in names"
             )
-        data = json.loads((calib_dir() / f"{path}.json").read_text(encoding="utf-8"))
+        data = json.loads((calib_dir() / f"{path}{CALIBRATION_SUFFIX}").read_text(encoding="utf-8"))
         return calibration_from_dict(data, source_name=str(path))
     return calibration_from_dict(read_json_object(path, "calibration"), source_name=str(path))
 
@@ -305,10 +310,10 @@ def builtin_calibrations() -> dict[str, tuple[int, int]]:
     """
     out = {}
     for entry in sorted(calib_dir().iterdir(), key=lambda e: e.name):
-        if entry.name.endswith(".json"):
+        if entry.name.endswith(CALIBRATION_SUFFIX):
             data = json.loads(entry.read_text(encoding="utf-8"))
             if "lfring_calibration_version" in data:
-                out[entry.name[: -len(".json")]] = (data["raw_width_px"], data["raw_height_px"])
+                out[entry.name[: -len(CALIBRATION_SUFFIX)]] = (data["raw_width_px"], data["raw_height_px"])
     return out
 
 
@@ -317,7 +322,7 @@ def _is_builtin_name(path) -> bool:
     separator, no .json suffix) that is not an existing file."""
     text = str(path)
     separators = {"/", os.sep} | ({os.altsep} if os.altsep else set())
-    return (bool(text) and not any(s in text for s in separators) and not text.lower().endswith(".json")
+    return (bool(text) and not any(s in text for s in separators) and not text.lower().endswith(CALIBRATION_SUFFIX)
             and not Path(text).exists())
 
 

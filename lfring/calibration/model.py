@@ -11,11 +11,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lfring.core.validate import check_view_index
+from lfring.core.validate import check_view_index, is_number
 from lfring.errors import EstimationError, InvalidInputError
 from lfring.core.geometry import homography_rms_px, normalize_homographies
 
-__all__ = ["VariableHomography", "PlaneFit", "fit_variable_homography"]
+__all__ = ["VariableHomography", "PlaneFit", "check_depth_origin", "fit_variable_homography"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -85,6 +85,47 @@ def _errors(hs, z, a, b, z0, shape_hw) -> np.ndarray:
     return homography_rms_px(pred, hs, shape_hw, step=8)
 
 
+def check_depth_origin(depth_origin_m, nearest_m: float, *, name: str = "depth_origin_m") -> float:
+    """``depth_origin_m`` as a float, if the model can use it with planes from ``nearest_m`` on.
+
+    The model divides by Z - z0, so z0 must be finite and in front of every plane; a z0 at or
+    beyond the nearest plane puts a pole of the model among the planes.
+
+    Parameters
+    ----------
+    depth_origin_m : float
+        z0 in metres.
+    nearest_m : float
+        The nearest plane's depth in metres.
+    name : str
+        How the message names z0 (the command line passes its option).
+
+    Returns
+    -------
+    float
+
+    Raises
+    ------
+    InvalidInputError
+        When z0 is not finite or not nearer than the nearest plane.
+
+    Examples
+    --------
+    >>> from lfring.calibration.model import check_depth_origin
+    >>> check_depth_origin(0.028, 0.3)
+    0.028
+    >>> check_depth_origin(0.5, 0.3, name="--depth-origin")
+    Traceback (most recent call last):
+    ...
+    lfring.errors.InvalidInputError: --depth-origin (0.5) must be finite and in front of the nearest plane (0.3 m)
+    """
+    z0 = float(depth_origin_m) if is_number(depth_origin_m) else float("nan")
+    if not np.isfinite(z0) or z0 >= nearest_m:
+        raise InvalidInputError(
+            f"{name} ({depth_origin_m}) must be finite and in front of the nearest plane ({nearest_m:g} m)")
+    return z0
+
+
 def fit_variable_homography(
     homographies_by_depth: dict,
     *,
@@ -152,9 +193,7 @@ def fit_variable_homography(
                               options={"xatol": 1e-7})
         z0 = float(res.x)
     else:
-        z0 = float(depth_origin_m)
-        if not np.isfinite(z0) or z0 >= depths[0]:
-            raise InvalidInputError(f"depth_origin_m ({depth_origin_m}) must be finite and in front of the nearest plane ({depths[0]} m)")
+        z0 = check_depth_origin(depth_origin_m, float(depths[0]))
     a, b = _solve(hs, depths, z0, rank1)
     model = VariableHomography(a, b, z0, int(reference))
     residual = _errors(hs, depths, a, b, z0, shape_hw)

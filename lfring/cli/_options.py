@@ -65,6 +65,29 @@ def depth_range_words(remedy):
             f"of motion away; {remedy(exc.planes_needed) if callable(remedy) else remedy}") from None
 
 
+def check_calibration_output(output) -> None:
+    """Refuse a calibration output whose name does not end in ``.json``.
+
+    The file holds JSON, and only a ``.json`` name tells a file from the name of a built-in
+    calibration when a later command reads it (:func:`lfring.calibration.load_calibration`).
+
+    Parameters
+    ----------
+    output : str or Path
+        The -o of ``lfring calibrate`` or ``lfring grid-calib``.
+
+    Raises
+    ------
+    click.BadParameter
+        Naming -o and the suffix expected.
+    """
+    from lfring.calibration.jsonio import CALIBRATION_SUFFIX
+
+    if Path(output).suffix.lower() != CALIBRATION_SUFFIX:
+        raise click.BadParameter(f"the calibration file must end in {CALIBRATION_SUFFIX}, got {Path(output).name!r}",
+                                 param_hint="-o")
+
+
 device_option = click.option(
     "--device",
     "device_name",

@@ -10,7 +10,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from lfring.cli._options import get_device, raw_options
+from lfring.cli._options import check_calibration_output, get_device, raw_options
 from lfring.cli.outputs import OutputSet
 from lfring.errors import InvalidInputError
 
@@ -67,11 +67,15 @@ def command(frames, depths, output, flat, layout_file, depth_origin, device_name
     prints the views' misregistration before and after undoing it, and the residual of every
     view and plane in pixels, warns above 0.3 px and refuses above 0.5 px (a frame that is not
     a planar target at its depth) unless --force. Refuses
-    depths whose order contradicts the ring (views of nearer planes lie farther apart). The
+    depths whose order contradicts the ring (views of nearer planes lie farther apart), the same
+    frame given for two depths, and a plane that the --device's optics (or the built-in
+    calibration for the frames' size) put too far to tell from infinity, as lfring inspect does:
+    most often millimetres given as metres. The
     calibration records the device and the frames' Bayer pattern and levels: later commands
     read frames without a sidecar with them.
     """
     from lfring.calibration import calibrate
+    from lfring.calibration.model import check_depth_origin
     from lfring.views import Layout
 
     frames = list(frames)
@@ -82,15 +86,19 @@ def command(frames, depths, output, flat, layout_file, depth_origin, device_name
     try:
         zs = [float(t) for t in tokens]
     except ValueError:
-        raise click.BadParameter(f"depths must be numbers of metres, got {' '.join(tokens)!r}", param_hint="--depths") from None
+        raise click.BadParameter(f"expected a number of metres for each frame, got {' '.join(tokens)!r}",
+                                 param_hint="--depths") from None
     if len(zs) != len(frames):
         raise click.UsageError(f"{len(frames)} frame(s) but {len(zs)} depth(s): give one depth per frame")
     if len(frames) < 2:
         raise click.UsageError("calibration needs frames at two or more depths")
     if any(not math.isfinite(z) or z <= 0 for z in zs):
-        raise click.BadParameter(f"depths must be positive, got {zs}", param_hint="--depths")
+        raise click.BadParameter(f"expected a positive number of metres for each frame, got {' '.join(tokens)}",
+                                 param_hint="--depths")
     if len(set(zs)) != len(zs):
-        raise click.BadParameter(f"depths must be distinct, got {zs}", param_hint="--depths")
+        raise click.BadParameter(f"each frame needs its own depth (the depths must be distinct), got {' '.join(tokens)}",
+                                 param_hint="--depths")
+    check_calibration_output(output)
     if flat and layout_file:
         raise click.UsageError("give --flat or --layout, not both")
     if carry_flat and not flat:
@@ -107,11 +115,14 @@ def command(frames, depths, output, flat, layout_file, depth_origin, device_name
             z0 = float(depth_origin)
         except ValueError:
             raise click.BadParameter(f"expected auto, optics or metres, got {depth_origin!r}", param_hint="--depth-origin") from None
+    if z0 is not None:
+        check_depth_origin(z0, min(zs), name="--depth-origin")
     outputs = OutputSet([output], name=Path(output).name, overwrite=overwrite)
     outputs.check()
     layout = Layout.load(layout_file) if layout_file else None
     cal = calibrate(dict(zip(zs, frames)), flat=flat, layout=layout, depth_origin_m=z0, method=method, rank1=rank1,
                     device=device, distortion=not no_distortion, carry_flat=carry_flat, **levels.as_kwargs())
+    _refuse_too_far(cal, dict(zip(zs, frames)), device)
     click.echo(f"z0 = {cal.depth_origin_m:.6f} m ({cal.provenance.get('depth_origin')}); valid depth range "
                f"{cal.valid_depth_range_m[0]:g} to {cal.valid_depth_range_m[1]:g} m; reference view {cal.model.reference}")
     click.echo(f"{'plane [m]':>10} " + " ".join(f"{'view ' + str(k) + ' px':>10}" for k in range(cal.num_views))
@@ -141,6 +152,62 @@ def command(frames, depths, output, flat, layout_file, depth_origin, device_name
     with outputs.writing() as stage:
         cal.save(stage(output))
     log.info("wrote %s", output)
+
+
+def _camera_model(cal, device):
+    """A model of the camera that does not rest on the given depths, and its name in words:
+    the --device's optics at the frames' binning, else the built-in calibration for frames of
+    this size (what ``lfring inspect`` uses without --calib); (None, '') without either."""
+    from lfring.calibration import RingCalibration
+    from lfring.calibration.defaults import default_calibration
+    from lfring.depth.io import device_for
+    from lfring.errors import LfringError
+
+    if device is not None:
+        try:
+            return RingCalibration.from_optics(device_for(cal, device)), f"the optics of device '{device.name}'"
+        except InvalidInputError:  # no binning of the device gives these frames
+            pass
+    try:
+        ref, name = default_calibration(cal.raw_size)
+    except LfringError:
+        return None, ""
+    return ref, f"the built-in calibration '{name}'"
+
+
+def _tells_from_infinity(calibration, depth_m: float) -> bool:
+    """Whether ``calibration`` tells a plane at ``depth_m`` from infinity, by the rule ``lfring
+    inspect`` applies to its --plane (:func:`lfring.inspect.default_depth_band` at zero
+    tolerance: the search around the depth must not reach infinity)."""
+    from lfring.inspect import default_depth_band
+
+    try:
+        default_depth_band(calibration, depth_m, depth_m, 0.0)
+    except InvalidInputError:
+        return False
+    return True
+
+
+def _refuse_too_far(cal, frames_by_depth: dict, device) -> None:
+    """Refuse depths that contradict the camera: most often millimetres given as metres.
+
+    The calibration fitted to the frames cannot tell on its own (its scale comes from the given
+    depths). A model of the camera that does not rest on them (:func:`_camera_model`) can: when
+    it puts even the nearest plane too far to tell from infinity while the frames show that
+    plane's views moving as a near plane's do, the depths are wrong. A plane that both put too
+    far is a camera too coarse for it, not a unit mistake, and is left to the residuals.
+    """
+    ref, what = _camera_model(cal, device)
+    near = min(frames_by_depth)
+    if ref is None or near <= ref.valid_depth_range_m[0]:
+        return
+    if _tells_from_infinity(ref, near) or not _tells_from_infinity(cal, near):
+        return
+    raise InvalidInputError(
+        f"by {what}, the nearest plane, given as {near:g} m ({frames_by_depth[near]}), lies too far to tell from "
+        "infinity (lfring inspect refuses such a --plane alike), yet the frames show its views moving as a near "
+        "plane's do: --depths are in metres, not mm"
+    )
 
 
 def _echo_distortion(cal) -> None:

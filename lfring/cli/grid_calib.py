@@ -14,17 +14,21 @@ from lfring.views import MAX_VIEWS
 log = logging.getLogger("lfring.cli.grid_calib")
 
 
-def _pair(text: str, sep: str, what: str) -> tuple[float, float]:
+#: How grid-calib's messages name the grid's disparity model (the library names its parameters).
+_DISPARITY_OPTIONS = ("--disparity-scale", "--disparity-offset", "--depth-origin")
+
+
+def _pair(text: str, sep: str, what: str, hint: str) -> tuple[float, float]:
     parts = [p for p in re.split(sep, text.strip()) if p]
     try:
         a, b = (float(p) for p in parts)
     except ValueError:
-        raise click.BadParameter(f"expected {what}, got {text!r}") from None
+        raise click.BadParameter(f"expected {what}, got {text!r}", param_hint=hint) from None
     return a, b
 
 
 def _size(text: str, hint: str, form: str) -> tuple[int, int]:
-    w, h = _pair(text, r"[xX,]", f"{form} (two positive integers)")
+    w, h = _pair(text, r"[xX,]", f"{form} (two positive integers)", hint)
     if not (math.isfinite(w) and math.isfinite(h) and w == int(w) >= 1 and h == int(h) >= 1):
         raise click.BadParameter(f"expected {form} (two positive integers), got {text!r}", param_hint=hint)
     return int(w), int(h)
@@ -34,7 +38,10 @@ def _positions(grid: str | None, positions: str | None) -> list[tuple[float, flo
     if grid is not None and positions is not None:
         raise click.UsageError("give --grid COLSxROWS or --positions 'X,Y X,Y ...', not both")
     if positions is not None:
-        return [_pair(p, r",", "X,Y grid positions separated by spaces") for p in positions.split()]
+        what = "X,Y grid positions separated by spaces"
+        if not positions.split():
+            raise click.BadParameter(f"expected {what}, got {positions!r}", param_hint="--positions")
+        return [_pair(p, r",", what, "--positions") for p in positions.split()]
     cols, rows = _size(grid or "2x1", "--grid", "COLSxROWS")
     if cols * rows > MAX_VIEWS:
         raise click.BadParameter(f"a grid of {cols} x {rows} has {cols * rows} views: at most {MAX_VIEWS}", param_hint="--grid")
@@ -69,10 +76,14 @@ def command(size, grid, positions, disparity_scale, disparity_offset, depth_orig
         lfring depth left.png right.png --calib pair.json --zmin 2 --zmax 50 --reference 0 -o out/
     """
     from lfring.calibration import RingCalibration
+    from lfring.calibration.build import check_grid_disparity
+    from lfring.cli._options import check_calibration_output
     from lfring.cli.outputs import OutputSet
 
     w, h = _size(size, "--size", "WxH")
     pos = _positions(grid, positions)
+    check_grid_disparity(disparity_scale, disparity_offset, depth_origin, names=_DISPARITY_OPTIONS)
+    check_calibration_output(output)
     cal = RingCalibration.from_grid((h, w), pos, disparity_scale_px_m=disparity_scale, disparity_offset_px=disparity_offset,
                                     depth_origin_m=depth_origin)
     outputs = OutputSet([output], name=Path(output).name, overwrite=overwrite)

@@ -71,3 +71,98 @@ def test_calibrate_refuses_a_frame_that_is_not_a_target(files, tmp_path, capsys)
     assert proc.returncode == 2 and "does not look like a planar target" in proc.stderr and "--force" in proc.stderr
     assert "part_good.png" in proc.stderr and not out.exists()
     assert "--force" in subprocess.run([*cmd[:4], "--help"], capture_output=True, text=True, timeout=120).stdout
+
+
+def _calibrate_args(files, out, *extra):
+    return ["calibrate", str(files / "t0.3.png"), str(files / "t1.0.png"), "--flat", str(files / "flat.png"),
+            "--device", "prototype", "-o", str(out), *extra]
+
+
+def test_calibrate_output_must_end_in_json(files, tmp_path, capsys):
+    """What the user did: -o scene.png --overwrite. The calibration is JSON: a name that does not
+    end in .json is refused before any work, and the file of that name is left as it was."""
+    scene = tmp_path / "scene.png"
+    scene.write_bytes(b"not a calibration")
+    assert main(_calibrate_args(files, scene, "--depths", "0.3", "1.0", "--overwrite")) == 2
+    err = capsys.readouterr().err
+    assert "Invalid value for -o: the calibration file must end in .json, got 'scene.png'" in err
+    assert scene.read_bytes() == b"not a calibration" and sorted(p.name for p in tmp_path.iterdir()) == ["scene.png"]
+    # grid-calib writes a calibration too, by the same rule.
+    assert main(["grid-calib", "--size", "30x20", "--disparity-scale", "2", "-o", str(tmp_path / "pair.txt")]) == 2
+    assert "must end in .json, got 'pair.txt'" in capsys.readouterr().err
+    assert not (tmp_path / "pair.txt").exists()
+
+
+@pytest.mark.parametrize("copy", [False, True], ids=["same-path", "same-content"])
+def test_calibrate_refuses_the_same_frame_for_two_depths(files, tmp_path, capsys, copy):
+    """What the user did: one frame given for 0.3 m and 1.0 m. Refused as that, not as swapped
+    depths, whether the same path is given twice or a copy of the file."""
+    import shutil
+
+    first = files / "t0.3.png"
+    second = first
+    if copy:
+        second = tmp_path / "copy.png"
+        shutil.copy(first, second)
+        shutil.copy(files / "t0.3.png.json", tmp_path / "copy.png.json")
+    out = tmp_path / "cal.json"
+    args = ["calibrate", str(first), str(second), "--depths", "0.3", "1.0", "--flat", str(files / "flat.png"),
+            "--device", "prototype", "-o", str(out)]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert "the same frame is given for 0.3 m and 1.0 m" in err and "swapped" not in err
+    assert str(second) in err and not out.exists()
+
+
+def test_calibrate_refuses_millimetres_given_as_metres(files, tmp_path, capsys):
+    """What the user did: --depths 300 1000 (millimetres) with --device prototype. By the
+    device's optics planes at 300 m and beyond lie too far to tell from infinity (the rule lfring
+    inspect refuses such a --plane by), yet the frames show them near: refused, nothing written."""
+    out = tmp_path / "cal.json"
+    assert main(_calibrate_args(files, out, "--depths", "300", "1000")) == 2
+    err = capsys.readouterr().err
+    assert "the optics of device 'prototype'" in err and "given as 300 m" in err and "not mm" in err
+    assert "Traceback" not in err and not out.exists()
+    # The same frames in metres are accepted.
+    assert main(_calibrate_args(files, out, "--depths", "0.3", "1.0")) == 0 and out.exists()
+
+
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        (["--depths", "0.3", "1.0", "--depth-origin", "0.5"],
+         "--depth-origin (0.5) must be finite and in front of the nearest plane (0.3 m)"),
+        (["--depths", "0.3", "1.0", "--depth-origin", "nan"], "--depth-origin (nan) must be finite"),
+        (["--depths", "0.3", "0.3"], "Invalid value for --depths: each frame needs its own depth"),
+        (["--depths", "0.3", "0"],
+         "Invalid value for --depths: expected a positive number of metres for each frame, got 0.3 0"),
+    ],
+)
+def test_calibrate_errors_name_the_options(files, tmp_path, capsys, extra, message):
+    """The command's messages name its options, never the Python parameters behind them, and
+    refuse before any frame is read."""
+    out = tmp_path / "c.json"
+    assert main(["calibrate", str(files / "t0.3.png"), str(files / "t1.0.png"), *extra, "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert message in err and "depth_origin_m" not in err and "[0.3" not in err and not out.exists()
+
+
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        (["--disparity-scale", "0"], "--disparity-scale must not be 0"),
+        (["--disparity-scale", "nan"], "--disparity-scale must be a number (finite), got nan"),
+        (["--disparity-scale", "2", "--disparity-offset", "inf"], "--disparity-offset must be a number (finite)"),
+        (["--disparity-scale", "2", "--depth-origin", "nan"], "--depth-origin must be a number (finite)"),
+        (["--disparity-scale", "2", "--size", "30"], "Invalid value for --size: expected WxH"),
+        (["--disparity-scale", "2", "--positions", ""], "Invalid value for --positions: expected X,Y grid positions"),
+        (["--disparity-scale", "2", "--positions", "0,0,1 1,0"], "Invalid value for --positions: expected X,Y"),
+    ],
+)
+def test_grid_calib_errors_name_the_options(tmp_path, capsys, extra, message):
+    out = tmp_path / "g.json"
+    assert main(["grid-calib", "--size", "30x20", *extra, "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert message in err and not out.exists()
+    python_names = ("disparity_scale_px_m", "disparity_offset_px", "depth_origin_m", "grid_positions")
+    assert not any(name in err for name in python_names)
