@@ -107,8 +107,9 @@ def command(raw, zmin, zmax, outdir, calib, planes, reference, cost, aggregation
     views, cal, cal_name = load_views(raw, calib, levels, check=not no_check, flat=flat)
     ref = check_reference(reference, cal.num_views)
     lo, hi = cal.valid_depth_range_m
-    zmin = lo if zmin is None else zmin
-    if zmax is None:
+    if zmax is not None:
+        zmin, zmax = estimation_range(cal, zmin, zmax, reference=ref)
+    else:
         # The range of depth-aware refocusing, by its one rule: a calibration open to infinity
         # ends where the views stop moving, when that is a range of depths at all.
         try:

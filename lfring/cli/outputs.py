@@ -194,7 +194,10 @@ class OutputSet:
         self.check()  # again: the files may have appeared while the command worked
         self._root.mkdir(parents=True, exist_ok=True)
         host = socket.gethostname().replace("-", "")[:32]
-        staging = Path(tempfile.mkdtemp(prefix=f"{STAGING_PREFIX}{os.getpid()}-{host}-", dir=self._root))
+        try:
+            staging = Path(tempfile.mkdtemp(prefix=f"{STAGING_PREFIX}{os.getpid()}-{host}-", dir=self._root))
+        except OSError as exc:  # name the user's output, not the hidden folder beside it
+            raise type(exc)(exc.errno, f"cannot write there ({exc.strerror})", str(self.paths[0])) from None
         staged = {p.absolute(): staging / self._rel(p) for p in self.paths}
 
         def stage(path) -> Path:

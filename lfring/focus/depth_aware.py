@@ -803,6 +803,9 @@ def estimation_range(calibration, zmin_m=None, zmax_m=None, *, reference="center
     zmin_m = check_number(zmin_m, "zmin_m", above=0.0, allow_none=True, what="a distance in metres")
     zmax_m = check_number(zmax_m, "zmax_m", above=0.0, allow_none=True, what="a distance in metres")
     lo, hi = calibration.valid_depth_range_m
+    if zmax_m is not None and zmin_m is None and zmax_m <= lo:
+        raise InvalidInputError(f"zmax_m ({zmax_m:g} m) must be farther than the calibration's nearest valid depth "
+                                f"({lo:g} m), where the range starts when zmin_m is not given")
     lo = float(lo if zmin_m is None else zmin_m)
     if zmax_m is not None:
         return lo, float(zmax_m)

@@ -154,7 +154,11 @@ class RawFrame:
             if data.ndim != 2:
                 raise InvalidInputError(f"{where}mosaic must be 2-D (H, W), got shape {data.shape}")
             h, w = data.shape
-            if h < 2 or w < 2 or h % 2 or w % 2:
+            if h < 2 or w < 2:
+                raise InvalidInputError(
+                    f"{where}a Bayer mosaic needs at least one whole 2 x 2 CFA block, got {w} x {h} (W x H)"
+                )
+            if h % 2 or w % 2:
                 raise InvalidInputError(
                     f"{where}a Bayer mosaic needs an even width and height (whole 2 x 2 CFA "
                     f"blocks), got {w} x {h} (W x H); crop it to {w - w % 2} x {h - h % 2}"
@@ -332,6 +336,8 @@ def load_raw(
         raise LfringFileNotFoundError(f"{p}: no such file")
     if not p.is_file():
         raise FileFormatError(f"{p}: not a regular file (a directory?); expected a raw frame file")
+    if p.stat().st_size == 0:
+        raise FileFormatError(f"{p}: the file is empty (0 bytes); expected a raw frame file")
     overrides = {
         "pattern": pattern,
         "black_level": black_level,

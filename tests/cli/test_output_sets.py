@@ -111,6 +111,24 @@ def test_a_failing_command_leaves_no_staging_folder(tmp_path, capsys, monkeypatc
     assert os.listdir(tmp_path) == []
 
 
+def test_a_folder_that_cannot_be_written_is_named_by_the_output(tmp_path, capsys, monkeypatch):
+    """Where the staging folder cannot be made (a read-only file system), the error names the
+    user's output, not the hidden folder."""
+    import tempfile
+
+    from lfring.cli.main import main
+
+    def refused(*args, **kwargs):
+        raise PermissionError(1, "Operation not permitted", str(tmp_path / ".lfring-stage-1-x"))
+
+    monkeypatch.setattr(tempfile, "mkdtemp", refused)
+    out = tmp_path / "r.png"
+    assert main(["refocus", str(SCENE), "--depth", "0.5", "--method", "shift-and-add", "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert f"cannot write there (Operation not permitted): {out}" in err and ".lfring-stage" not in err
+    assert os.listdir(tmp_path) == []
+
+
 def test_outputs_of_one_stem_and_two_formats_have_records_of_their_own(tmp_path, capsys):
     """a.png and a.tif are two output sets: each one's rerun replaces only its own files."""
     from lfring.cli.main import main

@@ -251,6 +251,11 @@ def test_python_m_lfring():
      "--zmin 0.3 .. --zmax 0.31 m is too narrow to estimate depth over", "--method local"),
     (["view", str(SCENE), "--zmin", "0.3", "--zmax", "0.31"], "; widen the range\n", "--planes"),
     (["view", str(SCENE), "--planes", "2"], "--planes must be an integer >= 3 (", "None"),
+    # --zmax alone, nearer than where the range starts: the default of --zmin said as such.
+    (["refocus", str(SCENE), "--depth", "0.5", "--zmax", "0.2"],
+     "--zmax (0.2 m) must be farther than the calibration's nearest valid depth (0.3 m), where the range starts when "
+     "--zmin is not given", "--zmin (0.3)"),
+    (["depth", str(SCENE), "--zmax", "0.2", "-o", "d/"], "where the range starts when --zmin is not given", "zmin_m"),
     (["depth", str(SCENE), "--zmin", "0.49", "--zmax", "0.5", "-o", "d/"], "or use --method local", "method='local'"),
     (["inspect", str(SCENE), "--plane", "0.3", "--tolerance", "-1", "-o", "r/"], "--tolerance must be", "tolerance_m"),
     # The built-in calibration records its device now (--f-number works with it): a copy without one.

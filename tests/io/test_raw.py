@@ -286,12 +286,31 @@ def test_unknown_pattern_name_from_argument_and_from_sidecar(tmp_path):
         load_raw(path)
 
 
-@pytest.mark.parametrize("shape", [(7, 8), (8, 9), (1, 2)])
+@pytest.mark.parametrize("shape", [(7, 8), (8, 9), (3, 2)])
 def test_odd_mosaic_size_is_refused(tmp_path, shape):
     path = tmp_path / "odd.png"
     cv2.imwrite(str(path), np.zeros(shape, np.uint8))
     with pytest.raises(InvalidInputError, match="even width and height") as info:
         load_raw(path, pattern="RGGB")
+    _assert_names_file(info, path)
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (1, 2), (4, 1)])
+def test_a_mosaic_without_a_whole_cfa_block_is_refused_without_a_crop_to_nothing(tmp_path, shape):
+    path = tmp_path / "tiny.png"
+    cv2.imwrite(str(path), np.zeros(shape, np.uint8))
+    with pytest.raises(InvalidInputError, match="at least one whole 2 x 2 CFA block") as info:
+        load_raw(path, pattern="RGGB")
+    assert "crop" not in str(info.value)
+    _assert_names_file(info, path)
+
+
+@pytest.mark.parametrize("name", ["empty.png", "empty.tif", "empty.dng"])
+def test_an_empty_file_is_said_to_be_empty(tmp_path, name):
+    path = tmp_path / name
+    path.write_bytes(b"")
+    with pytest.raises(FileFormatError, match=r"the file is empty \(0 bytes\)") as info:
+        load_raw(path)
     _assert_names_file(info, path)
 
 
