@@ -11,6 +11,7 @@ import click
 
 from lfring.cli._options import check_option, flat_option, load_views, raw_options
 from lfring.cli.outputs import OutputSet
+from lfring.cli.words import cli_words
 from lfring.inspect import MIN_COVERAGE
 
 log = logging.getLogger("lfring.cli.inspect")
@@ -166,7 +167,7 @@ def command(ctx, raw, plane, tolerance, outdir, calib, roi, reference_depth, min
     elif res.verdict == "fail":
         verdict = f"fail ({len(res.defects)} defect{'s' if len(res.defects) != 1 else ''}, {checked})"
     else:
-        verdict = f"cannot judge ({res.reason})"
+        verdict = f"cannot judge ({cli_words(res.reason)})"
     log.info("%s: %s at %.3f m +- %.1f mm", raw, verdict, plane, tolerance * 1e3)
     click.echo(f"{js}: {verdict}")
     if res.verdict == "fail":

@@ -157,6 +157,8 @@ def test_cannot_judge_exits_3_with_the_reason(tmp_path, capsys, frame, plane, re
 def test_min_coverage_option(tmp_path, capsys):
     out = tmp_path / "report"
     assert _run(GOOD, "--plane", "0.3", "--tolerance", "0.008", "--min-coverage", "0.99", "-o", out) == 3
-    assert "cannot judge (too few confident pixels: checked" in capsys.readouterr().out
+    said = capsys.readouterr().out
+    assert "cannot judge (too few confident pixels: checked" in said
+    assert "needed (--min-coverage)" in said and "(min_coverage)" not in said  # the option, as the user gave it
     rep = json.loads((out / "part_good_inspect.json").read_text())
     assert rep["verdict"] == "cannot_judge" and rep["settings"]["min_coverage"] == 0.99 and rep["coverage"] < 0.99
