@@ -15,8 +15,10 @@ Safety rules, for every run:
   same settings and the same input, and never replaces files it did not make unless asked to
   (``overwrite=True``);
 - a frame that fails is reported by name and the others go on;
-- ``OUTDIR/manifest.jsonl`` gets one JSON line per frame and run (input, outputs, timings,
-  status, error).
+- ``OUTDIR/manifest.jsonl`` gets one JSON line per frame and run (input, status, the outputs
+  that run wrote, timings, error; a frame that failed or was left out lists none, and the
+  files it was to write as ``planned_outputs``); a ``manifest.jsonl`` that a batch did not
+  write is neither appended to nor replaced unless ``overwrite=True``.
 
 The modules, in the order a run uses them:
 

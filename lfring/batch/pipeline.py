@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from lfring.batch.settings import BatchSettings
-from lfring.errors import InvalidInputError, LfringError, LfringWarning
+from lfring.errors import DepthRangeError, InvalidInputError, LfringError, LfringWarning
 
 __all__ = ["REFOCUSER_CACHE_SIZE", "FrameResult", "process_frame"]
 
@@ -99,6 +99,9 @@ def process_frame(input_path: str, settings: BatchSettings, outputs: dict[str, s
     except _LeftOut as exc:
         timings["total"] = time.perf_counter() - t_start
         return FrameResult(input_path, False, timings_s=timings, worker=worker, left_out=str(exc))
+    except DepthRangeError as exc:  # the depth method's message names estimate_depth's parameters, not the batch's
+        timings["total"] = time.perf_counter() - t_start
+        return FrameResult(input_path, False, timings_s=timings, error=f"{input_path}: {_narrow_range(exc)}", worker=worker)
     except (LfringError, OSError, ValueError, MemoryError) as exc:
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         timings["total"] = time.perf_counter() - t_start
@@ -152,12 +155,21 @@ def _process(input_path, settings: BatchSettings, outputs, timings) -> tuple[dic
     method = METHODS[settings.refocus_method]
     needs_depth = "depth" in method.options  # a method that renders from the frame's depth map
     depth_res = None
+    depth_range = None
+    if settings.depth or settings.viewer or (needs_depth and refocus):
+        # Every depth map of the frame spans one range, by depth-aware refocusing's rule (as
+        # lfring depth's and lfring refocus's): a range given as the calibration's own makes the
+        # same maps and images as none, which the outputs' keys rely on.
+        from lfring.focus.depth_aware import estimation_range
+
+        depth_range = estimation_range(cal, settings.zmin_m, settings.zmax_m, reference=settings.reference)
+        info["depth_range_m"] = [float(depth_range[0]), float(depth_range[1])]
     depth_wanted = {"depth", "confidence", "depth_preview", "all_in_focus"} & set(outputs)
     if settings.depth and (depth_wanted or (needs_depth and refocus)):
         from lfring.depth import estimate_depth
 
         t = time.perf_counter()
-        depth_res = estimate_depth(views, cal, zmin_m=settings.zmin_m, zmax_m=settings.zmax_m, num_planes=settings.planes,
+        depth_res = estimate_depth(views, cal, zmin_m=depth_range[0], zmax_m=depth_range[1], num_planes=settings.planes,
                                    reference=settings.reference, method=settings.depth_method)
         timings["depth"] = time.perf_counter() - t
         info["depth_hypotheses"] = len(depth_res.depths_m)
@@ -172,7 +184,7 @@ def _process(input_path, settings: BatchSettings, outputs, timings) -> tuple[dic
     if refocus or settings.viewer:
         info.update(_refocus_record(cal, settings))
     if refocus and method.prepare is not None:
-        finish = _finisher(views, cal, settings, depth_res, info["aperture"], timings)
+        finish = _finisher(views, cal, settings, depth_res, depth_range, info["aperture"], timings)
     for z in refocus:
         sharp = _refocuser(cal, cal_name, z, settings, views.shape[1:3])(views)
         arrays[f"refocus_{z:g}m"] = sharp if finish is None else finish(sharp, z)
@@ -201,7 +213,7 @@ def _process(input_path, settings: BatchSettings, outputs, timings) -> tuple[dic
         if "confidence" in outputs:
             files["confidence"] = encode_float_tiff(depth_res.confidence)
         if "depth_preview" in outputs:
-            files["depth_preview"] = _depth_preview_png(depth_res, settings, Path(input_path).name)
+            files["depth_preview"] = _depth_preview_png(depth_res, settings, depth_range, Path(input_path).name)
     timings["encode"] = time.perf_counter() - t
     if settings.viewer:
         from lfring.viewer import viewer_html
@@ -210,7 +222,7 @@ def _process(input_path, settings: BatchSettings, outputs, timings) -> tuple[dic
         stack = {"method": settings.refocus_method}
         if "aperture" in method.options:
             stack["aperture"] = info["aperture"]
-        files["viewer"] = viewer_html(views, cal, zmin_m=settings.zmin_m, zmax_m=settings.zmax_m, reference=settings.reference,
+        files["viewer"] = viewer_html(views, cal, zmin_m=depth_range[0], zmax_m=depth_range[1], reference=settings.reference,
                                       depth=depth_res, num_planes=None if depth_res is not None else settings.planes,
                                       min_confidence=settings.min_confidence, title=Path(input_path).name,
                                       metadata={"input": str(input_path), "calibration": cal_name, **_stack_record(info)},
@@ -220,6 +232,15 @@ def _process(input_path, settings: BatchSettings, outputs, timings) -> tuple[dic
     if missing:  # pragma: no cover - a programming error, not a bad frame
         raise RuntimeError(f"outputs not produced: {sorted(missing)}")
     return files, info
+
+
+def _narrow_range(exc: DepthRangeError) -> str:
+    """A depth range too narrow to estimate depth over, in the words of :class:`BatchSettings`."""
+    remedy = ("widen it" if exc.planes_needed is None
+              else f"widen it, give planes >= {exc.planes_needed}, or use depth_method='local'")
+    return (f"zmin_m {exc.zmin_m:g} .. zmax_m {exc.zmax_m:g} m is too narrow to estimate depth over: the views move by "
+            f"{exc.motion_px:.2g} px across it, and the estimation judges each depth against others more than a pixel "
+            f"of motion away; {remedy}")
 
 
 def _refocus_record(cal, settings: BatchSettings) -> dict:
@@ -244,13 +265,12 @@ def _stack_record(info: dict) -> dict:
     return {k: info[k] for k in ("refocus_method", "aperture", "f_number") if k in info}
 
 
-def _finisher(views, cal, settings: BatchSettings, depth_res, aperture, timings: dict):
+def _finisher(views, cal, settings: BatchSettings, depth_res, depth_range, aperture, timings: dict):
     """The refocusing method's ``finish(sharp, z)`` for one frame (:class:`lfring.focus.base.RefocusMethod`),
     made once for all its depths; a method that renders from a depth map gets the batch's when
-    it makes one, else one estimated with the batch's depth settings over the depth range of
-    :func:`lfring.focus.depth_aware.estimation_range`."""
+    it makes one, else one estimated with the batch's depth settings over ``depth_range`` (of
+    :func:`lfring.focus.depth_aware.estimation_range`): the same map either way."""
     from lfring.focus import METHODS
-    from lfring.focus.depth_aware import estimation_range
 
     method = METHODS[settings.refocus_method]
     t = time.perf_counter()
@@ -259,7 +279,7 @@ def _finisher(views, cal, settings: BatchSettings, depth_res, aperture, timings:
         if depth_res is None:
             from lfring.depth import estimate_depth
 
-            lo, hi = estimation_range(cal, settings.zmin_m, settings.zmax_m, reference=settings.reference)
+            lo, hi = depth_range
             depth_res = estimate_depth(views, cal, zmin_m=lo, zmax_m=hi, num_planes=settings.planes,
                                        reference=settings.reference, method=settings.depth_method)
         options["depth"] = depth_res
@@ -270,9 +290,9 @@ def _finisher(views, cal, settings: BatchSettings, depth_res, aperture, timings:
     return finish
 
 
-def _depth_preview_png(depth_res, settings: BatchSettings, name: str) -> bytes:
-    """The depth preview's PNG bytes, made in memory."""
+def _depth_preview_png(depth_res, settings: BatchSettings, depth_range, name: str) -> bytes:
+    """The depth preview's PNG bytes, made in memory, its colour bar over ``depth_range``."""
     from lfring.depth.io import depth_preview_png
 
-    return depth_preview_png(depth_res.depth_m, confidence=depth_res.confidence, zmin_m=settings.zmin_m,
-                             zmax_m=settings.zmax_m, title=f"{name}: depth (m)", min_confidence=settings.min_confidence)
+    return depth_preview_png(depth_res.depth_m, confidence=depth_res.confidence, zmin_m=depth_range[0],
+                             zmax_m=depth_range[1], title=f"{name}: depth (m)", min_confidence=settings.min_confidence)

@@ -2,9 +2,10 @@
 the manifest, the one writer into OUTDIR, the folder's lock and the resume decision.
 
 A frame's record ``<name>.lfring.json`` is written ``pending`` before its outputs and ``done``
-after them; :func:`decide_resume` reads it, with the input's identity (size and modification
-time), to skip what is done, compute only what is missing and refuse files this tool did not
-make. The single-frame commands keep a record of the same form per output set
+after them; its ``outputs`` are the frame's files that exist (the files a pending or failed run
+was to write are its ``planned_outputs``). :func:`decide_resume` reads it, with the input's
+identity (size and modification time), to skip what is done, compute only what is missing and
+refuse files this tool did not make. The single-frame commands keep a record of the same form per output set
 (:mod:`lfring.cli.outputs`).
 """
 
@@ -15,7 +16,7 @@ import json
 import logging
 import os
 import socket
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -34,6 +35,7 @@ __all__ = [
     "append_manifest",
     "decide_resume",
     "file_identity",
+    "is_batch_manifest",
     "outdir_lock",
     "read_manifest",
     "read_record",
@@ -46,6 +48,9 @@ LOCK_FILE = ".lfring-batch.lock"
 MANIFEST = "manifest.jsonl"
 RECORD_SUFFIX = ".lfring.json"
 RECORD_VERSION = 1
+MANIFEST_ENTRY_KEYS = ("run", "input", "status")
+"""Keys every line of a batch's manifest holds, since its first version: a file whose lines
+lack them is not a batch's manifest, and is neither appended to nor replaced unasked."""
 
 
 def file_identity(path: str) -> dict:
@@ -131,6 +136,47 @@ def append_manifest(path: Path, entry: dict) -> None:
         os.close(fd)
 
 
+def is_batch_manifest(path: str | Path) -> bool:
+    """Whether the file at ``path`` is a manifest that lfring batch wrote: empty, or JSON lines
+    that are all entries with :data:`MANIFEST_ENTRY_KEYS` (lines that do not parse, which a
+    killed run can leave, aside), at least one of them.
+
+    Examples
+    --------
+    >>> import pathlib, tempfile
+    >>> from lfring.batch.record import is_batch_manifest
+    >>> with tempfile.TemporaryDirectory() as d:
+    ...     p = pathlib.Path(d, "manifest.jsonl")
+    ...     _ = p.write_text('{"run": "r1", "input": "a.png", "status": "done", "outputs": []}\\n')
+    ...     ours = is_batch_manifest(p)
+    ...     _ = p.write_text('{"id": 1, "label": "cat"}\\n')
+    ...     ours, is_batch_manifest(p)
+    (True, False)
+    """
+    try:
+        data = Path(path).read_bytes()
+    except OSError:  # a folder, or unreadable: not one to append to
+        return False
+    if not data.strip():
+        return True
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError:
+        return False
+    entries = 0
+    for line in text.splitlines():
+        if not line.strip():
+            continue
+        try:
+            entry = json.loads(line)
+        except ValueError:
+            continue  # cut short by a killed run
+        if not (isinstance(entry, dict) and all(k in entry for k in MANIFEST_ENTRY_KEYS)):
+            return False
+        entries += 1
+    return entries > 0
+
+
 def read_manifest(path: str | Path) -> list[dict]:
     """The manifest's entries (a line cut short by a killed run is left out)."""
     out = []
@@ -154,7 +200,8 @@ class ResumeDecision:
 
 def decide_resume(planned: dict[str, str], planned_keys: dict[str, str], record: dict | None, identity: dict,
                   existing: frozenset | set, *, record_exists: bool, overwrite: bool, settings_key: str = "",
-                  maker: str = "lfring batch") -> ResumeDecision:
+                  maker: str = "lfring batch", alias_keys: dict[str, str] | None = None,
+                  explain: Callable[[str, dict], list[str]] | None = None) -> ResumeDecision:
     """Decide, without touching any file, what a run does with one frame.
 
     Parameters
@@ -177,6 +224,12 @@ def decide_resume(planned: dict[str, str], planned_keys: dict[str, str], record:
     maker : str
         The command whose records these are, as the reasons name it (the single-frame commands
         keep their output sets with the same records).
+    alias_keys : {kind: key}, optional
+        Keys that stand for the same outputs as ``planned_keys``, as earlier versions computed
+        them (:meth:`BatchSettings.output_keys` with ``resolved=False``).
+    explain : callable, optional
+        ``explain(kind, record)``: what differs between the settings that made the output
+        ``kind`` and this run's (:meth:`BatchSettings.differences`), for the reason of a refusal.
 
     Returns
     -------
@@ -197,6 +250,11 @@ def decide_resume(planned: dict[str, str], planned_keys: dict[str, str], record:
     ResumeDecision(action='run', kinds=('refocus_1m',), reason='')
     """
     kinds = tuple(planned)
+    alias = alias_keys or {}
+
+    def matches(key, kind) -> bool:
+        return key is not None and key in (planned_keys[kind], alias.get(kind))
+
     if overwrite:
         return ResumeDecision("run", kinds)
     present = [rel for rel in planned.values() if rel in existing]
@@ -217,18 +275,24 @@ def decide_resume(planned: dict[str, str], planned_keys: dict[str, str], record:
             return ResumeDecision("refuse", reason=f"outputs exist ({present[0]}...) and the input changed since; "
                                                    "pass overwrite=True to replace them")
         return ResumeDecision("run", kinds)
-    todo = tuple(k for k in kinds if not (done_keys.get(k) == planned_keys[k] and ours.get(k) == planned[k]
+    todo = tuple(k for k in kinds if not (matches(done_keys.get(k), k) and ours.get(k) == planned[k]
                                           and planned[k] in existing))
     if not todo:
         return ResumeDecision("skip")
-    owner = {rel: k for k, rel in ours.items()}
+    # The files of a run cut short are listed apart from the outputs (they may not exist).
+    owner = {rel: k for k, rel in {**dict(record.get("planned_outputs") or {}), **ours}.items()}
     for k in todo:
         rel = planned[k]
         if rel not in existing:
             continue
         if rel not in owner:
             return ResumeDecision("refuse", reason=f"{rel} exists and was not made by {maker}; pass overwrite=True to replace it")
-        if pending_keys.get(owner[rel]) != planned_keys[k]:
+        if not matches(pending_keys.get(owner[rel]), k):
+            what = explain(owner[rel], record) if explain is not None else []
+            if what:
+                return ResumeDecision("refuse", reason=(
+                    f"{rel} exists, made with other settings: {'; '.join(what)}. Give the settings that made it, "
+                    "leave it out of this run (its record keeps it), or pass overwrite=True to replace it"))
             return ResumeDecision("refuse", reason=f"outputs exist ({rel}...) and other settings made them (or an "
                                                    "earlier lfring's default depth cost); pass overwrite=True to replace them")
         # else: our own run with these settings, cut short: its file may be replaced

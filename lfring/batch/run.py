@@ -15,7 +15,7 @@ from concurrent.futures import FIRST_COMPLETED
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from lfring.batch.discovery import BatchJob, plan_jobs, scan_inputs
+from lfring.batch.discovery import BatchJob, frame_size, plan_jobs, scan_inputs
 from lfring.batch.executors import (
     EXECUTORS,
     DaskExecutor,
@@ -33,13 +33,14 @@ from lfring.batch.record import (
     append_manifest,
     decide_resume,
     file_identity,
+    is_batch_manifest,
     outdir_lock,
     read_record,
 )
 from lfring.batch.settings import BatchSettings
 from lfring.core.signals import held_signals
 from lfring.core.validate import check_choice, check_int
-from lfring.errors import InvalidInputError
+from lfring.errors import InvalidInputError, LfringError
 
 __all__ = ["BatchReport", "run_batch"]
 
@@ -114,28 +115,51 @@ class _Run:
     identity: dict = field(default_factory=dict)
     todo_kinds: dict = field(default_factory=dict)  # input -> kinds computed this run
     carried: dict = field(default_factory=dict)  # input -> (outputs, output_keys) of earlier runs still valid
+    calibrations: dict = field(default_factory=dict)  # input -> the frame's calibration, when it can be told
+    _keys: dict = field(default_factory=dict)  # id of a calibration -> output keys
+
+    def planned(self, job: BatchJob) -> dict[str, str]:
+        """Kind -> relative path of the outputs this run computes for ``job``."""
+        kinds = self.todo_kinds.get(job.input, tuple(self.plan[job.input]))
+        return {k: self.plan[job.input][k] for k in kinds}
+
+    def keys(self, job: BatchJob) -> dict[str, str]:
+        """:meth:`BatchSettings.output_keys` for ``job``'s calibration (computed once per calibration)."""
+        cal = self.calibrations.get(job.input)
+        if id(cal) not in self._keys:
+            self._keys[id(cal)] = self.settings.output_keys(cal)
+        return self._keys[id(cal)]
 
     def entry(self, job: BatchJob, status: str, **kw) -> dict:
-        kinds = self.todo_kinds.get(job.input, tuple(self.plan[job.input]))
-        e = {"run": self.run_id, "input": job.input, "status": status,
-             "outputs": [self.plan[job.input][k] for k in kinds], "record": job.stem + RECORD_SUFFIX,
-             "settings_key": self.settings.key(), **kw}
+        # A line lists the files this run wrote for the frame, and no other: those of a frame
+        # that failed or was left out go apart, as the files it was to write.
+        planned = list(self.planned(job).values())
+        wrote = planned if status == "done" else []
+        e = {"run": self.run_id, "input": job.input, "status": status, "outputs": wrote,
+             "record": job.stem + RECORD_SUFFIX, "settings_key": self.settings.key(), **kw}
+        if status in ("failed", "left_out") and planned:
+            e["planned_outputs"] = planned
         append_manifest(self.out / MANIFEST, e)
         if self.on_result is not None:
             self.on_result(e)
         return e
 
     def record(self, job: BatchJob, status: str, **extra) -> None:
+        # 'outputs' lists the frame's files that exist (earlier runs' still valid, and this
+        # run's once written); the files a pending or failed run was to write are listed apart,
+        # so that a rerun knows them as its own.
         outputs, keys = self.carried.get(job.input, ({}, {}))
-        kinds = self.todo_kinds.get(job.input, tuple(self.plan[job.input]))
-        planned_keys = self.settings.output_keys()
-        new = {k: planned_keys[k] for k in kinds}
+        planned = self.planned(job)
+        planned_keys = self.keys(job)
+        new = {k: planned_keys[k] for k in planned}
+        done = status == "done"
         self.writer.write_json(job.stem + RECORD_SUFFIX, {
             "lfring_batch_record": RECORD_VERSION, "status": status, "run": self.run_id, "input": job.input,
             "input_identity": self.identity[job.input], "settings_key": self.settings.key(),
-            "settings": self.settings.describe(), "outputs": {**outputs, **self.plan[job.input]},
-            "output_keys": {**keys, **new} if status == "done" else keys,
-            "pending_keys": {} if status == "done" else new, "lfring_version": _version(), **extra})
+            "settings": self.settings.describe(), "outputs": {**outputs, **planned} if done else dict(outputs),
+            "planned_outputs": {} if done else planned,
+            "output_keys": {**keys, **new} if done else keys,
+            "pending_keys": {} if done else new, "lfring_version": _version(), **extra})
 
     def fail(self, job: BatchJob, error: str, record_it: bool = False, **kw) -> None:
         self.report.failed.append(job.input)
@@ -170,10 +194,29 @@ def _frame_sizes(settings: BatchSettings):
     return {tuple(s) for s in builtin_calibrations().values()}
 
 
+def _frame_calibration(settings: BatchSettings, path: str, builtin: dict):
+    """The calibration a frame is processed with, when it can be told from its header: the
+    settings', or the built-in one for its size (``builtin`` caches them by size); else None."""
+    if settings.calibration is not None:
+        return settings.calibration
+    size = frame_size(path)
+    if not size or size == (0, 0):
+        return None
+    if size not in builtin:
+        from lfring.calibration.defaults import default_calibration
+
+        try:
+            builtin[size] = default_calibration(size)[0]
+        except LfringError:  # no built-in calibration fits: the frame fails with that error
+            builtin[size] = None
+    return builtin[size]
+
+
 def _decide_jobs(run: _Run, jobs: Sequence[BatchJob], overwrite: bool) -> list[BatchJob]:
     """Apply :func:`decide_resume` to every frame: skipped and refused frames are reported, the
     rest returned with the outputs each must compute in ``run.todo_kinds``."""
-    planned_keys = run.settings.output_keys()
+    alias_keys = run.settings.output_keys(resolved=False)
+    builtin: dict = {}
     todo: list[BatchJob] = []
     for job in jobs:
         outs = run.plan[job.input]
@@ -184,9 +227,11 @@ def _decide_jobs(run: _Run, jobs: Sequence[BatchJob], overwrite: bool) -> list[B
         except OSError as exc:
             run.fail(job, f"cannot read the input: {exc.strerror or exc}")
             continue
+        cal = run.calibrations[job.input] = _frame_calibration(run.settings, job.input, builtin)
         existing = {rel for rel in outs.values() if (run.out / rel).exists()}
-        d = decide_resume(outs, planned_keys, rec, ident, existing, record_exists=rec_path.exists(), overwrite=overwrite,
-                          settings_key=run.settings.legacy_key() or "")
+        d = decide_resume(outs, run.keys(job), rec, ident, existing, record_exists=rec_path.exists(), overwrite=overwrite,
+                          settings_key=run.settings.legacy_key() or "", alias_keys=alias_keys,
+                          explain=lambda kind, record, cal=cal: run.settings.differences(kind, record, cal))
         if d.action == "refuse":
             run.fail(job, d.reason)
             continue
@@ -197,10 +242,28 @@ def _decide_jobs(run: _Run, jobs: Sequence[BatchJob], overwrite: bool) -> list[B
             continue
         run.todo_kinds[job.input] = d.kinds
         if rec is not None and rec.get("input_identity") == ident:
-            keep = {k: v for k, v in (rec.get("output_keys") or {}).items() if k not in d.kinds}
-            run.carried[job.input] = ({k: v for k, v in (rec.get("outputs") or {}).items() if k in keep}, keep)
+            # Earlier runs' outputs that are still valid and still there stay in the record.
+            made = rec.get("outputs") or {}
+            keep = {k: v for k, v in (rec.get("output_keys") or {}).items()
+                    if k not in d.kinds and k in made and (run.out / made[k]).exists()}
+            run.carried[job.input] = ({k: made[k] for k in keep}, keep)
         todo.append(job)
     return todo
+
+
+def _check_manifest(out: Path, writer: OutputWriter, overwrite: bool) -> None:
+    """Refuse to append to a ``manifest.jsonl`` that lfring batch did not write, unless told to
+    replace it (``overwrite``): it may be somebody's file."""
+    path = out / MANIFEST
+    if not (path.exists() or path.is_symlink()) or is_batch_manifest(path):
+        return
+    if not overwrite:
+        raise InvalidInputError(
+            f"{path} exists and is not a manifest of lfring batch (its lines are not batch entries), so the batch "
+            "neither appends to it nor replaces it: move it away, choose another output folder, or pass "
+            "overwrite=True to replace it (and redo every frame)")
+    log.warning("%s was not a manifest of lfring batch; replaced (overwrite)", path)
+    writer.write(MANIFEST, b"")
 
 
 def _progress(todo, progress):
@@ -264,8 +327,7 @@ def _execute(run: _Run, todo: list[BatchJob], *, workers: int, executor: str, sc
 
         def submit(job: BatchJob) -> None:
             run.record(job, "pending")
-            outputs = {k: run.plan[job.input][k] for k in run.todo_kinds[job.input]}
-            pending[pool.submit(process_frame, job.input, run.settings, outputs)] = job
+            pending[pool.submit(process_frame, job.input, run.settings, run.planned(job))] = job
 
         while queue or pending:
             while queue and len(pending) < window:
@@ -346,7 +408,8 @@ def run_batch(
         or on a local Dask cluster of ``workers`` processes when none is given. The workers must
         see the inputs at the same paths; outputs come back to this process, which writes them.
     overwrite : bool
-        Redo frames already done and replace files this run did not make.
+        Redo frames already done and replace files this run did not make (a ``manifest.jsonl``
+        in ``outdir`` that is not a batch's included).
     exclude : sequence of str
         Glob patterns of files to leave out of folder inputs.
     progress : bool or None
@@ -362,7 +425,8 @@ def run_batch(
     Raises
     ------
     InvalidInputError
-        Bad arguments, no inputs, outputs that would collide: nothing is processed.
+        Bad arguments, no inputs, outputs that would collide, a ``manifest.jsonl`` in ``outdir``
+        that a batch did not write (unless ``overwrite``): nothing is processed.
 
     Notes
     -----
@@ -402,6 +466,7 @@ def run_batch(
             shutil.rmtree(writer.tmp, ignore_errors=True)
         run = _Run(out, settings, plan, report, run_id, writer, on_result)
         try:
+            _check_manifest(out, writer, overwrite)
             todo = _decide_jobs(run, jobs, overwrite)
             _execute(run, todo, workers=workers, executor=executor, scheduler=scheduler, progress=progress)
         finally:

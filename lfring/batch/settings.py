@@ -17,6 +17,109 @@ from lfring.io.writers import json_default
 
 __all__ = ["BatchSettings"]
 
+_COMMON_FIELDS = ("calibration_name", "calibration_sha256", "reference", "bit_depth", "encoding", "pattern", "black_level",
+                  "white_level")
+"""Settings that change every output."""
+
+_DEPTH_FIELDS = ("zmin_m", "zmax_m", "planes", "min_confidence", "depth_method")
+"""Settings that change the depth outputs (and the viewer, and an all-in-focus image from the depth map)."""
+
+_REFOCUS_DEPTH_FIELDS = ("zmin_m", "zmax_m", "planes", "depth_method")
+"""Settings of the depth map that depth-aware refocusing renders from."""
+
+_EARLIER_DEFAULTS = {"viewer": False, "refocus_method": "shift-and-add", "aperture": None, "f_number": None,
+                     "depth_method": "local", "depth": False, "refocus_m": []}
+"""What a record's settings mean by a field they lack: :meth:`BatchSettings.describe` leaves
+out the viewer when there is none and the method of shift-and-add, and records of earlier
+versions predate the fields (refocusing was shift-and-add, depth maps the local sweep)."""
+
+_SETTING_WORDS = {
+    "calibration_name": "the calibration", "calibration_sha256": "the calibration's content",
+    "reference": "the reference view", "bit_depth": "the bit depth", "encoding": "the encoding",
+    "pattern": "the Bayer pattern", "black_level": "the black level", "white_level": "the white level",
+    "interpolation": "the interpolation", "refocus_method": "the refocusing method", "aperture": "the aperture",
+    "f_number": "f_number", "zmin_m": "zmin_m", "zmax_m": "zmax_m", "planes": "the number of depth planes",
+    "min_confidence": "the depth preview's confidence threshold", "depth_method": "the depth method",
+    "depth_cost": "the depth cost", "depths_m": "the depths it chose from", "depth": "the batch's own depth map",
+}
+"""How a refusal names each setting that differs between the run that made an output and this
+one: in words, or by the parameter name that the command line turns into its option
+(``zmin_m`` reads ``--zmin``)."""
+
+
+def _hash(obj) -> str:
+    return hashlib.sha256(json.dumps(obj, sort_keys=True, default=json_default).encode()).hexdigest()[:16]
+
+
+def _range_of(calibration, zmin_m, zmax_m, reference) -> dict:
+    """``zmin_m`` and ``zmax_m`` as the depth maps use them: resolved by
+    :func:`lfring.focus.depth_aware.estimation_range` when the calibration is known (or both
+    are given), else as given (None: the frame's calibration's range, not known here)."""
+    if calibration is None:
+        if zmin_m is None or zmax_m is None:
+            return {"zmin_m": zmin_m, "zmax_m": zmax_m}
+        return {"zmin_m": float(zmin_m), "zmax_m": float(zmax_m)}
+    try:
+        lo, hi = estimation_range(calibration, zmin_m, zmax_m, reference=reference)
+    except InvalidInputError:  # the frame fails with this error when it runs; its keys stay as given
+        return {"zmin_m": zmin_m, "zmax_m": zmax_m}
+    return {"zmin_m": float(lo), "zmax_m": float(hi)}
+
+
+def _output_parts(d: dict, zrange: dict) -> dict[str, dict]:
+    """Kind -> every setting that changes that output, from settings as
+    :meth:`BatchSettings.describe` gives them and the depth range ``zrange``; the outputs' keys
+    are their hashes (the structure is that of the keys' first version, so that folders made
+    since stay done)."""
+    d = {**_EARLIER_DEFAULTS, **d}
+    common = {k: d.get(k) for k in _COMMON_FIELDS}
+    depth_part = {**{k: d.get(k) for k in _DEPTH_FIELDS}, **zrange}
+    if d["depth_method"] == "sgm":
+        # The method's default cost: depth maps made before it changed ('lcn' until 'lcn-halves')
+        # are not this run's; a resumed folder refuses them unless told to overwrite.
+        depth_part["depth_cost"] = ENGINES["sgm"].default_cost
+    method = d["refocus_method"]
+    refocus_part = {"interpolation": d.get("interpolation")}
+    stack = {}
+    if METHODS[method].prepare is not None:
+        # The method, its aperture and the depth map it used: a folder refocused by another
+        # method is not done for this one (shift-and-add's keys stay what they were before
+        # methods were a setting, so folders made then stay done for it). The depth map's
+        # default cost is left out: images made with an earlier default are kept.
+        stack = {"refocus_method": method, "aperture": d["aperture"], "f_number": d["f_number"]}
+        refocus_part.update(stack, depth={k: depth_part[k] for k in _REFOCUS_DEPTH_FIELDS})
+    zs = [float(z) for z in d["refocus_m"]]
+    parts = {f"refocus_{z:g}m": {**common, "refocus_m": z, **refocus_part} for z in zs}
+    if d.get("all_in_focus"):
+        source = ({"depth": depth_part} if d["depth"]
+                  else {"depths_m": zs} if len(zs) > 1 else {"depths_m": "calibrated range"})
+        parts["all_in_focus"] = {**common, "all_in_focus": source}
+    if d["depth"]:
+        for kind in ("depth", "confidence", "depth_preview"):
+            parts[kind] = {**common, **depth_part, "kind": kind}
+    if d["viewer"]:
+        parts["viewer"] = {**common, **depth_part, "kind": "viewer", "depth": d["depth"], **stack}
+    return parts
+
+
+def _leaves(obj, name: str = "") -> dict:
+    """A nested dict's values by their own key (``{'depth': {'zmin_m': 0.3}}`` -> ``{'zmin_m': 0.3}``)."""
+    if isinstance(obj, dict):
+        out = {}
+        for k, v in obj.items():
+            out.update(_leaves(v, k))
+        return out
+    return {name: obj}
+
+
+def _shown(value) -> str:
+    """A setting's value as a refusal shows it (None: not given, its default)."""
+    if value is None:
+        return "default"
+    if isinstance(value, float):
+        return f"{value:.12g}"
+    return str(value)
+
 
 @dataclass(frozen=True)
 class BatchSettings:
@@ -38,7 +141,13 @@ class BatchSettings:
         the main lens's f-number instead (:func:`lfring.focus.resolve_aperture`); each frame's
         record holds the aperture that made its images.
     depth : bool
-        Also compute a depth map over ``zmin_m``..``zmax_m`` (metres).
+        Also compute a depth map over ``zmin_m``..``zmax_m``.
+    zmin_m, zmax_m : float, optional
+        The depth range in metres of every depth map the batch estimates (``depth``'s, the one
+        depth-aware refocusing renders from, the viewer's); by default
+        :func:`lfring.focus.depth_aware.estimation_range`'s, the one rule of every entry point
+        (``lfring depth``, ``lfring refocus``): the calibration's valid range, its far end derived
+        when it has none.
     all_in_focus : bool
         Also write an all-in-focus image (from the depth map when there is one, else over the
         refocus depths when there are two or more, else over the calibrated range).
@@ -59,7 +168,7 @@ class BatchSettings:
         Depth preview: pixels below it are black.
     viewer : bool
         Also write an interactive HTML viewer (:mod:`lfring.viewer`), its depth range
-        ``zmin_m``..``zmax_m`` or the calibrated range.
+        ``zmin_m``..``zmax_m``.
     pattern, black_level, white_level : optional
         Bayer pattern and levels in counts for frames that lack them (they win over sidecars;
         see :func:`lfring.io.levels.load_frame`).
@@ -102,13 +211,10 @@ class BatchSettings:
             raise InvalidInputError(f"refocus depths repeat: {list(zs)}")
         if not (zs or self.depth or self.all_in_focus or self.viewer):
             raise InvalidInputError("nothing to do: ask for refocus depths, a depth map, an all-in-focus image or a viewer")
-        if self.depth:
-            if self.zmin_m is None or self.zmax_m is None:
-                raise InvalidInputError("a depth map needs zmin_m and zmax_m (--zmin, --zmax)")
-            for name in ("zmin_m", "zmax_m"):
-                check_number(getattr(self, name), name, above=0.0, what="a positive number of metres")
-            if not self.zmin_m < self.zmax_m:
-                raise InvalidInputError(f"zmin_m ({self.zmin_m}) must be smaller than zmax_m ({self.zmax_m})")
+        for name in ("zmin_m", "zmax_m"):
+            check_number(getattr(self, name), name, above=0.0, allow_none=True, what="a positive number of metres")
+        if self.zmin_m is not None and self.zmax_m is not None and not self.zmin_m < self.zmax_m:
+            raise InvalidInputError(f"zmin_m ({self.zmin_m}) must be smaller than zmax_m ({self.zmax_m})")
         check_choice(self.interpolation, "interpolation", INTERPOLATIONS)
         check_choice(self.bit_depth, "bit_depth", (8, 16))
         check_choice(self.encoding, "encoding", ("srgb", "linear"))
@@ -119,18 +225,14 @@ class BatchSettings:
                 raise InvalidInputError("give the depth of field as aperture or as f_number, not both")
             check_number(self.aperture, "aperture", minimum=0.0, allow_none=True, hint=" (1: the views' aperture, 0: a pinhole)")
             check_number(self.f_number, "f_number", above=0.0, allow_none=True, what="a positive number")
-            for name in ("zmin_m", "zmax_m"):
-                check_number(getattr(self, name), name, above=0.0, allow_none=True, what="a positive number of metres")
-            if self.zmin_m is not None and self.zmax_m is not None and not self.zmin_m < self.zmax_m:
-                raise InvalidInputError(f"zmin_m ({self.zmin_m}) must be smaller than zmax_m ({self.zmax_m})")
         elif self.aperture is not None or self.f_number is not None:
             owners = ", ".join(f"refocus_method={m.name!r}" for m in METHODS.values() if "aperture" in m.options)
             raise InvalidInputError(f"aperture and f_number are for {owners}")
-        # A depth map the batch does not make (--depth) is estimated per frame, for depth-aware
-        # refocusing and for the viewer, over depth-aware refocusing's range: a calibration that
-        # gives none is refused here, before any frame is read or any file written.
-        needs_range = self.viewer or (zs and "depth" in METHODS[self.refocus_method].options)
-        if needs_range and not self.depth and self.calibration is not None:
+        # Every depth map (the batch's own, the one depth-aware refocusing renders from, the
+        # viewer's) is estimated over depth-aware refocusing's range: a calibration that gives
+        # none is refused here, before any frame is read or any file written.
+        needs_range = self.depth or self.viewer or (zs and "depth" in METHODS[self.refocus_method].options)
+        if needs_range and self.calibration is not None:
             estimation_range(self.calibration, self.zmin_m, self.zmax_m, reference=self.reference)
         # The viewer's depth map, when the batch makes none, is the semi-global default.
         least = SGM_MIN_PLANES if (self.depth and self.depth_method == "sgm") or self.viewer else 2
@@ -151,44 +253,70 @@ class BatchSettings:
             out["viewer"] = f"{stem}_viewer.html"
         return out
 
-    def output_keys(self) -> dict[str, str]:
+    def depth_range_m(self, calibration=None) -> tuple[float, float] | None:
+        """The depth range in metres of the depth maps made for a frame with ``calibration``
+        (default: the settings' own), by :func:`lfring.focus.depth_aware.estimation_range`.
+
+        Returns
+        -------
+        (float, float) or None
+            None when it cannot be told here: no calibration and not both ends given, or a
+            calibration that gives no range (the frame then fails with that error).
+        """
+        cal = self.calibration if calibration is None else calibration
+        r = _range_of(cal, self.zmin_m, self.zmax_m, self.reference)
+        return None if r["zmin_m"] is None or r["zmax_m"] is None else (r["zmin_m"], r["zmax_m"])
+
+    def output_keys(self, calibration=None, *, resolved: bool = True) -> dict[str, str]:
         """Kind -> a short hash of every setting that changes that output: a rerun that adds an
-        output (another refocus depth, a depth map) recomputes only the outputs whose key is new."""
-        d = self.describe()
-        common = {k: d[k] for k in ("calibration_name", "calibration_sha256", "reference", "bit_depth", "encoding", "pattern",
-                                    "black_level", "white_level")}
-        depth_part = {k: d[k] for k in ("zmin_m", "zmax_m", "planes", "min_confidence", "depth_method")}
-        if self.depth_method == "sgm":
-            # The method's default cost: depth maps made before it changed ('lcn' until 'lcn-halves')
-            # are not this run's; a resumed folder refuses them unless told to overwrite.
-            depth_part["depth_cost"] = ENGINES["sgm"].default_cost
+        output (another refocus depth, a depth map) recomputes only the outputs whose key is new.
 
-        def h(obj) -> str:
-            return hashlib.sha256(json.dumps(obj, sort_keys=True, default=json_default).encode()).hexdigest()[:16]
+        Parameters
+        ----------
+        calibration : RingCalibration, optional
+            The frame's calibration, when the settings hold none (the built-in one for its size).
+        resolved : bool
+            True: the depth range is the one the depth maps are estimated over
+            (:meth:`depth_range_m`, where it can be told), so a range given as the
+            calibration's own keys the same outputs as no range, as it makes the same images.
+            False: the range as given, as records of earlier versions hold it.
+        """
+        if resolved:
+            cal = self.calibration if calibration is None else calibration
+            zrange = _range_of(cal, self.zmin_m, self.zmax_m, self.reference)
+        else:
+            zrange = {"zmin_m": self.zmin_m, "zmax_m": self.zmax_m}
+        return {kind: _hash(part) for kind, part in _output_parts(self.describe(), zrange).items()}
 
-        refocus_part = {"interpolation": self.interpolation}
-        if METHODS[self.refocus_method].prepare is not None:
-            # The method, its aperture and the depth map it used: a folder refocused by another
-            # method is not done for this one (shift-and-add's keys stay what they were before
-            # methods were a setting, so folders made then stay done for it). The depth map's
-            # default cost is left out: images made with an earlier default are kept.
-            refocus_part.update(refocus_method=self.refocus_method, aperture=self.aperture, f_number=self.f_number,
-                                depth={k: getattr(self, k) for k in ("zmin_m", "zmax_m", "planes", "depth_method")})
-        keys = {f"refocus_{z:g}m": h({**common, "refocus_m": z, **refocus_part}) for z in self.refocus_m}
-        if self.all_in_focus:
-            source = ({"depth": depth_part} if self.depth
-                      else {"depths_m": list(self.refocus_m)} if len(self.refocus_m) > 1 else {"depths_m": "calibrated range"})
-            keys["all_in_focus"] = h({**common, "all_in_focus": source})
-        if self.depth:
-            for kind in ("depth", "confidence", "depth_preview"):
-                keys[kind] = h({**common, **depth_part, "kind": kind})
-        if self.viewer:
-            stack = {} if METHODS[self.refocus_method].prepare is None else {
-                "refocus_method": self.refocus_method, "aperture": self.aperture, "f_number": self.f_number}
-            keys["viewer"] = h({**common, **depth_part, "kind": "viewer", "depth": self.depth, **stack})
-        return keys
+    def differences(self, kind: str, record: dict, calibration=None) -> list[str]:
+        """What differs, for output ``kind``, between the settings that made it (an earlier run's
+        ``record``) and these, each as ``'name (X then, Y now)'``.
 
-
+        Empty when the record cannot tell: its settings are those of a later run than the one
+        that made the output, or what differs is no setting (an earlier lfring's default depth
+        cost, say); the caller then says so in general words.
+        """
+        earlier = record.get("settings")
+        made = (record.get("output_keys") or {}).get(kind) or (record.get("pending_keys") or {}).get(kind)
+        if not isinstance(earlier, dict) or not made:
+            return []
+        now_d = self.describe()
+        cal = self.calibration if calibration is None else calibration
+        try:
+            now = _output_parts(now_d, _range_of(cal, self.zmin_m, self.zmax_m, self.reference))[kind]
+            same_cal = all(earlier.get(k) == now_d[k] for k in ("calibration_name", "calibration_sha256"))
+            zmin, zmax = earlier.get("zmin_m"), earlier.get("zmax_m")
+            ranges = [{"zmin_m": zmin, "zmax_m": zmax}]
+            if same_cal:
+                ranges.insert(0, _range_of(cal, zmin, zmax, earlier.get("reference", self.reference)))
+            then = next((p for p in (_output_parts(earlier, r).get(kind) for r in ranges) if p and _hash(p) == made), None)
+        except (KeyError, TypeError, ValueError, InvalidInputError):  # settings of another version: cannot tell
+            return []
+        if then is None:
+            return []
+        a, b = _leaves(then), _leaves(now)
+        return [f"{_SETTING_WORDS.get(n, n)} ({_shown(a.get(n))} then, {_shown(b.get(n))} now)"
+                for n in sorted(set(a) | set(b)) if a.get(n) != b.get(n)]
     def describe(self) -> dict:
         """The settings as JSON-ready values (the calibration by name and content hash)."""
         d = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "calibration"}

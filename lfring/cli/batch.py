@@ -27,9 +27,14 @@ log = logging.getLogger("lfring.cli.batch")
                    "shift-and-add averages the views (out-of-focus objects as four copies; much faster). Each frame's "
                    "record says which method and aperture made its images.")
 @aperture_options
-@click.option("--depth", "depth_map", is_flag=True, help="Depth map of every frame over --zmin..--zmax.")
-@click.option("--zmin", type=float, default=None, metavar="M", help="Nearest depth searched [m], with --depth or --viewer.")
-@click.option("--zmax", type=float, default=None, metavar="M", help="Farthest depth searched [m], with --depth or --viewer.")
+@click.option("--depth", "depth_map", is_flag=True,
+              help="Depth map of every frame over --zmin..--zmax (default: the calibration's range, as lfring depth).")
+@click.option("--zmin", type=float, default=None, metavar="M",
+              help="Nearest depth of every depth map [m]: --depth's, the one --method depth-aware refocuses from, the "
+                   "--viewer's (default: the calibration's valid range).")
+@click.option("--zmax", type=float, default=None, metavar="M",
+              help="Farthest depth of every depth map [m] (default: the calibration's valid range; for one open to "
+                   "infinity, where the views stop moving).")
 @click.option("--planes", type=int, default=None, metavar="N", help="Depth hypotheses (default: 1 px of view motion apart).")
 @click.option("--depth-method", type=click.Choice(["sgm", "local"]), default="sgm", show_default=True,
               help="Depth maps by semi-global optimisation, or by the faster local sweep (see lfring depth --method).")
@@ -60,14 +65,17 @@ def command(ctx, inputs, outdir, calib, refocus_m, refocus_method, aperture, f_n
     Each frame gets its outputs in OUTDIR (refocused images NAME_refocus_<Z>m.png, depth-aware
     by default as with lfring refocus, depth maps NAME_depth.tiff with NAME_confidence.tiff and
     NAME_depth_preview.png, NAME_all_in_focus.png) and a record NAME.lfring.json, which says
-    which method and aperture made its images; OUTDIR/manifest.jsonl gets a line per frame. A
-    folder refocused with one method is not done for another. Frames already
+    which method and aperture made its images; OUTDIR/manifest.jsonl gets a line per frame with
+    the files written for it (a manifest.jsonl that lfring did not write is refused unless
+    --overwrite). A folder refocused with one method is not done for another. Frames already
     done with the same settings are skipped, and a rerun that adds an output (another --refocus
-    depth, --depth) computes only what is missing; a bad frame is reported by name and the rest
-    go on. Folder walks leave out files that are not frames (sidecars, *_truth/ folders, images
-    of a size no calibration fits): one line says how many, -v lists them; flat (white) frames
-    are read and left out with that reason. Ctrl-C or SIGTERM stops the workers at once (exit
-    code 130 or 143); what was written is whole, and a rerun goes on from there.
+    depth, --depth) computes only what is missing; an output that the new settings would make
+    differently (depth-aware images when --zmin/--zmax change their depth map's range) is
+    refused with the setting named, or redone with --overwrite. A bad frame is reported by name
+    and the rest go on. Folder walks leave out files that are not frames (sidecars, *_truth/
+    folders, images of a size no calibration fits): one line says how many, -v lists them; flat
+    (white) frames are read and left out with that reason. Ctrl-C or SIGTERM stops the workers
+    at once (exit code 130 or 143); what was written is whole, and a rerun goes on from there.
     Exit code: 0 all frames done or skipped, 1 some failed, 2 bad usage.
     """
     from lfring.batch import BatchSettings, run_batch
@@ -75,15 +83,14 @@ def command(ctx, inputs, outdir, calib, refocus_m, refocus_method, aperture, f_n
 
     zs = parse_depths(refocus_m, param_hint="--refocus") if refocus_m is not None else ()
     if not (zs or depth_map or aif or viewer):
-        raise click.UsageError("nothing to do: give --refocus Z1,Z2,..., --depth (with --zmin/--zmax), --all-in-focus or --viewer")
-    if (zmin is not None or zmax is not None) and not (depth_map or viewer):
-        raise click.UsageError("--zmin/--zmax go with --depth or --viewer (depth-aware --refocus then uses that range)")
+        raise click.UsageError("nothing to do: give --refocus Z1,Z2,..., --depth, --all-in-focus or --viewer")
+    if (zmin is not None or zmax is not None) and not (depth_map or viewer or (zs and refocus_method == "depth-aware")):
+        raise click.UsageError("--zmin/--zmax go with --depth, --viewer or --refocus by --method depth-aware "
+                               "(the range of their depth maps); nothing here makes a depth map")
     if refocus_method != "depth-aware" and (aperture is not None or f_number is not None):
         raise click.UsageError("--aperture and --f-number are for --method depth-aware")
     if aperture is not None and f_number is not None:
         raise click.UsageError("give --aperture or --f-number, not both")
-    if depth_map and (zmin is None or zmax is None):
-        raise click.UsageError("--depth needs --zmin and --zmax (metres)")
     if scheduler and executor != "dask":
         executor = "dask"
     cal = None

@@ -20,6 +20,8 @@ API_TO_CLI: tuple[tuple[str, str], ...] = (
     (r"\bpass black_level=\.\.\. and white_level=\.\.\.", "pass --black-level and --white-level"),
     (r"\bpass black_level=\.\.\. / white_level=\.\.\.", "pass --black-level / --white-level"),
     (r"\((by|from) argument\)", r"(\1 the command line)"),
+    (r"\bdepth_method='([\w-]+)'", r"--depth-method \1"),
+    (r"\bgive planes\b", "give --planes"),
     (r"\bmethod='([\w-]+)'", r"--method \1"),
     (r"\bgive depths_m\b", "give the depths to choose from (--depth Z1,Z2,...)"),
     (r"\boverwrite=True\b", "--overwrite"),
@@ -55,6 +57,8 @@ def cli_words(message: str) -> str:
     'give --planes >= 3, widen the depth range, or use --method local'
     >>> cli_words("give zmax_m, or refocus by method='shift-and-add'")
     'give --zmax, or refocus by --method shift-and-add'
+    >>> cli_words("give planes >= 5, or use depth_method='local'")
+    'give --planes >= 5, or use --depth-method local'
     >>> cli_words("num_planes must be an integer >= 3 or None, got 2")
     '--planes must be an integer >= 3, got 2'
     """

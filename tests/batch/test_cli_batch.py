@@ -43,8 +43,8 @@ def test_cli_batch_names_failures_and_exits_1(frames, folder, tmp_path, capsys):
     "args, text",
     [
         ([], "nothing to do"),
-        (["--refocus", "0.5", "--zmin", "0.3"], "go with --depth"),
-        (["--depth"], "--zmin and --zmax"),
+        (["--refocus", "0.5", "--method", "shift-and-add", "--zmin", "0.3"], "go with --depth"),
+        (["--depth", "--zmin", "0.8", "--zmax", "0.4"], "--zmin (0.8) must be smaller than --zmax (0.4)"),
         (["--refocus", "0.5", "--workers", "0"], "workers"),
         (["--refocus", "abc"], "comma-separated"),
         (["--refocus", "0.5", "--reference", "7"], "reference"),

@@ -12,7 +12,7 @@ from lfring.errors import InvalidInputError
         ({}, "nothing to do"),
         ({"refocus_m": (0.0,)}, "positive"),
         ({"refocus_m": (0.5, 0.5)}, "repeat"),
-        ({"depth": True}, "zmin_m and zmax_m"),
+        ({"depth": True, "zmin_m": -0.3}, "zmin_m must be a positive number of metres"),
         ({"depth": True, "zmin_m": 0.8, "zmax_m": 0.4}, "smaller"),
         ({"refocus_m": (0.5,), "bit_depth": 12}, "bit_depth"),
         ({"refocus_m": (0.5,), "planes": 1}, "planes"),
