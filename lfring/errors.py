@@ -50,6 +50,14 @@ class DepthRangeError(InvalidInputError):
         self.zmin_m, self.zmax_m, self.planes, self.motion_px = zmin_m, zmax_m, planes, motion_px
         self.planes_needed = planes_needed
 
+    def narrow(self, remedy: str) -> str:
+        """Why the range is too narrow, then ``remedy``: the sentence every entry point words
+        its refusal with (the ends named ``zmin_m`` and ``zmax_m``, which the CLI turns into
+        its options)."""
+        return (f"zmin_m {self.zmin_m:g} .. zmax_m {self.zmax_m:g} m is too narrow to estimate depth over: the views "
+                f"move by {self.motion_px:.2g} px across it, and the estimation judges each depth against others more "
+                f"than a pixel of motion away; {remedy}")
+
 
 class DeviceError(InvalidInputError):
     """A device description is incomplete, malformed or physically impossible."""

@@ -236,11 +236,8 @@ def _process(input_path, settings: BatchSettings, outputs, timings) -> tuple[dic
 
 def _narrow_range(exc: DepthRangeError) -> str:
     """A depth range too narrow to estimate depth over, in the words of :class:`BatchSettings`."""
-    remedy = ("widen it" if exc.planes_needed is None
-              else f"widen it, give planes >= {exc.planes_needed}, or use depth_method='local'")
-    return (f"zmin_m {exc.zmin_m:g} .. zmax_m {exc.zmax_m:g} m is too narrow to estimate depth over: the views move by "
-            f"{exc.motion_px:.2g} px across it, and the estimation judges each depth against others more than a pixel "
-            f"of motion away; {remedy}")
+    return exc.narrow("widen it" if exc.planes_needed is None
+                      else f"widen it, give planes >= {exc.planes_needed}, or use depth_method='local'")
 
 
 def _refocus_record(cal, settings: BatchSettings) -> dict:

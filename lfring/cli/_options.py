@@ -54,15 +54,13 @@ def depth_range_words(remedy):
     that names the range and ``remedy`` (text, or a function of the hypotheses needed, None
     where no number of them would do), in the words of the command at hand (the library's
     message names options of ``lfring depth`` that other commands lack)."""
+    from lfring.cli.words import cli_words
     from lfring.errors import DepthRangeError
 
     try:
         yield
     except DepthRangeError as exc:
-        raise click.UsageError(
-            f"--zmin {exc.zmin_m:g} .. --zmax {exc.zmax_m:g} m is too narrow to estimate depth over: the views move by "
-            f"{exc.motion_px:.2g} px across it, and the estimation judges each depth against others more than a pixel "
-            f"of motion away; {remedy(exc.planes_needed) if callable(remedy) else remedy}") from None
+        raise click.UsageError(cli_words(exc.narrow(remedy(exc.planes_needed) if callable(remedy) else remedy))) from None
 
 
 def check_calibration_output(output) -> None:
