@@ -137,10 +137,14 @@ def default_depth_band(calibration, near_m: float, far_m: float, tolerance_m: fl
     reach = max(4.0 * tol_inv, 1.0 / k) + MARGIN_PX / k
     inv_lo = inv_far - reach
     if inv_lo <= 0:
-        raise InvalidInputError(
-            f"the depth band around {far_m:g} m reaches infinity: depths in metres are expected (not mm); "
-            "for very far surfaces give zmin_m and zmax_m explicitly"
-        )
+        words = (f"the depth band around {far_m:g} m reaches infinity: the views move {k * inv_far:.2g} px between "
+                 f"{far_m:g} m and infinity, and the search needs {k * reach:.2g} px of motion on either side of a surface")
+        lo, hi = calibration.valid_depth_range_m
+        if lo <= far_m / 1000.0 and (hi is None or far_m / 1000.0 <= hi):  # in mm, a depth the calibration covers
+            words += f"; depths are in metres: was {far_m:g} given in mm?"
+        else:
+            words += "; this calibration cannot judge a surface that far (a nearer plane or a finer binning can)"
+        raise InvalidInputError(words + "; for very far surfaces give zmin_m and zmax_m explicitly")
     return float(z0 + 1.0 / (inv_near + reach)), float(z0 + 1.0 / inv_lo)
 
 

@@ -8,7 +8,7 @@ import pytest
 from inspect_parts import DATA, PLANE, TOL, overlap, truth_deviation, views_of
 from lfring.calibration.defaults import default_calibration
 from lfring.errors import InvalidInputError, LfringWarning
-from lfring.inspect import Defect, InspectionResult, inspect_frame
+from lfring.inspect import Defect, InspectionResult, default_depth_band, inspect_frame
 from lfring.io.demosaic import demosaic
 from lfring.io.raw import RawFrame
 from lfring.synth import render
@@ -142,6 +142,24 @@ def test_reference_depth_in_millimetres(parts):
     with pytest.warns(LfringWarning, match="outside the calibrated range"):
         with pytest.raises(InvalidInputError, match="reaches infinity"):
             inspect_frame(views, cal, plane_m=PLANE, tolerance_m=TOL, reference_depth_m=mm)
+
+
+def test_band_reaching_infinity_says_why(prototype):
+    """A plane the views cannot tell from infinity is refused with the motion in pixels; the
+    refusal suggests millimetres only where the number, read as mm, is a depth the calibration
+    covers (a coarse camera at 1 m is not a unit mistake)."""
+    from lfring.calibration import RingCalibration
+
+    fine, coarse = (RingCalibration.from_optics(prototype.binned(b)) for b in (1, 4))
+    lo, hi = default_depth_band(fine, 1.0, 1.0, 0.005)
+    assert lo < 1.0 < hi
+    with pytest.raises(InvalidInputError, match="reaches infinity") as err:
+        default_depth_band(coarse, 1.0, 1.0, 0.005)
+    assert "cannot judge a surface that far" in str(err.value) and "mm" not in str(err.value)
+    assert "the views move 1.6 px between 1 m and infinity" in str(err.value)
+    for cal in (fine, coarse):
+        with pytest.raises(InvalidInputError, match="was 300 given in mm"):
+            default_depth_band(cal, 300.0, 300.0, 0.005)
 
 
 def test_plane_outside_calibrated_range_warns(parts):
