@@ -21,6 +21,10 @@ MAX_RESIDUAL_PX = 0.5
 """Residual (px) above which a calibration is refused unless --force: the views of a planar
 target at its depth align to a small fraction of a pixel (the twin's to about 0.01 px); a frame
 that is not one (a scene with depth, a part) leaves residuals of a pixel or more."""
+FAR_PLANE_M = 100.0
+"""A plane given this far or farther gets a warning: a target must fill the views with texture,
+so it is most likely millimetres given as metres (a distant scene is a valid plane at infinity,
+so it is not refused)."""
 
 
 def _floaty(text: str) -> bool:
@@ -83,6 +87,14 @@ def command(frames, depths, output, flat, layout_file, depth_origin, device_name
     while frames and _floaty(frames[-1]) and not Path(frames[-1]).exists():
         extra.insert(0, frames.pop())
     tokens = [t for t in re.split(r"[,\s]+", depths.strip()) if t] + extra
+    missing = [f for f in frames if not Path(f).exists()]
+    if missing:
+        # click reads `--depths 0.3 abc` as one depth and a third frame: say so.
+        trailing = missing == frames[len(frames) - len(missing):]
+        if trailing and len(frames) - len(missing) == len(tokens) + len(missing):
+            raise click.BadParameter(f"expected a number of metres for each frame, got {' '.join(tokens + missing)!r}",
+                                     param_hint="--depths")
+        raise click.BadParameter(f"no such file: {', '.join(missing)}", param_hint="FRAMES")
     try:
         zs = [float(t) for t in tokens]
     except ValueError:
@@ -123,6 +135,10 @@ def command(frames, depths, output, flat, layout_file, depth_origin, device_name
     cal = calibrate(dict(zip(zs, frames)), flat=flat, layout=layout, depth_origin_m=z0, method=method, rank1=rank1,
                     device=device, distortion=not no_distortion, carry_flat=carry_flat, **levels.as_kwargs())
     _refuse_too_far(cal, dict(zip(zs, frames)), device)
+    far = max(zs)
+    if far >= FAR_PLANE_M and far / 1000.0 > min(zs):
+        log.warning("the farthest plane is given as %g m (%s): fine for a target that far; if %g was millimetres, "
+                    "give %g", far, dict(zip(zs, frames))[far], far, far / 1000.0)
     click.echo(f"z0 = {cal.depth_origin_m:.6f} m ({cal.provenance.get('depth_origin')}); valid depth range "
                f"{cal.valid_depth_range_m[0]:g} to {cal.valid_depth_range_m[1]:g} m; reference view {cal.model.reference}")
     click.echo(f"{'plane [m]':>10} " + " ".join(f"{'view ' + str(k) + ' px':>10}" for k in range(cal.num_views))

@@ -123,8 +123,11 @@ def test_calibrate_refuses_millimetres_given_as_metres(files, tmp_path, capsys):
     err = capsys.readouterr().err
     assert "the optics of device 'prototype'" in err and "given as 300 m" in err and "not mm" in err
     assert "Traceback" not in err and not out.exists()
-    # The same frames in metres are accepted.
-    assert main(_calibrate_args(files, out, "--depths", "0.3", "1.0")) == 0 and out.exists()
+    # One depth in millimetres among metres cannot be told from a distant plane (a valid plane at
+    # infinity): written, with a warning that says what it may be.
+    assert main(_calibrate_args(files, out, "--depths", "0.3", "1000")) == 0 and out.exists()
+    err = capsys.readouterr().err
+    assert "the farthest plane is given as 1000 m" in err and "if 1000 was millimetres, give 1" in err
 
 
 @pytest.mark.parametrize(
@@ -136,6 +139,8 @@ def test_calibrate_refuses_millimetres_given_as_metres(files, tmp_path, capsys):
         (["--depths", "0.3", "0.3"], "Invalid value for --depths: each frame needs its own depth"),
         (["--depths", "0.3", "0"],
          "Invalid value for --depths: expected a positive number of metres for each frame, got 0.3 0"),
+        (["--depths", "0.3", "abc"], "Invalid value for --depths: expected a number of metres for each frame, got '0.3 abc'"),
+        (["nope.png", "--depths", "0.3", "1.0", "0.5"], "Invalid value for FRAMES: no such file: nope.png"),
     ],
 )
 def test_calibrate_errors_name_the_options(files, tmp_path, capsys, extra, message):
