@@ -115,6 +115,7 @@ class _Run:
     identity: dict = field(default_factory=dict)
     todo_kinds: dict = field(default_factory=dict)  # input -> kinds computed this run
     carried: dict = field(default_factory=dict)  # input -> (outputs, output_keys) of earlier runs still valid
+    previous: dict = field(default_factory=dict)  # input -> its record as it stood before this run
     calibrations: dict = field(default_factory=dict)  # input -> the frame's calibration, when it can be told
     _keys: dict = field(default_factory=dict)  # id of a calibration -> output keys
 
@@ -241,6 +242,8 @@ def _decide_jobs(run: _Run, jobs: Sequence[BatchJob], overwrite: bool) -> list[B
             run.entry(job, "skipped")
             continue
         run.todo_kinds[job.input] = d.kinds
+        if rec is not None:
+            run.previous[job.input] = rec
         if rec is not None and rec.get("input_identity") == ident:
             # Earlier runs' outputs that are still valid and still there stay in the record.
             made = rec.get("outputs") or {}
@@ -279,11 +282,17 @@ def _progress(todo, progress):
 
 def _finish(run: _Run, job: BatchJob, res: FrameResult) -> None:
     """Write a worker's files for one frame, then its record and manifest line."""
-    if res.left_out:  # not a scene: nothing to write, and no pending record of this run (a rerun looks again)
+    if res.left_out:
+        # Not a scene: nothing written, so the record goes back to what it was before this run
+        # (an earlier run's outputs stay its own), or away if there was none (a rerun looks again).
         rec_path = run.out / (job.stem + RECORD_SUFFIX)
         if (read_record(rec_path) or {}).get("run") == run.run_id:
+            before = run.previous.get(job.input)
             with contextlib.suppress(OSError):
-                rec_path.unlink()
+                if before is None:
+                    rec_path.unlink()
+                else:
+                    run.writer.write_json(job.stem + RECORD_SUFFIX, before)
         run.report.left_out.append((job.input, res.left_out))
         log.info("%s: left out: %s", job.input, res.left_out)
         run.entry(job, "left_out", reason=res.left_out, timings_s=res.timings_s, worker=res.worker)

@@ -33,3 +33,15 @@ def test_batch_leaves_out_a_flat_field_with_its_own_reason(tmp_path):
     # A rerun skips the scene and leaves the flat out again.
     again = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
     assert again.returncode == 0 and "0 done, 1 skipped" in again.stdout and "1 left out (a flat field)" in again.stdout
+    # The scene's file replaced by a flat field, rerun with --overwrite: it is left out, and the
+    # outputs of the scene it was stay listed in its record (nothing replaced them), so a rerun
+    # without --overwrite says the input changed instead of disowning them.
+    shutil.copyfile(DATA / "flat.png", inp / "scene.png")
+    shutil.copyfile(DATA / "flat.png.json", inp / "scene.png.json")
+    forced = subprocess.run([*cmd, "--overwrite"], capture_output=True, text=True, timeout=600)
+    assert forced.returncode == 0 and "0 done" in forced.stdout and "2 left out" in forced.stdout, forced.stderr
+    record = json.loads((out / "scene.lfring.json").read_text())
+    assert record["status"] == "done" and record["outputs"] == {"refocus_0.5m": "scene_refocus_0.5m.png"}
+    assert (out / "scene_refocus_0.5m.png").exists()
+    later = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    assert later.returncode == 1 and "the input changed since" in later.stderr and "not made by" not in later.stderr
