@@ -42,13 +42,15 @@ class DepthRangeError(InvalidInputError):
     planes_needed : int or None
         The fewest hypotheses over the same range that the method works with; None where no
         number does (the range itself is too narrow).
+    hint : str
+        What else may be wrong (millimetres given as metres), '' where nothing is seen.
     """
 
     def __init__(self, message: str, *, zmin_m: float, zmax_m: float, planes: int, motion_px: float,
-                 planes_needed: int | None):
-        super().__init__(message)
+                 planes_needed: int | None, hint: str = ""):
+        super().__init__(message + hint)
         self.zmin_m, self.zmax_m, self.planes, self.motion_px = zmin_m, zmax_m, planes, motion_px
-        self.planes_needed = planes_needed
+        self.planes_needed, self.hint = planes_needed, hint
 
     def narrow(self, remedy: str) -> str:
         """Why the range is too narrow, then ``remedy``: the sentence every entry point words
@@ -56,7 +58,7 @@ class DepthRangeError(InvalidInputError):
         its options)."""
         return (f"zmin_m {self.zmin_m:g} .. zmax_m {self.zmax_m:g} m is too narrow to estimate depth over: the views "
                 f"move by {self.motion_px:.2g} px across it, and the estimation judges each depth against others more "
-                f"than a pixel of motion away; {remedy}")
+                f"than a pixel of motion away; {remedy}{self.hint}")
 
 
 class DeviceError(InvalidInputError):

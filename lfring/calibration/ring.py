@@ -177,6 +177,26 @@ class RingCalibration:
             )
         return z
 
+    def millimetres_hint(self, *depths_m: float) -> str:
+        """``"; depths are in metres: was ... given in mm?"`` when every depth given lies beyond
+        the valid range and, read as millimetres, within it (the usual unit mistake), else ''.
+
+        >>> from lfring.calibration import RingCalibration
+        >>> pair = RingCalibration.from_grid((64, 96), [(0, 0), (1, 0)], disparity_scale_px_m=120.0)
+        >>> pair.valid_depth_range_m[0], pair.millimetres_hint(3000.0), pair.millimetres_hint(3.0)
+        (1.25, '; depths are in metres: was 3000 given in mm?', '')
+        """
+        lo, hi = self.valid_depth_range_m
+        z = [float(v) for v in depths_m]
+        if not z or not all(math.isfinite(v) for v in z):
+            return ""
+        beyond = all(v > hi if hi is not None else v / 1000.0 >= lo for v in z)
+        within_mm = all(lo <= v / 1000.0 and (hi is None or v / 1000.0 <= hi) for v in z)
+        if not (beyond and within_mm):
+            return ""
+        words = " and ".join(f"{v:g}" for v in dict.fromkeys(z))
+        return f"; depths are in metres: {'was' if len(set(z)) == 1 else 'were'} {words} given in mm?"
+
     def homographies(self, depth_m, *, reference="center") -> np.ndarray:
         """``H_ref_from_view`` of every view at ``depth_m``: (V, 3, 3), or (N, V, 3, 3)."""
         z = self.check_depth(depth_m)

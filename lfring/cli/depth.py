@@ -86,6 +86,7 @@ def command(raw, zmin, zmax, outdir, calib, planes, reference, cost, aggregation
     from lfring.depth import estimate_depth
     from lfring.depth.hypotheses import depth_hypotheses
     from lfring.depth.io import device_for, write_depth_preview, write_depth_tiff, write_pfm, write_ply
+    from lfring.core.validate import check_number
     from lfring.errors import InvalidInputError, LfringError
     from lfring.focus.depth_aware import estimation_range
     from lfring.io.writers import write_float_tiff, write_json
@@ -107,6 +108,7 @@ def command(raw, zmin, zmax, outdir, calib, planes, reference, cost, aggregation
     views, cal, cal_name = load_views(raw, calib, levels, check=not no_check, flat=flat)
     ref = check_reference(reference, cal.num_views)
     lo, hi = cal.valid_depth_range_m
+    check_number(zmin, "--zmin", above=0.0, allow_none=True, what="a distance in metres")  # before the bound's words below
     if zmax is not None:
         zmin, zmax = estimation_range(cal, zmin, zmax, reference=ref)
     else:

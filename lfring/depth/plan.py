@@ -20,9 +20,9 @@ from lfring.core.threads import run_threads
 from lfring.core.viewstack import WEIGHT_FLOOR, cached_view_masks, calibration_cache
 from lfring.core.warping import warp_image
 from lfring.depth.hypotheses import depth_hypotheses, view_motion_px
-from lfring.errors import LfringWarning
+from lfring.errors import DepthRangeError, LfringWarning
 
-__all__ = ["DEPTH_TAPER", "DepthSettings", "Progress", "SweepPlan", "baseline_axis", "depths_key", "guide_image",
+__all__ = ["DEPTH_TAPER", "MIN_RANGE_MOTION_PX", "DepthSettings", "Progress", "SweepPlan", "baseline_axis", "depths_key", "guide_image",
            "in_reference_frame", "other_reference", "plan_sweep", "sweep_masks"]
 
 # Fraction of a view's disc radius over which its weight rises from 0 to 1 in the sweep
@@ -34,6 +34,9 @@ __all__ = ["DEPTH_TAPER", "DepthSettings", "Progress", "SweepPlan", "baseline_ax
 # of the inspection sample (data/synthetic/part_good.png) made a confident false dent at the bottom
 # of the frame.
 DEPTH_TAPER = 0.05
+#: A depth range across which the views move by this much (px) or less holds no depth to tell
+#: from another: every method refuses it.
+MIN_RANGE_MOTION_PX = 1.0
 
 
 def sweep_masks(calibration, view_shape, taper: float = DEPTH_TAPER) -> np.ndarray:
@@ -83,11 +86,20 @@ def plan_sweep(views, calibration, zmin_m, zmax_m, num_planes, reference, taper)
     """The :class:`SweepPlan` of views (V, h, w, C) over ``zmin_m``..``zmax_m``."""
     ref = check_reference(reference, calibration.num_views)
     depths = depth_hypotheses(calibration, zmin_m, zmax_m, num=num_planes)
+    shape = views.shape[1:3]
+    zmin, zmax = float(depths[0]), float(depths[-1])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", LfringWarning)
+        motion = view_motion_px(calibration, [zmin, zmax], shape)
+    if motion <= MIN_RANGE_MOTION_PX:  # refused before the out-of-range warning: the hint says more
+        raise DepthRangeError(
+            f"zmin_m {zmin:g} .. zmax_m {zmax:g} m: the views move by {motion:.2g} px across it, too little to tell "
+            "any depth in it from another; widen it", zmin_m=zmin, zmax_m=zmax, planes=len(depths), motion_px=motion,
+            planes_needed=None, hint=calibration.millimetres_hint(zmin, zmax))
     calibration.check_depth(np.array([zmin_m, zmax_m]))  # warns once if outside the calibrated range
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", LfringWarning)
         hs = calibration.homographies(depths, reference=ref)  # (N, V, 3, 3)
-    shape = views.shape[1:3]
     key = ("view motion", depths_key(depths), tuple(shape))  # the same for every frame
     step = calibration_cache(calibration, key, lambda: view_motion_px(calibration, depths, shape))
     # The second minimum is looked for more than one pixel of motion away from the best.

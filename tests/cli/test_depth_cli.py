@@ -50,6 +50,13 @@ def test_depth_cli_outputs(tmp_path, capsys):
         (["--zmin", "0.3", "--zmax", "0.5", "--paths", "6"], "'6' is not one of"),
         (["--zmin", "0.3", "--zmax", "0.5", "--threads", "0"], "--threads"),
         (["--zmin", "0.3", "--zmax", "0.5", "--min-confidence", "-5"], "--min-confidence"),
+        (["--zmin", "nan", "--method", "local"], "--zmin must be a distance in metres > 0 (finite), got nan"),
+        # Millimetres given as metres: every method refuses a range the views do not move across.
+        (["--zmin", "300", "--zmax", "1000", "--method", "local"],
+         "the views move by 0.0073 px across it, too little to tell any depth in it from another; widen it; depths "
+         "are in metres: were 300 and 1000 given in mm?"),
+        (["--zmin", "300", "--zmax", "1000"], "were 300 and 1000 given in mm?"),
+        (["--zmin", "3", "--zmax", "3.001", "--method", "local"], "too little to tell any depth"),
     ],
 )
 def test_depth_cli_errors(tmp_path, capsys, args, text):

@@ -77,7 +77,7 @@ def run_semiglobal(views, calibration, plan, settings, finisher, progress, *, fu
             f"method='sgm' judges each answer against hypotheses more than one pixel of view motion away: "
             f"{len(plan.depths)} hypotheses over {motion:.2g} px of motion ({zmin_m:g}..{zmax_m:g} m) have none; "
             f"{remedy} or use method='local'", zmin_m=zmin_m, zmax_m=zmax_m, planes=len(plan.depths), motion_px=motion,
-            planes_needed=needed)
+            planes_needed=needed, hint=calibration.millimetres_hint(zmin_m, zmax_m))
     check = views.shape[0] == 2 if settings.consistency is None else bool(settings.consistency)
     if settings.backend == "torch" and fused:  # the GPU engine; None where its kernels cannot run on the device
         out = run_semiglobal_gpu(views, calibration, plan, settings, finisher, progress, consistency=check,
