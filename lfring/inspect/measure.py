@@ -136,12 +136,16 @@ def default_depth_band(calibration, near_m: float, far_m: float, tolerance_m: fl
     tol_inv = abs(1.0 / (near_m - z0) - 1.0 / (near_m + tolerance_m - z0))
     reach = max(4.0 * tol_inv, 1.0 / k) + MARGIN_PX / k
     inv_lo = inv_far - reach
+    if inv_lo <= 0 and inv_far - (1.0 + MARGIN_PX) / k > 0:  # the tolerance's reach alone passes infinity
+        raise InvalidInputError(
+            f"tolerance_m {tolerance_m:g} m is too large for a surface at {far_m:g} m: the band searched reaches four "
+            f"tolerances beyond it, past infinity; give a smaller tolerance_m (in metres)")
     if inv_lo <= 0:
         words = (f"the depth band around {far_m:g} m reaches infinity: the views move {k * inv_far:.2g} px between "
                  f"{far_m:g} m and infinity, and the search needs {k * reach:.2g} px of motion on either side of a surface")
-        lo, hi = calibration.valid_depth_range_m
-        if lo <= far_m / 1000.0 and (hi is None or far_m / 1000.0 <= hi):  # in mm, a depth the calibration covers
-            words += f"; depths are in metres: was {far_m:g} given in mm?"
+        hint = calibration.millimetres_hint(far_m)
+        if hint:
+            words += hint
         else:
             words += "; this calibration cannot judge a surface that far (a nearer plane or a finer binning can)"
         raise InvalidInputError(words + "; for very far surfaces give zmin_m and zmax_m explicitly")
@@ -292,6 +296,9 @@ def _check_inputs(views, calibration, *, plane_m, tolerance_m, roi, reference_de
     z0 = calibration.depth_origin_m
     if plane <= z0:
         raise InvalidInputError(f"plane_m ({plane:g} m) must lie beyond the calibration's depth origin z0 = {z0:.4g} m")
+    if tol >= plane - z0:
+        raise InvalidInputError(f"tolerance_m ({tol:g} m) must be smaller than the plane's distance ({plane:g} m): "
+                                f"tolerances are in metres (was {tol:g} given in mm?)")
     check_int(min_area_px, "min_area_px", minimum=1)
     check_fraction(min_confidence, "min_confidence")
     coverage = check_fraction(min_coverage, "min_coverage")
@@ -341,13 +348,21 @@ def _plan_band(calibration, chk: _Checked, zmin_m, zmax_m, num_planes) -> tuple[
         lo, hi = calibration.valid_depth_range_m
         if typical < lo - tol or (hi is not None and typical > hi + tol):
             calibration.check_depth(typical, stacklevel=4)
-    if zmin_m is None and zmax_m is None:
-        zlo, zhi, num = _aligned_band(calibration, near, far, tol, num_planes)
-        num_planes = num_planes or num
-    else:
-        auto_lo, auto_hi = default_depth_band(calibration, near, far, tol)
-        zlo = auto_lo if zmin_m is None else _positive(zmin_m, "zmin_m")
-        zhi = auto_hi if zmax_m is None else _positive(zmax_m, "zmax_m")
+    if zmin_m is not None and zmax_m is not None and not _positive(zmin_m, "zmin_m") < _positive(zmax_m, "zmax_m"):
+        raise InvalidInputError(f"zmin_m ({zmin_m:g}) must be smaller than zmax_m ({zmax_m:g})")
+    try:
+        if zmin_m is None and zmax_m is None:
+            zlo, zhi, num = _aligned_band(calibration, near, far, tol, num_planes)
+            num_planes = num_planes or num
+        else:
+            auto_lo, auto_hi = default_depth_band(calibration, near, far, tol)
+            zlo = auto_lo if zmin_m is None else _positive(zmin_m, "zmin_m")
+            zhi = auto_hi if zmax_m is None else _positive(zmax_m, "zmax_m")
+    except InvalidInputError as exc:
+        if target is None:
+            raise
+        held = f"{near:g} to {far:g} m" if near != far else f"{near:g} m"
+        raise InvalidInputError(f"reference_depth_m holds depths of {held}: {exc}") from None
     if not zlo < near <= far < zhi:
         what = f"the plane ({plane:g} m)" if target is None else f"the reference depths ({near:g} to {far:g} m)"
         raise InvalidInputError(f"the depth band {zlo:g} to {zhi:g} m (zmin_m, zmax_m) must contain {what} strictly")

@@ -140,8 +140,20 @@ def test_reference_depth_in_millimetres(parts):
     r, cal, views, *_ = parts["good"]
     mm = np.full(views.shape[1:3], 300.0, np.float32)
     with pytest.warns(LfringWarning, match="outside the calibrated range"):
-        with pytest.raises(InvalidInputError, match="reaches infinity"):
+        with pytest.raises(InvalidInputError, match="reference_depth_m holds depths of 300 m: .*reaches infinity.*mm"):
             inspect_frame(views, cal, plane_m=PLANE, tolerance_m=TOL, reference_depth_m=mm)
+
+
+@pytest.mark.parametrize("args, match", [
+    # A tolerance in mm, or one whose band passes infinity: the tolerance is named, not the plane.
+    (dict(tolerance_m=10.0), r"tolerance_m \(10 m\) must be smaller than the plane's distance .*given in mm"),
+    (dict(tolerance_m=0.1), "tolerance_m 0.1 m is too large for a surface at 0.3 m"),
+    (dict(tolerance_m=TOL, zmin_m=0.4, zmax_m=0.2), r"zmin_m \(0.4\) must be smaller than zmax_m \(0.2\)"),
+])
+def test_band_refusals_name_the_cause(parts, args, match):
+    r, cal, views, *_ = parts["good"]
+    with pytest.raises(InvalidInputError, match=match):
+        inspect_frame(views, cal, plane_m=PLANE, **args)
 
 
 def test_band_reaching_infinity_says_why(prototype):
