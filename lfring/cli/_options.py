@@ -13,24 +13,28 @@ from lfring.errors import InvalidInputError
 from lfring.optics.device import RingDevice, load_device
 
 
-def parse_range(text: str, *, with_count: bool) -> tuple[float, ...]:
-    """'a:b' or 'a:b:n' -> floats (n an int >= 2); raises click.BadParameter on bad text."""
+def parse_range(text: str, *, with_count: bool, param_hint: str | None = None, metavar: str | None = None) -> tuple[float, ...]:
+    """'a:b' or 'a:b:n' -> floats (n an int >= 2); raises click.BadParameter on bad text, naming
+    the option ``param_hint`` and the parts as its help's ``metavar`` does (``START:STOP:N``)."""
+    start_w, stop_w, *count_w = (metavar or ("START:STOP:COUNT" if with_count else "START:STOP")).split(":")
+    count_w = count_w[0] if count_w else "COUNT"
     parts = text.split(":")
     want = 3 if with_count else 2
     if len(parts) != want:
-        form = "START:STOP:COUNT" if with_count else "START:STOP"
-        raise click.BadParameter(f"expected {form}, got {text!r}")
+        form = f"{start_w}:{stop_w}:{count_w}" if with_count else f"{start_w}:{stop_w}"
+        raise click.BadParameter(f"expected {form}, got {text!r}", param_hint=param_hint)
     try:
         start, stop = float(parts[0]), float(parts[1])
     except ValueError:
-        raise click.BadParameter(f"START and STOP must be numbers in metres, got {text!r}") from None
+        raise click.BadParameter(f"{start_w} and {stop_w} must be numbers in metres, got {text!r}",
+                                 param_hint=param_hint) from None
     if with_count:
         try:
             count = int(parts[2])
         except ValueError:
-            raise click.BadParameter(f"COUNT must be an integer, got {parts[2]!r}") from None
+            raise click.BadParameter(f"{count_w} must be an integer, got {parts[2]!r}", param_hint=param_hint) from None
         if count < 2:
-            raise click.BadParameter(f"COUNT must be >= 2, got {count}")
+            raise click.BadParameter(f"{count_w} must be >= 2, got {count}", param_hint=param_hint)
         return start, stop, count
     return start, stop
 

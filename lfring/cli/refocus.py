@@ -26,6 +26,8 @@ from lfring.cli.outputs import OutputSet
 from lfring.core.warping import DEFAULT_INTERPOLATION
 
 log = logging.getLogger("lfring.cli.refocus")
+SWEEP_METAVAR = "START:STOP:N"
+"""--sweep as its help names it, and so its messages."""
 
 
 def encode(image: np.ndarray, bit_depth: int, encoding: str) -> np.ndarray:
@@ -52,13 +54,13 @@ def caption(frame: np.ndarray, text: str) -> np.ndarray:
 def _depths(depth, depths, sweep) -> list[float]:
     given = [x is not None for x in (depth, depths, sweep)]
     if sum(given) != 1:
-        raise click.UsageError("give exactly one of --depth Z, --depths Z1,Z2,... or --sweep START:STOP:N")
+        raise click.UsageError(f"give exactly one of --depth Z, --depths Z1,Z2,... or --sweep {SWEEP_METAVAR}")
     if depth is not None:
         zs, hint = [depth], "--depth"
     elif depths is not None:
         zs, hint = list(parse_depths(depths, param_hint="--depths")), "--depths"
     else:
-        start, stop, n = parse_range(sweep, with_count=True)
+        start, stop, n = parse_range(sweep, with_count=True, param_hint="--sweep", metavar=SWEEP_METAVAR)
         # Rounded to 12 significant digits: the depths as written (0.45, not 0.44999999999999996).
         zs, hint = [float(f"{z:.12g}") for z in np.linspace(start, stop, n)], "--sweep"
     for z in zs:
@@ -75,7 +77,7 @@ def _depths(depth, depths, sweep) -> list[float]:
 @click.argument("raw", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.option("--depth", type=float, default=None, metavar="M", help="Refocus distance from the main lens [m]; inf for infinity.")
 @click.option("--depths", default=None, metavar="Z1,Z2,...", help="Several depths [m]: a focal stack.")
-@click.option("--sweep", default=None, metavar="START:STOP:N", help="N depths from START to STOP [m]: a focal stack.")
+@click.option("--sweep", default=None, metavar=SWEEP_METAVAR, help="N depths from START to STOP [m]: a focal stack.")
 @click.option("--all-in-focus", "aif", is_flag=True,
               help="Also write an all-in-focus image chosen over the stack's depths (or the calibrated range).")
 @click.option("--calib", type=click.Path(dir_okay=False), default=None, metavar="FILE",
