@@ -39,6 +39,29 @@ def parse_range(text: str, *, with_count: bool, param_hint: str | None = None, m
     return start, stop
 
 
+def check_figure_output(path, param_hint: str) -> None:
+    """Refuse a figure file whose suffix :func:`lfring.optics.figures.save_figure` cannot write,
+    naming the option that gave it, before any work is done.
+
+    Parameters
+    ----------
+    path : str or Path
+        The figure file.
+    param_hint : str
+        The option that names it (``-o`` of ``lfring raytrace``, ``--plot`` of ``lfring design``).
+
+    Raises
+    ------
+    click.BadParameter
+        Naming the option and the suffixes that can be written.
+    """
+    from lfring.optics.figures import FIGURE_SUFFIXES  # the one list: save_figure writes these
+
+    if Path(path).suffix.lower() not in FIGURE_SUFFIXES:
+        raise click.BadParameter(f"the figure file must end in {', '.join(FIGURE_SUFFIXES)}, got {Path(path).name!r}",
+                                 param_hint=param_hint)
+
+
 def parse_depths(text: str, *, param_hint: str) -> tuple[float, ...]:
     """'0.3,0.5 1.0' -> (0.3, 0.5, 1.0) metres; raises click.BadParameter on bad text."""
     import re

@@ -4,13 +4,12 @@ from __future__ import annotations
 
 import json
 import logging
-
 from pathlib import Path
 
 import click
 import numpy as np
 
-from lfring.cli._options import device_option, get_device, parse_range
+from lfring.cli._options import check_figure_output, device_option, get_device, parse_range
 from lfring.optics.positions import METHODS, design, design_working_range, sweep
 
 log = logging.getLogger("lfring.cli.design")
@@ -31,12 +30,25 @@ _ROWS = (
 )
 
 
-def _save_figure(fig, path: str, overwrite: bool) -> None:
+_SWEEP_METAVAR, _RANGE_METAVAR = "START:STOP:N", "NEAR:FAR"
+"""The parts of --sweep and --range as the help names them, and so the messages."""
+def _plot_outputs(plot: str | None, overwrite: bool):
+    """The --plot file as an output set checked before any work (its suffix, and a file there
+    that may not be replaced), so that a refusal does not follow the printed numbers; None
+    without --plot."""
+    if not plot:
+        return None
     from lfring.cli.outputs import OutputSet
+
+    check_figure_output(plot, "--plot")
+    outputs = OutputSet([plot], name=Path(plot).name, overwrite=overwrite)
+    outputs.check()
+    return outputs
+
+
+def _save_figure(fig, path: str, outputs) -> None:
     from lfring.optics.figures import save_figure
 
-    outputs = OutputSet([path], name=Path(path).name, overwrite=overwrite)
-    outputs.check()
     with outputs.writing() as stage:
         save_figure(fig, stage(path), overwrite=True)
     log.info("wrote %s", path)
@@ -45,9 +57,9 @@ def _save_figure(fig, path: str, overwrite: bool) -> None:
 @click.command("design")
 @click.option("--object-size", type=float, required=True, metavar="M", help="Object size 2*h0 [m].")
 @click.option("--distance", type=float, default=None, metavar="M", help="Object distance Z from the main lens [m].")
-@click.option("--sweep", "sweep_spec", default=None, metavar="START:STOP:N",
+@click.option("--sweep", "sweep_spec", default=None, metavar=_SWEEP_METAVAR,
               help="Redesign at N distances from START to STOP [m] (paper Figs. 7-9).")
-@click.option("--range", "range_spec", default=None, metavar="NEAR:FAR",
+@click.option("--range", "range_spec", default=None, metavar=_RANGE_METAVAR,
               help="Working-range design for objects from NEAR to FAR [m].")
 @device_option
 @click.option("--method", type=click.Choice(METHODS), default="fit-sensor", show_default=True,
@@ -64,7 +76,12 @@ def command(object_size, distance, sweep_spec, range_spec, device_name, method, 
     """
     chosen = [x is not None for x in (distance, sweep_spec, range_spec)]
     if sum(chosen) != 1:
-        raise click.UsageError("give exactly one of --distance, --sweep START:STOP:N or --range NEAR:FAR")
+        raise click.UsageError(f"give exactly one of --distance, --sweep {_SWEEP_METAVAR} or --range {_RANGE_METAVAR}")
+    if sweep_spec is not None:
+        start, stop, count = parse_range(sweep_spec, with_count=True, param_hint="--sweep", metavar=_SWEEP_METAVAR)
+    elif range_spec is not None:
+        near, far = parse_range(range_spec, with_count=False, param_hint="--range", metavar=_RANGE_METAVAR)
+    outputs = _plot_outputs(plot, overwrite)
     device = get_device(device_name)
     if distance is not None:
         d = design(device, object_size_m=object_size, distance_m=distance, method=method)
@@ -78,17 +95,15 @@ def command(object_size, distance, sweep_spec, range_spec, device_name, method, 
             fig = sweep_figure(sw, mark_distance_m=distance,
                                title=f"b = {d.ring_distance_m * 1e3:.2f} mm, c = {d.sensor_distance_m * 1e3:.3f} mm "
                                      f"(designed for {object_size} m at {distance} m), numbers over distance")
-            _save_figure(fig, plot, overwrite)
+            _save_figure(fig, plot, outputs)
     elif sweep_spec is not None:
-        start, stop, count = parse_range(sweep_spec, with_count=True)
         sw = sweep(device, object_size_m=object_size, distances_m=np.linspace(start, stop, count), method=method)
         _report_sweep(sw, as_json, {"method": method, "device": device.name, "object_size_m": object_size})
         if plot:
             from lfring.optics.figures import sweep_figure
 
-            _save_figure(sweep_figure(sw, title=f"'{method}' design for a {object_size} m object"), plot, overwrite)
+            _save_figure(sweep_figure(sw, title=f"'{method}' design for a {object_size} m object"), plot, outputs)
     else:
-        near, far = parse_range(range_spec, with_count=False)
         wr = design_working_range(device, object_size_m=object_size, near_m=near, far_m=far)
         head = {
             "device": device.name,
@@ -113,7 +128,7 @@ def command(object_size, distance, sweep_spec, range_spec, device_name, method, 
 
             fig = sweep_figure(wr.sweep, title=f"working range {near:g}-{far:g} m: b = {wr.ring_distance_m * 1e3:.2f} mm, "
                                                 f"c = {wr.sensor_distance_m * 1e3:.3f} mm")
-            _save_figure(fig, plot, overwrite)
+            _save_figure(fig, plot, outputs)
 
 
 def _report_design(d, device_name: str, as_json: bool) -> None:

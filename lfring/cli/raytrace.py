@@ -4,30 +4,31 @@ from __future__ import annotations
 
 import json
 import logging
+import re
 from pathlib import Path
 
 import click
 import numpy as np
 
-from lfring.cli._options import device_option, get_device
+from lfring.cli._options import check_figure_output, device_option, get_device
+from lfring.cli.outputs import OutputSet
 from lfring.errors import DeviceError, InvalidInputError
 from lfring.io.atomic import atomic_write_text
-from lfring.cli.outputs import OutputSet
 from lfring.optics.positions import METHODS, design, evaluate
 from lfring.optics.raytrace import APERTURES, LOWER, MISSED_RING, STOPPED_MAIN, UPPER, bundle_stats, trace
 
 log = logging.getLogger(__name__)
 
-_FIGURE_SUFFIXES = (".png", ".pdf", ".svg")
+_COUNT_OPTIONS = {"num_points": "--points", "rays_per_point": "--rays", "rays_per_lens": "--rays-per-lens"}
+"""The ray counts as :func:`lfring.optics.raytrace.trace` names them, and the options that set
+them: its messages (which hold the counts' bounds) reach the user in the options' words."""
+_COUNT_NAMES = re.compile(r"\b(" + "|".join(_COUNT_OPTIONS) + r")\b(=)?")
 
 
-def _check_outputs(output: Path) -> Path:
-    """Validate the figure path and return its JSON sidecar path; nothing is written yet."""
-    if output.suffix.lower() not in _FIGURE_SUFFIXES:
-        raise InvalidInputError(
-            f"the figure file must end in {', '.join(_FIGURE_SUFFIXES)}; got {output.name!r}"
-        )
-    return output.with_suffix(".json")
+def _option_words(message: str) -> str:
+    """``message`` of :func:`~lfring.optics.raytrace.trace` with its count names as options
+    (``rays_per_lens=0`` as ``--rays-per-lens 0``)."""
+    return _COUNT_NAMES.sub(lambda m: _COUNT_OPTIONS[m[1]] + (" " if m[2] else ""), message)
 
 
 @click.command("raytrace")
@@ -77,7 +78,8 @@ def command(ctx, object_size_m, distance_m, output, num_points, rays_per_point, 
     """
     if not 50 <= dpi <= 600:
         raise InvalidInputError(f"--dpi must be between 50 and 600 dots per inch, got {dpi}")
-    sidecar = _check_outputs(output)
+    check_figure_output(output, "-o")
+    sidecar = output.with_suffix(".json")
     outputs = OutputSet([output, sidecar], name=output.name, formerly=output.stem, overwrite=overwrite)
     outputs.check()
     device = get_device(device_name)
@@ -99,11 +101,14 @@ def command(ctx, object_size_m, distance_m, output, num_points, rays_per_point, 
         numbers = design(device, object_size_m=object_size_m, distance_m=distance_m, method=method)
         device = device.with_positions(numbers.ring_distance_m, numbers.sensor_distance_m)
         how = f"'{method}' design"
+
+    try:  # the counts' bounds are trace's, checked before it traces
+        rt = trace(device, object_size_m=object_size_m, distance_m=distance_m, num_points=num_points,
+                   rays_per_point=rays_per_point, rays_per_lens=rays_per_lens, aperture=aperture)
+    except InvalidInputError as exc:
+        raise InvalidInputError(_option_words(str(exc))) from None
     for problem in numbers.problems:
         log.warning("these lens positions break a design limit: %s", problem)
-
-    rt = trace(device, object_size_m=object_size_m, distance_m=distance_m, num_points=num_points,
-               rays_per_point=rays_per_point, rays_per_lens=rays_per_lens, aperture=aperture)
     st = bundle_stats(rt)
     fates = {name: int((rt.lens == code).sum()) for name, code in
              (("lens_a", UPPER), ("lens_b", LOWER), ("missed_ring", MISSED_RING), ("stopped_main", STOPPED_MAIN))}

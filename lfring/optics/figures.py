@@ -19,7 +19,7 @@ from lfring.io.atomic import atomic_path
 from lfring.optics.positions import Sweep
 from lfring.optics.raytrace import LOWER, MISSED_RING, STOPPED_MAIN, UPPER, RayTrace, bundle_stats
 
-__all__ = ["RAY_COLOURS", "raytrace_figure", "save_figure", "sweep_figure"]
+__all__ = ["FIGURE_SUFFIXES", "RAY_COLOURS", "raytrace_figure", "save_figure", "sweep_figure"]
 
 #: Ray colours by fate: the paper draws lens a orange and lens b green.
 RAY_COLOURS = {
@@ -36,7 +36,7 @@ _RAY_LABELS = {
 }
 _LENS_FACE, _LENS_EDGE = "#cfe3f5", "steelblue"
 _HOLDER = "0.25"
-_FORMATS = (".png", ".pdf", ".svg")
+FIGURE_SUFFIXES = (".png", ".pdf", ".svg")
 
 
 def _polylines(z_m: np.ndarray, y_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -238,8 +238,8 @@ def save_figure(fig: Figure, path: str | Path, *, overwrite: bool = False, dpi: 
         Unsupported suffix, or the file exists and ``overwrite`` is False.
     """
     path = Path(path)
-    if path.suffix.lower() not in _FORMATS:
-        raise InvalidInputError(f"figure file must end in {', '.join(_FORMATS)}; got {path.name!r}")
+    if path.suffix.lower() not in FIGURE_SUFFIXES:
+        raise InvalidInputError(f"figure file must end in {', '.join(FIGURE_SUFFIXES)}; got {path.name!r}")
     if path.exists() and not overwrite:
         raise InvalidInputError(f"{path} exists; pass overwrite=True to replace it")
     with atomic_path(path) as tmp:

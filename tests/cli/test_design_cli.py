@@ -40,7 +40,12 @@ def test_design_table_sweep_range_and_plots(tmp_path, capsys):
         (["--object-size", "-0.1", "--distance", "0.3"], "object size"),
         (["--object-size", "0.1", "--distance", "0.01"], "focal length"),
         (["--object-size", "0.1", "--distance", "0.3", "--device", "missing.toml"], "not found"),
-        (["--object-size", "0.1", "--sweep", "0.1:2.0"], "START:STOP:COUNT"),
+        (["--object-size", "0.1", "--sweep", "0.1:2.0"], "Invalid value for --sweep: expected START:STOP:N, got '0.1:2.0'"),
+        (["--object-size", "0.1", "--sweep", "0.3:1:0"], "Invalid value for --sweep: N must be >= 2, got 0"),
+        (["--object-size", "0.1", "--sweep", "0.3:1:x"], "Invalid value for --sweep: N must be an integer, got 'x'"),
+        (["--object-size", "0.1", "--sweep", "a:1:3"], "Invalid value for --sweep: START and STOP must be numbers"),
+        (["--object-size", "0.1", "--range", "0.3"], "Invalid value for --range: expected NEAR:FAR, got '0.3'"),
+        (["--object-size", "0.1", "--range", "a:1"], "Invalid value for --range: NEAR and FAR must be numbers"),
         (["--object-size", "0.1"], "exactly one of"),
         (["--object-size", "0.1", "--range", "1.0:0.3"], "far distance"),
     ],
@@ -49,6 +54,27 @@ def test_design_errors_are_one_clear_line(capsys, args, text):
     assert main(["design", *args]) == 2
     err = capsys.readouterr().err
     assert text in err and "Traceback" not in err
+
+
+def test_range_words_are_the_helps(capsys):
+    assert main(["design", "--help"]) == 0
+    text = capsys.readouterr().out
+    assert "--sweep START:STOP:N" in text and "--range NEAR:FAR" in text
+
+
+@pytest.mark.parametrize("spec", [["--distance", "0.3"], ["--sweep", "0.3:1:3"], ["--range", "0.3:1.0"]])
+@pytest.mark.parametrize("plot, text", [
+    ("pl.txt", "Invalid value for --plot: the figure file must end in .png, .pdf, .svg, got 'pl.txt'"),
+    ("pl.png", "pl.png exists; pass --overwrite"),
+])
+def test_plot_is_refused_before_the_numbers(tmp_path, capsys, spec, plot, text):
+    (tmp_path / "pl.png").write_bytes(b"keep me")
+    assert main(["design", "--object-size", "0.05", *spec, "--plot", str(tmp_path / plot)]) == 2
+    out = capsys.readouterr()
+    assert text in out.err and "Traceback" not in out.err
+    assert out.out == ""  # nothing printed before the refusal
+    assert (tmp_path / "pl.png").read_bytes() == b"keep me"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["pl.png"]
 
 
 def test_malformed_device_file(tmp_path, capsys):

@@ -91,7 +91,12 @@ def test_other_design_and_defocus_through_device_positions(tmp_path, capsys, pro
     [
         (["--object-size", "0", "--distance", "0.3"], "object size must be a positive"),
         (["--object-size", "0.1", "--distance", "0.01"], "main lens focal length"),
-        (["--object-size", "0.1", "--distance", "0.3", "--points", "0"], "num_points must be an integer >= 1"),
+        (["--object-size", "0.1", "--distance", "0.3", "--points", "0"], "error: --points must be an integer >= 1, got 0"),
+        (["--object-size", "0.1", "--distance", "0.3", "--rays", "-1"], "error: --rays must be an integer >= 0, got -1"),
+        (["--object-size", "0.1", "--distance", "0.3", "--rays-per-lens", "-2"],
+         "error: --rays-per-lens must be an integer >= 0, got -2"),
+        (["--object-size", "0.1", "--distance", "0.3", "--rays", "0", "--rays-per-lens", "0"],
+         "error: --rays and --rays-per-lens are both 0"),
         (["--object-size", "0.1", "--distance", "0.3", "--device", "nosuchdevice"], "no built-in device named"),
         (["--object-size", "0.1", "--distance", "0.3", "--use-device-positions", "--method", "fit-sensor"],
          "give one of them"),
@@ -105,10 +110,31 @@ def test_errors_are_one_line(tmp_path, capsys, extra, message):
     assert not out.exists()
 
 
-def test_bad_suffix_is_one_line(tmp_path, capsys):
-    out = tmp_path / "rays.jpg"
+@pytest.mark.parametrize("name", ["rays.jpg", "rt1.txt"])
+def test_bad_suffix_names_the_option_before_any_work(tmp_path, capsys, name):
+    out = tmp_path / name
     assert main(["raytrace", "--object-size", "0.1", "--distance", "0.3", "-o", str(out)]) == 2
-    assert "must end in .png, .pdf, .svg" in _one_error_line(capsys.readouterr().err)
+    err = capsys.readouterr().err
+    assert f"Invalid value for -o: the figure file must end in .png, .pdf, .svg, got {name!r}" in err
+    assert "Traceback" not in err and "lfring: INFO" not in err  # refused before the trace
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize(
+    ("message", "words"),
+    [
+        ("num_points must be an integer >= 1, got 0", "--points must be an integer >= 1, got 0"),
+        ("rays_per_point and rays_per_lens are both 0: there is no ray to trace",
+         "--rays and --rays-per-lens are both 0: there is no ray to trace"),
+        ("rays cannot be aimed at the mini-lenses; use rays_per_lens=0 or another distance",
+         "rays cannot be aimed at the mini-lenses; use --rays-per-lens 0 or another distance"),
+        ("object size must be a positive length in metres, got 0", "object size must be a positive length in metres, got 0"),
+    ],
+)
+def test_trace_messages_name_the_options(message, words):
+    from lfring.cli.raytrace import _option_words
+
+    assert _option_words(message) == words
 
 
 def test_device_without_positions_is_one_line(tmp_path, capsys, prototype):
