@@ -14,6 +14,7 @@ from lfring.errors import InvalidInputError
 from lfring.focus.depth_aware import estimation_range
 from lfring.focus.methods import METHODS
 from lfring.io.writers import json_default
+from lfring.optics.paraxial import MIN_F_NUMBER
 
 __all__ = ["BatchSettings"]
 
@@ -224,7 +225,8 @@ class BatchSettings:
             if self.aperture is not None and self.f_number is not None:
                 raise InvalidInputError("give the depth of field as aperture or as f_number, not both")
             check_number(self.aperture, "aperture", minimum=0.0, allow_none=True, hint=" (1: the views' aperture, 0: a pinhole)")
-            check_number(self.f_number, "f_number", above=0.0, allow_none=True, what="a positive number")
+            check_number(self.f_number, "f_number", minimum=MIN_F_NUMBER, allow_none=True, what="an f-number",
+                         hint=": no lens in air has a smaller one")
         elif self.aperture is not None or self.f_number is not None:
             owners = ", ".join(f"refocus_method={m.name!r}" for m in METHODS.values() if "aperture" in m.options)
             raise InvalidInputError(f"aperture and f_number are for {owners}")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import logging
 from pathlib import Path
@@ -10,9 +11,71 @@ import click
 import numpy as np
 
 from lfring.cli._options import device_option, get_device
+from lfring.cli.words import cli_words
+from lfring.errors import InvalidInputError
 from lfring.io.bayer import PATTERNS
 
 log = logging.getLogger("lfring.cli.synth")
+
+#: The library's names of the values this command checks, and the options that give them.
+_OPTIONS = {
+    "binning": "--binning",
+    "gain": "--gain",
+    "exposure": "--exposure",
+    "target depth": "--depth",
+    "defect size": "--defect-size",
+    "part depth_m": "--part-depth",
+    "focus_m": "--conventional-focus",
+    "f_number": "--f-number",
+    "aperture_scale": "--aperture-scale",
+    "samples": "--conventional-samples",
+}
+
+#: The library's phrases about a part, and the options they are about.
+_PART_WORDS = (
+    ("not small against the part distance", "not small against the part distance (--part-depth {part_depth:g} m)"),
+    ("give fewer or smaller defects", "give fewer --defects or a smaller --defect-size"),
+)
+
+#: A defect's size or height typed as this many metres or more is most likely millimetres:
+#: a refusal then says so.
+_MILLIMETRES_FROM_M = 1.0
+
+
+@contextlib.contextmanager
+def _as_options(default: str | None = None):
+    """Turn a refusal of the library inside the block into a usage error that names the option
+    (:data:`_OPTIONS`, from the name the message starts with; else ``default``; with neither,
+    the refusal goes on as it is)."""
+    try:
+        yield
+    except InvalidInputError as exc:
+        message = str(exc)
+        name = next((n for n in _OPTIONS if message.startswith(n + " ")), None)
+        option = _OPTIONS[name] if name else default
+        if option is None:
+            raise
+        if name and message.startswith(f"{name} must be"):
+            message = message[len(name) + 1:]
+        message = cli_words(message)
+        for phrase, words in _PART_WORDS:
+            message = message.replace(phrase, words.format(**click.get_current_context().params))
+        raise click.BadParameter(message + _millimetres_hint(option), param_hint=option) from None
+
+
+def _millimetres_hint(option: str) -> str:
+    """For a defect option given in the command line as metres large enough to be millimetres:
+    a hint that says the unit, with the value in metres."""
+    if option not in ("--defects", "--defect-size"):
+        return ""
+    ctx = click.get_current_context()
+    values = ctx.params["defects" if option == "--defects" else "defect_size"]
+    values = _parse_defects(values) if option == "--defects" else (values,)
+    if not any(abs(v) >= _MILLIMETRES_FROM_M for v in values):
+        return ""
+    given = ",".join(f"{v:g}" for v in values)
+    metres = ",".join(f"{v / 1000:g}" for v in values)
+    return f" (the option is in metres: for {given} mm give {option} {metres})"
 
 
 def _parse_defects(text: str) -> tuple[float, ...]:
@@ -21,9 +84,10 @@ def _parse_defects(text: str) -> tuple[float, ...]:
     try:
         heights = tuple(float(t) for t in text.split(","))
     except ValueError:
-        raise click.BadParameter(f"expected 'none' or comma-separated heights in metres, got {text!r}") from None
+        raise click.BadParameter(f"expected 'none' or comma-separated heights in metres, got {text!r}",
+                                 param_hint="--defects") from None
     if any(not np.isfinite(h) or h == 0 for h in heights):
-        raise click.BadParameter(f"defect heights must be non-zero finite metres, got {text!r}")
+        raise click.BadParameter(f"defect heights must be non-zero finite metres, got {text!r}", param_hint="--defects")
     return heights
 
 
@@ -91,14 +155,17 @@ def command(preset, outdir, depth, scene_file, defects, defect_size, part_depth,
         raise click.UsageError("--f-number, --aperture-scale and --conventional-samples go with --conventional-focus")
     if f_number is not None and aperture_scale is not None:
         raise click.UsageError("give --f-number or --aperture-scale, not both")
-    settings = RenderSettings(
-        binning=binning, pattern=None if pattern.lower() == "none" else pattern.upper(), bit_depth=int(bit_depth),
-        noise=noise, gain=gain, exposure=exposure, rotate180=rotate180, seed=seed,
-    )
+    # Every value is checked here, before the rendering, and a refusal names its option.
+    with _as_options():
+        settings = RenderSettings(
+            binning=binning, pattern=None if pattern.lower() == "none" else pattern.upper(), bit_depth=int(bit_depth),
+            noise=noise, gain=gain, exposure=exposure, rotate180=rotate180, seed=seed,
+        )
     if preset == "flat":
         scene, default_name = presets.flat_scene(device), "flat"
     elif preset == "target":
-        scene, default_name = presets.target_scene(device, depth, seed=seed), f"target_{depth:g}m"
+        with _as_options("--depth"):
+            scene, default_name = presets.target_scene(device, depth, seed=seed), f"target_{depth:g}m"
     elif preset == "scene":
         scene, default_name = presets.three_depth_scene(), "scene"
     elif preset == "hard":
@@ -106,11 +173,21 @@ def command(preset, outdir, depth, scene_file, defects, defect_size, part_depth,
         settings = dataclasses.replace(settings, view_falloff=presets.HARD_VIEW_FALLOFF)
     elif preset == "part":
         heights = _parse_defects(defects)
-        scene = presets.part_scene(defect_heights_m=heights, defect_size_m=defect_size, depth_m=part_depth, seed=seed)
+        with _as_options("--defects"):
+            scene = presets.part_scene(defect_heights_m=heights, defect_size_m=defect_size, depth_m=part_depth,
+                                       seed=seed)
         default_name = "part_good" if not heights else "part_defects"
     else:
         scene = presets.load_scene(scene_file)
         default_name = Path(scene_file).stem
+    if conventional_focus:
+        from lfring.synth.conventional import check_conventional
+
+        binned = device.binned(binning)
+        for z in conventional_focus:
+            with _as_options():
+                check_conventional(binned, z, f_number=f_number, aperture_scale=aperture_scale,
+                                   samples=conventional_samples)
     name = name or default_name
     out = Path(outdir)
     raw_path = out / f"{name}.{'png' if fmt == 'png' else 'tiff'}"

@@ -15,6 +15,7 @@ from lfring.errors import InvalidInputError
 from lfring.optics.device import RingDevice
 
 __all__ = [
+    "MIN_F_NUMBER",
     "intermediate_distance_m",
     "mini_object_distance_m",
     "magnification",
@@ -25,6 +26,11 @@ __all__ = [
     "blur_diameter_m",
     "disparity_px",
 ]
+
+#: Smallest f-number a lens can have: in air the image-side numerical aperture NA (the sine of
+#: the marginal ray's angle) is at most 1, and N = 1 / (2 NA), so N >= 0.5. A smaller one names
+#: an aperture no lens has.
+MIN_F_NUMBER = 0.5
 
 
 def _depth(distance_m, device: RingDevice) -> np.ndarray:

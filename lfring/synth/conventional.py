@@ -15,6 +15,7 @@ import numpy as np
 from lfring.core.validate import check_int, check_number
 from lfring.errors import InvalidInputError
 from lfring.optics.device import RingDevice
+from lfring.optics.paraxial import MIN_F_NUMBER
 from lfring.optics.views import ViewCameras, optical_layout, view_cameras
 from lfring.synth.layers import SurfaceRenderer, default_workers, over
 from lfring.synth.scene import Scene
@@ -22,6 +23,7 @@ from lfring.synth.settings import RenderSettings
 
 __all__ = [
     "render_conventional",
+    "check_conventional",
     "conventional_aperture_radius_m",
     "conventional_blur_px",
     "conventional_sample_count",
@@ -57,17 +59,46 @@ def conventional_aperture_radius_m(device: RingDevice, *, f_number=None, apertur
 
     ``f_number`` N gives the main lens's entrance pupil at N, ``FL / (2 N)`` (``inf`` gives a
     pinhole); ``aperture_scale`` a gives ``a * viewpoint_radius_m(device)``; neither gives the
-    main lens's full aperture, ``device.effective_aperture_radius_m``. Not both.
+    main lens's full aperture, ``device.effective_aperture_radius_m``. Not both. An f-number
+    below ``MIN_F_NUMBER`` is refused: no lens has it.
     """
     if f_number is not None and aperture_scale is not None:
         raise InvalidInputError("give f_number or aperture_scale, not both")
     if f_number is not None:
-        n = check_number(f_number, "f_number", above=0, finite=False, hint=" (inf for a pinhole)")
+        n = check_number(f_number, "f_number", minimum=MIN_F_NUMBER, finite=False, what="an f-number",
+                         hint=" (no lens in air has a smaller one; inf for a pinhole)")
         return 0.0 if np.isinf(n) else device.main_focal_length_m / (2.0 * n)
     if aperture_scale is not None:
         a = check_number(aperture_scale, "aperture_scale", minimum=0)
         return a * viewpoint_radius_m(device)
     return float(device.effective_aperture_radius_m)
+
+
+def check_conventional(device: RingDevice, focus_m, *, f_number=None, aperture_scale=None,
+                       samples=None) -> tuple[float, float, int | None]:
+    """Check the arguments of :func:`render_conventional` as it does, without rendering, so that
+    a caller can refuse them before any work: ``focus_m`` beyond the views' entrance pupil, the
+    aperture (:func:`conventional_aperture_radius_m`) and ``samples`` (an integer >= 1, or None).
+
+    Parameters
+    ----------
+    device : RingDevice
+        The binned device, with lens positions.
+    focus_m, f_number, aperture_scale, samples
+        As :func:`render_conventional`'s.
+
+    Returns
+    -------
+    tuple
+        The focus distance (metres), the aperture radius (metres) and the samples (None: the
+        default count).
+    """
+    device.require_positions()
+    zf = check_number(focus_m, "focus_m", above=view_cameras(device).depth_origin_m, what="a distance in metres",
+                      hint=": beyond the views' entrance pupil")
+    radius = conventional_aperture_radius_m(device, f_number=f_number, aperture_scale=aperture_scale)
+    n = None if samples is None else check_int(samples, "samples", minimum=1)
+    return zf, radius, n
 
 
 def aperture_samples(n: int) -> np.ndarray:
@@ -153,7 +184,7 @@ def render_conventional(scene: Scene, device: RingDevice, focus_m: float, *, f_n
         Focus distance Zf from the main lens, metres, beyond the entrance pupil s.
     f_number, aperture_scale : float, optional
         The aperture (:func:`conventional_aperture_radius_m`): the main lens's entrance pupil at
-        f-number N (``inf``: a pinhole, the central view itself), or ``aperture_scale`` times the
+        f-number N, at least ``MIN_F_NUMBER`` (``inf``: a pinhole, the central view itself), or ``aperture_scale`` times the
         radius the four viewpoints span (1: the aperture the views span); default the main
         lens's full aperture.
     samples : int, optional
@@ -204,18 +235,16 @@ def render_conventional(scene: Scene, device: RingDevice, focus_m: float, *, f_n
         raise InvalidInputError(f"scene must be a lfring.synth.Scene, got {type(scene).__name__}")
     check_int(binning, "binning", minimum=1)
     dev = device.binned(binning)
-    dev.require_positions()
+    zf, radius, samples = check_conventional(dev, focus_m, f_number=f_number, aperture_scale=aperture_scale,
+                                             samples=samples)
     cams = view_cameras(dev)
     s, f, tp = cams.depth_origin_m, cams.focal_m, dev.pixel_pitch_m
-    zf = check_number(focus_m, "focus_m", above=s, what="a distance in metres",
-                      hint=": beyond the views' entrance pupil")
-    radius = conventional_aperture_radius_m(dev, f_number=f_number, aperture_scale=aperture_scale)
     if radius == 0:
         n = 1
     elif samples is None:
         n = conventional_sample_count(scene, dev, zf, radius)
     else:
-        n = check_int(samples, "samples", minimum=1)
+        n = samples
     layout = optical_layout(dev)
     vh, vw = layout.view_shape
     corner = np.mean([(x, y) for x, y, _, _ in layout.rects], axis=0)

@@ -29,6 +29,9 @@ __all__ = [
     "target_scene",
     "three_depth_scene",
     "part_scene",
+    "PART_SIZE_M",
+    "DEFECT_CLEARANCE",
+    "MAX_DEFECT_SIZE_M",
     "hard_scene",
     "HARD_VIEW_FALLOFF",
     "load_scene",
@@ -42,6 +45,15 @@ PRESETS = ("flat", "target", "scene", "part", "hard")
 #: (strength, dx, dy), from a mild centred fall-off to one that leaves about 30 % at the disc's
 #: rim around a centre a quarter radius off, so the four views differ in brightness by place.
 HARD_VIEW_FALLOFF = ((0.15, 0.0, 0.0), (0.6, 0.3, -0.2), (0.35, -0.25, 0.3), (0.9, 0.1, 0.25))
+
+#: Side (metres) of the square plate of :func:`part_scene`.
+PART_SIZE_M = 0.08
+#: How far a defect's centre keeps from the plate's edge, in defect diameters (a defect lies
+#: wholly on the plate, with some plate around it).
+DEFECT_CLEARANCE = 0.75
+#: Largest defect diameter (metres) of :func:`part_scene`: one defect with its clearance on
+#: both sides spans the plate.
+MAX_DEFECT_SIZE_M = PART_SIZE_M / (2 * DEFECT_CLEARANCE)
 
 
 def real_lenses(device: RingDevice, *, rim_fraction: float = 0.03, seed: int = 0) -> RingDevice:
@@ -222,26 +234,30 @@ def part_scene(
 ) -> Scene:
     """An inspection part: a textured plate at ``depth_m`` on a backdrop, with bumps (positive
     heights, towards the camera) and dents (negative) of ``defect_size_m`` at seeded random,
-    non-overlapping places. ``defect_heights_m=()`` gives a good part.
+    non-overlapping places. ``defect_heights_m=()`` gives a good part. The plate is
+    ``PART_SIZE_M`` square; a defect's centre keeps ``DEFECT_CLEARANCE`` diameters from its edge,
+    so a defect is at most ``MAX_DEFECT_SIZE_M`` across.
 
     The ring's baseline is small: at 0.3 m one pixel of disparity between neighbouring views of
     the 2 x 2 binned prototype is about 24 mm of depth, so defects worth finding are
     centimetre-high features, not scratches.
     """
     heights = tuple(float(h) for h in defect_heights_m)
-    check_number(defect_size_m, "defect size", above=0, what="a length in metres")
-    size = (0.08, 0.08)
+    check_number(defect_size_m, "defect size", above=0, maximum=MAX_DEFECT_SIZE_M, what="a length in metres",
+                 hint=f": a defect and its clearance must fit on the {PART_SIZE_M:g} m part")
+    size = (PART_SIZE_M, PART_SIZE_M)
     rng = np.random.default_rng(seed)
     placed: list[tuple[float, float]] = []
     bumps = []
-    margin = defect_size_m * 0.75
+    margin = defect_size_m * DEFECT_CLEARANCE
     for h in heights:
         for _ in range(1000):
             c = (rng.uniform(margin, size[0] - margin), rng.uniform(margin, size[1] - margin))
             if all(np.hypot(c[0] - p[0], c[1] - p[1]) > 1.6 * defect_size_m for p in placed):
                 break
         else:
-            raise InvalidInputError(f"cannot place {len(heights)} defects of {defect_size_m} m on a {size[0]} m part")
+            raise InvalidInputError(f"cannot place {len(heights)} defects of {defect_size_m} m on a {size[0]} m part: "
+                                    "give fewer or smaller defects")
         placed.append(c)
         bumps.append(Bump(center_m=c, size_m=(defect_size_m, defect_size_m), height_m=h, shape="dome"))
     part = HeightField(depth_m, size, Texture("image", name="gravel"), bumps=tuple(bumps), name="part")

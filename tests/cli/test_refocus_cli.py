@@ -54,6 +54,7 @@ def test_refocus_stack_and_all_in_focus(tmp_path):
         (["--sweep", "0.3:0.3:3"], "Invalid value for --sweep: 0.3 m would be made more than once"),
         (["--sweep", "-0.3:0.3:3"], "Invalid value for --sweep: depths must be positive"),
         (["--sweep", "0.3:1"], "Invalid value for --sweep: expected START:STOP:N, got '0.3:1'"),
+        (["--depth", "0.5", "--f-number", "0.1"], "--f-number must be an f-number >= 0.5 (finite): no lens in air"),
         (["--sweep", "0.3:1:1"], "Invalid value for --sweep: N must be >= 2, got 1"),
         (["--sweep", "a:1:3"], "Invalid value for --sweep: START and STOP must be numbers in metres"),
         (["--depth", "0.5", "--depths", "0.3,0.6"], "exactly one of"),

@@ -129,3 +129,44 @@ def test_bad_scene_files(tmp_path, capsys, text, match):
 def test_synth_usage_errors(tmp_path, capsys, args):
     assert main(["synth", *args, "-o", str(tmp_path)]) == 2
     assert "Traceback" not in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "args, option, words",
+    [
+        (["part", "--defect-size", "12"], "--defect-size", ["<= 0.0533333", "for 12 mm give --defect-size 0.012"]),
+        (["part", "--defect-size", "0"], "--defect-size", ["> 0 and <= 0.0533333"]),
+        (["part", "--defects", "0.2"], "--defects", ["bump height 0.2 m", "--part-depth 0.3 m"]),
+        (["part", "--defects", "15,-15"], "--defects", ["for 15,-15 mm give --defects 0.015,-0.015"]),
+        (["part", "--defects", "abc"], "--defects", ["comma-separated heights in metres"]),
+        (["part", "--defect-size", "0.05", "--defects", "0.01,0.01,0.01,0.01"], "--defects",
+         ["give fewer --defects or a smaller --defect-size"]),
+        (["part", "--part-depth", "-1"], "--part-depth", ["must be a distance in metres > 0"]),
+        (["scene", "--binning", "0"], "--binning", ["must be an integer >= 1, got 0"]),
+        (["scene", "--exposure", "5"], "--exposure", ["must be a number > 0 and <= 4"]),
+        (["scene", "--gain", "-1"], "--gain", ["must be a number > 0"]),
+        (["target", "--depth", "-1"], "--depth", ["must be a distance in metres > 0"]),
+        (["target", "--depth", "0.01"], "--depth", ["too close to the camera"]),
+        (["scene", "--conventional-focus", "0"], "--conventional-focus", ["beyond the views' entrance pupil"]),
+        (["scene", "--conventional-focus", "0.5", "--conventional-samples", "0"], "--conventional-samples",
+         ["must be an integer >= 1, got 0"]),
+        (["target", "--depth", "0.5", "--conventional-focus", "0.5", "--f-number", "0.1"], "--f-number",
+         ["must be an f-number >= 0.5", "got 0.1"]),
+        (["scene", "--conventional-focus", "0.5", "--aperture-scale", "-1"], "--aperture-scale", ["must be a number >= 0"]),
+    ],
+)
+def test_synth_refusals_name_the_option(tmp_path, capsys, args, option, words):
+    """A bad value is refused before any rendering (nothing written), as a usage error that
+    names its option and says what is valid, in the command line's words, not Python's."""
+    import re
+
+    out = tmp_path / "out"
+    assert main(["synth", *args, "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert re.search(rf"Invalid value for '?{option}'?: ", err), err
+    for w in words:
+        assert w in err, err
+    for python_name in ("Traceback", "focus_m", "f_number", "aperture_scale", "depth_m", "samples must", "binning must",
+                        "gain must", "exposure must", "target depth must", "defect size must"):
+        assert python_name not in err, err
+    assert not out.exists()

@@ -148,3 +148,21 @@ def test_aperture_definitions(prototype):
             render_conventional(scene, prototype, 0.5, binning=8, **kw)
     with pytest.raises(InvalidInputError, match="focus_m"):
         render_conventional(scene, prototype, 0.01, binning=8)
+
+
+def test_f_numbers_no_lens_has_are_refused(prototype):
+    from lfring.optics.paraxial import MIN_F_NUMBER
+    from lfring.synth.conventional import check_conventional
+
+    dev = prototype.binned(8)
+    assert conventional_aperture_radius_m(dev, f_number=MIN_F_NUMBER) == pytest.approx(
+        dev.main_focal_length_m / (2 * MIN_F_NUMBER))
+    for n in (0.1, MIN_F_NUMBER * 0.999, 0, -2, np.nan):
+        with pytest.raises(InvalidInputError, match="f_number must be an f-number >= 0.5"):
+            conventional_aperture_radius_m(dev, f_number=n)
+    # The checks of render_conventional, without rendering: the samples are checked for a pinhole too.
+    assert check_conventional(dev, 0.5, f_number=4, samples=16) == (0.5, pytest.approx(0.002), 16)
+    for kw, match in (({"focus_m": 0.01}, "focus_m"), ({"samples": 0, "f_number": np.inf}, "samples"),
+                      ({"f_number": 0.2}, "f_number")):
+        with pytest.raises(InvalidInputError, match=match):
+            check_conventional(dev, **{"focus_m": 0.5, **kw})
