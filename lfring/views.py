@@ -513,17 +513,20 @@ def detect_layout(
     arr = np.asarray(image)
     if arr.ndim == 3:
         arr = arr.mean(axis=2)
-    if arr.ndim != 2 or min(arr.shape) < 16:
-        raise InvalidInputError(f"detect_layout expects an (H, W) or (H, W, C) image of at least 16 px, got shape {np.shape(image)}")
+    if arr.ndim != 2:
+        raise InvalidInputError(f"the frame must be an image, (H, W) or (H, W, C), got an array of shape {np.shape(image)}")
+    if min(arr.shape) < 16:
+        raise InvalidInputError(f"the frame is {arr.shape[1]} x {arr.shape[0]} px, too small to find views on (at least "
+                                "16 px each way)")
     lum = arr.astype(np.float32)
     if not np.all(np.isfinite(lum)):
-        raise InvalidInputError("detect_layout: the image contains NaN or infinite values")
+        raise InvalidInputError("the frame contains NaN or infinite values")
     if rotate180:
         lum = lum[::-1, ::-1]
     h, w = lum.shape
     lo, hi = np.percentile(lum, [1.0, 99.5])
     if not hi > lo:
-        raise EstimationError("detect_layout: the frame is uniform (all black or constant); no views to find")
+        raise EstimationError("the frame is uniform (all black or constant); no views to find")
     lum = (lum - lo) / (hi - lo)
     fine = cv2.GaussianBlur(lum, (0, 0), 2.0)  # kills the Bayer pattern and pixel noise
     sigma = max(4.0, min(h, w) / 200.0)
@@ -535,7 +538,7 @@ def detect_layout(
     if kind == "auto":
         kind = "flat" if _uniform_inside(fine, blobs) else "scene"
     elif kind == "flat" and _disc_texture(fine, blobs) > FLAT_DISC_TEXTURE:
-        raise InvalidInputError("detect_layout: the frame is not a flat field: the inner half of its discs of light "
+        raise InvalidInputError("the frame is not a flat field: the inner half of its discs of light "
                                 "shows texture (a scene or a target?)")
     base = fine if kind == "flat" else envelope
     circles = [_refine_disc(base, cx, cy, r) for cx, cy, r in blobs]
@@ -562,7 +565,7 @@ def _check_discs(circles, w: int, h: int, grid: tuple[int, int]) -> None:
     if radii.min() < 0.8 * radii.max():
         problems.append(f"the discs' radii differ too much ({radii.min():.0f} to {radii.max():.0f} px)")
     if problems:
-        raise EstimationError("detect_layout: the bright regions do not look like the ring's views: " + "; ".join(problems))
+        raise EstimationError("the bright regions do not look like the ring's views: " + "; ".join(problems))
 
 
 _ENVELOPE_FRACTION = 80
@@ -592,7 +595,7 @@ def _rough_discs(coarse: np.ndarray, grid: tuple[int, int]) -> list[tuple[float,
     found = [i for i in order[:n] if stats[i, cv2.CC_STAT_AREA] >= min_area]
     if len(found) < n:
         raise EstimationError(
-            f"detect_layout: found {len(found)} bright region(s) where {n} views were expected; is this a "
+            f"found {len(found)} bright region(s) where {n} views were expected; is this a "
             "frame of the ring camera (a flat frame shows one bright disc per view on a dark surround)?"
         )
     blobs = []
@@ -641,7 +644,7 @@ def _edge_points(fine: np.ndarray, cx: float, cy: float, r0: float) -> np.ndarra
     interior level, fitted as a + b r^2 over 0.3..0.75 r0 (the cos^4 fall-off) and extrapolated."""
     angles = np.linspace(0, 2 * np.pi, 360, endpoint=False)
     if not 0 < r0 < max(fine.shape):
-        raise EstimationError(f"detect_layout: could not find the edge of a view's disc (a bright region {r0:.0f} px "
+        raise EstimationError(f"could not find the edge of a view's disc (a bright region {r0:.0f} px "
                               "in radius, not a disc within the frame)")
     radii = np.arange(0.2 * r0, 1.5 * r0, 0.25, dtype=np.float64)
     mx = (cx + np.cos(angles)[:, None] * radii[None, :]).astype(np.float32)
@@ -665,7 +668,7 @@ def _edge_points(fine: np.ndarray, cx: float, cy: float, r0: float) -> np.ndarra
         rr = radii[i - 1] + t * (radii[i] - radii[i - 1])
         pts.append((cx + np.cos(angles[a]) * rr, cy + np.sin(angles[a]) * rr))
     if len(pts) < 36:
-        raise EstimationError("detect_layout: could not find the edge of a view's disc (too few edge points)")
+        raise EstimationError("could not find the edge of a view's disc (too few edge points)")
     return np.asarray(pts)
 
 

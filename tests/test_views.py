@@ -84,6 +84,40 @@ def test_detect_errors():
         detect_layout(one, kind="white")
 
 
+def _discs(texture: float) -> np.ndarray:
+    """A 200 x 300 frame of four bright discs on black, ``texture`` the amplitude of the
+    random blotches inside them."""
+    frame = np.zeros((200, 300), np.float32)
+    yy, xx = np.indices(frame.shape)
+    noise = np.kron(np.random.default_rng(1).random((25, 38)), np.ones((8, 8)))[:200, :300]  # 8 px blotches
+    for cx, cy in ((75, 50), (225, 50), (75, 150), (225, 150)):
+        inside = (yy - cy) ** 2 + (xx - cx) ** 2 < 40**2
+        frame[inside] = 1.0 - texture * noise[inside]
+    return frame
+
+
+@pytest.mark.parametrize("frame, kind, error, says", [
+    (np.zeros((8, 40), np.float32), "auto", InvalidInputError,
+     "the frame is 40 x 8 px, too small to find views on (at least 16 px each way)"),
+    (np.zeros((4, 5, 6, 7)), "auto", InvalidInputError, "the frame must be an image, (H, W) or (H, W, C)"),
+    (np.full((100, 100), np.nan), "auto", InvalidInputError, "the frame contains NaN or infinite values"),
+    (np.zeros((200, 300), np.float32), "auto", EstimationError, "the frame is uniform"),
+    (_discs(0.6), "flat", InvalidInputError, "the frame is not a flat field: the inner half of its discs of light shows texture"),
+    (_discs(0.0)[:, :150], "auto", EstimationError, "found 2 bright region(s) where 4 views were expected"),
+])
+def test_detect_errors_speak_of_the_frame_not_the_function(frame, kind, error, says):
+    """The refusals read as about the frame given (a caller names its file or option before
+    them, as lfring split does with --flat FILE), never about a function the user did not call."""
+    with pytest.raises(error) as err:
+        detect_layout(frame, kind=kind)
+    assert str(err.value).startswith(says) and "detect_layout" not in str(err.value)
+
+
+def test_the_same_discs_without_texture_are_a_flat_field():
+    """The textured frame above is refused for its texture alone."""
+    assert detect_layout(_discs(0.0), kind="flat").num_views == 4
+
+
 def test_detect_as_flat_refuses_a_frame_with_texture_in_its_discs(prototype):
     """kind='flat' on a target: refused as not a flat field (and the same frame's own kind,
     'auto', finds it a scene and detects its discs)."""

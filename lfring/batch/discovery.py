@@ -17,6 +17,7 @@ import numpy as np
 from lfring.batch.record import RECORD_SUFFIX
 from lfring.batch.settings import BatchSettings
 from lfring.errors import InvalidInputError
+from lfring.io.readers import PNG_SIGNATURE
 
 __all__ = ["TRUTH_SUFFIX", "BatchJob", "find_inputs", "frame_size", "plan_jobs", "scan_inputs"]
 
@@ -66,7 +67,7 @@ def frame_size(path: str | Path) -> tuple[int, int] | None:
         if suffix == ".png":
             with open(p, "rb") as f:
                 head = f.read(24)
-            if len(head) == 24 and head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR":
+            if len(head) == 24 and head.startswith(PNG_SIGNATURE) and head[12:16] == b"IHDR":
                 return int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
             return None
         if suffix in (".tif", ".tiff"):

@@ -6,6 +6,7 @@ The methods ``RingCalibration.to_dict``, ``from_dict``, ``save`` and ``load`` de
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -21,7 +22,8 @@ from lfring.core.validate import is_integer, is_number
 from lfring.errors import FileFormatError, InvalidInputError, LfringFileNotFoundError
 from lfring.io.atomic import atomic_write_text
 from lfring.io.bayer import PATTERNS
-from lfring.io.readers import read_json_object
+from lfring.io.readers import parse_json
+from lfring.optics.device import RingDevice
 from lfring.views import Layout
 
 __all__ = [
@@ -60,9 +62,26 @@ KEYS = frozenset({
 })
 """Every key a calibration file may hold."""
 
+MODEL_KEYS = ("A", "B")
+"""The keys of the homography model: a JSON object that holds them is taken for a calibration
+(one that lacks its file version is refused as such), any other for no calibration at all."""
+
 REQUIRED_KEYS = ("source", "layout", "reference_view", "depth_origin_m", "A", "B", "valid_depth_range_m",
                  "raw_width_px", "raw_height_px")
 """The keys a calibration file must hold (the others have defaults)."""
+
+_GIVE_A_CALIBRATION = ("give a calibration file (lfring calibrate or lfring grid-calib writes one) or a built-in "
+                       "calibration's name")
+"""How a refusal of what is no calibration (a file that is not one, a name that is neither a file
+nor a built-in) ends: what to give instead."""
+
+_JSON_VALUES = {list: "a JSON list", str: "a JSON string", int: "a JSON number", float: "a JSON number",
+                bool: "JSON true or false", type(None): "JSON null"}
+"""What a JSON file holds instead of an object, by the Python type json.loads gives it."""
+
+_DEVICE_KEYS = frozenset(f.name for f in dataclasses.fields(RingDevice)
+                         if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING)
+"""The keys every device description holds (the fields of RingDevice without a default)."""
 
 
 def calibration_to_dict(calibration: RingCalibration) -> dict:
@@ -148,7 +167,7 @@ def calibration_from_dict(data, *, source_name: str = "calibration") -> RingCali
     ------
     FileFormatError
         The data is not a valid calibration; the message names ``source_name`` and the key at
-        fault.
+        fault, or, for data that is no calibration at all, what it looks like instead.
 
     Examples
     --------
@@ -156,17 +175,32 @@ def calibration_from_dict(data, *, source_name: str = "calibration") -> RingCali
     >>> cal = calibration_from_grid((8, 8), [(0, 0), (1, 0)], disparity_scale_px_m=1.0)
     >>> calibration_from_dict(calibration_to_dict(cal)).homographies(1.0)[:, 0, 2]
     array([-0.5,  0.5])
-    >>> calibration_from_dict({"lfring_calibration_version": 99}, source_name="old.json")
+    >>> calibration_from_dict({"lfring_calibration_version": 99}, source_name="new.json")
     Traceback (most recent call last):
     ...
-    lfring.errors.FileFormatError: old.json: 'lfring_calibration_version' is 99; this lfring reads versions 1 and 2
+    lfring.errors.FileFormatError: new.json: a calibration of file version 99, written by a newer lfring; this lfring reads versions 1 and 2
+
+    Data that is no calibration at all is named as what it is instead, so that a wrong file
+    does not read as a version problem:
+
+    >>> calibration_from_dict([1, 2], source_name="list.json")
+    Traceback (most recent call last):
+    ...
+    lfring.errors.FileFormatError: list.json: not an lfring calibration file: it holds a JSON list; give a calibration file (lfring calibrate or lfring grid-calib writes one) or a built-in calibration's name
     """
     v = _Validator(source_name)
-    v.require(isinstance(data, dict), "the file must hold a JSON object")
-    version = data.get("lfring_calibration_version")
-    v.require(is_integer(version) and version in READABLE_VERSIONS,
-              f"'lfring_calibration_version' is {version!r}; this lfring reads versions "
-              f"{', '.join(map(str, READABLE_VERSIONS[:-1]))} and {READABLE_VERSIONS[-1]}")
+    if not (isinstance(data, dict) and ("lfring_calibration_version" in data or set(MODEL_KEYS) <= set(data))):
+        raise FileFormatError(_not_a_calibration(source_name, _what_it_holds(data, source_name)))
+    v.require("lfring_calibration_version" in data,
+              f"missing key 'lfring_calibration_version' (the file version, {CALIBRATION_VERSION} in the files this "
+              "lfring writes)")
+    version = data["lfring_calibration_version"]
+    readable = f"this lfring reads versions {', '.join(map(str, READABLE_VERSIONS[:-1]))} and {READABLE_VERSIONS[-1]}"
+    v.require(is_integer(version), f"its calibration file version is {json.dumps(version)}, not a version number; "
+                                   f"{readable}")
+    v.require(version in READABLE_VERSIONS,
+              f"a calibration of file version {version}" + (", written by a newer lfring" if version > CALIBRATION_VERSION
+                                                            else "") + f"; {readable}")
     if version == 1:
         v.require("distortion" not in data and "flat_field" not in data,
                   "'distortion' and 'flat_field' came with version 2; this file says version 1")
@@ -271,7 +305,9 @@ def load_calibration(path: str | Path) -> RingCalibration:
         No such file, nor a built-in calibration of that name (the message lists the
         built-in names).
     FileFormatError
-        The file is not a valid calibration (the message names the key at fault).
+        The file is not a valid calibration (the message names the key at fault), or no
+        calibration at all: not JSON (an image, say) or another kind of JSON file (the message
+        says which, where its keys or name tell).
 
     Examples
     --------
@@ -284,12 +320,16 @@ def load_calibration(path: str | Path) -> RingCalibration:
         if str(path) not in names:
             raise LfringFileNotFoundError(
                 f"calibration file not found: {path}, and no built-in calibration of that name "
-                f"(built-in: {', '.join(names) or 'none'}); give the path of a calibration file "
-                "(lfring calibrate makes one) or one of the built-in names"
+                f"(built-in: {', '.join(names) or 'none'}); {_GIVE_A_CALIBRATION}"
             )
         data = json.loads((calib_dir() / f"{path}{CALIBRATION_SUFFIX}").read_text(encoding="utf-8"))
         return calibration_from_dict(data, source_name=str(path))
-    return calibration_from_dict(read_json_object(path, "calibration"), source_name=str(path))
+    if not Path(path).is_file():
+        raise LfringFileNotFoundError(f"calibration file not found: {path}")
+    data, why = parse_json(Path(path).read_bytes())
+    if why:
+        raise FileFormatError(_not_a_calibration(str(path), why))
+    return calibration_from_dict(data, source_name=str(path))
 
 
 def builtin_calibrations() -> dict[str, tuple[int, int]]:
@@ -324,6 +364,31 @@ def _is_builtin_name(path) -> bool:
     separators = {"/", os.sep} | ({os.altsep} if os.altsep else set())
     return (bool(text) and not any(s in text for s in separators) and not text.lower().endswith(CALIBRATION_SUFFIX)
             and not Path(text).exists())
+
+
+def _not_a_calibration(source: str, what: str) -> str:
+    """The refusal of a file (or data) that is no calibration at all: its name, ``what`` it is
+    instead, and what to give."""
+    return f"{source}: not an lfring calibration file: {what}; {_GIVE_A_CALIBRATION}"
+
+
+def _what_it_holds(data, source: str) -> str:
+    """What JSON ``data`` that is no calibration is: the kind of lfring file whose marks it
+    carries (a layout, a record of outputs, a device description, an image's sidecar, told by
+    its keys or, for a sidecar, by its name beside the image), else the kind of JSON value."""
+    if not isinstance(data, dict):
+        return f"it holds {_JSON_VALUES.get(type(data), 'no JSON object')}"
+    if "lfring_layout_version" in data:
+        return "it looks like a layout file (lfring split writes one; --layout reads it)"
+    if "lfring_batch_record" in data:
+        return "it looks like the record lfring keeps of a command's or a batch's outputs"
+    device = data["device"] if set(data) == {"device"} else data  # a device file may hold one [device] table
+    if isinstance(device, dict) and _DEVICE_KEYS <= set(device):
+        return "it looks like a device description (lfring calibrate --device reads one)"
+    image = Path(source).with_suffix("")
+    if Path(source).suffix.lower() == CALIBRATION_SUFFIX and image.suffix and image.is_file():
+        return f"it looks like the sidecar of the image {image.name}"
+    return "it holds a JSON object without a calibration's keys"
 
 
 class _Validator:

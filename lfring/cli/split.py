@@ -12,7 +12,7 @@ import numpy as np
 
 from lfring.cli._options import raw_options, read_frame
 from lfring.cli.outputs import OutputSet
-from lfring.errors import InvalidInputError
+from lfring.errors import EstimationError, InvalidInputError
 
 log = logging.getLogger("lfring.cli.split")
 
@@ -44,7 +44,7 @@ def command(raw, outdir, layout_file, flat_file, rotate180, method, fmt, overwri
     from lfring.io.demosaic import demosaic
     from lfring.io.raw import load_raw
     from lfring.io.writers import write_image, write_json
-    from lfring.views import Layout, detect_layout, split_views
+    from lfring.views import Layout, split_views
 
     if layout_file and flat_file:
         raise click.UsageError("give --layout or --flat, not both")
@@ -57,13 +57,12 @@ def command(raw, outdir, layout_file, flat_file, rotate180, method, fmt, overwri
     elif flat_file:
         flat = demosaic(load_raw(flat_file, **levels.as_kwargs()), method="bilinear")
         if flat.shape != image.shape:
-            raise click.UsageError(f"the flat frame is {flat.shape[1]} x {flat.shape[0]} px, the raw frame {image.shape[1]} x {image.shape[0]} px")
-        try:
-            layout, source = detect_layout(flat, kind="flat", rotate180=rotate180), f"detected on flat {flat_file}"
-        except InvalidInputError as exc:
-            raise InvalidInputError(f"--flat {flat_file}: {exc}") from None
+            raise click.UsageError(f"--flat {flat_file} is {flat.shape[1]} x {flat.shape[0]} px but the frame {raw} is "
+                                   f"{image.shape[1]} x {image.shape[0]} px; give a flat frame of the same camera and binning")
+        layout = _detect(flat, f"--flat {flat_file}", kind="flat", rotate180=rotate180)
+        source = f"detected on flat {flat_file}"
     else:
-        layout, source = detect_layout(image, rotate180=rotate180), "detected on the frame itself"
+        layout, source = _detect(image, raw, rotate180=rotate180), "detected on the frame itself"
         log.warning("no --layout or --flat: layout detected on the frame itself, which is less precise")
     views = split_views(image, layout)
     out = Path(outdir)
@@ -95,3 +94,15 @@ def command(raw, outdir, layout_file, flat_file, rotate180, method, fmt, overwri
             "demosaic": method,
         })
     log.info("%s: %d views of %d x %d px (%s) -> %s", raw, layout.num_views, layout.view_shape[1], layout.view_shape[0], source, out)
+
+
+def _detect(image, given: str, **kwargs):
+    """The layout detected on ``image``; a refusal names what the user ``given`` it as (the
+    --flat option and its file, or the frame's path), since the detector's words speak only
+    of "the frame"."""
+    from lfring.views import detect_layout
+
+    try:
+        return detect_layout(image, **kwargs)
+    except (InvalidInputError, EstimationError) as exc:
+        raise type(exc)(f"{given}: {exc}") from None

@@ -48,6 +48,7 @@ import numpy as np
 from lfring.core.validate import check_int, check_number
 from lfring.errors import FileFormatError, InvalidInputError, LfringError, LfringFileNotFoundError
 from lfring.io.bayer import PATTERNS, validate_pattern
+from lfring.io.readers import PNG_SIGNATURE
 from lfring.core.records import record_repr
 
 __all__ = ["RawFrame", "load_raw", "write_dng", "RAW_SUFFIXES", "FILE_FORMATS", "sidecar_path"]
@@ -550,7 +551,6 @@ def cfa_letters(raw: Any, indices: np.ndarray, p: Path) -> str:
 
 # -- PNG ---------------------------------------------------------------------------------------
 
-_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _PNG_COLOUR_TYPES = {0: "grey", 2: "RGB", 3: "palette", 4: "grey + alpha", 6: "RGBA"}
 
 
@@ -559,12 +559,12 @@ def _read_png(p: Path) -> tuple[np.ndarray, dict[str, Any]]:
     import cv2
 
     data = _read_bytes(p)
-    if not data.startswith(_PNG_SIGNATURE):
+    if not data.startswith(PNG_SIGNATURE):
         raise FileFormatError(
             f"{p}: not a PNG file (the PNG signature is missing); the file is corrupt or of "
             "another kind"
         )
-    pos, header, seen_idat, seen_iend = len(_PNG_SIGNATURE), None, False, False
+    pos, header, seen_idat, seen_iend = len(PNG_SIGNATURE), None, False, False
     while pos < len(data):
         if pos + 8 > len(data):
             raise FileFormatError(f"{p}: truncated PNG (a chunk header is cut off at byte {pos})")

@@ -1,4 +1,5 @@
-"""Reading small JSON documents (calibrations, layouts) with errors that name the file."""
+"""Reading small JSON documents (calibrations, layouts) with errors that name the file, and
+telling an image file by its first bytes."""
 
 from __future__ import annotations
 
@@ -7,18 +8,66 @@ from pathlib import Path
 
 from lfring.errors import FileFormatError, LfringFileNotFoundError
 
-__all__ = ["read_json_object"]
+__all__ = ["IMAGE_SIGNATURES", "PNG_SIGNATURE", "image_format", "parse_json", "read_json", "read_json_object"]
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+"""The first eight bytes of every PNG file."""
+
+IMAGE_SIGNATURES = (
+    (PNG_SIGNATURE, "PNG"), (b"II*\x00", "TIFF"), (b"MM\x00*", "TIFF"), (b"\xff\xd8\xff", "JPEG"), (b"GIF8", "GIF"),
+)
+"""(first bytes, format) of the image files a user may give where a JSON document belongs."""
 
 
-def read_json_object(path: str | Path, what: str) -> dict:
-    """The JSON object in ``path``; ``what`` names the kind of file in error messages."""
+def image_format(head: bytes) -> str | None:
+    """The format of the image file whose first bytes are ``head`` ('PNG', 'TIFF', ...), None
+    where they are no image's of :data:`IMAGE_SIGNATURES`.
+
+    >>> image_format(PNG_SIGNATURE + b"...."), image_format(b'{"a": 1}')
+    ('PNG', None)
+    """
+    return next((name for signature, name in IMAGE_SIGNATURES if head.startswith(signature)), None)
+
+
+def parse_json(raw: bytes) -> tuple[object, str]:
+    """(value, '') of the JSON text in ``raw``, or (None, why) where it holds none, saying what
+    it holds instead (an image, binary data, nothing, text that is not JSON) rather than in the
+    decoder's words.
+
+    >>> parse_json(b'{"a": 1}'), parse_json(PNG_SIGNATURE)
+    (({'a': 1}, ''), (None, 'it is a PNG image'))
+    """
+    kind = image_format(raw)
+    if kind:
+        return None, f"it is a {kind} image"
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        return None, "it is a binary file, not JSON text"
+    if not text.strip():
+        return None, "it is empty"
+    try:
+        return json.loads(text), ""
+    except ValueError as exc:  # JSONDecodeError, or a number too long to convert
+        where = f" (line {exc.lineno}, column {exc.colno})" if isinstance(exc, json.JSONDecodeError) else ""
+        return None, f"it is not valid JSON{where}"
+
+
+def read_json(path: str | Path, what: str):
+    """The JSON value in ``path``; ``what`` names the kind of file in error messages
+    (:func:`parse_json` says what a file that holds none holds instead)."""
     path = Path(path)
     if not path.is_file():
         raise LfringFileNotFoundError(f"{what} file not found: {path}")
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise FileFormatError(f"{path}: not a JSON {what} file ({exc})") from None
+    value, why = parse_json(path.read_bytes())
+    if why:
+        raise FileFormatError(f"{path}: not a JSON {what} file: {why}")
+    return value
+
+
+def read_json_object(path: str | Path, what: str) -> dict:
+    """The JSON object in ``path`` (:func:`read_json`, refused where it holds another value)."""
+    data = read_json(path, what)
     if not isinstance(data, dict):
         raise FileFormatError(f"{path}: not a JSON {what} object")
     return data

@@ -95,7 +95,7 @@ def test_corrupt_and_missing_files(tmp_path, twin):
     cal = RingCalibration.from_optics(twin[0])
     p = cal.save(tmp_path / "c.json")
     p.write_text(p.read_text()[:200])
-    with pytest.raises(FileFormatError, match="not a JSON calibration"):
+    with pytest.raises(FileFormatError, match=r"not an lfring calibration file: it is not valid JSON \(line \d+, column \d+\)"):
         RingCalibration.load(p)
     with pytest.raises(LfringFileNotFoundError):
         RingCalibration.load(tmp_path / "none.json")

@@ -1,4 +1,5 @@
 import json
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -77,16 +78,17 @@ def test_split_bad_inputs(frames, tmp_path, capsys):
     # All-black frame and a flat frame with no four regions.
     cv2.imwrite(str(tmp_path / "black.png"), np.zeros((920, 1228), np.uint16))
     assert main(["split", str(tmp_path / "black.png"), "--pattern", "RGGB", "-o", out]) == 2
-    assert "uniform" in _err(capsys)
+    assert f"error: {tmp_path / 'black.png'}: the frame is uniform" in _err(capsys)
     blob = np.zeros((920, 1228), np.uint16)
     cv2.circle(blob, (600, 460), 240, 4000, -1)
     cv2.imwrite(str(tmp_path / "blob.png"), blob)
     assert main(["split", str(d / "scene.png"), "--flat", str(tmp_path / "blob.png"), "--pattern", "GBRG", "-o", out]) == 2
-    assert "found 1 bright region" in _err(capsys)
+    assert f"error: --flat {tmp_path / 'blob.png'}: found 1 bright region" in _err(capsys)
     # A scene given as the flat: refused as not flat (it once ended in an OpenCV assertion).
     assert main(["split", str(d / "scene.png"), "--flat", str(d / "scene.png"), "-o", out]) == 2
     err = _err(capsys)
-    assert f"--flat {d / 'scene.png'}: " in err and "not a flat field" in err and "texture" in err and "Traceback" not in err
+    assert f"error: --flat {d / 'scene.png'}: the frame is not a flat field" in err and "texture" in err
+    assert "detect_layout" not in err
     assert not (tmp_path / "o").exists()
     # A layout that does not fit the frame.
     lay = json.loads((d / "scene_truth" / "layout.json").read_text())
@@ -97,3 +99,14 @@ def test_split_bad_inputs(frames, tmp_path, capsys):
     # Contradicting options.
     assert main(["split", str(d / "scene.png"), "--layout", "a.json", "--flat", "b.png", "-o", out]) == 2
     _err(capsys)
+
+
+def test_split_flat_of_another_size_names_the_option(frames, tmp_path, capsys):
+    """A --flat frame of another size than RAW is refused naming both files and their sizes."""
+    d, _ = frames
+    flat = Path(__file__).resolve().parents[2] / "data" / "synthetic" / "flat.png"
+    assert main(["split", str(d / "scene.png"), "--flat", str(flat), "-o", str(tmp_path / "o")]) == 2
+    err = _err(capsys)
+    assert (f"--flat {flat} is 2456 x 1842 px but the frame {d / 'scene.png'} is 1228 x 920 px; give a flat frame "
+            "of the same camera and binning") in err
+    assert not (tmp_path / "o").exists()
