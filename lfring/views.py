@@ -354,6 +354,11 @@ def read_views(paths) -> np.ndarray:
     if len(shapes) != 1:
         sizes = ", ".join(f"{p}: {v.shape[1]} x {v.shape[0]}" for p, v in zip(paths, views))
         raise InvalidInputError(f"the view images must all have one size, got {sizes}")
+    for j in range(1, len(views)):
+        i = next((i for i in range(j) if np.array_equal(views[i], views[j])), None)
+        if i is not None:  # one view twice: every depth would fit it, and none be told
+            raise InvalidInputError(f"view images {i} and {j} ({paths[i]}, {paths[j]}) are the same image: give each "
+                                    "view's own image")
     return np.stack(views).astype(np.float32, copy=False)
 
 

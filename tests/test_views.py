@@ -179,6 +179,11 @@ def test_read_views_stacks_separate_images(tmp_path):
         read_views([paths[0], tmp_path / "small.png"])
     with pytest.raises(InvalidInputError, match="2 to 100 view images, got 1"):
         read_views(paths[:1])
+    # One view twice (or a copy of it): refused, naming both.
+    (tmp_path / "copy.png").write_bytes(paths[1].read_bytes())
+    for twice in ([paths[0], paths[1], paths[1]], [paths[1], paths[0], tmp_path / "copy.png"]):
+        with pytest.raises(InvalidInputError, match=r"view images (1 and 2|0 and 2) \(.*\) are the same image"):
+            read_views(twice)
 
 
 def test_splitting_with_a_calibration_corrects_the_views(prototype):

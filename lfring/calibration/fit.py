@@ -150,11 +150,13 @@ def calibrate(
         if flat_img.shape[:2] != shape:
             raise InvalidInputError(f"the flat frame {flat_name} is {flat_img.shape[1]} x {flat_img.shape[0]} px, the targets {shape[1]} x {shape[0]} px")
     if layout is None:
-        if flat_img is not None:
-            layout = detect_layout(flat_img, kind="flat")
-        else:
+        img, name = (flat_img, flat_name) if flat_img is not None else images[min(images)]
+        if flat_img is None:
             log.warning("no flat frame or layout given: detecting the layout on the nearest target (less precise)")
-            layout = detect_layout(images[min(images)][0])
+        try:
+            layout = detect_layout(img, kind="flat" if flat_img is not None else "auto")
+        except (InvalidInputError, EstimationError) as exc:  # named by the frame it was detected on
+            raise type(exc)(f"{'flat frame' if flat_img is not None else 'target frame'} {name}: {exc}") from None
     elif (layout.raw_width_px, layout.raw_height_px) != (shape[1], shape[0]):
         raise InvalidInputError(f"the layout is for {layout.raw_width_px} x {layout.raw_height_px} px frames, the targets are {shape[1]} x {shape[0]} px")
     masks = layout.masks()

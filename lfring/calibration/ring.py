@@ -221,6 +221,14 @@ class RingCalibration:
     def check_frame(self, shape_hw, *, what: str = "frame") -> None:
         """Raise if a raw frame of ``shape_hw`` does not belong to this calibration."""
         h, w = shape_hw[:2]
+        if (w, h) != self.raw_size and self.source == "grid":
+            vh, vw = self.layout.view_shape
+            raise InvalidInputError(
+                f"the {what} is one image of {w} x {h} px, but the calibration is a grid of {self.num_views} separate view "
+                f"images of {vw} x {vh} px: give its {self.num_views} view images in its view order (e.g. lfring depth "
+                f"{' '.join(f'view{k}.png' for k in range(min(self.num_views, 3)))}{' ...' if self.num_views > 3 else ''} "
+                "--calib FILE)"
+            )
         if (w, h) != self.raw_size:
             raise InvalidInputError(
                 f"the {what} is {w} x {h} px but the calibration is for {self.raw_size[0]} x {self.raw_size[1]} px "

@@ -22,6 +22,7 @@ API_TO_CLI: tuple[tuple[str, str], ...] = (
     (r"\((by|from) argument\)", r"(\1 the command line)"),
     (r"\bdepth_method='([\w-]+)'", r"--depth-method \1"),
     (r"\bgive planes\b", "give --planes"),
+    (r"\bflat frame (\S+): ", r"--flat \1: "),
     (r"\bmethod='([\w-]+)'", r"--method \1"),
     (r"\bgive depths_m\b", "give the depths to choose from (--depth Z1,Z2,...)"),
     (r"\boverwrite=True\b", "--overwrite"),

@@ -77,3 +77,12 @@ def test_homography_takes_numpy_view_indices_but_not_bools():
     for bad in (True, 1.0, -1, 2):
         with pytest.raises(InvalidInputError, match=r"view must be a view index 0\.\.1"):
             cal.homography(bad, 2.0)
+
+
+def test_a_frame_given_to_a_grid_calibration_is_told_to_give_the_views():
+    """A grid calibration takes separate view images: a frame of another size is refused with
+    the views it wants, not as a frame of the wrong size."""
+    pair = RingCalibration.from_grid((64, 96), [(0, 0), (1, 0)], disparity_scale_px_m=120.0)
+    with pytest.raises(InvalidInputError, match=r"is one image of 300 x 200 px, but the calibration is a grid of 2 "
+                                                r"separate view images of 96 x 64 px: give its 2 view images"):
+        pair.check_frame((200, 300), what="frame f.png")

@@ -141,15 +141,17 @@ def test_calibrate_refuses_millimetres_given_as_metres(files, tmp_path, capsys):
          "Invalid value for --depths: expected a positive number of metres for each frame, got 0.3 0"),
         (["--depths", "0.3", "abc"], "Invalid value for --depths: expected a number of metres for each frame, got '0.3 abc'"),
         (["nope.png", "--depths", "0.3", "1.0", "0.5"], "Invalid value for FRAMES: no such file: nope.png"),
+        (["--depths", "0.3", "1.0", "--flat", "{files}/t0.3.png"], "error: --flat {files}/t0.3.png: the frame is not a flat field"),
     ],
 )
 def test_calibrate_errors_name_the_options(files, tmp_path, capsys, extra, message):
     """The command's messages name its options, never the Python parameters behind them, and
     refuse before any frame is read."""
     out = tmp_path / "c.json"
+    extra = [e.format(files=files) for e in extra]
     assert main(["calibrate", str(files / "t0.3.png"), str(files / "t1.0.png"), *extra, "-o", str(out)]) == 2
     err = capsys.readouterr().err
-    assert message in err and "depth_origin_m" not in err and "[0.3" not in err and not out.exists()
+    assert message.format(files=files) in err and "depth_origin_m" not in err and "[0.3" not in err and not out.exists()
 
 
 @pytest.mark.parametrize(
