@@ -127,8 +127,17 @@ def _expand_inputs(inputs, *, outdir, exclude, skipped, sizes) -> list[BatchJob]
     suffixes = _frame_suffixes()
     found: list[tuple[Path, str]] = []
 
-    def excluded(rel: str) -> bool:
-        return any(fnmatch.fnmatch(rel, pat) or fnmatch.fnmatch(Path(rel).name, pat) for pat in exclude)
+    patterns = {pat: os.path.normpath(pat) for pat in exclude}
+    matched: set[str] = set()
+
+    def excluded(rel: str, given: Path | None = None) -> bool:
+        """Whether a pattern matches the file's name, its path below its folder argument or its
+        path as given (``in/hard.png``)."""
+        names = (rel, Path(rel).name, *(() if given is None else (os.path.normpath(given),)))
+        hit = [pat for pat, norm in patterns.items() if any(fnmatch.fnmatch(n, pat) or fnmatch.fnmatch(n, norm)
+                                                              for n in names)]
+        matched.update(hit)
+        return bool(hit)
 
     def keep(p: Path) -> bool:
         return out_res is None or not _is_under(p.resolve(), out_res)
@@ -136,6 +145,10 @@ def _expand_inputs(inputs, *, outdir, exclude, skipped, sizes) -> list[BatchJob]
     for arg in inputs:
         arg = str(arg)
         p = Path(arg)
+        if p.exists() and not keep(p):
+            raise InvalidInputError(
+                f"{arg} lies in the output folder {outdir}: a batch never reads its output folder (a rerun would take "
+                "its outputs for frames); give another output folder")
         if p.is_dir():
             n0 = len(found)
             for root, dirs, files in os.walk(p):
@@ -146,7 +159,7 @@ def _expand_inputs(inputs, *, outdir, exclude, skipped, sizes) -> list[BatchJob]
                 for name in sorted(files):
                     f = Path(root, name)
                     rel = f.relative_to(p).as_posix()
-                    if name.startswith(".") or excluded(rel) or not keep(f):
+                    if name.startswith(".") or not keep(f) or excluded(rel, f):
                         continue
                     if f.suffix.lower() not in suffixes:
                         if f.suffix.lower() == ".json":
@@ -164,25 +177,34 @@ def _expand_inputs(inputs, *, outdir, exclude, skipped, sizes) -> list[BatchJob]
             if len(found) == n0:
                 log.warning("%s: no frames found (suffixes %s)", arg, ", ".join(sorted(suffixes)))
         elif p.is_file():
-            if keep(p) and not excluded(p.name):
+            if not excluded(p.name, p):
                 found.append((p, p.name))
         elif glob.has_magic(arg):
             matches = sorted(glob.glob(arg, recursive=True))
             files = [Path(m) for m in matches if Path(m).is_file()]
-            files = [f for f in files if keep(f) and not excluded(f.name) and not f.name.endswith(".json")]
+            files = [f for f in files if keep(f) and not excluded(f.name, f) and not f.name.endswith(".json")]
             if not files:
                 raise InvalidInputError(f"{arg}: the pattern matches no files")
             found.extend((f, f.name) for f in files)
         else:
             raise InvalidInputError(f"{arg}: no such file or folder")
-    # The same file named twice (a folder and a glob, say) is one job.
-    seen: dict[Path, BatchJob] = {}
+    for pat in exclude:
+        if pat not in matched:
+            log.warning("exclude pattern %r matched no input file (patterns match a file's name, its path below its "
+                        "folder, or its path as given)", pat)
+    # The same file named twice (a folder and a glob, a link beside its target) is one job: the
+    # file itself where a link to it was found too (its sidecar and name are the frame's).
+    seen: dict[Path, tuple[Path, BatchJob]] = {}
     for f, rel in found:
         res = f.resolve()
-        if res not in seen:
-            stem = rel[: -len(Path(rel).suffix)] if Path(rel).suffix else rel
-            seen[res] = BatchJob(str(f), stem)
-    jobs = list(seen.values())
+        stem = rel[: -len(Path(rel).suffix)] if Path(rel).suffix else rel
+        if res not in seen or (seen[res][0].is_symlink() and not f.is_symlink()):
+            if res in seen:
+                log.info("%s is a link to %s: processed once, as %s", seen[res][0], f, f)
+            seen[res] = (f, BatchJob(str(f), stem))
+        elif f != seen[res][0]:
+            log.info("%s is the same file as %s: processed once", f, seen[res][0])
+    jobs = [job for _, job in seen.values()]
     if not jobs:
         raise InvalidInputError(f"no frames found in {', '.join(map(str, inputs))}")
     return jobs

@@ -66,3 +66,27 @@ def test_scan_inputs_leaves_out_what_is_not_a_frame(tmp_path):
                        "small.png": "6 x 4 px, a size no calibration fits", "map.tiff": "float samples (a map, not raw counts)"}
     # A file named explicitly is always taken.
     assert [Path(j.input).name for j in scan_inputs([str(root / "small.png")], frame_sizes={(10, 8)})[0]] == ["small.png"]
+
+
+def test_inputs_in_the_output_folder_links_and_exclude_paths(tmp_path, caplog, monkeypatch):
+    """An input inside the output folder is refused as such (not 'no frames found'); a link
+    beside its target is one job, the target's; --exclude takes a path as given, and a pattern
+    that matches nothing is warned about."""
+    monkeypatch.chdir(tmp_path)
+    root = Path("in")
+    root.mkdir()
+    for name in ("a.png", "b.png"):
+        cv2.imwrite(str(root / name), np.zeros((8, 10), np.uint16))
+    for inp, out in ((root, root), (root / "a.png", root), (root, tmp_path)):
+        with pytest.raises(InvalidInputError, match="lies in the output folder .*give another output folder"):
+            find_inputs([str(inp)], outdir=out)
+    (root / "0link.png").symlink_to("b.png")  # sorted first
+    assert sorted(Path(j.input).name for j in find_inputs([str(root)])) == ["a.png", "b.png"]
+    (root / "0link.png").unlink()
+    with caplog.at_level("WARNING", logger="lfring.batch"):
+        for pattern in ("in/b.png", "./in/b.png", "*/b.png", str(tmp_path / "in" / "b.png")):
+            caplog.clear()
+            arg = str(tmp_path / "in") if pattern.startswith("/") else "in"
+            kept = find_inputs([arg], exclude=[pattern, "nothing*.png"])
+            assert [Path(j.input).name for j in kept] == ["a.png"], pattern
+            assert "'nothing*.png' matched no input file" in caplog.text and repr(pattern) not in caplog.text
