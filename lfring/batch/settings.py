@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 from dataclasses import dataclass, fields
 
 from lfring.core.validate import check_choice, check_fraction, check_int, check_number
@@ -16,7 +17,7 @@ from lfring.focus.methods import METHODS
 from lfring.io.writers import json_default
 from lfring.optics.paraxial import MIN_F_NUMBER
 
-__all__ = ["BatchSettings"]
+__all__ = ["BatchSettings", "refocus_depth_problem"]
 
 _COMMON_FIELDS = ("calibration_name", "calibration_sha256", "reference", "bit_depth", "encoding", "pattern", "black_level",
                   "white_level")
@@ -31,8 +32,9 @@ _REFOCUS_DEPTH_FIELDS = ("zmin_m", "zmax_m", "planes", "depth_method")
 _EARLIER_DEFAULTS = {"viewer": False, "refocus_method": "shift-and-add", "aperture": None, "f_number": None,
                      "depth_method": "local", "depth": False, "refocus_m": []}
 """What a record's settings mean by a field they lack: :meth:`BatchSettings.describe` leaves
-out the viewer when there is none and the method of shift-and-add, and records of earlier
-versions predate the fields (refocusing was shift-and-add, depth maps the local sweep)."""
+out the viewer when there is none, earlier versions left out the method of shift-and-add, and
+records of older versions predate the fields (refocusing was shift-and-add, depth maps the
+local sweep)."""
 
 _SETTING_WORDS = {
     "calibration_name": "the calibration", "calibration_sha256": "the calibration's content",
@@ -41,11 +43,44 @@ _SETTING_WORDS = {
     "interpolation": "the interpolation", "refocus_method": "the refocusing method", "aperture": "the aperture",
     "f_number": "f_number", "zmin_m": "zmin_m", "zmax_m": "zmax_m", "planes": "the number of depth planes",
     "min_confidence": "the depth preview's confidence threshold", "depth_method": "the depth method",
-    "depth_cost": "the depth cost", "depths_m": "the depths it chose from", "depth": "the batch's own depth map",
+    "depths_m": "the depths it chose from", "depth": "the batch's own depth map",
 }
 """How a refusal names each setting that differs between the run that made an output and this
 one: in words, or by the parameter name that the command line turns into its option
-(``zmin_m`` reads ``--zmin``)."""
+(``zmin_m`` reads ``--zmin``). The depth cost is no setting (no option gives it; it is the
+depth method's default) and is never named."""
+
+def _depth_label(z: float) -> str:
+    """A refocus depth as its output's kind and file name give it (``refocus_0.5m``): to six
+    significant digits, so depths that agree to those make one image."""
+    return f"{z:g}"
+
+
+def refocus_depth_problem(depths) -> str | None:
+    """What is wrong with refocus depths in metres, or None: each must be a positive finite
+    number, and no two may make the same image.
+
+    The one rule of the batch's refocus depths, for :class:`BatchSettings` and for ``lfring
+    batch --refocus``, which both name the setting before it. Infinity is refused: the batch's
+    refocusing renders finite depths (``lfring refocus --depth inf`` stands a far finite depth
+    for it).
+
+    >>> refocus_depth_problem([0.5, 0.50])
+    '0.5 m would be made more than once: give each depth once'
+    """
+    zs = [float(z) for z in depths]
+    for z in zs:
+        if math.isinf(z) and z > 0:
+            return "the batch cannot refocus at infinity (inf); give a finite depth in metres (lfring refocus --depth inf can)"
+        if not z > 0:
+            return f"depths must be positive distances in metres, got {z:g}"
+    names = [_depth_label(z) for z in zs]
+    twice = sorted({n for n in names if names.count(n) > 1}, key=float)
+    if not twice:
+        return None
+    close = len(set(zs)) > len(set(names))  # different numbers, one image name
+    return (f"{', '.join(f'{n} m' for n in twice)} would be made more than once: give each depth once"
+            + (" (images are told apart by the depth to 6 significant digits)" if close else ""))
 
 
 def _hash(obj) -> str:
@@ -67,11 +102,16 @@ def _range_of(calibration, zmin_m, zmax_m, reference) -> dict:
     return {"zmin_m": float(lo), "zmax_m": float(hi)}
 
 
-def _output_parts(d: dict, zrange: dict) -> dict[str, dict]:
+def _output_parts(d: dict, zrange: dict, *, explained: bool = False) -> dict[str, dict]:
     """Kind -> every setting that changes that output, from settings as
     :meth:`BatchSettings.describe` gives them and the depth range ``zrange``; the outputs' keys
     are their hashes (the structure is that of the keys' first version, so that folders made
-    since stay done)."""
+    since stay done).
+
+    ``explained``: with the settings that decide which others make an output besides, where its
+    key leaves them out (the refocusing method of the refocused images and the viewer, and
+    whether the batch made its own depth map for the all-in-focus image): the parts that
+    :meth:`BatchSettings.differences` compares."""
     d = {**_EARLIER_DEFAULTS, **d}
     common = {k: d.get(k) for k in _COMMON_FIELDS}
     depth_part = {**{k: d.get(k) for k in _DEPTH_FIELDS}, **zrange}
@@ -90,11 +130,13 @@ def _output_parts(d: dict, zrange: dict) -> dict[str, dict]:
         stack = {"refocus_method": method, "aperture": d["aperture"], "f_number": d["f_number"]}
         refocus_part.update(stack, depth={k: depth_part[k] for k in _REFOCUS_DEPTH_FIELDS})
     zs = [float(z) for z in d["refocus_m"]]
-    parts = {f"refocus_{z:g}m": {**common, "refocus_m": z, **refocus_part} for z in zs}
+    if explained:
+        refocus_part["refocus_method"] = stack["refocus_method"] = method
+    parts = {f"refocus_{_depth_label(z)}m": {**common, "refocus_m": z, **refocus_part} for z in zs}
     if d.get("all_in_focus"):
         source = ({"depth": depth_part} if d["depth"]
                   else {"depths_m": zs} if len(zs) > 1 else {"depths_m": "calibrated range"})
-        parts["all_in_focus"] = {**common, "all_in_focus": source}
+        parts["all_in_focus"] = {**common, "all_in_focus": source, **({"depth": d["depth"]} if explained else {})}
     if d["depth"]:
         for kind in ("depth", "confidence", "depth_preview"):
             parts[kind] = {**common, **depth_part, "kind": kind}
@@ -113,12 +155,21 @@ def _leaves(obj, name: str = "") -> dict:
     return {name: obj}
 
 
-def _shown(value) -> str:
-    """A setting's value as a refusal shows it (None: not given, its default)."""
+def _shown(name: str, value) -> str:
+    """The value of setting ``name`` as a refusal shows it: None (not given) as its default,
+    yes or no, numbers as written, lists as their items (depths with their unit), the
+    calibration's content by the start of its hash."""
     if value is None:
         return "default"
+    if value is True or value is False:
+        return "yes" if value else "no"
     if isinstance(value, float):
         return f"{value:.12g}"
+    if isinstance(value, (list, tuple)):
+        items = ", ".join(_shown(name, v) for v in value)
+        return f"{items} m" if name.endswith("_m") else items
+    if name == "calibration_sha256":
+        return f"sha256 {value[:12]}"
     return str(value)
 
 
@@ -206,10 +257,9 @@ class BatchSettings:
         # of the outputs' keys, which earlier runs' records hold.
         zs = tuple(float(z) for z in self.refocus_m)
         object.__setattr__(self, "refocus_m", zs)
-        for z in zs:
-            check_number(z, "each refocus depth", above=0.0, what="a positive distance in metres")
-        if len(set(zs)) != len(zs):
-            raise InvalidInputError(f"refocus depths repeat: {list(zs)}")
+        problem = refocus_depth_problem(zs)
+        if problem:
+            raise InvalidInputError(f"refocus_m: {problem}")
         if not (zs or self.depth or self.all_in_focus or self.viewer):
             raise InvalidInputError("nothing to do: ask for refocus depths, a depth map, an all-in-focus image or a viewer")
         for name in ("zmin_m", "zmax_m"):
@@ -244,7 +294,7 @@ class BatchSettings:
 
     def outputs(self, stem: str) -> dict[str, str]:
         """Kind -> output path relative to OUTDIR, for a frame whose relative stem is ``stem``."""
-        out = {f"refocus_{z:g}m": f"{stem}_refocus_{z:g}m.png" for z in self.refocus_m}
+        out = {f"refocus_{_depth_label(z)}m": f"{stem}_refocus_{_depth_label(z)}m.png" for z in self.refocus_m}
         if self.all_in_focus:
             out["all_in_focus"] = f"{stem}_all_in_focus.png"
         if self.depth:
@@ -292,7 +342,13 @@ class BatchSettings:
 
     def differences(self, kind: str, record: dict, calibration=None) -> list[str]:
         """What differs, for output ``kind``, between the settings that made it (an earlier run's
-        ``record``) and these, each as ``'name (X then, Y now)'``.
+        ``record``) and these, each as ``'name (X then, Y now)'``, X as that run had it.
+
+        Only settings that made the output then and would make it now are named: a setting
+        that plays a part on one side only (the depth range of depth-aware images, when the
+        earlier ones were shift-and-add) is no difference of its own; the one that decides
+        (the refocusing method) is named instead. The calibration's content is named only when
+        its name is the same.
 
         Empty when the record cannot tell: its settings are those of a later run than the one
         that made the output, or what differs is no setting (an earlier lfring's default depth
@@ -305,29 +361,32 @@ class BatchSettings:
         now_d = self.describe()
         cal = self.calibration if calibration is None else calibration
         try:
-            now = _output_parts(now_d, _range_of(cal, self.zmin_m, self.zmax_m, self.reference))[kind]
+            now = _output_parts(now_d, _range_of(cal, self.zmin_m, self.zmax_m, self.reference), explained=True)[kind]
             same_cal = all(earlier.get(k) == now_d[k] for k in ("calibration_name", "calibration_sha256"))
             zmin, zmax = earlier.get("zmin_m"), earlier.get("zmax_m")
             ranges = [{"zmin_m": zmin, "zmax_m": zmax}]
             if same_cal:
                 ranges.insert(0, _range_of(cal, zmin, zmax, earlier.get("reference", self.reference)))
-            then = next((p for p in (_output_parts(earlier, r).get(kind) for r in ranges) if p and _hash(p) == made), None)
+            made_over = next((r for r in ranges if _hash(_output_parts(earlier, r).get(kind)) == made), None)
+            if made_over is None:
+                return []
+            then = _output_parts(earlier, made_over, explained=True)[kind]
         except (KeyError, TypeError, ValueError, InvalidInputError):  # settings of another version: cannot tell
             return []
-        if then is None:
-            return []
         a, b = _leaves(then), _leaves(now)
-        return [f"{_SETTING_WORDS.get(n, n)} ({_shown(a.get(n))} then, {_shown(b.get(n))} now)"
-                for n in sorted(set(a) | set(b)) if a.get(n) != b.get(n)]
+        names = [n for n in sorted(set(a) & set(b)) if a[n] != b[n]]
+        if "calibration_name" in names:  # another calibration: its content differs too, say so once
+            names = [n for n in names if n != "calibration_sha256"]
+        return [f"{_SETTING_WORDS.get(n, n)} ({_shown(n, a[n])} then, {_shown(n, b[n])} now)" for n in names]
+
     def describe(self) -> dict:
-        """The settings as JSON-ready values (the calibration by name and content hash)."""
+        """The settings as JSON-ready values (the calibration by name and content hash), as a
+        frame's record holds them: the refocusing method always, so that the record names the
+        method that made its images (records of earlier versions leave shift-and-add out)."""
         d = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "calibration"}
         d["refocus_m"] = list(self.refocus_m)
         if not self.viewer:  # keeps the keys of folders made before the viewer existed
             del d["viewer"]
-        if METHODS[self.refocus_method].prepare is None and self.aperture is None and self.f_number is None:
-            # ... and of folders made before refocusing had a method (all of it shift-and-add).
-            del d["refocus_method"], d["aperture"], d["f_number"]
         if isinstance(self.black_level, tuple):
             d["black_level"] = list(self.black_level)
         d["calibration_sha256"] = None

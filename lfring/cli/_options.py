@@ -72,6 +72,9 @@ def parse_depths(text: str, *, param_hint: str) -> tuple[float, ...]:
         raise click.BadParameter(f"expected comma-separated metres, got {text!r}", param_hint=param_hint) from None
     if not out:
         raise click.BadParameter(f"expected comma-separated metres, got no number in {text!r}", param_hint=param_hint)
+    if any(not entry.strip() for entry in text.strip().split(",")):
+        raise click.BadParameter(f"{text.strip()} has an empty entry: give a depth in metres between every two commas",
+                                 param_hint=param_hint)
     return out
 
 

@@ -12,6 +12,19 @@ from lfring.core.warping import DEFAULT_INTERPOLATION
 log = logging.getLogger("lfring.cli.batch")
 
 
+def _refocus_depths(text: str) -> tuple[float, ...]:
+    """--refocus as depths in metres, read as lfring refocus reads --depths; refused, naming
+    --refocus, where they break the batch's rule (:func:`lfring.batch.settings.refocus_depth_problem`),
+    before any frame is looked for."""
+    from lfring.batch.settings import refocus_depth_problem
+
+    zs = parse_depths(text, param_hint="--refocus")
+    problem = refocus_depth_problem(zs)
+    if problem:
+        raise click.BadParameter(problem, param_hint="--refocus")
+    return zs
+
+
 @click.command("batch")
 @click.argument("inputs", nargs=-1, required=True, metavar="INPUT...")
 @click.option("-o", "--output", "outdir", type=click.Path(file_okay=False), required=True, metavar="OUTDIR",
@@ -51,7 +64,9 @@ log = logging.getLogger("lfring.cli.batch")
               help="Process pool on this machine, or a Dask cluster (pip extra 'dask').")
 @click.option("--scheduler", default=None, metavar="ADDRESS",
               help="Dask scheduler, e.g. tcp://10.0.0.5:8786 (default with --executor dask: a local cluster).")
-@click.option("--exclude", multiple=True, metavar="GLOB", help="Leave out files matching this pattern (repeatable).")
+@click.option("--exclude", multiple=True, metavar="GLOB",
+              help="Leave out files whose name, path below a folder given, or path as given matches this pattern "
+                   "(repeatable).")
 @click.option("--progress/--no-progress", default=None, help="Progress bar (default: when stderr is a terminal).")
 @click.option("--overwrite", is_flag=True, help="Redo frames already done and replace existing files.")
 @raw_options
@@ -81,7 +96,7 @@ def command(ctx, inputs, outdir, calib, refocus_m, refocus_method, aperture, f_n
     from lfring.batch import BatchSettings, run_batch
     from lfring.core.geometry import check_reference
 
-    zs = parse_depths(refocus_m, param_hint="--refocus") if refocus_m is not None else ()
+    zs = _refocus_depths(refocus_m) if refocus_m is not None else ()
     if not (zs or depth_map or aif or viewer):
         raise click.UsageError("nothing to do: give --refocus Z1,Z2,..., --depth, --all-in-focus or --viewer")
     if (zmin is not None or zmax is not None) and not (depth_map or viewer or (zs and refocus_method == "depth-aware")):

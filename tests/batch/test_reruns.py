@@ -241,3 +241,20 @@ def test_keys_resolve_the_range_and_refusals_name_what_differs(frames):
     assert d.action == "refuse" and "zmax_m (1 then, 0.9 now)" in d.reason and "overwrite=True" in d.reason
     # A record whose settings did not make the output (a later run's) tells nothing.
     assert other.differences("refocus_0.5m", {**done, "output_keys": {"refocus_0.5m": "0123456789abcdef"}}) == []
+
+
+def test_a_refusal_after_shift_and_add_names_the_method(tmp_path, capsys):
+    """The audit's rerun on the command line: images made by --method shift-and-add, asked for
+    by depth-aware refocusing with --depth-method; the refusal names the method as the first run
+    gave it, and no depth setting (none made those images)."""
+    from pathlib import Path
+
+    frame = str(Path(__file__).resolve().parents[2] / "data" / "synthetic" / "scene.png")
+    base = ["batch", frame, "-o", str(tmp_path / "out"), "--workers", "1", "--no-progress"]
+    assert main([*base, "--refocus", "0.5", "--method", "shift-and-add"]) == 0
+    capsys.readouterr()
+    assert main([*base, "--refocus", "0.5,0.7", "--depth-method", "local"]) == 1
+    err = " ".join(capsys.readouterr().err.split())
+    assert "made with other settings: the refocusing method (shift-and-add then, depth-aware now). Give" in err
+    assert not any(w in err for w in ("default then", "--zmin", "--zmax", "depth method", "depth cost"))
+    assert not (tmp_path / "out" / "scene_refocus_0.7m.png").exists()

@@ -1,4 +1,8 @@
-"""lfring.batch.settings: what BatchSettings refuses, and the keys of earlier versions' records."""
+"""lfring.batch.settings: what BatchSettings refuses, and the keys of earlier versions' records,
+what a refusal says differs from the run that made an output, and how lfring batch --refocus is
+refused."""
+
+from pathlib import Path
 
 import pytest
 
@@ -11,7 +15,8 @@ from lfring.errors import InvalidInputError
     [
         ({}, "nothing to do"),
         ({"refocus_m": (0.0,)}, "positive"),
-        ({"refocus_m": (0.5, 0.5)}, "repeat"),
+        ({"refocus_m": (0.5, 0.5)}, "refocus_m: 0.5 m would be made more than once"),
+        ({"refocus_m": (float("inf"),)}, "cannot refocus at infinity"),
         ({"depth": True, "zmin_m": -0.3}, "zmin_m must be a positive number of metres"),
         ({"depth": True, "zmin_m": 0.8, "zmax_m": 0.4}, "smaller"),
         ({"refocus_m": (0.5,), "bit_depth": 12}, "bit_depth"),
@@ -80,3 +85,76 @@ def test_a_calibration_without_a_depth_range_is_refused_when_a_depth_map_must_be
     # A calibration from the optics gets its far end, as everywhere; a bounded one its range.
     BatchSettings(refocus_m=(0.5,), viewer=True, calibration=RingCalibration.from_optics(load_device("prototype").binned(4)))
     BatchSettings(refocus_m=(0.5,), viewer=True, calibration=RingCalibration.load("twin_binned2"))
+
+
+def _record(settings):
+    """A done frame's record as the batch writes it: the settings and the keys of their outputs."""
+    return {"settings": settings.describe(), "output_keys": settings.output_keys(), "status": "done"}
+
+
+def test_differences_name_only_the_settings_that_made_the_output():
+    """The audit's rerun: images made by shift-and-add, asked for now by depth-aware refocusing
+    with a depth method and range, which played no part in them. The refusal names the method,
+    as the earlier run gave it, and nothing that made only one side's image."""
+    then = BatchSettings(refocus_m=(0.5,), refocus_method="shift-and-add")
+    now = BatchSettings(refocus_m=(0.5, 0.7), depth_method="local", zmin_m=0.3, zmax_m=1.0)
+    said = ["the refocusing method (shift-and-add then, depth-aware now)"]
+    assert now.differences("refocus_0.5m", _record(then)) == said
+    # Records of earlier versions left shift-and-add's method out of their settings.
+    old = _record(then)
+    old["settings"] = {k: v for k, v in old["settings"].items() if k not in ("refocus_method", "aperture", "f_number")}
+    assert now.differences("refocus_0.5m", old) == said
+    # The other way round: the depth-aware image's range is no difference of its own.
+    assert then.differences("refocus_0.5m", _record(now)) == ["the refocusing method (depth-aware then, shift-and-add now)"]
+    # Both depth-aware: the depth map's settings made both images, and are named.
+    other = BatchSettings(refocus_m=(0.5,), depth_method="sgm", zmin_m=0.25, zmax_m=1.0)
+    assert other.differences("refocus_0.5m", _record(now)) == ["the depth method (local then, sgm now)",
+                                                                "zmin_m (0.3 then, 0.25 now)"]
+
+
+def test_differences_leave_out_what_no_option_sets():
+    """The semi-global depth's default cost is part of its maps' keys, but no option gives it:
+    a rerun that turns the local sweep's maps into semi-global ones names the depth method only."""
+    then = BatchSettings(depth=True, depth_method="local", zmin_m=0.3, zmax_m=1.0)
+    now = BatchSettings(depth=True, zmin_m=0.3, zmax_m=1.0)
+    for kind in ("depth", "confidence", "depth_preview"):
+        assert now.differences(kind, _record(then)) == ["the depth method (local then, sgm now)"]
+    assert then.differences("depth", _record(now)) == ["the depth method (sgm then, local now)"]
+
+
+def test_differences_of_the_all_in_focus_image_name_its_source():
+    then = BatchSettings(refocus_m=(0.5, 0.7), refocus_method="shift-and-add", all_in_focus=True)
+    with_depth = BatchSettings(refocus_m=(0.5, 0.7), refocus_method="shift-and-add", all_in_focus=True, depth=True,
+                               depth_method="local", zmin_m=0.3, zmax_m=1.0)
+    assert with_depth.differences("all_in_focus", _record(then)) == ["the batch's own depth map (no then, yes now)"]
+    more = BatchSettings(refocus_m=(0.5, 0.7, 0.9), refocus_method="shift-and-add", all_in_focus=True)
+    said = more.differences("all_in_focus", _record(then))
+    assert said == ["the depths it chose from (0.5, 0.7 m then, 0.5, 0.7, 0.9 m now)"]
+    assert not any(c in text for text in said for c in "[]'")  # no Python lists or strings
+
+
+CLI_FRAME = str(Path(__file__).resolve().parents[2] / "data" / "synthetic" / "scene.png")
+
+
+@pytest.mark.parametrize(
+    "refocus, text",
+    [
+        ("0.5,,0.7", ("Invalid value for --refocus: 0.5,,0.7 has an empty entry: give a depth in metres between every "
+                      "two commas")),
+        ("0.5,", "Invalid value for --refocus: 0.5, has an empty entry"),
+        ("0.5,0.50", "Invalid value for --refocus: 0.5 m would be made more than once: give each depth once"),
+        ("0.5,0.5000001", ("0.5 m would be made more than once: give each depth once (images are told apart by the "
+                           "depth to 6 significant digits)")),
+        ("inf", "Invalid value for --refocus: the batch cannot refocus at infinity (inf); give a finite depth in metres"),
+        ("0,0.5", "Invalid value for --refocus: depths must be positive distances in metres, got 0"),
+        ("nan", "Invalid value for --refocus: depths must be positive distances in metres, got nan"),
+    ],
+)
+def test_cli_refocus_depths_are_refused_naming_the_option(refocus, text, tmp_path, capsys):
+    from lfring.cli.main import main
+
+    out = tmp_path / "out"
+    assert main(["batch", CLI_FRAME, "-o", str(out), "--refocus", refocus, "--method", "shift-and-add"]) == 2
+    (line,) = [t for t in capsys.readouterr().err.splitlines() if t.startswith("Error: ")]
+    assert text in line and "refocus_m" not in line and "[" not in line
+    assert not out.exists()  # refused before any work

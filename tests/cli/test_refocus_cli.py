@@ -50,6 +50,7 @@ def test_refocus_stack_and_all_in_focus(tmp_path):
         (["--depth", "nan"], "positive"),
         (["--depths", ","], "Invalid value for --depths: expected comma-separated metres, got no number"),
         (["--depths", " "], "got no number"),
+        (["--depths", "0.3,,0.5"], "Invalid value for --depths: 0.3,,0.5 has an empty entry"),
         (["--depths", "0.5,0.3,0.5"], "Invalid value for --depths: 0.5 m would be made more than once"),
         (["--sweep", "0.3:0.3:3"], "Invalid value for --sweep: 0.3 m would be made more than once"),
         (["--sweep", "-0.3:0.3:3"], "Invalid value for --sweep: depths must be positive"),
