@@ -243,7 +243,8 @@ def test_python_m_lfring():
 @pytest.mark.parametrize("args, says, not_says", [
     (["view", str(SCENE), "--zmin", "1.0", "--zmax", "0.5"], "--zmin (1.0) must be smaller than --zmax (0.5)", "zmin_m"),
     # Less than a pixel of view motion: no number of planes helps.
-    (["depth", str(SCENE), "--zmin", "0.49", "--zmax", "0.5", "-o", "d/"], "spans no more than one: widen it", "planes"),
+    (["depth", str(SCENE), "--zmin", "0.49", "--zmax", "0.5", "-o", "d/"],
+     "too little to tell any depth in it from another; widen it", "planes"),
     (["depth", str(SCENE), "--zmin", "0.3", "--zmax", "0.35", "--planes", "3", "-o", "d/"], "give --planes >= 4",
      "num_planes"),
     # The refocus and viewer have no --planes and no --method local: their own words.
@@ -256,7 +257,8 @@ def test_python_m_lfring():
      "--zmax (0.2 m) must be farther than the calibration's nearest valid depth (0.3 m), where the range starts when "
      "--zmin is not given", "--zmin (0.3)"),
     (["depth", str(SCENE), "--zmax", "0.2", "-o", "d/"], "where the range starts when --zmin is not given", "zmin_m"),
-    (["depth", str(SCENE), "--zmin", "0.49", "--zmax", "0.5", "-o", "d/"], "or use --method local", "method='local'"),
+    (["depth", str(SCENE), "--zmin", "0.3", "--zmax", "0.35", "--planes", "3", "-o", "d/"], "or use --method local",
+     "method='local'"),
     (["inspect", str(SCENE), "--plane", "0.3", "--tolerance", "-1", "-o", "r/"], "--tolerance must be", "tolerance_m"),
     # The built-in calibration records its device now (--f-number works with it): a copy without one.
     (["refocus", str(SCENE), "--depth", "0.5", "--f-number", "4", "--calib", "no_device.json"], "or --aperture", "ring_device="),

@@ -153,7 +153,8 @@ def test_default_settings_meet_the_issue_targets(twin):
                                         (dict(min_views=True), "min_views"), (dict(min_views="a"), "min_views"),
                                         (dict(progress=1), "progress must be"), (dict(threads=True), "threads"),
                                         (dict(zmin_m=True), "zmin_m"),
-                                        (dict(zmin_m=0.5, zmax_m=0.5001), "spans no more than one: widen it"),
+                                        (dict(zmin_m=0.5, zmax_m=0.5001), "too little to tell any depth in it"),
+                                        (dict(method="local", zmin_m=0.5, zmax_m=0.5001), "too little to tell any depth"),
                                         (dict(rim_taper=-0.1), "rim_taper"), (dict(rim_taper=1.5), "rim_taper"),
                                         (dict(rim_taper=float("nan")), "rim_taper"), (dict(rim_taper="5 %"), "rim_taper"),
                                         (dict(rim_taper=True), "rim_taper")])
