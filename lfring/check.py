@@ -4,9 +4,11 @@ A frame of the ring camera holds four views of one scene: warped into the refere
 the depth of the scene they agree. An ordinary photograph at the sensor's size, a frame of
 another camera or binning, or a frame read with the wrong layout has four unrelated quadrants
 that agree at no depth. :func:`check_frame` measures that agreement on downsampled views at a
-few depths, with the frame's exposure and how well the layout's discs fit its light. On the
-binned twin it takes about as long as one refocus at one depth, a fraction of the time that
-reading and demosaicing the frame takes.
+few depths, with the frame's exposure and how well the layout's discs fit its light. A frame
+whose discs are largely clipped at the white level is over-exposed: a warning names it, and past
+a larger share it is refused, whatever else the check finds, since clipped light hides the
+texture that the other measures read. On the binned twin the check takes about as long as one
+refocus at one depth, a fraction of the time that reading and demosaicing the frame takes.
 """
 
 from __future__ import annotations
@@ -22,8 +24,8 @@ from lfring.core.validate import check_int
 from lfring.errors import InvalidInputError, LfringWarning
 from lfring.core.filters import luminance
 
-__all__ = ["AGREEMENT_THRESHOLD", "CHECK_DOWNSAMPLE", "FLAT_TEXTURE", "MIN_DISC_CONTRAST", "PROCESS_ANYWAY", "FrameCheck",
-           "check_frame", "draw_layout"]
+__all__ = ["AGREEMENT_THRESHOLD", "CHECK_DOWNSAMPLE", "CLIPPED_REFUSE", "CLIPPED_WARN", "FLAT_TEXTURE", "MIN_DISC_CONTRAST",
+           "PROCESS_ANYWAY", "FrameCheck", "OverExposureWarning", "check_frame", "draw_layout"]
 
 AGREEMENT_THRESHOLD = 0.3
 """Smallest view agreement (the least, over the pairs of views, ZNCC of their high-passed
@@ -58,7 +60,26 @@ inside the discs, at every noise preset and binning), its scenes, targets and pa
 about 0.25, so the threshold leaves a margin of two on each side."""
 
 CLIPPED_LEVEL = 0.99
+"""Brightness (linear luminance, white level 1) from which a pixel counts as clipped."""
+
 DARK_LEVEL = 0.01
+
+CLIPPED_WARN = 0.05
+"""Share of the views' discs clipped (:attr:`FrameCheck.clipped_fraction`) from which a frame is
+over-exposed: a warning (:class:`OverExposureWarning`) says so, and the frame is still processed.
+Clipped light holds no texture, so refocused images are flat white there and depth is not
+measured there. Well-exposed frames clip none of their discs, or only the small highlights and
+light sources of their scene, so the warning is for a frame that lost a visible part of its scene
+to the exposure."""
+
+CLIPPED_REFUSE = 0.4
+"""Share of the views' discs clipped from which a frame is refused as over-exposed (reason
+``'over_exposed'``, processed only with --no-check), before the check's other verdicts: as the
+clipped areas spread, the views lose the texture that tells a scene from a flat field and, where
+light spills between the discs, the contrast that tells discs from an image that fills the
+sensor. The share is below the one where those measures start to misread an over-exposed frame
+of the twin, so such a frame is refused for its exposure and not for a cause it does not have."""
+
 MIN_TEXTURE = 1e-4
 """RMS of a view's high-passed luminance (linear, full scale 1) below which it has no texture:
 well below the noise of any real frame (1e-4 is 0.4 counts of 12 bits)."""
@@ -74,8 +95,9 @@ class FrameCheck:
     ----------
     ok : bool
         A ring frame to process: discs of light (``disc_contrast`` at least
-        :data:`MIN_DISC_CONTRAST`, when measured), with texture (not a flat field), whose
-        views agree as a ring frame's do (``agreement >= threshold``).
+        :data:`MIN_DISC_CONTRAST`, when measured), with texture (not a flat field), not
+        over-exposed (less than :data:`CLIPPED_REFUSE` of the discs clipped), whose views agree
+        as a ring frame's do (``agreement >= threshold``).
     agreement : float
         The least pairwise ZNCC of the views' high-passed luminance at ``best_depth_m``, in
         [-1, 1]: every pair of views must agree (two pairs that do, such as the columns of a
@@ -101,7 +123,9 @@ class FrameCheck:
         Why the frame is not a ring frame to process: ``'no_discs'`` (the disc contrast is
         below :data:`MIN_DISC_CONTRAST`), ``'flat_field'`` (a flat (white) frame of the camera:
         discs without texture, see :data:`FLAT_TEXTURE`; told only of a whole frame, whose
-        discs are seen) or ``'views_disagree'``; ``''`` when ``ok``.
+        discs are seen), ``'over_exposed'`` (at least :data:`CLIPPED_REFUSE` of the discs
+        clipped, or a flat field with at least :data:`CLIPPED_WARN`: told before the others,
+        which clipping misleads) or ``'views_disagree'``; ``''`` when ``ok``.
     texture : float
         The least, over the views, RMS of the high-passed luminance over the mean luminance
         inside the discs (near 0 for a flat field); NaN for a frame without light.
@@ -113,6 +137,10 @@ class FrameCheck:
         is the calibration's error there (hundredths of a pixel when the calibration fits the
         camera, tenths when it misses the lenses' distortion); on a scene it also holds the
         scene's departures from that depth. NaN when not measured.
+    warning : str
+        Over-exposure short of a refusal (at least :data:`CLIPPED_WARN` of the discs clipped,
+        below :data:`CLIPPED_REFUSE`): what is lost and what to do, also at the end of
+        ``message``; ``''`` when none.
     """
 
     ok: bool
@@ -131,11 +159,18 @@ class FrameCheck:
     fit_px: float = float("nan")
     fit_depth_m: float = float("nan")
 
+    warning: str = ""
+
     @property
     def flat_field(self) -> bool:
         """The frame is a flat (white) frame of this camera: good for a calibration's or a
         layout's flat, with no scene to refocus or measure."""
         return self.reason == "flat_field"
+
+
+class OverExposureWarning(LfringWarning):
+    """:func:`check_frame` passed a frame with at least :data:`CLIPPED_WARN` of its discs clipped:
+    the frame is processed, but its clipped areas are lost to refocusing and depth."""
 
 
 def _image_of(frame):
@@ -233,6 +268,11 @@ def check_frame(frame, calibration, *, threshold: float = AGREEMENT_THRESHOLD, d
     InvalidInputError
         The frame's size is not the calibration's, or the views do not have the layout's shape.
 
+    Warns
+    -----
+    OverExposureWarning
+        The frame passes, but at least :data:`CLIPPED_WARN` of its discs are clipped.
+
     Notes
     -----
     The depths tried are evenly spaced in disparity from half the calibration's nearest valid
@@ -302,14 +342,27 @@ def check_frame(frame, calibration, *, threshold: float = AGREEMENT_THRESHOLD, d
     disagree = (f"the views do not agree at any depth from {zmin:.3g} to {zmax:.3g} m (ZNCC {agreement:.2f}, a ring "
                 f"frame scores above {threshold:g})")
     how = PROCESS_ANYWAY
-    if np.isfinite(contrast) and contrast < MIN_DISC_CONTRAST:
+    clipped_share = f"{clipped:.2%} of the views' discs are clipped at the white level"
+    exposure_lost = f"{clipped_share}, with no texture left there to refocus or measure depth on"
+    exposure_fix = "reduce the exposure, or check the white level the frame is read with"
+    warning = ""
+    flat_like = np.isfinite(texture) and texture < FLAT_TEXTURE and np.isfinite(contrast)  # discs seen, without texture
+    if clipped >= CLIPPED_REFUSE or (flat_like and clipped >= CLIPPED_WARN):
+        reason = "over_exposed"
+        if clipped >= CLIPPED_REFUSE:
+            message = f"over-exposed: {exposure_lost} (refused from {CLIPPED_REFUSE:.0%}); {exposure_fix}; {how}"
+        else:  # what the clipping left has no texture either: a flat (white) frame, or a scene washed out
+            message = (f"over-exposed: {clipped_share} (over-exposed from {CLIPPED_WARN:.0%}) and the rest of them has "
+                       "no texture either: an over-exposed flat (white) frame, of no use as a flat, or a scene washed "
+                       f"out by the exposure; {exposure_fix}")
+    elif np.isfinite(contrast) and contrast < MIN_DISC_CONTRAST:
         reason = "no_discs"
         dark_too = " (or too dark to show them)" if dark > 0.9 else ""
         message = (f"no discs of light{dark_too}: the frame is as bright between the views' discs as inside them (disc "
                    f"contrast {contrast:.2f}, a ring frame's is above {MIN_DISC_CONTRAST:g}), so it is an image that "
                    "fills the sensor (an ordinary photograph, a gradient, another camera), not a frame of this ring "
                    f"camera and layout{'' if agree else '; and ' + disagree}; {how}")
-    elif np.isfinite(texture) and texture < FLAT_TEXTURE and np.isfinite(contrast):  # discs seen, without texture
+    elif flat_like:
         reason = "flat_field"
         message = (f"a flat field: the views are discs of light without texture ({texture:.3f} of their mean, a scene's is "
                    f"above {FLAT_TEXTURE:g}), a flat (white) frame of this camera with no scene to refocus or measure; "
@@ -321,11 +374,20 @@ def check_frame(frame, calibration, *, threshold: float = AGREEMENT_THRESHOLD, d
     else:
         reason = ""
         message = f"the views agree (ZNCC {agreement:.2f} at {best_z:.3g} m, threshold {threshold:g}): a ring frame for this calibration"
+    if reason != "over_exposed" and clipped >= CLIPPED_WARN:
+        warning = f"over-exposed: {exposure_lost} (over-exposed from {CLIPPED_WARN:.0%}); {exposure_fix}"
+        if message.endswith("; " + how):
+            message = f"{message[:-len(how) - 2]}; and {warning}; {how}"
+        else:
+            message = f"{message}; but {warning}"
     ok = not reason
+    if ok and warning:
+        warnings.warn(warning, OverExposureWarning, stacklevel=2)
     fit, fit_z = _fit_px(lum, calibration, best_z) if measure_fit and ok else (float("nan"), float("nan"))
     return FrameCheck(ok=ok, agreement=agreement, best_depth_m=best_z, agreement_by_depth=by_depth,
                       threshold=threshold, size_px=size, clipped_fraction=clipped, dark_fraction=dark, disc_contrast=contrast,
-                      message=message, raw=info, reason=reason, texture=texture, fit_px=fit, fit_depth_m=fit_z)
+                      message=message, raw=info, reason=reason, texture=texture, fit_px=fit, fit_depth_m=fit_z,
+                      warning=warning)
 
 
 def _texture(small: np.ndarray, hp: np.ndarray, masks: np.ndarray) -> float:

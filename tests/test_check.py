@@ -135,3 +135,123 @@ def test_scenes_have_texture(cal, name):
 
     res = check_frame(load_raw(DATA / name), cal)
     assert res.ok and res.reason == "" and not res.flat_field and res.texture > 2 * FLAT_TEXTURE
+
+
+# -- exposure ----------------------------------------------------------------------------------
+
+
+def _exposed(name: str, gain: float, *, about_black: bool = True):
+    """A bundled frame as a RawFrame with its light multiplied by ``gain`` (clipped at the white
+    level): about the black level, as a longer exposure does; or, with ``about_black`` False, its
+    counts multiplied as they are (the black level too: light between the discs as well)."""
+    from lfring.io.raw import RawFrame
+
+    frame = load_raw(DATA / name)
+    counts = frame.mosaic.astype(np.float64)
+    black = frame.black_level if about_black else 0.0
+    counts = np.clip((counts - black) * gain + black, 0, frame.white_level).astype(np.uint16)
+    return RawFrame(mosaic=counts, pattern=frame.pattern, black_level=frame.black_level, white_level=frame.white_level,
+                    bit_depth=frame.bit_depth)
+
+
+@pytest.mark.parametrize("name", sorted(p.name for p in DATA.glob("*.png")))
+def test_bundled_frames_are_not_over_exposed(cal, name):
+    """No warning (pytest turns warnings into errors) and no over-exposure verdict: the
+    thresholds leave every well-exposed bundled frame, the flat one included, alone."""
+    from lfring.check import CLIPPED_WARN
+
+    res = check_frame(load_raw(DATA / name), cal)
+    assert res.clipped_fraction < CLIPPED_WARN / 10
+    assert res.reason != "over_exposed" and res.warning == "" and "over-exposed" not in res.message
+
+
+def test_a_somewhat_over_exposed_frame_is_processed_with_a_warning(cal):
+    from lfring.check import CLIPPED_REFUSE, CLIPPED_WARN, OverExposureWarning
+
+    with pytest.warns(OverExposureWarning, match=r"over-exposed: .* clipped at the white level.*; reduce the exposure"):
+        res = check_frame(_exposed("scene.png", 2), cal)  # a stop over: its bright areas clip
+    assert CLIPPED_WARN <= res.clipped_fraction < CLIPPED_REFUSE
+    assert res.ok and res.reason == "" and "over-exposed" in res.warning and res.message.endswith(res.warning)
+
+
+@pytest.mark.parametrize("gain, about_black", [(8, True), (20, False)])
+def test_a_mostly_clipped_frame_is_refused_as_over_exposed(cal, gain, about_black):
+    """Over-exposure is named, not the causes its clipping imitates: discs without texture (a
+    flat field) or, with the black level lifted too, no discs at all (an image that fills the
+    sensor)."""
+    from lfring.check import CLIPPED_REFUSE, MIN_DISC_CONTRAST
+
+    res = check_frame(_exposed("scene.png", gain, about_black=about_black), cal)
+    assert res.clipped_fraction >= CLIPPED_REFUSE
+    if not about_black:
+        assert res.disc_contrast < MIN_DISC_CONTRAST  # what the verdict blamed before
+    assert not res.ok and res.reason == "over_exposed" and not res.flat_field
+    assert res.message.startswith("over-exposed: ") and "--no-check" in res.message
+    assert "fills the sensor" not in res.message and "flat field" not in res.message
+
+
+def test_an_over_exposed_flat_frame_is_not_a_flat_field(cal):
+    """A flat frame clipped in part is of no use as a flat: refused as over-exposed, from the
+    share that only warns about a scene."""
+    from lfring.check import CLIPPED_REFUSE, CLIPPED_WARN
+
+    res = check_frame(_exposed("flat.png", 1.25), cal)
+    assert CLIPPED_WARN <= res.clipped_fraction < CLIPPED_REFUSE
+    assert not res.ok and not res.flat_field and res.reason == "over_exposed" and "over-exposed flat" in res.message
+
+
+def _write_frame(path: Path, frame) -> Path:
+    cv2.imwrite(str(path), frame.mosaic)
+    sidecar = {"pattern": frame.pattern, "black_level": frame.black_level, "white_level": frame.white_level,
+               "bit_depth": frame.bit_depth}
+    Path(f"{path}.json").write_text(__import__("json").dumps(sidecar))
+    return path
+
+
+@pytest.mark.filterwarnings("always::lfring.errors.LfringWarning")
+def test_cli_check_and_refocus_name_over_exposure(tmp_path, capsys, monkeypatch):
+    """What the user did: an over-exposed copy of the scene through `lfring check` (exit 1,
+    over-exposed) and `lfring refocus` (exit 2, nothing written); a less exposed one is
+    processed with a warning."""
+    from lfring.cli.main import main
+
+    monkeypatch.chdir(tmp_path)
+    over = _write_frame(tmp_path / "over.png", _exposed("scene.png", 8))
+    assert main(["check", str(over)]) == 1
+    out = capsys.readouterr().out
+    assert "verdict      NOT a frame to process: over-exposed: " in out and "refused from 40%" in out
+    assert "pass --no-check to the processing commands" in out
+    assert main(["refocus", str(over), "--depth", "0.5", "--method", "shift-and-add"]) == 2
+    err = capsys.readouterr().err
+    assert "over.png: over-exposed: " in err and "--no-check" in err and "Traceback" not in err
+    assert not list(tmp_path.glob("over_refocus*"))
+
+    bright = _write_frame(tmp_path / "bright.png", _exposed("scene.png", 2))
+    assert main(["check", str(bright)]) == 0
+    captured = capsys.readouterr()
+    assert "verdict      ring frame, over-exposed: " in captured.out and "over-exposed from 5%" in captured.out
+    assert "WARNING" not in captured.err  # said once, on the verdict line
+    assert main(["refocus", str(bright), "--depth", "0.5", "--method", "shift-and-add"]) == 0
+    assert "WARNING: over-exposed: " in capsys.readouterr().err
+
+
+def test_cli_check_names_the_sidecar_for_counts_above_its_bit_depth(tmp_path, capsys, monkeypatch):
+    """12-bit counts shifted left by 4 bits with the 12-bit sidecar: the error names the sidecar,
+    its bit_depth and the options that exist; the scaled --white-level and --black-level it
+    suggests read the frame."""
+    from lfring.cli.main import main
+
+    monkeypatch.chdir(tmp_path)
+    frame = load_raw(DATA / "scene.png")
+    path = tmp_path / "scene16.png"
+    cv2.imwrite(str(path), (frame.mosaic.astype(np.uint16) << 4))
+    (tmp_path / "scene16.png.json").write_text((DATA / "scene.png.json").read_text())
+    assert main(["check", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert 'the 12 bits come from the sidecar scene16.png.json ("bit_depth": 12)' in err
+    assert 'set "bit_depth": 16 in scene16.png.json' in err and '"white_level": 65520, "black_level": 1024' in err
+    assert "pass --black-level and --white-level scaled by 16 (1024 and 65520 counts)" in err
+    assert "bit_depth=" not in err and "white_level/" not in err
+    assert main(["check", str(path), "--white-level", "65520", "--black-level", "1024"]) == 0
+    out = capsys.readouterr().out
+    assert "Bayer RGGB, 16 bits" in out and "black 1024 white 65520" in out and "verdict      ring frame:" in out

@@ -4,6 +4,7 @@ layout fit and view agreement, with an overlay of the layout on the frame."""
 from __future__ import annotations
 
 import logging
+import warnings
 from pathlib import Path
 
 import click
@@ -14,7 +15,8 @@ from lfring.cli.outputs import OutputSet
 
 log = logging.getLogger("lfring.cli.check")
 
-_VERDICTS = {"": "ring frame", "flat_field": "a flat field of this camera, not a scene"}
+_VERDICTS = {"": "ring frame", "flat_field": "a flat field of this camera, not a scene",
+             "over_exposed": "NOT a frame to process"}
 
 
 @click.command("check")
@@ -30,13 +32,15 @@ def command(ctx, frame, calib, output, overwrite, levels):
     """Check that FRAME is a ring frame for the calibration: lfring check raw.png
 
     Prints the frame's size, Bayer pattern and levels, its exposure (fractions of pixels
-    clipped and dark inside the views' discs), how well the layout's discs fit its light, and
+    clipped and dark inside the views' discs; a frame with a large clipped share is
+    over-exposed, and refused past a larger one), how well the layout's discs fit its light, and
     how well the four views agree at the best of a few depths. Writes an overlay PNG of the
     layout on the frame. Exit code 0: a ring frame; 1: not one; 2: bad input.
     """
     from lfring.calibration import RingCalibration
     from lfring.calibration.defaults import default_calibration
-    from lfring.check import FLAT_TEXTURE, PROCESS_ANYWAY, check_frame, draw_layout
+    from lfring.check import (CLIPPED_REFUSE, CLIPPED_WARN, FLAT_TEXTURE, PROCESS_ANYWAY, OverExposureWarning, check_frame,
+                              draw_layout)
     from lfring.io.demosaic import demosaic
     from lfring.io.writers import write_image
 
@@ -53,7 +57,9 @@ def command(ctx, frame, calib, output, overwrite, levels):
         cal, cal_name = default_calibration(size)
     else:
         cal_name = calib
-    res = check_frame(image, cal, measure_fit=True)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", OverExposureWarning)  # said on the verdict line
+        res = check_frame(image, cal, measure_fit=True)
     tried = list(res.agreement_by_depth)
     black = raw.black_level if not isinstance(raw.black_level, tuple) else ",".join(f"{b:g}" for b in raw.black_level)
     lines = [
@@ -61,7 +67,8 @@ def command(ctx, frame, calib, output, overwrite, levels):
         + (f"Bayer {raw.pattern}" if raw.pattern else "RGB") + f", {raw.bit_depth} bits",
         f"levels       black {black:g} white {raw.white_level:g} counts" if not isinstance(black, str)
         else f"levels       black {black} white {raw.white_level:g} counts",
-        f"exposure     {res.clipped_fraction:.2%} clipped, {res.dark_fraction:.2%} dark (inside the views' discs)",
+        f"exposure     {res.clipped_fraction:.2%} clipped, {res.dark_fraction:.2%} dark (inside the views' discs; "
+        f"over-exposed from {CLIPPED_WARN:.0%} clipped, refused from {CLIPPED_REFUSE:.0%})",
         f"calibration  {cal_name} ({cal.raw_size[0]} x {cal.raw_size[1]} px, {cal.num_views} views)",
         f"layout fit   disc contrast {res.disc_contrast:.2f} (1: dark between the discs, 0: light everywhere)",
         f"agreement    {res.agreement:.2f} at {res.best_depth_m:.3g} m, the best of {len(tried)} depths tried from "
@@ -73,7 +80,8 @@ def command(ctx, frame, calib, output, overwrite, levels):
         f"{', flat field divided' if cal.flat_field is not None else ''})" if np.isfinite(res.fit_px)
         else "fit          not measured (not a ring frame to process)",
         # This is the check the user was sent to: what to do is to look, or to skip it.
-        f"verdict      {_VERDICTS.get(res.reason, 'NOT a ring frame for this calibration')}: "
+        f"verdict      {_VERDICTS.get(res.reason, 'NOT a ring frame for this calibration')}"
+        f"{', over-exposed' if res.ok and res.warning else ''}: "
         f"{res.message.replace('; ' + PROCESS_ANYWAY, '; pass --no-check to the processing commands to use it anyway')}",
     ]
     with outputs.writing() as stage:

@@ -45,7 +45,7 @@ from typing import Any
 
 import numpy as np
 
-from lfring.core.validate import check_int, check_number
+from lfring.core.validate import check_int, check_number, is_number
 from lfring.errors import FileFormatError, InvalidInputError, LfringError, LfringFileNotFoundError
 from lfring.io.bayer import PATTERNS, validate_pattern
 from lfring.io.readers import PNG_SIGNATURE
@@ -710,6 +710,50 @@ def _read_sidecar(p: Path) -> dict[str, Any]:
     return {k: content[k] for k in _SIDECAR_KEYS if k in content and content[k] is not None}
 
 
+def _levels(value: Any) -> list[float] | None:
+    """A sidecar's level (one number, or a list of them) as floats; None when it is not numbers."""
+    values = value if isinstance(value, (list, tuple)) else [value]
+    if not values or not all(is_number(v) for v in values):
+        return None
+    return [float(v) for v in values]
+
+
+def _above_bit_depth(p: Path, peak: int, bit_depth: int, container: int, sidecar: dict[str, Any],
+                     given: dict[str, Any] | None) -> str:
+    """The error for counts above the largest ``bit_depth``-bit value: where the bit depth comes
+    from (the caller, the sidecar by name, or the file's header) and what to change there, with
+    the levels the data would have if MSB-aligned: the levels of that bit depth (the caller's
+    with its bit depth, else the sidecar's, else the defaults), scaled."""
+    side = sidecar_path(p).name
+    full_scale, scale = 2**bit_depth - 1, 2 ** (container - bit_depth)
+    levels = {**sidecar, **{k: v for k, v in (given or {}).items() if v is not None}}
+    whites, blacks = _levels(levels.get("white_level", full_scale)), _levels(levels.get("black_level", 0))
+    as_json = as_text = ""  # the scaled levels, when they are numbers (a bad one is said when it is read)
+    if whites is not None and len(whites) == 1 and blacks is not None:
+        white = f"{whites[0] * (scale if whites[0] <= full_scale else 1):g}"  # one above is of the container's scale
+        black = ",".join(f"{b * scale:g}" for b in blacks)
+        as_json = f' ("white_level": {white}, "black_level": {f"[{black}]" if len(blacks) > 1 else black})'
+        as_text = f" ({black} and {white} counts)"
+    if given is not None:
+        origin = "the bit_depth argument"
+        fix = f"pass bit_depth={container} with black_level and white_level scaled by {scale}{as_text}"
+        otherwise = "fix bit_depth"
+    else:
+        if "bit_depth" in sidecar:
+            origin = f'the sidecar {side} ("bit_depth": {bit_depth})'
+            fix = f'set "bit_depth": {container} in {side}'
+            otherwise = f'correct "bit_depth" in {side}'
+        else:
+            origin = f"the file's header ({bit_depth} bits per sample)"
+            fix = f'write "bit_depth": {container} in a sidecar {side}'
+            otherwise = f'write the right "bit_depth" in a sidecar {side}'
+        fix += (f" with the levels scaled by {scale}{as_json}, or pass black_level=... and white_level=... scaled by "
+                f"{scale}{as_text}")
+    return (f"{p}: counts reach {peak}, above {full_scale}, the largest {bit_depth}-bit value; the {bit_depth} bits "
+            f"come from {origin}. If the data are MSB-aligned ({bit_depth}-bit counts shifted left by "
+            f"{container - bit_depth} bits), {fix}; otherwise {otherwise}")
+
+
 def _frame_from_pixels(
     p: Path, data: np.ndarray, info: dict[str, Any], overrides: dict[str, Any], file_format: str
 ) -> RawFrame:
@@ -756,14 +800,20 @@ def _frame_from_pixels(
                               hint=f" for a {container}-bit file")
     full_scale = 2 ** int(bit_depth) - 1
     peak = int(data.max()) if data.size else 0
+    given_white = overrides["white_level"]
+    side_blacks = _levels(sidecar.get("black_level", 0))
+    stale_black = overrides["black_level"] is None and (side_blacks is None or any(side_blacks))
+    if (peak > full_scale and overrides["bit_depth"] is None and is_number(given_white)
+            and full_scale < given_white <= 2 ** container - 1 and not stale_black):
+        # The counts and the white level given for this read both pass the bit depth of the
+        # sidecar (or of the file's header): that bit depth is stale, and the given level, which
+        # overrides the sidecar's, says how many bits the data have. A sidecar's black level
+        # other than 0 is on the stale scale too, so it must be given as well.
+        bit_depth = math.ceil(given_white).bit_length()
+        full_scale = 2 ** bit_depth - 1
     if peak > full_scale:
-        shift = container - int(bit_depth)
-        raise InvalidInputError(
-            f"{p}: counts reach {peak}, above {full_scale}, the largest {bit_depth}-bit value. If "
-            f"the data are MSB-aligned ({bit_depth}-bit counts shifted left by {shift} bits), pass "
-            f"bit_depth={container} (and white_level/black_level scaled by {2 ** shift}); otherwise "
-            "fix bit_depth"
-        )
+        given = overrides if overrides["bit_depth"] is not None else None
+        raise InvalidInputError(_above_bit_depth(p, peak, int(bit_depth), container, sidecar, given))
     black = values["black_level"] if values["black_level"] is not None else 0.0
     white = values["white_level"] if values["white_level"] is not None else float(full_scale)
     black_source = source["black_level"] if values["black_level"] is not None else "default 0"

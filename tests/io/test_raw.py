@@ -343,6 +343,71 @@ def test_counts_above_the_declared_bit_depth_suggest_msb_alignment(tmp_path):
     _assert_names_file(info, path)
 
 
+def _msb_aligned(tmp_path, sidecar):
+    """8 x 8 12-bit counts shifted left by 4 bits in a 16-bit PNG, with ``sidecar`` (12-bit)."""
+    path = tmp_path / "msb.png"
+    counts = (np.random.default_rng(5).integers(64, 4096, (8, 8)) << 4).astype(np.uint16)
+    counts[0, 0] = 4095 << 4
+    cv2.imwrite(str(path), counts)
+    sidecar_path(path).write_text(json.dumps(sidecar))
+    return path
+
+
+def test_counts_above_the_sidecars_bit_depth_name_the_sidecar_and_what_to_change(tmp_path):
+    path = _msb_aligned(tmp_path, {"pattern": "RGGB", "black_level": 64, "white_level": 4095, "bit_depth": 12})
+    with pytest.raises(InvalidInputError) as info:
+        load_raw(path)
+    message = str(info.value)
+    _assert_names_file(info, path)
+    assert "counts reach 65520, above 4095, the largest 12-bit value" in message
+    assert 'the 12 bits come from the sidecar msb.png.json ("bit_depth": 12)' in message
+    assert 'set "bit_depth": 16 in msb.png.json with the levels scaled by 16 ("white_level": 65520, "black_level": 1024)' in message
+    assert "pass black_level=... and white_level=... scaled by 16 (1024 and 65520 counts)" in message
+    assert 'otherwise correct "bit_depth" in msb.png.json' in message and "bit_depth=" not in message
+
+
+def test_counts_above_the_sidecars_bit_depth_scale_per_channel_black_levels(tmp_path):
+    path = _msb_aligned(tmp_path, {"pattern": "RGGB", "black_level": [64, 60, 60, 66], "bit_depth": 12})
+    with pytest.raises(InvalidInputError) as info:
+        load_raw(path)
+    assert '"white_level": 65520, "black_level": [1024,960,960,1056]' in str(info.value)
+    assert "(1024,960,960,1056 and 65520 counts)" in str(info.value)
+
+
+def test_given_levels_above_a_stale_sidecar_bit_depth_read_the_frame(tmp_path):
+    """Counts and a given white level both above the sidecar's bit depth: the given levels win
+    over the sidecar, and the bit depth follows the white level."""
+    path = _msb_aligned(tmp_path, {"pattern": "RGGB", "black_level": 64, "white_level": 4095, "bit_depth": 12})
+    frame = load_raw(path, white_level=65520, black_level=1024)
+    assert (frame.bit_depth, frame.white_level, frame.black_level) == (16, 65520.0, 1024.0)
+    # The sidecar's black level is on its 12-bit scale too: the white level alone is not enough.
+    with pytest.raises(InvalidInputError, match=r"pass black_level=\.\.\. and white_level=\.\.\. scaled by 16"):
+        load_raw(path, white_level=65520)
+    # ... unless that black level is 0 (the same on every scale).
+    path = _msb_aligned(tmp_path, {"pattern": "RGGB", "black_level": 0, "bit_depth": 12})
+    assert load_raw(path, white_level=65520).bit_depth == 16
+
+
+def test_a_given_white_level_alone_does_not_outvote_the_sidecars_bit_depth(tmp_path):
+    """Counts within the sidecar's 12 bits: its bit depth stands, and a white level above it is
+    refused (the data do not reach it)."""
+    path = tmp_path / "twelve.png"
+    cv2.imwrite(str(path), np.full((8, 8), 4000, np.uint16))
+    sidecar_path(path).write_text(json.dumps({"pattern": "RGGB", "bit_depth": 12}))
+    with pytest.raises(InvalidInputError, match=r"white_level 65520 .* \(0, 4095\]"):
+        load_raw(path, white_level=65520, black_level=0)
+
+
+def test_counts_above_a_given_bit_depth_name_the_argument(tmp_path):
+    """The levels suggested are those given with the bit depth (they override the sidecar's)."""
+    path = _msb_aligned(tmp_path, {"pattern": "RGGB", "black_level": 1000, "white_level": 60000, "bit_depth": 16})
+    with pytest.raises(InvalidInputError) as info:
+        load_raw(path, bit_depth=12, white_level=4095, black_level=64)
+    message = str(info.value)
+    assert "the 12 bits come from the bit_depth argument" in message and "sidecar" not in message
+    assert "pass bit_depth=16 with black_level and white_level scaled by 16 (1024 and 65520 counts)" in message
+
+
 @pytest.mark.parametrize("value", [0, 1234])
 def test_constant_frames_are_data_not_errors(tmp_path, value):
     path = tmp_path / "flat.png"
