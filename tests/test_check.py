@@ -232,7 +232,7 @@ def test_cli_check_and_refocus_name_over_exposure(tmp_path, capsys, monkeypatch)
     assert "verdict      ring frame, over-exposed: " in captured.out and "over-exposed from 5%" in captured.out
     assert "WARNING" not in captured.err  # said once, on the verdict line
     assert main(["refocus", str(bright), "--depth", "0.5", "--method", "shift-and-add"]) == 0
-    assert "WARNING: over-exposed: " in capsys.readouterr().err
+    assert f"WARNING: {bright}: over-exposed: " in capsys.readouterr().err  # named by its frame
 
 
 def test_cli_check_names_the_sidecar_for_counts_above_its_bit_depth(tmp_path, capsys, monkeypatch):

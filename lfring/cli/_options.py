@@ -270,12 +270,18 @@ def load_view_files(paths, calib: str | None):
 def require_ring_frame(image, cal, raw) -> None:
     """Raise (an InvalidInputError naming ``raw``) unless the frame's views agree as a ring
     frame's do for ``cal``."""
-    from lfring.check import check_frame
+    import warnings
 
-    res = check_frame(image, cal)
+    from lfring.check import OverExposureWarning, check_frame
+
+    with warnings.catch_warnings():  # said below with the frame's name
+        warnings.simplefilter("ignore", OverExposureWarning)
+        res = check_frame(image, cal)
     logging.getLogger("lfring.cli").debug("%s: %s", raw, res.message)
     if not res.ok:
         raise InvalidInputError(f"{raw}: {res.message}")
+    if res.warning:
+        logging.getLogger("lfring.cli").warning("%s: %s", raw, res.warning)
 
 
 def require_flat_frame(image, cal, path) -> None:

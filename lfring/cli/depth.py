@@ -99,6 +99,7 @@ def command(raw, zmin, zmax, outdir, calib, planes, reference, cost, aggregation
     if torch_device is not None and backend != "torch":
         raise click.UsageError(f"--torch-device {torch_device} goes with --backend torch (the numpy backend runs on the CPU)")
     out = Path(outdir)
+    given = " ".join(raw)  # the inputs as the log names them
     stem, raw = Path(raw[0]).stem, raw[0] if len(raw) == 1 else list(raw)  # several: separate view images
     names = ["depth.tiff", "depth.pfm", "confidence.tiff", "depth_preview.png", "depth.json"]
     if method == "sgm":
@@ -170,6 +171,6 @@ def command(raw, zmin, zmax, outdir, calib, planes, reference, cost, aggregation
             "backend": backend, "units": "depth in metres from the main lens; NaN where unknown", "points": n_points,
             "confidence_median": float(np.median(res.confidence)),
         })
-    log.info("%s: %d hypotheses %.2f px apart; depth %.3f-%.3f m; %d points", raw, len(res.depths_m), res.step_px,
+    log.info("%s: %d hypotheses %.2f px apart; depth %.3f-%.3f m; %d points", given, len(res.depths_m), res.step_px,
              float(np.nanmin(res.depth_m)), float(np.nanmax(res.depth_m)), n_points)
     click.echo(str(paths["depth.tiff"]))
