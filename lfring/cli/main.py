@@ -42,6 +42,14 @@ class _LfringGroup(click.Group):
             return None
         return importlib.import_module(f"lfring.cli.{module}").command
 
+    def resolve_command(self, ctx, args):
+        name, cmd, rest = super().resolve_command(ctx, args)
+        if cmd is not None:
+            twice = repeated_option(cmd, rest)
+            if twice:
+                raise click.UsageError(f"{twice} (lfring {name} --help says which options repeat)")
+        return name, cmd, rest
+
     def invoke(self, ctx):
         try:
             return super().invoke(ctx)
@@ -101,6 +109,32 @@ def cli(verbose: int, quiet: bool) -> None:
     # Library warnings (a depth outside the calibrated range, say) become one log line each.
     warn_log = logging.getLogger("lfring.warnings")
     warnings.showwarning = lambda message, category, *args, **kwargs: warn_log.warning("%s", message)
+
+
+def repeated_option(command: click.Command, args: list[str]) -> str:
+    """Why ``args`` give one of ``command``'s single-valued options more than once ('' where
+    none is): click would keep the last value without a word, and a user who wrote
+    ``--refocus 0.5 --refocus 0.7`` meant both. Repeatable options and flags may repeat.
+
+    >>> repeated_option(cli.get_command(None, "refocus"), ["a.png", "--depth", "0.5", "--depth=0.7"])
+    '--depth is given twice (0.5 and 0.7): give it once'
+    """
+    single = {opt: p for p in command.params if isinstance(p, click.Option) and not (p.multiple or p.count or p.is_flag)
+              for opt in p.opts}
+    seen: dict[str, str] = {}
+    i = 0
+    while i < len(args) and args[i] != "--":
+        opt, eq, value = args[i].partition("=") if args[i].startswith("--") else (args[i], "", "")
+        param = single.get(opt)
+        if param is not None:
+            if not eq:
+                value = args[i + 1] if i + 1 < len(args) else ""
+                i += 1
+            if param.name in seen:
+                return f"{opt} is given twice ({seen[param.name]} and {value}): give it once"
+            seen[param.name] = value
+        i += 1
+    return ""
 
 
 _VERBOSITY = {"-q", "--quiet", "-v", "-vv", "-vvv", "--verbose"}

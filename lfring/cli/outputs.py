@@ -102,6 +102,8 @@ class OutputSet:
         ours = {os.path.realpath(p) for p in [*self.paths, self.record]}
         inputs = _input_files({k: v for k, v in ctx.params.items() if k not in OUTPUT_OPTIONS})
         self._clashes = [f for f in inputs if os.path.realpath(f) in ours]
+        named = [p.opts[0] for p in ctx.command.params if p.name in OUTPUT_OPTIONS and ctx.params.get(p.name)]
+        self._output_option = named[0] if named else "the output"
         self.inputs = [f for f in inputs if os.path.realpath(f) not in ours]
         self.settings = params
         self.key = hashlib.sha256(json.dumps({"command": self.command, **params}, sort_keys=True,
@@ -122,7 +124,7 @@ class OutputSet:
         """
         if self._clashes:
             raise InvalidInputError(f"{self._clashes[0]} is an input of this command and would be one of its outputs "
-                                    f"(or their record): give -o another name")
+                                    f"(or their record): give {self._output_option} another name")
         check_writable([*self.paths, self.record], overwrite=True)
         self._clear_stale_staging()
         planned = {self._rel(p): self._rel(p) for p in self.paths}

@@ -168,7 +168,8 @@ def test_calibrate_errors_name_the_options(files, tmp_path, capsys, extra, messa
 )
 def test_grid_calib_errors_name_the_options(tmp_path, capsys, extra, message):
     out = tmp_path / "g.json"
-    assert main(["grid-calib", "--size", "30x20", *extra, "-o", str(out)]) == 2
+    size = [] if "--size" in extra else ["--size", "30x20"]
+    assert main(["grid-calib", *size, *extra, "-o", str(out)]) == 2
     err = capsys.readouterr().err
     assert message in err and not out.exists()
     python_names = ("disparity_scale_px_m", "disparity_offset_px", "depth_origin_m", "grid_positions")

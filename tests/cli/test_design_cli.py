@@ -88,3 +88,13 @@ def test_malformed_device_file(tmp_path, capsys):
 def test_version(capsys):
     assert main(["--version"]) == 0
     assert "lfring, version" in capsys.readouterr().out
+
+
+def test_a_plot_onto_an_input_names_plot(tmp_path, capsys):
+    """The figure named as the --device file itself: refused naming --plot, the option to change."""
+    same = tmp_path / "dev.png"
+    same.write_bytes(b"not a device")
+    assert main(["design", "--object-size", "0.05", "--distance", "0.3", "--plot", str(same), "--device", str(same)]) == 2
+    err = capsys.readouterr().err
+    assert "is an input of this command and would be one of its outputs (or their record): give --plot another name" in err
+    assert same.read_bytes() == b"not a device"

@@ -76,3 +76,24 @@ def test_an_unclosed_file_of_the_interpreters_loader_is_not_reported(tmp_path):
     assert after.returncode == 0 and "done" in after.stdout
     assert "ResourceWarning" not in after.stderr and "Traceback" not in after.stderr, after.stderr
     assert "ResourceWarning" in run("after-main", "own").stderr
+
+
+def test_a_single_valued_option_given_twice_is_refused(tmp_path, capsys):
+    """click keeps the last of a repeated option without a word; a user who wrote two depths
+    meant both. Refused before any work, naming both values; repeatable options and flags may
+    repeat."""
+    from lfring.cli.main import main
+
+    from pathlib import Path
+
+    scene = str(Path(__file__).resolve().parents[2] / "data" / "synthetic" / "scene.png")
+    out = tmp_path / "b"
+    assert main(["batch", scene, "-o", str(out), "--refocus", "0.5", "--refocus=0.7", "--method", "shift-and-add"]) == 2
+    err = capsys.readouterr().err
+    assert "--refocus is given twice (0.5 and 0.7): give it once (lfring batch --help says which options repeat)" in err
+    assert not out.exists()
+    assert main(["refocus", scene, "-q", "--depth", "0.5", "--method", "shift-and-add", "-o", str(tmp_path / "r.png"),
+                 "-o", str(tmp_path / "s.png")]) == 2
+    assert f"-o is given twice ({tmp_path / 'r.png'} and {tmp_path / 's.png'})" in capsys.readouterr().err
+    assert main(["batch", scene, "-o", str(out), "--refocus", "0.5", "--method", "shift-and-add", "--exclude", "x*",
+                 "--exclude", "y*", "--no-progress", "--no-progress", "-q"]) == 0
