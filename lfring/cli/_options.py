@@ -229,7 +229,7 @@ def load_views(raw, calib: str | None, levels: RawLevels | None = None, *, check
 
     if not isinstance(raw, str):
         if len(raw) > 1:
-            return load_view_files(raw, calib)
+            return load_view_files(raw, calib, check=check)
         raw = raw[0]
     cal = RingCalibration.load(calib) if calib else None
     frame = read_frame(raw, levels, cal)
@@ -252,10 +252,13 @@ def load_views(raw, calib: str | None, levels: RawLevels | None = None, *, check
     return split_views(image, cal, flat=flat_field), cal, name
 
 
-def load_view_files(paths, calib: str | None):
+def load_view_files(paths, calib: str | None, *, check: bool = True):
     """Separate view images (a stereo pair, a camera array) in the view order of --calib, a
-    calibration of as many views (``lfring grid-calib`` writes one)."""
+    calibration of as many views (``lfring grid-calib`` writes one). Unless ``check`` is False,
+    the views of a ring calibration must agree as a ring frame's do (:func:`lfring.check.check_frame`):
+    views in another order, or from different frames, do not."""
     from lfring.calibration import RingCalibration
+    from lfring.check import AGREEMENT_THRESHOLD, check_frame
     from lfring.views import read_views
 
     if not calib:
@@ -266,6 +269,13 @@ def load_view_files(paths, calib: str | None):
         raise click.UsageError(f"{len(paths)} view images given but the calibration {calib} has {cal.num_views} views")
     views = read_views(paths)
     cal.check_fits(views.shape, what="view images")
+    if check and cal.source != "grid":  # a grid's views have no discs to judge agreement on
+        res = check_frame(views, cal)
+        if res.reason == "views_disagree":
+            raise InvalidInputError(
+                f"the view images {' '.join(map(str, paths))} do not agree as the views of one frame in this order (ZNCC "
+                f"{res.agreement:.2f} at best, a ring frame's views score above {AGREEMENT_THRESHOLD:g}): give the views "
+                "of one frame in the calibration's view order, or pass --no-check to process them anyway")
     return views, cal, calib
 def require_ring_frame(image, cal, raw) -> None:
     """Raise (an InvalidInputError naming ``raw``) unless the frame's views agree as a ring

@@ -126,3 +126,21 @@ def test_a_flat_that_is_not_a_flat_frame_is_refused(tmp_path, capsys):
     assert not any(tmp_path.iterdir())
     assert main(["refocus", str(SCENE), "--depth", "0.5", "--method", "shift-and-add", "--flat", str(data / "flat.png"),
                  "-o", str(tmp_path / "o.png")]) == 0
+
+
+def test_view_images_out_of_order_or_from_two_frames_are_refused(tmp_path, capsys):
+    """Separate view images of a ring calibration must agree as one frame's views do: in
+    another order (or mixed from two frames) they are refused, unless --no-check."""
+    data = Path(__file__).resolve().parents[2] / "data" / "synthetic"
+    calib = str(Path(__file__).resolve().parents[2] / "calib" / "twin_binned2.json")
+    assert main(["-q", "split", str(data / "scene.png"), "--flat", str(data / "flat.png"), "-o", str(tmp_path / "v")]) == 0
+    views = [str(tmp_path / "v" / f"scene_view{k}.png") for k in range(4)]
+    run = ["refocus", "--calib", calib, "--depth", "0.5", "--method", "shift-and-add"]
+    assert main([*run[:1], *views, *run[1:], "-o", str(tmp_path / "ok.png")]) == 0
+    capsys.readouterr()
+    swapped = [views[1], views[0], views[3], views[2]]
+    assert main([*run[:1], *swapped, *run[1:], "-o", str(tmp_path / "no.png")]) == 2
+    err = capsys.readouterr().err
+    assert "do not agree as the views of one frame in this order (ZNCC 0.0" in err and "--no-check" in err
+    assert not (tmp_path / "no.png").exists()
+    assert main([*run[:1], *swapped, *run[1:], "-o", str(tmp_path / "no.png"), "--no-check"]) == 0
