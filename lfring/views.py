@@ -13,6 +13,7 @@ calibration) and its vignetting divided out by a flat field.
 
 from __future__ import annotations
 
+import hashlib
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -354,9 +355,10 @@ def read_views(paths) -> np.ndarray:
     if len(shapes) != 1:
         sizes = ", ".join(f"{p}: {v.shape[1]} x {v.shape[0]}" for p, v in zip(paths, views))
         raise InvalidInputError(f"the view images must all have one size, got {sizes}")
-    for j in range(1, len(views)):
-        i = next((i for i in range(j) if np.array_equal(views[i], views[j])), None)
-        if i is not None:  # one view twice: every depth would fit it, and none be told
+    first: dict[bytes, int] = {}  # one view twice: every depth would fit it, and none be told
+    for j, v in enumerate(views):
+        i = first.setdefault(hashlib.blake2b(np.ascontiguousarray(v).tobytes(), digest_size=16).digest(), j)
+        if i != j:
             raise InvalidInputError(f"view images {i} and {j} ({paths[i]}, {paths[j]}) are the same image: give each "
                                     "view's own image")
     return np.stack(views).astype(np.float32, copy=False)
@@ -460,7 +462,8 @@ FLAT_DISC_TEXTURE = 0.05
 
 
 def detect_layout(
-    image: np.ndarray, *, kind: str = "auto", rotate180: bool = False, grid: tuple[int, int] = (2, 2)
+    image: np.ndarray, *, kind: str = "auto", rotate180: bool = False, grid: tuple[int, int] = (2, 2),
+    name: str | None = None,
 ) -> Layout:
     """Find the views on a raw frame: each mini-lens lights a disc (the image of the main-lens
     iris), dark around it.
@@ -480,6 +483,9 @@ def detect_layout(
         layout records it.
     grid : (rows, cols)
         How the views tile the frame (2 x 2 for the ring).
+    name : str, optional
+        What the caller calls the image (a file, an option and its file): a refusal starts
+        with it, since its own words speak only of "the frame".
 
     Returns
     -------
@@ -515,6 +521,16 @@ def detect_layout(
     True
     """
     check_choice(kind, "kind", DETECT_KINDS)
+    try:
+        return _detect_layout(image, kind, rotate180, grid)
+    except (InvalidInputError, EstimationError) as exc:
+        if name is None:
+            raise
+        raise type(exc)(f"{name}: {exc}") from None
+
+
+def _detect_layout(image, kind: str, rotate180: bool, grid: tuple[int, int]) -> Layout:
+    """:func:`detect_layout` without the name of the image in its refusals."""
     arr = np.asarray(image)
     if arr.ndim == 3:
         arr = arr.mean(axis=2)

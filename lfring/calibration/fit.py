@@ -153,10 +153,8 @@ def calibrate(
         img, name = (flat_img, flat_name) if flat_img is not None else images[min(images)]
         if flat_img is None:
             log.warning("no flat frame or layout given: detecting the layout on the nearest target (less precise)")
-        try:
-            layout = detect_layout(img, kind="flat" if flat_img is not None else "auto")
-        except (InvalidInputError, EstimationError) as exc:  # named by the frame it was detected on
-            raise type(exc)(f"{'flat frame' if flat_img is not None else 'target frame'} {name}: {exc}") from None
+        layout = detect_layout(img, kind="flat" if flat_img is not None else "auto",
+                               name=f"{'flat frame' if flat_img is not None else 'target frame'} {name}")
     elif (layout.raw_width_px, layout.raw_height_px) != (shape[1], shape[0]):
         raise InvalidInputError(f"the layout is for {layout.raw_width_px} x {layout.raw_height_px} px frames, the targets are {shape[1]} x {shape[0]} px")
     masks = layout.masks()

@@ -12,7 +12,6 @@ import numpy as np
 
 from lfring.cli._options import raw_options, read_frame
 from lfring.cli.outputs import OutputSet
-from lfring.errors import EstimationError, InvalidInputError
 
 log = logging.getLogger("lfring.cli.split")
 
@@ -44,7 +43,7 @@ def command(raw, outdir, layout_file, flat_file, rotate180, method, fmt, overwri
     from lfring.io.demosaic import demosaic
     from lfring.io.raw import load_raw
     from lfring.io.writers import write_image, write_json
-    from lfring.views import Layout, split_views
+    from lfring.views import Layout, detect_layout, split_views
 
     if layout_file and flat_file:
         raise click.UsageError("give --layout or --flat, not both")
@@ -59,10 +58,10 @@ def command(raw, outdir, layout_file, flat_file, rotate180, method, fmt, overwri
         if flat.shape != image.shape:
             raise click.UsageError(f"--flat {flat_file} is {flat.shape[1]} x {flat.shape[0]} px but the frame {raw} is "
                                    f"{image.shape[1]} x {image.shape[0]} px; give a flat frame of the same camera and binning")
-        layout = _detect(flat, f"--flat {flat_file}", kind="flat", rotate180=rotate180)
+        layout = detect_layout(flat, kind="flat", rotate180=rotate180, name=f"--flat {flat_file}")
         source = f"detected on flat {flat_file}"
     else:
-        layout, source = _detect(image, raw, rotate180=rotate180), "detected on the frame itself"
+        layout, source = detect_layout(image, rotate180=rotate180, name=raw), "detected on the frame itself"
         log.warning("no --layout or --flat: layout detected on the frame itself, which is less precise")
     views = split_views(image, layout)
     out = Path(outdir)
@@ -95,14 +94,3 @@ def command(raw, outdir, layout_file, flat_file, rotate180, method, fmt, overwri
         })
     log.info("%s: %d views of %d x %d px (%s) -> %s", raw, layout.num_views, layout.view_shape[1], layout.view_shape[0], source, out)
 
-
-def _detect(image, given: str, **kwargs):
-    """The layout detected on ``image``; a refusal names what the user ``given`` it as (the
-    --flat option and its file, or the frame's path), since the detector's words speak only
-    of "the frame"."""
-    from lfring.views import detect_layout
-
-    try:
-        return detect_layout(image, **kwargs)
-    except (InvalidInputError, EstimationError) as exc:
-        raise type(exc)(f"{given}: {exc}") from None
