@@ -15,7 +15,7 @@ from lfring.errors import InvalidInputError
 from lfring.focus.depth_aware import estimation_range
 from lfring.focus.methods import METHODS
 from lfring.io.writers import json_default
-from lfring.optics.paraxial import MIN_F_NUMBER
+from lfring.optics.paraxial import check_f_number
 
 __all__ = ["BatchSettings", "refocus_depth_problem"]
 
@@ -49,6 +49,7 @@ _SETTING_WORDS = {
 one: in words, or by the parameter name that the command line turns into its option
 (``zmin_m`` reads ``--zmin``). The depth cost is no setting (no option gives it; it is the
 depth method's default) and is never named."""
+
 
 def _depth_label(z: float) -> str:
     """A refocus depth as its output's kind and file name give it (``refocus_0.5m``): to six
@@ -275,8 +276,7 @@ class BatchSettings:
             if self.aperture is not None and self.f_number is not None:
                 raise InvalidInputError("give the depth of field as aperture or as f_number, not both")
             check_number(self.aperture, "aperture", minimum=0.0, allow_none=True, hint=" (1: the views' aperture, 0: a pinhole)")
-            check_number(self.f_number, "f_number", minimum=MIN_F_NUMBER, allow_none=True, what="an f-number",
-                         hint=": no lens in air has a smaller one")
+            check_f_number(self.f_number, allow_none=True)
         elif self.aperture is not None or self.f_number is not None:
             owners = ", ".join(f"refocus_method={m.name!r}" for m in METHODS.values() if "aperture" in m.options)
             raise InvalidInputError(f"aperture and f_number are for {owners}")

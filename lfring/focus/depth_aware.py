@@ -189,11 +189,10 @@ def aperture_from_f_number(f_number: float, device) -> float:
     >>> round(aperture_from_f_number(2.8, dev), 2)  # the views sit 1.1 mm from the axis, FL 16 mm
     2.57
     """
-    from lfring.optics.paraxial import MIN_F_NUMBER
+    from lfring.optics.paraxial import check_f_number
     from lfring.optics.views import view_cameras
 
-    f_number = check_number(f_number, "f_number", minimum=MIN_F_NUMBER, what="an f-number",
-                            hint=": no lens in air has a smaller one")
+    f_number = check_f_number(f_number)
     cams = view_cameras(device)
     radius = float(np.linalg.norm(cams.centres_m - cams.centres_m.mean(axis=0), axis=1).mean())
     return device.main_focal_length_m / (2.0 * float(f_number)) / radius

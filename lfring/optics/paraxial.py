@@ -11,11 +11,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from lfring.core.validate import check_number
 from lfring.errors import InvalidInputError
 from lfring.optics.device import RingDevice
 
 __all__ = [
     "MIN_F_NUMBER",
+    "check_f_number",
     "intermediate_distance_m",
     "mini_object_distance_m",
     "magnification",
@@ -31,6 +33,18 @@ __all__ = [
 #: the marginal ray's angle) is at most 1, and N = 1 / (2 NA), so N >= 0.5. A smaller one names
 #: an aperture no lens has.
 MIN_F_NUMBER = 0.5
+
+
+def check_f_number(f_number, *, allow_none: bool = False, pinhole: bool = False) -> float | None:
+    """``f_number`` as a float of at least :data:`MIN_F_NUMBER` (``inf``, a pinhole, where
+    ``pinhole``; None where ``allow_none``), else an error that says why.
+
+    >>> check_f_number(2.8), check_f_number(float("inf"), pinhole=True)
+    (2.8, inf)
+    """
+    hint = " (no lens in air has a smaller one; inf for a pinhole)" if pinhole else ": no lens in air has a smaller one"
+    return check_number(f_number, "f_number", minimum=MIN_F_NUMBER, finite=not pinhole, allow_none=allow_none,
+                        what="an f-number", hint=hint)
 
 
 def _depth(distance_m, device: RingDevice) -> np.ndarray:

@@ -15,7 +15,7 @@ import numpy as np
 from lfring.core.validate import check_int, check_number
 from lfring.errors import InvalidInputError
 from lfring.optics.device import RingDevice
-from lfring.optics.paraxial import MIN_F_NUMBER
+from lfring.optics.paraxial import check_f_number
 from lfring.optics.views import ViewCameras, optical_layout, view_cameras
 from lfring.synth.layers import SurfaceRenderer, default_workers, over
 from lfring.synth.scene import Scene
@@ -65,8 +65,7 @@ def conventional_aperture_radius_m(device: RingDevice, *, f_number=None, apertur
     if f_number is not None and aperture_scale is not None:
         raise InvalidInputError("give f_number or aperture_scale, not both")
     if f_number is not None:
-        n = check_number(f_number, "f_number", minimum=MIN_F_NUMBER, finite=False, what="an f-number",
-                         hint=" (no lens in air has a smaller one; inf for a pinhole)")
+        n = check_f_number(f_number, pinhole=True)
         return 0.0 if np.isinf(n) else device.main_focal_length_m / (2.0 * n)
     if aperture_scale is not None:
         a = check_number(aperture_scale, "aperture_scale", minimum=0)
