@@ -13,7 +13,7 @@ from lfring.core.validate import check_int, check_number
 from lfring.errors import InvalidInputError
 from lfring.core.geometry import apply_homography
 
-__all__ = ["depth_hypotheses", "view_motion_px"]
+__all__ = ["check_depth_range", "depth_hypotheses", "view_motion_px"]
 
 
 def view_motion_px(calibration, depths_m, view_shape) -> float:
@@ -27,14 +27,20 @@ def view_motion_px(calibration, depths_m, view_shape) -> float:
     return float(max(steps)) if steps else 0.0
 
 
-def depth_hypotheses(calibration, zmin_m: float, zmax_m: float, *, num=None, max_step_px: float = 1.0) -> np.ndarray:
-    """Depths between ``zmin_m`` and ``zmax_m`` evenly spaced in 1/(Z - z0) (evenly in disparity),
-    by default close enough that no view moves more than ``max_step_px`` between neighbours."""
-    z0 = calibration.depth_origin_m
+def check_depth_range(zmin_m, zmax_m) -> tuple[float, float]:
+    """(zmin_m, zmax_m) as floats: positive distances in metres, the first the smaller."""
     for name, v in (("zmin_m", zmin_m), ("zmax_m", zmax_m)):
         check_number(v, name, above=0.0, what="a distance in metres")
     if not zmin_m < zmax_m:
         raise InvalidInputError(f"zmin_m ({zmin_m}) must be smaller than zmax_m ({zmax_m})")
+    return float(zmin_m), float(zmax_m)
+
+
+def depth_hypotheses(calibration, zmin_m: float, zmax_m: float, *, num=None, max_step_px: float = 1.0) -> np.ndarray:
+    """Depths between ``zmin_m`` and ``zmax_m`` evenly spaced in 1/(Z - z0) (evenly in disparity),
+    by default close enough that no view moves more than ``max_step_px`` between neighbours."""
+    z0 = calibration.depth_origin_m
+    check_depth_range(zmin_m, zmax_m)
     if zmin_m <= z0:
         raise InvalidInputError(f"zmin_m ({zmin_m}) must lie beyond the depth origin z0 = {z0:.4g} m")
     if num is None:

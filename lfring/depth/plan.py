@@ -87,11 +87,11 @@ def plan_sweep(views, calibration, zmin_m, zmax_m, num_planes, reference, taper)
     ref = check_reference(reference, calibration.num_views)
     depths = depth_hypotheses(calibration, zmin_m, zmax_m, num=num_planes)
     shape = views.shape[1:3]
-    zmin, zmax = float(depths[0]), float(depths[-1])
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", LfringWarning)
-        motion = view_motion_px(calibration, [zmin, zmax], shape)
+    key = ("view motion", depths_key(depths), tuple(shape))  # the same for every frame
+    step = calibration_cache(calibration, key, lambda: view_motion_px(calibration, depths, shape))
+    motion = step * (len(depths) - 1)  # the hypotheses are evenly spaced in view motion
     if motion <= MIN_RANGE_MOTION_PX:  # refused before the out-of-range warning: the hint says more
+        zmin, zmax = float(depths[0]), float(depths[-1])
         raise DepthRangeError(
             f"zmin_m {zmin:g} .. zmax_m {zmax:g} m: the views move by {motion:.2g} px across it, too little to tell "
             "any depth in it from another; widen it", zmin_m=zmin, zmax_m=zmax, planes=len(depths), motion_px=motion,
@@ -100,8 +100,6 @@ def plan_sweep(views, calibration, zmin_m, zmax_m, num_planes, reference, taper)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", LfringWarning)
         hs = calibration.homographies(depths, reference=ref)  # (N, V, 3, 3)
-    key = ("view motion", depths_key(depths), tuple(shape))  # the same for every frame
-    step = calibration_cache(calibration, key, lambda: view_motion_px(calibration, depths, shape))
     # The second minimum is looked for more than one pixel of motion away from the best.
     exclude = max(1, int(np.ceil(1.0 / max(step, 1e-6))))
     return SweepPlan(depths, hs, sweep_masks(calibration, shape, taper), ref, step, exclude, taper, calibration)

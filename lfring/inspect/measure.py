@@ -38,7 +38,7 @@ import numpy as np
 from lfring.errors import InvalidInputError, LfringWarning
 from lfring.depth.costs.lcn import LCN_AGGREGATE_PX
 from lfring.depth.plan import sweep_masks
-from lfring.depth.hypotheses import depth_hypotheses, view_motion_px
+from lfring.depth.hypotheses import check_depth_range, depth_hypotheses, view_motion_px
 from lfring.core.geometry import check_reference
 from lfring.core.validate import check_fraction, check_int, check_number, is_integer
 from lfring.core.viewstack import TAPER, WEIGHT_FLOOR, check_views
@@ -348,8 +348,8 @@ def _plan_band(calibration, chk: _Checked, zmin_m, zmax_m, num_planes) -> tuple[
         lo, hi = calibration.valid_depth_range_m
         if typical < lo - tol or (hi is not None and typical > hi + tol):
             calibration.check_depth(typical, stacklevel=4)
-    if zmin_m is not None and zmax_m is not None and not _positive(zmin_m, "zmin_m") < _positive(zmax_m, "zmax_m"):
-        raise InvalidInputError(f"zmin_m ({zmin_m:g}) must be smaller than zmax_m ({zmax_m:g})")
+    if zmin_m is not None and zmax_m is not None:
+        check_depth_range(zmin_m, zmax_m)
     try:
         if zmin_m is None and zmax_m is None:
             zlo, zhi, num = _aligned_band(calibration, near, far, tol, num_planes)

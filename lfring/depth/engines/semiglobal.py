@@ -70,13 +70,11 @@ def run_semiglobal(views, calibration, plan, settings, finisher, progress, *, fu
     if len(plan.depths) < max(SGM_MIN_PLANES, plan.exclude + 2):
         zmin_m, zmax_m = float(plan.depths[0]), float(plan.depths[-1])
         motion = plan.step_px * (len(plan.depths) - 1)
-        needed = _planes_needed(motion)
-        remedy = (f"give num_planes >= {needed}, widen the depth range," if needed is not None else
-                  "the range spans no more than one: widen it,")
+        needed = _planes_needed(motion)  # a number: the plan refused a range of a pixel or less
         raise DepthRangeError(
             f"method='sgm' judges each answer against hypotheses more than one pixel of view motion away: "
             f"{len(plan.depths)} hypotheses over {motion:.2g} px of motion ({zmin_m:g}..{zmax_m:g} m) have none; "
-            f"{remedy} or use method='local'", zmin_m=zmin_m, zmax_m=zmax_m, planes=len(plan.depths), motion_px=motion,
+            f"give num_planes >= {needed}, widen the depth range, or use method='local'", zmin_m=zmin_m, zmax_m=zmax_m, planes=len(plan.depths), motion_px=motion,
             planes_needed=needed, hint=calibration.millimetres_hint(zmin_m, zmax_m))
     check = views.shape[0] == 2 if settings.consistency is None else bool(settings.consistency)
     if settings.backend == "torch" and fused:  # the GPU engine; None where its kernels cannot run on the device
