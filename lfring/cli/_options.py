@@ -13,6 +13,10 @@ from lfring.errors import InvalidInputError
 from lfring.optics.device import RingDevice, load_device
 
 
+SWEEP_METAVAR = "START:STOP:N"
+"""A --sweep (refocus, design) as its help names it, and so the messages about it."""
+
+
 def parse_range(text: str, *, with_count: bool, param_hint: str | None = None, metavar: str | None = None) -> tuple[float, ...]:
     """'a:b' or 'a:b:n' -> floats (n an int >= 2); raises click.BadParameter on bad text, naming
     the option ``param_hint`` and the parts as its help's ``metavar`` does (``START:STOP:N``)."""
@@ -277,6 +281,8 @@ def load_view_files(paths, calib: str | None, *, check: bool = True):
                 f"{res.agreement:.2f} at best, a ring frame's views score above {AGREEMENT_THRESHOLD:g}): give the views "
                 "of one frame in the calibration's view order, or pass --no-check to process them anyway")
     return views, cal, calib
+
+
 def require_ring_frame(image, cal, raw) -> None:
     """Raise (an InvalidInputError naming ``raw``) unless the frame's views agree as a ring
     frame's do for ``cal``."""

@@ -21,10 +21,6 @@ MAX_RESIDUAL_PX = 0.5
 """Residual (px) above which a calibration is refused unless --force: the views of a planar
 target at its depth align to a small fraction of a pixel (the twin's to about 0.01 px); a frame
 that is not one (a scene with depth, a part) leaves residuals of a pixel or more."""
-FAR_PLANE_M = 100.0
-"""A plane given this far or farther gets a warning: a target must fill the views with texture,
-so it is most likely millimetres given as metres (a distant scene is a valid plane at infinity,
-so it is not refused)."""
 
 
 def _floaty(text: str) -> bool:
@@ -134,11 +130,9 @@ def command(frames, depths, output, flat, layout_file, depth_origin, device_name
     layout = Layout.load(layout_file) if layout_file else None
     cal = calibrate(dict(zip(zs, frames)), flat=flat, layout=layout, depth_origin_m=z0, method=method, rank1=rank1,
                     device=device, distortion=not no_distortion, carry_flat=carry_flat, **levels.as_kwargs())
-    _refuse_too_far(cal, dict(zip(zs, frames)), device)
-    far = max(zs)
-    if far >= FAR_PLANE_M and far / 1000.0 > min(zs):
-        log.warning("the farthest plane is given as %g m (%s): fine for a target that far; if %g was millimetres, "
-                    "give %g", far, dict(zip(zs, frames))[far], far, far / 1000.0)
+    ref, ref_name = _camera_model(cal, device)
+    _refuse_too_far(cal, dict(zip(zs, frames)), ref, ref_name)
+    _warn_far(dict(zip(zs, frames)), ref)
     click.echo(f"z0 = {cal.depth_origin_m:.6f} m ({cal.provenance.get('depth_origin')}); valid depth range "
                f"{cal.valid_depth_range_m[0]:g} to {cal.valid_depth_range_m[1]:g} m; reference view {cal.model.reference}")
     click.echo(f"{'plane [m]':>10} " + " ".join(f"{'view ' + str(k) + ' px':>10}" for k in range(cal.num_views))
@@ -204,16 +198,16 @@ def _tells_from_infinity(calibration, depth_m: float) -> bool:
     return True
 
 
-def _refuse_too_far(cal, frames_by_depth: dict, device) -> None:
+def _refuse_too_far(cal, frames_by_depth: dict, ref, what: str) -> None:
     """Refuse depths that contradict the camera: most often millimetres given as metres.
 
     The calibration fitted to the frames cannot tell on its own (its scale comes from the given
-    depths). A model of the camera that does not rest on them (:func:`_camera_model`) can: when
+    depths). A model of the camera that does not rest on them (``ref``, in words ``what``:
+    :func:`_camera_model`) can: when
     it puts even the nearest plane too far to tell from infinity while the frames show that
     plane's views moving as a near plane's do, the depths are wrong. A plane that both put too
     far is a camera too coarse for it, not a unit mistake, and is left to the residuals.
     """
-    ref, what = _camera_model(cal, device)
     near = min(frames_by_depth)
     if ref is None or near <= ref.valid_depth_range_m[0]:
         return
@@ -224,6 +218,17 @@ def _refuse_too_far(cal, frames_by_depth: dict, device) -> None:
         "infinity (lfring inspect refuses such a --plane alike), yet the frames show its views moving as a near "
         "plane's do: --depths are in metres, not mm"
     )
+
+
+def _warn_far(frames_by_depth: dict, ref) -> None:
+    """Warn of a farthest plane that the camera model ``ref`` (:func:`_camera_model`) puts beyond its
+    range and, read as millimetres, within it (:meth:`RingCalibration.millimetres_hint`). Two
+    planes fit exactly whatever their depths, and a distant scene is a valid plane at infinity,
+    so it is not refused."""
+    far = max(frames_by_depth)
+    if ref is not None and far / 1000.0 > min(frames_by_depth) and ref.millimetres_hint(far):
+        log.warning("the farthest plane is given as %g m (%s): fine for a target that far; if %g was millimetres, "
+                    "give %g", far, frames_by_depth[far], far, far / 1000.0)
 
 
 def _echo_distortion(cal) -> None:

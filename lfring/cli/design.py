@@ -9,7 +9,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from lfring.cli._options import check_figure_output, device_option, get_device, parse_range
+from lfring.cli._options import SWEEP_METAVAR, check_figure_output, device_option, get_device, parse_range
 from lfring.optics.positions import METHODS, design, design_working_range, sweep
 
 log = logging.getLogger("lfring.cli.design")
@@ -30,8 +30,10 @@ _ROWS = (
 )
 
 
-_SWEEP_METAVAR, _RANGE_METAVAR = "START:STOP:N", "NEAR:FAR"
-"""The parts of --sweep and --range as the help names them, and so the messages."""
+_RANGE_METAVAR = "NEAR:FAR"
+"""The parts of --range as the help names them, and so the messages."""
+
+
 def _plot_outputs(plot: str | None, overwrite: bool):
     """The --plot file as an output set checked before any work (its suffix, and a file there
     that may not be replaced), so that a refusal does not follow the printed numbers; None
@@ -57,7 +59,7 @@ def _save_figure(fig, path: str, outputs) -> None:
 @click.command("design")
 @click.option("--object-size", type=float, required=True, metavar="M", help="Object size 2*h0 [m].")
 @click.option("--distance", type=float, default=None, metavar="M", help="Object distance Z from the main lens [m].")
-@click.option("--sweep", "sweep_spec", default=None, metavar=_SWEEP_METAVAR,
+@click.option("--sweep", "sweep_spec", default=None, metavar=SWEEP_METAVAR,
               help="Redesign at N distances from START to STOP [m] (paper Figs. 7-9).")
 @click.option("--range", "range_spec", default=None, metavar=_RANGE_METAVAR,
               help="Working-range design for objects from NEAR to FAR [m].")
@@ -76,9 +78,9 @@ def command(object_size, distance, sweep_spec, range_spec, device_name, method, 
     """
     chosen = [x is not None for x in (distance, sweep_spec, range_spec)]
     if sum(chosen) != 1:
-        raise click.UsageError(f"give exactly one of --distance, --sweep {_SWEEP_METAVAR} or --range {_RANGE_METAVAR}")
+        raise click.UsageError(f"give exactly one of --distance, --sweep {SWEEP_METAVAR} or --range {_RANGE_METAVAR}")
     if sweep_spec is not None:
-        start, stop, count = parse_range(sweep_spec, with_count=True, param_hint="--sweep", metavar=_SWEEP_METAVAR)
+        start, stop, count = parse_range(sweep_spec, with_count=True, param_hint="--sweep", metavar=SWEEP_METAVAR)
     elif range_spec is not None:
         near, far = parse_range(range_spec, with_count=False, param_hint="--range", metavar=_RANGE_METAVAR)
     outputs = _plot_outputs(plot, overwrite)

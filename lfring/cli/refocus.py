@@ -11,6 +11,7 @@ import numpy as np
 
 from lfring.cli._options import (
     REFOCUS_KERNELS,
+    SWEEP_METAVAR,
     aperture_options,
     check_option,
     depth_range_words,
@@ -26,8 +27,6 @@ from lfring.cli.outputs import OutputSet
 from lfring.core.warping import DEFAULT_INTERPOLATION
 
 log = logging.getLogger("lfring.cli.refocus")
-SWEEP_METAVAR = "START:STOP:N"
-"""--sweep as its help names it, and so its messages."""
 
 
 def encode(image: np.ndarray, bit_depth: int, encoding: str) -> np.ndarray:
