@@ -5,10 +5,13 @@ occlusion; the exact depth map is given."""
 import math
 
 import cv2
+import numba
 import numpy as np
 import pytest
 
 from lfring.calibration import RingCalibration
+from lfring.core.threads import numba_threads
+from lfring.focus import depth_aware
 from lfring.focus.depth_aware import aperture_from_f_number, aperture_radius_px, coc_radius_px
 from lfring.errors import InvalidInputError
 from lfring.focus import all_in_focus, depth_of_field, focal_stack, refocus, resolve_aperture
@@ -338,6 +341,33 @@ def test_a_slanted_plane_blurs_without_seams(x_focus):
     # A seam runs along an iso-depth line, here a column: the error averaged down each column.
     column_error = (out - truth)[inner].mean(axis=(0, 2))
     assert np.abs(column_error).max() < 0.006, np.abs(column_error).max()
+
+
+@pytest.mark.skipif(numba.config.NUMBA_NUM_THREADS < 2, reason="one thread: no layer is cut into bands")
+def test_layers_blurred_in_bands_on_threads_are_the_whole_layers_blurs(monkeypatch):
+    """A layer with more than a thread's share of the blurs is blurred in bands of rows on
+    several threads, each band reading the disc's reach of rows around it: the image is the same
+    to the bit as with each layer blurred whole on one thread, far and near rungs, full and
+    reduced grids."""
+    monkeypatch.setattr(depth_aware, "BLUR_BAND_ROWS", 8)
+    tasks = []
+    run_threads = depth_aware.run_threads
+    monkeypatch.setattr(depth_aware, "run_threads", lambda todo, n: tasks.append(len(todo)) or run_threads(todo, n))
+    cal = _calibration()
+    views, depth, _ = _slanted_plane(samples=8)
+    depth[:, 30:] = FAR_M  # most of the frame on one pair of rungs
+    depth[20:50, 50:70] = NEAR_M  # and rungs on the focus's other side
+    dof = depth_of_field(views, cal, depth=depth)
+    for focus_m, aperture in ((1.0, 1.0), (1.0, 2.5), (0.7, 1.0)):
+        with numba_threads(1):
+            one = dof.render(focus_m, aperture)
+        whole, tasks[:] = sum(tasks), []
+        with numba_threads(2):
+            two = dof.render(focus_m, aperture)
+        banded, tasks[:] = sum(tasks), []
+        assert banded > whole, (focus_m, aperture, whole, banded)
+        assert np.array_equal(one, two)
+        assert np.isfinite(one).all() and one.std() > 0.01
 
 
 def test_the_blur_changes_continuously_with_the_focus_and_the_depth():
