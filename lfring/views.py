@@ -26,6 +26,7 @@ from lfring.core.protocols import Calibration
 from lfring.core.validate import check_choice, check_int, is_integer
 from lfring.core.viewstack import calibration_cache
 from lfring.errors import EstimationError, FileFormatError, InvalidInputError
+from lfring.io.readers import LAYOUT_KEY
 
 __all__ = ["Layout", "split_views", "correct_views", "flat_field_from_frame", "read_views", "layout_from_circles",
            "grid_layout", "detect_layout", "DETECT_KINDS", "MIN_VIEWS", "MAX_VIEWS"]
@@ -123,7 +124,7 @@ class Layout:
         dict
         """
         return {
-            "lfring_layout_version": LAYOUT_VERSION,
+            LAYOUT_KEY: LAYOUT_VERSION,
             "raw_width_px": int(self.raw_width_px),
             "raw_height_px": int(self.raw_height_px),
             "rotate180": self.rotate180,
@@ -152,7 +153,7 @@ class Layout:
             A key is missing or malformed, or the version is not supported.
         """
         try:
-            version = data["lfring_layout_version"]
+            version = data[LAYOUT_KEY]
             if version != LAYOUT_VERSION:
                 raise InvalidInputError(f"{source}: layout version {version!r} is not supported (expected {LAYOUT_VERSION})")
             return cls(

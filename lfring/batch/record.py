@@ -22,6 +22,7 @@ from pathlib import Path
 
 from lfring.errors import InvalidInputError
 from lfring.io.atomic import atomic_write_bytes
+from lfring.io.readers import RECORD_KEY
 from lfring.io.writers import json_default
 
 __all__ = [
@@ -65,7 +66,7 @@ def read_record(path: Path) -> dict | None:
         data = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return None
-    return data if isinstance(data, dict) and data.get("lfring_batch_record") == RECORD_VERSION else None
+    return data if isinstance(data, dict) and data.get(RECORD_KEY) == RECORD_VERSION else None
 
 
 class OutputWriter:

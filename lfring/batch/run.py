@@ -41,6 +41,7 @@ from lfring.batch.settings import BatchSettings
 from lfring.core.signals import held_signals
 from lfring.core.validate import check_choice, check_int
 from lfring.errors import InvalidInputError, LfringError
+from lfring.io.readers import RECORD_KEY
 
 __all__ = ["BatchReport", "run_batch"]
 
@@ -155,7 +156,7 @@ class _Run:
         new = {k: planned_keys[k] for k in planned}
         done = status == "done"
         self.writer.write_json(job.stem + RECORD_SUFFIX, {
-            "lfring_batch_record": RECORD_VERSION, "status": status, "run": self.run_id, "input": job.input,
+            RECORD_KEY: RECORD_VERSION, "status": status, "run": self.run_id, "input": job.input,
             "input_identity": self.identity[job.input], "settings_key": self.settings.key(),
             "settings": self.settings.describe(), "outputs": {**outputs, **planned} if done else dict(outputs),
             "planned_outputs": {} if done else planned,

@@ -22,7 +22,7 @@ from lfring.core.validate import is_integer, is_number
 from lfring.errors import FileFormatError, InvalidInputError, LfringFileNotFoundError
 from lfring.io.atomic import atomic_write_text
 from lfring.io.bayer import PATTERNS
-from lfring.io.readers import parse_json
+from lfring.io.readers import LAYOUT_KEY, RECORD_KEY, parse_json
 from lfring.optics.device import RingDevice
 from lfring.views import Layout
 
@@ -378,9 +378,9 @@ def _what_it_holds(data, source: str) -> str:
     its keys or, for a sidecar, by its name beside the image), else the kind of JSON value."""
     if not isinstance(data, dict):
         return f"it holds {_JSON_VALUES.get(type(data), 'no JSON object')}"
-    if "lfring_layout_version" in data:
+    if LAYOUT_KEY in data:
         return "it looks like a layout file (lfring split writes one; --layout reads it)"
-    if "lfring_batch_record" in data:
+    if RECORD_KEY in data:
         return "it looks like the record lfring keeps of a command's or a batch's outputs"
     device = data["device"] if set(data) == {"device"} else data  # a device file may hold one [device] table
     if isinstance(device, dict) and _DEVICE_KEYS <= set(device):

@@ -28,6 +28,7 @@ from lfring.batch.record import RECORD_SUFFIX, RECORD_VERSION, decide_resume, fi
 from lfring.core.signals import held_signals
 from lfring.errors import InvalidInputError
 from lfring.io.atomic import atomic_write_text
+from lfring.io.readers import RECORD_KEY
 from lfring.io.writers import check_writable, json_default
 
 __all__ = ["OUTPUT_OPTIONS", "STAGING_PREFIX", "OutputSet", "record_path"]
@@ -238,7 +239,7 @@ class OutputSet:
         rels = [self._rel(p) for p in self.paths]
         keys = dict.fromkeys(rels, self.key)
         atomic_write_text(self.record, json.dumps({
-            "lfring_batch_record": RECORD_VERSION, "command": self.command, "status": status, "input": self.inputs,
+            RECORD_KEY: RECORD_VERSION, "command": self.command, "status": status, "input": self.inputs,
             "input_identity": {p: file_identity(p) for p in self.inputs}, "settings_key": self.key,
             "settings": self.settings, "outputs": dict(zip(rels, rels)),
             "output_keys": keys if status == "done" else {}, "pending_keys": {} if status == "done" else keys,

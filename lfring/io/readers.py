@@ -8,7 +8,7 @@ from pathlib import Path
 
 from lfring.errors import FileFormatError, LfringFileNotFoundError
 
-__all__ = ["IMAGE_SIGNATURES", "PNG_SIGNATURE", "image_format", "parse_json", "read_json", "read_json_object"]
+__all__ = ["IMAGE_SIGNATURES", "LAYOUT_KEY", "PNG_SIGNATURE", "RECORD_KEY", "image_format", "parse_json", "read_json", "read_json_object"]
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 """The first eight bytes of every PNG file."""
@@ -17,6 +17,13 @@ IMAGE_SIGNATURES = (
     (PNG_SIGNATURE, "PNG"), (b"II*\x00", "TIFF"), (b"MM\x00*", "TIFF"), (b"\xff\xd8\xff", "JPEG"), (b"GIF8", "GIF"),
 )
 """(first bytes, format) of the image files a user may give where a JSON document belongs."""
+
+LAYOUT_KEY = "lfring_layout_version"
+"""The key that marks a layout file (:meth:`lfring.views.Layout.to_dict`); its value is the format's version."""
+
+RECORD_KEY = "lfring_batch_record"
+"""The key that marks the record of a command's or a batch's outputs
+(:mod:`lfring.batch.record`); its value is the format's version."""
 
 
 def image_format(head: bytes) -> str | None:
