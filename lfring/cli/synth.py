@@ -191,14 +191,17 @@ def command(preset, outdir, depth, scene_file, defects, defect_size, part_depth,
     name = name or default_name
     out = Path(outdir)
     raw_path = out / f"{name}.{'png' if fmt == 'png' else 'tiff'}"
-    result = render(device, scene, settings)
     conv_paths = [conventional_paths(raw_path, z, f_number=f_number, aperture_scale=aperture_scale)
                   for z in conventional_focus]
     from lfring.cli.outputs import OutputSet
+    from lfring.optics.views import optical_layout
 
-    outputs = OutputSet([*render_paths(result, raw_path), *(p for paths in conv_paths for p in paths)], name=name,
+    # The outputs are checked before the rendering (which takes a while): a refusal comes first.
+    views = optical_layout(device.binned(binning)).num_views
+    outputs = OutputSet([*render_paths(raw_path, views), *(p for paths in conv_paths for p in paths)], name=name,
                         overwrite=overwrite)
     outputs.check()
+    result = render(device, scene, settings)
     with outputs.writing() as stage:
         write_render(result, stage(raw_path), preset=preset, overwrite=True)
         for z, paths in zip(conventional_focus, conv_paths):
@@ -209,14 +212,15 @@ def command(preset, outdir, depth, scene_file, defects, defect_size, part_depth,
     click.echo(str(raw_path))
 
 
-def render_paths(result, raw_path: Path) -> list[Path]:
-    """The files :func:`write_render` writes for ``result`` at ``raw_path``: the raw frame, its
-    sidecar, and the ground-truth folder's depth maps, truth.json and layout.json."""
+def render_paths(raw_path: Path, num_views: int) -> list[Path]:
+    """The files :func:`write_render` writes for a render of ``num_views`` views at
+    ``raw_path``: the raw frame, its sidecar, and the ground-truth folder's depth maps,
+    truth.json and layout.json."""
     from lfring.io.raw import sidecar_path
 
     raw_path = Path(raw_path)
     truth = raw_path.with_name(raw_path.stem + "_truth")
-    return [raw_path, sidecar_path(raw_path), *(truth / f"depth_view{k}.tiff" for k in range(result.layout.num_views)),
+    return [raw_path, sidecar_path(raw_path), *(truth / f"depth_view{k}.tiff" for k in range(num_views)),
             truth / "truth.json", truth / "layout.json"]
 
 

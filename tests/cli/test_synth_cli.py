@@ -11,7 +11,7 @@ from lfring.optics.views import optical_homographies
 from lfring.views import Layout
 
 
-def test_synth_target_writes_raw_sidecar_and_truth(tmp_path, capsys):
+def test_synth_target_writes_raw_sidecar_and_truth(tmp_path, capsys, monkeypatch):
     args = ["synth", "target", "--depth", "0.5", "--binning", "8", "-o", str(tmp_path), "--seed", "3"]
     assert main(args) == 0
     raw = tmp_path / "target_0.5m.png"
@@ -36,10 +36,17 @@ def test_synth_target_writes_raw_sidecar_and_truth(tmp_path, capsys):
     assert main(args) == 0 and raw.read_bytes() == before
     capsys.readouterr()
     other = [*args[:-1], "4"]  # another --seed
+    import lfring.synth
+
+    rendered = []
+    render = lfring.synth.render
+    monkeypatch.setattr(lfring.synth, "render", lambda *a, **k: rendered.append(1) or render(*a, **k))
     assert main(other) == 2
     assert "exists" in capsys.readouterr().err
     assert raw.read_bytes() == before
+    assert rendered == []  # refused before any rendering
     assert main([*other, "--overwrite"]) == 0
+    assert rendered == [1]
     assert raw.read_bytes() != before
 
 
