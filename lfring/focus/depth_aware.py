@@ -49,6 +49,7 @@ per-pixel passes are compiled (:mod:`lfring.focus.depth_aware_kernels`).
 from __future__ import annotations
 
 import math
+import mmap
 
 import cv2
 import numpy as np
@@ -596,13 +597,20 @@ class _Grid:
     def buffer(self, name: str, shape, fill=None) -> np.ndarray:
         """A float32 array of ``shape`` from the renderer's scratch memory (kept between renders:
         fresh memory costs a page fault per page on first write), filled with ``fill`` unless
-        None."""
+        None.
+
+        Fresh scratch is an anonymous memory map, which the system hands out zeroed, page by
+        page as it is first written: a fill with 0 is then left out. NumPy asks for huge pages
+        for large arrays, and where the system compacts memory to find them on the first write
+        (a common setting), a one-shot render's tens of MB of layers can wait on that for far
+        longer than the render itself takes."""
         size = int(np.prod(shape))
         mem = self.scratch.get(name)
-        if mem is None or mem.size < size:
-            mem = self.scratch[name] = np.empty(max(size, 1), np.float32)
+        fresh = mem is None or mem.size < size
+        if fresh:
+            mem = self.scratch[name] = np.frombuffer(mmap.mmap(-1, 4 * max(size, 1)), np.float32)
         out = mem[:size].reshape(shape)
-        if fill is not None:
+        if fill is not None and not (fresh and fill == 0.0):
             out.fill(fill)
         return out
 
@@ -651,65 +659,63 @@ class _Grid:
             used.append(k)
         buf = self.buffer(name + " layers", (total,), 0.0)
         kern.scatter(colour, sharp, s, cover, q, window, n, shift, y0, x0, rows, cols, offset, self.stripe, buf)
+        blurred = self.buffer(name + " blurred", (total,))
         out = []
         blurs = []
         for k in used:
-            cells = buf[offset[k]:offset[k] + c1 * rows[k] * cols[k]].reshape(rows[k], cols[k], c1)
+            cut = slice(offset[k], offset[k] + c1 * rows[k] * cols[k])
+            cells = buf[cut].reshape(rows[k], cols[k], c1)
             radius = float(self.radii[abs(k - n)])
             f = 1 << int(shift[k])
             disc = radius if f == 1 else math.sqrt(max(radius * radius - f * f / 3.0, 0.0)) / f
             out.append(_Layer(k, f, int(y0[k]), int(x0[k]), cells))
             if disc >= 0.5:
-                blurs.append((out[-1], disc_kernel(disc)))
+                blurs.append((out[-1], disc_kernel(disc), blurred[cut].reshape(cells.shape)))
         _blur_layers(blurs)
         return out
 
 
 def _blur_layers(blurs: list) -> None:
-    """Each (layer, kernel) of ``blurs``: the layer's cells convolved with the kernel, in place
-    of its cells. One ``cv2.filter2D`` runs on one thread, so the layers are shared among numba's
-    threads, the largest first; a layer with more than a thread's share of the work is cut into
-    bands of rows (each read with the kernel's reach of rows around it: the same sums), of at
-    least :data:`BLUR_BAND_ROWS` rows."""
+    """Each (layer, kernel, out) of ``blurs``: the layer's cells convolved with the kernel into
+    ``out``, which becomes its cells. One ``cv2.filter2D`` runs on one thread, so the layers are
+    shared among numba's threads, the largest first; a layer with more than a thread's share of
+    the work is cut into bands of rows (each read with the kernel's reach of rows around it: the
+    same sums), of at least :data:`BLUR_BAND_ROWS` rows."""
     import numba
 
-    def whole(lay, kernel):
+    def band(src, dst, kernel, r0, r1):
         def run():
-            lay.cells = _filter(lay.cells, kernel)
-        return run
-
-    def band(src, out, kernel, r0, r1):
-        def run():
+            if (r0, r1) == (0, src.shape[0]):
+                _filter(src, kernel, dst)
+                return
             reach = kernel.shape[0] // 2
             s0, s1 = max(0, r0 - reach), min(src.shape[0], r1 + reach)
-            out[r0:r1] = _filter(src[s0:s1], kernel)[r0 - s0:r1 - s0]
+            dst[r0:r1] = _filter(src[s0:s1], kernel, np.empty_like(src[s0:s1]))[r0 - s0:r1 - s0]
         return run
 
     threads = numba.get_num_threads()
-    share = sum(lay.cells.size * kernel.size for lay, kernel in blurs) / threads
+    share = sum(lay.cells.size * kernel.size for lay, kernel, _ in blurs) / threads
     tasks = []
-    for lay, kernel in blurs:
-        src = lay.cells
+    for lay, kernel, dst in blurs:
+        src, lay.cells = lay.cells, dst
         work = src.size * kernel.size
-        bands = min(math.ceil(work / max(share, 1.0)), src.shape[0] // BLUR_BAND_ROWS)
-        if bands <= 1:
-            tasks.append((work, whole(lay, kernel)))
-            continue
-        lay.cells = np.empty_like(src)
+        bands = max(1, min(math.ceil(work / max(share, 1.0)), src.shape[0] // BLUR_BAND_ROWS))
         edges = np.linspace(0, src.shape[0], bands + 1).round().astype(int)
         for r0, r1 in zip(edges[:-1], edges[1:]):
-            tasks.append((work * (r1 - r0) / src.shape[0], band(src, lay.cells, kernel, r0, r1)))
+            tasks.append((work * (r1 - r0) / src.shape[0], band(src, dst, kernel, int(r0), int(r1))))
     tasks.sort(key=lambda t: -t[0])
     run_threads([run for _, run in tasks], threads)
 
 
-def _filter(cells: np.ndarray, kernel: np.ndarray) -> np.ndarray:
-    """``cells`` (rows, cols, n) convolved with ``kernel``, zero outside."""
+def _filter(cells: np.ndarray, kernel: np.ndarray, out: np.ndarray) -> np.ndarray:
+    """``out`` (the shape of ``cells``, (rows, cols, n)) = ``cells`` convolved with ``kernel``,
+    zero outside."""
     if cells.shape[2] <= 4:
-        out = cv2.filter2D(cells, -1, kernel, borderType=cv2.BORDER_CONSTANT)
-        return out if out.ndim == 3 else out[..., None]
-    return np.stack([cv2.filter2D(np.ascontiguousarray(cells[..., i]), -1, kernel, borderType=cv2.BORDER_CONSTANT)
-                     for i in range(cells.shape[2])], axis=2)
+        cv2.filter2D(cells, -1, kernel, dst=out, borderType=cv2.BORDER_CONSTANT)
+        return out
+    for i in range(cells.shape[2]):
+        out[..., i] = cv2.filter2D(np.ascontiguousarray(cells[..., i]), -1, kernel, borderType=cv2.BORDER_CONSTANT)
+    return out
 
 
 def _composite(layers: list, grid: _Grid, kern) -> np.ndarray:

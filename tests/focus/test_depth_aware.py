@@ -370,6 +370,19 @@ def test_layers_blurred_in_bands_on_threads_are_the_whole_layers_blurs(monkeypat
         assert np.isfinite(one).all() and one.std() > 0.01
 
 
+def test_a_renderer_reused_renders_what_a_fresh_one_does():
+    """The renderer keeps its layers' memory between renders (fresh memory comes zeroed, reused
+    memory is cleared): foci whose layers need more memory, then less, then more again, give
+    the same images to the bit as a renderer made for each."""
+    cal = _calibration()
+    views, depth, _ = _slanted_plane(samples=8)
+    depth[20:50, 50:70] = NEAR_M
+    reused = depth_of_field(views, cal, depth=depth)
+    for focus_m, aperture in ((1.0 / 1.5, 0.5), (1.0, 2.5), (1.0 / 1.5, 0.3), (FAR_M, 3.0), (NEAR_M, 1.0)):
+        fresh = depth_of_field(views, cal, depth=depth)
+        assert np.array_equal(reused.render(focus_m, aperture), fresh.render(focus_m, aperture)), (focus_m, aperture)
+
+
 def test_the_blur_changes_continuously_with_the_focus_and_the_depth():
     """A small change of the focus depth, or of the depth map, changes the image a little: no
     pixel jumps from one layer to another."""
