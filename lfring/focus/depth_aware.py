@@ -49,12 +49,12 @@ per-pixel passes are compiled (:mod:`lfring.focus.depth_aware_kernels`).
 from __future__ import annotations
 
 import math
-import mmap
 
 import cv2
 import numpy as np
 
 from lfring.errors import InvalidInputError
+from lfring.core.memory import fresh_zeros
 from lfring.core.threads import run_threads
 from lfring.core.geometry import apply_homography, check_reference, to_reference
 from lfring.core.viewstack import WEIGHT_FLOOR, cached_view_masks, check_views
@@ -597,18 +597,13 @@ class _Grid:
     def buffer(self, name: str, shape, fill=None) -> np.ndarray:
         """A float32 array of ``shape`` from the renderer's scratch memory (kept between renders:
         fresh memory costs a page fault per page on first write), filled with ``fill`` unless
-        None.
-
-        Fresh scratch is an anonymous memory map, which the system hands out zeroed, page by
-        page as it is first written: a fill with 0 is then left out. NumPy asks for huge pages
-        for large arrays, and where the system compacts memory to find them on the first write
-        (a common setting), a one-shot render's tens of MB of layers can wait on that for far
-        longer than the render itself takes."""
+        None. Fresh scratch is :func:`lfring.core.memory.fresh_zeros` (fast to touch, and
+        zeros already: a fill with 0 is then left out)."""
         size = int(np.prod(shape))
         mem = self.scratch.get(name)
         fresh = mem is None or mem.size < size
         if fresh:
-            mem = self.scratch[name] = np.frombuffer(mmap.mmap(-1, 4 * max(size, 1)), np.float32)
+            mem = self.scratch[name] = fresh_zeros(max(size, 1))
         out = mem[:size].reshape(shape)
         if fill is not None and not (fresh and fill == 0.0):
             out.fill(fill)

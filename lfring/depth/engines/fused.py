@@ -25,6 +25,7 @@ import math
 import cv2
 import numpy as np
 
+from lfring.core.memory import fresh_zeros
 from lfring.core.threads import run_threads
 from lfring.core.viewstack import WEIGHT_FLOOR, cached_view_masks, calibration_cache
 from lfring.core.warping import TRANSLATION_TOL_PX
@@ -278,7 +279,7 @@ def _volumes(calibration, shape, eroded: bool) -> tuple:
     count = 3 if eroded else 2
     if vols is not None and vols[0].shape == tuple(shape) and len(vols) == count:
         return vols
-    return tuple(np.empty(shape, np.uint16) for _ in range(count))
+    return tuple(fresh_zeros(shape, np.uint16) for _ in range(count))  # written before they are read
 
 
 def _keep_volumes(calibration, vols) -> None:

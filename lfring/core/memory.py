@@ -1,0 +1,46 @@
+"""Large working arrays that a call writes before it reads, in memory that is fast to touch.
+
+NumPy asks the system for huge pages for every large array. Where the system is set to compact
+its memory to find them on the first write (transparent huge pages with ``defrag`` set to
+``madvise``, a common default), the first write to a fresh array of tens of MB can wait on that
+compaction for longer than the work on the array takes, most of all in a process that has just
+freed other large arrays. A one-shot refocus (the command line's main job) made its depth
+volumes and render layers fresh each time and paid it. Memory mapped anonymously is not given
+huge pages unless asked for, and comes zeroed, page by page as it is first written.
+"""
+
+from __future__ import annotations
+
+import mmap
+
+import numpy as np
+
+__all__ = ["fresh_zeros"]
+
+
+def fresh_zeros(shape, dtype=np.float32) -> np.ndarray:
+    """A new C-ordered array of zeros, in its own anonymous memory map.
+
+    The zeros cost nothing until written (each page is zeroed by the system on its first
+    write), so a caller that fills the array itself pays only that write.
+
+    Parameters
+    ----------
+    shape : int or tuple of int
+    dtype : numpy dtype, optional
+
+    Returns
+    -------
+    numpy.ndarray
+        Writable, owning its memory (freed with the array).
+
+    Examples
+    --------
+    >>> a = fresh_zeros((2, 3), np.uint16)
+    >>> a.shape, a.dtype, int(a.sum())
+    ((2, 3), dtype('uint16'), 0)
+    """
+    shape = (int(shape),) if np.ndim(shape) == 0 else tuple(int(s) for s in shape)
+    dtype = np.dtype(dtype)
+    size = int(np.prod(shape, dtype=np.int64))
+    return np.frombuffer(mmap.mmap(-1, max(size * dtype.itemsize, 1)), dtype, count=size).reshape(shape)
