@@ -188,6 +188,34 @@ def check_option(fn):
                         help="Process frames that do not look like ring frames for the calibration (see lfring check).")(fn)
 
 
+# The commands whose work lfring batch does over many frames, and the batch option that does it:
+# a folder or a pattern given to one of them is pointed there.
+BATCH_COMMANDS = {"refocus": "--refocus Z", "depth": "--depth", "view": "--viewer"}
+
+
+class FramePath(click.Path):
+    """A frame (or view image) given on the command line: a file. A folder, or a quoted pattern
+    that matched nothing because no shell expanded it, is refused saying so, and for the
+    commands that ``lfring batch`` runs over many frames, pointing there."""
+
+    def __init__(self):
+        super().__init__(dir_okay=True)
+
+    def convert(self, value, param, ctx):
+        path = Path(value)
+        command = ctx.info_name if ctx is not None else None
+        many = (f"; lfring batch takes folders and patterns (lfring batch {value!r} -o OUTDIR "
+                f"{BATCH_COMMANDS[command]})" if command in BATCH_COMMANDS else "")
+        if path.is_dir():
+            self.fail(f"{value} is a folder: give one frame{many}", param, ctx)
+        if not path.exists() and any(ch in value for ch in "*?["):
+            self.fail(f"{value}: no such file (a quoted pattern is not expanded here){many}", param, ctx)
+        return super().convert(value, param, ctx)
+
+
+FRAME = FramePath()
+
+
 def read_frame(raw: str, levels: RawLevels | None = None, calibration=None):
     """Load a raw frame: options first, then its sidecar or metadata, then the calibration's
     pattern and levels (said at info level), then defaults (said at warning level); see

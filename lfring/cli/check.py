@@ -10,7 +10,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from lfring.cli._options import raw_options, read_frame
+from lfring.cli._options import FRAME, raw_options, read_frame
 from lfring.cli.outputs import OutputSet
 
 log = logging.getLogger("lfring.cli.check")
@@ -20,7 +20,7 @@ _VERDICTS = {"": "ring frame", "flat_field": "a flat field of this camera, not a
 
 
 @click.command("check")
-@click.argument("frame", type=click.Path(dir_okay=False))
+@click.argument("frame", type=FRAME)
 @click.option("--calib", type=click.Path(dir_okay=False), default=None, metavar="FILE",
               help="Calibration JSON (default: the built-in one for the frame's size).")
 @click.option("-o", "--output", type=click.Path(dir_okay=False), default=None, metavar="FILE",

@@ -10,7 +10,7 @@ import numpy as np
 
 from lfring.depth.costs import COSTS
 from lfring.depth.plan import DEPTH_TAPER
-from lfring.cli._options import check_option, flat_option, load_views, note_first_compile, progress_bar, raw_options
+from lfring.cli._options import FRAME, check_option, flat_option, load_views, note_first_compile, progress_bar, raw_options
 from lfring.cli.outputs import OutputSet
 
 log = logging.getLogger("lfring.cli.depth")
@@ -24,7 +24,7 @@ MAX_PLANES = 1000
 
 
 @click.command("depth")
-@click.argument("raw", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.argument("raw", nargs=-1, required=True, type=FRAME)
 @click.option("--zmin", type=float, default=None, metavar="M",
               help="Nearest depth searched [m from the main lens] (default: the calibration's valid range).")
 @click.option("--zmax", type=float, default=None, metavar="M", help="Farthest depth searched [m] (default: the calibration's "

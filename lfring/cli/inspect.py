@@ -9,7 +9,7 @@ from pathlib import Path
 
 import click
 
-from lfring.cli._options import check_option, flat_option, load_views, raw_options
+from lfring.cli._options import FRAME, check_option, flat_option, load_views, raw_options
 from lfring.cli.outputs import OutputSet
 from lfring.cli.words import cli_words
 from lfring.inspect import MIN_COVERAGE
@@ -60,7 +60,7 @@ def _read_depth(path: str):
 
 
 @click.command("inspect")
-@click.argument("raw", type=click.Path(dir_okay=False))
+@click.argument("raw", type=FRAME)
 @click.option("--plane", type=float, required=True, metavar="M", help="Working plane [m from the main lens].")
 @click.option("--tolerance", type=float, required=True, metavar="M", help="Largest accepted deviation [m], e.g. 0.01.")
 @click.option("-o", "--output", "outdir", type=click.Path(file_okay=False), required=True, metavar="DIR", help="Output folder.")

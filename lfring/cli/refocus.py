@@ -10,6 +10,7 @@ import click
 import numpy as np
 
 from lfring.cli._options import (
+    FRAME,
     REFOCUS_KERNELS,
     SWEEP_METAVAR,
     aperture_options,
@@ -73,7 +74,7 @@ def _depths(depth, depths, sweep) -> list[float]:
 
 
 @click.command("refocus")
-@click.argument("raw", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.argument("raw", nargs=-1, required=True, type=FRAME)
 @click.option("--depth", type=float, default=None, metavar="M", help="Refocus distance from the main lens [m]; inf for infinity.")
 @click.option("--depths", default=None, metavar="Z1,Z2,...", help="Several depths [m]: a focal stack.")
 @click.option("--sweep", default=None, metavar=SWEEP_METAVAR, help="N depths from START to STOP [m]: a focal stack.")

@@ -10,7 +10,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from lfring.cli._options import raw_options, read_frame
+from lfring.cli._options import FRAME, raw_options, read_frame
 from lfring.cli.outputs import OutputSet
 
 log = logging.getLogger("lfring.cli.split")
@@ -19,7 +19,7 @@ _METHODS = ("bilinear", "edge-aware", "vng", "rawpy", "kornia")
 
 
 @click.command("split")
-@click.argument("raw", type=click.Path(dir_okay=False))
+@click.argument("raw", type=FRAME)
 @click.option("-o", "--output", "outdir", type=click.Path(file_okay=False), required=True, metavar="DIR",
               help="Output folder (created if missing).")
 @click.option("--layout", "layout_file", type=click.Path(dir_okay=False), default=None, metavar="FILE",

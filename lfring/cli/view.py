@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from lfring.cli._options import REFOCUS_KERNELS, check_option, depth_range_words, load_views, note_first_compile, raw_options
+from lfring.cli._options import FRAME, REFOCUS_KERNELS, check_option, depth_range_words, load_views, note_first_compile, raw_options
 from lfring.cli.outputs import OutputSet
 from lfring.errors import InvalidInputError
 
@@ -16,7 +16,7 @@ log = logging.getLogger("lfring.cli.view")
 
 
 @click.command("view")
-@click.argument("raw", type=click.Path(dir_okay=False))
+@click.argument("raw", type=FRAME)
 @click.option("--calib", type=click.Path(dir_okay=False), default=None, metavar="FILE",
               help="Calibration JSON (default: the built-in one for the frame's size).")
 @click.option("--zmin", type=float, default=None, metavar="M", help="Nearest depth [m] (default: the calibration's range).")

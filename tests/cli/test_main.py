@@ -97,3 +97,29 @@ def test_a_single_valued_option_given_twice_is_refused(tmp_path, capsys):
     assert f"-o is given twice ({tmp_path / 'r.png'} and {tmp_path / 's.png'})" in capsys.readouterr().err
     assert main(["batch", scene, "-o", str(out), "--refocus", "0.5", "--method", "shift-and-add", "--exclude", "x*",
                  "--exclude", "y*", "--no-progress", "--no-progress", "-q"]) == 0
+
+
+def test_a_folder_or_a_quoted_pattern_given_as_a_frame_is_named_as_such(tmp_path, capsys):
+    """Every command that reads one frame says that a folder is one, and that a quoted pattern
+    was not expanded; those whose work lfring batch does over many frames point there, with the
+    batch option that does it. A file whose name holds a pattern's characters is read."""
+    import shutil
+    from pathlib import Path
+
+    from lfring.cli.main import main
+
+    data = Path(__file__).resolve().parents[2] / "data" / "synthetic"
+    pattern = str(tmp_path / "*.png")
+    batch = {"refocus": "--refocus Z", "depth": "--depth", "view": "--viewer"}
+    for command in ("refocus", "depth", "view", "check", "split", "inspect"):
+        for given, words in ((str(tmp_path), "is a folder: give one frame"),
+                             (pattern, "no such file (a quoted pattern is not expanded here)")):
+            assert main([command, given]) == 2
+            err = capsys.readouterr().err
+            assert f"{given}: {words}" in err or f"{given} {words}" in err, err
+            hint = f"lfring batch {given!r} -o OUTDIR {batch[command]}" if command in batch else "lfring batch"
+            assert (hint in err) == (command in batch), err
+    odd = tmp_path / "scene[1].png"
+    shutil.copy(data / "scene.png", odd)
+    shutil.copy(data / "scene.png.json", tmp_path / "scene[1].png.json")
+    assert main(["check", str(odd), "-o", str(tmp_path / "check.png")]) == 0
