@@ -5,6 +5,8 @@ from __future__ import annotations
 import contextlib
 import functools
 import logging
+import os
+import shlex
 from pathlib import Path
 
 import click
@@ -202,14 +204,16 @@ class FramePath(click.Path):
         super().__init__(dir_okay=True)
 
     def convert(self, value, param, ctx):
-        path = Path(value)
-        command = ctx.info_name if ctx is not None else None
-        many = (f"; lfring batch takes folders and patterns (lfring batch {value!r} -o OUTDIR "
+        text = os.fspath(value)
+        path = Path(text)
+        command = ctx.command.name if ctx is not None else None
+        quoted = shlex.quote(text) if os.name == "posix" else f'"{text}"'
+        many = (f"; lfring batch takes folders and patterns (lfring batch {quoted} -o OUTDIR "
                 f"{BATCH_COMMANDS[command]})" if command in BATCH_COMMANDS else "")
         if path.is_dir():
-            self.fail(f"{value} is a folder: give one frame{many}", param, ctx)
-        if not path.exists() and any(ch in value for ch in "*?["):
-            self.fail(f"{value}: no such file (a quoted pattern is not expanded here){many}", param, ctx)
+            self.fail(f"{text} is a folder: give one frame{many}", param, ctx)
+        if not path.exists() and any(ch in text for ch in "*?["):
+            self.fail(f"{text}: no such file (a quoted pattern is not expanded here){many}", param, ctx)
         return super().convert(value, param, ctx)
 
 

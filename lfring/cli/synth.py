@@ -226,16 +226,13 @@ def render_paths(raw_path: Path, num_views: int) -> list[Path]:
 
 def write_render(result, raw_path: Path, *, preset: str = "", overwrite: bool = False) -> list[Path]:
     """Write a :class:`~lfring.synth.RenderResult`: raw frame, sidecar and ground-truth folder."""
-    from lfring.io.raw import sidecar_path
     from lfring.io.writers import check_writable, write_float_tiff, write_image, write_json
     from lfring.optics.views import optical_homography_model
 
     raw_path = Path(raw_path)
-    truth = raw_path.with_name(raw_path.stem + "_truth")
-    side = sidecar_path(raw_path)
-    depth_paths = [truth / f"depth_view{k}.tiff" for k in range(result.layout.num_views)]
-    layout_path = truth / "layout.json"
-    check_writable([raw_path, side, truth / "truth.json", layout_path, *depth_paths], overwrite=overwrite)
+    paths = render_paths(raw_path, result.layout.num_views)
+    _, side, *depth_paths, truth_path, layout_path = paths
+    check_writable(paths, overwrite=overwrite)
     meta = result.metadata()
     surfaces = []
     for s in result.scene.surfaces:
@@ -271,12 +268,12 @@ def write_render(result, raw_path: Path, *, preset: str = "", overwrite: bool = 
     raw_path.parent.mkdir(parents=True, exist_ok=True)
     write_image(raw_path, result.raw, png_compression=3)  # raw frames are kept: smaller files
     write_json(side, side_doc)
-    truth.mkdir(exist_ok=True)
+    truth_path.parent.mkdir(exist_ok=True)
     for k, p in enumerate(depth_paths):
         write_float_tiff(p, result.depth_m[k])
-    write_json(truth / "truth.json", truth_doc)
+    write_json(truth_path, truth_doc)
     result.layout.save(layout_path)
-    return [raw_path, side, *depth_paths, truth / "truth.json", layout_path]
+    return paths
 
 
 def conventional_paths(raw_path: Path, focus_m: float, *, f_number=None, aperture_scale=None) -> tuple[Path, Path, Path]:

@@ -17,9 +17,13 @@ import numpy as np
 
 __all__ = ["fresh_zeros"]
 
+# Private to the process: a forked child gets its own copy on write, as with any NumPy array
+# (a shared map would let a child's writes reach the parent's arrays). Windows has no flags.
+_MAP_FLAGS = {"flags": mmap.MAP_PRIVATE | mmap.MAP_ANONYMOUS} if hasattr(mmap, "MAP_PRIVATE") else {}
+
 
 def fresh_zeros(shape, dtype=np.float32) -> np.ndarray:
-    """A new C-ordered array of zeros, in its own anonymous memory map.
+    """A new C-ordered array of zeros, in an anonymous memory map of its own.
 
     The zeros cost nothing until written (each page is zeroed by the system on its first
     write), so a caller that fills the array itself pays only that write.
@@ -32,7 +36,12 @@ def fresh_zeros(shape, dtype=np.float32) -> np.ndarray:
     Returns
     -------
     numpy.ndarray
-        Writable, owning its memory (freed with the array).
+        Writable; it (and every view of it) keeps its map alive.
+
+    Raises
+    ------
+    MemoryError
+        The system has no room for the array (named with its shape, type and size).
 
     Examples
     --------
@@ -43,4 +52,10 @@ def fresh_zeros(shape, dtype=np.float32) -> np.ndarray:
     shape = (int(shape),) if np.ndim(shape) == 0 else tuple(int(s) for s in shape)
     dtype = np.dtype(dtype)
     size = int(np.prod(shape, dtype=np.int64))
-    return np.frombuffer(mmap.mmap(-1, max(size * dtype.itemsize, 1)), dtype, count=size).reshape(shape)
+    nbytes = size * dtype.itemsize
+    try:
+        mem = mmap.mmap(-1, max(nbytes, 1), **_MAP_FLAGS)
+    except (OSError, OverflowError) as exc:
+        raise MemoryError(f"Unable to allocate {nbytes / 2**20:.1f} MiB for an array with shape {shape} and data type "
+                          f"{dtype} ({exc})") from None
+    return np.frombuffer(mem, dtype, count=size).reshape(shape)

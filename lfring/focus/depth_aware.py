@@ -654,18 +654,16 @@ class _Grid:
             used.append(k)
         buf = self.buffer(name + " layers", (total,), 0.0)
         kern.scatter(colour, sharp, s, cover, q, window, n, shift, y0, x0, rows, cols, offset, self.stripe, buf)
-        blurred = self.buffer(name + " blurred", (total,))
         out = []
         blurs = []
         for k in used:
             cut = slice(offset[k], offset[k] + c1 * rows[k] * cols[k])
-            cells = buf[cut].reshape(rows[k], cols[k], c1)
             radius = float(self.radii[abs(k - n)])
             f = 1 << int(shift[k])
             disc = radius if f == 1 else math.sqrt(max(radius * radius - f * f / 3.0, 0.0)) / f
-            out.append(_Layer(k, f, int(y0[k]), int(x0[k]), cells))
+            out.append(_Layer(k, f, int(y0[k]), int(x0[k]), buf[cut].reshape(rows[k], cols[k], c1)))
             if disc >= 0.5:
-                blurs.append((out[-1], disc_kernel(disc), blurred[cut].reshape(cells.shape)))
+                blurs.append((out[-1], disc_kernel(disc), np.empty_like(out[-1].cells)))
         _blur_layers(blurs)
         return out
 

@@ -88,6 +88,7 @@ def viewer_data(views, calibration, *, zmin_m=None, zmax_m=None, num_planes=None
     from lfring import all_in_focus, estimate_depth, focal_stack
     from lfring.depth.io import colorize_depth
     from lfring.focus import METHODS, resolve_aperture
+    from lfring.calibration.overlap import check_renderable
     from lfring.focus.depth_aware import estimation_range
     from lfring.io.writers import encode_image
 
@@ -110,6 +111,7 @@ def viewer_data(views, calibration, *, zmin_m=None, zmax_m=None, num_planes=None
     # The page's depth map is what its depth-aware stack renders from: its range follows the
     # rule of depth-aware refocusing everywhere.
     lo, hi = estimation_range(calibration, zmin_m, zmax_m, reference=reference)
+    check_renderable(calibration, lo, reference=reference)  # the stack's nearest frame, before any work
     check_number(focus_m, "focus_m", minimum=lo, maximum=hi, allow_none=True, what="a depth in metres")
     if depth is None:
         depth = estimate_depth(views, calibration, zmin_m=lo, zmax_m=hi, num_planes=num_planes, reference=reference)

@@ -103,6 +103,7 @@ def test_a_folder_or_a_quoted_pattern_given_as_a_frame_is_named_as_such(tmp_path
     """Every command that reads one frame says that a folder is one, and that a quoted pattern
     was not expanded; those whose work lfring batch does over many frames point there, with the
     batch option that does it. A file whose name holds a pattern's characters is read."""
+    import shlex
     import shutil
     from pathlib import Path
 
@@ -117,8 +118,15 @@ def test_a_folder_or_a_quoted_pattern_given_as_a_frame_is_named_as_such(tmp_path
             assert main([command, given]) == 2
             err = capsys.readouterr().err
             assert f"{given}: {words}" in err or f"{given} {words}" in err, err
-            hint = f"lfring batch {given!r} -o OUTDIR {batch[command]}" if command in batch else "lfring batch"
+            hint = f"lfring batch {shlex.quote(given)} -o OUTDIR {batch[command]}" if command in batch else "lfring batch"
             assert (hint in err) == (command in batch), err
+    # The hints name batch's own options.
+    from lfring.cli._options import BATCH_COMMANDS
+
+    assert BATCH_COMMANDS == batch
+    assert main(["batch", "--help"]) == 0
+    batch_help = capsys.readouterr().out
+    assert all(f"{option.split()[0]} " in batch_help for option in batch.values())
     odd = tmp_path / "scene[1].png"
     shutil.copy(data / "scene.png", odd)
     shutil.copy(data / "scene.png.json", tmp_path / "scene[1].png.json")

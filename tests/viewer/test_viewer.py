@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import base64
 import json
+import math
 import os
 import re
 import shutil
@@ -140,6 +141,22 @@ def test_overlays_and_bad_options(scene):
     for kw in bad:
         with pytest.raises(InvalidInputError):
             viewer_html(views, cal, **kw)
+
+
+def test_a_stack_too_near_to_render_is_refused_before_any_depth_work(scene, monkeypatch):
+    """The stack starts at the range's near end: nearer than where the views overlap it would be
+    black or ghosted, as lfring refocus says, and the refusal comes before the depth estimate."""
+    import lfring
+    from lfring.calibration.overlap import nearest_renderable_depth_m
+    from lfring.viewer import viewer_html
+
+    views, cal, _ = scene
+    near = nearest_renderable_depth_m(cal)
+    monkeypatch.setattr(lfring, "estimate_depth", lambda *a, **k: pytest.fail("the depth was estimated"))
+    for zmin in (0.5 * near, 0.95 * near):
+        with pytest.raises(InvalidInputError, match=rf"depth {zmin:g} m cannot be rendered: .* the nearest depth that "
+                                                    rf"works with this calibration is {math.ceil(near * 1e4) / 1e4:g} m"):
+            viewer_html(views, cal, zmin_m=zmin, zmax_m=1.0)
 
 
 # -- the page in a browser ------------------------------------------------------------------------
