@@ -85,7 +85,10 @@ def test_interrupted_focal_sweep_leaves_nothing(tmp_path):
         files = _files(tmp_path / "stack")
         assert "Traceback" not in err
         if code != 0:
-            assert code == 128 + sig and files == [], files
+            # Nothing, or the whole set when the signal came as it was committed (held until
+            # then, it still ends the process): never a part of it, nor a staging folder.
+            assert code == 128 + sig, err
+            assert files == [] or (len(files) == 8 * 2 + 3 and "scene_stack.png.lfring.json" in files), files
         else:
             assert len(files) == 8 * 2 + 3
     done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300)
