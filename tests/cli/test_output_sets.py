@@ -54,9 +54,9 @@ def test_interrupted_depth_leaves_nothing_and_the_rerun_completes(tmp_path):
         files = _files(tmp_path / "d")
         if code == 0:  # done before the signal came: the whole set
             assert files == DEPTH_SET
-        else:
+        else:  # nothing partial, no staging folder either; the whole set if the signal came at its commit
             assert code == 128 + sig, err
-            assert files == [], f"{sig.name} left {files}"  # nothing partial, no staging folder either
+            assert files in ([], DEPTH_SET), f"{sig.name} left {files}"
     rerun = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300)
     assert rerun.returncode == 0, rerun.stderr
     assert _files(tmp_path / "d") == DEPTH_SET
