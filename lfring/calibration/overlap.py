@@ -141,13 +141,14 @@ def nearest_renderable_depth_m(calibration, *, reference="center") -> float:
                              lambda: nearest_overlap_depth_m(calibration, reference=reference))
 
 
-def check_renderable(calibration, depths_m, *, reference="center") -> None:
+def check_renderable(calibration, depths_m, *, reference="center", name: str = "depth") -> None:
     """Refuse depths nearer than where the views still overlap in the reference frame (a
-    refocused image there is black or ghosted), naming the nearest depth that works."""
+    refocused image there is black or ghosted), naming the nearest depth that works; ``name``
+    starts the refusal (the parameter that gave the depth, such as ``zmin_m``)."""
     nearest = nearest_renderable_depth_m(calibration, reference=reference)
     bad = [float(z) for z in np.atleast_1d(np.asarray(depths_m, dtype=np.float64)) if z < nearest]
     if bad:
         raise InvalidInputError(
-            f"depth {bad[0]:g} m cannot be rendered: the views no longer overlap in the reference frame there "
+            f"{name} {bad[0]:g} m cannot be rendered: the views no longer overlap in the reference frame there "
             f"(less than {MIN_OVERLAP_FRACTION:.0%} of it is seen by every view, so the image would be black or "
             f"ghosted); the nearest depth that works with this calibration is {np.ceil(nearest * 1e4) / 1e4:g} m")

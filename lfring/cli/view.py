@@ -3,14 +3,12 @@
 from __future__ import annotations
 
 import logging
-import math
 from pathlib import Path
 
 import click
 
 from lfring.cli._options import FRAME, REFOCUS_KERNELS, check_option, depth_range_words, load_views, note_first_compile, raw_options
 from lfring.cli.outputs import OutputSet
-from lfring.errors import InvalidInputError
 
 log = logging.getLogger("lfring.cli.view")
 
@@ -54,13 +52,6 @@ def command(raw, calib, zmin, zmax, planes, reference, min_confidence, image_for
     outputs.check()
     views, cal, cal_name = load_views(raw, calib, levels, check=not no_check)
     ref = check_reference(reference, cal.num_views)
-    if zmin is not None and math.isfinite(zmin) and zmin > 0:  # the stack's nearest frame, checked as refocus checks it
-        from lfring.calibration.overlap import check_renderable
-
-        try:
-            check_renderable(cal, zmin, reference=ref)
-        except InvalidInputError as exc:
-            raise click.BadParameter(str(exc), param_hint="--zmin") from None
     note_first_compile(REFOCUS_KERNELS)
     with outputs.writing() as stage, depth_range_words(
             lambda n: "widen the range" if n is None else f"give --planes {n} or more, or widen the range"):

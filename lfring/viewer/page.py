@@ -111,7 +111,8 @@ def viewer_data(views, calibration, *, zmin_m=None, zmax_m=None, num_planes=None
     # The page's depth map is what its depth-aware stack renders from: its range follows the
     # rule of depth-aware refocusing everywhere.
     lo, hi = estimation_range(calibration, zmin_m, zmax_m, reference=reference)
-    check_renderable(calibration, lo, reference=reference)  # the stack's nearest frame, before any work
+    # The stack's nearest frame, before any work (named as the parameter that gave it).
+    check_renderable(calibration, lo, reference=reference, name="depth" if zmin_m is None else "zmin_m")
     check_number(focus_m, "focus_m", minimum=lo, maximum=hi, allow_none=True, what="a depth in metres")
     if depth is None:
         depth = estimate_depth(views, calibration, zmin_m=lo, zmax_m=hi, num_planes=num_planes, reference=reference)

@@ -39,7 +39,7 @@ def test_view_writes_one_page_with_the_requested_stack(tmp_path, capsys):
         (["--zmin", "1.0", "--zmax", "0.5"], "smaller than --zmax"),
         # A stack too near to render, as refocus says it, inside the depth origin or not.
         (["--zmin", "0.01"], "the nearest depth that works with this calibration is 0.0369 m"),
-        (["--zmin", "0.03"], "Invalid value for --zmin: depth 0.03 m cannot be rendered"),
+        (["--zmin", "0.03"], "--zmin 0.03 m cannot be rendered"),
         (["--planes", "1"], "--planes"),
         (["--reference", "9"], "reference"),
         (["--min-confidence", "3"], "--min-confidence"),

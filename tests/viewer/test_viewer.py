@@ -154,7 +154,7 @@ def test_a_stack_too_near_to_render_is_refused_before_any_depth_work(scene, monk
     near = nearest_renderable_depth_m(cal)
     monkeypatch.setattr(lfring, "estimate_depth", lambda *a, **k: pytest.fail("the depth was estimated"))
     for zmin in (0.5 * near, 0.95 * near):
-        with pytest.raises(InvalidInputError, match=rf"depth {zmin:g} m cannot be rendered: .* the nearest depth that "
+        with pytest.raises(InvalidInputError, match=rf"zmin_m {zmin:g} m cannot be rendered: .* the nearest depth that "
                                                     rf"works with this calibration is {math.ceil(near * 1e4) / 1e4:g} m"):
             viewer_html(views, cal, zmin_m=zmin, zmax_m=1.0)
 
