@@ -22,7 +22,7 @@ from lfring.core.validate import is_integer, is_number
 from lfring.errors import FileFormatError, InvalidInputError, LfringFileNotFoundError
 from lfring.io.atomic import atomic_write_text
 from lfring.io.bayer import PATTERNS
-from lfring.io.readers import LAYOUT_KEY, RECORD_KEY, parse_json
+from lfring.io.readers import LAYOUT_KEY, RECORD_KEY, read_json
 from lfring.optics.device import RingDevice
 from lfring.views import Layout
 
@@ -324,11 +324,7 @@ def load_calibration(path: str | Path) -> RingCalibration:
             )
         data = json.loads((calib_dir() / f"{path}{CALIBRATION_SUFFIX}").read_text(encoding="utf-8"))
         return calibration_from_dict(data, source_name=str(path))
-    if not Path(path).is_file():
-        raise LfringFileNotFoundError(f"calibration file not found: {path}")
-    data, why = parse_json(Path(path).read_bytes())
-    if why:
-        raise FileFormatError(_not_a_calibration(str(path), why))
+    data = read_json(path, "calibration", refusal=lambda why: _not_a_calibration(str(path), why))
     return calibration_from_dict(data, source_name=str(path))
 
 

@@ -60,15 +60,17 @@ def parse_json(raw: bytes) -> tuple[object, str]:
         return None, f"it is not valid JSON{where}"
 
 
-def read_json(path: str | Path, what: str):
+def read_json(path: str | Path, what: str, *, refusal=None):
     """The JSON value in ``path``; ``what`` names the kind of file in error messages
-    (:func:`parse_json` says what a file that holds none holds instead)."""
+    (:func:`parse_json` says what a file that holds none holds instead). ``refusal``, when
+    given, words the refusal of such a file from that saying (a reader that tells the user what
+    to give instead)."""
     path = Path(path)
     if not path.is_file():
         raise LfringFileNotFoundError(f"{what} file not found: {path}")
     value, why = parse_json(path.read_bytes())
     if why:
-        raise FileFormatError(f"{path}: not a JSON {what} file: {why}")
+        raise FileFormatError(refusal(why) if refusal is not None else f"{path}: not a JSON {what} file: {why}")
     return value
 
 
