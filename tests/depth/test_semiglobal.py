@@ -340,6 +340,55 @@ def test_the_eroded_volume_kept_between_the_passes_changes_no_answer(prototype, 
     np.testing.assert_array_equal(eroded, want)
 
 
+def _path_numpy(cost, p1, p2, axis, backwards):
+    """One scan path of plain SGM over ``cost`` (h, N, w) int64 along ``axis`` (0: rows, 2:
+    columns): L = c + min(L', L'[d -+ 1] + p1, min L' + p2) - min L', the first line its cost."""
+    c = cost if axis == 0 else cost.transpose(2, 1, 0)  # (lines, N, along a line)
+    order = range(c.shape[0] - 1, -1, -1) if backwards else range(c.shape[0])
+    out = np.empty_like(c)
+    prev = None
+    for i in order:
+        if prev is None:
+            cur = c[i].copy()
+        else:
+            pmin = prev.min(axis=0, keepdims=True)
+            lower = np.concatenate([prev[:1], prev[:-1]], axis=0) + p1
+            upper = np.concatenate([prev[1:], prev[-1:]], axis=0) + p1
+            cur = c[i] + np.minimum(np.minimum(prev, lower), np.minimum(upper, pmin + p2)) - pmin
+        out[i] = prev = cur
+    return out if axis == 0 else out.transpose(2, 1, 0)
+
+
+def test_the_paths_in_16_bits_add_up_as_plain_sgm_at_the_largest_costs_and_penalties():
+    """The paths hold their values in int16 and the sums in uint16 (fused_common's bounds): at
+    costs up to COST_MAX and the large-jump penalty at PENALTY_MAX, where the values come
+    closest to those bounds, the horizontal pass's sum of its two paths and the vertical pass's
+    top-down path added to it are plain int64 SGM's, exactly, in blocks of columns too."""
+    from lfring.core.viewstack import WEIGHT_FLOOR
+    from lfring.depth.engines import fused_paths
+    from lfring.depth.engines.fused_common import COST_MAX, PENALTY_MAX
+
+    rng = np.random.default_rng(5)
+    h, n, w = 14, 9, 50
+    vol = np.where(rng.random((h, n, w)) < 0.6, COST_MAX, rng.integers(0, COST_MAX, (h, n, w))).astype(np.uint16)
+    p1, p2 = PENALTY_MAX // 4, PENALTY_MAX
+    guide = np.zeros((h, w), np.float32)
+    total = np.zeros((h, n, w), np.uint16)
+    fused_paths.horizontal_paths(vol, guide, False, p1, p2, np.float32(0.1), 0, total, np.zeros((0, 0, 0), np.uint16))
+    cost = vol.astype(np.int64)
+    lr, rl = (_path_numpy(cost, p1, p2, 2, back) for back in (False, True))
+    np.testing.assert_array_equal(total, lr + rl)
+    assert (lr + rl).max() > 2 * COST_MAX + PENALTY_MAX  # the paths reach well past one cost's range
+    index = np.empty((h, w), np.float32)
+    conf = np.empty((h, w), np.float32)
+    fused_paths.vertical_paths(vol, vol, total, guide, False, p1, p2, np.float32(0.1), 0, 1, 1, 16, WEIGHT_FLOOR,
+                               index, conf)
+    three = lr + rl + _path_numpy(cost, p1, p2, 0, False)
+    np.testing.assert_array_equal(total, three)
+    assert three.max() > 3 * COST_MAX + PENALTY_MAX
+    assert np.isfinite(index).all() and index.min() >= -0.5 and index.max() <= n - 0.5
+
+
 @pytest.mark.parametrize("all_valid", [True, False])
 def test_the_halves_pass_gives_each_poor_pixel_the_same_cost_however_its_columns_are_grouped(all_valid):
     """The halves pass computes a strip's runs of poor columns side by side in groups: a poor

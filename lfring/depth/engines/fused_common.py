@@ -3,8 +3,9 @@
 settings of their kernels.
 
 A cost is held in uint16 units of a fraction of the path penalty: a path's value exceeds its cost
-by at most the large-jump penalty, so a sum of four paths fits in 16 bits when the cost is
-clipped to :data:`COST_MAX` and the penalties stay below :data:`PENALTY_MAX`.
+by at most the large-jump penalty, so when the cost is clipped to :data:`COST_MAX` and the
+penalties stay below :data:`PENALTY_MAX`, a path and a step's sums fit in int16 (the paths'
+state) and a sum of four paths in uint16.
 """
 
 from __future__ import annotations
@@ -20,7 +21,8 @@ PARALLEL = dict(JIT, parallel=True)
 INLINE = dict(JIT, inline="always")
 # A cost that no two views saw: never a winner; the paths see the pixel's mean known cost there.
 UNKNOWN = 65535
-# The largest cost and penalty kept: 4 * (COST_MAX + PENALTY_MAX) < 2**16.
+# The largest cost and penalty kept: 4 * (COST_MAX + PENALTY_MAX) < 2**16 (the four paths' sum),
+# 2 * (COST_MAX + PENALTY_MAX) < 2**15 (two paths, as the horizontal pass adds them in int16).
 COST_MAX = 12000
 PENALTY_MAX = 4000
 # The integer that stands for a cost of 0: where the views agree, float rounding makes the cost

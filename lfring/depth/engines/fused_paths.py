@@ -97,8 +97,9 @@ def _step_line(e, prev, cur, pmin, cmin, p1, p2e):
     ``prev`` the previous pixels' path values (N, m), ``pmin`` their least, ``p2e`` the
     large-jump penalties; writes ``cur`` and its least ``cmin``."""
     n, m = e.shape
+    p1s = np.int16(p1)
     for x in range(m):
-        cmin[x] = 1 << 30
+        cmin[x] = 32767  # int16's largest
     for d in range(n):
         dm = d - 1 if d > 0 else d
         dp = d + 1 if d < n - 1 else d
@@ -108,17 +109,17 @@ def _step_line(e, prev, cur, pmin, cmin, p1, p2e):
         cost = e[d]
         out = cur[d]
         least = cmin
-        # Every sum cast back to int32: numba widens int32 arithmetic to int64, which halves
-        # the lanes of the vectorised loop (the values stay far inside int32).
+        # int16 path values (fused_common: they stay below 2**15), every sum cast back: numba
+        # widens integer arithmetic to int64, which would cut the vectorised loop's lanes.
         for x in range(m):
             best = here[x]
-            t = np.int32(below[x] + p1)
+            t = np.int16(below[x] + p1s)
             best = t if t < best else best
-            t = np.int32(above[x] + p1)
+            t = np.int16(above[x] + p1s)
             best = t if t < best else best
-            t = np.int32(pmin[x] + p2e[x])
+            t = np.int16(pmin[x] + p2e[x])
             best = t if t < best else best
-            v = np.int32(np.int32(cost[x]) + best - pmin[x])
+            v = np.int16(np.int16(cost[x]) + best - pmin[x])
             out[x] = v
             least[x] = v if v < least[x] else least[x]
 
@@ -127,20 +128,19 @@ def _step_line(e, prev, cur, pmin, cmin, p1, p2e):
 def _path_step(c, prev, cur, pmin, jump, p1):
     """One step of a path at one pixel: ``cur = c + min(prev, prev[d -+ 1] + p1, jump) - pmin``
     over the hypotheses (the ends' missing neighbour is the hypothesis itself); returns the least
-    of ``cur``."""
+    of ``cur``. int16 throughout, as in :func:`_step_line`."""
     n = c.shape[0]
-    p1 = np.int32(p1)
-    jump = np.int32(jump)
-    pmin = np.int32(pmin)
+    p1 = np.int16(p1)
+    jump = np.int16(jump)
+    pmin = np.int16(pmin)
     if n == 1:
-        cur[0] = c[0] + min(prev[0], jump) - pmin
+        cur[0] = np.int16(c[0] + min(prev[0], jump) - pmin)
         return cur[0]
-    cur[0] = c[0] + min(min(prev[0], np.int32(prev[1] + p1)), jump) - pmin
-    # int32 throughout, as in _step_line.
+    cur[0] = np.int16(c[0] + min(min(prev[0], np.int16(prev[1] + p1)), jump) - pmin)
     for d in range(1, n - 1):
-        best = min(min(prev[d], np.int32(prev[d - 1] + p1)), min(np.int32(prev[d + 1] + p1), jump))
-        cur[d] = np.int32(c[d] + best - pmin)
-    cur[n - 1] = c[n - 1] + min(min(prev[n - 1], np.int32(prev[n - 2] + p1)), jump) - pmin
+        best = min(min(prev[d], np.int16(prev[d - 1] + p1)), min(np.int16(prev[d + 1] + p1), jump))
+        cur[d] = np.int16(c[d] + best - pmin)
+    cur[n - 1] = np.int16(c[n - 1] + min(min(prev[n - 1], np.int16(prev[n - 2] + p1)), jump) - pmin)
     least = cur[0]
     for d in range(1, n):
         least = min(least, cur[d])
@@ -164,14 +164,14 @@ def _horizontal_row(vol, y, guide, use_guide, p1, p2, edge_scale, erode_rad, tot
     _fill_unknown(e, fill)
     # One pixel per step: its N costs side by side (numba's strided copy transposes faster
     # than explicit tiles did).
-    c = np.empty((w, n), np.int32)
+    c = np.empty((w, n), np.int16)
     c[:, :] = e.T
-    acc = np.empty((w, n), np.int32)
-    bufs = np.empty((2, n), np.int32)
+    acc = np.empty((w, n), np.int16)
+    bufs = np.empty((2, n), np.int16)
     p2f = np.float32(p2)
     p1f = np.float32(p1)
     for direction in range(2):
-        pmin = np.int32(0)
+        pmin = np.int16(0)
         for i in range(w):
             x = i if direction == 0 else w - 1 - i
             prev = bufs[(i + 1) % 2]
@@ -190,7 +190,7 @@ def _horizontal_row(vol, y, guide, use_guide, p1, p2, edge_scale, erode_rad, tot
                     v = p2f / (np.float32(1.0) + abs(guide[y, x] - guide[y, xp]) / np.float32(edge_scale))
                     v = v if v > p1f else p1f
                     p2e = np.int32(v + np.float32(0.5))
-                pmin = _path_step(cx, prev, cur, pmin, pmin + p2e, p1)
+                pmin = _path_step(cx, prev, cur, pmin, np.int16(pmin + p2e), p1)
             ax = acc[x]
             if direction == 0:
                 for d in range(n):
@@ -273,9 +273,9 @@ def _vertical_block(vol, eroded, total, guide, use_guide, p1, p2, edge_scale, er
     e = np.empty((n, m), np.uint16)
     ext = np.empty(m + 2 * max(erode_rad, raw_rad), np.uint16)
     fill = np.empty(m, np.int64)
-    state = np.zeros((2, n, m), np.int32)
-    mins = np.zeros((2, m), np.int32)
-    p2e = np.zeros(m, np.int32)
+    state = np.zeros((2, n, m), np.int16)
+    mins = np.zeros((2, m), np.int16)
+    p2e = np.zeros(m, np.int16)
     col_sum = np.zeros((n, m + 2 * raw_rad), np.int32)
     col_cnt = np.zeros((n, m + 2 * raw_rad), np.int32)
     raw = np.empty((n, m), np.float32)
