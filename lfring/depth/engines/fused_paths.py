@@ -414,42 +414,49 @@ def _select_row(vol, total, cur, y, x0, x1, raw_rad, exclude, floor, col_sum, co
     counts = np.empty(m, np.int32)
     for d in range(n):
         _raw_row(col_sum[d], col_cnt[d], vol[y, d, x0:x1], raw_rad, area, np.float32(floor), sums, counts, raw[d])
+    # The loops over the columns are branch-free selects on int32 (the winners' indices too):
+    # a branch or an int64 lane keeps them from vectorising.
     big = np.int32(1 << 30)
     best = np.full(m, big, np.int32)
     tie = np.full(m, np.inf, np.float32)
-    arg = np.zeros(m, np.int64)
+    arg = np.zeros(m, np.int32)
     for d in range(n):
         trow = total[y, d, x0:x1]
         cr = cur[d]
         rr = raw[d]
+        di = np.int32(d)
         for x in range(m):
-            v = np.int32(trow[x]) + cr[x]
+            v = np.int32(np.int32(trow[x]) + np.int32(cr[x]))
+            b = best[x]
             # Integer sums tie where float ones would not: the raw cost breaks the tie.
-            better = (v < best[x]) | ((v == best[x]) & (rr[x] < tie[x]))
-            best[x] = v if better else best[x]
+            better = (v < b) | ((v == b) & (rr[x] < tie[x]))
+            best[x] = v if better else b
             tie[x] = rr[x] if better else tie[x]
-            arg[x] = d if better else arg[x]
+            arg[x] = di if better else arg[x]
     # The second best of the sum away from the winner, and the raw curve's best and second.
     second = np.full(m, big, np.int32)
     rbest = np.full(m, np.inf, np.float32)
-    rarg = np.zeros(m, np.int64)
+    rarg = np.zeros(m, np.int32)
+    ex = np.int32(exclude)
     for d in range(n):
         trow = total[y, d, x0:x1]
         cr = cur[d]
         rr = raw[d]
+        di = np.int32(d)
         for x in range(m):
-            v = np.int32(trow[x]) + cr[x]
-            if abs(d - arg[x]) > exclude and v < second[x]:
-                second[x] = v
-            if rr[x] < rbest[x]:
-                rbest[x] = rr[x]
-                rarg[x] = d
+            v = np.int32(np.int32(trow[x]) + np.int32(cr[x]))
+            away = np.int32(abs(np.int32(di - arg[x]))) > ex
+            second[x] = v if away & (v < second[x]) else second[x]
+            lower = rr[x] < rbest[x]
+            rbest[x] = rr[x] if lower else rbest[x]
+            rarg[x] = di if lower else rarg[x]
     rsecond = np.full(m, np.inf, np.float32)
     for d in range(n):
         rr = raw[d]
+        di = np.int32(d)
         for x in range(m):
-            if abs(d - rarg[x]) > exclude and rr[x] < rsecond[x]:
-                rsecond[x] = rr[x]
+            away = np.int32(abs(np.int32(di - rarg[x]))) > ex
+            rsecond[x] = rr[x] if away & (rr[x] < rsecond[x]) else rsecond[x]
     for x in range(m):
         k = arg[x]
         off = 0.0
