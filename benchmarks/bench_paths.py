@@ -1,0 +1,109 @@
+"""The semi-global engine's two path passes of two checkouts in one process, alternately: the
+horizontal paths (with the erosion) and the vertical paths (with the winner selection), on the
+inputs a real call gives them.
+
+    git worktree add /tmp/lfring-old 5db557c
+    python benchmarks/bench_paths.py /tmp/lfring-old          # this checkout against that one
+    python benchmarks/bench_paths.py /tmp/lfring-old --runs 9 --threads 1 2
+
+The inputs are captured from one default call at 4 x 1060^2 x 64 planes (``_common.random_views``),
+and each pass of each checkout (its ``lfring/depth/engines/fused_paths.py``, imported under
+another name) is given copies of them: the times are of the compiled pass alone, in the same
+process, alternating between the checkouts, so that the machine's load falls on both alike
+(where the load changes from minute to minute, fresh processes spread more than a change does).
+Each pass's outputs are compared between the checkouts: the same numbers to the bit or not.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import statistics
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+from _common import ZMAX, ZMIN, machine_line, random_views
+
+from lfring.depth import estimate_depth
+from lfring.depth.engines import fused_paths
+
+PASSES = {"horizontal": (7, 8), "vertical": (2, 13, 14)}  # each pass's arguments that it writes
+
+
+def _capture() -> dict:
+    """The arguments of both passes in one default call, copied before the pass ran."""
+    got = {}
+
+    def wrap(name):
+        fn = getattr(fused_paths, name + "_paths")
+
+        def captured(*args):
+            got[name] = [np.array(a) if isinstance(a, np.ndarray) else a for a in args]
+            return fn(*args)
+
+        setattr(fused_paths, name + "_paths", captured)
+        return fn
+
+    originals = {name: wrap(name) for name in PASSES}
+    try:
+        views, cal = random_views(1060)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            estimate_depth(views, cal, zmin_m=ZMIN, zmax_m=ZMAX, num_planes=64)
+    finally:
+        for name, fn in originals.items():
+            setattr(fused_paths, name + "_paths", fn)
+    return got
+
+
+def _load(checkout: Path):
+    path = checkout / "lfring" / "depth" / "engines" / "fused_paths.py"
+    spec = importlib.util.spec_from_file_location("fused_paths_other", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def _run(fn, args, written):
+    a = list(args)
+    for i in written:
+        a[i] = args[i].copy()
+    t = time.perf_counter()
+    fn(*a)
+    return time.perf_counter() - t, [a[i] for i in written]
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("other", type=Path, help="the other checkout's root")
+    ap.add_argument("--runs", type=int, default=7)
+    ap.add_argument("--threads", type=int, nargs="+", default=[1, 2])
+    args = ap.parse_args(argv)
+    import numba
+
+    other = _load(args.other)
+    inputs = _capture()
+    print(machine_line())
+    print(f"the path passes at 4 x 1060^2 x 64 planes: wall ms, medians of {args.runs} calls each, alternating")
+    print(f"| pass | threads | {args.other} | this checkout | this / other | same outputs |")
+    print("|---|---|---|---|---|---|")
+    for name, written in PASSES.items():
+        fns = (getattr(other, name + "_paths"), getattr(fused_paths, name + "_paths"))
+        outs = [_run(fn, inputs[name], written)[1] for fn in fns]  # compiles, and the outputs
+        same = all(np.array_equal(a, b, equal_nan=True) for a, b in zip(*outs))
+        for threads in args.threads:
+            numba.set_num_threads(threads)
+            times = ([], [])
+            for _ in range(args.runs):
+                for k, fn in enumerate(fns):
+                    times[k].append(_run(fn, inputs[name], written)[0])
+            old, new = (1e3 * statistics.median(t) for t in times)
+            print(f"| {name} | {threads} | {old:.0f} | {new:.0f} | {new / old:.2f} | {'yes' if same else 'NO'} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
