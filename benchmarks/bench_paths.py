@@ -5,8 +5,10 @@ inputs a real call gives them.
     git worktree add /tmp/lfring-old 5db557c
     python benchmarks/bench_paths.py /tmp/lfring-old          # this checkout against that one
     python benchmarks/bench_paths.py /tmp/lfring-old --runs 9 --threads 1 2
+    python benchmarks/bench_paths.py /tmp/lfring-old --case twin   # the twin's three-depth scene
 
-The inputs are captured from one default call at 4 x 1060^2 x 64 planes (``_common.random_views``),
+The inputs are captured from one default call at 4 x 1060^2 x 64 planes (``_common.random_views``)
+or on the twin's three-depth scene (``--case twin``, 11 hypotheses),
 and each pass of each checkout (its ``lfring/depth/engines/fused_paths.py``, imported under
 another name) is given copies of them: the times are of the compiled pass alone, in the same
 process, alternating between the checkouts, so that the machine's load falls on both alike
@@ -25,7 +27,7 @@ import warnings
 from pathlib import Path
 
 import numpy as np
-from _common import ZMAX, ZMIN, machine_line, random_views
+from _common import ZMAX, ZMIN, machine_line, random_views, twin_scene
 
 from lfring.depth import estimate_depth
 from lfring.depth.engines import fused_paths
@@ -33,7 +35,7 @@ from lfring.depth.engines import fused_paths
 PASSES = {"horizontal": (7, 8), "vertical": (2, 13, 14)}  # each pass's arguments that it writes
 
 
-def _capture() -> dict:
+def _capture(case: str, planes: int) -> dict:
     """The arguments of both passes in one default call, copied before the pass ran."""
     got = {}
 
@@ -49,10 +51,15 @@ def _capture() -> dict:
 
     originals = {name: wrap(name) for name in PASSES}
     try:
-        views, cal = random_views(1060)
+        if case == "big":
+            views, cal = random_views(1060)
+            kw = dict(num_planes=planes)
+        else:
+            t = twin_scene()
+            views, cal, kw = t.views, t.cal, {}
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            estimate_depth(views, cal, zmin_m=ZMIN, zmax_m=ZMAX, num_planes=64)
+            estimate_depth(views, cal, zmin_m=ZMIN, zmax_m=ZMAX, **kw)
     finally:
         for name, fn in originals.items():
             setattr(fused_paths, name + "_paths", fn)
@@ -63,6 +70,7 @@ def _load(checkout: Path):
     path = checkout / "lfring" / "depth" / "engines" / "fused_paths.py"
     spec = importlib.util.spec_from_file_location("fused_paths_other", path)
     mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod  # numba's disk cache finds a kernel's module by its name
     spec.loader.exec_module(mod)
     return mod
 
@@ -81,13 +89,17 @@ def main(argv=None) -> int:
     ap.add_argument("other", type=Path, help="the other checkout's root")
     ap.add_argument("--runs", type=int, default=7)
     ap.add_argument("--threads", type=int, nargs="+", default=[1, 2])
+    ap.add_argument("--case", choices=("big", "twin"), default="big",
+                    help="4 x 1060^2 views (random texture), or the twin's three-depth scene with the defaults")
+    ap.add_argument("--planes", type=int, default=64, help="the hypotheses of the 1060^2 case")
     args = ap.parse_args(argv)
     import numba
 
     other = _load(args.other)
-    inputs = _capture()
+    inputs = _capture(args.case, args.planes)
     print(machine_line())
-    print(f"the path passes at 4 x 1060^2 x 64 planes: wall ms, medians of {args.runs} calls each, alternating")
+    what = f"4 x 1060^2 x {args.planes} planes" if args.case == "big" else "the twin's three-depth scene"
+    print(f"the path passes on {what}: wall ms, medians of {args.runs} calls each, alternating")
     print(f"| pass | threads | {args.other} | this checkout | this / other | same outputs |")
     print("|---|---|---|---|---|---|")
     for name, written in PASSES.items():

@@ -340,50 +340,59 @@ def test_the_eroded_volume_kept_between_the_passes_changes_no_answer(prototype, 
     np.testing.assert_array_equal(eroded, want)
 
 
-def _path_numpy(cost, p1, p2, axis, backwards):
+def _path_numpy(cost, p1, p2, axis, backwards, guide):
     """One scan path of plain SGM over ``cost`` (h, N, w) int64 along ``axis`` (0: rows, 2:
-    columns): L = c + min(L', L'[d -+ 1] + p1, min L' + p2) - min L', the first line its cost."""
+    columns): L = c + min(L', L'[d -+ 1] + p1, min L' + p2') - min L', the first line its cost;
+    p2' = p2 / (1 + 4 |guide step|), at least p1 (the engine's rule with an edge scale of 0.25;
+    the guide's values 0 and 1 keep it exact)."""
     c = cost if axis == 0 else cost.transpose(2, 1, 0)  # (lines, N, along a line)
+    g = guide if axis == 0 else guide.T  # (lines, along a line)
     order = range(c.shape[0] - 1, -1, -1) if backwards else range(c.shape[0])
     out = np.empty_like(c)
-    prev = None
+    prev = before = None
     for i in order:
         if prev is None:
             cur = c[i].copy()
         else:
+            jump = np.maximum(np.floor(p2 / (1.0 + 4.0 * np.abs(g[i] - g[before])) + 0.5), p1).astype(np.int64)
             pmin = prev.min(axis=0, keepdims=True)
             lower = np.concatenate([prev[:1], prev[:-1]], axis=0) + p1
             upper = np.concatenate([prev[1:], prev[-1:]], axis=0) + p1
-            cur = c[i] + np.minimum(np.minimum(prev, lower), np.minimum(upper, pmin + p2)) - pmin
+            cur = c[i] + np.minimum(np.minimum(prev, lower), np.minimum(upper, pmin + jump[None, :])) - pmin
         out[i] = prev = cur
+        before = i
     return out if axis == 0 else out.transpose(2, 1, 0)
 
 
-def test_the_paths_in_16_bits_add_up_as_plain_sgm_at_the_largest_costs_and_penalties():
+@pytest.mark.parametrize("n", [9, 40])
+def test_the_paths_in_16_bits_add_up_as_plain_sgm_at_the_largest_costs_and_penalties(n):
     """The paths hold their values in int16 and the sums in uint16 (fused_common's bounds): at
     costs up to COST_MAX and the large-jump penalty at PENALTY_MAX, where the values come
     closest to those bounds, the horizontal pass's sum of its two paths and the vertical pass's
-    top-down path added to it are plain int64 SGM's, exactly, in blocks of columns too."""
+    top-down path added to it are plain int64 SGM's, exactly, in blocks of columns too; with
+    few hypotheses (the rows side by side, in blocks and chunks that do not divide the frame)
+    and with many (each row alone)."""
     from lfring.core.viewstack import WEIGHT_FLOOR
     from lfring.depth.engines import fused_paths
     from lfring.depth.engines.fused_common import COST_MAX, PENALTY_MAX
 
     rng = np.random.default_rng(5)
-    h, n, w = 14, 9, 50
+    h, w = 2 * fused_paths.SIDE_BY_SIDE_ROWS + 5, 3 * fused_paths.SIDE_BY_SIDE_COLUMNS + 7
+    assert (n <= fused_paths.SIDE_BY_SIDE_HYPOTHESES) == (n == 9)
     vol = np.where(rng.random((h, n, w)) < 0.6, COST_MAX, rng.integers(0, COST_MAX, (h, n, w))).astype(np.uint16)
-    p1, p2 = PENALTY_MAX // 4, PENALTY_MAX
-    guide = np.zeros((h, w), np.float32)
+    p1, p2 = PENALTY_MAX // 8, PENALTY_MAX  # across a guide step of 1 the large jump costs p2 / 5 = 800
+    guide = (rng.random((h, w)) < 0.3).astype(np.float32)
     total = np.zeros((h, n, w), np.uint16)
-    fused_paths.horizontal_paths(vol, guide, False, p1, p2, np.float32(0.1), 0, total, np.zeros((0, 0, 0), np.uint16))
+    fused_paths.horizontal_paths(vol, guide, True, p1, p2, np.float32(0.25), 0, total, np.zeros((0, 0, 0), np.uint16))
     cost = vol.astype(np.int64)
-    lr, rl = (_path_numpy(cost, p1, p2, 2, back) for back in (False, True))
+    lr, rl = (_path_numpy(cost, p1, p2, 2, back, guide) for back in (False, True))
     np.testing.assert_array_equal(total, lr + rl)
     assert (lr + rl).max() > 2 * COST_MAX + PENALTY_MAX  # the paths reach well past one cost's range
     index = np.empty((h, w), np.float32)
     conf = np.empty((h, w), np.float32)
-    fused_paths.vertical_paths(vol, vol, total, guide, False, p1, p2, np.float32(0.1), 0, 1, 1, 16, WEIGHT_FLOOR,
+    fused_paths.vertical_paths(vol, vol, total, guide, True, p1, p2, np.float32(0.25), 0, 1, 1, 16, WEIGHT_FLOOR,
                                index, conf)
-    three = lr + rl + _path_numpy(cost, p1, p2, 0, False)
+    three = lr + rl + _path_numpy(cost, p1, p2, 0, False, guide)
     np.testing.assert_array_equal(total, three)
     assert three.max() > 3 * COST_MAX + PENALTY_MAX
     assert np.isfinite(index).all() and index.min() >= -0.5 and index.max() <= n - 0.5

@@ -1,9 +1,10 @@
 """The scan paths and the selection of the fused semi-global passes (see
 :mod:`lfring.depth.engines.fused`):
 
-1. :func:`horizontal_paths`: per row, the volume eroded (shiftable windows) and the left-right
-   and right-left scan paths, summed into a (h, N, w) uint16 accumulator; the eroded volume is
-   kept for the next pass where the caller gives it a buffer.
+1. :func:`horizontal_paths`: per row (or block of rows side by side, for few hypotheses), the
+   volume eroded (shiftable windows) and the left-right and right-left scan paths, summed into
+   a (h, N, w) uint16 accumulator; the eroded volume is kept for the next pass where the caller
+   gives it a buffer.
 2. :func:`vertical_paths`: per block of columns, the top-down path, then the bottom-up one, at
    whose every pixel the sum of the paths is complete: the winner, its parabola on the wider box
    of the cost and the confidence are taken there, and the sum is never written back. Without
@@ -19,6 +20,14 @@ from lfring.depth.aggregation_kernels import reflect
 from lfring.depth.engines.fused_common import COST_ZERO, INLINE, JIT, PARALLEL, UNKNOWN
 
 __all__ = ["horizontal_paths", "vertical_paths"]
+
+# The horizontal paths of a few hypotheses run rows side by side: a pixel's step over its own
+# hypotheses is too short to vectorise, and its least is a serial reduction per pixel. Reordering
+# the costs pixel-outermost costs a scattered copy per cost, which pays up to about 16
+# hypotheses (see benchmarks/RESULTS.md); blocks of 32 rows, 32 columns of costs at a time.
+SIDE_BY_SIDE_HYPOTHESES = 16
+SIDE_BY_SIDE_ROWS = 32
+SIDE_BY_SIDE_COLUMNS = 32
 
 
 @njit(**INLINE)
@@ -201,13 +210,91 @@ def _horizontal_row(vol, y, guide, use_guide, p1, p2, edge_scale, erode_rad, tot
     total[y][:, :] = acc.T  # the sums fit in 16 bits (fused_common)
 
 
+@njit(**JIT)
+def _horizontal_block(vol, y0, y1, guide, use_guide, p1, p2, edge_scale, erode_rad, total, eroded, chunk):
+    """The two horizontal paths of rows y0..y1 side by side, as the vertical pass runs its
+    columns (see :func:`horizontal_paths`), ``chunk`` columns of costs at a time."""
+    h, n, w = vol.shape
+    b = y1 - y0
+    kept = _kept(eroded, vol)
+    block = eroded[y0:y1] if kept else np.empty((b, n, w), np.uint16)
+    ext = np.empty(w + 2 * erode_rad, np.uint16)
+    fill = np.empty(w, np.int64)
+    for r in range(b):
+        _eroded_rows(vol, y0 + r, erode_rad, 0, w, ext, block[r])
+        _fill_unknown(block[r], fill)
+    # A chunk of the rows' costs with the pixel outermost: t[j] (N, b) is one step of the b
+    # paths; acc the chunk's path values, in the same order.
+    t = np.empty((chunk, n, b), np.int16)
+    acc = np.empty((chunk, n, b), np.int16)
+    state = np.zeros((2, n, b), np.int16)
+    mins = np.zeros((2, b), np.int16)
+    p2e = np.zeros(b, np.int16)
+    ga = np.empty(b, np.float32)
+    gb = np.empty(b, np.float32)
+    n_chunks = (w + chunk - 1) // chunk
+    i = 0
+    for direction in range(2):
+        i = 0
+        for kc in range(n_chunks):
+            c = kc if direction == 0 else n_chunks - 1 - kc
+            c0 = c * chunk
+            m = min(w, c0 + chunk) - c0
+            for r in range(b):
+                for d in range(n):
+                    src = block[r, d, c0:c0 + m]
+                    for j in range(m):
+                        t[j, d, r] = src[j]
+            for jj in range(m):
+                j = jj if direction == 0 else m - 1 - jj
+                x = c0 + j
+                prev = state[(i + 1) % 2]
+                cur = state[i % 2]
+                pmin = mins[(i + 1) % 2]
+                cmin = mins[i % 2]
+                if i == 0:
+                    # Zero state: the first pixel takes its cost alone.
+                    prev[:] = 0
+                    pmin[:] = 0
+                    p2e[:] = 0
+                else:
+                    xp = x - 1 if direction == 0 else x + 1
+                    for r in range(b):
+                        ga[r] = guide[y0 + r, x]
+                        gb[r] = guide[y0 + r, xp]
+                    _p2_row(ga, gb, use_guide, p1, p2, edge_scale, p2e)
+                _step_line(t[j], prev, cur, pmin, cmin, p1, p2e)
+                acc[j] = cur
+                i += 1
+            for r in range(b):
+                for d in range(n):
+                    out = total[y0 + r, d, c0:c0 + m]
+                    if direction == 0:
+                        for j in range(m):
+                            out[j] = np.uint16(acc[j, d, r])
+                    else:
+                        for j in range(m):
+                            out[j] = np.uint16(np.int32(out[j]) + np.int32(acc[j, d, r]))  # fits (fused_common)
+
+
 @njit(**PARALLEL)
 def horizontal_paths(vol, guide, use_guide, p1, p2, edge_scale, erode_rad, total, eroded):
     """The left-right and right-left paths of every row of the eroded volume: ``total`` (h, N, w)
     uint16 = their sum. ``eroded``: an (h, N, w) uint16 buffer that receives the eroded volume
-    (its unknown costs filled) for :func:`vertical_paths`, or an empty array."""
-    for y in prange(vol.shape[0]):
-        _horizontal_row(vol, y, guide, use_guide, p1, p2, edge_scale, erode_rad, total, eroded)
+    (its unknown costs filled) for :func:`vertical_paths`, or an empty array.
+
+    Up to :data:`SIDE_BY_SIDE_HYPOTHESES` hypotheses, blocks of :data:`SIDE_BY_SIDE_ROWS` rows
+    run side by side (one step of all their paths at a time, vectorised across the rows, after
+    the costs are reordered pixel-outermost); with more, each row runs alone, a step vectorised
+    across its hypotheses."""
+    h, n, _ = vol.shape
+    if n <= SIDE_BY_SIDE_HYPOTHESES:
+        for k in prange((h + SIDE_BY_SIDE_ROWS - 1) // SIDE_BY_SIDE_ROWS):
+            _horizontal_block(vol, k * SIDE_BY_SIDE_ROWS, min(h, (k + 1) * SIDE_BY_SIDE_ROWS), guide, use_guide, p1, p2,
+                              edge_scale, erode_rad, total, eroded, SIDE_BY_SIDE_COLUMNS)
+    else:
+        for y in prange(h):
+            _horizontal_row(vol, y, guide, use_guide, p1, p2, edge_scale, erode_rad, total, eroded)
 
 
 @njit(**INLINE)
