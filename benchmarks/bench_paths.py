@@ -20,8 +20,10 @@ from __future__ import annotations
 
 import argparse
 import importlib.util
+import shutil
 import statistics
 import sys
+import tempfile
 import time
 import warnings
 from pathlib import Path
@@ -66,8 +68,11 @@ def _capture(case: str, planes: int) -> dict:
     return got
 
 
-def _load(checkout: Path):
-    path = checkout / "lfring" / "depth" / "engines" / "fused_paths.py"
+def _load(checkout: Path, folder: Path):
+    """The other checkout's module, imported from a copy in ``folder``: numba's disk cache beside
+    it names the module it was compiled as, which must not be the checkout's own."""
+    path = folder / "fused_paths_other.py"
+    shutil.copyfile(checkout / "lfring" / "depth" / "engines" / "fused_paths.py", path)
     spec = importlib.util.spec_from_file_location("fused_paths_other", path)
     mod = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = mod  # numba's disk cache finds a kernel's module by its name
@@ -93,9 +98,13 @@ def main(argv=None) -> int:
                     help="4 x 1060^2 views (random texture), or the twin's three-depth scene with the defaults")
     ap.add_argument("--planes", type=int, default=64, help="the hypotheses of the 1060^2 case")
     args = ap.parse_args(argv)
+    with tempfile.TemporaryDirectory() as folder:
+        return _compare(_load(args.other, Path(folder)), args)
+
+
+def _compare(other, args) -> int:
     import numba
 
-    other = _load(args.other)
     inputs = _capture(args.case, args.planes)
     print(machine_line())
     what = f"4 x 1060^2 x {args.planes} planes" if args.case == "big" else "the twin's three-depth scene"
