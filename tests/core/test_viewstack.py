@@ -1,6 +1,7 @@
 """View stacks, their valid discs and the per-calibration cache."""
 
 import gc
+import weakref
 
 import numpy as np
 import pytest
@@ -62,10 +63,13 @@ def test_the_cache_is_per_calibration_and_goes_with_it():
     assert calibration_cache(other, "k", lambda: 6) == 6  # another calibration object, its own entries
     from lfring.core import viewstack
 
+    gc.collect()  # first the calibrations that earlier tests left unreachable, whose entries go too
     before = len(viewstack._CALIBRATION_CACHE)
+    gone = weakref.ref(other)
     del other
     gc.collect()
-    assert len(viewstack._CALIBRATION_CACHE) == before - 1
+    assert gone() is None and len(viewstack._CALIBRATION_CACHE) == before - 1
+    assert calibration_cache(cal, "k", lambda: 6) == 5  # the first calibration keeps its own
 
 
 def test_inverse_weight_floors_unseen_pixels_to_zero():
