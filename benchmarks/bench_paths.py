@@ -14,6 +14,10 @@ another name) is given copies of them: the times are of the compiled pass alone,
 process, alternating between the checkouts, so that the machine's load falls on both alike
 (where the load changes from minute to minute, fresh processes spread more than a change does).
 Each pass's outputs are compared between the checkouts: the same numbers to the bit or not.
+The other checkout's module is the only part of it used: it imports this checkout's
+``fused_common`` and helpers, and "this checkout" is the ``lfring`` that Python imports (run from
+the checkout's root, or put it on ``PYTHONPATH``). At 64 planes the horizontal pass runs each row
+alone; ``--case twin`` or ``--planes 16`` exercise the rows side by side.
 """
 
 from __future__ import annotations

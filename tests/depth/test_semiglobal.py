@@ -364,7 +364,7 @@ def _path_numpy(cost, p1, p2, axis, backwards, guide):
     return out if axis == 0 else out.transpose(2, 1, 0)
 
 
-@pytest.mark.parametrize("n", [9, 40])
+@pytest.mark.parametrize("n", [9, 16, 17, 40])
 def test_the_paths_in_16_bits_add_up_as_plain_sgm_at_the_largest_costs_and_penalties(n):
     """The paths hold their values in int16 and the sums in uint16 (fused_common's bounds): at
     costs up to COST_MAX and the large-jump penalty at PENALTY_MAX, where the values come
@@ -378,7 +378,7 @@ def test_the_paths_in_16_bits_add_up_as_plain_sgm_at_the_largest_costs_and_penal
 
     rng = np.random.default_rng(5)
     h, w = 2 * fused_paths.SIDE_BY_SIDE_ROWS + 5, 3 * fused_paths.SIDE_BY_SIDE_COLUMNS + 7
-    assert (n <= fused_paths.SIDE_BY_SIDE_HYPOTHESES) == (n == 9)
+    assert (n <= fused_paths.SIDE_BY_SIDE_HYPOTHESES) == (n <= 16)  # both sides of the switch
     vol = np.where(rng.random((h, n, w)) < 0.6, COST_MAX, rng.integers(0, COST_MAX, (h, n, w))).astype(np.uint16)
     p1, p2 = PENALTY_MAX // 8, PENALTY_MAX  # across a guide step of 1 the large jump costs p2 / 5 = 800
     guide = (rng.random((h, w)) < 0.3).astype(np.float32)
