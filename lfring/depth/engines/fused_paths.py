@@ -134,6 +134,23 @@ def _step_line(e, prev, cur, pmin, cmin, p1, p2e):
 
 
 @njit(**INLINE)
+def _next_step(e, state, mins, p2e, i, p1):
+    """Step ``i`` of lines of paths side by side (:func:`_step_line` on ``e``), their values and
+    least ping-ponging in ``state`` (2, N, m) and ``mins`` (2, m) by the step's parity; ``p2e``
+    holds the step's large-jump penalties, except at the first step, which takes its cost alone
+    (zero state and penalties). Returns the step's values (N, m)."""
+    prev = state[(i + 1) % 2]
+    cur = state[i % 2]
+    pmin = mins[(i + 1) % 2]
+    if i == 0:
+        prev[:] = 0
+        pmin[:] = 0
+        p2e[:] = 0
+    _step_line(e, prev, cur, pmin, mins[i % 2], p1, p2e)
+    return cur
+
+
+@njit(**INLINE)
 def _path_step(c, prev, cur, pmin, jump, p1):
     """One step of a path at one pixel: ``cur = c + min(prev, prev[d -+ 1] + p1, jump) - pmin``
     over the hypotheses (the ends' missing neighbour is the hypothesis itself); returns the least
@@ -214,7 +231,7 @@ def _horizontal_row(vol, y, guide, use_guide, p1, p2, edge_scale, erode_rad, tot
 def _horizontal_block(vol, y0, y1, guide, use_guide, p1, p2, edge_scale, erode_rad, total, eroded, chunk):
     """The two horizontal paths of rows y0..y1 side by side, as the vertical pass runs its
     columns (see :func:`horizontal_paths`), ``chunk`` columns of costs at a time."""
-    h, n, w = vol.shape
+    _, n, w = vol.shape
     b = y1 - y0
     kept = _kept(eroded, vol)
     block = eroded[y0:y1] if kept else np.empty((b, n, w), np.uint16)
@@ -233,7 +250,6 @@ def _horizontal_block(vol, y0, y1, guide, use_guide, p1, p2, edge_scale, erode_r
     ga = np.empty(b, np.float32)
     gb = np.empty(b, np.float32)
     n_chunks = (w + chunk - 1) // chunk
-    i = 0
     for direction in range(2):
         i = 0
         for kc in range(n_chunks):
@@ -248,23 +264,13 @@ def _horizontal_block(vol, y0, y1, guide, use_guide, p1, p2, edge_scale, erode_r
             for jj in range(m):
                 j = jj if direction == 0 else m - 1 - jj
                 x = c0 + j
-                prev = state[(i + 1) % 2]
-                cur = state[i % 2]
-                pmin = mins[(i + 1) % 2]
-                cmin = mins[i % 2]
-                if i == 0:
-                    # Zero state: the first pixel takes its cost alone.
-                    prev[:] = 0
-                    pmin[:] = 0
-                    p2e[:] = 0
-                else:
+                if i > 0:
                     xp = x - 1 if direction == 0 else x + 1
                     for r in range(b):
                         ga[r] = guide[y0 + r, x]
                         gb[r] = guide[y0 + r, xp]
                     _p2_row(ga, gb, use_guide, p1, p2, edge_scale, p2e)
-                _step_line(t[j], prev, cur, pmin, cmin, p1, p2e)
-                acc[j] = cur
+                acc[j] = _next_step(t[j], state, mins, p2e, i, p1)
                 i += 1
             for r in range(b):
                 for d in range(n):
@@ -369,24 +375,15 @@ def _vertical_block(vol, eroded, total, guide, use_guide, p1, p2, edge_scale, er
     for direction in range(2):
         for i in range(h):
             y = i if direction == 0 else h - 1 - i
-            prev = state[(i + 1) % 2]
-            cur = state[i % 2]
-            pmin = mins[(i + 1) % 2]
-            cmin = mins[i % 2]
             if kept:
                 e[:, :] = eroded[y, :, x0:x1]
             else:
                 _eroded_rows(vol, y, erode_rad, x0, x1, ext, e)
                 _fill_unknown(e, fill)
-            if i == 0:
-                # Zero state: the first row takes its cost alone.
-                prev[:] = 0
-                pmin[:] = 0
-                p2e[:] = 0
-            else:
+            if i > 0:
                 yp = y - 1 if direction == 0 else y + 1
                 _p2_row(guide[y, x0:x1], guide[yp, x0:x1], use_guide, p1, p2, edge_scale, p2e)
-            _step_line(e, prev, cur, pmin, cmin, p1, p2e)
+            cur = _next_step(e, state, mins, p2e, i, p1)
             if direction == 0:
                 for d in range(n):
                     row = total[y, d, x0:x1]
