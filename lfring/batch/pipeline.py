@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from lfring.batch.settings import BatchSettings
+from lfring.core.signals import interrupt_behind
 from lfring.errors import DepthRangeError, InvalidInputError, LfringError, LfringWarning
 
 __all__ = ["REFOCUSER_CACHE_SIZE", "FrameResult", "process_frame"]
@@ -84,7 +85,8 @@ def process_frame(input_path: str, settings: BatchSettings, outputs: dict[str, s
     Returns a :class:`FrameResult` whose ``files`` maps each output kind of
     :meth:`BatchSettings.outputs` to the encoded file's bytes; on failure ``ok`` is False and
     ``error`` says why in one line; a flat field (which the frame check recognises) is not
-    processed: ``ok`` is False and ``left_out`` says so.
+    processed: ``ok`` is False and ``left_out`` says so. Ctrl-C is no bad frame: it stops the run,
+    as a KeyboardInterrupt, even where Python wrapped it in another error.
     """
     t_start = time.perf_counter()
     timings: dict[str, float] = {}
@@ -110,6 +112,9 @@ def process_frame(input_path: str, settings: BatchSettings, outputs: dict[str, s
             error = f"{input_path}: {error}"
         return FrameResult(input_path, False, timings_s=timings, error=error, worker=worker)
     except Exception as exc:  # noqa: BLE001 - a bad frame must not stop the batch; the error is kept by name
+        stop = interrupt_behind(exc)  # Ctrl-C during an import, wrapped by Python 3.10 and 3.11: stop the run
+        if stop is not None:
+            raise stop from None
         timings["total"] = time.perf_counter() - t_start
         return FrameResult(input_path, False, timings_s=timings, error=f"unexpected {type(exc).__name__}: {exc}", worker=worker)
     if caught:

@@ -11,6 +11,7 @@ import click
 
 from lfring import __version__
 from lfring.cli.words import CliFormatter, cli_words
+from lfring.core.signals import interrupt_behind
 from lfring.errors import LfringError
 
 # command name -> module in lfring.cli defining a click command called ``command``.
@@ -206,6 +207,12 @@ def _run(args: list[str]) -> int:
     except click.ClickException as exc:
         exc.show()
         return exc.exit_code
+    except Exception as exc:
+        stop = interrupt_behind(exc)  # Python 3.10 and 3.11: Ctrl-C inside an import's class creation
+        if stop is None:
+            raise
+        click.echo("lfring: terminated" if isinstance(stop, Terminated) else "lfring: aborted", err=True)
+        return EXIT_TERMINATED if isinstance(stop, Terminated) else EXIT_INTERRUPTED
     # Without standalone mode click returns ctx.exit(code)'s code instead of raising.
     return rv if isinstance(rv, int) else 0
 

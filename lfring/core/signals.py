@@ -14,7 +14,7 @@ import signal
 import threading
 from collections.abc import Iterator
 
-__all__ = ["HELD_SIGNALS", "blocked_in_children", "held_signals"]
+__all__ = ["HELD_SIGNALS", "blocked_in_children", "held_signals", "interrupt_behind"]
 
 HELD_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM") if hasattr(signal, name))
 """The signals that ask a run to stop: Ctrl-C and a polite kill."""
@@ -68,3 +68,32 @@ def blocked_in_children(signums=(signal.SIGINT,)) -> Iterator[None]:
         yield
     finally:
         signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
+def interrupt_behind(exc: BaseException) -> KeyboardInterrupt | None:
+    """The Ctrl-C (or SIGTERM raised as one) that ``exc`` stands for, if any: ``exc`` itself, or
+    the KeyboardInterrupt it was raised from.
+
+    Python 3.10 and 3.11 turn an exception raised inside a class's ``__set_name__`` into a
+    RuntimeError caused by it, so a Ctrl-C that comes while an import creates such a class (a
+    ``functools.cached_property`` in a class body) reaches the caller as a RuntimeError; a
+    handler that isolates errors must stop for it all the same.
+
+    Examples
+    --------
+    >>> interrupt_behind(ValueError("bad frame")) is None
+    True
+    >>> stop = KeyboardInterrupt()
+    >>> try:
+    ...     raise RuntimeError("Error calling __set_name__") from stop
+    ... except RuntimeError as exc:
+    ...     interrupt_behind(exc) is stop
+    True
+    """
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return exc
+        seen.add(id(exc))
+        exc = exc.__cause__
+    return None

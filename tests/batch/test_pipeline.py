@@ -44,3 +44,29 @@ def test_depth_and_all_in_focus_outputs(frames, tmp_path):
     assert cup.sum() > 5000
     assert np.median(np.abs(depth[cup] - truth[cup])) < 0.015
     assert cv2.imread(str(out / "scene_all_in_focus.png")).shape[:2] == depth.shape
+
+
+def test_ctrl_c_raised_as_another_error_stops_the_run_instead_of_failing_the_frame(frames, monkeypatch):
+    """Python 3.10 and 3.11 turn a Ctrl-C that comes while an import builds a class into a
+    RuntimeError raised from it: the frame raises the KeyboardInterrupt (the run stops as for
+    Ctrl-C) and is not recorded as failed; any other error is still the frame's failure."""
+    import lfring.io.levels
+
+    d, cal_path = frames
+    settings = BatchSettings(refocus_m=(0.5,), refocus_method="shift-and-add", calibration=load_calibration(cal_path))
+    stop = KeyboardInterrupt()
+
+    def stopped(*args, **kwargs):
+        raise RuntimeError("Error calling __set_name__") from stop
+
+    monkeypatch.setattr(lfring.io.levels, "load_frame", stopped)
+    with pytest.raises(KeyboardInterrupt) as info:
+        process_frame(str(d / "scene.png"), settings)
+    assert info.value is stop
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("a bug") from ValueError("its cause")
+
+    monkeypatch.setattr(lfring.io.levels, "load_frame", broken)
+    res = process_frame(str(d / "scene.png"), settings)
+    assert not res.ok and "a bug" in res.error

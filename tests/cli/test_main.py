@@ -4,6 +4,12 @@ remembers of a Ctrl-C it handled."""
 import subprocess
 import sys
 import textwrap
+import types
+
+import click
+import pytest
+
+from lfring.cli.main import COMMANDS, Terminated, main
 
 SCRIPT = textwrap.dedent('''
     import sys
@@ -131,3 +137,37 @@ def test_a_folder_or_a_quoted_pattern_given_as_a_frame_is_named_as_such(tmp_path
     shutil.copy(data / "scene.png", odd)
     shutil.copy(data / "scene.png.json", tmp_path / "scene[1].png.json")
     assert main(["check", str(odd), "-o", str(tmp_path / "check.png")]) == 0
+
+
+def _command_building_a_class(stop):
+    """A command stopped by ``stop`` while it builds a class, as Ctrl-C can stop an import whose
+    module defines a class with a ``functools.cached_property``: the descriptor's
+    ``__set_name__`` raises it (Python 3.10 and 3.11 raise a RuntimeError from it)."""
+
+    @click.command("interrupted")
+    def command():
+        class Stopped:
+            def __set_name__(self, owner, name):
+                raise stop
+
+        type("Built", (), {"attribute": Stopped()})
+
+    return command
+
+
+@pytest.mark.parametrize("stop, code, line", [(KeyboardInterrupt, 130, "lfring: aborted"),
+                                              (Terminated, 143, "lfring: terminated")])
+def test_ctrl_c_while_an_import_builds_a_class_exits_as_ctrl_c(monkeypatch, capsys, stop, code, line):
+    monkeypatch.setitem(sys.modules, "lfring.cli.interrupted", types.SimpleNamespace(command=_command_building_a_class(stop)))
+    monkeypatch.setitem(COMMANDS, "interrupted", "interrupted")
+    assert main(["interrupted"]) == code
+    assert capsys.readouterr().err.strip() == line
+
+
+def test_an_error_raised_from_something_else_is_not_taken_for_ctrl_c(monkeypatch):
+    monkeypatch.setitem(sys.modules, "lfring.cli.interrupted",
+                        types.SimpleNamespace(command=_command_building_a_class(ValueError("a bug"))))
+    monkeypatch.setitem(COMMANDS, "interrupted", "interrupted")
+    with pytest.raises((RuntimeError, ValueError)) as info:
+        main(["interrupted"])
+    assert "a bug" in str(info.value) + str(info.value.__cause__)
