@@ -23,8 +23,11 @@ def test_cli_batch_names_failures_and_exits_1(frames, folder, tmp_path, capsys):
     _, cal_path = frames
     root, _ = folder
     out = tmp_path / "out"
-    code = main(["batch", str(root), "-o", str(out), "--refocus", "0.5", "--calib", str(cal_path), "--workers", "1",
-                 "--interpolation", "linear", "--no-progress"])
+    # Shift-and-add: the subject is how failures are told, not the method (the default method's batch
+    # is judged below).
+    run = ["batch", str(root), "-o", str(out), "--refocus", "0.5", "--method", "shift-and-add", "--calib", str(cal_path),
+           "--workers", "1", "--interpolation", "linear", "--no-progress"]
+    code = main(run)
     assert code == 1
     captured = capsys.readouterr()
     # Each failure is printed once, as it happens: "lfring: ERROR: PATH: why".
@@ -34,8 +37,7 @@ def test_cli_batch_names_failures_and_exits_1(frames, folder, tmp_path, capsys):
         assert captured.err.count(str(root / c)) == 1
     assert f"{N_FRAMES} frames: {N_FRAMES - 3} done, 0 skipped (already done), 3 failed" in captured.out
     # Rerun: all good frames skipped, exit 1 again for the corrupt ones.
-    assert main(["batch", str(root), "-o", str(out), "--refocus", "0.5", "--calib", str(cal_path), "--workers", "1",
-                 "--interpolation", "linear", "--no-progress"]) == 1
+    assert main(run) == 1
     assert f"0 done, {N_FRAMES - 3} skipped" in capsys.readouterr().out
 
 

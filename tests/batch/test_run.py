@@ -38,7 +38,10 @@ def test_fifty_frames_three_corrupt_then_resume(frames, folder, tmp_path):
     out = tmp_path / "out"
     from lfring import RingCalibration
 
-    settings = BatchSettings(refocus_m=(0.5,), calibration=RingCalibration.load(cal_path), calibration_name="binned4")
+    # Shift-and-add: what is judged here is the batch around each frame (failures, records, resume),
+    # not the method; the default method's batch is judged in test_cli_batch.py.
+    settings = BatchSettings(refocus_m=(0.5,), refocus_method="shift-and-add", calibration=RingCalibration.load(cal_path),
+                             calibration_name="binned4")
     rep = run_batch([str(root)], out, settings, workers=2)
     # Exactly the three corrupt frames fail, by name; the 47 others are done.
     assert sorted(rep.failed) == sorted(str(root / c) for c in CORRUPT)
@@ -50,8 +53,9 @@ def test_fifty_frames_three_corrupt_then_resume(frames, folder, tmp_path):
         assert (out / rel.replace(".png", "_refocus_0.5m.png")).is_file()
         rec = json.loads((out / rel.replace(".png", ".lfring.json")).read_text())
         assert rec["status"] == "done" and rec["settings"]["refocus_m"] == [0.5]
+        assert rec["settings"]["refocus_method"] == "shift-and-add"
     img = cv2.cvtColor(cv2.imread(str(out / "sub/f21_refocus_0.5m.png")), cv2.COLOR_BGR2RGB)
-    np.testing.assert_array_equal(img, expected_refocus(d / "part.png", cal_path, 0.5))
+    np.testing.assert_array_equal(img, expected_refocus(d / "part.png", cal_path, 0.5, method="shift-and-add"))
     # One manifest line per frame, with status, outputs and timings.
     entries = read_manifest(out / "manifest.jsonl")
     assert len(entries) == N_FRAMES
