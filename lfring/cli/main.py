@@ -198,12 +198,7 @@ def _run(args: list[str]) -> int:
     except click.exceptions.Exit as exc:
         return exc.exit_code
     except (click.Abort, KeyboardInterrupt) as exc:
-        stop = exc if isinstance(exc, KeyboardInterrupt) else exc.__cause__
-        if isinstance(stop, Terminated):
-            click.echo("lfring: terminated", err=True)
-            return EXIT_TERMINATED
-        click.echo("lfring: aborted", err=True)
-        return EXIT_INTERRUPTED
+        return _stopped(exc if isinstance(exc, KeyboardInterrupt) else exc.__cause__)
     except click.ClickException as exc:
         exc.show()
         return exc.exit_code
@@ -211,10 +206,18 @@ def _run(args: list[str]) -> int:
         stop = interrupt_behind(exc)  # Python 3.10 and 3.11: Ctrl-C inside an import's class creation
         if stop is None:
             raise
-        click.echo("lfring: terminated" if isinstance(stop, Terminated) else "lfring: aborted", err=True)
-        return EXIT_TERMINATED if isinstance(stop, Terminated) else EXIT_INTERRUPTED
+        return _stopped(stop)
     # Without standalone mode click returns ctx.exit(code)'s code instead of raising.
     return rv if isinstance(rv, int) else 0
+
+
+def _stopped(stop) -> int:
+    """Say in one line that the command was stopped (by SIGTERM or Ctrl-C), and its exit code."""
+    if isinstance(stop, Terminated):
+        click.echo("lfring: terminated", err=True)
+        return EXIT_TERMINATED
+    click.echo("lfring: aborted", err=True)
+    return EXIT_INTERRUPTED
 
 
 if __name__ == "__main__":  # pragma: no cover
