@@ -33,9 +33,16 @@ def _held_out_error(cal, dev, layout):
     return out
 
 
-def test_two_planes_predict_held_out_planes(twin):
+@pytest.fixture(scope="module")
+def pair_calibration(twin):
+    """The calibration from the planes at 0.3 and 1.0 m with the device's z0 (two tests judge it)."""
     noise, targets, flat, layout, dev = twin
-    cal = calibrate({0.3: targets[0.3], 1.0: targets[1.0]}, flat=flat, layout=layout, device=dev)
+    return calibrate({0.3: targets[0.3], 1.0: targets[1.0]}, flat=flat, layout=layout, device=dev)
+
+
+def test_two_planes_predict_held_out_planes(twin, pair_calibration):
+    noise, targets, flat, layout, dev = twin
+    cal = pair_calibration
     assert cal.depth_origin_m == pytest.approx(dev.entrance_pupil_m)
     tol = 0.05 if noise == "none" else 0.15
     for z, err in _held_out_error(cal, dev, layout).items():
@@ -44,10 +51,10 @@ def test_two_planes_predict_held_out_planes(twin):
     assert max(max(d["alignment_residual_px"]) for d in cal.provenance["planes"]) < 0.05
 
 
-def test_z0_aware_fit_beats_z0_zero(twin):
+def test_z0_aware_fit_beats_z0_zero(twin, pair_calibration):
     noise, targets, flat, layout, dev = twin
     pair = {0.3: targets[0.3], 1.0: targets[1.0]}
-    aware = _held_out_error(calibrate(pair, flat=flat, layout=layout, device=dev), dev, layout)
+    aware = _held_out_error(pair_calibration, dev, layout)
     naive = _held_out_error(calibrate(pair, flat=flat, layout=layout, depth_origin_m=0.0), dev, layout)
     for z in (0.5, 2.0):
         assert naive[z] > 0.15 and aware[z] < naive[z] / 5
