@@ -90,14 +90,21 @@ def _fill_unknown(e, fill):
 
 
 @njit(**INLINE)
+def _p2_between(a, b, use_guide, p1, p2, edge_scale):
+    """The large-jump penalty between neighbours with guide values a and b, as an integer: ``p2``
+    cut by the guide's step (never below ``p1``), rounded."""
+    v = np.float32(p2)
+    if use_guide:
+        v = np.float32(p2) / (np.float32(1.0) + abs(a - b) / np.float32(edge_scale))
+        v = v if v > np.float32(p1) else np.float32(p1)
+    return np.int32(v + np.float32(0.5))
+
+
+@njit(**INLINE)
 def _p2_row(guide_a, guide_b, use_guide, p1, p2, edge_scale, out):
-    """The large-jump penalty between neighbours with guide values a and b, as an integer."""
+    """:func:`_p2_between` of every pair of neighbours ``guide_a[x]``, ``guide_b[x]``."""
     for x in range(out.shape[0]):
-        v = np.float32(p2)
-        if use_guide:
-            v = np.float32(p2) / (np.float32(1.0) + abs(guide_a[x] - guide_b[x]) / np.float32(edge_scale))
-            v = v if v > np.float32(p1) else np.float32(p1)
-        out[x] = np.int32(v + np.float32(0.5))
+        out[x] = _p2_between(guide_a[x], guide_b[x], use_guide, p1, p2, edge_scale)
 
 
 @njit(**JIT)
@@ -194,8 +201,6 @@ def _horizontal_row(vol, y, guide, use_guide, p1, p2, edge_scale, erode_rad, tot
     c[:, :] = e.T
     acc = np.empty((w, n), np.int16)
     bufs = np.empty((2, n), np.int16)
-    p2f = np.float32(p2)
-    p1f = np.float32(p1)
     for direction in range(2):
         pmin = np.int16(0)
         for i in range(w):
@@ -211,11 +216,7 @@ def _horizontal_row(vol, y, guide, use_guide, p1, p2, edge_scale, erode_rad, tot
                     pmin = min(pmin, cur[d])
             else:
                 xp = x - 1 if direction == 0 else x + 1
-                p2e = np.int32(p2)
-                if use_guide:
-                    v = p2f / (np.float32(1.0) + abs(guide[y, x] - guide[y, xp]) / np.float32(edge_scale))
-                    v = v if v > p1f else p1f
-                    p2e = np.int32(v + np.float32(0.5))
+                p2e = _p2_between(guide[y, x], guide[y, xp], use_guide, p1, p2, edge_scale)
                 pmin = _path_step(cx, prev, cur, pmin, np.int16(pmin + p2e), p1)
             ax = acc[x]
             if direction == 0:
@@ -244,9 +245,9 @@ def _horizontal_block(vol, y0, y1, guide, use_guide, p1, p2, edge_scale, erode_r
     # paths; acc the chunk's path values, in the same order.
     t = np.empty((chunk, n, b), np.int16)
     acc = np.empty((chunk, n, b), np.int16)
-    state = np.zeros((2, n, b), np.int16)
-    mins = np.zeros((2, b), np.int16)
-    p2e = np.zeros(b, np.int16)
+    state = np.empty((2, n, b), np.int16)  # zeroed by the first step (_next_step), as mins and p2e
+    mins = np.empty((2, b), np.int16)
+    p2e = np.empty(b, np.int16)
     ga = np.empty(b, np.float32)
     gb = np.empty(b, np.float32)
     n_chunks = (w + chunk - 1) // chunk
@@ -366,9 +367,9 @@ def _vertical_block(vol, eroded, total, guide, use_guide, p1, p2, edge_scale, er
     e = np.empty((n, m), np.uint16)
     ext = np.empty(m + 2 * max(erode_rad, raw_rad), np.uint16)
     fill = np.empty(m, np.int64)
-    state = np.zeros((2, n, m), np.int16)
-    mins = np.zeros((2, m), np.int16)
-    p2e = np.zeros(m, np.int16)
+    state = np.empty((2, n, m), np.int16)  # zeroed by the first step (_next_step), as mins and p2e
+    mins = np.empty((2, m), np.int16)
+    p2e = np.empty(m, np.int16)
     col_sum = np.zeros((n, m + 2 * raw_rad), np.int32)
     col_cnt = np.zeros((n, m + 2 * raw_rad), np.int32)
     raw = np.empty((n, m), np.float32)
