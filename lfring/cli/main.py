@@ -198,7 +198,7 @@ def _run(args: list[str]) -> int:
     except click.exceptions.Exit as exc:
         return exc.exit_code
     except (click.Abort, KeyboardInterrupt) as exc:
-        return _stopped(exc if isinstance(exc, KeyboardInterrupt) else exc.__cause__)
+        return _stopped(interrupt_behind(exc))
     except click.ClickException as exc:
         exc.show()
         return exc.exit_code
