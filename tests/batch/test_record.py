@@ -28,8 +28,9 @@ def test_killed_run_leaves_no_partial_output_and_resumes(frames, tmp_path):
     for i in range(12):
         copy_frame(d / "scene.png", root / f"k{i:02d}.png")
     out = tmp_path / "out"
-    args = ["batch", str(root), "-o", str(out), "--refocus", "0.4,0.6", "--calib", str(cal_path), "--workers", "1",
-            "--no-progress"]
+    # What is judged is the kill and the resume, not the refocusing method: shift-and-add.
+    args = ["batch", str(root), "-o", str(out), "--refocus", "0.4,0.6", "--method", "shift-and-add", "--calib", str(cal_path),
+            "--workers", "1", "--no-progress"]
     proc = subprocess.Popen([sys.executable, "-c", f"from lfring.cli.main import main; raise SystemExit(main({args!r}))"],
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     try:
@@ -53,7 +54,8 @@ def test_killed_run_leaves_no_partial_output_and_resumes(frames, tmp_path):
         elif p.name.endswith(".lfring.json"):
             assert json.loads(p.read_text())["status"] in ("pending", "done")
     # The rerun finishes the job without --overwrite, and cleans what the killed run left.
-    rep = run_batch([str(root)], out, BatchSettings(refocus_m=(0.4, 0.6), calibration=load_calibration(cal_path), calibration_name=str(cal_path)),
+    rep = run_batch([str(root)], out, BatchSettings(refocus_m=(0.4, 0.6), refocus_method="shift-and-add",
+                                                  calibration=load_calibration(cal_path), calibration_name=str(cal_path)),
                     workers=1)
     assert rep.exit_code == 0 and len(rep.done) + len(rep.skipped) == 12 and len(rep.skipped) >= done
     assert not (out / ".lfring-tmp").exists() and not (out / ".lfring-batch.lock").exists()

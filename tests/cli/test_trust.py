@@ -198,7 +198,7 @@ def test_calibrate_refuses_swapped_depths_and_remembers_device_and_levels(tmp_pa
 
 def test_batch_over_the_sample_folder_skips_what_is_not_a_frame_and_adds_outputs(tmp_path, capsys):
     out = tmp_path / "x"
-    args = ["batch", str(DATA), "-o", str(out), "--exclude", "flat*", "--workers", "1"]
+    args = ["batch", str(DATA), "-o", str(out), "--exclude", "flat*", "--workers", "1", *SAA]
     assert main([*args, "--refocus", "0.5"]) == 0
     cap = capsys.readouterr()
     frames = sum(1 for p in DATA.glob("*.png") if not p.name.startswith("flat"))  # 7 with the hard scene
