@@ -7,6 +7,8 @@ import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
 
+from lfring.core.signals import held_signals
+
 __all__ = ["STRIP_PIXELS", "numba_threads", "run_threads"]
 
 # Pixels per strip (rows times width, with the halo): about 0.4 MiB a buffer, so a thread's dozen
@@ -26,14 +28,19 @@ def _pool(workers: int) -> ThreadPoolExecutor:
 
 def run_threads(tasks, threads: int) -> None:
     """Run the callables, shared among ``threads`` threads: this one and the pool's (which take
-    the next task as they free up; OpenCV and NumPy release the GIL)."""
+    the next task as they free up; OpenCV and NumPy release the GIL).
+
+    When this thread's share raises (a Ctrl-C, a SIGTERM raised as one, an error), the pool's
+    threads finish the task in hand and take no other; the exception is raised once they have.
+    """
     lock = threading.Lock()
     todo = iter(tasks)
+    stopped = False
 
     def worker() -> None:
         while True:
             with lock:
-                task = next(todo, None)
+                task = None if stopped else next(todo, None)
             if task is None:
                 return
             task()
@@ -42,9 +49,17 @@ def run_threads(tasks, threads: int) -> None:
     if threads == 1:
         worker()
         return
-    futures = [_pool(threads - 1).submit(worker) for _ in range(threads - 1)]
+    # The pool starts its threads in submit(); an exception that a signal raises between a thread's
+    # start and the pool's record of it would leave the thread unknown to the interpreter's exit,
+    # which would then wait for it forever. Signals that come meanwhile are delivered after.
+    with held_signals():
+        futures = [_pool(threads - 1).submit(worker) for _ in range(threads - 1)]
     try:
         worker()
+    except BaseException:
+        with lock:
+            stopped = True
+        raise
     finally:
         for f in futures:
             f.result()

@@ -35,3 +35,48 @@ def test_numba_threads_sets_and_restores_the_count():
     assert numba.get_num_threads() == before
     with numba_threads(None):
         assert numba.get_num_threads() == before
+
+
+def test_an_interrupt_in_the_callers_share_stops_the_pool_taking_tasks():
+    """Ctrl-C in the calling thread: the pool's threads finish the task in hand and take no more
+    (they went on through every task that was left)."""
+    import time
+
+    caller = threading.current_thread()
+    ran_elsewhere, lock = [], threading.Lock()
+
+    def task(i):
+        if threading.current_thread() is caller:
+            raise KeyboardInterrupt
+        time.sleep(0.02)
+        with lock:
+            ran_elsewhere.append(i)
+
+    with pytest.raises(KeyboardInterrupt):
+        run_threads([lambda i=i: task(i) for i in range(40)], 2)
+    assert len(ran_elsewhere) <= 2, ran_elsewhere
+
+
+def test_a_signal_while_the_pool_starts_its_threads_does_not_hang_the_exit():
+    """A Ctrl-C that lands between the pool's start of a thread and its record of it (here made to
+    land there) is delivered once the threads are started: the interpreter exits, instead of
+    waiting at exit for a thread it was never told of."""
+    import subprocess
+    import sys
+
+    code = """
+import signal, threading
+from lfring.core.threads import run_threads
+start = threading.Thread.start
+def start_then_interrupt(self):
+    start(self)
+    if self.name.startswith("lfring"):
+        signal.raise_signal(signal.SIGINT)
+threading.Thread.start = start_then_interrupt
+try:
+    run_threads([lambda: None] * 4, 2)
+except KeyboardInterrupt:
+    print("interrupted")
+"""
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=30)
+    assert proc.returncode == 0 and proc.stdout.strip() == "interrupted", proc.stderr
