@@ -67,6 +67,7 @@ def test_a_signal_while_the_pool_starts_its_threads_does_not_hang_the_exit():
     code = """
 import signal, threading
 from lfring.core.threads import run_threads
+signal.signal(signal.SIGINT, signal.default_int_handler)  # a parent that ignores SIGINT (a test runner's worker) passes that on
 start = threading.Thread.start
 def start_then_interrupt(self):
     start(self)
