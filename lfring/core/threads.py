@@ -49,12 +49,14 @@ def run_threads(tasks, threads: int) -> None:
     if threads == 1:
         worker()
         return
-    # The pool starts its threads in submit(); an exception that a signal raises between a thread's
-    # start and the pool's record of it would leave the thread unknown to the interpreter's exit,
-    # which would then wait for it forever. Signals that come meanwhile are delivered after.
-    with held_signals():
-        futures = [_pool(threads - 1).submit(worker) for _ in range(threads - 1)]
+    futures = []
     try:
+        # The pool starts its threads in submit(); an exception that a signal raises between a
+        # thread's start and the pool's record of it would leave the thread unknown to the
+        # interpreter's exit, which would then wait for it forever. Signals that come meanwhile are
+        # delivered after, here, where they stop the pool's threads as any other interruption.
+        with held_signals():
+            futures.extend(_pool(threads - 1).submit(worker) for _ in range(threads - 1))
         worker()
     except BaseException:
         with lock:
