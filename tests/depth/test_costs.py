@@ -99,6 +99,23 @@ def test_the_halves_volume_needs_the_whole_volume_and_an_lcn_cost(twin):
         take_halves(vol.astype(np.float64), vol)
 
 
+def test_a_pixel_without_a_cost_of_all_views_takes_no_halves_cost():
+    """Where no hypothesis has a cost of all views (best inf: too few views see the pixel), the
+    halves' cost is not taken, even a finite one; a poor finite pixel still takes it."""
+    from lfring.depth.costs.lcn_halves import HALVES_POOR, halves_poor, take_halves
+
+    volume = np.full((2, 1, 6), 0.1, np.float32)
+    volume[:, 0, 4] = np.inf   # no cost of all views at any hypothesis
+    volume[:, 0, 5] = 4.0      # poor: 40 times the median best
+    halves = np.full((2, 1, 6), 0.1, np.float32)
+    halves[:, 0, 4:] = 0.2
+    assert take_halves(volume, halves) == pytest.approx(1 / 6)
+    np.testing.assert_array_equal(volume[:, 0, 4], [np.inf, np.inf])
+    np.testing.assert_array_equal(volume[:, 0, 5], [np.float32(0.2)] * 2)
+    best = np.array([1.0, HALVES_POOR * 2.0, np.inf], np.float32)
+    assert halves_poor(best, 1.0).tolist() == [False, True, False]
+
+
 def test_view_halves_follow_the_rows_and_columns_of_the_ring(twin):
     """Reference 0 (top left): its column and its row; 'center': the four sides of the square;
     the pair and a single line of views: none; the cost is 'lcn' there."""

@@ -11,6 +11,7 @@ pixels where no depth suits all views and a half agrees much better.
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import cv2
 import numpy as np
@@ -22,14 +23,14 @@ from lfring.depth.costs.lcn_occlusion import OCCLUSION_PENALTY
 from lfring.errors import InvalidInputError
 
 __all__ = ["HALVES_GAIN", "HALVES_LINE_TOL", "HALVES_MEDIAN_SAMPLE", "HALVES_MIN_SUPPORT", "HALVES_POOR", "LCN_HALVES",
-           "checked_halves", "half_aggregate", "halves_least_torch", "take_halves", "view_halves"]
+           "checked_halves", "half_aggregate", "halves_least_torch", "halves_poor", "take_halves", "view_halves"]
 
 # 'lcn-halves' (for the whole cost volume of the semi-global method): a half of the views is the
 # views on one side of a line through the reference (along the image's rows or columns; with the
 # reference's own view on the line), as many as move at most this fraction of the largest view
 # motion towards that side. It takes the halves' cost at a pixel whose best cost over all views is
-# over HALVES_POOR times the image's median best cost (no depth suits every view) while some half's
-# best is under HALVES_GAIN times it (a half agrees). The factors were tuned on the twin's hard and
+# over HALVES_POOR times the image's median best cost (no depth suits every view; halves_poor)
+# while some half's best is under HALVES_GAIN times it (a half agrees). The factors were tuned on the twin's hard and
 # three-depth scenes, where the rule lowers the bad pixels, and checked on a layout they were not
 # tuned on (the hard scene's objects mirrored and moved), where it does too. Taking the halves'
 # cost wherever it is lower made the three-depth scene worse: two views agree by chance in weak
@@ -137,6 +138,23 @@ def half_aggregate(parts, seen: np.ndarray, box, out: np.ndarray, scratch=None) 
     return out
 
 
+def halves_poor(best, median):
+    """The pixels where the halves' cost may be taken: ``best`` (the least cost over all views,
+    inf where no view pair sees the pixel at any hypothesis) over :data:`HALVES_POOR` times the
+    image's ``median`` best, and finite. A pixel that no two views see at any hypothesis has no
+    half that sees it either (a half's cost counts only where all views' does), so leaving it out
+    changes no cost and spares the halves' pass those pixels (the views' rims, the frame's
+    border). For NumPy arrays and torch tensors alike.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> halves_poor(np.array([0.1, 0.5, np.inf], np.float32), 0.1).tolist()
+    [False, True, False]
+    """
+    return (best > HALVES_POOR * median) & (best < math.inf)
+
+
 def take_halves(volume: np.ndarray, halves: np.ndarray) -> np.ndarray:
     """'lcn-halves': in the cost volume (N, h, w) of all views, in place, the least of it and the
     halves' volume (:func:`half_aggregate` of every half, inf where none counts) at the pixels
@@ -168,7 +186,7 @@ def take_halves(volume: np.ndarray, halves: np.ndarray) -> np.ndarray:
     sample = sample[np.isfinite(sample)]
     if not sample.size:
         return 0.0
-    take = (best > HALVES_POOR * float(np.median(sample))) & (half_best < HALVES_GAIN * best)
+    take = halves_poor(best, float(np.median(sample))) & (half_best < HALVES_GAIN * best)
     if take.any():
         compiled_kernels().take_where(volume, halves, take)
     return float(take.mean())

@@ -29,7 +29,7 @@ from lfring.core.memory import fresh_zeros
 from lfring.core.threads import run_threads
 from lfring.core.viewstack import WEIGHT_FLOOR, cached_view_masks, calibration_cache
 from lfring.core.warping import TRANSLATION_TOL_PX
-from lfring.depth.costs.lcn_halves import (HALVES_GAIN, HALVES_MEDIAN_SAMPLE, HALVES_MIN_SUPPORT, HALVES_POOR,
+from lfring.depth.costs.lcn_halves import (HALVES_GAIN, HALVES_MEDIAN_SAMPLE, HALVES_MIN_SUPPORT, halves_poor,
                                            view_halves)
 from lfring.depth.costs.lcn_occlusion import OCCLUSION_PENALTY
 from lfring.depth.plan import depths_key, guide_image
@@ -246,7 +246,7 @@ def fused_index(views, calibration, plan, settings, subpixel_box_px: int, on_sta
         sample = best[::stride, ::stride]
         sample = sample[np.isfinite(sample)]
         if sample.size:
-            poor = best > HALVES_POOR * float(np.median(sample))
+            poor = halves_poor(best, float(np.median(sample)))
             fused_volume.sweep_halves(*geometry, flat, ptr, rad, STRIP_ROWS, floor, np.float32(OCCLUSION_PENALTY),
                             np.float32(HALVES_MIN_SUPPORT), np.float32(HALVES_GAIN), np.float32(unit), poor, best, vol)
     p1 = int(round(min(P1_SCALE * scale / unit, PENALTY_MAX)))

@@ -452,18 +452,42 @@ def sweep_halves(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_
             span_b[n_spans] = last + 1
             n_spans += 1
             x = last + 1
-        # Neighbouring spans are computed together up to HALVES_GROUP_COLUMNS columns of terms:
+        # Each span only over the rows that hold its poor pixels (with the box's reach): a few
+        # scattered poor pixels would otherwise cost the strip's every row. Neighbouring spans
+        # over the same rows are computed together up to HALVES_GROUP_COLUMNS columns of terms:
         # fewer, longer row steps, and a working set that stays in the core's cache.
+        span_y0 = np.empty(n_spans, np.int64)
+        span_y1 = np.empty(n_spans, np.int64)
+        for i in range(n_spans):
+            span_y0[i], span_y1[i] = _poor_rows(poor, y0, y1, span_a[i], span_b[i])
         i = 0
         while i < n_spans:
             k = i + 1
             width = span_b[i] - span_a[i] + 4 * rad
-            while k < n_spans and width + span_b[k] - span_a[k] + 4 * rad <= HALVES_GROUP_COLUMNS:
+            while (k < n_spans and span_y0[k] == span_y0[i] and span_y1[k] == span_y1[i]
+                   and width + span_b[k] - span_a[k] + 4 * rad <= HALVES_GROUP_COLUMNS):
                 width += span_b[k] - span_a[k] + 4 * rad
                 k += 1
             _halves_strip(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, views, halves, half_ptr, rad,
-                          floor, penalty, min_support, gain, unit, poor, best, out, y0, y1, span_a[i:k], span_b[i:k])
+                          floor, penalty, min_support, gain, unit, poor, best, out, span_y0[i], span_y1[i], span_a[i:k],
+                          span_b[i:k])
             i = k
+
+
+@njit(**INLINE)
+def _poor_rows(poor, y0, y1, xa, xb):
+    """The first and one past the last row of y0..y1 with a ``poor`` pixel in columns xa..xb."""
+    ya = y1
+    yb = y0
+    for y in range(y0, y1):
+        hit = False
+        pr = poor[y]
+        for x in range(xa, xb):
+            hit |= pr[x]
+        if hit:
+            ya = min(ya, y)
+            yb = y + 1
+    return ya, yb
 
 
 @njit(**JIT)

@@ -35,7 +35,7 @@ from lfring.core.transfer import device_masks, download_maps, inverse_maps, is_t
 from lfring.core.viewstack import WEIGHT_FLOOR, calibration_cache
 from lfring.depth.aggregation import GUIDED_EPS, GuidedTorch
 from lfring.depth.costs.lcn import LCN_EPS, LCN_FLOOR, window_weights
-from lfring.depth.costs.lcn_halves import (HALVES_GAIN, HALVES_MEDIAN_SAMPLE, HALVES_MIN_SUPPORT, HALVES_POOR,
+from lfring.depth.costs.lcn_halves import (HALVES_GAIN, HALVES_MEDIAN_SAMPLE, HALVES_MIN_SUPPORT, halves_poor,
                                            halves_least_torch, view_halves)
 from lfring.depth.costs.lcn_occlusion import OCCLUSION_PENALTY, leavable_views, occlusion_aggregate_torch
 from lfring.depth.plan import baseline_axis, in_reference_frame, other_reference
@@ -330,7 +330,7 @@ def _take_halves(volume, half_volume) -> None:
     stride = max(1, int(np.ceil(np.sqrt(h * w / HALVES_MEDIAN_SAMPLE))))
     sample = best[::stride, ::stride].reshape(-1)
     median = _median(sample, torch.isfinite(sample)).to(torch.float32)
-    take = (best > HALVES_POOR * median) & (half_best < HALVES_GAIN * best)
+    take = halves_poor(best, median) & (half_best < HALVES_GAIN * best)
     half_volume.masked_fill_(~take, float("inf"))
     torch.minimum(volume, half_volume, out=volume)
 
