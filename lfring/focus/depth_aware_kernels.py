@@ -51,6 +51,14 @@ def rungs(x, agree, cover, sharp, window, x_f, motion, aperture, sharp_px, ramp_
     n_stripes = (r1 + stripe - 1) // stripe
     for b in prange(r0 // stripe, n_stripes):
         for y in range(max(r0, b * stripe), min(r1, (b + 1) * stripe)):
+            # Neighbours mostly share their rungs: the search for a pixel's rung starts from the
+            # last pixel's, and a row's run of pixels between the same rungs enters the boxes once.
+            i = 1
+            run_k = -1
+            run_k2 = -1
+            run_two = False
+            run_x0 = 0
+            run_x1 = 0
             for xx in range(c0, c1):
                 if cover[y, xx] <= 0.0:
                     q[y, xx] = 0.0
@@ -65,28 +73,46 @@ def rungs(x, agree, cover, sharp, window, x_f, motion, aperture, sharp_px, ramp_
                             share = min(max((sharp_px + ramp_px - abs(d)) / ramp_px, 0.0), 1.0) * agree[y, xx]
                             break
                 m = max(0.5 * rho * rho - share * (d * d + share_px2), 0.0)
-                # The fractional index of m in the increasing moments (np.interp's).
+                # The fractional index of m in the increasing moments (np.interp's): the first i
+                # with m <= moments[i]; the top rung past the last (or for a NaN).
                 frac = float(n)
-                for i in range(1, n + 1):
-                    if m <= moments[i]:
-                        frac = (i - 1) + (m - moments[i - 1]) / (moments[i] - moments[i - 1])
-                        break
+                if n > 0 and m <= moments[n]:
+                    while i > 1 and m <= moments[i - 1]:
+                        i -= 1
+                    while m > moments[i]:
+                        i += 1
+                    frac = (i - 1) + (m - moments[i - 1]) / (moments[i] - moments[i - 1])
                 sign = -1 if rho < 0.0 else 1
                 q[y, xx] = sign * frac
                 s[y, xx] = share
                 lo = int(frac)
-                for step in range(2):
-                    if step == 1 and (frac <= lo or lo >= n):
-                        break
-                    k = n + sign * (lo + step)
-                    if boxes[b, k, 0] > y:
-                        boxes[b, k, 0] = y
-                    if boxes[b, k, 1] < y:
-                        boxes[b, k, 1] = y
-                    if boxes[b, k, 2] > xx:
-                        boxes[b, k, 2] = xx
-                    if boxes[b, k, 3] < xx:
-                        boxes[b, k, 3] = xx
+                two = not (frac <= lo or lo >= n)
+                k = n + sign * lo
+                k2 = n + sign * (lo + 1)
+                if not (k == run_k and two == run_two and (not two or k2 == run_k2)):
+                    if run_k >= 0:
+                        _box_add(boxes, b, run_k, y, run_x0, run_x1)
+                        if run_two:
+                            _box_add(boxes, b, run_k2, y, run_x0, run_x1)
+                    run_k, run_k2, run_two, run_x0 = k, k2, two, xx
+                run_x1 = xx
+            if run_k >= 0:
+                _box_add(boxes, b, run_k, y, run_x0, run_x1)
+                if run_two:
+                    _box_add(boxes, b, run_k2, y, run_x0, run_x1)
+
+
+@njit(inline="always")
+def _box_add(boxes, b, k, y, xa, xb):
+    """Stripe ``b``'s box of rung ``k`` grown to hold row ``y``'s columns xa..xb."""
+    if boxes[b, k, 0] > y:
+        boxes[b, k, 0] = y
+    if boxes[b, k, 1] < y:
+        boxes[b, k, 1] = y
+    if boxes[b, k, 2] > xa:
+        boxes[b, k, 2] = xa
+    if boxes[b, k, 3] < xb:
+        boxes[b, k, 3] = xb
 
 
 @njit(parallel=True, **_JIT)

@@ -149,3 +149,62 @@ def test_knot_maps_interpolate_the_knots_homographies_linearly_in_x():
         want = a + t * (b - a)
         np.testing.assert_allclose(map_x[k].ravel(), want[:, 0], atol=1e-4)
         np.testing.assert_allclose(map_y[k].ravel(), want[:, 1], atol=1e-4)
+
+
+@pytest.mark.parametrize("n", [0, 1, 8])
+def test_rungs_are_np_interp_of_the_moments_and_boxes_of_their_pixels(n):
+    """Every pixel's signed fractional rung is ``np.interp`` of its blur's second moment in the
+    ladder's moments (the top rung past the last, and for a NaN depth), its share of the
+    shift-and-add image the ramp where that image has a colour; each stripe's box of a signed rung
+    holds exactly the pixels of the window that go to that rung. Smooth depth (long runs of the same
+    rungs), jumps, NaN, uncovered pixels and pixels without a shift-and-add colour."""
+    rng = np.random.default_rng(3 + n)
+    h, w, stripe = 70, 90, 16
+    xx = np.linspace(-1.0, 3.0, w)[None, :] + np.zeros((h, 1))
+    x = np.where(rng.random((h, w)) < 0.1, rng.uniform(-1.0, 3.0, (h, w)), xx).astype(np.float32)
+    x[rng.random((h, w)) < 0.02] = np.nan
+    agree = rng.random((h, w)).astype(np.float32)
+    cover = rng.random((h, w)).astype(np.float32)
+    cover[cover < 0.15] = 0.0
+    sharp = rng.random((h, w, 3)).astype(np.float32)
+    sharp[rng.random((h, w)) < 0.3] = 0.0
+    moments = np.cumsum(np.r_[0.0, rng.uniform(0.2, 1.5, n)])
+    window = np.array([3, h - 5, 4, w - 2], np.int64)
+    x_f, motion, aperture, sharp_px, ramp_px, share_px2 = 1.1, 1.7, 0.8, 0.5, 1.0, 0.08
+    q = np.full((h, w), -7.0, np.float32)
+    s = np.full((h, w), -7.0, np.float32)
+    boxes = np.empty(((h + stripe - 1) // stripe, 2 * n + 1, 4), np.int64)
+    boxes[..., 0::2] = np.iinfo(np.int64).max
+    boxes[..., 1::2] = -1
+    kern.rungs(x, agree, cover, sharp, window, x_f, motion, aperture, sharp_px, ramp_px, share_px2, moments, stripe, q, s,
+               boxes)
+
+    r0, r1, c0, c1 = window
+    inside = np.zeros((h, w), bool)
+    inside[r0:r1, c0:c1] = True
+    on = inside & (cover > 0)
+    d = motion * (x.astype(np.float64) - x_f)
+    rho = aperture * d
+    has = (sharp != 0).any(axis=2)
+    share = np.where(has, np.clip((sharp_px + ramp_px - np.abs(d)) / ramp_px, 0, 1) * agree, 0.0)
+    m = np.maximum(0.5 * rho * rho - share * (d * d + share_px2), 0.0)
+    frac = np.where(np.isnan(m) | (m > moments[-1]), float(n), np.interp(np.nan_to_num(m), moments, np.arange(n + 1.0)))
+    want_q = np.where(rho < 0, -frac, frac)
+    np.testing.assert_allclose(q[on], want_q[on], rtol=0, atol=1e-5)
+    np.testing.assert_array_equal(s[on], share[on].astype(np.float32))
+    assert (q[inside & ~on] == 0).all() and (s[inside & ~on] == 0).all() and (q[~inside] == -7).all()
+    # Each pixel goes to the rung below its fraction, and to the next one up where it lies between.
+    qa = np.abs(q.astype(np.float64))
+    lo = np.floor(qa).astype(int)
+    sign = np.where(q < 0, -1, 1)
+    two = (qa > lo) & (lo < n)
+    for b in range(boxes.shape[0]):
+        band = np.zeros((h, w), bool)
+        band[b * stripe:(b + 1) * stripe] = True
+        for k in range(2 * n + 1):
+            mine = on & band & ((n + sign * lo == k) | (two & (n + sign * (lo + 1) == k)))
+            if not mine.any():
+                assert boxes[b, k, 1] == -1 and boxes[b, k, 3] == -1
+                continue
+            rows, cols = np.nonzero(mine)
+            assert tuple(boxes[b, k]) == (rows.min(), rows.max(), cols.min(), cols.max())
