@@ -652,7 +652,10 @@ class _Grid:
             offset[k] = total
             total += c1 * rows[k] * cols[k]
             used.append(k)
-        buf = self.buffer(name + " layers", (total,), 0.0)
+        buf = self.buffer(name + " layers", (total,))
+        for k in used:  # the scatter writes the full-resolution boxes whole
+            if shift[k] > 0:
+                buf[offset[k]:offset[k] + c1 * rows[k] * cols[k]] = 0.0
         kern.scatter(colour, sharp, s, cover, q, window, n, shift, y0, x0, rows, cols, offset, self.stripe, buf)
         out = []
         blurs = []

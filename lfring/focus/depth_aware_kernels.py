@@ -123,42 +123,88 @@ def scatter(colour, sharp, s, cover, q, window, n, shift, y0, x0, rows, cols, of
     averaging) within its box (origin ``y0[k]``, ``x0[k]`` in full-resolution pixels, multiples
     of the factor; ``rows[k]`` x ``cols[k]`` cells of C + 1 values) at ``buf[offset[k]:]``;
     the pixels of ``window`` (row0, row1, col0, col1). ``sharp`` may be empty (no shift-and-add
-    image)."""
+    image).
+
+    A full-resolution rung's cell takes one pixel at most, so its box is written whole, zeros
+    where no pixel of the rung lies (its part of ``buf`` need not be cleared first); the reduced
+    grids' cells sum several pixels, and their parts of ``buf`` must hold zeros."""
     h, _, c = colour.shape
     c1 = c + 1
     with_sharp = sharp.shape[0] == h
     r0, r1, col0, col1 = window[0], window[1], window[2], window[3]
-    n_stripes = (r1 + stripe - 1) // stripe
-    for b in prange(r0 // stripe, n_stripes):
+    # The rows to visit: the window's and every full-resolution box's.
+    lo_row, hi_row = r0, r1
+    for k in range(2 * n + 1):
+        if rows[k] > 0 and shift[k] == 0:
+            lo_row = min(lo_row, y0[k])
+            hi_row = max(hi_row, y0[k] + rows[k])
+    w = colour.shape[1]
+    n_stripes = (hi_row + stripe - 1) // stripe
+    for b in prange(lo_row // stripe, n_stripes):
         v = np.empty(c1, np.float32)
-        for y in range(max(r0, b * stripe), min(r1, (b + 1) * stripe)):
-            for xx in range(col0, col1):
-                cv = cover[y, xx]
-                if cv <= 0.0:
+        # Per pixel of the row: its two rungs' values for the full-resolution boxes (-1: none).
+        k_a = np.empty(w, np.int64)
+        k_b = np.empty(w, np.int64)
+        val_a = np.empty((w, c1), np.float32)
+        val_b = np.empty((w, c1), np.float32)
+        for y in range(max(lo_row, b * stripe), min(hi_row, (b + 1) * stripe)):
+            k_a[:] = -1
+            k_b[:] = -1
+            if r0 <= y < r1:
+                for xx in range(col0, col1):
+                    cv = cover[y, xx]
+                    if cv <= 0.0:
+                        continue
+                    sh = s[y, xx]
+                    for ch in range(c):
+                        col = colour[y, xx, ch]
+                        if with_sharp and sh > 0.0:
+                            col += sh * (sharp[y, xx, ch] - col)
+                        v[ch] = col * cv
+                    v[c] = cv
+                    sq = q[y, xx]
+                    frac = abs(sq)
+                    lo = int(frac)
+                    t = frac - lo
+                    sign = -1 if sq < 0.0 else 1
+                    for m in range(2):
+                        if m == 1 and (t <= 0.0 or lo >= n):
+                            break
+                        k = n + sign * (lo + m)
+                        f = shift[k]
+                        scale = np.float32((t if m == 1 else 1.0 - t) / (1 << (2 * f)))
+                        if f == 0:
+                            if m == 0:
+                                k_a[xx] = k
+                                for ch in range(c1):
+                                    val_a[xx, ch] = np.float32(0.0) + scale * v[ch]
+                            else:
+                                k_b[xx] = k
+                                for ch in range(c1):
+                                    val_b[xx, ch] = np.float32(0.0) + scale * v[ch]
+                            continue
+                        cy = (y >> f) - (y0[k] >> f)
+                        cx = (xx >> f) - (x0[k] >> f)
+                        base = offset[k] + (cy * cols[k] + cx) * c1
+                        for ch in range(c1):
+                            buf[base + ch] += scale * v[ch]
+            # Every full-resolution box's row: the pixel's value where it is of that rung, else 0.
+            for k in range(2 * n + 1):
+                if rows[k] == 0 or shift[k] != 0 or not (y0[k] <= y < y0[k] + rows[k]):
                     continue
-                sh = s[y, xx]
-                for ch in range(c):
-                    col = colour[y, xx, ch]
-                    if with_sharp and sh > 0.0:
-                        col += sh * (sharp[y, xx, ch] - col)
-                    v[ch] = col * cv
-                v[c] = cv
-                sq = q[y, xx]
-                frac = abs(sq)
-                lo = int(frac)
-                t = frac - lo
-                sign = -1 if sq < 0.0 else 1
-                for m in range(2):
-                    if m == 1 and (t <= 0.0 or lo >= n):
-                        break
-                    k = n + sign * (lo + m)
-                    f = shift[k]
-                    cy = (y >> f) - (y0[k] >> f)
-                    cx = (xx >> f) - (x0[k] >> f)
-                    scale = np.float32((t if m == 1 else 1.0 - t) / (1 << (2 * f)))
-                    base = offset[k] + (cy * cols[k] + cx) * c1
-                    for ch in range(c1):
-                        buf[base + ch] += scale * v[ch]
+                base = offset[k] + (y - y0[k]) * cols[k] * c1
+                for j in range(cols[k]):
+                    xx = x0[k] + j
+                    cell = base + j * c1
+                    if k_a[xx] == k:
+                        for ch in range(c1):
+                            buf[cell + ch] = val_a[xx, ch]
+                    elif k_b[xx] == k:
+                        for ch in range(c1):
+                            buf[cell + ch] = val_b[xx, ch]
+                    else:
+                        for ch in range(c1):
+                            buf[cell + ch] = np.float32(0.0)
 
 
 @njit(parallel=True, **_JIT)
