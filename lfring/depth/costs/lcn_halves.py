@@ -30,11 +30,11 @@ __all__ = ["HALVES_GAIN", "HALVES_LINE_TOL", "HALVES_MEDIAN_SAMPLE", "HALVES_MIN
 # reference's own view on the line), as many as move at most this fraction of the largest view
 # motion towards that side. It takes the halves' cost at a pixel whose best cost over all views is
 # over HALVES_POOR times the image's median best cost (no depth suits every view; halves_poor)
-# while some half's best is under HALVES_GAIN times it (a half agrees). The factors were tuned on the twin's hard and
-# three-depth scenes, where the rule lowers the bad pixels, and checked on a layout they were not
-# tuned on (the hard scene's objects mirrored and moved), where it does too. Taking the halves'
-# cost wherever it is lower made the three-depth scene worse: two views agree by chance in weak
-# texture (benchmarks/RESULTS.md, "Depth on real data").
+# while some half's best is under HALVES_GAIN times it (a half agrees). The factors were tuned on
+# the twin's hard and three-depth scenes, where the rule lowers the bad pixels, and checked on a
+# layout they were not tuned on (the hard scene's objects mirrored and moved), where it does too.
+# Taking the halves' cost wherever it is lower made the three-depth scene worse: two views agree
+# by chance in weak texture (benchmarks/RESULTS.md, "Depth on real data").
 HALVES_LINE_TOL = 0.25
 HALVES_POOR = 3.0
 HALVES_GAIN = 0.5
