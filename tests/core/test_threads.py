@@ -5,6 +5,8 @@ import threading
 import numba
 import pytest
 
+from child_processes import default_sigint
+
 from lfring.core.threads import numba_threads, run_threads
 
 
@@ -59,12 +61,11 @@ def test_an_interrupt_in_the_callers_share_stops_the_pool_taking_tasks():
 
 
 # A child process whose pool threads raise SIGINT as they start, between the start and the pool's
-# record of the thread (Python's Ctrl-C handler installed: a parent that ignores SIGINT, a test
-# runner's worker, passes that on).
+# record of the thread (run with preexec_fn=default_sigint: a parent that ignores SIGINT, a test
+# runner's worker, would pass that on, and Python would not install its Ctrl-C handler).
 POOL_START_INTERRUPTED = """
 import signal, threading
 from lfring.core.threads import run_threads
-signal.signal(signal.SIGINT, signal.default_int_handler)
 start = threading.Thread.start
 def start_then_interrupt(self):
     start(self)
@@ -87,7 +88,8 @@ try:
 except KeyboardInterrupt:
     print("interrupted")
 """
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=30)
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=30,
+                          preexec_fn=default_sigint)
     assert proc.returncode == 0 and proc.stdout.strip() == "interrupted", proc.stderr
 
 
@@ -107,7 +109,8 @@ try:
 except KeyboardInterrupt:
     pass
 """
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=30)
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=30,
+                          preexec_fn=default_sigint)
     assert proc.returncode == 0, proc.stderr
     # Normally the task in hand; the margin is for a loaded machine.
     assert int(proc.stdout) < 10, proc.stdout
