@@ -56,7 +56,6 @@ def rungs(x, agree, cover, sharp, window, x_f, motion, aperture, sharp_px, ramp_
             i = 1
             run_k = -1
             run_k2 = -1
-            run_two = False
             run_x0 = 0
             run_x1 = 0
             for xx in range(c0, c1):
@@ -86,25 +85,22 @@ def rungs(x, agree, cover, sharp, window, x_f, motion, aperture, sharp_px, ramp_
                 q[y, xx] = sign * frac
                 s[y, xx] = share
                 lo = int(frac)
-                two = not (frac <= lo or lo >= n)
                 k = n + sign * lo
-                k2 = n + sign * (lo + 1)
-                if not (k == run_k and two == run_two and (not two or k2 == run_k2)):
-                    if run_k >= 0:
-                        _box_add(boxes, b, run_k, y, run_x0, run_x1)
-                        if run_two:
-                            _box_add(boxes, b, run_k2, y, run_x0, run_x1)
-                    run_k, run_k2, run_two, run_x0 = k, k2, two, xx
-                run_x1 = xx
-            if run_k >= 0:
-                _box_add(boxes, b, run_k, y, run_x0, run_x1)
-                if run_two:
+                k2 = -1 if frac <= lo or lo >= n else n + sign * (lo + 1)  # -1: the pixel has one rung
+                if k != run_k or k2 != run_k2:
+                    _box_add(boxes, b, run_k, y, run_x0, run_x1)
                     _box_add(boxes, b, run_k2, y, run_x0, run_x1)
+                    run_k, run_k2, run_x0 = k, k2, xx
+                run_x1 = xx
+            _box_add(boxes, b, run_k, y, run_x0, run_x1)
+            _box_add(boxes, b, run_k2, y, run_x0, run_x1)
 
 
 @njit(inline="always")
 def _box_add(boxes, b, k, y, xa, xb):
-    """Stripe ``b``'s box of rung ``k`` grown to hold row ``y``'s columns xa..xb."""
+    """Stripe ``b``'s box of rung ``k`` grown to hold row ``y``'s columns xa..xb (none: k < 0)."""
+    if k < 0:
+        return
     if boxes[b, k, 0] > y:
         boxes[b, k, 0] = y
     if boxes[b, k, 1] < y:
@@ -142,14 +138,12 @@ def scatter(colour, sharp, s, cover, q, window, n, shift, y0, x0, rows, cols, of
     n_stripes = (hi_row + stripe - 1) // stripe
     for b in prange(lo_row // stripe, n_stripes):
         v = np.empty(c1, np.float32)
-        # Per pixel of the row: its two rungs' values for the full-resolution boxes (-1: none).
-        k_a = np.empty(w, np.int64)
-        k_b = np.empty(w, np.int64)
-        val_a = np.empty((w, c1), np.float32)
-        val_b = np.empty((w, c1), np.float32)
+        # Per pixel of the row, for its lower and upper rung: the rung on a full-resolution grid
+        # (-1: none) and the pixel's values there.
+        ks = np.empty((2, w), np.int64)
+        vals = np.empty((2, w, c1), np.float32)
         for y in range(max(lo_row, b * stripe), min(hi_row, (b + 1) * stripe)):
-            k_a[:] = -1
-            k_b[:] = -1
+            ks[:] = -1
             if r0 <= y < r1:
                 for xx in range(col0, col1):
                     cv = cover[y, xx]
@@ -174,14 +168,9 @@ def scatter(colour, sharp, s, cover, q, window, n, shift, y0, x0, rows, cols, of
                         f = shift[k]
                         scale = np.float32((t if m == 1 else 1.0 - t) / (1 << (2 * f)))
                         if f == 0:
-                            if m == 0:
-                                k_a[xx] = k
-                                for ch in range(c1):
-                                    val_a[xx, ch] = np.float32(0.0) + scale * v[ch]
-                            else:
-                                k_b[xx] = k
-                                for ch in range(c1):
-                                    val_b[xx, ch] = np.float32(0.0) + scale * v[ch]
+                            ks[m, xx] = k
+                            for ch in range(c1):
+                                vals[m, xx, ch] = np.float32(0.0) + scale * v[ch]
                             continue
                         cy = (y >> f) - (y0[k] >> f)
                         cx = (xx >> f) - (x0[k] >> f)
@@ -196,15 +185,9 @@ def scatter(colour, sharp, s, cover, q, window, n, shift, y0, x0, rows, cols, of
                 for j in range(cols[k]):
                     xx = x0[k] + j
                     cell = base + j * c1
-                    if k_a[xx] == k:
-                        for ch in range(c1):
-                            buf[cell + ch] = val_a[xx, ch]
-                    elif k_b[xx] == k:
-                        for ch in range(c1):
-                            buf[cell + ch] = val_b[xx, ch]
-                    else:
-                        for ch in range(c1):
-                            buf[cell + ch] = np.float32(0.0)
+                    m = 0 if ks[0, xx] == k else 1 if ks[1, xx] == k else -1
+                    for ch in range(c1):
+                        buf[cell + ch] = vals[m, xx, ch] if m >= 0 else np.float32(0.0)
 
 
 @njit(parallel=True, **_JIT)
