@@ -371,7 +371,8 @@ def test_the_paths_in_16_bits_add_up_as_plain_sgm_at_the_largest_costs_and_penal
     closest to those bounds, the horizontal pass's sum of its two paths and the vertical pass's
     top-down path added to it are plain int64 SGM's, exactly, in blocks of columns too; with
     few hypotheses (the rows side by side, in blocks and chunks that do not divide the frame)
-    and with many (each row alone)."""
+    and with many (rows in pairs, an odd one alone; an odd row's middle pixel reached by both
+    paths at one step)."""
     from lfring.core.viewstack import WEIGHT_FLOOR
     from lfring.depth.engines import fused_paths
     from lfring.depth.engines.fused_common import COST_MAX, PENALTY_MAX

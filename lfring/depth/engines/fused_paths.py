@@ -17,7 +17,7 @@ import numpy as np
 from numba import njit, prange
 
 from lfring.depth.aggregation_kernels import reflect
-from lfring.depth.engines.fused_common import COST_ZERO, INLINE, JIT, PARALLEL, UNKNOWN
+from lfring.depth.engines.fused_common import COST_ZERO, INLINE, JIT, PARALLEL, PENALTY_MAX, UNKNOWN
 
 __all__ = ["horizontal_paths", "vertical_paths"]
 
@@ -28,6 +28,9 @@ __all__ = ["horizontal_paths", "vertical_paths"]
 SIDE_BY_SIDE_HYPOTHESES = 16
 SIDE_BY_SIDE_ROWS = 32
 SIDE_BY_SIDE_COLUMNS = 32
+# The ends of a padded path state (:func:`_chain_step`): with p1 added it stays above any jump
+# (a path's least plus a penalty, fused_common) and within int16.
+PAD = 32767 - PENALTY_MAX
 
 
 @njit(**INLINE)
@@ -158,25 +161,17 @@ def _next_step(e, state, mins, p2e, i, p1):
 
 
 @njit(**INLINE)
-def _path_step(c, prev, cur, pmin, jump, p1):
+def _chain_step(c, prev, cur, pmin, jump, p1):
     """One step of a path at one pixel: ``cur = c + min(prev, prev[d -+ 1] + p1, jump) - pmin``
-    over the hypotheses (the ends' missing neighbour is the hypothesis itself); returns the least
-    of ``cur``. int16 throughout, as in :func:`_step_line`."""
-    n = c.shape[0]
-    p1 = np.int16(p1)
-    jump = np.int16(jump)
-    pmin = np.int16(pmin)
-    if n == 1:
-        cur[0] = np.int16(c[0] + min(prev[0], jump) - pmin)
-        return cur[0]
-    cur[0] = np.int16(c[0] + min(min(prev[0], np.int16(prev[1] + p1)), jump) - pmin)
-    for d in range(1, n - 1):
-        best = min(min(prev[d], np.int16(prev[d - 1] + p1)), min(np.int16(prev[d + 1] + p1), jump))
-        cur[d] = np.int16(c[d] + best - pmin)
-    cur[n - 1] = np.int16(c[n - 1] + min(min(prev[n - 1], np.int16(prev[n - 2] + p1)), jump) - pmin)
-    least = cur[0]
-    for d in range(1, n):
-        least = min(least, cur[d])
+    over the hypotheses; returns the least of ``cur``. ``prev`` and ``cur`` hold hypothesis d at
+    d + 1, between two :data:`PAD` ends: the ends' missing neighbour never wins, as if it were
+    the hypothesis itself. int16 throughout, as in :func:`_step_line`."""
+    least = np.int16(32767)
+    for d in range(c.shape[0]):
+        best = min(min(prev[d + 1], np.int16(prev[d] + p1)), min(np.int16(prev[d + 2] + p1), jump))
+        v = np.int16(c[d] + best - pmin)
+        cur[d + 1] = v
+        least = min(least, v)
     return least
 
 
@@ -186,46 +181,97 @@ def _kept(eroded, vol):
     return eroded.shape[0] == vol.shape[0] and eroded.shape[1] == vol.shape[1] and eroded.shape[2] == vol.shape[2]
 
 
+@njit(**INLINE)
+def _start_chain(cx, cur):
+    """The first step of a path: its cost alone (``cur`` padded as in :func:`_chain_step`);
+    returns its least."""
+    least = np.int16(32767)
+    for d in range(cx.shape[0]):
+        cur[d + 1] = cx[d]
+        least = min(least, cx[d])
+    return least
+
+
+@njit(**INLINE)
+def _into_sums(acc, cur, add):
+    """acc = cur (its padded hypotheses), or acc += cur where ``add``."""
+    if add:
+        for d in range(acc.shape[0]):
+            acc[d] += cur[d + 1]
+    else:
+        for d in range(acc.shape[0]):
+            acc[d] = cur[d + 1]
+
+
 @njit(**JIT)
-def _horizontal_row(vol, y, guide, use_guide, p1, p2, edge_scale, erode_rad, total, eroded):
-    """The two horizontal paths of row ``y`` (see :func:`horizontal_paths`)."""
+def _horizontal_rows(vol, y, y2, guide, use_guide, p1, p2, edge_scale, erode_rad, total, eroded):
+    """The two horizontal paths of rows ``y`` and ``y2`` (``y2 == y``: row ``y`` alone; see
+    :func:`horizontal_paths`)."""
     h, n, w = vol.shape
-    e = eroded[y] if _kept(eroded, vol) else np.empty((n, w), np.uint16)
+    pair = y2 != y
     ext = np.empty(w + 2 * erode_rad, np.uint16)
     fill = np.empty(w, np.int64)
-    _eroded_rows(vol, y, erode_rad, 0, w, ext, e)
-    _fill_unknown(e, fill)
     # One pixel per step: its N costs side by side (numba's strided copy transposes faster
     # than explicit tiles did).
-    c = np.empty((w, n), np.int16)
-    c[:, :] = e.T
-    acc = np.empty((w, n), np.int16)
-    bufs = np.empty((2, n), np.int16)
-    for direction in range(2):
-        pmin = np.int16(0)
-        for i in range(w):
-            x = i if direction == 0 else w - 1 - i
-            prev = bufs[(i + 1) % 2]
-            cur = bufs[i % 2]
-            cx = c[x]
-            if i == 0:
-                for d in range(n):
-                    cur[d] = cx[d]
-                pmin = cur[0]
-                for d in range(1, n):
-                    pmin = min(pmin, cur[d])
-            else:
-                xp = x - 1 if direction == 0 else x + 1
-                p2e = _p2_between(guide[y, x], guide[y, xp], use_guide, p1, p2, edge_scale)
-                pmin = _path_step(cx, prev, cur, pmin, np.int16(pmin + p2e), p1)
-            ax = acc[x]
-            if direction == 0:
-                for d in range(n):
-                    ax[d] = cur[d]
-            else:
-                for d in range(n):
-                    ax[d] += cur[d]
-    total[y][:, :] = acc.T  # the sums fit in 16 bits (fused_common)
+    c = np.empty((2, w, n), np.int16)
+    for r in range(2 if pair else 1):
+        yy = y if r == 0 else y2
+        e = eroded[yy] if _kept(eroded, vol) else np.empty((n, w), np.uint16)
+        _eroded_rows(vol, yy, erode_rad, 0, w, ext, e)
+        _fill_unknown(e, fill)
+        c[r, :, :] = e.T
+    # A step's least over the hypotheses is a serial chain from one pixel to the next: the
+    # left-right and right-left paths of both rows (four independent chains) run step by step
+    # together, so that one chain's reduction overlaps the others' arithmetic.
+    acc = np.empty((2, w, n), np.int16)
+    state = np.full((2, 4, n + 2), PAD, np.int16)
+    p1 = np.int16(p1)
+    m0 = m1 = m2 = m3 = np.int16(0)
+    gy2 = guide[y2]
+    for i in range(w):
+        xa = i
+        xb = w - 1 - i
+        prev = state[(i + 1) % 2]
+        cur = state[i % 2]
+        if i == 0:
+            m0 = _start_chain(c[0, xa], cur[0])
+            m1 = _start_chain(c[0, xb], cur[1])
+            if pair:
+                m2 = _start_chain(c[1, xa], cur[2])
+                m3 = _start_chain(c[1, xb], cur[3])
+        else:
+            ea = _p2_between(guide[y, xa], guide[y, xa - 1], use_guide, p1, p2, edge_scale)
+            eb = _p2_between(guide[y, xb], guide[y, xb + 1], use_guide, p1, p2, edge_scale)
+            m0, m1 = (_chain_step(c[0, xa], prev[0], cur[0], m0, np.int16(m0 + ea), p1),
+                      _chain_step(c[0, xb], prev[1], cur[1], m1, np.int16(m1 + eb), p1))
+            if pair:
+                ea = _p2_between(gy2[xa], gy2[xa - 1], use_guide, p1, p2, edge_scale)
+                eb = _p2_between(gy2[xb], gy2[xb + 1], use_guide, p1, p2, edge_scale)
+                m2, m3 = (_chain_step(c[1, xa], prev[2], cur[2], m2, np.int16(m2 + ea), p1),
+                          _chain_step(c[1, xb], prev[3], cur[3], m3, np.int16(m3 + eb), p1))
+        # The first path to reach a pixel writes its sum, the second adds to it (in the middle
+        # of an odd row both reach it at once: left-right first).
+        later = 2 * i > w - 1
+        _into_sums(acc[0, xa], cur[0], later)
+        _into_sums(acc[0, xb], cur[1], later or 2 * i == w - 1)
+        if pair:
+            _into_sums(acc[1, xa], cur[2], later)
+            _into_sums(acc[1, xb], cur[3], later or 2 * i == w - 1)
+    _put_sums(acc[0], total[y])
+    if pair:
+        _put_sums(acc[1], total[y2])
+
+
+@njit(**INLINE)
+def _put_sums(acc, out):
+    """out (N, w) uint16 = acc (w, N) int16 transposed: the sums fit in 16 bits (fused_common).
+    An explicit loop, a row of ``out`` at a time: numba's assignment of a transposed view runs
+    several times slower."""
+    w, n = acc.shape
+    for d in range(n):
+        row = out[d]
+        for x in range(w):
+            row[x] = np.uint16(acc[x, d])
 
 
 @njit(**JIT)
@@ -292,16 +338,17 @@ def horizontal_paths(vol, guide, use_guide, p1, p2, edge_scale, erode_rad, total
 
     Up to :data:`SIDE_BY_SIDE_HYPOTHESES` hypotheses, blocks of :data:`SIDE_BY_SIDE_ROWS` rows
     run side by side (one step of all their paths at a time, vectorised across the rows, after
-    the costs are reordered pixel-outermost); with more, each row runs alone, a step vectorised
-    across its hypotheses."""
+    the costs are reordered pixel-outermost); with more, rows run in pairs (the four paths' steps
+    interleaved), a step vectorised across its hypotheses."""
     h, n, _ = vol.shape
     if n <= SIDE_BY_SIDE_HYPOTHESES:
         for k in prange((h + SIDE_BY_SIDE_ROWS - 1) // SIDE_BY_SIDE_ROWS):
             _horizontal_block(vol, k * SIDE_BY_SIDE_ROWS, min(h, (k + 1) * SIDE_BY_SIDE_ROWS), guide, use_guide, p1, p2,
                               edge_scale, erode_rad, total, eroded, SIDE_BY_SIDE_COLUMNS)
     else:
-        for y in prange(h):
-            _horizontal_row(vol, y, guide, use_guide, p1, p2, edge_scale, erode_rad, total, eroded)
+        for k in prange((h + 1) // 2):
+            _horizontal_rows(vol, 2 * k, min(2 * k + 1, h - 1), guide, use_guide, p1, p2, edge_scale, erode_rad, total,
+                             eroded)
 
 
 @njit(**INLINE)
