@@ -67,20 +67,62 @@ def _sums_add(v, wt, s1, s2, cn):
 
 
 @njit(**INLINE)
-def _lcn_row(s1, s2, cn, floor, seen_in, t, seen):
-    """The 'lcn' cost of the sums where 1.5 views or more see the pixel (and ``seen_in``, when
-    given), 0 elsewhere; ``seen`` 1 or 0."""
+def _lcn(s1, s2, c, floor, seen_in):
+    """The 'lcn' cost of one pixel's sums of values ``s1``, squares ``s2`` and weights ``c``,
+    and 1.0 where 1.5 views or more see the pixel (and ``seen_in`` > 0.5); (0.0, 0.0) elsewhere."""
     one = np.float32(1.0)
     half = np.float32(0.5)
-    lim = np.float32(1.5)
+    ok = (c >= np.float32(1.5)) & (seen_in > half)
+    r = c if c > floor else floor
+    dd = c - one
+    dd = dd if dd > half else half
+    return ((s2 - s1 * s1 / r) / dd if ok else np.float32(0.0)), (one if ok else np.float32(0.0))
+
+
+@njit(**INLINE)
+def _lcn_row(s1, s2, cn, floor, seen_in, t, seen):
+    """:func:`_lcn` of every pixel of the sums: ``t`` the costs, ``seen`` 1 or 0."""
     for x in range(t.shape[0]):
-        c = cn[x]
-        ok = (c >= lim) & (seen_in[x] > half)
-        r = c if c > floor else floor
-        dd = c - one
-        dd = dd if dd > half else half
-        t[x] = (s2[x] - s1[x] * s1[x] / r) / dd if ok else np.float32(0.0)
-        seen[x] = one if ok else np.float32(0.0)
+        t[x], seen[x] = _lcn(s1[x], s2[x], cn[x], floor, seen_in[x])
+
+
+@njit(**INLINE)
+def _two_squares(v0, v1):
+    """v0 v0 + v1 v1 rounded as the sums one view at a time round it: the first product
+    rounded, the second fused into the sum. Allowed to contract, the compiler may fuse either
+    product; a second use of the first keeps it a rounded product."""
+    q0 = v0 * v0
+    s = q0 + v1 * v1
+    return s if q0 >= np.float32(0.0) else q0
+
+
+@njit(**JIT)
+def _lcn_two(a0, a1, w0, w1, floor, seen_in, cn, t, seen):
+    """:func:`_lcn_row` of the sums of two views' values and weights, in one pass (the same
+    floats as :func:`_sums_first` and :func:`_sums_add`); ``cn`` receives the weights' sums."""
+    for x in range(t.shape[0]):
+        v0 = a0[x]
+        v1 = a1[x]
+        c = w0[x] + w1[x]
+        cn[x] = c
+        t[x], seen[x] = _lcn(v0 + v1, _two_squares(v0, v1), c, floor, seen_in[x])
+
+
+@njit(**JIT)
+def _lcn_four(a_buf, w_buf, floor, seen_in, cn, t, seen):
+    """:func:`_lcn_row` of the sums of four views' values and weights, in one pass (the same
+    floats as :func:`_sums_first` and :func:`_sums_add`); ``cn`` receives the weights' sums."""
+    a0, a1, a2, a3 = a_buf[0], a_buf[1], a_buf[2], a_buf[3]
+    w0, w1, w2, w3 = w_buf[0], w_buf[1], w_buf[2], w_buf[3]
+    for x in range(t.shape[0]):
+        v0 = a0[x]
+        v1 = a1[x]
+        v2 = a2[x]
+        v3 = a3[x]
+        s2 = _two_squares(v0, v1) + v2 * v2 + v3 * v3
+        c = w0[x] + w1[x] + w2[x] + w3[x]
+        cn[x] = c
+        t[x], seen[x] = _lcn(v0 + v1 + v2 + v3, s2, c, floor, seen_in[x])
 
 
 @njit(**INLINE)
@@ -180,6 +222,15 @@ def _view_rows(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo
 
 @njit(**JIT)
 def _all_terms(a_buf, w_buf, floor, ones, s1, s2, cn, t, seen):
+    """The 'lcn' cost ``t`` of all views' rows, its ``seen`` flags and the views' weights' sum
+    ``cn``. Four views (the ring) and two (a pair) are summed in one pass rather than a pass per
+    view."""
+    if a_buf.shape[0] == 4:
+        _lcn_four(a_buf, w_buf, floor, ones, cn, t, seen)
+        return
+    if a_buf.shape[0] == 2:
+        _lcn_two(a_buf[0], a_buf[1], w_buf[0], w_buf[1], floor, ones, cn, t, seen)
+        return
     _sums_first(a_buf[0], w_buf[0], s1, s2, cn)
     for j in range(1, a_buf.shape[0]):
         _sums_add(a_buf[j], w_buf[j], s1, s2, cn)
@@ -188,7 +239,13 @@ def _all_terms(a_buf, w_buf, floor, ones, s1, s2, cn, t, seen):
 
 @njit(**JIT)
 def _half_terms(a_buf, w_buf, halves, half_ptr, h_i, floor, seen, s1, s2, cn, hc, ho):
+    """The 'lcn' cost ``hc`` of the half ``h_i`` of the views and its flags ``ho`` (where
+    ``seen`` too); a half of two views (the ring's) in one pass."""
     j0 = halves[half_ptr[h_i]]
+    if half_ptr[h_i + 1] - half_ptr[h_i] == 2:
+        j1 = halves[half_ptr[h_i] + 1]
+        _lcn_two(a_buf[j0], a_buf[j1], w_buf[j0], w_buf[j1], floor, seen, cn, hc, ho)
+        return
     _sums_first(a_buf[j0], w_buf[j0], s1, s2, cn)
     for q_i in range(half_ptr[h_i] + 1, half_ptr[h_i + 1]):
         j = halves[q_i]
