@@ -87,13 +87,18 @@ def _lcn_row(s1, s2, cn, floor, seen_in, t, seen):
 
 
 @njit(**INLINE)
+def _rounded(product):
+    """A product that is never negative (a square, weights) as it is when stored. Allowed to
+    contract, the compiler may fuse a product into the sum it enters; its absolute value (the
+    same number) keeps it rounded, as the sums of rows of products had it."""
+    return abs(product)
+
+
+@njit(**INLINE)
 def _two_squares(v0, v1):
     """v0 v0 + v1 v1 rounded as the sums one view at a time round it: the first product
-    rounded, the second fused into the sum. Allowed to contract, the compiler may fuse either
-    product; a second use of the first keeps it a rounded product."""
-    q0 = v0 * v0
-    s = q0 + v1 * v1
-    return s if q0 >= np.float32(0.0) else q0
+    rounded, the second fused into the sum."""
+    return _rounded(v0 * v0) + v1 * v1
 
 
 @njit(**JIT)
@@ -220,6 +225,44 @@ def _view_rows(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo
                      t, w_buf[j])
 
 
+@njit(**INLINE)
+def _sample(s0, s1, p, q, a, b, x):
+    """The bilinear sample between columns x, x + 1 of rows ``s0``, ``s1`` (weights p, q down,
+    a, b across), in :func:`_lerp` and :func:`_shifted`'s floats."""
+    return a * (p * s0[x] + q * s1[x]) + b * (p * s0[x + 1] + q * s1[x + 1])
+
+
+@njit(**JIT)
+def _all_terms_valid_four(src, edge_y, edge_x, iy, ix, fy, fx, pad, y, d, views, floor, ones, cn, t, seen):
+    """:func:`_view_rows` and :func:`_all_terms` of four all-valid views in one pass: each view's
+    sample and edge weight made where the sums take them rather than written to rows first (the
+    same floats)."""
+    w = t.shape[0]
+    k0, k1, k2, k3 = views[0], views[1], views[2], views[3]
+    r0, r1, r2, r3 = y + iy[d, k0] + pad, y + iy[d, k1] + pad, y + iy[d, k2] + pad, y + iy[d, k3] + pad
+    c0, c1, c2, c3 = ix[d, k0] + pad, ix[d, k1] + pad, ix[d, k2] + pad, ix[d, k3] + pad
+    u0, l0 = src[k0, r0, c0:c0 + w + 1], src[k0, r0 + 1, c0:c0 + w + 1]
+    u1, l1 = src[k1, r1, c1:c1 + w + 1], src[k1, r1 + 1, c1:c1 + w + 1]
+    u2, l2 = src[k2, r2, c2:c2 + w + 1], src[k2, r2 + 1, c2:c2 + w + 1]
+    u3, l3 = src[k3, r3, c3:c3 + w + 1], src[k3, r3 + 1, c3:c3 + w + 1]
+    one = np.float32(1.0)
+    q0, q1, q2, q3 = np.float32(fy[d, k0]), np.float32(fy[d, k1]), np.float32(fy[d, k2]), np.float32(fy[d, k3])
+    b0, b1, b2, b3 = np.float32(fx[d, k0]), np.float32(fx[d, k1]), np.float32(fx[d, k2]), np.float32(fx[d, k3])
+    p0, p1, p2, p3 = one - q0, one - q1, one - q2, one - q3
+    a0, a1, a2, a3 = one - b0, one - b1, one - b2, one - b3
+    e0, e1, e2, e3 = edge_y[d, k0, y], edge_y[d, k1, y], edge_y[d, k2, y], edge_y[d, k3, y]
+    x0, x1, x2, x3 = edge_x[d, k0], edge_x[d, k1], edge_x[d, k2], edge_x[d, k3]
+    for x in range(w):
+        v0 = _sample(u0, l0, p0, q0, a0, b0, x)
+        v1 = _sample(u1, l1, p1, q1, a1, b1, x)
+        v2 = _sample(u2, l2, p2, q2, a2, b2, x)
+        v3 = _sample(u3, l3, p3, q3, a3, b3, x)
+        s2 = _two_squares(v0, v1) + v2 * v2 + v3 * v3
+        c = _rounded(e0 * x0[x]) + _rounded(e1 * x1[x]) + _rounded(e2 * x2[x]) + _rounded(e3 * x3[x])
+        cn[x] = c
+        t[x], seen[x] = _lcn(v0 + v1 + v2 + v3, s2, c, floor, ones[x])
+
+
 @njit(**JIT)
 def _all_terms(a_buf, w_buf, floor, ones, s1, s2, cn, t, seen):
     """The 'lcn' cost ``t`` of all views' rows, its ``seen`` flags and the views' weights' sum
@@ -239,13 +282,7 @@ def _all_terms(a_buf, w_buf, floor, ones, s1, s2, cn, t, seen):
 
 @njit(**JIT)
 def _half_terms(a_buf, w_buf, halves, half_ptr, h_i, floor, seen, s1, s2, cn, hc, ho):
-    """The 'lcn' cost ``hc`` of the half ``h_i`` of the views and its flags ``ho`` (where
-    ``seen`` too); a half of two views (the ring's) in one pass."""
     j0 = halves[half_ptr[h_i]]
-    if half_ptr[h_i + 1] - half_ptr[h_i] == 2:
-        j1 = halves[half_ptr[h_i] + 1]
-        _lcn_two(a_buf[j0], a_buf[j1], w_buf[j0], w_buf[j1], floor, seen, cn, hc, ho)
-        return
     _sums_first(a_buf[j0], w_buf[j0], s1, s2, cn)
     for q_i in range(half_ptr[h_i] + 1, half_ptr[h_i + 1]):
         j = halves[q_i]
@@ -442,9 +479,13 @@ def sweep_volume(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_
             count[y] = 0.0
         for d in range(n):
             for r in range(nq):
-                _view_rows(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, q0 + r, d, views, t,
-                           a_buf, w_buf)
-                _all_terms(a_buf, w_buf, floor, ones, s1, s2, cn, t_rows[r], seen_rows[r])
+                if all_valid and n_views == 4:
+                    _all_terms_valid_four(src, edge_y, edge_x, iy, ix, fy, fx, pad, q0 + r, d, views, floor, ones, cn,
+                                          t_rows[r], seen_rows[r])
+                else:
+                    _view_rows(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, q0 + r, d, views,
+                               t, a_buf, w_buf)
+                    _all_terms(a_buf, w_buf, floor, ones, s1, s2, cn, t_rows[r], seen_rows[r])
                 if q0 + r >= y0 and q0 + r < y1:
                     nvr = nviews[q0 + r]
                     for x in range(w):
