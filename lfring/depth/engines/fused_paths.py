@@ -110,12 +110,13 @@ def _p2_row(guide_a, guide_b, use_guide, p1, p2, edge_scale, out):
         out[x] = _p2_between(guide_a[x], guide_b[x], use_guide, p1, p2, edge_scale)
 
 
-@njit(**JIT)
-def _step_line(e, prev, cur, pmin, cmin, p1, p2e):
-    """One step of a path along a line of pixels processed side by side: ``e`` (N, m) costs,
-    ``prev`` the previous pixels' path values (N, m), ``pmin`` their least, ``p2e`` the
-    large-jump penalties; writes ``cur`` and its least ``cmin``."""
-    n, m = e.shape
+@njit(**INLINE)
+def _step_line(src, k, x0, prev, cur, pmin, cmin, p1, p2e):
+    """One step of a path along a line of pixels processed side by side: the costs (N, m) are
+    ``src[k, :, x0:x0 + m]`` (read in place: a copy first cost as much as the step), ``prev``
+    the previous pixels' path values (N, m), ``pmin`` their least, ``p2e`` the large-jump
+    penalties; writes ``cur`` and its least ``cmin``."""
+    n, m = prev.shape
     p1s = np.int16(p1)
     for x in range(m):
         cmin[x] = 32767  # int16's largest
@@ -125,7 +126,7 @@ def _step_line(e, prev, cur, pmin, cmin, p1, p2e):
         here = prev[d]
         below = prev[dm]
         above = prev[dp]
-        cost = e[d]
+        cost = src[k, d, x0:x0 + m]
         out = cur[d]
         least = cmin
         # int16 path values (fused_common: they stay below 2**15), every sum cast back: numba
@@ -144,11 +145,12 @@ def _step_line(e, prev, cur, pmin, cmin, p1, p2e):
 
 
 @njit(**INLINE)
-def _next_step(e, state, mins, p2e, i, p1):
-    """Step ``i`` of lines of paths side by side (:func:`_step_line` on ``e``), their values and
-    least ping-ponging in ``state`` (2, N, m) and ``mins`` (2, m) by the step's parity; ``p2e``
-    holds the step's large-jump penalties, except at the first step, which takes its cost alone
-    (zero state and penalties). Returns the step's values (N, m)."""
+def _next_step(src, k, x0, state, mins, p2e, i, p1):
+    """Step ``i`` of lines of paths side by side (:func:`_step_line` on the costs
+    ``src[k, :, x0:x0 + m]``), their values and least ping-ponging in ``state`` (2, N, m) and
+    ``mins`` (2, m) by the step's parity; ``p2e`` holds the step's large-jump penalties, except
+    at the first step, which takes its cost alone (zero state and penalties). Returns the step's
+    values (N, m)."""
     prev = state[(i + 1) % 2]
     cur = state[i % 2]
     pmin = mins[(i + 1) % 2]
@@ -156,7 +158,7 @@ def _next_step(e, state, mins, p2e, i, p1):
         prev[:] = 0
         pmin[:] = 0
         p2e[:] = 0
-    _step_line(e, prev, cur, pmin, mins[i % 2], p1, p2e)
+    _step_line(src, k, x0, prev, cur, pmin, mins[i % 2], p1, p2e)
     return cur
 
 
@@ -317,7 +319,7 @@ def _horizontal_block(vol, y0, y1, guide, use_guide, p1, p2, edge_scale, erode_r
                         ga[r] = guide[y0 + r, x]
                         gb[r] = guide[y0 + r, xp]
                     _p2_row(ga, gb, use_guide, p1, p2, edge_scale, p2e)
-                acc[j] = _next_step(t[j], state, mins, p2e, i, p1)
+                acc[j] = _next_step(t, j, 0, state, mins, p2e, i, p1)
                 i += 1
             for r in range(b):
                 for d in range(n):
@@ -411,7 +413,7 @@ def _vertical_block(vol, eroded, total, guide, use_guide, p1, p2, edge_scale, er
     h, n, w = vol.shape
     kept = _kept(eroded, vol)
     m = x1 - x0
-    e = np.empty((n, m), np.uint16)
+    e = np.empty((1, n, m), np.uint16)  # the eroded row where it is not kept
     ext = np.empty(m + 2 * max(erode_rad, raw_rad), np.uint16)
     fill = np.empty(m, np.int64)
     state = np.empty((2, n, m), np.int16)  # zeroed by the first step (_next_step), as mins and p2e
@@ -423,15 +425,16 @@ def _vertical_block(vol, eroded, total, guide, use_guide, p1, p2, edge_scale, er
     for direction in range(2):
         for i in range(h):
             y = i if direction == 0 else h - 1 - i
-            if kept:
-                e[:, :] = eroded[y, :, x0:x1]
-            else:
-                _eroded_rows(vol, y, erode_rad, x0, x1, ext, e)
-                _fill_unknown(e, fill)
+            if not kept:
+                _eroded_rows(vol, y, erode_rad, x0, x1, ext, e[0])
+                _fill_unknown(e[0], fill)
             if i > 0:
                 yp = y - 1 if direction == 0 else y + 1
                 _p2_row(guide[y, x0:x1], guide[yp, x0:x1], use_guide, p1, p2, edge_scale, p2e)
-            cur = _next_step(e, state, mins, p2e, i, p1)
+            if kept:
+                cur = _next_step(eroded, y, x0, state, mins, p2e, i, p1)
+            else:
+                cur = _next_step(e, 0, 0, state, mins, p2e, i, p1)
             if direction == 0:
                 for d in range(n):
                     row = total[y, d, x0:x1]
