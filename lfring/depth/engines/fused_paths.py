@@ -34,6 +34,14 @@ PAD = 32767 - PENALTY_MAX
 
 
 @njit(**INLINE)
+def _copy(row, out):
+    """out = row, by a loop: numba's slice assignment first checks the two for overlap and runs
+    several times slower on these short rows."""
+    for x in range(out.shape[0]):
+        out[x] = row[x]
+
+
+@njit(**INLINE)
 def _min_into(row, out):
     for x in range(out.shape[0]):
         out[x] = min(out[x], row[x])
@@ -53,7 +61,7 @@ def _eroded_rows(vol, y, rad, x0, x1, ext, out):
     lo = c0 - (x0 - rad)  # columns of ext before the image's first (replicated)
     for d in range(n):
         cm = ext[lo:lo + c1 - c0]
-        cm[:] = vol[r0, d, c0:c1]
+        _copy(vol[r0, d, c0:c1], cm)
         for r in range(r0 + 1, r1):
             _min_into(vol[r, d, c0:c1], cm)
         for j in range(lo):
@@ -61,7 +69,7 @@ def _eroded_rows(vol, y, rad, x0, x1, ext, out):
         for j in range(lo + c1 - c0, m + 2 * rad):
             ext[j] = ext[lo + c1 - c0 - 1]
         o = out[d]
-        o[:] = ext[0:m]
+        _copy(ext[0:m], o)
         for k in range(1, 2 * rad + 1):
             _min_into(ext[k:k + m], o)
 
@@ -366,7 +374,7 @@ def _ext_row(row, x0, m, rad, out):
     """out[j] = row[reflect(x0 - rad + j)] for j < m + 2 rad (BORDER_REFLECT_101)."""
     w = row.shape[0]
     a, lo, hi = _inside(x0, m, rad, w)
-    out[lo:hi] = row[a + lo:a + hi]
+    _copy(row[a + lo:a + hi], out[lo:hi])
     for j in range(lo):
         out[j] = row[reflect(a + j, w)]
     for j in range(hi, m + 2 * rad):
