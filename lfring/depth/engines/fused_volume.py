@@ -148,9 +148,17 @@ def _hsum(col, rad, tmp, out):
     w = col.shape[0]
     for x in range(w):
         tmp[x + rad] = col[x]
+    _hsum_in_place(tmp, rad, out)
+
+
+@njit(**INLINE)
+def _hsum_in_place(tmp, rad, out):
+    """:func:`_hsum` of the row that ``tmp`` holds from its column ``rad`` (its ends are filled
+    here)."""
+    w = out.shape[0]
     for x in range(rad):
-        tmp[x] = col[reflect(x - rad, w)]
-        tmp[w + rad + x] = col[reflect(w + x, w)]
+        tmp[x] = tmp[rad + reflect(x - rad, w)]
+        tmp[w + rad + x] = tmp[rad + reflect(w + x, w)]
     _shifted_sum(tmp, rad, out)
 
 
@@ -331,14 +339,19 @@ def _fold_full(bt, scale, least):
 
 
 @njit(**INLINE)
+def _agg(bt, bs, seen_c, area, floor):
+    """The seen-pixel mean of a box (sum ``bt`` of costs, ``bs`` of seen pixels); inf where the
+    centre pixel is not seen (``seen_c`` 0)."""
+    sup = bs / area
+    sup = sup if sup > floor else floor
+    return bt / area / sup if seen_c > np.float32(0.5) else np.float32(np.inf)
+
+
+@njit(**INLINE)
 def _agg_row(bt, bs, seen_c, area, floor, out):
-    """The seen-pixel mean of a box (sums ``bt`` of costs, ``bs`` of seen pixels); inf where the
-    centre pixel is not seen."""
-    inf = np.float32(np.inf)
+    """:func:`_agg` of every pixel of a row."""
     for x in range(out.shape[0]):
-        sup = bs[x] / area
-        sup = sup if sup > floor else floor
-        out[x] = bt[x] / area / sup if seen_c[x] > np.float32(0.5) else inf
+        out[x] = _agg(bt[x], bs[x], seen_c[x], area, floor)
 
 
 @njit(**INLINE)
@@ -411,24 +424,44 @@ def sample_costs(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_
 
 # -- pass 1: the quantised cost volume ------------------------------------------------------------
 @njit(**INLINE)
+def _quantised(v, inv_unit):
+    """A cost in integer units from COST_ZERO, rounded and clipped to [0, COST_MAX]; UNKNOWN
+    where not finite."""
+    q = v * inv_unit + np.float32(COST_ZERO + 0.5)  # rounded
+    q = q if q < np.float32(COST_MAX) else np.float32(COST_MAX)
+    q = q if q > np.float32(0.0) else np.float32(0.0)
+    return np.uint16(q) if v < np.float32(np.inf) else np.uint16(UNKNOWN)
+
+
+@njit(**INLINE)
 def _quantise(v, inv_unit, out):
-    """Costs in integer units from COST_ZERO, rounded and clipped to [0, COST_MAX]; UNKNOWN where
-    not finite."""
-    cmax = np.float32(COST_MAX)
+    """:func:`_quantised` of every cost of a row."""
+    for x in range(out.shape[0]):
+        out[x] = _quantised(v[x], inv_unit)
+
+
+@njit(**INLINE)
+def _take_row(bt, bs, seen_c, area, floor, inv_unit, out, b_row, t_row, c_row):
+    """One row of a hypothesis from its box sums: its :func:`_agg` costs quantised into ``out``,
+    and each pixel's least cost ``b_row``, sum ``t_row`` and number ``c_row`` of finite ones
+    updated, in one pass."""
     inf = np.float32(np.inf)
     for x in range(out.shape[0]):
-        q = v[x] * inv_unit + np.float32(COST_ZERO + 0.5)  # rounded
-        q = q if q < cmax else cmax
-        q = q if q > np.float32(0.0) else np.float32(0.0)
-        out[x] = np.uint16(q) if v[x] < inf else np.uint16(UNKNOWN)
+        v = _agg(bt[x], bs[x], seen_c[x], area, floor)
+        out[x] = _quantised(v, inv_unit)
+        b_row[x] = min(b_row[x], v)
+        known = v < inf
+        t_row[x] += v if known else np.float32(0.0)
+        c_row[x] += np.float32(1.0) if known else np.float32(0.0)
 
 
 @njit(**JIT)
-def _box_row(rows, q0, y, rad, h, ordered, col, tmp, out):
+def _box_row(rows, q0, y, rad, h, ordered, tmp, out):
     """The box sum at row ``y`` of a quantity whose rows from image row ``q0`` are ``rows``
-    (reflected at the image's top and bottom; ``ordered`` a scratch of 2 rad + 1 rows)."""
-    _vbox(rows, q0, y, rad, h, ordered, col)
-    _hsum(col, rad, tmp, out)
+    (reflected at the image's top and bottom; ``ordered`` a scratch of 2 rad + 1 rows, ``tmp``
+    one of w + 2 rad values, where the column sums are made)."""
+    _vbox(rows, q0, y, rad, h, ordered, tmp[rad:rad + out.shape[0]])
+    _hsum_in_place(tmp, rad, out)
 
 
 @njit(**PARALLEL)
@@ -467,11 +500,9 @@ def sweep_volume(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_
         seen_rows = np.empty((nq, w), np.float32)
         seen_all = np.empty(nq, np.bool_)
         ordered = np.empty((2 * rad + 1, w), np.float32)
-        col = np.empty(w, np.float32)
         bt = np.empty(w, np.float32)
         bs = np.empty(w, np.float32)
         tmp = np.empty(w + 2 * rad, np.float32)
-        agg = np.empty(w, np.float32)
         for y in range(y0, y1):
             nviews[y] = 0.0
             best[y] = inf
@@ -493,21 +524,12 @@ def sweep_volume(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_
             for r in range(nq):
                 seen_all[r] = _all_set(seen_rows[r])
             for y in range(y0, y1):
-                _box_row(t_rows, q0, y, rad, h, ordered, col, tmp, bt)
+                _box_row(t_rows, q0, y, rad, h, ordered, tmp, bt)
                 if _window_all_set(seen_all, q0, y, rad, h):  # every window wholly seen
                     bs[:] = area
                 else:
-                    _box_row(seen_rows, q0, y, rad, h, ordered, col, tmp, bs)
-                _agg_row(bt, bs, seen_rows[y - q0], area, floor, agg)
-                _quantise(agg, inv_unit, out[y, d])
-                b_row = best[y]
-                t_row = total[y]
-                c_row = count[y]
-                for x in range(w):
-                    b_row[x] = min(b_row[x], agg[x])
-                    known = agg[x] < inf
-                    t_row[x] += agg[x] if known else np.float32(0.0)
-                    c_row[x] += np.float32(1.0) if known else np.float32(0.0)
+                    _box_row(seen_rows, q0, y, rad, h, ordered, tmp, bs)
+                _take_row(bt, bs, seen_rows[y - q0], area, floor, inv_unit, out[y, d], best[y], total[y], count[y])
 
 
 @njit(**PARALLEL)
