@@ -288,6 +288,19 @@ def _all_terms(a_buf, w_buf, floor, ones, s1, s2, cn, t, seen):
     _lcn_row(s1, s2, cn, floor, ones, t, seen)
 
 
+@njit(**INLINE)
+def _row_terms(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, y, d, views, floor, ones, t,
+               a_buf, w_buf, s1, s2, cn, t_row, seen_row):
+    """The 'lcn' cost of all views at row ``y`` and hypothesis ``d`` (``t_row``), its seen flags
+    and the views' weights' sum ``cn``: four all-valid views sampled where the sums take them
+    (:func:`_all_terms_valid_four`), other views through rows of samples."""
+    if all_valid and views.shape[0] == 4:
+        _all_terms_valid_four(src, edge_y, edge_x, iy, ix, fy, fx, pad, y, d, views, floor, ones, cn, t_row, seen_row)
+    else:
+        _view_rows(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, y, d, views, t, a_buf, w_buf)
+        _all_terms(a_buf, w_buf, floor, ones, s1, s2, cn, t_row, seen_row)
+
+
 @njit(**JIT)
 def _half_terms(a_buf, w_buf, halves, half_ptr, h_i, floor, seen, s1, s2, cn, hc, ho):
     j0 = halves[half_ptr[h_i]]
@@ -399,9 +412,8 @@ def sample_costs(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_
         for d in range(n):
             for k in range(2 * rad + 1):
                 yy = reflect(y - rad + k, h)
-                _view_rows(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, yy, d, views, t, a_buf,
-                           w_buf)
-                _all_terms(a_buf, w_buf, floor, ones, s1, s2, cn, t_rows[k], seen_rows[k])
+                _row_terms(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, yy, d, views, floor, ones,
+                           t, a_buf, w_buf, s1, s2, cn, t_rows[k], seen_rows[k])
             _vsum(t_rows, 0, 2 * rad + 1, col)
             _hsum(col, rad, tmp, bt)
             _vsum(seen_rows, 0, 2 * rad + 1, col)
@@ -510,13 +522,8 @@ def sweep_volume(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_
             count[y] = 0.0
         for d in range(n):
             for r in range(nq):
-                if all_valid and n_views == 4:
-                    _all_terms_valid_four(src, edge_y, edge_x, iy, ix, fy, fx, pad, q0 + r, d, views, floor, ones, cn,
-                                          t_rows[r], seen_rows[r])
-                else:
-                    _view_rows(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, q0 + r, d, views,
-                               t, a_buf, w_buf)
-                    _all_terms(a_buf, w_buf, floor, ones, s1, s2, cn, t_rows[r], seen_rows[r])
+                _row_terms(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, q0 + r, d, views, floor,
+                           ones, t, a_buf, w_buf, s1, s2, cn, t_rows[r], seen_rows[r])
                 if q0 + r >= y0 and q0 + r < y1:
                     nvr = nviews[q0 + r]
                     for x in range(w):
