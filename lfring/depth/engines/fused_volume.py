@@ -190,15 +190,22 @@ def _vbox(rows, q0, y, rad, h, ordered, col):
 
 # -- per-pixel terms of one row at one hypothesis ------------------------------------------------
 @njit(**INLINE)
+def _ones_run(ones_lo, ones_hi, r, c0, m):
+    """The columns lo..hi of ``m`` from padded column c0 whose bilinear mask over padded rows r,
+    r + 1 is 1 for certain: all four taps in both rows' run of ones [ones_lo, ones_hi)."""
+    lo = max(ones_lo[r], ones_lo[r + 1]) - c0
+    hi = min(ones_hi[r], ones_hi[r + 1]) - c0 - 1  # x + 1 must be inside too
+    lo = min(max(lo, 0), m)
+    return lo, min(max(hi, lo), m)
+
+
+@njit(**INLINE)
 def _weights(m0, m1, ones_lo, ones_hi, r, c0, p, q, a, b, t, out):
     """out[x] = the bilinear mask at padded columns c0 + x (+1) of padded rows r, r + 1 (``m0``,
     ``m1``: those rows from c0), 1 where all four taps lie in both rows' run of ones
     [ones_lo, ones_hi) (a disc's inside, where nothing needs computing)."""
     m = out.shape[0]
-    lo = max(ones_lo[r], ones_lo[r + 1]) - c0
-    hi = min(ones_hi[r], ones_hi[r + 1]) - c0 - 1  # x + 1 must be inside too
-    lo = min(max(lo, 0), m)
-    hi = min(max(hi, lo), m)
+    lo, hi = _ones_run(ones_lo, ones_hi, r, c0, m)
     if hi - lo < m:
         _lerp(m0, m1, p, q, t)
         for x in range(lo):
@@ -272,6 +279,47 @@ def _all_terms_valid_four(src, edge_y, edge_x, iy, ix, fy, fx, pad, y, d, views,
 
 
 @njit(**JIT)
+def _all_terms_masked_four(src, msk, ones_lo, ones_hi, iy, ix, fy, fx, pad, y, d, views, floor, ones, cn, t, seen):
+    """:func:`_all_terms_valid_four` for four views with masks: each view's weight its bilinear
+    mask (1 inside its run of ones, :func:`_weights`), made where the sums take it (the same
+    floats)."""
+    w = t.shape[0]
+    k0, k1, k2, k3 = views[0], views[1], views[2], views[3]
+    r0, r1, r2, r3 = y + iy[d, k0] + pad, y + iy[d, k1] + pad, y + iy[d, k2] + pad, y + iy[d, k3] + pad
+    c0, c1, c2, c3 = ix[d, k0] + pad, ix[d, k1] + pad, ix[d, k2] + pad, ix[d, k3] + pad
+    u0, l0 = src[k0, r0, c0:c0 + w + 1], src[k0, r0 + 1, c0:c0 + w + 1]
+    u1, l1 = src[k1, r1, c1:c1 + w + 1], src[k1, r1 + 1, c1:c1 + w + 1]
+    u2, l2 = src[k2, r2, c2:c2 + w + 1], src[k2, r2 + 1, c2:c2 + w + 1]
+    u3, l3 = src[k3, r3, c3:c3 + w + 1], src[k3, r3 + 1, c3:c3 + w + 1]
+    mu0, ml0 = msk[k0, r0, c0:c0 + w + 1], msk[k0, r0 + 1, c0:c0 + w + 1]
+    mu1, ml1 = msk[k1, r1, c1:c1 + w + 1], msk[k1, r1 + 1, c1:c1 + w + 1]
+    mu2, ml2 = msk[k2, r2, c2:c2 + w + 1], msk[k2, r2 + 1, c2:c2 + w + 1]
+    mu3, ml3 = msk[k3, r3, c3:c3 + w + 1], msk[k3, r3 + 1, c3:c3 + w + 1]
+    lo0, hi0 = _ones_run(ones_lo[k0], ones_hi[k0], r0, c0, w)
+    lo1, hi1 = _ones_run(ones_lo[k1], ones_hi[k1], r1, c1, w)
+    lo2, hi2 = _ones_run(ones_lo[k2], ones_hi[k2], r2, c2, w)
+    lo3, hi3 = _ones_run(ones_lo[k3], ones_hi[k3], r3, c3, w)
+    one = np.float32(1.0)
+    q0, q1, q2, q3 = np.float32(fy[d, k0]), np.float32(fy[d, k1]), np.float32(fy[d, k2]), np.float32(fy[d, k3])
+    b0, b1, b2, b3 = np.float32(fx[d, k0]), np.float32(fx[d, k1]), np.float32(fx[d, k2]), np.float32(fx[d, k3])
+    p0, p1, p2, p3 = one - q0, one - q1, one - q2, one - q3
+    a0, a1, a2, a3 = one - b0, one - b1, one - b2, one - b3
+    for x in range(w):
+        v0 = _sample(u0, l0, p0, q0, a0, b0, x)
+        v1 = _sample(u1, l1, p1, q1, a1, b1, x)
+        v2 = _sample(u2, l2, p2, q2, a2, b2, x)
+        v3 = _sample(u3, l3, p3, q3, a3, b3, x)
+        g0 = one if lo0 <= x < hi0 else _sample(mu0, ml0, p0, q0, a0, b0, x)
+        g1 = one if lo1 <= x < hi1 else _sample(mu1, ml1, p1, q1, a1, b1, x)
+        g2 = one if lo2 <= x < hi2 else _sample(mu2, ml2, p2, q2, a2, b2, x)
+        g3 = one if lo3 <= x < hi3 else _sample(mu3, ml3, p3, q3, a3, b3, x)
+        s2 = _two_squares(v0, v1) + v2 * v2 + v3 * v3
+        c = g0 + g1 + g2 + g3
+        cn[x] = c
+        t[x], seen[x] = _lcn(v0 + v1 + v2 + v3, s2, c, floor, ones[x])
+
+
+@njit(**JIT)
 def _all_terms(a_buf, w_buf, floor, ones, s1, s2, cn, t, seen):
     """The 'lcn' cost ``t`` of all views' rows, its ``seen`` flags and the views' weights' sum
     ``cn``. Four views (the ring) and two (a pair) are summed in one pass rather than a pass per
@@ -293,9 +341,13 @@ def _row_terms(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo
                a_buf, w_buf, s1, s2, cn, t_row, seen_row):
     """The 'lcn' cost of all views at row ``y`` and hypothesis ``d`` (``t_row``), its seen flags
     and the views' weights' sum ``cn``: four all-valid views sampled where the sums take them
-    (:func:`_all_terms_valid_four`), other views through rows of samples."""
+    (:func:`_all_terms_valid_four`, :func:`_all_terms_masked_four`), other views through rows of
+    samples."""
     if all_valid and views.shape[0] == 4:
         _all_terms_valid_four(src, edge_y, edge_x, iy, ix, fy, fx, pad, y, d, views, floor, ones, cn, t_row, seen_row)
+    elif views.shape[0] == 4:
+        _all_terms_masked_four(src, msk, ones_lo, ones_hi, iy, ix, fy, fx, pad, y, d, views, floor, ones, cn, t_row,
+                               seen_row)
     else:
         _view_rows(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, y, d, views, t, a_buf, w_buf)
         _all_terms(a_buf, w_buf, floor, ones, s1, s2, cn, t_row, seen_row)
