@@ -113,21 +113,11 @@ def _lcn_two(a0, a1, w0, w1, floor, seen_in, cn, t, seen):
         t[x], seen[x] = _lcn(v0 + v1, _two_squares(v0, v1), c, floor, seen_in[x])
 
 
-@njit(**JIT)
-def _lcn_four(a_buf, w_buf, floor, seen_in, cn, t, seen):
-    """:func:`_lcn_row` of the sums of four views' values and weights, in one pass (the same
-    floats as :func:`_sums_first` and :func:`_sums_add`); ``cn`` receives the weights' sums."""
-    a0, a1, a2, a3 = a_buf[0], a_buf[1], a_buf[2], a_buf[3]
-    w0, w1, w2, w3 = w_buf[0], w_buf[1], w_buf[2], w_buf[3]
-    for x in range(t.shape[0]):
-        v0 = a0[x]
-        v1 = a1[x]
-        v2 = a2[x]
-        v3 = a3[x]
-        s2 = _two_squares(v0, v1) + v2 * v2 + v3 * v3
-        c = w0[x] + w1[x] + w2[x] + w3[x]
-        cn[x] = c
-        t[x], seen[x] = _lcn(v0 + v1 + v2 + v3, s2, c, floor, seen_in[x])
+@njit(**INLINE)
+def _lcn_of_four(v0, v1, v2, v3, c, floor, seen_in):
+    """:func:`_lcn` of four views' values at a pixel (weights' sum ``c``), summed in the floats
+    of :func:`_sums_first` and :func:`_sums_add`."""
+    return _lcn(v0 + v1 + v2 + v3, _two_squares(v0, v1) + v2 * v2 + v3 * v3, c, floor, seen_in)
 
 
 @njit(**INLINE)
@@ -217,27 +207,17 @@ def _weights(m0, m1, ones_lo, ones_hi, r, c0, p, q, a, b, t, out):
 
 
 
-@njit(**JIT)
-def _view_rows(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, y, d, views, t, a_buf,
-               w_buf):
-    """Every view's value (premultiplied by its mask) and weight at row ``y`` shifted to
-    hypothesis ``d`` (bilinear, zero outside the view)."""
-    w = a_buf.shape[1]
-    for j in range(views.shape[0]):
-        k = views[j]
-        r = y + iy[d, k] + pad
-        c0 = ix[d, k] + pad
-        q = np.float32(fy[d, k])
-        p = np.float32(1.0) - q
-        b = np.float32(fx[d, k])
-        a = np.float32(1.0) - b
-        _lerp(src[k, r, c0:c0 + w + 1], src[k, r + 1, c0:c0 + w + 1], p, q, t)
-        _shifted(t, a, b, a_buf[j])
-        if all_valid:
-            _scaled(edge_x[d, k], edge_y[d, k, y], w_buf[j])
-        else:
-            _weights(msk[k, r, c0:c0 + w + 1], msk[k, r + 1, c0:c0 + w + 1], ones_lo[k], ones_hi[k], r, c0, p, q, a, b,
-                     t, w_buf[j])
+@njit(**INLINE)
+def _view_taps(src, iy, ix, fy, fx, pad, y, d, k, x0, m):
+    """View ``k``'s bilinear taps for ``m`` columns from x0 of row ``y`` at hypothesis ``d``: its
+    two padded rows of ``src`` from column c0 (m + 1 values each), r and c0, and the weights p,
+    q (down) and a, b (across)."""
+    r = y + iy[d, k] + pad
+    c0 = ix[d, k] + pad + x0
+    q = np.float32(fy[d, k])
+    b = np.float32(fx[d, k])
+    return (src[k, r, c0:c0 + m + 1], src[k, r + 1, c0:c0 + m + 1], r, c0, np.float32(1.0) - q, q,
+            np.float32(1.0) - b, b)
 
 
 @njit(**INLINE)
@@ -249,84 +229,72 @@ def _sample(s0, s1, p, q, a, b, x):
 
 @njit(**JIT)
 def _all_terms_valid_four(src, edge_y, edge_x, iy, ix, fy, fx, pad, y, d, views, floor, ones, cn, t, seen):
-    """:func:`_view_rows` and :func:`_all_terms` of four all-valid views in one pass: each view's
+    """:func:`_view_span` and :func:`_all_terms` of four all-valid views in one pass: each view's
     sample and edge weight made where the sums take them rather than written to rows first (the
     same floats)."""
     w = t.shape[0]
     k0, k1, k2, k3 = views[0], views[1], views[2], views[3]
-    r0, r1, r2, r3 = y + iy[d, k0] + pad, y + iy[d, k1] + pad, y + iy[d, k2] + pad, y + iy[d, k3] + pad
-    c0, c1, c2, c3 = ix[d, k0] + pad, ix[d, k1] + pad, ix[d, k2] + pad, ix[d, k3] + pad
-    u0, l0 = src[k0, r0, c0:c0 + w + 1], src[k0, r0 + 1, c0:c0 + w + 1]
-    u1, l1 = src[k1, r1, c1:c1 + w + 1], src[k1, r1 + 1, c1:c1 + w + 1]
-    u2, l2 = src[k2, r2, c2:c2 + w + 1], src[k2, r2 + 1, c2:c2 + w + 1]
-    u3, l3 = src[k3, r3, c3:c3 + w + 1], src[k3, r3 + 1, c3:c3 + w + 1]
-    one = np.float32(1.0)
-    q0, q1, q2, q3 = np.float32(fy[d, k0]), np.float32(fy[d, k1]), np.float32(fy[d, k2]), np.float32(fy[d, k3])
-    b0, b1, b2, b3 = np.float32(fx[d, k0]), np.float32(fx[d, k1]), np.float32(fx[d, k2]), np.float32(fx[d, k3])
-    p0, p1, p2, p3 = one - q0, one - q1, one - q2, one - q3
-    a0, a1, a2, a3 = one - b0, one - b1, one - b2, one - b3
+    u0, l0, _, _, p0, q0, a0, b0 = _view_taps(src, iy, ix, fy, fx, pad, y, d, k0, 0, w)
+    u1, l1, _, _, p1, q1, a1, b1 = _view_taps(src, iy, ix, fy, fx, pad, y, d, k1, 0, w)
+    u2, l2, _, _, p2, q2, a2, b2 = _view_taps(src, iy, ix, fy, fx, pad, y, d, k2, 0, w)
+    u3, l3, _, _, p3, q3, a3, b3 = _view_taps(src, iy, ix, fy, fx, pad, y, d, k3, 0, w)
     e0, e1, e2, e3 = edge_y[d, k0, y], edge_y[d, k1, y], edge_y[d, k2, y], edge_y[d, k3, y]
     x0, x1, x2, x3 = edge_x[d, k0], edge_x[d, k1], edge_x[d, k2], edge_x[d, k3]
     for x in range(w):
-        v0 = _sample(u0, l0, p0, q0, a0, b0, x)
-        v1 = _sample(u1, l1, p1, q1, a1, b1, x)
-        v2 = _sample(u2, l2, p2, q2, a2, b2, x)
-        v3 = _sample(u3, l3, p3, q3, a3, b3, x)
-        s2 = _two_squares(v0, v1) + v2 * v2 + v3 * v3
         c = _rounded(e0 * x0[x]) + _rounded(e1 * x1[x]) + _rounded(e2 * x2[x]) + _rounded(e3 * x3[x])
         cn[x] = c
-        t[x], seen[x] = _lcn(v0 + v1 + v2 + v3, s2, c, floor, ones[x])
+        t[x], seen[x] = _lcn_of_four(_sample(u0, l0, p0, q0, a0, b0, x), _sample(u1, l1, p1, q1, a1, b1, x),
+                                     _sample(u2, l2, p2, q2, a2, b2, x), _sample(u3, l3, p3, q3, a3, b3, x), c, floor,
+                                     ones[x])
+
+
+@njit(**INLINE)
+def _mask_taps(msk, ones_lo, ones_hi, k, r, c0, m):
+    """View ``k``'s mask rows at its taps (:func:`_view_taps`' r, c0) and the columns lo..hi
+    where its bilinear mask is 1 for certain (:func:`_ones_run`)."""
+    lo, hi = _ones_run(ones_lo[k], ones_hi[k], r, c0, m)
+    return msk[k, r, c0:c0 + m + 1], msk[k, r + 1, c0:c0 + m + 1], lo, hi
+
+
+@njit(**INLINE)
+def _mask_weight(mu, ml, lo, hi, p, q, a, b, x):
+    """A view's weight at column x: its bilinear mask, 1 inside its run of ones (:func:`_weights`'
+    floats)."""
+    return np.float32(1.0) if lo <= x < hi else _sample(mu, ml, p, q, a, b, x)
 
 
 @njit(**JIT)
 def _all_terms_masked_four(src, msk, ones_lo, ones_hi, iy, ix, fy, fx, pad, y, d, views, floor, ones, cn, t, seen):
     """:func:`_all_terms_valid_four` for four views with masks: each view's weight its bilinear
-    mask (1 inside its run of ones, :func:`_weights`), made where the sums take it (the same
-    floats)."""
+    mask (:func:`_weights`), made where the sums take it (the same floats)."""
     w = t.shape[0]
-    k0, k1, k2, k3 = views[0], views[1], views[2], views[3]
-    r0, r1, r2, r3 = y + iy[d, k0] + pad, y + iy[d, k1] + pad, y + iy[d, k2] + pad, y + iy[d, k3] + pad
-    c0, c1, c2, c3 = ix[d, k0] + pad, ix[d, k1] + pad, ix[d, k2] + pad, ix[d, k3] + pad
-    u0, l0 = src[k0, r0, c0:c0 + w + 1], src[k0, r0 + 1, c0:c0 + w + 1]
-    u1, l1 = src[k1, r1, c1:c1 + w + 1], src[k1, r1 + 1, c1:c1 + w + 1]
-    u2, l2 = src[k2, r2, c2:c2 + w + 1], src[k2, r2 + 1, c2:c2 + w + 1]
-    u3, l3 = src[k3, r3, c3:c3 + w + 1], src[k3, r3 + 1, c3:c3 + w + 1]
-    mu0, ml0 = msk[k0, r0, c0:c0 + w + 1], msk[k0, r0 + 1, c0:c0 + w + 1]
-    mu1, ml1 = msk[k1, r1, c1:c1 + w + 1], msk[k1, r1 + 1, c1:c1 + w + 1]
-    mu2, ml2 = msk[k2, r2, c2:c2 + w + 1], msk[k2, r2 + 1, c2:c2 + w + 1]
-    mu3, ml3 = msk[k3, r3, c3:c3 + w + 1], msk[k3, r3 + 1, c3:c3 + w + 1]
-    lo0, hi0 = _ones_run(ones_lo[k0], ones_hi[k0], r0, c0, w)
-    lo1, hi1 = _ones_run(ones_lo[k1], ones_hi[k1], r1, c1, w)
-    lo2, hi2 = _ones_run(ones_lo[k2], ones_hi[k2], r2, c2, w)
-    lo3, hi3 = _ones_run(ones_lo[k3], ones_hi[k3], r3, c3, w)
-    one = np.float32(1.0)
-    q0, q1, q2, q3 = np.float32(fy[d, k0]), np.float32(fy[d, k1]), np.float32(fy[d, k2]), np.float32(fy[d, k3])
-    b0, b1, b2, b3 = np.float32(fx[d, k0]), np.float32(fx[d, k1]), np.float32(fx[d, k2]), np.float32(fx[d, k3])
-    p0, p1, p2, p3 = one - q0, one - q1, one - q2, one - q3
-    a0, a1, a2, a3 = one - b0, one - b1, one - b2, one - b3
+    u0, l0, r0, c0, p0, q0, a0, b0 = _view_taps(src, iy, ix, fy, fx, pad, y, d, views[0], 0, w)
+    u1, l1, r1, c1, p1, q1, a1, b1 = _view_taps(src, iy, ix, fy, fx, pad, y, d, views[1], 0, w)
+    u2, l2, r2, c2, p2, q2, a2, b2 = _view_taps(src, iy, ix, fy, fx, pad, y, d, views[2], 0, w)
+    u3, l3, r3, c3, p3, q3, a3, b3 = _view_taps(src, iy, ix, fy, fx, pad, y, d, views[3], 0, w)
+    mu0, ml0, lo0, hi0 = _mask_taps(msk, ones_lo, ones_hi, views[0], r0, c0, w)
+    mu1, ml1, lo1, hi1 = _mask_taps(msk, ones_lo, ones_hi, views[1], r1, c1, w)
+    mu2, ml2, lo2, hi2 = _mask_taps(msk, ones_lo, ones_hi, views[2], r2, c2, w)
+    mu3, ml3, lo3, hi3 = _mask_taps(msk, ones_lo, ones_hi, views[3], r3, c3, w)
     for x in range(w):
         v0 = _sample(u0, l0, p0, q0, a0, b0, x)
         v1 = _sample(u1, l1, p1, q1, a1, b1, x)
         v2 = _sample(u2, l2, p2, q2, a2, b2, x)
         v3 = _sample(u3, l3, p3, q3, a3, b3, x)
-        g0 = one if lo0 <= x < hi0 else _sample(mu0, ml0, p0, q0, a0, b0, x)
-        g1 = one if lo1 <= x < hi1 else _sample(mu1, ml1, p1, q1, a1, b1, x)
-        g2 = one if lo2 <= x < hi2 else _sample(mu2, ml2, p2, q2, a2, b2, x)
-        g3 = one if lo3 <= x < hi3 else _sample(mu3, ml3, p3, q3, a3, b3, x)
-        s2 = _two_squares(v0, v1) + v2 * v2 + v3 * v3
+        g0 = _mask_weight(mu0, ml0, lo0, hi0, p0, q0, a0, b0, x)
+        g1 = _mask_weight(mu1, ml1, lo1, hi1, p1, q1, a1, b1, x)
+        g2 = _mask_weight(mu2, ml2, lo2, hi2, p2, q2, a2, b2, x)
+        g3 = _mask_weight(mu3, ml3, lo3, hi3, p3, q3, a3, b3, x)
         c = g0 + g1 + g2 + g3
         cn[x] = c
-        t[x], seen[x] = _lcn(v0 + v1 + v2 + v3, s2, c, floor, ones[x])
+        t[x], seen[x] = _lcn_of_four(v0, v1, v2, v3, c, floor, ones[x])
 
 
 @njit(**JIT)
 def _all_terms(a_buf, w_buf, floor, ones, s1, s2, cn, t, seen):
     """The 'lcn' cost ``t`` of all views' rows, its ``seen`` flags and the views' weights' sum
-    ``cn``. Four views (the ring) and two (a pair) are summed in one pass rather than a pass per
-    view."""
-    if a_buf.shape[0] == 4:
-        _lcn_four(a_buf, w_buf, floor, ones, cn, t, seen)
-        return
+    ``cn``. A pair is summed in one pass rather than a pass per view (four views take
+    :func:`_row_terms`' sampled kernels)."""
     if a_buf.shape[0] == 2:
         _lcn_two(a_buf[0], a_buf[1], w_buf[0], w_buf[1], floor, ones, cn, t, seen)
         return
@@ -340,16 +308,17 @@ def _all_terms(a_buf, w_buf, floor, ones, s1, s2, cn, t, seen):
 def _row_terms(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, y, d, views, floor, ones, t,
                a_buf, w_buf, s1, s2, cn, t_row, seen_row):
     """The 'lcn' cost of all views at row ``y`` and hypothesis ``d`` (``t_row``), its seen flags
-    and the views' weights' sum ``cn``: four all-valid views sampled where the sums take them
-    (:func:`_all_terms_valid_four`, :func:`_all_terms_masked_four`), other views through rows of
-    samples."""
+    and the views' weights' sum ``cn``: four views sampled where the sums take them
+    (:func:`_all_terms_valid_four`, :func:`_all_terms_masked_four`), other numbers of views
+    through rows of samples (:func:`_view_span`)."""
     if all_valid and views.shape[0] == 4:
         _all_terms_valid_four(src, edge_y, edge_x, iy, ix, fy, fx, pad, y, d, views, floor, ones, cn, t_row, seen_row)
     elif views.shape[0] == 4:
         _all_terms_masked_four(src, msk, ones_lo, ones_hi, iy, ix, fy, fx, pad, y, d, views, floor, ones, cn, t_row,
                                seen_row)
     else:
-        _view_rows(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, y, d, views, t, a_buf, w_buf)
+        _view_span(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, y, d, views, 0,
+                   t_row.shape[0], 0, t, a_buf, w_buf)
         _all_terms(a_buf, w_buf, floor, ones, s1, s2, cn, t_row, seen_row)
 
 
@@ -778,18 +747,14 @@ def _halves_strip(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones
 @njit(**JIT)
 def _view_span(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, y, d, views, x0, m, at, t, a_buf,
                w_buf):
-    """:func:`_view_rows` for the ``m`` columns from x0 of the row, into ``a_buf`` and ``w_buf``
-    from their column ``at``."""
+    """Every view's value (premultiplied by its mask) and weight at the ``m`` columns from x0 of
+    row ``y`` shifted to hypothesis ``d`` (bilinear, zero outside the view), into ``a_buf`` and
+    ``w_buf`` from their column ``at``."""
     for j in range(views.shape[0]):
         k = views[j]
-        r = y + iy[d, k] + pad
-        c0 = ix[d, k] + pad + x0
-        q = np.float32(fy[d, k])
-        p = np.float32(1.0) - q
-        b = np.float32(fx[d, k])
-        a = np.float32(1.0) - b
+        upper, lower, r, c0, p, q, a, b = _view_taps(src, iy, ix, fy, fx, pad, y, d, k, x0, m)
         tt = t[:m + 1]
-        _lerp(src[k, r, c0:c0 + m + 1], src[k, r + 1, c0:c0 + m + 1], p, q, tt)
+        _lerp(upper, lower, p, q, tt)
         _shifted(tt, a, b, a_buf[j, at:at + m])
         if all_valid:
             _scaled(edge_x[d, k, x0:x0 + m], edge_y[d, k, y], w_buf[j, at:at + m])
