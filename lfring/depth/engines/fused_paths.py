@@ -546,7 +546,7 @@ def _raw_row(col_sum, col_cnt, centre, rad, area, floor, sums, counts, out):
         out[x] = np.float32(sums[x]) * inv_area / share if centre[x] != UNKNOWN else np.float32(np.inf)
 
 
-@njit(**JIT)
+@njit(**INLINE)
 def _select_row(vol, total, cur, y, x0, x1, raw_rad, exclude, floor, col_sum, col_cnt, raw, index, conf):
     """Winner, offset and confidence of the pixels x0..x1 of row ``y`` from the complete sum
     (``total`` + the bottom-up path ``cur``) and the raw cost's box mean."""

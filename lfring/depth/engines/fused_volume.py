@@ -322,7 +322,7 @@ def _row_terms(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo
         _all_terms(a_buf, w_buf, floor, ones, s1, s2, cn, t_row, seen_row)
 
 
-@njit(**JIT)
+@njit(**INLINE)
 def _half_terms(a_buf, w_buf, halves, half_ptr, h_i, floor, seen, s1, s2, cn, hc, ho):
     j0 = halves[half_ptr[h_i]]
     _sums_first(a_buf[j0], w_buf[j0], s1, s2, cn)
@@ -763,7 +763,7 @@ def _view_span(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo
                      tt, w_buf[j, at:at + m])
 
 
-@njit(**JIT)
+@njit(**INLINE)
 def _box_spans(rows, q0, y, rad, h, w, ta, sw, base, ordered, col, out):
     """The box sums at row ``y`` of every span laid out by :func:`_halves_strip` (``rows``: its
     rows of a quantity from image row ``q0``, reflected at the image's top and bottom): exact
