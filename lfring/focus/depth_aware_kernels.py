@@ -134,60 +134,56 @@ def scatter(colour, sharp, s, cover, q, window, n, shift, y0, x0, rows, cols, of
         if rows[k] > 0 and shift[k] == 0:
             lo_row = min(lo_row, y0[k])
             hi_row = max(hi_row, y0[k] + rows[k])
-    w = colour.shape[1]
+    # A cell's share of a pixel, 4 ** -f (exact: the same numbers as a division).
+    area_inv = np.empty(64, np.float64)
+    for f in range(64):
+        area_inv[f] = 0.25 ** f
     n_stripes = (hi_row + stripe - 1) // stripe
     for b in prange(lo_row // stripe, n_stripes):
         v = np.empty(c1, np.float32)
-        # Per pixel of the row, for its lower and upper rung: the rung on a full-resolution grid
-        # (-1: none) and the pixel's values there.
-        ks = np.empty((2, w), np.int64)
-        vals = np.empty((2, w, c1), np.float32)
         for y in range(max(lo_row, b * stripe), min(hi_row, (b + 1) * stripe)):
-            ks[:] = -1
-            if r0 <= y < r1:
-                for xx in range(col0, col1):
-                    cv = cover[y, xx]
-                    if cv <= 0.0:
-                        continue
-                    sh = s[y, xx]
-                    for ch in range(c):
-                        col = colour[y, xx, ch]
-                        if with_sharp and sh > 0.0:
-                            col += sh * (sharp[y, xx, ch] - col)
-                        v[ch] = col * cv
-                    v[c] = cv
-                    sq = q[y, xx]
-                    frac = abs(sq)
-                    lo = int(frac)
-                    t = frac - lo
-                    sign = -1 if sq < 0.0 else 1
-                    for m in range(2):
-                        if m == 1 and (t <= 0.0 or lo >= n):
-                            break
-                        k = n + sign * (lo + m)
-                        f = shift[k]
-                        scale = np.float32((t if m == 1 else 1.0 - t) / (1 << (2 * f)))
-                        if f == 0:
-                            ks[m, xx] = k
-                            for ch in range(c1):
-                                vals[m, xx, ch] = np.float32(0.0) + scale * v[ch]
-                            continue
-                        cy = (y >> f) - (y0[k] >> f)
-                        cx = (xx >> f) - (x0[k] >> f)
-                        base = offset[k] + (cy * cols[k] + cx) * c1
-                        for ch in range(c1):
-                            buf[base + ch] += scale * v[ch]
-            # Every full-resolution box's row: the pixel's value where it is of that rung, else 0.
+            # Every full-resolution box's row is cleared first, then each pixel writes its value
+            # into the one or two boxes of its rungs (the row is in cache by then).
             for k in range(2 * n + 1):
                 if rows[k] == 0 or shift[k] != 0 or not (y0[k] <= y < y0[k] + rows[k]):
                     continue
                 base = offset[k] + (y - y0[k]) * cols[k] * c1
-                for j in range(cols[k]):
-                    xx = x0[k] + j
-                    cell = base + j * c1
-                    m = 0 if ks[0, xx] == k else 1 if ks[1, xx] == k else -1
+                for i in range(base, base + cols[k] * c1):
+                    buf[i] = np.float32(0.0)
+            if not r0 <= y < r1:
+                continue
+            for xx in range(col0, col1):
+                cv = cover[y, xx]
+                if cv <= 0.0:
+                    continue
+                sh = s[y, xx]
+                for ch in range(c):
+                    col = colour[y, xx, ch]
+                    if with_sharp and sh > 0.0:
+                        col += sh * (sharp[y, xx, ch] - col)
+                    v[ch] = col * cv
+                v[c] = cv
+                sq = q[y, xx]
+                frac = abs(sq)
+                lo = int(frac)
+                t = frac - lo
+                sign = -1 if sq < 0.0 else 1
+                for m in range(2):
+                    if m == 1 and (t <= 0.0 or lo >= n):
+                        break
+                    k = n + sign * (lo + m)
+                    f = shift[k]
+                    scale = np.float32((t if m == 1 else 1.0 - t) * area_inv[f])
+                    if f == 0:
+                        cell = offset[k] + ((y - y0[k]) * cols[k] + xx - x0[k]) * c1
+                        for ch in range(c1):
+                            buf[cell + ch] = np.float32(0.0) + scale * v[ch]
+                        continue
+                    cy = (y >> f) - (y0[k] >> f)
+                    cx = (xx >> f) - (x0[k] >> f)
+                    base = offset[k] + (cy * cols[k] + cx) * c1
                     for ch in range(c1):
-                        buf[cell + ch] = vals[m, xx, ch] if m >= 0 else np.float32(0.0)
+                        buf[base + ch] += scale * v[ch]
 
 
 @njit(parallel=True, **_JIT)
