@@ -28,6 +28,9 @@ __all__ = ["HALVES_GROUP_COLUMNS", "sample_costs", "sweep_halves", "sweep_volume
 # of terms at once (runs are often a few pixels wide, where per-run steps cost more than the
 # pixels; at this width a group's 16-bit least costs still fit a core's L2 cache).
 HALVES_GROUP_COLUMNS = 512
+# Box sums of five rows (or columns) run in one pass from rows this wide; on the halves pass's
+# short rows the one-pass loop was no faster than a pass per row (see benchmarks/RESULTS.md).
+ONE_PASS_MIN_WIDTH = 128
 
 
 @njit(**INLINE)
@@ -122,8 +125,15 @@ def _lcn_of_four(v0, v1, v2, v3, c, floor, seen_in):
 
 @njit(**INLINE)
 def _vsum(rows, start, count, out):
-    """out = sum of ``count`` rows of ``rows`` from index ``start`` (any order of rows)."""
+    """out = sum of ``count`` rows of ``rows`` from index ``start`` (any order of rows), added
+    in row order. Five rows (the default box) in one pass, in the same order: one store a value
+    instead of five."""
     w = out.shape[0]
+    if count == 5 and w >= ONE_PASS_MIN_WIDTH:
+        r0, r1, r2, r3, r4 = rows[start], rows[start + 1], rows[start + 2], rows[start + 3], rows[start + 4]
+        for x in range(w):
+            out[x] = (((r0[x] + r1[x]) + r2[x]) + r3[x]) + r4[x]
+        return
     for x in range(w):
         out[x] = rows[start, x]
     for k in range(start + 1, start + count):
@@ -158,6 +168,10 @@ def _shifted_sum(padded, rad, out):
     additions of a sum per pixel (so the same floats), with indices from 0 (numba wraps an
     index that may be negative around): the loops vectorise, where a sum per pixel did not."""
     m = out.shape[0]
+    if rad == 2 and m >= ONE_PASS_MIN_WIDTH:  # the default box, in one pass (the same order of additions)
+        for x in range(m):
+            out[x] = (((padded[x] + padded[x + 1]) + padded[x + 2]) + padded[x + 3]) + padded[x + 4]
+        return
     for x in range(m):
         out[x] = padded[x]
     for k in range(1, 2 * rad + 1):
