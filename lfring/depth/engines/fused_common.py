@@ -19,6 +19,10 @@ PARALLEL = dict(JIT, parallel=True)
 # Small row helpers are inlined into their callers: a call per row and hypothesis costs more than
 # the row itself on the short rows of a span or a block of columns.
 INLINE = dict(JIT, inline="always")
+# Box sums and minima of the default 5-pixel window run in one pass over five rows (or shifted
+# columns) from rows this wide; on the halves pass's short rows the one-pass loop was no faster
+# than a pass per row (see benchmarks/RESULTS.md).
+ONE_PASS_MIN_WIDTH = 128
 # A cost that no two views saw: never a winner; the paths see the pixel's mean known cost there.
 UNKNOWN = 65535
 # The largest cost and penalty kept: 4 * (COST_MAX + PENALTY_MAX) < 2**16 (the four paths' sum),

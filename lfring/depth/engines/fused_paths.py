@@ -17,7 +17,7 @@ import numpy as np
 from numba import njit, prange
 
 from lfring.depth.aggregation_kernels import reflect
-from lfring.depth.engines.fused_common import COST_ZERO, INLINE, JIT, PARALLEL, PENALTY_MAX, UNKNOWN
+from lfring.depth.engines.fused_common import COST_ZERO, INLINE, JIT, ONE_PASS_MIN_WIDTH, PARALLEL, PENALTY_MAX, UNKNOWN
 
 __all__ = ["horizontal_paths", "vertical_paths"]
 
@@ -59,19 +59,36 @@ def _eroded_rows(vol, y, rad, x0, x1, ext, out):
     c0 = max(0, x0 - rad)
     c1 = min(w, x1 + rad)
     lo = c0 - (x0 - rad)  # columns of ext before the image's first (replicated)
+    # The default 5-pixel window in one pass a direction (the least of five values: the same
+    # in any order), one store a value instead of five.
+    five = rad == 2 and m >= ONE_PASS_MIN_WIDTH
     for d in range(n):
         cm = ext[lo:lo + c1 - c0]
-        _copy(vol[r0, d, c0:c1], cm)
-        for r in range(r0 + 1, r1):
-            _min_into(vol[r, d, c0:c1], cm)
+        if five and r1 - r0 == 5:
+            _min_of_five(vol[r0, d, c0:c1], vol[r0 + 1, d, c0:c1], vol[r0 + 2, d, c0:c1], vol[r0 + 3, d, c0:c1],
+                         vol[r0 + 4, d, c0:c1], cm)
+        else:
+            _copy(vol[r0, d, c0:c1], cm)
+            for r in range(r0 + 1, r1):
+                _min_into(vol[r, d, c0:c1], cm)
         for j in range(lo):
             ext[j] = ext[lo]
         for j in range(lo + c1 - c0, m + 2 * rad):
             ext[j] = ext[lo + c1 - c0 - 1]
         o = out[d]
+        if five:
+            _min_of_five(ext[0:m], ext[1:m + 1], ext[2:m + 2], ext[3:m + 3], ext[4:m + 4], o)
+            continue
         _copy(ext[0:m], o)
         for k in range(1, 2 * rad + 1):
             _min_into(ext[k:k + m], o)
+
+
+@njit(**INLINE)
+def _min_of_five(a, b, c, d, e, out):
+    """out = the least of five rows, value by value."""
+    for x in range(out.shape[0]):
+        out[x] = min(min(min(a[x], b[x]), min(c[x], d[x])), e[x])
 
 
 @njit(**JIT)

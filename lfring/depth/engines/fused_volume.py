@@ -20,7 +20,7 @@ import numpy as np
 from numba import njit, prange
 
 from lfring.depth.aggregation_kernels import reflect
-from lfring.depth.engines.fused_common import COST_MAX, COST_ZERO, INLINE, JIT, PARALLEL, UNKNOWN
+from lfring.depth.engines.fused_common import COST_MAX, COST_ZERO, INLINE, JIT, ONE_PASS_MIN_WIDTH, PARALLEL, UNKNOWN
 
 __all__ = ["HALVES_GROUP_COLUMNS", "sample_costs", "sweep_halves", "sweep_volume"]
 
@@ -28,9 +28,6 @@ __all__ = ["HALVES_GROUP_COLUMNS", "sample_costs", "sweep_halves", "sweep_volume
 # of terms at once (runs are often a few pixels wide, where per-run steps cost more than the
 # pixels; at this width a group's 16-bit least costs still fit a core's L2 cache).
 HALVES_GROUP_COLUMNS = 512
-# Box sums of five rows (or columns) run in one pass from rows this wide; on the halves pass's
-# short rows the one-pass loop was no faster than a pass per row (see benchmarks/RESULTS.md).
-ONE_PASS_MIN_WIDTH = 128
 
 
 @njit(**INLINE)
