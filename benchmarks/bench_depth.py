@@ -16,8 +16,9 @@ prototype's optics calibration with views valid everywhere) at exactly 64 planes
 beside StereoSGBM on a 1060 x 1060 pair with 64 disparities in the same run, with the default at
 1, 2, 4, 8, 16 threads (those the machine has) for its thread scaling; the default beside SGBM,
 and one thread beside all cores, are also timed alternately (medians of the pairs' ratios). It
-gives the peak memory of one call at 128 planes (in a fresh process). The four random views do not correspond, so almost no
-pixel takes the halves of the 'lcn-halves' cost there: a real scene costs more (the twin's row).
+gives the peak memory of one call at 128 planes (in a fresh process). The four random views do
+not correspond, so almost no pixel takes the halves of the 'lcn-halves' cost there: a real scene
+costs more (the twin's row).
 
     python benchmarks/bench_depth.py
 """

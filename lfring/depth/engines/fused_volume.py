@@ -335,6 +335,8 @@ def _row_terms(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo
 
 @njit(**INLINE)
 def _half_terms(a_buf, w_buf, halves, half_ptr, h_i, floor, seen, s1, s2, cn, hc, ho):
+    """The 'lcn' cost ``hc`` of the half ``h_i`` of the views and its flags ``ho`` (where
+    ``seen`` too), one view at a time."""
     j0 = halves[half_ptr[h_i]]
     _sums_first(a_buf[j0], w_buf[j0], s1, s2, cn)
     for q_i in range(half_ptr[h_i] + 1, half_ptr[h_i + 1]):
