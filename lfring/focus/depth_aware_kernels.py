@@ -10,6 +10,11 @@ and :func:`merge` composite the layers. Rows run in parallel stripes; a stripe's
 multiple of every rung's grid factor, so no two stripes write the same cell. Colour and
 coverage are interleaved (C + 1 values per pixel), one cache line for all of a pixel.
 
+The per-cell loops run over flat rows, and each is an inlined helper called twice: with the
+cell's size given as 4 (RGB and coverage), which compiles a copy whose loops are unrolled and
+vectorise, and with the size of the call for any other channel count. Indexed as (row, column,
+value), or with a size known only at run time, the same loops compile to scalar code.
+
 The renderer's all-in-focus colour, made once per depth map, has its own: :func:`shift_maps`
 and :func:`knot_maps` (where each view sees every pixel at its depth, for calibrations whose
 views move by translations and for the others),
@@ -30,6 +35,26 @@ __all__ = ["add_seen", "finish", "knot_maps", "merge", "occluded", "over", "robu
 _JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
 
 
+@njit(inline="always")
+def _moment_row(xr, ar, cr, sr, n_px, c, x_f, motion, aperture, sharp_px, ramp_px, share_px2, with_sharp, m_out, s_out):
+    """Per pixel of a row of :func:`rungs` (inverse depth ``xr``, agreement ``ar``, cover ``cr``,
+    ``sr`` the shift-and-add image's ``c`` values a pixel, flat): ``m_out`` the second moment
+    its rungs' blurs make up, -1 where it is not covered; ``s_out`` the share of shift-and-add."""
+    for j in range(n_px):
+        d = motion * (xr[j] - x_f)
+        rho = aperture * d
+        share = 0.0
+        if with_sharp:
+            filled = False
+            for ch in range(c):
+                filled = filled | (sr[c * j + ch] != 0.0)
+            share = min(max((sharp_px + ramp_px - abs(d)) / ramp_px, 0.0), 1.0) * ar[j] if filled else 0.0
+        m = max(0.5 * rho * rho - share * (d * d + share_px2), 0.0)
+        covered = cr[j] > 0.0
+        m_out[j] = m if covered else -1.0
+        s_out[j] = share if covered else 0.0
+
+
 @njit(parallel=True, **_JIT)
 def rungs(x, agree, cover, sharp, window, x_f, motion, aperture, sharp_px, ramp_px, share_px2, moments, stripe,
           q, s, boxes):
@@ -44,13 +69,28 @@ def rungs(x, agree, cover, sharp, window, x_f, motion, aperture, sharp_px, ramp_
 
     ``motion`` is R (px of view motion per unit x at aperture 1); the radius is ``aperture *
     motion * (x - x_f)``, less the share ``s`` that shift-and-add's copies already spread
-    (their second moment ``d^2`` plus ``share_px2``, d the view motion)."""
+    (their second moment ``d^2`` plus ``share_px2``, d the view motion).
+
+    A row's moments are computed first, in a loop that vectorises (RGB's compiled for exactly 3
+    channels, as :func:`over`), then their rungs."""
     r0, r1, c0, c1 = window[0], window[1], window[2], window[3]
     n = moments.shape[0] - 1
+    w = x.shape[1]
     with_sharp = sharp.shape[0] == x.shape[0]
+    c = sharp.shape[2]
+    flat = sharp.reshape(sharp.size)
     n_stripes = (r1 + stripe - 1) // stripe
     for b in prange(r0 // stripe, n_stripes):
+        m_row = np.empty(c1 - c0, np.float64)
         for y in range(max(r0, b * stripe), min(r1, (b + 1) * stripe)):
+            sr = flat[(y * w + c0) * c:(y * w + c1) * c] if with_sharp else flat[0:0]
+            xr, ar, cr, s_row = x[y, c0:c1], agree[y, c0:c1], cover[y, c0:c1], s[y, c0:c1]
+            if c == 3:
+                _moment_row(xr, ar, cr, sr, c1 - c0, 3, x_f, motion, aperture, sharp_px, ramp_px, share_px2,
+                            with_sharp, m_row, s_row)
+            else:
+                _moment_row(xr, ar, cr, sr, c1 - c0, c, x_f, motion, aperture, sharp_px, ramp_px, share_px2,
+                            with_sharp, m_row, s_row)
             # Neighbours mostly share their rungs: the search for a pixel's rung starts from the
             # last pixel's, and a row's run of pixels between the same rungs enters the boxes once.
             i = 1
@@ -58,20 +98,13 @@ def rungs(x, agree, cover, sharp, window, x_f, motion, aperture, sharp_px, ramp_
             run_k2 = -1
             run_x0 = 0
             run_x1 = 0
-            for xx in range(c0, c1):
-                if cover[y, xx] <= 0.0:
-                    q[y, xx] = 0.0
-                    s[y, xx] = 0.0
+            q_row = q[y]
+            for j in range(c1 - c0):
+                xx = c0 + j
+                m = m_row[j]
+                if m < 0.0:  # not covered
+                    q_row[xx] = 0.0
                     continue
-                d = motion * (x[y, xx] - x_f)
-                rho = aperture * d
-                share = 0.0
-                if with_sharp:
-                    for ch in range(sharp.shape[2]):
-                        if sharp[y, xx, ch] != 0.0:
-                            share = min(max((sharp_px + ramp_px - abs(d)) / ramp_px, 0.0), 1.0) * agree[y, xx]
-                            break
-                m = max(0.5 * rho * rho - share * (d * d + share_px2), 0.0)
                 # The fractional index of m in the increasing moments (np.interp's): the first i
                 # with m <= moments[i]; the top rung past the last (or for a NaN).
                 frac = float(n)
@@ -81,9 +114,8 @@ def rungs(x, agree, cover, sharp, window, x_f, motion, aperture, sharp_px, ramp_
                     while m > moments[i]:
                         i += 1
                     frac = (i - 1) + (m - moments[i - 1]) / (moments[i] - moments[i - 1])
-                sign = -1 if rho < 0.0 else 1
-                q[y, xx] = sign * frac
-                s[y, xx] = share
+                sign = -1 if aperture * (motion * (x[y, xx] - x_f)) < 0.0 else 1
+                q_row[xx] = sign * frac
                 lo = int(frac)
                 k = n + sign * lo
                 k2 = -1 if frac <= lo or lo >= n else n + sign * (lo + 1)  # -1: the pixel has one rung
@@ -111,6 +143,44 @@ def _box_add(boxes, b, k, y, xa, xb):
         boxes[b, k, 3] = xb
 
 
+@njit(inline="always")
+def _scatter_pixels(colour, sharp, s, cover, q, y, col0, col1, n, shift, rb, area_inv, c, v, buf):
+    """Row ``y``'s pixels col0 .. col1 - 1 of :func:`scatter`, each rung ``k``'s cells of the row
+    from ``rb[k]`` on (the cell of column x at ``rb[k] + (x >> shift[k]) (c + 1)``); ``v``:
+    scratch of c + 1 values."""
+    c1 = c + 1
+    with_sharp = sharp.shape[0] == colour.shape[0]
+    for xx in range(col0, col1):
+        cv = cover[y, xx]
+        if cv <= 0.0:
+            continue
+        sh = s[y, xx]
+        for ch in range(c):
+            col = colour[y, xx, ch]
+            if with_sharp and sh > 0.0:
+                col += sh * (sharp[y, xx, ch] - col)
+            v[ch] = col * cv
+        v[c] = cv
+        sq = q[y, xx]
+        frac = abs(sq)
+        lo = int(frac)
+        t = frac - lo
+        sign = -1 if sq < 0.0 else 1
+        for m in range(2):
+            if m == 1 and (t <= 0.0 or lo >= n):
+                break
+            k = n + sign * (lo + m)
+            f = shift[k]
+            scale = np.float32((t if m == 1 else 1.0 - t) * area_inv[f])
+            cell = rb[k] + (xx >> f) * c1
+            if f == 0:  # a full-resolution cell takes one pixel
+                for ch in range(c1):
+                    buf[cell + ch] = np.float32(0.0) + scale * v[ch]
+            else:
+                for ch in range(c1):
+                    buf[cell + ch] += scale * v[ch]
+
+
 @njit(parallel=True, **_JIT)
 def scatter(colour, sharp, s, cover, q, window, n, shift, y0, x0, rows, cols, offset, stripe, buf):
     """Add every pixel's premultiplied colour ``colour + s (sharp - colour)`` times ``cover``, and
@@ -123,14 +193,15 @@ def scatter(colour, sharp, s, cover, q, window, n, shift, y0, x0, rows, cols, of
 
     A full-resolution rung's cell takes one pixel at most, so its box is written whole, zeros
     where no pixel of the rung lies (its part of ``buf`` need not be cleared first); the reduced
-    grids' cells sum several pixels, and their parts of ``buf`` must hold zeros."""
-    h, _, c = colour.shape
+    grids' cells sum several pixels, and their parts of ``buf`` must hold zeros. RGB (C + 1 = 4
+    values a cell) runs the pixels' loop compiled for exactly 4 values, as :func:`over`."""
+    c = colour.shape[2]
     c1 = c + 1
-    with_sharp = sharp.shape[0] == h
     r0, r1, col0, col1 = window[0], window[1], window[2], window[3]
+    nk = 2 * n + 1
     # The rows to visit: the window's and every full-resolution box's.
     lo_row, hi_row = r0, r1
-    for k in range(2 * n + 1):
+    for k in range(nk):
         if rows[k] > 0 and shift[k] == 0:
             lo_row = min(lo_row, y0[k])
             hi_row = max(hi_row, y0[k] + rows[k])
@@ -141,49 +212,77 @@ def scatter(colour, sharp, s, cover, q, window, n, shift, y0, x0, rows, cols, of
     n_stripes = (hi_row + stripe - 1) // stripe
     for b in prange(lo_row // stripe, n_stripes):
         v = np.empty(c1, np.float32)
+        rb = np.zeros(nk, np.int64)
         for y in range(max(lo_row, b * stripe), min(hi_row, (b + 1) * stripe)):
-            # Every full-resolution box's row is cleared first, then each pixel writes its value
-            # into the one or two boxes of its rungs (the row is in cache by then).
-            for k in range(2 * n + 1):
-                if rows[k] == 0 or shift[k] != 0 or not (y0[k] <= y < y0[k] + rows[k]):
+            # Where each rung's cells of the row start; every full-resolution box's row is
+            # cleared first, then each pixel writes its value into the one or two boxes of its
+            # rungs (the row is in cache by then).
+            for k in range(nk):
+                if rows[k] == 0:
                     continue
-                base = offset[k] + (y - y0[k]) * cols[k] * c1
-                for i in range(base, base + cols[k] * c1):
-                    buf[i] = np.float32(0.0)
+                f = shift[k]
+                if f > 0:
+                    rb[k] = offset[k] + (((y >> f) - (y0[k] >> f)) * cols[k] - (x0[k] >> f)) * c1
+                elif y0[k] <= y < y0[k] + rows[k]:
+                    base = offset[k] + (y - y0[k]) * cols[k] * c1
+                    for i in range(base, base + cols[k] * c1):
+                        buf[i] = np.float32(0.0)
+                    rb[k] = base - x0[k] * c1
             if not r0 <= y < r1:
                 continue
-            for xx in range(col0, col1):
-                cv = cover[y, xx]
-                if cv <= 0.0:
-                    continue
-                sh = s[y, xx]
-                for ch in range(c):
-                    col = colour[y, xx, ch]
-                    if with_sharp and sh > 0.0:
-                        col += sh * (sharp[y, xx, ch] - col)
-                    v[ch] = col * cv
-                v[c] = cv
-                sq = q[y, xx]
-                frac = abs(sq)
-                lo = int(frac)
-                t = frac - lo
-                sign = -1 if sq < 0.0 else 1
-                for m in range(2):
-                    if m == 1 and (t <= 0.0 or lo >= n):
-                        break
-                    k = n + sign * (lo + m)
-                    f = shift[k]
-                    scale = np.float32((t if m == 1 else 1.0 - t) * area_inv[f])
-                    if f == 0:
-                        cell = offset[k] + ((y - y0[k]) * cols[k] + xx - x0[k]) * c1
-                        for ch in range(c1):
-                            buf[cell + ch] = np.float32(0.0) + scale * v[ch]
-                        continue
-                    cy = (y >> f) - (y0[k] >> f)
-                    cx = (xx >> f) - (x0[k] >> f)
-                    base = offset[k] + (cy * cols[k] + cx) * c1
-                    for ch in range(c1):
-                        buf[base + ch] += scale * v[ch]
+            if c1 == 4:
+                _scatter_pixels(colour, sharp, s, cover, q, y, col0, col1, n, shift, rb, area_inv, 3, v, buf)
+            else:
+                _scatter_pixels(colour, sharp, s, cover, q, y, col0, col1, n, shift, rb, area_inv, c, v, buf)
+
+
+@njit(inline="always")
+def _over_cells(ar, lr, n, c1):
+    """``ar = (1 - a) ar + lr`` over ``n`` cells of ``c1`` values (flat rows), ``a`` the last value
+    of each cell of ``lr``."""
+    for j in range(n):
+        keep = np.float32(1.0) - lr[c1 * j + c1 - 1]
+        for ch in range(c1):
+            ar[c1 * j + ch] = ar[c1 * j + ch] * keep + lr[c1 * j + ch]
+
+
+@njit(inline="always")
+def _add_behind(ar, lr, pr, n, c1):
+    """``ar += a pr`` over ``n`` cells of ``c1`` values, ``a`` the last value of each cell of
+    ``lr``."""
+    for j in range(n):
+        a = lr[c1 * j + c1 - 1]
+        for ch in range(c1):
+            ar[c1 * j + ch] += a * pr[c1 * j + ch]
+
+
+@njit(inline="always")
+def _merge_cells(ar, gr, tr, n, c1):
+    """``ar = t ar + gr`` over ``n`` cells of ``c1`` values, ``t`` one value a cell (``tr``)."""
+    for j in range(n):
+        t = tr[j]
+        for ch in range(c1):
+            ar[c1 * j + ch] = ar[c1 * j + ch] * t + gr[c1 * j + ch]
+
+
+@njit(inline="always")
+def _add_skipped(ar, sr, pr, n, c1):
+    """``ar += s pr`` over ``n`` cells of ``c1`` values, ``s`` one value a cell (``sr``)."""
+    for j in range(n):
+        sk = sr[j]
+        for ch in range(c1):
+            ar[c1 * j + ch] += sk * pr[c1 * j + ch]
+
+
+@njit(inline="always")
+def _overlap(y, x0, n, oy, ox, hh, ww):
+    """The row ``y - oy`` of an array of ``hh`` x ``ww`` placed at (``oy``, ``ox``), and the span
+    [ja, jb) of the cells x0 .. x0 + n - 1 that it covers (ja = jb where it covers none)."""
+    i = y - oy
+    if i < 0 or i >= hh:
+        return i, 0, 0
+    ja = min(n, max(0, ox - x0))
+    return i, ja, max(ja, min(n, ox + ww - x0))
 
 
 @njit(parallel=True, **_JIT)
@@ -193,30 +292,45 @@ def over(acc, oy, ox, layer, prev, py, px, trans, skip, first):
     (placed at ``py``, ``px``; zero outside it, or empty) is the layer of the rung just behind,
     which ``layer`` does not cover. ``trans`` (``acc``'s rows and columns, or empty) is
     multiplied by ``1 - a``; ``skip`` (or empty) is set to ``a`` (``first``) or multiplied by
-    ``1 - a``."""
+    ``1 - a``. Every array C-contiguous.
+
+    The rows are flat runs of cells; colour and coverage (C + 1 = 4 values a cell) run loops
+    compiled for exactly 4 values, which vectorise, other channel counts the same loops for any
+    count."""
     rows, cols, c1 = layer.shape
+    w = acc.shape[1]
     ph, pw = prev.shape[0], prev.shape[1]
+    af = acc.reshape(acc.size)
+    lf = layer.reshape(layer.size)
+    pf = prev.reshape(prev.size)
     with_trans = trans.shape[0] > 0
     with_skip = skip.shape[0] > 0
     for i in prange(rows):
         y = oy + i
-        for j in range(cols):
-            x = ox + j
-            a = layer[i, j, c1 - 1]
-            keep = np.float32(1.0) - a
-            for ch in range(c1):
-                acc[y, x, ch] = acc[y, x, ch] * keep + layer[i, j, ch]
-            pi, pj = y - py, x - px
-            if 0 <= pi < ph and 0 <= pj < pw:
-                for ch in range(c1):
-                    acc[y, x, ch] += a * prev[pi, pj, ch]
-            if with_trans:
-                trans[y, x] *= keep
-            if with_skip:
-                if first:
-                    skip[y, x] = a
-                else:
-                    skip[y, x] *= keep
+        a0 = (y * w + ox) * c1
+        ar = af[a0:a0 + cols * c1]
+        lr = lf[i * cols * c1:(i + 1) * cols * c1]
+        if c1 == 4:
+            _over_cells(ar, lr, cols, 4)
+        else:
+            _over_cells(ar, lr, cols, c1)
+        pi, ja, jb = _overlap(y, ox, cols, py, px, ph, pw)
+        if jb > ja:
+            p0 = (pi * pw + ox + ja - px) * c1
+            pr = pf[p0:p0 + (jb - ja) * c1]
+            if c1 == 4:
+                _add_behind(ar[4 * ja:4 * jb], lr[4 * ja:4 * jb], pr, jb - ja, 4)
+            else:
+                _add_behind(ar[c1 * ja:c1 * jb], lr[c1 * ja:c1 * jb], pr, jb - ja, c1)
+        if with_trans:
+            tr = trans[y, ox:ox + cols]
+            for j in range(cols):
+                tr[j] *= np.float32(1.0) - lr[c1 * j + c1 - 1]
+        if with_skip:
+            sr = skip[y, ox:ox + cols]
+            for j in range(cols):
+                a = lr[c1 * j + c1 - 1]
+                sr[j] = a if first else sr[j] * (np.float32(1.0) - a)
 
 
 @njit(parallel=True, **_JIT)
@@ -224,24 +338,68 @@ def merge(acc, oy, ox, group, trans, skip, prev, py, px):
     """A group of layers composited on their own (``group``: premultiplied, ``trans``: their
     transmission, ``skip``: the first one's coverage times the later ones' transmission, or
     empty), placed at (``oy``, ``ox``), over ``acc``: ``acc = trans acc + group + skip prev``
-    (``prev`` as in :func:`over`); cells past ``acc``'s edge are left out."""
+    (``prev`` as in :func:`over`); cells past ``acc``'s edge are left out. Every array
+    C-contiguous; the rows' loops as in :func:`over`."""
     h, w, c1 = acc.shape
     rows, cols = group.shape[0], group.shape[1]
     ph, pw = prev.shape[0], prev.shape[1]
+    af = acc.reshape(acc.size)
+    gf = group.reshape(group.size)
+    pf = prev.reshape(prev.size)
     with_skip = skip.shape[0] > 0
+    ja = max(0, -ox)
+    jb = min(cols, w - ox)
+    if jb <= ja:
+        return
+    n = jb - ja
     for i in prange(max(0, -oy), min(rows, h - oy)):
         y = oy + i
-        for j in range(max(0, -ox), min(cols, w - ox)):
-            x = ox + j
-            t = trans[i, j]
-            for ch in range(c1):
-                acc[y, x, ch] = acc[y, x, ch] * t + group[i, j, ch]
-            if with_skip:
-                pi, pj = y - py, x - px
-                if 0 <= pi < ph and 0 <= pj < pw:
-                    sk = skip[i, j]
-                    for ch in range(c1):
-                        acc[y, x, ch] += sk * prev[pi, pj, ch]
+        a0 = (y * w + ox + ja) * c1
+        ar = af[a0:a0 + n * c1]
+        gr = gf[(i * cols + ja) * c1:(i * cols + jb) * c1]
+        tr = trans[i, ja:jb]
+        if c1 == 4:
+            _merge_cells(ar, gr, tr, n, 4)
+        else:
+            _merge_cells(ar, gr, tr, n, c1)
+        if not with_skip:
+            continue
+        pi, ka, kb = _overlap(y, ox + ja, n, py, px, ph, pw)
+        if kb > ka:
+            p0 = (pi * pw + ox + ja + ka - px) * c1
+            pr = pf[p0:p0 + (kb - ka) * c1]
+            sr = skip[i, ja + ka:ja + kb]
+            if c1 == 4:
+                _add_skipped(ar[4 * ka:4 * kb], sr, pr, kb - ka, 4)
+            else:
+                _add_skipped(ar[c1 * ka:c1 * kb], sr, pr, kb - ka, c1)
+
+
+@njit(inline="always")
+def _divided(ar, orow, n, c1, floor):
+    """``orow`` (n cells of c1 - 1 values) = the cells of ``ar`` divided by their last value, 0
+    where that is at most ``floor``."""
+    c = c1 - 1
+    for j in range(n):
+        den = ar[c1 * j + c]
+        inv = np.float32(1.0) / den
+        for ch in range(c):
+            orow[c * j + ch] = ar[c1 * j + ch] * inv if den > floor else np.float32(0.0)
+
+
+@njit(inline="always")
+def _divided_filled(ar, br, orow, n, c1, floor):
+    """:func:`_divided` with the cells of ``br`` filling the coverage ``ar`` lacks: ``ar + f br``,
+    f = 1 - the coverage, clipped to [0, 1]."""
+    c = c1 - 1
+    for j in range(n):
+        alpha = ar[c1 * j + c]
+        fill = min(max(np.float32(1.0) - alpha, np.float32(0.0)), np.float32(1.0))
+        den = alpha + fill * br[c1 * j + c]
+        inv = np.float32(1.0) / den
+        for ch in range(c):
+            num = ar[c1 * j + ch] + fill * br[c1 * j + ch]
+            orow[c * j + ch] = num * inv if den > floor else np.float32(0.0)
 
 
 @njit(parallel=True, **_JIT)
@@ -249,30 +407,31 @@ def finish(acc, back, by, bx, floor, out):
     """``out`` (h, w, C) = the composite ``acc`` (h, w, C + 1: premultiplied colour and
     coverage) with the background ``back`` (same layout, summed, placed at (``by``, ``bx``), or
     empty) filling the coverage it lacks, divided by the coverage; 0 where the coverage is at
-    most ``floor``."""
+    most ``floor``. Every array C-contiguous; the rows' loops as in :func:`over`."""
     h, w, c1 = acc.shape
     c = c1 - 1
     bh, bw = back.shape[0], back.shape[1]
+    af = acc.reshape(acc.size)
+    bf = back.reshape(back.size)
+    of = out.reshape(out.size)
     for y in prange(h):
-        for xx in range(w):
-            alpha = acc[y, xx, c]
-            den = alpha
-            fill = np.float32(0.0)
-            bi, bj = y - by, xx - bx
-            with_back = 0 <= bi < bh and 0 <= bj < bw
-            if with_back:
-                fill = min(max(np.float32(1.0) - alpha, np.float32(0.0)), np.float32(1.0))
-                den += fill * back[bi, bj, c]
-            if den > floor:
-                inv = np.float32(1.0) / den
-                for ch in range(c):
-                    num = acc[y, xx, ch]
-                    if with_back:
-                        num += fill * back[bi, bj, ch]
-                    out[y, xx, ch] = num * inv
+        ar = af[y * w * c1:(y + 1) * w * c1]
+        orow = of[y * w * c:(y + 1) * w * c]
+        bi, ja, jb = _overlap(y, 0, w, by, bx, bh, bw)
+        # The cells before the background's, under it, and after it.
+        for s0, s1 in ((0, ja), (jb, w)):
+            if s1 > s0:
+                if c1 == 4:
+                    _divided(ar[4 * s0:4 * s1], orow[3 * s0:3 * s1], s1 - s0, 4, floor)
+                else:
+                    _divided(ar[c1 * s0:c1 * s1], orow[c * s0:c * s1], s1 - s0, c1, floor)
+        if jb > ja:
+            b0 = (bi * bw + ja - bx) * c1
+            br = bf[b0:b0 + (jb - ja) * c1]
+            if c1 == 4:
+                _divided_filled(ar[4 * ja:4 * jb], br, orow[3 * ja:3 * jb], jb - ja, 4, floor)
             else:
-                for ch in range(c):
-                    out[y, xx, ch] = 0.0
+                _divided_filled(ar[c1 * ja:c1 * jb], br, orow[c * ja:c * jb], jb - ja, c1, floor)
 
 
 @njit(inline="always")

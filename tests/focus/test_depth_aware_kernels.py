@@ -151,8 +151,9 @@ def test_knot_maps_interpolate_the_knots_homographies_linearly_in_x():
         np.testing.assert_allclose(map_y[k].ravel(), want[:, 1], atol=1e-4)
 
 
+@pytest.mark.parametrize("channels", [1, 3])
 @pytest.mark.parametrize("n", [0, 1, 8])
-def test_rungs_are_np_interp_of_the_moments_and_boxes_of_their_pixels(n):
+def test_rungs_are_np_interp_of_the_moments_and_boxes_of_their_pixels(n, channels):
     """Every pixel's signed fractional rung is ``np.interp`` of its blur's second moment in the
     ladder's moments (the top rung past the last, and for a NaN depth), its share of the
     shift-and-add image the ramp where that image has a colour; each stripe's box of a signed rung
@@ -166,7 +167,7 @@ def test_rungs_are_np_interp_of_the_moments_and_boxes_of_their_pixels(n):
     agree = rng.random((h, w)).astype(np.float32)
     cover = rng.random((h, w)).astype(np.float32)
     cover[cover < 0.15] = 0.0
-    sharp = rng.random((h, w, 3)).astype(np.float32)
+    sharp = rng.random((h, w, channels)).astype(np.float32)
     sharp[rng.random((h, w)) < 0.3] = 0.0
     moments = np.cumsum(np.r_[0.0, rng.uniform(0.2, 1.5, n)])
     window = np.array([3, h - 5, 4, w - 2], np.int64)
@@ -208,3 +209,73 @@ def test_rungs_are_np_interp_of_the_moments_and_boxes_of_their_pixels(n):
                 continue
             rows, cols = np.nonzero(mine)
             assert tuple(boxes[b, k]) == (rows.min(), rows.max(), cols.min(), cols.max())
+
+
+def _placed(shape, arr, y0, x0):
+    """``arr`` placed at (y0, x0) of a zero array of ``shape`` (the part inside it), and where."""
+    out = np.zeros(shape + arr.shape[2:], arr.dtype)
+    inside = np.zeros(shape, bool)
+    ya, yb = max(0, y0), min(shape[0], y0 + arr.shape[0])
+    xa, xb = max(0, x0), min(shape[1], x0 + arr.shape[1])
+    out[ya:yb, xa:xb] = arr[ya - y0:yb - y0, xa - x0:xb - x0]
+    inside[ya:yb, xa:xb] = True
+    return out, inside
+
+
+# RGB's cells (4 values) and a single channel's (2) run loops compiled apart.
+@pytest.mark.parametrize("channels", [1, 3])
+def test_over_and_merge_composite_as_the_array_rules(channels):
+    rng = np.random.default_rng(11 + channels)
+    h, w, c1 = 30, 40, channels + 1
+    acc0 = rng.random((h, w, c1)).astype(np.float32)
+    layer = rng.random((12, 25, c1)).astype(np.float32)
+    prev = rng.random((9, 14, c1)).astype(np.float32)
+    oy, ox, py, px = 5, 7, 8, 20  # prev overlaps the layer's lower right part and reaches past it
+    for first in (True, False):
+        acc = acc0.copy()
+        trans = rng.random((h, w)).astype(np.float32)
+        skip = rng.random((h, w)).astype(np.float32)
+        trans0, skip0 = trans.copy(), skip.copy()
+        kern.over(acc, oy, ox, layer, prev, py, px, trans, skip, first)
+        a = _placed((h, w), layer[..., -1:], oy, ox)[0]
+        lay, on = _placed((h, w), layer, oy, ox)
+        behind = _placed((h, w), prev, py, px)[0]
+        want = np.where(on[..., None], (acc0 * (1 - a) + lay) + a * behind, acc0)
+        np.testing.assert_allclose(acc, want, rtol=0, atol=1e-6)
+        np.testing.assert_allclose(trans, np.where(on, trans0 * (1 - a[..., 0]), trans0), rtol=0, atol=1e-7)
+        want_skip = a[..., 0] if first else skip0 * (1 - a[..., 0])
+        np.testing.assert_allclose(skip, np.where(on, want_skip, skip0), rtol=0, atol=1e-7)
+    # A group reaching past the composite's top left corner, with and without the skip term.
+    group = rng.random((14, 20, c1)).astype(np.float32)
+    trans_g = rng.random((14, 20)).astype(np.float32)
+    skip_g = rng.random((14, 20)).astype(np.float32)
+    for with_skip in (True, False):
+        acc = acc0.copy()
+        kern.merge(acc, -3, -4, group, trans_g, skip_g if with_skip else np.zeros((0, 0), np.float32), prev, py - 6, px - 12)
+        g, on = _placed((h, w), group, -3, -4)
+        t = _placed((h, w), trans_g[..., None], -3, -4)[0]
+        sk = _placed((h, w), skip_g[..., None], -3, -4)[0] if with_skip else 0.0
+        behind = _placed((h, w), prev, py - 6, px - 12)[0]
+        want = np.where(on[..., None], (acc0 * t + g) + sk * behind, acc0)
+        np.testing.assert_allclose(acc, want, rtol=0, atol=1e-6)
+
+
+@pytest.mark.parametrize("channels", [1, 3])
+def test_finish_divides_by_the_coverage_with_the_background_filling_it(channels):
+    rng = np.random.default_rng(5 + channels)
+    h, w, c1 = 20, 30, channels + 1
+    acc = rng.random((h, w, c1)).astype(np.float32)
+    acc[..., -1] = rng.uniform(-0.2, 1.3, (h, w))  # coverage past 0 and 1 on either side
+    acc[2, :5, -1] = 0.0
+    back = rng.random((8, 12, c1)).astype(np.float32)
+    floor = np.float32(1e-3)
+    for placed in (back, np.zeros((0, 0, 0), np.float32)):
+        out = np.full((h, w, channels), -5.0, np.float32)
+        kern.finish(acc, placed, 1, 22, floor, out)  # the background reaches past the right edge
+        alpha = acc[..., -1:]
+        b, on = _placed((h, w), placed, 1, 22) if placed.size else (np.zeros_like(acc), np.zeros((h, w), bool))
+        fill = np.where(on[..., None], np.clip(1 - alpha, 0, 1), 0)
+        den = alpha + fill * b[..., -1:]
+        want = np.where(den > floor, (acc[..., :-1] + fill * b[..., :-1]) / np.where(den > floor, den, 1), 0)
+        np.testing.assert_allclose(out, want, rtol=1e-6, atol=1e-6)
+        assert (out[2, :5] == 0).all() and (on.any() or not placed.size)
