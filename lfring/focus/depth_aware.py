@@ -55,7 +55,6 @@ import numpy as np
 
 from lfring.errors import InvalidInputError
 from lfring.core.memory import fresh_zeros
-from lfring.core.threads import run_threads
 from lfring.core.geometry import apply_homography, check_reference, to_reference
 from lfring.core.viewstack import WEIGHT_FLOOR, cached_view_masks, check_views
 from lfring.core.validate import check_number
@@ -66,7 +65,7 @@ from lfring.depth.selection import DepthResult
 from lfring.focus.base import RefocusMethod
 
 __all__ = [
-    "AGREE_TOL", "BACK_EDGE_PX", "BACK_STEP_PX", "BLUR_BAND_ROWS", "COARSE_DISC_PX", "DEPTH_TOL_PX", "GEOMETRIC_STEP", "LINEAR_UNTIL_PX",
+    "AGREE_TOL", "BACK_EDGE_PX", "BACK_STEP_PX", "COARSE_DISC_PX", "DEPTH_TOL_PX", "GEOMETRIC_STEP", "LINEAR_UNTIL_PX",
     "MIN_DEPTH_VIEWS", "OCCLUSION_PX", "SHARP_PX", "SHARP_RAMP_PX", "SHARP_RESAMPLED_PX2", "SPREAD_TOL", "DepthOfField", "DEPTH_AWARE",
     "DERIVED_RANGE_MAX_MOTION", "FAR_MOTION_PX", "aperture_from_f_number", "aperture_radius_px", "coc_radius_px", "depth_of_field", "disc_kernel",
     "estimation_range", "prepare_depth_aware", "resolve_aperture",
@@ -93,10 +92,6 @@ GEOMETRIC_STEP = 1.2
 # finer than its disc. The area averaging itself spreads a pixel by f^2 / 12 per axis, a disc of
 # radius r by r^2 / 4: the disc there is shrunk to radius sqrt(r^2 - f^2 / 3) / f.
 COARSE_DISC_PX = 3.0
-# A layer whose blur is more than a thread's share of a render's blurs is cut into bands of rows,
-# shared among the threads, of at least BLUR_BAND_ROWS rows: long enough that a band's extra rows
-# (the disc's reach above and below) cost little.
-BLUR_BAND_ROWS = 64
 # A view is occluded at a reference pixel when the depth map puts a surface nearer by more than
 # this many pixels of view motion onto the same view pixel.
 OCCLUSION_PX = 1.0
@@ -657,61 +652,21 @@ class _Grid:
             if shift[k] > 0:
                 buf[offset[k]:offset[k] + c1 * rows[k] * cols[k]] = 0.0
         kern.scatter(colour, sharp, s, cover, q, window, n, shift, y0, x0, rows, cols, offset, self.stripe, buf)
+        blurred = self.buffer(name + " blurred", (total,))
         out = []
-        blurs = []
         for k in used:
             cut = slice(offset[k], offset[k] + c1 * rows[k] * cols[k])
             radius = float(self.radii[abs(k - n)])
             f = 1 << int(shift[k])
             disc = radius if f == 1 else math.sqrt(max(radius * radius - f * f / 3.0, 0.0)) / f
-            out.append(_Layer(k, f, int(y0[k]), int(x0[k]), buf[cut].reshape(rows[k], cols[k], c1)))
+            cells = buf[cut].reshape(rows[k], cols[k], c1)
             if disc >= 0.5:
-                blurs.append((out[-1], disc_kernel(disc), np.empty_like(out[-1].cells)))
-        _blur_layers(blurs)
+                kernel = disc_kernel(disc)
+                reach = kernel.shape[0] // 2
+                cells, src = blurred[cut].reshape(cells.shape), cells
+                kern.disc_blur(src, np.ascontiguousarray(kernel[reach:, reach:]), cells)
+            out.append(_Layer(k, f, int(y0[k]), int(x0[k]), cells))
         return out
-
-
-def _blur_layers(blurs: list) -> None:
-    """Each (layer, kernel, out) of ``blurs``: the layer's cells convolved with the kernel into
-    ``out``, which becomes its cells. One ``cv2.filter2D`` runs on one thread, so the layers are
-    shared among numba's threads, the largest first; a layer with more than a thread's share of
-    the work is cut into bands of rows (each read with the kernel's reach of rows around it: the
-    same sums), of at least :data:`BLUR_BAND_ROWS` rows."""
-    import numba
-
-    def band(src, dst, kernel, r0, r1):
-        def run():
-            if (r0, r1) == (0, src.shape[0]):
-                _filter(src, kernel, dst)
-                return
-            reach = kernel.shape[0] // 2
-            s0, s1 = max(0, r0 - reach), min(src.shape[0], r1 + reach)
-            dst[r0:r1] = _filter(src[s0:s1], kernel, np.empty_like(src[s0:s1]))[r0 - s0:r1 - s0]
-        return run
-
-    threads = numba.get_num_threads()
-    share = sum(lay.cells.size * kernel.size for lay, kernel, _ in blurs) / threads
-    tasks = []
-    for lay, kernel, dst in blurs:
-        src, lay.cells = lay.cells, dst
-        work = src.size * kernel.size
-        bands = max(1, min(math.ceil(work / max(share, 1.0)), src.shape[0] // BLUR_BAND_ROWS))
-        edges = np.linspace(0, src.shape[0], bands + 1).round().astype(int)
-        for r0, r1 in zip(edges[:-1], edges[1:]):
-            tasks.append((work * (r1 - r0) / src.shape[0], band(src, dst, kernel, int(r0), int(r1))))
-    tasks.sort(key=lambda t: -t[0])
-    run_threads([run for _, run in tasks], threads)
-
-
-def _filter(cells: np.ndarray, kernel: np.ndarray, out: np.ndarray) -> np.ndarray:
-    """``out`` (the shape of ``cells``, (rows, cols, n)) = ``cells`` convolved with ``kernel``,
-    zero outside."""
-    if cells.shape[2] <= 4:
-        cv2.filter2D(cells, -1, kernel, dst=out, borderType=cv2.BORDER_CONSTANT)
-        return out
-    for i in range(cells.shape[2]):
-        out[..., i] = cv2.filter2D(np.ascontiguousarray(cells[..., i]), -1, kernel, borderType=cv2.BORDER_CONSTANT)
-    return out
 
 
 def _composite(layers: list, grid: _Grid, kern) -> np.ndarray:

@@ -5,8 +5,8 @@ A render makes three passes over the pixels: :func:`rungs` (every pixel's blur r
 place between two rungs of the ladder, and every rung's bounding box), :func:`scatter` (every
 pixel's premultiplied colour and coverage shared between its two rungs, each rung on its own
 grid) and :func:`finish` (the composite divided by its coverage, the background filling what
-the surfaces leave uncovered); between them, OpenCV blurs every rung's layer and :func:`over`
-and :func:`merge` composite the layers. Rows run in parallel stripes; a stripe's height is a
+the surfaces leave uncovered); between them, :func:`disc_blur` blurs every rung's layer and
+:func:`over` and :func:`merge` composite the layers. Rows run in parallel stripes; a stripe's height is a
 multiple of every rung's grid factor, so no two stripes write the same cell. Colour and
 coverage are interleaved (C + 1 values per pixel), one cache line for all of a pixel.
 
@@ -29,7 +29,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-__all__ = ["add_seen", "finish", "knot_maps", "merge", "occluded", "over", "robust_mean", "rungs", "scatter",
+__all__ = ["BLUR_TASK_ROWS", "add_seen", "disc_blur", "finish", "knot_maps", "merge", "occluded", "over", "robust_mean", "rungs", "scatter",
            "shift_maps", "splat_max"]
 
 _JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
@@ -432,6 +432,93 @@ def finish(acc, back, by, bx, floor, out):
                 _divided_filled(ar[4 * ja:4 * jb], br, orow[3 * ja:3 * jb], jb - ja, 4, floor)
             else:
                 _divided_filled(ar[c1 * ja:c1 * jb], br, orow[c * ja:c * jb], jb - ja, c1, floor)
+
+
+# Rows of a disc blur per parallel task (they share the task's scratch rows).
+BLUR_TASK_ROWS = 16
+
+
+@njit(inline="always")
+def _fold_rows(rows_of, y, rows, length, n, pad, stride, fold):
+    """``fold`` row i (i = 0 .. n, each ``stride`` long, ``pad`` zeros on either side) = row
+    y + i plus row y - i of ``rows_of`` (rows, length) (rows past either end are zero; row y once)."""
+    for i in range(n + 1):
+        base = i * stride + pad
+        below = y + i < rows
+        above = i > 0 and y - i >= 0
+        if below and above:
+            ra = rows_of[y + i]
+            rb = rows_of[y - i]
+            for e in range(length):
+                fold[np.uintp(base + e)] = ra[e] + rb[e]
+        elif below or above:
+            ra = rows_of[y + i] if below else rows_of[y - i]
+            for e in range(length):
+                fold[np.uintp(base + e)] = ra[e]
+        else:
+            for e in range(length):
+                fold[np.uintp(base + e)] = np.float32(0.0)
+
+
+@njit(inline="always")
+def _disc_row(rows_of, y, rows, length, quarter, n, c1, fold, cols, out):
+    """Row ``y`` of :func:`disc_blur` (``n``: the disc's reach; a literal where the caller gives
+    one, so that the loops over the taps unroll)."""
+    pad = n * c1
+    stride = length + 2 * pad
+    _fold_rows(rows_of, y, rows, length, n, pad, stride, fold)
+    # Column j of the quarter applied to the folded rows, over the padded row ...
+    for j in range(n + 1):
+        for e in range(stride):
+            acc = quarter[0, j] * fold[np.uintp(e)]
+            for i in range(1, n + 1):
+                acc += quarter[i, j] * fold[np.uintp(i * stride + e)]
+            cols[np.uintp(j * stride + e)] = acc
+    # ... and shifted by j cells to either side.
+    for e in range(length):
+        acc = cols[np.uintp(pad + e)]
+        for j in range(1, n + 1):
+            acc += cols[np.uintp(j * stride + pad + e - c1 * j)] + cols[np.uintp(j * stride + pad + e + c1 * j)]
+        out[e] = acc
+
+
+@njit(parallel=True, **dict(_JIT, fastmath={"contract"}))
+def disc_blur(cells, quarter, out):
+    """``out`` (rows, cols, m) = ``cells`` (the same shape, C-contiguous) convolved with a disc
+    symmetric about both axes, zero outside: ``quarter`` ((n + 1) x (n + 1)) is its taps at row
+    and column offsets 0 .. n (as ``cv2.filter2D`` with ``BORDER_CONSTANT``, to float32 rounding).
+
+    The rows at +i and -i share every tap, so they are added first (n + 1 folded rows); each
+    column of the quarter is applied to them, and the columns are added shifted by their offset
+    to either side: about (n + 1)^2 + 3 n operations a value instead of (2 n + 1)^2. Discs of
+    reach 1 to 6 (every disc of a render) run loops compiled for their reach, which unroll over
+    the taps and vectorise over the row; indices are unsigned, since numba checks a signed one
+    for a negative value, which keeps a loop from vectorising."""
+    rows, width, c1 = cells.shape
+    length = width * c1
+    n = quarter.shape[0] - 1
+    rows_of = cells.reshape(rows, length)
+    out_of = out.reshape(rows, length)
+    stride = length + 2 * n * c1
+    for b in prange((rows + BLUR_TASK_ROWS - 1) // BLUR_TASK_ROWS):
+        fold = np.zeros((n + 1) * stride, np.float32)
+        cols = np.empty((n + 1) * stride, np.float32)
+        for y in range(b * BLUR_TASK_ROWS, min(rows, (b + 1) * BLUR_TASK_ROWS)):
+            o = out_of[y]
+            if n == 1:
+                _disc_row(rows_of, y, rows, length, quarter, 1, c1, fold, cols, o)
+            elif n == 2:
+                _disc_row(rows_of, y, rows, length, quarter, 2, c1, fold, cols, o)
+            elif n == 3:
+                _disc_row(rows_of, y, rows, length, quarter, 3, c1, fold, cols, o)
+            elif n == 4:
+                _disc_row(rows_of, y, rows, length, quarter, 4, c1, fold, cols, o)
+            elif n == 5:
+                _disc_row(rows_of, y, rows, length, quarter, 5, c1, fold, cols, o)
+            elif n == 6:
+                _disc_row(rows_of, y, rows, length, quarter, 6, c1, fold, cols, o)
+            else:
+                _disc_row(rows_of, y, rows, length, quarter, n, c1, fold, cols, o)
 
 
 @njit(inline="always")

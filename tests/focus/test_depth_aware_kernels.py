@@ -1,5 +1,6 @@
 """The depth-aware renderer's compiled passes against plain NumPy versions of the same rules."""
 
+import cv2
 import numpy as np
 import pytest
 
@@ -279,3 +280,24 @@ def test_finish_divides_by_the_coverage_with_the_background_filling_it(channels)
         want = np.where(den > floor, (acc[..., :-1] + fill * b[..., :-1]) / np.where(den > floor, den, 1), 0)
         np.testing.assert_allclose(out, want, rtol=1e-6, atol=1e-6)
         assert (out[2, :5] == 0).all() and (on.any() or not placed.size)
+
+
+@pytest.mark.parametrize("radius_px, shape", [(1.0, (40, 50, 4)), (2.5, (33, 21, 2)), (4.0, (30, 40, 4)),
+                                              (5.0, (64, 70, 4)), (5.54, (25, 30, 4)), (8.0, (30, 35, 5)),
+                                              (5.0, (7, 3, 4)), (3.0, (2, 60, 4))])
+def test_disc_blur_is_the_disc_kernel_convolved_zero_outside(radius_px, shape):
+    """As ``cv2.filter2D`` with the disc and zeros outside, to float32 rounding: every reach the
+    renderer compiles apart (1 to 6) and one past them, RGB's cells and others, layers narrower
+    or shorter than the disc."""
+    from lfring.focus.depth_aware import disc_kernel
+
+    rng = np.random.default_rng(int(radius_px * 10) + shape[0])
+    cells = rng.random(shape).astype(np.float32)
+    kernel = disc_kernel(radius_px)
+    reach = kernel.shape[0] // 2
+    out = np.full_like(cells, np.nan)
+    kern.disc_blur(cells, np.ascontiguousarray(kernel[reach:, reach:]), out)
+    want = np.stack([cv2.filter2D(np.ascontiguousarray(cells[..., i]), -1, kernel, borderType=cv2.BORDER_CONSTANT)
+                     for i in range(shape[2])], axis=2)
+    np.testing.assert_allclose(out, want, rtol=0, atol=2e-6)
+    assert np.abs(out - cells).max() > 0.05  # it blurred
