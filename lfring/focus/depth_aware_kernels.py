@@ -172,13 +172,13 @@ def _scatter_pixels(colour, sharp, s, cover, q, y, col0, col1, n, shift, rb, are
             k = n + sign * (lo + m)
             f = shift[k]
             scale = np.float32((t if m == 1 else 1.0 - t) * area_inv[f])
-            cell = rb[k] + (xx >> f) * c1
+            cell = rb[k] + (xx >> f) * c1  # unsigned below: see disc_blur
             if f == 0:  # a full-resolution cell takes one pixel
                 for ch in range(c1):
-                    buf[cell + ch] = np.float32(0.0) + scale * v[ch]
+                    buf[np.uintp(cell + ch)] = np.float32(0.0) + scale * v[ch]
             else:
                 for ch in range(c1):
-                    buf[cell + ch] += scale * v[ch]
+                    buf[np.uintp(cell + ch)] += scale * v[ch]
 
 
 @njit(parallel=True, **_JIT)
@@ -225,8 +225,7 @@ def scatter(colour, sharp, s, cover, q, window, n, shift, y0, x0, rows, cols, of
                     rb[k] = offset[k] + (((y >> f) - (y0[k] >> f)) * cols[k] - (x0[k] >> f)) * c1
                 elif y0[k] <= y < y0[k] + rows[k]:
                     base = offset[k] + (y - y0[k]) * cols[k] * c1
-                    for i in range(base, base + cols[k] * c1):
-                        buf[i] = np.float32(0.0)
+                    buf[base:base + cols[k] * c1] = np.float32(0.0)
                     rb[k] = base - x0[k] * c1
             if not r0 <= y < r1:
                 continue
