@@ -144,10 +144,11 @@ def _box_add(boxes, b, k, y, xa, xb):
 
 
 @njit(inline="always")
-def _scatter_pixels(colour, sharp, s, cover, q, y, col0, col1, n, shift, rb, area_inv, c, v, buf):
+def _scatter_pixels(colour, sharp, s, cover, q, y, col0, col1, n, shift, rb, area_inv, c, v, written, buf):
     """Row ``y``'s pixels col0 .. col1 - 1 of :func:`scatter`, each rung ``k``'s cells of the row
     from ``rb[k]`` on (the cell of column x at ``rb[k] + (x >> shift[k]) (c + 1)``); ``v``:
-    scratch of c + 1 values."""
+    scratch of c + 1 values. A full-resolution rung's row holds what is written so far up to
+    ``written[k]``: the cells a pixel skips are cleared as it writes past them."""
     c1 = c + 1
     with_sharp = sharp.shape[0] == colour.shape[0]
     for xx in range(col0, col1):
@@ -174,8 +175,11 @@ def _scatter_pixels(colour, sharp, s, cover, q, y, col0, col1, n, shift, rb, are
             scale = np.float32((t if m == 1 else 1.0 - t) * area_inv[f])
             cell = rb[k] + (xx >> f) * c1  # unsigned below: see disc_blur
             if f == 0:  # a full-resolution cell takes one pixel
+                if written[k] < cell:
+                    buf[written[k]:cell] = np.float32(0.0)
                 for ch in range(c1):
                     buf[np.uintp(cell + ch)] = np.float32(0.0) + scale * v[ch]
+                written[k] = cell + c1
             else:
                 for ch in range(c1):
                     buf[np.uintp(cell + ch)] += scale * v[ch]
@@ -191,8 +195,8 @@ def scatter(colour, sharp, s, cover, q, window, n, shift, y0, x0, rows, cols, of
     the pixels of ``window`` (row0, row1, col0, col1). ``sharp`` may be empty (no shift-and-add
     image).
 
-    A full-resolution rung's cell takes one pixel at most, so its box is written whole, zeros
-    where no pixel of the rung lies (its part of ``buf`` need not be cleared first); the reduced
+    A full-resolution rung's cell takes one pixel at most, so its box is written whole, once,
+    zeros where no pixel of the rung lies (its part of ``buf`` need not be cleared first); the reduced
     grids' cells sum several pixels, and their parts of ``buf`` must hold zeros. RGB (C + 1 = 4
     values a cell) runs the pixels' loop compiled for exactly 4 values, as :func:`over`."""
     c = colour.shape[2]
@@ -213,11 +217,13 @@ def scatter(colour, sharp, s, cover, q, window, n, shift, y0, x0, rows, cols, of
     for b in prange(lo_row // stripe, n_stripes):
         v = np.empty(c1, np.float32)
         rb = np.zeros(nk, np.int64)
+        written = np.zeros(nk, np.int64)
+        row_end = np.zeros(nk, np.int64)
         for y in range(max(lo_row, b * stripe), min(hi_row, (b + 1) * stripe)):
-            # Where each rung's cells of the row start; every full-resolution box's row is
-            # cleared first, then each pixel writes its value into the one or two boxes of its
-            # rungs (the row is in cache by then).
+            # Where each rung's cells of the row start (and, at full resolution, end).
             for k in range(nk):
+                written[k] = 0
+                row_end[k] = 0
                 if rows[k] == 0:
                     continue
                 f = shift[k]
@@ -225,14 +231,18 @@ def scatter(colour, sharp, s, cover, q, window, n, shift, y0, x0, rows, cols, of
                     rb[k] = offset[k] + (((y >> f) - (y0[k] >> f)) * cols[k] - (x0[k] >> f)) * c1
                 elif y0[k] <= y < y0[k] + rows[k]:
                     base = offset[k] + (y - y0[k]) * cols[k] * c1
-                    buf[base:base + cols[k] * c1] = np.float32(0.0)
                     rb[k] = base - x0[k] * c1
-            if not r0 <= y < r1:
-                continue
-            if c1 == 4:
-                _scatter_pixels(colour, sharp, s, cover, q, y, col0, col1, n, shift, rb, area_inv, 3, v, buf)
-            else:
-                _scatter_pixels(colour, sharp, s, cover, q, y, col0, col1, n, shift, rb, area_inv, c, v, buf)
+                    written[k] = base
+                    row_end[k] = base + cols[k] * c1
+            if r0 <= y < r1:
+                if c1 == 4:
+                    _scatter_pixels(colour, sharp, s, cover, q, y, col0, col1, n, shift, rb, area_inv, 3, v, written, buf)
+                else:
+                    _scatter_pixels(colour, sharp, s, cover, q, y, col0, col1, n, shift, rb, area_inv, c, v, written, buf)
+            # The rest of each full-resolution box's row holds no pixel of its rung.
+            for k in range(nk):
+                if written[k] < row_end[k]:
+                    buf[written[k]:row_end[k]] = np.float32(0.0)
 
 
 @njit(inline="always")
