@@ -448,34 +448,25 @@ BLUR_TASK_ROWS = 16
 
 
 @njit(inline="always")
-def _fold_rows(rows_of, y, rows, length, n, pad, stride, fold):
+def _fold_rows(rows_of, y, rows, length, n, pad, stride, zero, fold):
     """``fold`` row i (i = 0 .. n, each ``stride`` long, ``pad`` zeros on either side) = row
-    y + i plus row y - i of ``rows_of`` (rows, length) (rows past either end are zero; row y once)."""
+    y + i plus row y - i of ``rows_of`` (rows, length), rows past either end and the second
+    row y taken from ``zero`` (one loop a row: the code stays small)."""
     for i in range(n + 1):
         base = i * stride + pad
-        below = y + i < rows
-        above = i > 0 and y - i >= 0
-        if below and above:
-            ra = rows_of[y + i]
-            rb = rows_of[y - i]
-            for e in range(length):
-                fold[np.uintp(base + e)] = ra[e] + rb[e]
-        elif below or above:
-            ra = rows_of[y + i] if below else rows_of[y - i]
-            for e in range(length):
-                fold[np.uintp(base + e)] = ra[e]
-        else:
-            for e in range(length):
-                fold[np.uintp(base + e)] = np.float32(0.0)
+        ra = rows_of[y + i] if y + i < rows else zero
+        rb = rows_of[y - i] if i > 0 and y - i >= 0 else zero
+        for e in range(length):
+            fold[np.uintp(base + e)] = ra[e] + rb[e]
 
 
 @njit(inline="always")
-def _disc_row(rows_of, y, rows, length, quarter, n, c1, fold, cols, out):
-    """Row ``y`` of :func:`disc_blur` (``n``: the disc's reach; a literal where the caller gives
-    one, so that the loops over the taps unroll)."""
+def _disc_row(rows_of, y, rows, length, quarter, n, c1, zero, fold, cols, out):
+    """Row ``y`` of :func:`disc_blur`, ``n`` (the disc's reach) a literal: the loops over the taps
+    unroll, and each value's sums stay in registers."""
     pad = n * c1
     stride = length + 2 * pad
-    _fold_rows(rows_of, y, rows, length, n, pad, stride, fold)
+    _fold_rows(rows_of, y, rows, length, n, pad, stride, zero, fold)
     # Column j of the quarter applied to the folded rows, over the padded row ...
     for j in range(n + 1):
         for e in range(stride):
@@ -491,6 +482,33 @@ def _disc_row(rows_of, y, rows, length, quarter, n, c1, fold, cols, out):
         out[e] = acc
 
 
+@njit(inline="always")
+def _disc_row_any(rows_of, y, rows, length, quarter, n, c1, zero, fold, cols, out):
+    """:func:`_disc_row` for a reach known at run time: the same sums in the same order, each
+    tap a pass over the row (in cache), which vectorises without unrolling."""
+    pad = n * c1
+    stride = length + 2 * pad
+    _fold_rows(rows_of, y, rows, length, n, pad, stride, zero, fold)
+    col = cols[:stride]
+    for j in range(n + 1):
+        k0 = quarter[0, j]
+        for e in range(stride):
+            col[e] = k0 * fold[np.uintp(e)]
+        for i in range(1, n + 1):
+            k = quarter[i, j]
+            fi = fold[i * stride:(i + 1) * stride]
+            for e in range(stride):
+                col[e] += k * fi[e]
+        if j == 0:
+            for e in range(length):
+                out[e] = col[np.uintp(pad + e)]
+        else:
+            lo = col[pad - c1 * j:pad - c1 * j + length]
+            hi = col[pad + c1 * j:pad + c1 * j + length]
+            for e in range(length):
+                out[e] += lo[e] + hi[e]
+
+
 @njit(parallel=True, **dict(_JIT, fastmath={"contract"}))
 def disc_blur(cells, quarter, out):
     """``out`` (rows, cols, m) = ``cells`` (the same shape, C-contiguous) convolved with a disc
@@ -499,10 +517,11 @@ def disc_blur(cells, quarter, out):
 
     The rows at +i and -i share every tap, so they are added first (n + 1 folded rows); each
     column of the quarter is applied to them, and the columns are added shifted by their offset
-    to either side: about (n + 1)^2 + 3 n operations a value instead of (2 n + 1)^2. Discs of
-    reach 1 to 6 (every disc of a render) run loops compiled for their reach, which unroll over
-    the taps and vectorise over the row; indices are unsigned, since numba checks a signed one
-    for a negative value, which keeps a loop from vectorising."""
+    to either side: about (n + 1)^2 + 3 n operations a value instead of (2 n + 1)^2. The reaches
+    that carry most of a render's blurs, 4 and 5, run loops compiled for them, which unroll over
+    the taps (about a third faster; each such copy costs seconds of the first compile); the
+    others pass over the row once per tap. Indices are unsigned: numba checks a signed one for
+    a negative value, which keeps a loop from vectorising."""
     rows, width, c1 = cells.shape
     length = width * c1
     n = quarter.shape[0] - 1
@@ -512,22 +531,15 @@ def disc_blur(cells, quarter, out):
     for b in prange((rows + BLUR_TASK_ROWS - 1) // BLUR_TASK_ROWS):
         fold = np.zeros((n + 1) * stride, np.float32)
         cols = np.empty((n + 1) * stride, np.float32)
+        zero = np.zeros(length, np.float32)
         for y in range(b * BLUR_TASK_ROWS, min(rows, (b + 1) * BLUR_TASK_ROWS)):
             o = out_of[y]
-            if n == 1:
-                _disc_row(rows_of, y, rows, length, quarter, 1, c1, fold, cols, o)
-            elif n == 2:
-                _disc_row(rows_of, y, rows, length, quarter, 2, c1, fold, cols, o)
-            elif n == 3:
-                _disc_row(rows_of, y, rows, length, quarter, 3, c1, fold, cols, o)
+            if n == 5:
+                _disc_row(rows_of, y, rows, length, quarter, 5, c1, zero, fold, cols, o)
             elif n == 4:
-                _disc_row(rows_of, y, rows, length, quarter, 4, c1, fold, cols, o)
-            elif n == 5:
-                _disc_row(rows_of, y, rows, length, quarter, 5, c1, fold, cols, o)
-            elif n == 6:
-                _disc_row(rows_of, y, rows, length, quarter, 6, c1, fold, cols, o)
+                _disc_row(rows_of, y, rows, length, quarter, 4, c1, zero, fold, cols, o)
             else:
-                _disc_row(rows_of, y, rows, length, quarter, n, c1, fold, cols, o)
+                _disc_row_any(rows_of, y, rows, length, quarter, n, c1, zero, fold, cols, o)
 
 
 @njit(inline="always")
