@@ -317,7 +317,8 @@ class DepthOfField:
     -----
     See the module's description. Memory: the views remapped once (V full-size images) while
     the colour is made; then, kept between renders, a few full-size buffers and the layers
-    (each pixel in two of them, blurred layers on reduced grids).
+    twice, as scattered and as blurred (each pixel in two of them, blurred layers on reduced
+    grids).
     """
 
     def __init__(self, views, calibration, depth_map_m, *, reference="center"):
