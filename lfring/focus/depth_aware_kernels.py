@@ -519,9 +519,9 @@ def disc_blur(cells, quarter, out):
     column of the quarter is applied to them, and the columns are added shifted by their offset
     to either side: about (n + 1)^2 + 3 n operations a value instead of (2 n + 1)^2. The reaches
     that carry most of a render's blurs, 4 and 5, run loops compiled for them, which unroll over
-    the taps (about a third faster; each such copy costs seconds of the first compile); the
-    others pass over the row once per tap. Indices are unsigned: numba checks a signed one for
-    a negative value, which keeps a loop from vectorising."""
+    the taps and keep each value's sums in registers; the others (each such copy would lengthen
+    the first compile) pass over the row once per tap. Indices are unsigned: numba checks a
+    signed one for a negative value, which keeps a loop from vectorising."""
     rows, width, c1 = cells.shape
     length = width * c1
     n = quarter.shape[0] - 1
