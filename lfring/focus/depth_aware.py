@@ -568,10 +568,6 @@ class _Layer:
         """(y0, y1, x0, x1) in full-resolution pixels (may reach past the frame)."""
         return self.y0, self.y0 + self.cells.shape[0] * self.f, self.x0, self.x0 + self.cells.shape[1] * self.f
 
-    def keep_full(self, full: np.ndarray) -> None:
-        """Take ``full`` as :meth:`full`'s answer (the same cells, resized already)."""
-        self._full = full
-
     def full(self) -> np.ndarray:
         """The cells at full resolution over :attr:`extent`."""
         if self._full is None:
@@ -718,9 +714,9 @@ def _composite(layers: list, grid: _Grid, kern) -> np.ndarray:
             # Onto the full-resolution composite: acc = group + transmission * acc (+ the skip term).
             size = (ux1 - ux0, uy1 - uy0)
             behind, py, px = (prev.full(), prev.y0, prev.x0) if adjacent else (_EMPTY3, 0, 0)
-            full = _resize(g, size)
-            if len(group) == 1:  # g is the layer itself (over zeros): its full-resolution cells
-                group[0].keep_full(full)
+            # A group of one layer composited over zeros is that layer: its full-resolution cells
+            # (kept for the next layer, which has it behind) are the group's.
+            full = group[0].full() if len(group) == 1 else _resize(g, size)
             kern.merge(acc, uy0, ux0, full, _resize(trans, size), _resize(skip, size) if adjacent else _EMPTY2,
                        behind, py, px)
             prev = group[-1]

@@ -246,41 +246,25 @@ def scatter(colour, sharp, s, cover, q, window, n, shift, y0, x0, rows, cols, of
 
 
 @njit(inline="always")
-def _over_cells(ar, lr, n, c1):
-    """``ar = (1 - a) ar + lr`` over ``n`` cells of ``c1`` values (flat rows), ``a`` the last value
-    of each cell of ``lr``."""
+def _keep_add(ar, wr, ws, wo, complement, gr, n, c1):
+    """``ar = k ar + gr`` over ``n`` cells of ``c1`` values (flat rows), each cell's ``k`` =
+    ``wr[ws j + wo]`` (one minus it where ``complement``): a layer's own coverage (``over``) or
+    a group's transmission (``merge``)."""
     for j in range(n):
-        keep = np.float32(1.0) - lr[c1 * j + c1 - 1]
+        w = wr[ws * j + wo]
+        keep = np.float32(1.0) - w if complement else w
         for ch in range(c1):
-            ar[c1 * j + ch] = ar[c1 * j + ch] * keep + lr[c1 * j + ch]
+            ar[c1 * j + ch] = ar[c1 * j + ch] * keep + gr[c1 * j + ch]
 
 
 @njit(inline="always")
-def _add_behind(ar, lr, pr, n, c1):
-    """``ar += a pr`` over ``n`` cells of ``c1`` values, ``a`` the last value of each cell of
-    ``lr``."""
+def _add_scaled(ar, wr, ws, wo, pr, n, c1):
+    """``ar += w pr`` over ``n`` cells of ``c1`` values, each cell's ``w`` = ``wr[ws j + wo]``:
+    the layer behind, under a layer's coverage (``over``) or a group's skip term (``merge``)."""
     for j in range(n):
-        a = lr[c1 * j + c1 - 1]
+        w = wr[ws * j + wo]
         for ch in range(c1):
-            ar[c1 * j + ch] += a * pr[c1 * j + ch]
-
-
-@njit(inline="always")
-def _merge_cells(ar, gr, tr, n, c1):
-    """``ar = t ar + gr`` over ``n`` cells of ``c1`` values, ``t`` one value a cell (``tr``)."""
-    for j in range(n):
-        t = tr[j]
-        for ch in range(c1):
-            ar[c1 * j + ch] = ar[c1 * j + ch] * t + gr[c1 * j + ch]
-
-
-@njit(inline="always")
-def _add_skipped(ar, sr, pr, n, c1):
-    """``ar += s pr`` over ``n`` cells of ``c1`` values, ``s`` one value a cell (``sr``)."""
-    for j in range(n):
-        sk = sr[j]
-        for ch in range(c1):
-            ar[c1 * j + ch] += sk * pr[c1 * j + ch]
+            ar[c1 * j + ch] += w * pr[c1 * j + ch]
 
 
 @njit(inline="always")
@@ -320,17 +304,18 @@ def over(acc, oy, ox, layer, prev, py, px, trans, skip, first):
         ar = af[a0:a0 + cols * c1]
         lr = lf[i * cols * c1:(i + 1) * cols * c1]
         if c1 == 4:
-            _over_cells(ar, lr, cols, 4)
+            _keep_add(ar, lr, 4, 3, True, lr, cols, 4)
         else:
-            _over_cells(ar, lr, cols, c1)
+            _keep_add(ar, lr, c1, c1 - 1, True, lr, cols, c1)
         pi, ja, jb = _overlap(y, ox, cols, py, px, ph, pw)
         if jb > ja:
             p0 = (pi * pw + ox + ja - px) * c1
             pr = pf[p0:p0 + (jb - ja) * c1]
+            ab, lb = ar[c1 * ja:c1 * jb], lr[c1 * ja:c1 * jb]
             if c1 == 4:
-                _add_behind(ar[4 * ja:4 * jb], lr[4 * ja:4 * jb], pr, jb - ja, 4)
+                _add_scaled(ab, lb, 4, 3, pr, jb - ja, 4)
             else:
-                _add_behind(ar[c1 * ja:c1 * jb], lr[c1 * ja:c1 * jb], pr, jb - ja, c1)
+                _add_scaled(ab, lb, c1, c1 - 1, pr, jb - ja, c1)
         if with_trans:
             tr = trans[y, ox:ox + cols]
             for j in range(cols):
@@ -368,9 +353,9 @@ def merge(acc, oy, ox, group, trans, skip, prev, py, px):
         gr = gf[(i * cols + ja) * c1:(i * cols + jb) * c1]
         tr = trans[i, ja:jb]
         if c1 == 4:
-            _merge_cells(ar, gr, tr, n, 4)
+            _keep_add(ar, tr, 1, 0, False, gr, n, 4)
         else:
-            _merge_cells(ar, gr, tr, n, c1)
+            _keep_add(ar, tr, 1, 0, False, gr, n, c1)
         if not with_skip:
             continue
         pi, ka, kb = _overlap(y, ox + ja, n, py, px, ph, pw)
@@ -378,10 +363,11 @@ def merge(acc, oy, ox, group, trans, skip, prev, py, px):
             p0 = (pi * pw + ox + ja + ka - px) * c1
             pr = pf[p0:p0 + (kb - ka) * c1]
             sr = skip[i, ja + ka:ja + kb]
+            ab = ar[c1 * ka:c1 * kb]
             if c1 == 4:
-                _add_skipped(ar[4 * ka:4 * kb], sr, pr, kb - ka, 4)
+                _add_scaled(ab, sr, 1, 0, pr, kb - ka, 4)
             else:
-                _add_skipped(ar[c1 * ka:c1 * kb], sr, pr, kb - ka, c1)
+                _add_scaled(ab, sr, 1, 0, pr, kb - ka, c1)
 
 
 @njit(inline="always")
@@ -430,17 +416,19 @@ def finish(acc, back, by, bx, floor, out):
         # The cells before the background's, under it, and after it.
         for s0, s1 in ((0, ja), (jb, w)):
             if s1 > s0:
+                a_s, o_s = ar[c1 * s0:c1 * s1], orow[c * s0:c * s1]
                 if c1 == 4:
-                    _divided(ar[4 * s0:4 * s1], orow[3 * s0:3 * s1], s1 - s0, 4, floor)
+                    _divided(a_s, o_s, s1 - s0, 4, floor)
                 else:
-                    _divided(ar[c1 * s0:c1 * s1], orow[c * s0:c * s1], s1 - s0, c1, floor)
+                    _divided(a_s, o_s, s1 - s0, c1, floor)
         if jb > ja:
             b0 = (bi * bw + ja - bx) * c1
             br = bf[b0:b0 + (jb - ja) * c1]
+            a_s, o_s = ar[c1 * ja:c1 * jb], orow[c * ja:c * jb]
             if c1 == 4:
-                _divided_filled(ar[4 * ja:4 * jb], br, orow[3 * ja:3 * jb], jb - ja, 4, floor)
+                _divided_filled(a_s, br, o_s, jb - ja, 4, floor)
             else:
-                _divided_filled(ar[c1 * ja:c1 * jb], br, orow[c * ja:c * jb], jb - ja, c1, floor)
+                _divided_filled(a_s, br, o_s, jb - ja, c1, floor)
 
 
 # Rows of a disc blur per parallel task (they share the task's scratch rows).
