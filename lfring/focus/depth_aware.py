@@ -66,7 +66,7 @@ from lfring.focus.base import RefocusMethod
 
 __all__ = [
     "AGREE_TOL", "BACK_EDGE_PX", "BACK_STEP_PX", "COARSE_DISC_PX", "DEPTH_TOL_PX", "GEOMETRIC_STEP", "LINEAR_UNTIL_PX",
-    "MIN_DEPTH_VIEWS", "OCCLUSION_PX", "SHARP_PX", "SHARP_RAMP_PX", "SHARP_RESAMPLED_PX2", "SPREAD_TOL", "DepthOfField", "DEPTH_AWARE",
+    "MIN_DEPTH_VIEWS", "OCCLUSION_PX", "SHARP_PX", "SHARP_RAMP_PX", "SHARP_RESAMPLED_PX2", "SPREAD_TOL", "VISIBLE_VIEWS", "DepthOfField", "DEPTH_AWARE",
     "DERIVED_RANGE_MAX_MOTION", "FAR_MOTION_PX", "aperture_from_f_number", "aperture_radius_px", "coc_radius_px", "depth_of_field", "disc_kernel",
     "estimation_range", "prepare_depth_aware", "resolve_aperture",
 ]
@@ -81,6 +81,11 @@ AGREE_TOL = 0.04
 # ... or by more than SPREAD_TOL times the views' rms spread about it, if that is larger: a view
 # far out of a majority is left out, views that form no majority are averaged.
 SPREAD_TOL = 1.0
+# Views that a nearer surface hides at a pixel (by the depth map, uncertain near its steps) are
+# left out of its colour once the visible views' summed weight there reaches VISIBLE_VIEWS (half
+# a view); short of that they count in proportion: a view that only grazes the pixel with its
+# disc's rim (where its values are darkened) does not outvote a whole view that is called hidden.
+VISIBLE_VIEWS = 0.5
 # The ladder of blur radii of the layers: 0 and 1 px, then 0.5 px apart up to 3 px, 1 px apart up
 # to LINEAR_UNTIL_PX, then each GEOMETRIC_STEP times the last. Every pixel is shared between the
 # two rungs around its own radius, so the spacing sets how closely a mixture of two discs stands
@@ -435,7 +440,8 @@ class DepthOfField:
         colour = np.empty((h, w, c), np.float32)
         agree = np.empty((h, w), np.float32)
         seen = np.empty((h, w), bool)
-        kern.robust_mean(warped, weight, visible, AGREE_TOL, SPREAD_TOL, WEIGHT_FLOOR, colour, agree, seen)
+        kern.robust_mean(warped, weight, visible, AGREE_TOL, SPREAD_TOL, VISIBLE_VIEWS, WEIGHT_FLOOR, colour, agree,
+                         seen)
         return colour, agree, seen, nearest
 
     # -- the background under occlusion edges --------------------------------------------------

@@ -557,7 +557,7 @@ def occluded(mx, my, x, nearest, tol, out):
 
 
 @njit(parallel=True, **_JIT)
-def robust_mean(warped, weight, visible, agree_tol, spread_tol, floor, colour, agree, seen):
+def robust_mean(warped, weight, visible, agree_tol, spread_tol, full_visible, floor, colour, agree, seen):
     """The views' robust mean at every pixel (the all-in-focus colour of
     :class:`lfring.focus.depth_aware.DepthOfField`), from the views sampled there ``warped`` (V,
     h, w, C; premultiplied by ``weight`` (V, h, w), how much of each view is valid there) and
@@ -568,8 +568,10 @@ def robust_mean(warped, weight, visible, agree_tol, spread_tol, floor, colour, a
     weighted by the summed weight of the views within about ``agree_tol`` of it, to the fourth
     power, so three agreeing views outweigh a fourth; a view whose luminance is off the centre
     by more than ``tol = max(agree_tol, spread_tol * spread)`` (spread: the views' rms deviation
-    about it) loses weight linearly, none left at twice that. Where no view is visible, those
-    that are present (weight > ``floor``) count. Writes ``colour`` (h, w, C; 0 where not
+    about it) loses weight linearly, none left at twice that. The present views (weight >
+    ``floor``) that are not visible count by ``1 - (visible views' weight) / full_visible``
+    (none from there on): all of them where no view is visible, and a view that only grazes
+    the pixel with its disc's rim does not outvote a whole one that is hidden. Writes ``colour`` (h, w, C; 0 where not
     ``seen``), ``agree`` (h, w: 1 less the worst view's excess deviation over ``agree_tol``,
     every present view by its weight, occluded or not; 0 where none is present) and ``seen``
     (h, w: the views' weight in the mean exceeds ``floor``)."""
@@ -581,13 +583,17 @@ def robust_mean(warped, weight, visible, agree_tol, spread_tol, floor, colour, a
         wv = np.empty(v)
         support = np.empty(v)
         phi = np.empty(v)
+        scale = np.empty(v)
         for xx in range(w):
             any_present = False
-            any_visible = False
+            visible_w = 0.0
             for k in range(v):
-                present = weight[k, y, xx] > floor
+                wk = weight[k, y, xx]
+                present = wk > floor
                 any_present = any_present or present
-                any_visible = any_visible or (present and visible[k, y, xx])
+                if present and visible[k, y, xx]:
+                    visible_w += wk
+            hidden = max(1.0 - visible_w / full_visible, 0.0)
             for k in range(v):
                 wk = weight[k, y, xx]
                 present = wk > floor
@@ -595,8 +601,8 @@ def robust_mean(warped, weight, visible, agree_tol, spread_tol, floor, colour, a
                 for ch in range(c):
                     s += warped[k, y, xx, ch]
                 lum[k] = s * inv_c / wk if present else 0.0
-                sees = present and (visible[k, y, xx] or not any_visible)
-                wv[k] = wk if sees else 0.0
+                scale[k] = (1.0 if visible[k, y, xx] else hidden) if present else 0.0
+                wv[k] = wk * scale[k]
             # Each view's support: the weight of the views close to it (itself included), the
             # closeness of a pair computed once.
             for k in range(v):
@@ -635,7 +641,7 @@ def robust_mean(warped, weight, visible, agree_tol, spread_tol, floor, colour, a
             den = 0.0
             for k in range(v):
                 dev = abs(lum[k] - med)
-                phi[k] = min(max(2.0 - dev / tol, 0.0), 1.0) if wv[k] > 0.0 else 0.0
+                phi[k] = min(max(2.0 - dev / tol, 0.0), 1.0) * scale[k] if wv[k] > 0.0 else 0.0
                 wk = weight[k, y, xx]
                 if wk > floor:
                     dis = min(max(dev / agree_tol - 1.0, 0.0), 1.0) * min(max(wk, 0.0), 1.0)

@@ -6,16 +6,17 @@ import pytest
 
 from lfring.core.viewstack import WEIGHT_FLOOR
 from lfring.focus import depth_aware_kernels as kern
-from lfring.focus.depth_aware import AGREE_TOL, SPREAD_TOL
+from lfring.focus.depth_aware import AGREE_TOL, SPREAD_TOL, VISIBLE_VIEWS
 
 
 def _robust_mean_numpy(warped, weight, visible):
     """The views' robust mean, written array by array (the rules of ``kern.robust_mean``)."""
     present = weight > WEIGHT_FLOOR
     visible = visible & present
-    visible |= present & ~visible.any(axis=0)
+    hidden = np.clip(1.0 - (weight * visible).sum(axis=0) / VISIBLE_VIEWS, 0.0, 1.0)
+    scale = np.where(visible, 1.0, np.where(present, hidden, 0.0))
     lum = np.divide(warped.mean(axis=3), weight, out=np.zeros(weight.shape), where=present)
-    wv = np.where(visible, weight, 0.0)
+    wv = weight * scale
     close = np.exp(-0.5 * ((lum[:, None] - lum[None, :]) / AGREE_TOL) ** 2)
     support = np.einsum("jvhw,jhw->vhw", close, wv) ** 4 * wv
     total = support.sum(axis=0)
@@ -24,7 +25,7 @@ def _robust_mean_numpy(warped, weight, visible):
     dev = np.abs(lum - med)
     spread = np.sqrt((wv * dev * dev).sum(axis=0) / np.maximum(wv.sum(axis=0), WEIGHT_FLOOR))
     tol = np.maximum(AGREE_TOL, SPREAD_TOL * spread)
-    phi = np.where(visible, np.clip(2.0 - dev / tol, 0.0, 1.0), 0.0)
+    phi = np.where(wv > 0, np.clip(2.0 - dev / tol, 0.0, 1.0) * scale, 0.0)
     dis = np.clip(dev / AGREE_TOL - 1.0, 0.0, 1.0) * np.clip(weight, 0.0, 1.0)
     agree = np.where(present.any(axis=0), np.where(present, 1.0 - dis, 1.0).min(axis=0), 0.0)
     num = np.einsum("vhw,vhwc->hwc", phi, warped)
@@ -53,7 +54,7 @@ def test_robust_mean_matches_the_array_rules(channels):
     colour = np.empty((h, w, channels), np.float32)
     agree = np.empty((h, w), np.float32)
     seen = np.empty((h, w), bool)
-    kern.robust_mean(warped, weight, visible, AGREE_TOL, SPREAD_TOL, WEIGHT_FLOOR, colour, agree, seen)
+    kern.robust_mean(warped, weight, visible, AGREE_TOL, SPREAD_TOL, VISIBLE_VIEWS, WEIGHT_FLOOR, colour, agree, seen)
     want_colour, want_agree, want_seen = _robust_mean_numpy(warped.astype(np.float64), weight.astype(np.float64), visible)
     assert np.array_equal(seen, want_seen) and seen.mean() > 0.9 and not seen[:4, :4].any()
     np.testing.assert_allclose(colour, want_colour, atol=1e-5)
@@ -67,6 +68,40 @@ def test_robust_mean_matches_the_array_rules(channels):
     assert odd.sum() > 20 and rest.sum() > 20
     assert np.abs(colour[odd] - base[0][odd]).max() < 0.05
     assert agree[odd].max() < 0.15 and agree[rest].min() > 0.9
+
+
+def test_robust_mean_a_view_grazing_with_its_rim_does_not_outvote_a_hidden_one():
+    # A whole view that the depth map calls hidden, and another that sees the pixel only with the
+    # darkened rim of its disc (weight w): the hidden one counts by 1 - w / VISIBLE_VIEWS, so the
+    # colour is the whole view's while w is small; from w = VISIBLE_VIEWS on it is left out.
+    c = 3
+    rim = np.array([0.002, 0.02, 0.1, 0.4, 0.6, 0.99, 1.0]) * VISIBLE_VIEWS
+    rim[-1] = 1.0
+    n = rim.size
+    weight = np.zeros((4, 1, n), np.float32)
+    weight[0, 0] = 1.0
+    weight[1, 0] = rim
+    value = np.zeros((4, 1, n, c))
+    value[0], value[1] = 0.7, 0.35
+    visible = np.ones((4, 1, n), bool)
+    visible[0] = False
+    warped = (value * weight[..., None]).astype(np.float32)
+    colour = np.empty((1, n, c), np.float32)
+    agree = np.empty((1, n), np.float32)
+    seen = np.empty((1, n), bool)
+    kern.robust_mean(warped, weight, visible, AGREE_TOL, SPREAD_TOL, VISIBLE_VIEWS, WEIGHT_FLOOR, colour, agree, seen)
+    assert seen.all()
+    np.testing.assert_allclose(colour, _robust_mean_numpy(warped.astype(np.float64), weight.astype(np.float64), visible)[0],
+                               atol=1e-5)
+    got = colour[0, :, 0]
+    # Up to a tenth of VISIBLE_VIEWS at the rim, the colour stays within 0.01 of the whole view's.
+    assert np.abs(got[:3] - 0.7).max() < 0.01
+    # With VISIBLE_VIEWS visible (or all but), the hidden one is left out.
+    np.testing.assert_allclose(got[-1], 0.35, atol=1e-6)
+    assert abs(got[-2] - 0.35) < 0.01
+    # In between, the colour moves from the whole view's to the rim view's, never back, and not
+    # in one jump.
+    assert np.all(np.diff(got) <= 1e-6) and np.any((got > 0.4) & (got < 0.65))
 
 def test_occluded_is_a_nearer_surface_at_the_rounded_view_pixel():
     rng = np.random.default_rng(3)
