@@ -11,7 +11,7 @@ import click
 
 from lfring import __version__
 from lfring.cli.words import CliFormatter, cli_words
-from lfring.core.signals import interrupt_behind
+from lfring.core.signals import deliver_lost_stops, interrupt_behind, redelivered_stops
 from lfring.errors import LfringError
 
 # command name -> module in lfring.cli defining a click command called ``command``.
@@ -69,6 +69,13 @@ class Terminated(KeyboardInterrupt):
 
 def _terminate(signum, frame):
     raise Terminated()
+
+
+def _signal_of(stop: type) -> int:
+    """The signal that raised a stop of type ``stop``: SIGTERM for :class:`Terminated`."""
+    import signal
+
+    return signal.SIGTERM if issubclass(stop, Terminated) else signal.SIGINT
 
 
 #: Exit codes of a command stopped by Ctrl-C and by SIGTERM (128 + the signal's number, as a shell says).
@@ -175,7 +182,10 @@ def main(argv=None) -> int:
     if ours:
         signal.signal(signal.SIGTERM, _terminate)
     try:
-        return _run(args)
+        if not ours:
+            return _run(args)
+        with redelivered_stops(_signal_of):  # a Ctrl-C in a weakref callback of an import still stops
+            return _run(args)
     finally:
         # A KeyboardInterrupt that escaped code run from a string (the methods that dataclasses
         # build with exec, when Ctrl-C comes during an import) leaves CPython's "unhandled
@@ -195,6 +205,7 @@ def main(argv=None) -> int:
 def _run(args: list[str]) -> int:
     try:
         rv = cli.main(args=args, prog_name="lfring", standalone_mode=False)
+        deliver_lost_stops()  # a Ctrl-C that came where it could not stop the command
     except click.exceptions.Exit as exc:
         return exc.exit_code
     except (click.Abort, KeyboardInterrupt) as exc:
