@@ -26,7 +26,7 @@ def test_live_refocus_loop(tmp_path):
 
     image = lfring.demosaic(lfring.load_raw(DATA / "part_good.png"))
     cal, _ = default_calibration((image.shape[1], image.shape[0]))
-    want = encode_image(lfring.refocus(lfring.split_views(image, cal.layout), cal, 0.3), 8, "srgb")
+    want = encode_image(lfring.refocus(lfring.split_views(image, cal), cal, 0.3), 8, "srgb")
     for r in (0, 1):
         got = cv2.cvtColor(cv2.imread(str(out / f"part_good_{r}_refocus.png")), cv2.COLOR_BGR2RGB)
         np.testing.assert_array_equal(got, want)
