@@ -79,7 +79,15 @@ def load_frame(path, *, pattern=None, black_level=None, white_level=None, calibr
         if "pattern" not in from_cal or "already RGB" not in str(exc):
             raise
         del from_cal["pattern"]  # an RGB frame: the calibration's Bayer pattern does not apply
-        frame = load_raw(p, **{**given, **from_cal})
+        try:
+            frame = load_raw(p, **{**given, **from_cal})
+        except InvalidInputError:
+            if not from_cal:
+                raise
+            # Nor its levels, where they do not fit the frame's counts (an 8-bit RGB image, a
+            # calibration of 12-bit raw frames): the frame's own or the dtype's are taken.
+            from_cal = {}
+            frame = load_raw(p, **given)
     notes = []
     if from_cal:
         names = " or ".join(k.replace("_", " ") for k in from_cal)

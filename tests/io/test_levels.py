@@ -1,0 +1,30 @@
+"""Where a frame's pattern and levels come from: the calibration's stand in for the frame's own
+only where they fit it."""
+
+import cv2
+import numpy as np
+
+from lfring.calibration import RingCalibration
+from lfring.io.levels import load_frame
+
+
+def test_an_8_bit_rgb_image_takes_neither_the_calibrations_pattern_nor_its_levels(tmp_path):
+    # The built-in twin calibration records its 12-bit RGGB raw frames' pattern and levels
+    # (64 .. 4095): an 8-bit RGB image of the same size is read with its own dtype's levels.
+    cal = RingCalibration.load("twin_binned2")
+    assert cal.pattern == "RGGB" and cal.white_level == 4095
+    w, h = cal.raw_size
+    rgb = np.zeros((h, w, 3), np.uint8)
+    rgb[::2, ::2] = 200
+    path = tmp_path / "frame.png"
+    cv2.imwrite(str(path), rgb)
+    frame, notes = load_frame(path, calibration=cal)
+    assert frame.mosaic is None and frame.black_level == 0 and frame.white_level == 255
+    assert not any("calibration's" in message for _, message in notes)
+    # A 12-bit mosaic of that camera takes them (no sidecar of its own).
+    raw = np.full((h, w), 64 + 1000, np.uint16)
+    path = tmp_path / "raw.png"
+    cv2.imwrite(str(path), raw)
+    frame, notes = load_frame(path, calibration=cal)
+    assert frame.pattern == "RGGB" and (frame.black_level, frame.white_level) == (64, 4095)
+    assert any("using the calibration's" in message for _, message in notes)
