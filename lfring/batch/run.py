@@ -38,7 +38,7 @@ from lfring.batch.record import (
     read_record,
 )
 from lfring.batch.settings import BatchSettings
-from lfring.core.signals import held_signals
+from lfring.core.signals import deliver_lost_stops, held_signals
 from lfring.core.validate import check_choice, check_int
 from lfring.errors import InvalidInputError, LfringError
 from lfring.io.readers import RECORD_KEY
@@ -302,6 +302,7 @@ def _finish(run: _Run, job: BatchJob, res: FrameResult) -> None:
         run.fail(job, res.error, record_it=True, timings_s=res.timings_s, worker=res.worker)
         return
     t_w = time.perf_counter()
+    deliver_lost_stops()  # a Ctrl-C that came where it could not stop the batch: this frame stays pending
     try:
         with held_signals():  # a frame's files and its record, all or none of them new
             for kind in run.todo_kinds[job.input]:

@@ -71,13 +71,6 @@ def _terminate(signum, frame):
     raise Terminated()
 
 
-def _signal_of(stop: type) -> int:
-    """The signal that raised a stop of type ``stop``: SIGTERM for :class:`Terminated`."""
-    import signal
-
-    return signal.SIGTERM if issubclass(stop, Terminated) else signal.SIGINT
-
-
 #: Exit codes of a command stopped by Ctrl-C and by SIGTERM (128 + the signal's number, as a shell says).
 EXIT_INTERRUPTED = 130
 EXIT_TERMINATED = 143
@@ -184,7 +177,7 @@ def main(argv=None) -> int:
     try:
         if not ours:
             return _run(args)
-        with redelivered_stops(_signal_of):  # a Ctrl-C in a weakref callback of an import still stops
+        with redelivered_stops():  # a Ctrl-C in a weakref callback of an import still stops
             return _run(args)
     finally:
         # A KeyboardInterrupt that escaped code run from a string (the methods that dataclasses

@@ -25,7 +25,7 @@ from pathlib import Path
 import click
 
 from lfring.batch.record import RECORD_SUFFIX, RECORD_VERSION, decide_resume, file_identity, read_record
-from lfring.core.signals import held_signals
+from lfring.core.signals import deliver_lost_stops, held_signals
 from lfring.errors import InvalidInputError
 from lfring.io.atomic import atomic_write_text
 from lfring.io.readers import RECORD_KEY
@@ -222,6 +222,7 @@ class OutputSet:
             if missing:
                 raise RuntimeError(f"outputs not written: {', '.join(missing)}")  # pragma: no cover - a bug
             former = self._former_record() is not None
+            deliver_lost_stops()  # a Ctrl-C that came where it could not stop the command: nothing is written
             with held_signals():
                 self._write_record("pending")
                 for final, s in staged.items():

@@ -5,7 +5,8 @@ a worker process being started.
 it, as if they had come then; :func:`blocked_in_children` starts processes with SIGINT blocked,
 so that a Ctrl-C (which the terminal sends to every process of its group) reaches only the
 process that owns them, which stops them itself; :func:`redelivered_stops` keeps a Ctrl-C that
-landed where Python could only print it and go on, for :func:`deliver_lost_stops`.
+landed where Python could only print it and go on, and :func:`deliver_lost_stops` delivers it
+before a commit.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ import contextlib
 import signal
 import sys
 import threading
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 
 __all__ = ["HELD_SIGNALS", "blocked_in_children", "deliver_lost_stops", "held_signals", "interrupt_behind",
            "redelivered_stops"]
@@ -26,8 +27,6 @@ HELD_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM") if 
 @contextlib.contextmanager
 def held_signals(signums=HELD_SIGNALS) -> Iterator[None]:
     """Hold ``signums`` while the block runs; each that came is delivered, once, when it ends.
-    A stop that came earlier and was lost (:func:`redelivered_stops`) is delivered first: the
-    block does not run.
 
     Only the main thread receives Python's signal handlers: elsewhere this does nothing. A
     signal that is ignored (``SIG_IGN``) stays ignored.
@@ -35,7 +34,6 @@ def held_signals(signums=HELD_SIGNALS) -> Iterator[None]:
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    deliver_lost_stops()
     came: list[int] = []
     old = {}
     for s in signums:
@@ -57,52 +55,53 @@ def held_signals(signums=HELD_SIGNALS) -> Iterator[None]:
                 signal.raise_signal(s)
 
 
-# Stops (signal numbers) that came where Python could not raise them, not yet delivered.
-_LOST: list[int] = []
+# Stops (exception types) that came where Python could not raise them, not yet delivered, and
+# how many redelivered_stops blocks are open (the outermost one's end forgets what is left).
+_LOST: list[type] = []
+_OPEN = [0]
 
 
 @contextlib.contextmanager
-def redelivered_stops(signum_of: Callable[[type], int] = lambda exc_type: signal.SIGINT) -> Iterator[None]:
-    """While the block runs, a Ctrl-C (any KeyboardInterrupt, such as a SIGTERM raised as one)
-    that lands where Python cannot raise it is kept for :func:`deliver_lost_stops`.
+def redelivered_stops() -> Iterator[None]:
+    """While the block runs, a Ctrl-C (any KeyboardInterrupt, such as a SIGTERM raised as one, or
+    an error raised from one: :func:`interrupt_behind`) that lands where Python cannot raise it is
+    kept for :func:`deliver_lost_stops`.
 
     A signal's handler runs wherever the main thread is. In a weakref callback or a ``__del__``
     (the import machinery's module locks have one) its exception cannot propagate: Python would
     print it as "Exception ignored", with a traceback, and the run would go on as if nothing had
-    come. Instead its signal (``signum_of`` the exception's type) is kept, and delivered before
-    the next block of :func:`held_signals` (an output set's commit: nothing is written after the
-    stop) or where the caller calls :func:`deliver_lost_stops`. Other such exceptions are
-    reported as before.
+    come. Instead the stop is kept; the caller delivers it where stopping is safe and before
+    anything is committed (an output set's files, a batch frame's record). Other such exceptions
+    are reported as before.
     """
     previous = sys.unraisablehook
 
     def hook(unraisable):
-        kind = unraisable.exc_type
-        if kind is not None and issubclass(kind, KeyboardInterrupt):
-            _LOST.append(signum_of(kind))
+        stop = interrupt_behind(unraisable.exc_value) if unraisable.exc_value is not None else None
+        if stop is not None:
+            _LOST.append(type(stop))
             return
         previous(unraisable)
 
     sys.unraisablehook = hook
+    _OPEN[0] += 1
     try:
         yield
     finally:
         sys.unraisablehook = previous
-        _LOST.clear()
+        _OPEN[0] -= 1
+        if _OPEN[0] == 0:
+            _LOST.clear()
 
 
 def deliver_lost_stops() -> None:
-    """Deliver the stop that :func:`redelivered_stops` kept, once: its signal's handler runs now
-    (the default action where that is SIG_DFL). Only the main thread delivers."""
+    """Raise the stop that :func:`redelivered_stops` kept (a new exception of its type), once.
+    Only the main thread delivers."""
     if not _LOST or threading.current_thread() is not threading.main_thread():
         return
-    signum = _LOST[0]
+    kind = _LOST[0]
     _LOST.clear()
-    handler = signal.getsignal(signum)
-    if callable(handler):
-        handler(signum, None)
-    elif handler == signal.SIG_DFL:
-        signal.raise_signal(signum)
+    raise kind()
 
 
 @contextlib.contextmanager
