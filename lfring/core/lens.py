@@ -372,9 +372,10 @@ def _grid_nodes(n: int, step: int) -> np.ndarray:
 def _spline_weights(nodes: np.ndarray, at: np.ndarray) -> np.ndarray:
     """(len(at), n) weights of the cubic interpolating spline through ``n`` >= 4 increasing
     ``nodes`` with not-a-knot ends (FITPACK's, as scipy's ``RectBivariateSpline`` with ``s=0``
-    builds it), evaluated at ``at``: the spline's values there are ``weights @ values``."""
+    builds it), evaluated at ``at``: the spline's values there are ``weights @ values``.
+    Positions past the end nodes take the end node's value, as scipy's evaluation does."""
     x = np.asarray(nodes, dtype=np.float64)
-    t = np.asarray(at, dtype=np.float64)
+    t = np.clip(np.asarray(at, dtype=np.float64), x[0], x[-1])
     n = len(x)
     h = np.diff(x)
     # Second derivatives m from the values y: a m = r y (the interior continuity of the first

@@ -38,9 +38,19 @@ def test_undistort_inverts_distort(lens):
 
 def test_undistort_box_matches_the_exact_inverse():
     lens = LENSES[1]
-    box = lens.undistort_box(300, 10, 160, 90)
+    box = lens.undistort_box(300, 10, 160, 90, step=8)
     yy, xx = np.mgrid[10:100, 300:460].astype(float)
     np.testing.assert_allclose(box, lens.undistort(np.stack([xx, yy], axis=-1)), atol=1e-4)
+    # Its grid is interpolated by scipy's bicubic spline, written without scipy.interpolate.
+    from scipy.interpolate import RectBivariateSpline
+
+    step = 8
+    gx = np.arange(300 - 2 * step, 300 + 160 + 3 * step, step, dtype=float)
+    gy = np.arange(10 - 2 * step, 10 + 90 + 3 * step, step, dtype=float)
+    nodes = np.stack(np.meshgrid(gx, gy), axis=-1)
+    shift = lens.undistort(nodes) - nodes
+    want_x = RectBivariateSpline(gy, gx, shift[..., 0])(np.arange(10, 100.0), np.arange(300, 460.0)) + xx[0]
+    np.testing.assert_allclose(box[..., 0], want_x, atol=1e-9)
 
 
 def test_a_tilt_alone_moves_nothing():
@@ -135,11 +145,11 @@ def test_flat_field_grid_round_trip():
         FlatField.from_grid(grid[:, :3], 16, (101, 90))
 
 
-@pytest.mark.parametrize("shape, step", [((101, 90), 16), ((705, 705), 15), ((40, 100), 16), ((20, 33), 16)])
+@pytest.mark.parametrize("shape, step", [((101, 90), 16), ((705, 705), 15), ((40, 100), 16), ((50, 50), 16)])
 def test_flat_field_grid_is_restored_by_scipys_bicubic_spline(shape, step):
     # The restore is written without scipy.interpolate (its import costs a command's start half a
-    # second); it must be the same spline: FITPACK's interpolating bicubic with not-a-knot ends.
-    # Grids under 4 nodes a side (the last case) take a lower degree, as before.
+    # second); it must be the same spline: FITPACK's interpolating bicubic with not-a-knot ends,
+    # also with a last interval of one pixel (50 px, step 16: nodes 0, 16, 32, 48, 49).
     from scipy.interpolate import RectBivariateSpline
 
     rng = np.random.default_rng(5)

@@ -75,7 +75,7 @@ def test_robust_mean_a_view_grazing_with_its_rim_does_not_outvote_a_hidden_one()
     # darkened rim of its disc (weight w): the hidden one counts by 1 - w / VISIBLE_VIEWS, so the
     # colour is the whole view's while w is small; from w = VISIBLE_VIEWS on it is left out.
     c = 3
-    rim = np.array([0.002, 0.02, 0.1, 0.4, 0.6, 0.99, 1.0]) * VISIBLE_VIEWS
+    rim = np.array([0.01, 0.02, 0.1, 0.4, 0.6, 0.99, 1.0]) * VISIBLE_VIEWS  # the least well above WEIGHT_FLOOR
     rim[-1] = 1.0
     n = rim.size
     weight = np.zeros((4, 1, n), np.float32)
