@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import logging
 import sys
@@ -175,9 +176,8 @@ def main(argv=None) -> int:
     if ours:
         signal.signal(signal.SIGTERM, _terminate)
     try:
-        if not ours:
-            return _run(args)
-        with redelivered_stops():  # a Ctrl-C in a weakref callback of an import still stops
+        # A Ctrl-C in a weakref callback of an import still stops the command.
+        with redelivered_stops() if ours else contextlib.nullcontext():
             return _run(args)
     finally:
         # A KeyboardInterrupt that escaped code run from a string (the methods that dataclasses

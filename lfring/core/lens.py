@@ -135,10 +135,11 @@ class Distortion(abc.ABC):
         shift = self.undistort(nodes) - nodes
         xs = np.arange(x0, x0 + w, dtype=np.float64)
         ys = np.arange(y0, y0 + h, dtype=np.float64)
-        out = np.empty((h, w, 2), np.float64)
-        # A cubic spline through the nodes (OpenCV's remap would round the positions).
-        out[..., 0] = _bicubic(gy, gx, shift[..., 0], ys, xs) + xs[None, :]
-        out[..., 1] = _bicubic(gy, gx, shift[..., 1], ys, xs) + ys[:, None]
+        # A cubic spline through the nodes (OpenCV's remap would round the positions), both
+        # components at once: one pair of weight matrices.
+        out = np.ascontiguousarray(np.moveaxis(_bicubic(gy, gx, np.moveaxis(shift, -1, 0), ys, xs), 0, -1))
+        out[..., 0] += xs[None, :]
+        out[..., 1] += ys[:, None]
         return out
 
     def displacement_px(self, radius_px: float | None = None, *, centre_px=None, samples: int = 360) -> float:
@@ -602,7 +603,7 @@ class FlatField:
         # of a node spacing, half a pixel here).
         rows, cols = np.arange(h, dtype=np.float64), np.arange(w, dtype=np.float64)
         if min(len(ys), len(xs)) >= 4:
-            return cls(_bicubic(ys.astype(np.float64), xs.astype(np.float64), g, rows, cols))
+            return cls(_bicubic(ys, xs, g, rows, cols))
         from scipy.interpolate import RectBivariateSpline  # views of a few grid steps: a lower degree
 
         k = min(3, len(ys) - 1, len(xs) - 1)
