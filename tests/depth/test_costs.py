@@ -137,3 +137,54 @@ def test_view_halves_follow_the_rows_and_columns_of_the_ring(twin):
         b = estimate_depth(views[:2], pair, zmin_m=0.3, zmax_m=1.0, reference=0, cost="lcn")
     assert a.cost == "lcn-halves"
     np.testing.assert_array_equal(a.depth_m, b.depth_m)
+
+
+def test_a_view_that_weighs_less_than_one_adds_its_square_in_part_as_its_value():
+    """The 'lcn' cost is the weighted variance of the views' normalised values: views that agree
+    cost nothing whatever their weights (a view at its disc's rim weighs less than 1), and two
+    values 1 and 3 weighing 1 and 0.5 give sum w (n - mean)^2 / max(C - 1, 0.5) = (4/9 + 8/9) / 0.5.
+    Every implementation of the sums: the slice cost, the leave-one-out and pair kernels, and the
+    fused engine's four-view and pair terms."""
+    from lfring.core.viewstack import WEIGHT_FLOOR
+    from lfring.depth.costs.base import compiled_kernels
+    from lfring.depth.costs.lcn import lcn_slice_cost
+    from lfring.depth.costs.lcn_occlusion import lcn_leave_one_out
+    from lfring.depth.engines import fused_volume
+
+    floor = np.float32(WEIGHT_FLOOR)
+
+    def stack(values):
+        return np.array(values, np.float32)[:, None, None] * np.ones((1, 1, 3), np.float32)
+
+    w = stack([1.0, 1.0, 0.5, 0.25])
+    agree = 2.0 * w  # every view sees n = 2, premultiplied by its weight
+    np.testing.assert_allclose(lcn_slice_cost(agree, w, w.sum(axis=0), 9), 0.0, atol=1e-6)
+    two_w, two = stack([1.0, 0.5]), stack([1.0, 1.5])  # n = 1 and 3
+    np.testing.assert_allclose(lcn_slice_cost(two, two_w, two_w.sum(axis=0), 9), (4 / 9 + 8 / 9) / 0.5, rtol=1e-6)
+    # Leave the one that disagrees (n = 5, weight 1) out of three that agree, one at weight 0.5.
+    w4 = stack([1.0, 1.0, 0.5, 1.0])
+    a4 = np.concatenate([2.0 * w4[:3], 5.0 * w4[3:]])
+    s2 = (a4 * a4 / w4).sum(axis=0)
+    np.testing.assert_allclose(lcn_leave_one_out(a4.sum(axis=0), s2, w4.sum(axis=0), a4[3], w4[3]), 0.0, atol=1e-6)
+    cost, own = np.empty((1, 3), np.float32), np.empty((1, 3), np.float32)
+    seen = np.ones((1, 3), bool)
+    compiled_kernels().pair_terms(two[0], two_w[0], two[1], two_w[1], seen, floor, cost, own)
+    np.testing.assert_allclose(cost, (4 / 9 + 8 / 9) / 0.5, rtol=1e-6)
+    g = [np.float32(x) for x in (1.0, 1.0, 0.5, 0.25)]
+    c, ok = fused_volume._lcn_of_four(*(np.float32(2.0) * x for x in g), *g, np.float32(sum(g)), floor, np.float32(1.0))
+    assert ok == 1.0 and abs(c) < 1e-6, c
+    t, flags, cn = (np.empty(3, np.float32) for _ in range(3))
+    fused_volume._lcn_two(two[0, 0], two[1, 0], two_w[0, 0], two_w[1, 0], floor, np.ones(3, np.float32), cn, t, flags)
+    np.testing.assert_allclose(t, (4 / 9 + 8 / 9) / 0.5, rtol=1e-6)
+
+
+def test_the_torch_twin_weighs_the_squares_as_the_numpy_cost():
+    torch = pytest.importorskip("torch", reason="the torch extra is not installed")
+    from lfring.depth.costs.lcn import lcn_slice_cost, lcn_slice_cost_torch
+
+    rng = np.random.default_rng(3)
+    w = rng.random((4, 5, 6)).astype(np.float32)
+    a = (w * rng.normal(size=(4, 5, 6))).astype(np.float32)
+    want = lcn_slice_cost(a, w, w.sum(axis=0), 9)
+    got = lcn_slice_cost_torch(torch, torch.from_numpy(a)[None], torch.from_numpy(w)[None], torch.from_numpy(w.sum(axis=0))[None], None)
+    np.testing.assert_allclose(got[0].numpy(), want, rtol=1e-5, atol=1e-6)

@@ -462,7 +462,9 @@ def test_the_halves_pass_gives_each_poor_pixel_the_same_cost_however_its_columns
             seen = wt.sum(axis=0) >= 1.5
             low = np.full((h, w), np.inf)
             for j0, j1 in halves.reshape(-1, 2):
-                s1, s2, cn = a[j0] + a[j1], a[j0] ** 2 + a[j1] ** 2, wt[j0] + wt[j1]
+                # Each square over its view's weight (lfring.depth.costs.lcn.weighted_square).
+                s1, cn = a[j0] + a[j1], wt[j0] + wt[j1]
+                s2 = a[j0] ** 2 / np.maximum(wt[j0], 1e-6) + a[j1] ** 2 / np.maximum(wt[j1], 1e-6)
                 own = (cn >= 1.5) & seen
                 term = np.where(own, (s2 - s1 * s1 / np.maximum(cn, 1e-6)) / np.maximum(cn - 1, 0.5), 0.0)
                 bt, bs = (cv2.boxFilter(x.astype(np.float64), -1, (2 * rad + 1, 2 * rad + 1), normalize=False,

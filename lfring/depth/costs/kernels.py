@@ -19,7 +19,7 @@ _JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")  # nump
 
 @njit(**_JIT)
 def leave_one_out(s1, s2, count, a_k, w_k, floor, out):
-    """``out = lcn_cost(S1 - a_k, S2 - a_k^2, C - w_k)``, per pixel."""
+    """``out = lcn_cost(S1 - a_k, S2 - a_k^2 / w_k, C - w_k)``, per pixel."""
     h, w = s1.shape
     floor = np.float32(floor)
     one = np.float32(1.0)
@@ -27,12 +27,14 @@ def leave_one_out(s1, s2, count, a_k, w_k, floor, out):
     for y in range(h):
         for x in range(w):
             a = a_k[y, x]
-            rest = count[y, x] - w_k[y, x]
+            wk = w_k[y, x]
+            rest = count[y, x] - wk
+            sq = (a * a) / (wk if wk > floor else floor)
             s = s1[y, x] - a
             r = rest if rest > floor else floor
             d = rest - one
             d = d if d > half else half
-            out[y, x] = ((s2[y, x] - a * a) * r - s * s) / (r * d)
+            out[y, x] = ((s2[y, x] - sq) * r - s * s) / (r * d)
 
 
 @njit(**_JIT)
@@ -46,6 +48,12 @@ def take_least(agg, candidate, penalty, agg_count, agg_w, least_rest):
             c = penalty * candidate[y, x]
             a = agg[y, x]
             agg[y, x] = c if (agg_count[y, x] - agg_w[y, x] > least_rest) & (c < a) else a  # selects vectorise
+
+
+@njit(**_JIT)
+def _weighted_square(a, w, floor):
+    """A view's term of S2 (:func:`lfring.depth.costs.lcn.weighted_square`): ``a^2 / max(w, floor)``."""
+    return (a * a) / (w if w > floor else floor)
 
 
 @njit(**_JIT)
@@ -89,14 +97,16 @@ def half_terms(s1, s2, count, seen, floor, cost, own):
 @njit(**_JIT)
 def pair_terms(a0, w0, a1, w1, seen, floor, cost, own):
     """:func:`half_terms` of a half of two views, from their warped values (premultiplied by their
-    masks) and masks, without forming the sums first."""
+    masks) and masks, without forming the sums first (S2 from :func:`_weighted_square`)."""
     h, w = a0.shape
     floor = np.float32(floor)
     for y in range(h):
         for x in range(w):
             p = a0[y, x]
             q = a1[y, x]
-            c, ok = _lcn_term(p + q, p * p + q * q, w0[y, x] + w1[y, x], seen[y, x], floor)
+            u = w0[y, x]
+            v = w1[y, x]
+            c, ok = _lcn_term(p + q, _weighted_square(p, u, floor) + _weighted_square(q, v, floor), u + v, seen[y, x], floor)
             cost[y, x] = c
             own[y, x] = np.float32(1.0) if ok else np.float32(0.0)
     return _count_own(own)

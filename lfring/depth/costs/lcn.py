@@ -4,10 +4,17 @@ The 'lcn' cost of a hypothesis at a pixel is the variance across the views of th
 locally normalised luminances, ``n = (L - mu) / sqrt(var + LCN_EPS mu^2 + LCN_FLOOR)`` with
 ``mu`` and ``var`` the masked local mean and variance of the luminance ``L`` over ``window_px``.
 The normalisation is done once per view, before the sweep (:func:`lcn_sources`), so a hypothesis
-only has to shift the views and sum: with S1, S2 the sums over views of the (mask-weighted)
-normalised values and their squares and C the sum of the views' weights,
-``c = (S2 - S1^2 / C) / max(C - 1, 0.5)`` (:func:`lcn_cost`). Dividing by the local mean makes
-it blind to the views' different vignetting and exposure.
+only has to shift the views and sum. With a view's weight ``w`` (its warped mask) and its
+warped value premultiplied by it, ``a = w n``, the sums over views are S1 = sum ``a``,
+S2 = sum ``w n^2`` = sum ``a^2 / w`` (:func:`weighted_square`) and C = sum ``w``, and the cost is
+their weighted variance ``c = (S2 - S1^2 / C) / max(C - 1, 0.5)`` (:func:`lcn_cost`). Dividing
+by the local mean makes it blind to the views' different vignetting and exposure.
+
+S2 weighs each square by ``w``, as S1 and C weigh the values, so that a view that sees a pixel
+only in part (the taper at its disc's rim, a frame edge) adds in part to every sum. Summing
+``a^2`` instead (``w^2 n^2``) made the variance of views that agree negative wherever one
+weighed less than 1, lowest for the hypotheses that put its strongest contrast there: a bias
+along every rim (benchmarks/RESULTS.md, "The 'lcn' cost's squares weighted as its values").
 """
 
 from __future__ import annotations
@@ -22,7 +29,7 @@ from lfring.depth.costs.base import DepthCost
 from lfring.depth.plan import DEPTH_TAPER, sweep_masks
 
 __all__ = ["LCN", "LCN_AGGREGATE_PX", "LCN_EPS", "LCN_FLOOR", "lcn_cost", "lcn_cost_torch", "lcn_slice_cost",
-           "lcn_slice_cost_torch", "lcn_sources", "window_weights"]
+           "lcn_slice_cost_torch", "lcn_sources", "weighted_square", "weighted_square_torch", "window_weights"]
 
 # The default aggregation window of the 'lcn' cost (the other costs aggregate over window_px).
 LCN_AGGREGATE_PX = 15
@@ -80,6 +87,29 @@ def window_weights(calibration, view_shape, window_px: int, taper: float = DEPTH
     )
 
 
+def weighted_square(a: np.ndarray, w: np.ndarray, out: np.ndarray | None = None, scratch: np.ndarray | None = None) -> np.ndarray:
+    """``w n^2`` of a view's warped value premultiplied by its weight (``a = w n``) and its weight
+    ``w``: its term of S2 (see the module's docstring); 0 where ``w`` is 0. With ``out`` and
+    ``scratch`` (float32 arrays of ``a``'s shape) nothing is allocated.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> weighted_square(np.array([0.5, 1.0, 0.0], np.float32), np.array([0.5, 1.0, 0.0], np.float32)).tolist()
+    [0.5, 1.0, 0.0]
+    """
+    if out is None:
+        return np.square(a) / np.maximum(w, np.float32(WEIGHT_FLOOR))
+    cv2.max(w, WEIGHT_FLOOR, dst=scratch)
+    cv2.multiply(a, a, dst=out)
+    return cv2.divide(out, scratch, dst=out)
+
+
+def weighted_square_torch(a, w):
+    """The torch twin of :func:`weighted_square`."""
+    return a * a / w.clamp_min(WEIGHT_FLOOR)
+
+
 def lcn_cost(s1: np.ndarray, s2: np.ndarray, count: np.ndarray) -> np.ndarray:
     """The 'lcn' cost from the sums over views (S1, S2, C; see the module's docstring)."""
     c = s2 - s1 * s1 / np.maximum(count, WEIGHT_FLOOR)
@@ -95,12 +125,12 @@ def lcn_cost_torch(s1, s2, count):
 def lcn_slice_cost(lum_w: np.ndarray, wts: np.ndarray, nview: np.ndarray, window_px: int) -> np.ndarray:
     """The 'lcn' cost of one hypothesis from the warped :func:`lcn_sources` premultiplied by their
     warped masks (V, h, w) (see :class:`lfring.depth.costs.base.DepthCost`)."""
-    return lcn_cost(lum_w.sum(axis=0), np.square(lum_w).sum(axis=0), nview)
+    return lcn_cost(lum_w.sum(axis=0), weighted_square(lum_w, wts).sum(axis=0), nview)
 
 
 def lcn_slice_cost_torch(torch, lum_w, wts, nview, box):
     """The torch twin of :func:`lcn_slice_cost` on chunks (C, V, h, w) -> (C, h, w)."""
-    return lcn_cost_torch(lum_w.sum(dim=1), (lum_w * lum_w).sum(dim=1), nview)
+    return lcn_cost_torch(lum_w.sum(dim=1), weighted_square_torch(lum_w, wts).sum(dim=1), nview)
 
 
 def _sources(views, calibration, plan, window_px: int, threads: int) -> np.ndarray:

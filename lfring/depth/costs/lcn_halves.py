@@ -18,7 +18,7 @@ import numpy as np
 
 from lfring.core.viewstack import WEIGHT_FLOOR
 from lfring.depth.costs.base import compiled_kernels
-from lfring.depth.costs.lcn import LCN, lcn_cost_torch
+from lfring.depth.costs.lcn import LCN, lcn_cost_torch, weighted_square, weighted_square_torch
 from lfring.depth.costs.lcn_occlusion import OCCLUSION_PENALTY
 from lfring.errors import InvalidInputError
 
@@ -126,11 +126,11 @@ def half_aggregate(parts, seen: np.ndarray, box, out: np.ndarray, scratch=None) 
         n_own = kernels.pair_terms(a0, w0, a1, w1, seen, WEIGHT_FLOOR, cost, own)
     else:
         np.copyto(s1, parts[0][0])
-        cv2.multiply(parts[0][0], parts[0][0], dst=s2)
+        np.copyto(s2, weighted_square(*parts[0]))
         np.copyto(count, parts[0][1])
         for a_k, w_k in parts[1:]:
             cv2.add(s1, a_k, dst=s1)
-            cv2.accumulateSquare(a_k, s2)
+            cv2.add(s2, weighted_square(a_k, w_k), dst=s2)
             cv2.add(count, w_k, dst=count)
         n_own = kernels.half_terms(s1, s2, count, seen, WEIGHT_FLOOR, cost, own)
     full = n_own == h * w  # then every window's mean is its box
@@ -204,7 +204,8 @@ def halves_least_torch(torch, lum_w, wts, nview, halves_of, window):
         own = seen & (count >= 1.5)
         support = window(own.to(nview.dtype))
         ok = own & (support >= HALVES_MIN_SUPPORT)
-        cand = window(torch.where(own, lcn_cost_torch(a_h.sum(dim=1), (a_h * a_h).sum(dim=1), count), 0.0))
+        cand = window(torch.where(own, lcn_cost_torch(a_h.sum(dim=1), weighted_square_torch(a_h, w_h).sum(dim=1), count),
+                                  0.0))
         cand = OCCLUSION_PENALTY * cand / torch.where(ok, support, 1.0)
         least = torch.where(ok & (cand < least), cand, least)
     return least

@@ -13,7 +13,7 @@ import numpy as np
 
 from lfring.core.viewstack import WEIGHT_FLOOR
 from lfring.depth.costs.base import compiled_kernels
-from lfring.depth.costs.lcn import LCN, lcn_cost_torch
+from lfring.depth.costs.lcn import LCN, lcn_cost_torch, weighted_square_torch
 
 __all__ = ["LCN_OCCLUSION", "MIN_VIEWS_TO_LEAVE_ONE_OUT", "OCCLUSION_PENALTY", "lcn_leave_one_out", "leavable_views",
            "occlusion_aggregate", "occlusion_aggregate_torch"]
@@ -33,7 +33,8 @@ OCCLUSION_PENALTY = 1.15
 def lcn_leave_one_out(s1: np.ndarray, s2: np.ndarray, count: np.ndarray, a_k: np.ndarray, w_k: np.ndarray,
                       out: np.ndarray | None = None) -> np.ndarray:
     """The 'lcn' cost of the views without view k (:func:`lcn_cost`), from all views' sums (S1,
-    S2, C) and view k's warped value ``a_k`` (premultiplied by its warped mask) and mask ``w_k``,
+    S2, C; :mod:`lfring.depth.costs.lcn`) and view k's warped value ``a_k`` (premultiplied by its
+    warped mask) and mask ``w_k``,
     all (h, w) float32; written into ``out`` when given. The views that remain are ``count - w_k``.
 
     Examples
@@ -105,11 +106,11 @@ def occlusion_aggregate_torch(torch, agg, lum_w, wts, nview, leavable, window, a
     if not leavable:
         return agg
     agg_count = window(nview)
-    s1, s2 = lum_w.sum(dim=1), (lum_w * lum_w).sum(dim=1)
+    s1, s2 = lum_w.sum(dim=1), weighted_square_torch(lum_w, wts).sum(dim=1)
     for k in leavable:
         a_k = lum_w[:, k]
         allowed = agg_count - window(wts[:, k]) > MIN_VIEWS_TO_LEAVE_ONE_OUT - 1.5
-        one = aggregate_cost(lcn_cost_torch(s1 - a_k, s2 - a_k * a_k, nview - wts[:, k]))
+        one = aggregate_cost(lcn_cost_torch(s1 - a_k, s2 - weighted_square_torch(a_k, wts[:, k]), nview - wts[:, k]))
         agg = torch.where(allowed, torch.minimum(agg, OCCLUSION_PENALTY * one), agg)
     return agg
 

@@ -51,18 +51,25 @@ def _scaled(row, s, out):
 
 
 @njit(**INLINE)
-def _sums_first(v, wt, s1, s2, cn):
+def _weighted_square(v, g, floor):
+    """A view's term of the sum of squares: its value ``v`` (premultiplied by its weight ``g``)
+    squared over ``g`` (:func:`lfring.depth.costs.lcn.weighted_square`)."""
+    return (v * v) / (g if g > floor else floor)
+
+
+@njit(**INLINE)
+def _sums_first(v, wt, floor, s1, s2, cn):
     for x in range(v.shape[0]):
         s1[x] = v[x]
-        s2[x] = v[x] * v[x]
+        s2[x] = _weighted_square(v[x], wt[x], floor)
         cn[x] = wt[x]
 
 
 @njit(**INLINE)
-def _sums_add(v, wt, s1, s2, cn):
+def _sums_add(v, wt, floor, s1, s2, cn):
     for x in range(v.shape[0]):
         s1[x] += v[x]
-        s2[x] += v[x] * v[x]
+        s2[x] += _weighted_square(v[x], wt[x], floor)
         cn[x] += wt[x]
 
 
@@ -94,13 +101,6 @@ def _rounded(product):
     return abs(product)
 
 
-@njit(**INLINE)
-def _two_squares(v0, v1):
-    """v0 v0 + v1 v1 rounded as the sums one view at a time round it: the first product
-    rounded, the second fused into the sum."""
-    return _rounded(v0 * v0) + v1 * v1
-
-
 @njit(**JIT)
 def _lcn_two(a0, a1, w0, w1, floor, seen_in, cn, t, seen):
     """:func:`_lcn_row` of the sums of two views' values and weights, in one pass (the same
@@ -108,16 +108,21 @@ def _lcn_two(a0, a1, w0, w1, floor, seen_in, cn, t, seen):
     for x in range(t.shape[0]):
         v0 = a0[x]
         v1 = a1[x]
-        c = w0[x] + w1[x]
+        g0 = w0[x]
+        g1 = w1[x]
+        c = g0 + g1
         cn[x] = c
-        t[x], seen[x] = _lcn(v0 + v1, _two_squares(v0, v1), c, floor, seen_in[x])
+        t[x], seen[x] = _lcn(v0 + v1, _weighted_square(v0, g0, floor) + _weighted_square(v1, g1, floor), c, floor,
+                             seen_in[x])
 
 
 @njit(**INLINE)
-def _lcn_of_four(v0, v1, v2, v3, c, floor, seen_in):
-    """:func:`_lcn` of four views' values at a pixel (weights' sum ``c``), summed in the floats
-    of :func:`_sums_first` and :func:`_sums_add`."""
-    return _lcn(v0 + v1 + v2 + v3, _two_squares(v0, v1) + v2 * v2 + v3 * v3, c, floor, seen_in)
+def _lcn_of_four(v0, v1, v2, v3, g0, g1, g2, g3, c, floor, seen_in):
+    """:func:`_lcn` of four views' values at a pixel (weights ``g0`` .. ``g3``, their sum ``c``),
+    summed in the floats of :func:`_sums_first` and :func:`_sums_add`."""
+    s2 = ((_weighted_square(v0, g0, floor) + _weighted_square(v1, g1, floor)) + _weighted_square(v2, g2, floor)) \
+        + _weighted_square(v3, g3, floor)
+    return _lcn(v0 + v1 + v2 + v3, s2, c, floor, seen_in)
 
 
 @njit(**INLINE)
@@ -252,11 +257,15 @@ def _all_terms_valid_four(src, edge_y, edge_x, iy, ix, fy, fx, pad, y, d, views,
     e0, e1, e2, e3 = edge_y[d, k0, y], edge_y[d, k1, y], edge_y[d, k2, y], edge_y[d, k3, y]
     x0, x1, x2, x3 = edge_x[d, k0], edge_x[d, k1], edge_x[d, k2], edge_x[d, k3]
     for x in range(w):
-        c = _rounded(e0 * x0[x]) + _rounded(e1 * x1[x]) + _rounded(e2 * x2[x]) + _rounded(e3 * x3[x])
+        g0 = _rounded(e0 * x0[x])
+        g1 = _rounded(e1 * x1[x])
+        g2 = _rounded(e2 * x2[x])
+        g3 = _rounded(e3 * x3[x])
+        c = g0 + g1 + g2 + g3
         cn[x] = c
         t[x], seen[x] = _lcn_of_four(_sample(u0, l0, p0, q0, a0, b0, x), _sample(u1, l1, p1, q1, a1, b1, x),
-                                     _sample(u2, l2, p2, q2, a2, b2, x), _sample(u3, l3, p3, q3, a3, b3, x), c, floor,
-                                     ones[x])
+                                     _sample(u2, l2, p2, q2, a2, b2, x), _sample(u3, l3, p3, q3, a3, b3, x),
+                                     g0, g1, g2, g3, c, floor, ones[x])
 
 
 @njit(**INLINE)
@@ -298,7 +307,7 @@ def _all_terms_masked_four(src, msk, ones_lo, ones_hi, iy, ix, fy, fx, pad, y, d
         g3 = _mask_weight(mu3, ml3, lo3, hi3, p3, q3, a3, b3, x)
         c = g0 + g1 + g2 + g3
         cn[x] = c
-        t[x], seen[x] = _lcn_of_four(v0, v1, v2, v3, c, floor, ones[x])
+        t[x], seen[x] = _lcn_of_four(v0, v1, v2, v3, g0, g1, g2, g3, c, floor, ones[x])
 
 
 @njit(**JIT)
@@ -309,9 +318,9 @@ def _all_terms(a_buf, w_buf, floor, ones, s1, s2, cn, t, seen):
     if a_buf.shape[0] == 2:
         _lcn_two(a_buf[0], a_buf[1], w_buf[0], w_buf[1], floor, ones, cn, t, seen)
         return
-    _sums_first(a_buf[0], w_buf[0], s1, s2, cn)
+    _sums_first(a_buf[0], w_buf[0], floor, s1, s2, cn)
     for j in range(1, a_buf.shape[0]):
-        _sums_add(a_buf[j], w_buf[j], s1, s2, cn)
+        _sums_add(a_buf[j], w_buf[j], floor, s1, s2, cn)
     _lcn_row(s1, s2, cn, floor, ones, t, seen)
 
 
@@ -338,10 +347,10 @@ def _half_terms(a_buf, w_buf, halves, half_ptr, h_i, floor, seen, s1, s2, cn, hc
     """The 'lcn' cost ``hc`` of the half ``h_i`` of the views and its flags ``ho`` (where
     ``seen`` too), one view at a time."""
     j0 = halves[half_ptr[h_i]]
-    _sums_first(a_buf[j0], w_buf[j0], s1, s2, cn)
+    _sums_first(a_buf[j0], w_buf[j0], floor, s1, s2, cn)
     for q_i in range(half_ptr[h_i] + 1, half_ptr[h_i + 1]):
         j = halves[q_i]
-        _sums_add(a_buf[j], w_buf[j], s1, s2, cn)
+        _sums_add(a_buf[j], w_buf[j], floor, s1, s2, cn)
     _lcn_row(s1, s2, cn, floor, seen, hc, ho)
 
 

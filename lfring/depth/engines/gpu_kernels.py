@@ -65,7 +65,8 @@ def lcn_kernel(src_ptr, msk_ptr, hinv_ptr, cost_ptr, seen_ptr, nv_ptr, n_views, 
     """The 'lcn' cost of the views in ``members`` (a bit per view) at hypotheses ``d0`` ..
     ``d0 + n_chunk``: ``(S2 - S1^2 / C) / max(C - 1, 0.5)`` of their warped sources and masks
     (:func:`lfring.depth.costs.lcn.lcn_cost`) into ``cost`` (n_chunk, h, w), where all views
-    together weigh 1.5 or more and so do the members (``seen`` 1, else 0 and a cost of 0). With
+    together weigh 1.5 or more and so do the members (``seen`` 1, else 0 and a cost of 0); S2 sums
+    each member's square over its weight (:func:`lfring.depth.costs.lcn.weighted_square`). With
     ``WRITE_NV``: ``nv`` (h, w) = the most the views weigh over these hypotheses and ``nv``'s
     value before."""
     pid = tl.program_id(0)
@@ -89,7 +90,7 @@ def lcn_kernel(src_ptr, msk_ptr, hinv_ptr, cost_ptr, seen_ptr, nv_ptr, n_views, 
             if ((members >> k) & 1) != 0:
                 a = sample(src_ptr + tl.cast(k, tl.int64) * hw, o00, m00, m01, m10, m11, fx, fy, w)
                 s1 += a
-                s2 += a * a
+                s2 += a * a / tl.maximum(m, floor)  # w n^2 (lfring.depth.costs.lcn.weighted_square)
                 cn += m
         cost = s2 - s1 * s1 / tl.maximum(cn, floor)
         cost = cost / tl.maximum(cn - 1.0, 0.5)

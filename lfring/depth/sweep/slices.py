@@ -17,6 +17,7 @@ from lfring.core.viewstack import WEIGHT_FLOOR
 from lfring.core.warping import warp_image
 from lfring.depth.aggregation import AGGREGATIONS, GUIDED_EPS, GuidedTorch, aggregate, aggregation_window
 from lfring.depth.costs import as_cost
+from lfring.depth.costs.lcn import weighted_square
 from lfring.depth.costs.lcn_halves import checked_halves, half_aggregate, halves_least_torch
 from lfring.depth.costs.lcn_occlusion import lcn_leave_one_out, leavable_views, occlusion_aggregate, occlusion_aggregate_torch
 from lfring.depth.selection import RunningMinimum, RunningMinimumTorch
@@ -81,7 +82,7 @@ def sweep_slices(lum, masks, hs, cost, window_px, guide, exclude=1, aggregate_px
         c = cost.slice_cost(lum_w, wts, nv, window_px)
         agg = aggregate(c, nv, guide, aggregate_px)
         if leavable:
-            s1, s2 = lum_w.sum(axis=0), np.square(lum_w).sum(axis=0)
+            s1, s2 = lum_w.sum(axis=0), weighted_square(lum_w, wts).sum(axis=0)
             occlusion_aggregate(agg, nv, ((lcn_leave_one_out(s1, s2, nv, lum_w[k], wts[k]), wts[k]) for k in leavable),
                                 lambda one: aggregate(one, nv, guide, aggregate_px), window)
         if halves_of:

@@ -21,6 +21,7 @@ from lfring.core.shift import ShiftEngine
 from lfring.core.threads import STRIP_PIXELS, run_threads
 from lfring.core.viewstack import WEIGHT_FLOOR
 from lfring.core.warping import translations
+from lfring.depth.costs.lcn import weighted_square
 from lfring.depth.costs.lcn_halves import checked_halves, half_aggregate
 from lfring.depth.costs.lcn_occlusion import lcn_leave_one_out, leavable_views, occlusion_aggregate
 from lfring.depth.selection import RunningMinimum
@@ -124,7 +125,7 @@ def sweep_strips(sources: np.ndarray, masks: np.ndarray, hs: np.ndarray, *, aggr
         static = [k for k in range(v) if identity[k]]
         base = None
         if static:
-            base = (sum(weighted[k][q0:q1] for k in static), sum(weighted[k][q0:q1] ** 2 for k in static),
+            base = (sum(weighted[k][q0:q1] for k in static), sum(weighted_square(weighted[k][q0:q1], masks[k][q0:q1]) for k in static),
                     sum(masks[k][q0:q1] for k in static))
         run = RunningMinimum((m, w), exclude) if volume is None else None
         missing = np.full((m, w), np.inf, np.float32)
@@ -145,19 +146,20 @@ def sweep_strips(sources: np.ndarray, masks: np.ndarray, hs: np.ndarray, *, aggr
                     flags = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
                     a = cv2.warpPerspective(weighted[k], g, (w, big), dst=a_buf, flags=flags, borderMode=cv2.BORDER_CONSTANT)
                     wt = cv2.warpPerspective(masks[k], g, (w, big), dst=wt_buf, flags=flags, borderMode=cv2.BORDER_CONSTANT)
+                sq = weighted_square(a, wt, t, agg)  # t and agg are free until the sums are done
                 if first and base is not None:  # the views that do not move start the sums
                     cv2.add(base[0], a, dst=s1)
-                    cv2.add(base[1], cv2.multiply(a, a, dst=s2), dst=s2)
+                    cv2.add(base[1], sq, dst=s2)
                     cv2.add(base[2], wt, dst=cnt)
                     first = False
                 elif first:
                     np.copyto(s1, a)
-                    cv2.multiply(a, a, dst=s2)
+                    np.copyto(s2, sq)
                     np.copyto(cnt, wt)
                     first = False
                 else:
                     cv2.add(s1, a, dst=s1)
-                    cv2.accumulateSquare(a, s2)
+                    cv2.add(s2, sq, dst=s2)
                     cv2.add(cnt, wt, dst=cnt)
                 if keep:
                     rendered[k] = (a, wt)
