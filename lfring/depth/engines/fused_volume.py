@@ -243,29 +243,98 @@ def _sample(s0, s1, p, q, a, b, x):
     return a * (p * s0[x] + q * s1[x]) + b * (p * s0[x + 1] + q * s1[x + 1])
 
 
-@njit(**JIT)
-def _all_terms_valid_four(src, edge_y, edge_x, iy, ix, fy, fx, pad, y, d, views, floor, ones, cn, t, seen):
-    """:func:`_view_span` and :func:`_all_terms` of four all-valid views in one pass: each view's
-    sample and edge weight made where the sums take them rather than written to rows first (the
-    same floats)."""
-    w = t.shape[0]
-    k0, k1, k2, k3 = views[0], views[1], views[2], views[3]
-    u0, l0, _, _, p0, q0, a0, b0 = _view_taps(src, iy, ix, fy, fx, pad, y, d, k0, 0, w)
-    u1, l1, _, _, p1, q1, a1, b1 = _view_taps(src, iy, ix, fy, fx, pad, y, d, k1, 0, w)
-    u2, l2, _, _, p2, q2, a2, b2 = _view_taps(src, iy, ix, fy, fx, pad, y, d, k2, 0, w)
-    u3, l3, _, _, p3, q3, a3, b3 = _view_taps(src, iy, ix, fy, fx, pad, y, d, k3, 0, w)
-    e0, e1, e2, e3 = edge_y[d, k0, y], edge_y[d, k1, y], edge_y[d, k2, y], edge_y[d, k3, y]
-    x0, x1, x2, x3 = edge_x[d, k0], edge_x[d, k1], edge_x[d, k2], edge_x[d, k3]
-    for x in range(w):
+@njit(**INLINE)
+def _lcn_of_four_whole(v0, v1, v2, v3, floor, seen_in):
+    """:func:`_lcn_of_four` where every weight is 1 (a square over a weight of 1 is the square):
+    the first square rounded, the others fused into the sum."""
+    s2 = _rounded(v0 * v0) + v1 * v1 + v2 * v2 + v3 * v3
+    return _lcn(v0 + v1 + v2 + v3, s2, np.float32(4.0), floor, seen_in)
+
+
+@njit(**INLINE)
+def _ones_of(row, w):
+    """The columns lo..hi of a view's edge weights ``row`` (1 inside, falling at the frame's
+    edges) that are 1."""
+    lo = 0
+    while lo < w and row[lo] != np.float32(1.0):
+        lo += 1
+    hi = w
+    while hi > lo and row[hi - 1] != np.float32(1.0):
+        hi -= 1
+    return lo, hi
+
+
+@njit(**INLINE)
+def _taps_from(tap, o, e):
+    """A view's taps (:func:`_view_taps`' rows and weights) for the columns o..e."""
+    u, l, p, q, a, b = tap
+    return u[o:e + 1], l[o:e + 1], p, q, a, b
+
+
+@njit(**INLINE)
+def _sample_tap(tap, x):
+    u, l, p, q, a, b = tap
+    return _sample(u, l, p, q, a, b, x)
+
+
+@njit(**INLINE)
+def _whole_four(t0, t1, t2, t3, floor, ones, cn, t, seen):
+    """The terms of four views (taps ``t0`` .. ``t3``) that all weigh 1 at every column of these
+    (sliced) rows."""
+    for x in range(t.shape[0]):
+        cn[x] = np.float32(4.0)
+        t[x], seen[x] = _lcn_of_four_whole(_sample_tap(t0, x), _sample_tap(t1, x), _sample_tap(t2, x),
+                                           _sample_tap(t3, x), floor, ones[x])
+
+
+@njit(**INLINE)
+def _valid_four_span(t0, t1, t2, t3, es, xs, floor, ones, cn, t, seen):
+    """The terms of four all-valid views over these (sliced) rows, each weight its edge weight:
+    ``es`` the four row weights, ``xs`` the four column weights' rows."""
+    e0, e1, e2, e3 = es
+    x0, x1, x2, x3 = xs
+    for x in range(t.shape[0]):
         g0 = _rounded(e0 * x0[x])
         g1 = _rounded(e1 * x1[x])
         g2 = _rounded(e2 * x2[x])
         g3 = _rounded(e3 * x3[x])
         c = g0 + g1 + g2 + g3
         cn[x] = c
-        t[x], seen[x] = _lcn_of_four(_sample(u0, l0, p0, q0, a0, b0, x), _sample(u1, l1, p1, q1, a1, b1, x),
-                                     _sample(u2, l2, p2, q2, a2, b2, x), _sample(u3, l3, p3, q3, a3, b3, x),
+        t[x], seen[x] = _lcn_of_four(_sample_tap(t0, x), _sample_tap(t1, x), _sample_tap(t2, x), _sample_tap(t3, x),
                                      g0, g1, g2, g3, c, floor, ones[x])
+
+
+@njit(**JIT)
+def _all_terms_valid_four(src, edge_y, edge_x, iy, ix, fy, fx, pad, y, d, views, floor, ones, cn, t, seen):
+    """:func:`_view_span` and :func:`_all_terms` of four all-valid views in one pass: each view's
+    sample and edge weight made where the sums take them rather than written to rows first (the
+    same floats). Where every view weighs 1 (all but the frame's edges) no weight is divided by."""
+    w = t.shape[0]
+    k0, k1, k2, k3 = views[0], views[1], views[2], views[3]
+    u0, l0, _, _, p0, q0, a0, b0 = _view_taps(src, iy, ix, fy, fx, pad, y, d, k0, 0, w)
+    u1, l1, _, _, p1, q1, a1, b1 = _view_taps(src, iy, ix, fy, fx, pad, y, d, k1, 0, w)
+    u2, l2, _, _, p2, q2, a2, b2 = _view_taps(src, iy, ix, fy, fx, pad, y, d, k2, 0, w)
+    u3, l3, _, _, p3, q3, a3, b3 = _view_taps(src, iy, ix, fy, fx, pad, y, d, k3, 0, w)
+    taps = ((u0, l0, p0, q0, a0, b0), (u1, l1, p1, q1, a1, b1), (u2, l2, p2, q2, a2, b2), (u3, l3, p3, q3, a3, b3))
+    es = (edge_y[d, k0, y], edge_y[d, k1, y], edge_y[d, k2, y], edge_y[d, k3, y])
+    x0, x1, x2, x3 = edge_x[d, k0], edge_x[d, k1], edge_x[d, k2], edge_x[d, k3]
+    lo, hi = 0, 0
+    if (es[0] == np.float32(1.0)) & (es[1] == np.float32(1.0)) & (es[2] == np.float32(1.0)) & (es[3] == np.float32(1.0)):
+        lo, hi = _ones_of(x0, w)
+        lo1, hi1 = _ones_of(x1, w)
+        lo2, hi2 = _ones_of(x2, w)
+        lo3, hi3 = _ones_of(x3, w)
+        lo = max(max(lo, lo1), max(lo2, lo3))
+        hi = max(min(min(hi, hi1), min(hi2, hi3)), lo)
+    for part in range(2):  # the columns before the run and after it
+        o, e = (0, lo) if part == 0 else (hi, w)
+        if e > o:
+            _valid_four_span(_taps_from(taps[0], o, e), _taps_from(taps[1], o, e), _taps_from(taps[2], o, e),
+                             _taps_from(taps[3], o, e), es, (x0[o:e], x1[o:e], x2[o:e], x3[o:e]), floor, ones[o:e],
+                             cn[o:e], t[o:e], seen[o:e])
+    if hi > lo:
+        _whole_four(_taps_from(taps[0], lo, hi), _taps_from(taps[1], lo, hi), _taps_from(taps[2], lo, hi),
+                    _taps_from(taps[3], lo, hi), floor, ones[lo:hi], cn[lo:hi], t[lo:hi], seen[lo:hi])
 
 
 @njit(**INLINE)
@@ -283,10 +352,40 @@ def _mask_weight(mu, ml, lo, hi, p, q, a, b, x):
     return np.float32(1.0) if lo <= x < hi else _sample(mu, ml, p, q, a, b, x)
 
 
+@njit(**INLINE)
+def _mask_weight_of(mask, x):
+    """:func:`_mask_weight` of a view's mask taps (rows, run of ones lo..hi) and tap weights."""
+    mu, ml, lo, hi, p, q, a, b = mask
+    return _mask_weight(mu, ml, lo, hi, p, q, a, b, x)
+
+
+@njit(**INLINE)
+def _masks_from(mask, o, e):
+    """A view's mask taps for the columns o..e (its run of ones counted from o)."""
+    mu, ml, lo, hi, p, q, a, b = mask
+    return mu[o:e + 1], ml[o:e + 1], lo - o, hi - o, p, q, a, b
+
+
+@njit(**INLINE)
+def _masked_four_span(t0, t1, t2, t3, m0, m1, m2, m3, floor, ones, cn, t, seen):
+    """The terms of four views with masks over these (sliced) rows, each weight its bilinear mask
+    (``m0`` .. ``m3``: 1 inside its run of ones)."""
+    for x in range(t.shape[0]):
+        g0 = _mask_weight_of(m0, x)
+        g1 = _mask_weight_of(m1, x)
+        g2 = _mask_weight_of(m2, x)
+        g3 = _mask_weight_of(m3, x)
+        c = g0 + g1 + g2 + g3
+        cn[x] = c
+        t[x], seen[x] = _lcn_of_four(_sample_tap(t0, x), _sample_tap(t1, x), _sample_tap(t2, x), _sample_tap(t3, x),
+                                     g0, g1, g2, g3, c, floor, ones[x])
+
+
 @njit(**JIT)
 def _all_terms_masked_four(src, msk, ones_lo, ones_hi, iy, ix, fy, fx, pad, y, d, views, floor, ones, cn, t, seen):
     """:func:`_all_terms_valid_four` for four views with masks: each view's weight its bilinear
-    mask (:func:`_weights`), made where the sums take it (the same floats)."""
+    mask (:func:`_weights`), made where the sums take it (the same floats). Where all four runs
+    of ones overlap no weight is divided by."""
     w = t.shape[0]
     u0, l0, r0, c0, p0, q0, a0, b0 = _view_taps(src, iy, ix, fy, fx, pad, y, d, views[0], 0, w)
     u1, l1, r1, c1, p1, q1, a1, b1 = _view_taps(src, iy, ix, fy, fx, pad, y, d, views[1], 0, w)
@@ -296,18 +395,21 @@ def _all_terms_masked_four(src, msk, ones_lo, ones_hi, iy, ix, fy, fx, pad, y, d
     mu1, ml1, lo1, hi1 = _mask_taps(msk, ones_lo, ones_hi, views[1], r1, c1, w)
     mu2, ml2, lo2, hi2 = _mask_taps(msk, ones_lo, ones_hi, views[2], r2, c2, w)
     mu3, ml3, lo3, hi3 = _mask_taps(msk, ones_lo, ones_hi, views[3], r3, c3, w)
-    for x in range(w):
-        v0 = _sample(u0, l0, p0, q0, a0, b0, x)
-        v1 = _sample(u1, l1, p1, q1, a1, b1, x)
-        v2 = _sample(u2, l2, p2, q2, a2, b2, x)
-        v3 = _sample(u3, l3, p3, q3, a3, b3, x)
-        g0 = _mask_weight(mu0, ml0, lo0, hi0, p0, q0, a0, b0, x)
-        g1 = _mask_weight(mu1, ml1, lo1, hi1, p1, q1, a1, b1, x)
-        g2 = _mask_weight(mu2, ml2, lo2, hi2, p2, q2, a2, b2, x)
-        g3 = _mask_weight(mu3, ml3, lo3, hi3, p3, q3, a3, b3, x)
-        c = g0 + g1 + g2 + g3
-        cn[x] = c
-        t[x], seen[x] = _lcn_of_four(v0, v1, v2, v3, g0, g1, g2, g3, c, floor, ones[x])
+    taps = ((u0, l0, p0, q0, a0, b0), (u1, l1, p1, q1, a1, b1), (u2, l2, p2, q2, a2, b2), (u3, l3, p3, q3, a3, b3))
+    masks = ((mu0, ml0, lo0, hi0, p0, q0, a0, b0), (mu1, ml1, lo1, hi1, p1, q1, a1, b1),
+             (mu2, ml2, lo2, hi2, p2, q2, a2, b2), (mu3, ml3, lo3, hi3, p3, q3, a3, b3))
+    lo = max(max(lo0, lo1), max(lo2, lo3))
+    hi = max(min(min(hi0, hi1), min(hi2, hi3)), lo)
+    for part in range(2):  # the columns before the run and after it
+        o, e = (0, lo) if part == 0 else (hi, w)
+        if e > o:
+            _masked_four_span(_taps_from(taps[0], o, e), _taps_from(taps[1], o, e), _taps_from(taps[2], o, e),
+                              _taps_from(taps[3], o, e), _masks_from(masks[0], o, e), _masks_from(masks[1], o, e),
+                              _masks_from(masks[2], o, e), _masks_from(masks[3], o, e), floor, ones[o:e], cn[o:e],
+                              t[o:e], seen[o:e])
+    if hi > lo:
+        _whole_four(_taps_from(taps[0], lo, hi), _taps_from(taps[1], lo, hi), _taps_from(taps[2], lo, hi),
+                    _taps_from(taps[3], lo, hi), floor, ones[lo:hi], cn[lo:hi], t[lo:hi], seen[lo:hi])
 
 
 @njit(**JIT)

@@ -146,20 +146,23 @@ def sweep_strips(sources: np.ndarray, masks: np.ndarray, hs: np.ndarray, *, aggr
                     flags = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
                     a = cv2.warpPerspective(weighted[k], g, (w, big), dst=a_buf, flags=flags, borderMode=cv2.BORDER_CONSTANT)
                     wt = cv2.warpPerspective(masks[k], g, (w, big), dst=wt_buf, flags=flags, borderMode=cv2.BORDER_CONSTANT)
-                sq = weighted_square(a, wt, t, agg)  # t and agg are free until the sums are done
+                # S2's term a^2 / max(w, floor) (weighted_square), as a times a / max(w, floor):
+                # t and agg are free until the sums are done.
+                n_k = cv2.divide(a, cv2.max(wt, WEIGHT_FLOOR, dst=agg), dst=t)
                 if first and base is not None:  # the views that do not move start the sums
                     cv2.add(base[0], a, dst=s1)
-                    cv2.add(base[1], sq, dst=s2)
+                    np.copyto(s2, base[1])
+                    cv2.accumulateProduct(a, n_k, s2)
                     cv2.add(base[2], wt, dst=cnt)
                     first = False
                 elif first:
                     np.copyto(s1, a)
-                    np.copyto(s2, sq)
+                    cv2.multiply(a, n_k, dst=s2)
                     np.copyto(cnt, wt)
                     first = False
                 else:
                     cv2.add(s1, a, dst=s1)
-                    cv2.add(s2, sq, dst=s2)
+                    cv2.accumulateProduct(a, n_k, s2)
                     cv2.add(cnt, wt, dst=cnt)
                 if keep:
                     rendered[k] = (a, wt)
