@@ -143,11 +143,11 @@ def test_a_view_that_weighs_less_than_one_adds_its_square_in_part_as_its_value()
     """The 'lcn' cost is the weighted variance of the views' normalised values: views that agree
     cost nothing whatever their weights (a view at its disc's rim weighs less than 1), and two
     values 1 and 3 weighing 1 and 0.5 give sum w (n - mean)^2 / max(C - 1, 0.5) = (4/9 + 8/9) / 0.5.
-    Every implementation of the sums: the slice cost, the leave-one-out and pair kernels, and the
-    fused engine's four-view and pair terms."""
+    The slice cost, the leave-one-out and pair kernels, and the fused engine's four-view and pair
+    terms (the fused engine's four-view row kernels against its general one: the next test)."""
     from lfring.core.viewstack import WEIGHT_FLOOR
     from lfring.depth.costs.base import compiled_kernels
-    from lfring.depth.costs.lcn import lcn_slice_cost
+    from lfring.depth.costs.lcn import lcn_slice_cost, weighted_square
     from lfring.depth.costs.lcn_occlusion import lcn_leave_one_out
     from lfring.depth.engines import fused_volume
 
@@ -161,10 +161,10 @@ def test_a_view_that_weighs_less_than_one_adds_its_square_in_part_as_its_value()
     np.testing.assert_allclose(lcn_slice_cost(agree, w, w.sum(axis=0), 9), 0.0, atol=1e-6)
     two_w, two = stack([1.0, 0.5]), stack([1.0, 1.5])  # n = 1 and 3
     np.testing.assert_allclose(lcn_slice_cost(two, two_w, two_w.sum(axis=0), 9), (4 / 9 + 8 / 9) / 0.5, rtol=1e-6)
-    # Leave the one that disagrees (n = 5, weight 1) out of three that agree, one at weight 0.5.
-    w4 = stack([1.0, 1.0, 0.5, 1.0])
+    # Leave the one that disagrees (n = 5, at weight 0.5) out of three that agree, one at weight 0.5.
+    w4 = stack([1.0, 1.0, 0.5, 0.5])
     a4 = np.concatenate([2.0 * w4[:3], 5.0 * w4[3:]])
-    s2 = (a4 * a4 / w4).sum(axis=0)
+    s2 = weighted_square(a4, w4).sum(axis=0)
     np.testing.assert_allclose(lcn_leave_one_out(a4.sum(axis=0), s2, w4.sum(axis=0), a4[3], w4[3]), 0.0, atol=1e-6)
     cost, own = np.empty((1, 3), np.float32), np.empty((1, 3), np.float32)
     seen = np.ones((1, 3), bool)
@@ -188,3 +188,79 @@ def test_the_torch_twin_weighs_the_squares_as_the_numpy_cost():
     want = lcn_slice_cost(a, w, w.sum(axis=0), 9)
     got = lcn_slice_cost_torch(torch, torch.from_numpy(a)[None], torch.from_numpy(w)[None], torch.from_numpy(w.sum(axis=0))[None], None)
     np.testing.assert_allclose(got[0].numpy(), want, rtol=1e-5, atol=1e-6)
+
+
+@pytest.mark.parametrize("all_valid", [True, False])
+def test_the_four_view_row_kernels_sum_as_the_general_one(all_valid):
+    """The fused engine's four-view row kernels skip the divisions where every view weighs 1 (and,
+    for all-valid views, 0) and divide only elsewhere: their costs, flags and weights' sums are
+    the general kernel's (every view's row sampled, then summed one view at a time, every square
+    divided by its weight) up to rounding, on random shifts that put views partly outside the
+    frame, and masks whose runs of ones start at the first column, end at the last, are empty or
+    do not overlap, with tapered rims."""
+    from lfring.core.viewstack import WEIGHT_FLOOR
+    from lfring.depth.engines import fused, fused_volume
+
+    rng = np.random.default_rng(11)
+    v, h, w, n, pad = 4, 24, 300, 5, 12
+    hp, wp = h + 2 * pad + 1, w + 2 * pad + 1
+    src = np.zeros((v, hp, wp), np.float32)
+    src[:, pad:pad + h, pad:pad + w] = rng.normal(size=(v, h, w)).astype(np.float32)
+    shifts = rng.uniform(-pad + 1.5, pad - 1.5, (n, v, 2))
+    shifts[0, :, :] = np.round(shifts[0])  # whole-pixel shifts too
+    iy = np.floor(shifts[..., 1]).astype(np.int64)
+    ix = np.floor(shifts[..., 0]).astype(np.int64)
+    fy = (shifts[..., 1] - iy).astype(np.float32)
+    fx = (shifts[..., 0] - ix).astype(np.float32)
+    if all_valid:
+        msk = src
+        edge_y, edge_x = fused._edges(shifts[..., 1], h), fused._edges(shifts[..., 0], w)
+        ones_lo, ones_hi = fused._runs_of_ones(edge_x)
+    else:
+        msk = np.zeros((v, hp, wp), np.float32)
+        for k in range(v):
+            for r in range(pad, pad + h):
+                lo, hi = sorted(rng.integers(pad - 3, pad + w + 3, 2))
+                kind = rng.integers(5)
+                if kind == 0:
+                    lo = pad  # the run from the first column
+                elif kind == 1:
+                    hi = pad + w  # to the last
+                elif kind == 2:
+                    hi = lo  # none
+                msk[k, r, lo:hi] = 1.0
+                for j in range(1, 4):  # tapered rims
+                    if lo - j >= 0:
+                        msk[k, r, lo - j] = 1.0 - j / 4
+                    if hi - 1 + j < wp:
+                        msk[k, r, hi - 1 + j] = 1.0 - j / 4
+            msk[k, :, :pad] = msk[k, :, pad + w:] = 0.0
+        src = src * msk
+        edge_y = edge_x = np.zeros((1, 1, 1), np.float32)
+        ones_lo, ones_hi = fused._runs_of_ones(msk)
+    views = np.arange(v, dtype=np.int64)
+    floor = np.float32(WEIGHT_FLOOR)
+    ones = np.ones(w, np.float32)
+    t = np.empty(w + 1, np.float32)
+    a_buf, w_buf = np.empty((v, w), np.float32), np.empty((v, w), np.float32)
+    s1, s2, cn = (np.empty(w, np.float32) for _ in range(3))
+    kernel = fused_volume._all_terms_valid_four if all_valid else fused_volume._all_terms_masked_four
+    tested = 0
+    for d in range(n):
+        for y in range(h):
+            want_t, want_seen = np.empty(w, np.float32), np.empty(w, np.float32)
+            fused_volume._view_span(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, y, d, views,
+                                    0, w, 0, t, a_buf, w_buf)
+            fused_volume._all_terms(a_buf, w_buf, floor, ones, s1, s2, cn, want_t, want_seen)
+            want_cn = cn.copy()
+            got_t, got_seen, got_cn = (np.full(w, np.nan, np.float32) for _ in range(3))
+            if all_valid:
+                kernel(src, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, y, d, views, floor, ones, got_cn, got_t,
+                       got_seen)
+            else:
+                kernel(src, msk, ones_lo, ones_hi, iy, ix, fy, fx, pad, y, d, views, floor, ones, got_cn, got_t, got_seen)
+            np.testing.assert_array_equal(got_seen, want_seen)
+            np.testing.assert_array_equal(got_cn, want_cn)
+            np.testing.assert_allclose(got_t, want_t, rtol=1e-5, atol=1e-5)
+            tested += int((want_seen > 0).sum())
+    assert tested > 0.3 * n * h * w  # most columns carry a cost: the comparison means something

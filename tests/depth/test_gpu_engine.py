@@ -53,8 +53,11 @@ def _agreement(a, b, field="depth_m"):
 def test_semi_global_matches_the_cpu_engines(small_twin, views_of, kernel_device):
     """The default 'sgm' settings on the GPU path (four views; a pair with its left-right check):
     depth, confidence and filled map as the float32 reference's (the same method) within the
-    torch parity tests' tolerances, and as the CPU default's (its 16-bit fused passes) within
-    those of test_semiglobal.py; the maps defined on the same pixels."""
+    torch parity tests' tolerances; for four views also as the CPU default's (its 16-bit fused
+    passes) within those of test_semiglobal.py; the maps defined on the same pixels. The pair at
+    this size keeps about 250 pixels after its left-right check, and its filled map spreads
+    them: one of them decided otherwise by the 16-bit cost moves a large part of the filled map
+    (against the CPU default: 90 % within 2 %, while the GPU path equals the reference)."""
     views, cal = small_twin
     if views_of == "pair":
         views, cal = views[:2], cal.select_views([0, 1])

@@ -63,9 +63,10 @@ def test_strips_equal_whole_slices(prototype, reference, warp, cost):
             fin = same & np.isfinite(x)
             if warp == "translation":
                 np.testing.assert_allclose(g[fin], x[fin], rtol=1e-3, atol=1e-4)
-            else:  # see the docstring: a pixel or so at a rim may differ more
+            else:  # see the docstring: a pixel or so at a rim may differ more, but not by half
                 close = np.abs(g[fin] - x[fin]) <= 1e-4 + 1e-3 * np.abs(x[fin])
                 assert close.mean() >= 0.9999, (close.mean(), (~close).sum())
+                np.testing.assert_allclose(g[fin], x[fin], rtol=0.5, atol=1e-4)
         np.testing.assert_allclose(got[5], want[5], atol=1e-4)
     # The whole volume instead of the running minimum: the same best hypothesis and costs.
     volume = np.empty((len(hs), h, w), np.float32)
@@ -78,6 +79,7 @@ def test_strips_equal_whole_slices(prototype, reference, warp, cost):
     g, x = np.take_along_axis(volume, best[None], 0)[0][ok], want[1][ok]
     close = np.abs(g - x) <= 1e-4 + 1e-3 * np.abs(x)
     assert close.mean() >= (1.0 if warp == "translation" else 0.9999), (close.mean(), (~close).sum())
+    np.testing.assert_allclose(g, x, rtol=0.5, atol=1e-4)
 
 
 def test_the_reference_frame_image_is_the_views_warped_mean_on_any_number_of_threads():

@@ -19,7 +19,7 @@ _JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")  # nump
 
 @njit(**_JIT)
 def leave_one_out(s1, s2, count, a_k, w_k, floor, out):
-    """``out = lcn_cost(S1 - a_k, S2 - a_k^2 / w_k, C - w_k)``, per pixel."""
+    """``out = lcn_cost(S1 - a_k, S2 - a_k^2 / max(w_k, floor), C - w_k)``, per pixel."""
     h, w = s1.shape
     floor = np.float32(floor)
     one = np.float32(1.0)

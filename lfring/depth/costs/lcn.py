@@ -87,10 +87,9 @@ def window_weights(calibration, view_shape, window_px: int, taper: float = DEPTH
     )
 
 
-def weighted_square(a: np.ndarray, w: np.ndarray, out: np.ndarray | None = None, scratch: np.ndarray | None = None) -> np.ndarray:
+def weighted_square(a: np.ndarray, w: np.ndarray) -> np.ndarray:
     """``w n^2`` of a view's warped value premultiplied by its weight (``a = w n``) and its weight
-    ``w``: its term of S2 (see the module's docstring); 0 where ``w`` is 0. With ``out`` and
-    ``scratch`` (float32 arrays of ``a``'s shape) nothing is allocated.
+    ``w``: its term of S2 (see the module's docstring); 0 where ``w`` is 0.
 
     Examples
     --------
@@ -98,11 +97,7 @@ def weighted_square(a: np.ndarray, w: np.ndarray, out: np.ndarray | None = None,
     >>> weighted_square(np.array([0.5, 1.0, 0.0], np.float32), np.array([0.5, 1.0, 0.0], np.float32)).tolist()
     [0.5, 1.0, 0.0]
     """
-    if out is None:
-        return np.square(a) / np.maximum(w, np.float32(WEIGHT_FLOOR))
-    cv2.max(w, WEIGHT_FLOOR, dst=scratch)
-    cv2.multiply(a, a, dst=out)
-    return cv2.divide(out, scratch, dst=out)
+    return np.square(a) / np.maximum(w, np.float32(WEIGHT_FLOOR))
 
 
 def weighted_square_torch(a, w):

@@ -198,17 +198,18 @@ def fused_index(views, calibration, plan, settings, subpixel_box_px: int, on_sta
         m = _padded(np.asarray(masks, np.float32), remaps, pad)
         return m, *_runs_of_ones(m)
 
-    if all_valid:
-        mpad, ones_lo, ones_hi = weighted, np.zeros((1, 1), np.int64), np.zeros((1, 1), np.int64)
+    if all_valid:  # runs of ones: those of the edge weights, below
+        mpad = weighted
     else:  # the masks resampled and padded, and their runs of ones: the same for every frame
         mpad, ones_lo, ones_hi = calibration_cache(calibration, (plan_key, "masks", plan.taper, pad), padded_masks)
     iy = np.floor(shifts[..., 1]).astype(np.int64)
     ix = np.floor(shifts[..., 0]).astype(np.int64)
     fy = (shifts[..., 1] - iy).astype(np.float32)
     fx = (shifts[..., 0] - ix).astype(np.float32)
-    if all_valid:  # the same for every frame
+    if all_valid:  # the same for every frame; the runs of ones per hypothesis and view (N, V)
         edge_y, edge_x = calibration_cache(calibration, (plan_key, "edges"),
                                            lambda: (_edges(shifts[..., 1], h), _edges(shifts[..., 0], w)))
+        ones_lo, ones_hi = calibration_cache(calibration, (plan_key, "edge runs"), lambda: _runs_of_ones(edge_x))
     else:
         edge_y = np.zeros((1, 1, 1), np.float32)
         edge_x = np.zeros((1, 1, 1), np.float32)
