@@ -103,8 +103,9 @@ def _rounded(product):
 
 @njit(**JIT)
 def _lcn_two(a0, a1, w0, w1, floor, seen_in, cn, t, seen):
-    """:func:`_lcn_row` of the sums of two views' values and weights, in one pass (the same
-    floats as :func:`_sums_first` and :func:`_sums_add`); ``cn`` receives the weights' sums."""
+    """:func:`_lcn_row` of the sums of two views' values and weights, in one pass (the sums of
+    :func:`_sums_first` and :func:`_sums_add` up to rounding: the squares over one common
+    denominator, as :func:`_lcn_of_four`); ``cn`` receives the weights' sums."""
     for x in range(t.shape[0]):
         v0 = a0[x]
         v1 = a1[x]
@@ -118,8 +119,8 @@ def _lcn_two(a0, a1, w0, w1, floor, seen_in, cn, t, seen):
 
 @njit(**INLINE)
 def _lcn_of_four(v0, v1, v2, v3, g0, g1, g2, g3, c, floor, seen_in):
-    """:func:`_lcn` of four views' values at a pixel (weights ``g0`` .. ``g3``, their sum ``c``),
-    summed in the floats of :func:`_sums_first` and :func:`_sums_add`."""
+    """:func:`_lcn` of four views' values at a pixel (weights ``g0`` .. ``g3``, their sum ``c``):
+    the sums of :func:`_sums_first` and :func:`_sums_add`, up to rounding."""
     # sum v^2 / g over one division: the squares over the common denominator of the weights (each
     # at least the floor), which on two cores cost a sixth of the row's terms as four divisions.
     h0, h1 = (g0 if g0 > floor else floor), (g1 if g1 > floor else floor)
