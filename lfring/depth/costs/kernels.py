@@ -18,6 +18,12 @@ _JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")  # nump
 
 
 @njit(**_JIT)
+def _weighted_square(a, w, floor):
+    """A view's term of S2 (:func:`lfring.depth.costs.lcn.weighted_square`): ``a^2 / max(w, floor)``."""
+    return (a * a) / (w if w > floor else floor)
+
+
+@njit(**_JIT)
 def leave_one_out(s1, s2, count, a_k, w_k, floor, out):
     """``out = lcn_cost(S1 - a_k, S2 - a_k^2 / max(w_k, floor), C - w_k)``, per pixel."""
     h, w = s1.shape
@@ -29,7 +35,7 @@ def leave_one_out(s1, s2, count, a_k, w_k, floor, out):
             a = a_k[y, x]
             wk = w_k[y, x]
             rest = count[y, x] - wk
-            sq = (a * a) / (wk if wk > floor else floor)
+            sq = _weighted_square(a, wk, floor)
             s = s1[y, x] - a
             r = rest if rest > floor else floor
             d = rest - one
@@ -48,12 +54,6 @@ def take_least(agg, candidate, penalty, agg_count, agg_w, least_rest):
             c = penalty * candidate[y, x]
             a = agg[y, x]
             agg[y, x] = c if (agg_count[y, x] - agg_w[y, x] > least_rest) & (c < a) else a  # selects vectorise
-
-
-@njit(**_JIT)
-def _weighted_square(a, w, floor):
-    """A view's term of S2 (:func:`lfring.depth.costs.lcn.weighted_square`): ``a^2 / max(w, floor)``."""
-    return (a * a) / (w if w > floor else floor)
 
 
 @njit(**_JIT)
