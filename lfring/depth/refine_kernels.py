@@ -16,6 +16,7 @@ __all__ = ["bin_values", "fill_inputs", "filled_map", "known_pixels", "value_ran
 
 
 KERNEL = dict(parallel=True, cache=True, nogil=True, fastmath=False, error_model="numpy")
+SERIAL = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
 
 
 @njit(**KERNEL)
@@ -92,29 +93,55 @@ def filled_map(known, refined, num, den, floor, out):
                 out[y, x] = num[y, x] / den[y, x] if den[y, x] > floor else np.float32(np.nan)
 
 
+# A row's pixels whose window spans one bin or two adjacent ones take the median from four sums
+# a pixel, accumulated offset by offset along the row in float32 loops over whole rows; the others
+# (and rows where they are too few) take a histogram each. The sums cost every column between the
+# row's first and last such pixel, a histogram only its own pixel: the sums are used where those
+# pixels make at least this share of the columns they span (about the ratio of the two costs per
+# window entry).
+MEDIAN_SUMS_MIN_SHARE = 0.25
+_NO_BIN = 2**30  # a window's least bin where it holds no known value
+
+
 @njit(**KERNEL)
 def weighted_median(values, bins, guide, radius, lut, fine_bins, out):
     """Per pixel with a bin (``bins >= 0``; -1: unknown, NaN out), the weighted median of the
-    known values in its (2 radius + 1)^2 window, weighted by ``lut[|guide_p - guide_q|]``.
+    known values in its (2 radius + 1)^2 window, weighted by ``lut[|guide_p - guide_q|]``: the
+    lowest bin whose cumulative weight reaches half the window's, and the weighted mean of the
+    values in it.
 
-    ``bins`` holds each known value's bin, of ``fine_bins``. A window's values span few bins and
-    neighbours mostly share one, so each run of consecutive entries of one bin is summed in
-    registers and added to the histogram once (adding every entry to memory chains each add to
-    the last one's store). The median's bin is found by one cumulative scan from the window's
-    lowest bin to its highest (a coarse histogram beside it measured slower on the twin and on
-    real stereo pairs, for the same answers); the answer is the weighted mean of the values in
-    that bin. One row per parallel task; each task keeps its own histograms and clears only the
-    range of bins it touched.
+    ``bins`` holds each known value's bin, of ``fine_bins``. Most windows span one bin or two
+    adjacent ones (a smooth surface): for those, :func:`_two_bin_sums` sums each pixel's weight
+    and weighted value in its window's lowest bin and in the one above, in float32 loops over the
+    row (:data:`MEDIAN_SUMS_MIN_SHARE`); the median is the lower bin where its weight reaches
+    half the window's, else the upper. Other pixels take a histogram of their window in float64:
+    each run of consecutive entries of one bin is summed in registers and added to the histogram
+    once, and the median's bin is found by one cumulative scan from the window's lowest bin to
+    its highest. The two ways decide the same bin but where the weights below it make half to
+    within float32 rounding. One row per parallel task; each task keeps its own histograms and
+    clears only the range of bins it touched.
     """
     h, w = values.shape
+    lut32 = lut.astype(np.float32)
     for y in prange(h):
-        hf = np.zeros(fine_bins, np.float64)
-        hv = np.zeros(fine_bins, np.float64)
         y0 = max(0, y - radius)
         y1 = min(h, y + radius + 1)
+        xa, take, sums = _two_bin_sums(values, bins, guide, y, radius, lut32)
+        hf = np.zeros(fine_bins, np.float64)
+        hv = np.zeros(fine_bins, np.float64)
         for x in range(w):
             if bins[y, x] < 0:
                 out[y, x] = np.nan
+                continue
+            if take[x]:
+                i = x - xa
+                w_lo = sums[0, i]
+                w_hi = sums[2, i]
+                own = values[y, x]
+                if w_lo >= np.float32(0.5) * (w_lo + w_hi):
+                    out[y, x] = own + sums[1, i] / w_lo if w_lo > 0.0 else own
+                else:
+                    out[y, x] = own + sums[3, i] / w_hi if w_hi > 0.0 else own
                 continue
             gp = np.int32(guide[y, x])
             x0 = max(0, x - radius)
@@ -159,3 +186,112 @@ def weighted_median(values, bins, guide, radius, lut, fine_bins, out):
             out[y, x] = np.float32(hv[f] / hf[f]) if hf[f] > 0.0 else values[y, x]
             hf[fmin:fmax + 1] = 0.0  # the touched range only
             hv[fmin:fmax + 1] = 0.0
+
+
+@njit(**SERIAL)
+def _two_bin_sums(values, bins, guide, y, radius, lut32):
+    """For row y of :func:`weighted_median`: ``take``, (w,) bool, the pixels that take their
+    median from the sums (known, their window's bins span at most two adjacent ones); ``sums``,
+    (4, xb - xa) float32 for the columns xa..xb that hold them: the weight and the weighted value
+    of each window's known entries in its least bin (rows 0 and 1), and of the others (rows 2 and
+    3). No pixel takes them where too few would (:data:`MEDIAN_SUMS_MIN_SHARE`). The values are
+    summed less the pixel's own: a window of equal values sums to 0 exactly, and the float32 sums
+    of values that differ little keep their precision."""
+    h, w = bins.shape
+    y0 = max(0, y - radius)
+    y1 = min(h, y + radius + 1)
+    take = np.zeros(w, np.bool_)
+    none = np.zeros((4, 0), np.float32)
+    br = bins[y]
+    # The known pixels first: where they are too few, the windows' bins are not worth finding.
+    ka = w
+    kb = 0
+    n = 0
+    for x in range(w):
+        if br[x] >= 0:
+            ka = min(ka, x)
+            kb = x + 1
+            n += 1
+    if n == 0 or n < MEDIAN_SUMS_MIN_SHARE * (kb - ka):
+        return 0, take, none
+    # Each window's least known bin (_NO_BIN where none is known) and largest (-1): the columns'
+    # extremes over the rows first, then along the row.
+    cmin = np.full(w, _NO_BIN, np.int32)
+    cmax = np.full(w, -1, np.int32)
+    for yy in range(y0, y1):
+        bq = bins[yy]
+        for x in range(w):
+            b = bq[x]
+            cmax[x] = max(cmax[x], b)
+            cmin[x] = min(cmin[x], b if b >= 0 else _NO_BIN)
+    lo = np.full(w, _NO_BIN, np.int32)
+    hi = np.full(w, -1, np.int32)
+    for dx in range(-radius, radius + 1):
+        xs = max(0, -dx)
+        xe = min(w, w - dx)
+        if xe <= xs:
+            continue
+        lo_s = lo[xs:xe]
+        hi_s = hi[xs:xe]
+        cmn = cmin[xs + dx:xe + dx]
+        cmx = cmax[xs + dx:xe + dx]
+        for i in range(xe - xs):
+            lo_s[i] = min(lo_s[i], cmn[i])
+            hi_s[i] = max(hi_s[i], cmx[i])
+    xa = w
+    xb = 0
+    n = 0
+    for x in range(w):
+        if br[x] >= 0 and hi[x] - lo[x] <= 1:
+            xa = min(xa, x)
+            xb = x + 1
+            n += 1
+    if n == 0 or n < MEDIAN_SUMS_MIN_SHARE * (xb - xa):
+        return 0, take, none
+    for x in range(xa, xb):
+        take[x] = br[x] >= 0 and hi[x] - lo[x] <= 1
+    m = xb - xa
+    sums = np.zeros((4, m), np.float32)
+    weight = np.empty(m, np.float32)
+    zero = np.float32(0.0)
+    gc = guide[y, xa:xb]
+    vc = values[y, xa:xb]
+    lo_c = lo[xa:xb]
+    w_0 = sums[0]
+    v_0 = sums[1]
+    w_1 = sums[2]
+    v_1 = sums[3]
+    for yy in range(y0, y1):
+        bq_row = bins[yy]
+        gq_row = guide[yy]
+        vq_row = values[yy]
+        for dx in range(-radius, radius + 1):
+            xs = max(xa, -dx)  # the output columns xs..xe whose neighbour x + dx lies in the image
+            xe = min(xb, w - dx)
+            if xe <= xs:
+                continue
+            k = xe - xs
+            bq = bq_row[xs + dx:xe + dx]
+            gq = gq_row[xs + dx:xe + dx]
+            vq = vq_row[xs + dx:xe + dx]
+            gp = gc[xs - xa:xe - xa]
+            vp = vc[xs - xa:xe - xa]
+            # The table's lookups in a loop of their own: in the sums' loop they made it several
+            # times slower.
+            for i in range(k):
+                weight[i] = lut32[abs(np.int32(gq[i]) - np.int32(gp[i]))]
+            lo_s = lo_c[xs - xa:xe - xa]
+            w0 = w_0[xs - xa:xe - xa]
+            v0 = v_0[xs - xa:xe - xa]
+            w1 = w_1[xs - xa:xe - xa]
+            v1 = v_1[xs - xa:xe - xa]
+            for i in range(k):
+                b = bq[i]
+                wq = weight[i] if b >= 0 else zero
+                wv = wq * (vq[i] - vp[i])
+                low = b == lo_s[i]
+                w0[i] += wq if low else zero
+                v0[i] += wv if low else zero
+                w1[i] += zero if low else wq
+                v1[i] += zero if low else wv
+    return xa, take, sums

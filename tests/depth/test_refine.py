@@ -186,3 +186,70 @@ def test_the_compiled_steps_around_the_median_are_numpy_s_to_the_bit():
     # An empty map has no known pixel and no range.
     empty = refine_index(np.zeros((0, 5), np.float32), np.zeros((0, 5), np.float32), np.zeros((0, 5)))
     assert all(m.shape == (0, 5) for m in empty)
+
+
+def _window_median(values, bins, guide8, lut, radius):
+    """The weighted median written plainly: per known pixel, its window's known entries sorted by
+    bin, the lowest bin whose cumulative weight reaches half the total, the weighted mean of the
+    values in it (float64); also how far that bin's cumulative weight below it lies from half
+    (near 0: a tie that float32 sums may decide the other way)."""
+    h, w = values.shape
+    out = np.full((h, w), np.nan)
+    margin = np.full((h, w), np.inf)
+    for y in range(h):
+        for x in range(w):
+            if bins[y, x] < 0:
+                continue
+            ys, xs = slice(max(0, y - radius), y + radius + 1), slice(max(0, x - radius), x + radius + 1)
+            b, v = bins[ys, xs].ravel(), values[ys, xs].ravel().astype(np.float64)
+            wt = lut[np.abs(guide8[ys, xs].ravel().astype(int) - int(guide8[y, x]))]
+            keep = b >= 0
+            b, v, wt = b[keep], v[keep], wt[keep]
+            half = 0.5 * wt.sum()
+            below = 0.0
+            for f in np.unique(b):
+                here = wt[b == f].sum()
+                margin[y, x] = min(margin[y, x], abs(below + here - half))
+                if below + here >= half:
+                    out[y, x] = np.sum(wt[b == f] * v[b == f]) / here
+                    break
+                below += here
+    return out, margin
+
+
+@pytest.mark.parametrize("known_share", [0.9, 0.15])
+def test_the_weighted_median_kernel_is_the_plain_median(known_share):
+    """The compiled median against the plain one on a map whose windows span one bin, two
+    adjacent bins (a slow ramp: the rows' sums) and many (noise: a histogram per pixel), with
+    most pixels known, or few (rows too sparse for the sums). Equal to float32 rounding except
+    where the half falls within rounding of a bin's edge."""
+    from lfring.depth import refine as refine_module
+    from lfring.depth import refine_kernels
+
+    rng = np.random.default_rng(7)
+    h, w = 40, 90
+    index = np.empty((h, w), np.float32)
+    index[:, :30] = 4.0  # one bin
+    index[:, 30:60] = 4.0 + np.linspace(0.0, 0.5, 30)[None, :] + 0.02 * np.arange(h)[:, None]  # a ramp
+    index[:, 60:] = rng.uniform(0.0, 9.0, (h, 30))  # noise
+    known = rng.random((h, w)) < known_share
+    guide8 = rng.integers(0, 256, (h, w)).astype(np.uint8)
+    fine_width = np.float32(1.0 / refine_module.MEDIAN_FINE_BINS)
+    fine = 10 * refine_module.MEDIAN_FINE_BINS
+    bins = np.empty((h, w), np.int32)
+    refine_kernels.bin_values(index, known, np.float32(0.0), fine_width, fine, bins)
+    lut = np.exp(-np.arange(256, dtype=np.float64) ** 2 / (2.0 * refine_module.MEDIAN_SIGMA ** 2))
+    radius = refine_module.MEDIAN_RADIUS_PX
+    got = np.empty((h, w), np.float32)
+    refine_kernels.weighted_median(index, bins, guide8, radius, lut, fine, got)
+    want, margin = _window_median(index, bins, guide8, lut, radius)
+    np.testing.assert_array_equal(np.isnan(got), ~known)
+    clear = known & (margin > 1e-4)
+    assert clear.sum() > 0.95 * known.sum()
+    np.testing.assert_allclose(got[clear], want[clear], rtol=2e-6, atol=0)
+    # Every kind of window was there.
+    from scipy.ndimage import maximum_filter, minimum_filter
+    size = 2 * radius + 1
+    span = (maximum_filter(np.where(known, bins, -1), size, mode="constant", cval=-1)
+            - minimum_filter(np.where(known, bins, 10**6), size, mode="constant", cval=10**6))[known]
+    assert (span == 0).sum() > 50 and (span == 1).sum() > 50 and (span > 1).sum() > 50
