@@ -126,14 +126,28 @@ def weighted_median(values, bins, guide, radius, lut, fine_bins, out):
     for y in prange(h):
         y0 = max(0, y - radius)
         y1 = min(h, y + radius + 1)
-        xa, take, sums = _two_bin_sums(values, bins, guide, y, radius, lut32)
+        # The known pixels first: where they are too few, their windows' bins are not worth
+        # finding.
+        ka = w
+        kb = 0
+        n = 0
+        for x in range(w):
+            if bins[y, x] >= 0:
+                ka = min(ka, x)
+                kb = x + 1
+                n += 1
+        dense = n > 0 and n >= MEDIAN_SUMS_MIN_SHARE * (kb - ka)
+        if dense:
+            xa, take, sums = _two_bin_sums(values, bins, guide, y, radius, lut32)
+        else:
+            xa, take, sums = 0, np.zeros(0, np.bool_), np.zeros((4, 0), np.float32)
         hf = np.zeros(fine_bins, np.float64)
         hv = np.zeros(fine_bins, np.float64)
         for x in range(w):
             if bins[y, x] < 0:
                 out[y, x] = np.nan
                 continue
-            if take[x]:
+            if dense and take[x]:
                 i = x - xa
                 w_lo = sums[0, i]
                 w_hi = sums[2, i]
@@ -194,26 +208,15 @@ def _two_bin_sums(values, bins, guide, y, radius, lut32):
     median from the sums (known, their window's bins span at most two adjacent ones); ``sums``,
     (4, xb - xa) float32 for the columns xa..xb that hold them: the weight and the weighted value
     of each window's known entries in its least bin (rows 0 and 1), and of the others (rows 2 and
-    3). No pixel takes them where too few would (:data:`MEDIAN_SUMS_MIN_SHARE`). The values are
+    3). No pixel takes them where too few would (:data:`MEDIAN_SUMS_MIN_SHARE`; the caller
+    calls it only for rows whose known pixels are not too few). The values are
     summed less the pixel's own: a window of equal values sums to 0 exactly, and the float32 sums
     of values that differ little keep their precision."""
     h, w = bins.shape
     y0 = max(0, y - radius)
     y1 = min(h, y + radius + 1)
     take = np.zeros(w, np.bool_)
-    none = np.zeros((4, 0), np.float32)
     br = bins[y]
-    # The known pixels first: where they are too few, the windows' bins are not worth finding.
-    ka = w
-    kb = 0
-    n = 0
-    for x in range(w):
-        if br[x] >= 0:
-            ka = min(ka, x)
-            kb = x + 1
-            n += 1
-    if n == 0 or n < MEDIAN_SUMS_MIN_SHARE * (kb - ka):
-        return 0, take, none
     # Each window's least known bin (_NO_BIN where none is known) and largest (-1): the columns'
     # extremes over the rows first, then along the row.
     cmin = np.full(w, _NO_BIN, np.int32)
@@ -247,7 +250,7 @@ def _two_bin_sums(values, bins, guide, y, radius, lut32):
             xb = x + 1
             n += 1
     if n == 0 or n < MEDIAN_SUMS_MIN_SHARE * (xb - xa):
-        return 0, take, none
+        return 0, take, np.zeros((4, 0), np.float32)
     for x in range(xa, xb):
         take[x] = br[x] >= 0 and hi[x] - lo[x] <= 1
     m = xb - xa
