@@ -100,7 +100,16 @@ def filled_map(known, refined, num, den, floor, out):
 # pixels make at least this share of the columns they span (about the ratio of the two costs per
 # window entry).
 MEDIAN_SUMS_MIN_SHARE = 0.25
+# The sums serve windows whose known bins lie within this many of their least (two adjacent bins).
+MEDIAN_SUMS_SPAN = 1
 _NO_BIN = 2**30  # a window's least bin where it holds no known value
+
+
+@njit(**SERIAL)
+def _enough(n, first, end):
+    """Whether ``n`` pixels over the columns first..end are worth the row's sums
+    (:data:`MEDIAN_SUMS_MIN_SHARE`)."""
+    return n > 0 and n >= MEDIAN_SUMS_MIN_SHARE * (end - first)
 
 
 @njit(**KERNEL)
@@ -136,7 +145,7 @@ def weighted_median(values, bins, guide, radius, lut, fine_bins, out):
                 ka = min(ka, x)
                 kb = x + 1
                 n += 1
-        dense = n > 0 and n >= MEDIAN_SUMS_MIN_SHARE * (kb - ka)
+        dense = _enough(n, ka, kb)
         if dense:
             xa, take, sums = _two_bin_sums(values, bins, guide, y, radius, lut32)
         else:
@@ -152,7 +161,7 @@ def weighted_median(values, bins, guide, radius, lut, fine_bins, out):
                 w_lo = sums[0, i]
                 w_hi = sums[2, i]
                 own = values[y, x]
-                if w_lo >= np.float32(0.5) * (w_lo + w_hi):
+                if w_lo >= w_hi:  # the lower bin holds half the window's weight
                     out[y, x] = own + sums[1, i] / w_lo if w_lo > 0.0 else own
                 else:
                     out[y, x] = own + sums[3, i] / w_hi if w_hi > 0.0 else own
@@ -204,14 +213,15 @@ def weighted_median(values, bins, guide, radius, lut, fine_bins, out):
 
 @njit(**SERIAL)
 def _two_bin_sums(values, bins, guide, y, radius, lut32):
-    """For row y of :func:`weighted_median`: ``take``, (w,) bool, the pixels that take their
-    median from the sums (known, their window's bins span at most two adjacent ones); ``sums``,
-    (4, xb - xa) float32 for the columns xa..xb that hold them: the weight and the weighted value
-    of each window's known entries in its least bin (rows 0 and 1), and of the others (rows 2 and
-    3). No pixel takes them where too few would (:data:`MEDIAN_SUMS_MIN_SHARE`; the caller
-    calls it only for rows whose known pixels are not too few). The values are
-    summed less the pixel's own: a window of equal values sums to 0 exactly, and the float32 sums
-    of values that differ little keep their precision."""
+    """For row y of :func:`weighted_median`, ``(xa, take, sums)``: ``take``, (w,) bool, the pixels
+    that take their median from the sums (known, their window's known bins at most
+    :data:`MEDIAN_SUMS_SPAN` from its least); ``sums``, (4, xb - xa) float32 for the columns
+    xa..xb that hold them: the weight and the weighted value of each window's known entries in its
+    least bin (rows 0 and 1), and of the others (rows 2 and 3). No pixel takes them where too few
+    would (:func:`_enough`; the caller calls this only for rows whose known pixels are not too
+    few). The values are summed less the pixel's own: a window of equal values sums to 0 exactly,
+    and the float32 sums of values that differ little keep their precision. The values of unknown
+    entries are never read (they may be NaN)."""
     h, w = bins.shape
     y0 = max(0, y - radius)
     y1 = min(h, y + radius + 1)
@@ -245,14 +255,14 @@ def _two_bin_sums(values, bins, guide, y, radius, lut32):
     xb = 0
     n = 0
     for x in range(w):
-        if br[x] >= 0 and hi[x] - lo[x] <= 1:
+        take[x] = br[x] >= 0 and hi[x] - lo[x] <= MEDIAN_SUMS_SPAN
+        if take[x]:
             xa = min(xa, x)
             xb = x + 1
             n += 1
-    if n == 0 or n < MEDIAN_SUMS_MIN_SHARE * (xb - xa):
+    if not _enough(n, xa, xb):
+        take[:] = False
         return 0, take, np.zeros((4, 0), np.float32)
-    for x in range(xa, xb):
-        take[x] = br[x] >= 0 and hi[x] - lo[x] <= 1
     m = xb - xa
     sums = np.zeros((4, m), np.float32)
     weight = np.empty(m, np.float32)
@@ -279,8 +289,8 @@ def _two_bin_sums(values, bins, guide, y, radius, lut32):
             vq = vq_row[xs + dx:xe + dx]
             gp = gc[xs - xa:xe - xa]
             vp = vc[xs - xa:xe - xa]
-            # The table's lookups in a loop of their own: in the sums' loop they made it several
-            # times slower.
+            # The table's lookups in a loop of their own, which keeps the sums' loop free of
+            # them (benchmarks/RESULTS.md).
             for i in range(k):
                 weight[i] = lut32[abs(np.int32(gq[i]) - np.int32(gp[i]))]
             lo_s = lo_c[xs - xa:xe - xa]
@@ -291,7 +301,7 @@ def _two_bin_sums(values, bins, guide, y, radius, lut32):
             for i in range(k):
                 b = bq[i]
                 wq = weight[i] if b >= 0 else zero
-                wv = wq * (vq[i] - vp[i])
+                wv = wq * (vq[i] - vp[i]) if b >= 0 else zero  # 0 times an unknown NaN is NaN
                 low = b == lo_s[i]
                 w0[i] += wq if low else zero
                 v0[i] += wv if low else zero
