@@ -137,10 +137,14 @@ def _padded(images, remaps, pad, scale=None, threads: int = 1):
     out = np.zeros((v, h + 2 * pad + 1, w + 2 * pad + 1), np.float32)
 
     def one(k: int) -> None:
+        inside = out[k, pad:pad + h, pad:pad + w]
+        if remaps[k] is None and scale is not None:  # the product written in place, no temporary
+            cv2.multiply(images[k], scale[k], dst=inside)
+            return
         img = images[k] if scale is None else images[k] * scale[k]
         if remaps[k] is not None:
             img = cv2.remap(img, remaps[k][0], remaps[k][1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
-        out[k, pad:pad + h, pad:pad + w] = img
+        inside[...] = img
 
     run_threads([lambda k=k: one(k) for k in range(v)], threads)
     return out
