@@ -264,3 +264,43 @@ def test_the_four_view_row_kernels_sum_as_the_general_one(all_valid):
             np.testing.assert_allclose(got_t, want_t, rtol=1e-5, atol=1e-5)
             tested += int((want_seen > 0).sum())
     assert tested > 0.3 * n * h * w  # most columns carry a cost: the comparison means something
+
+
+def test_lcn_sources_are_the_locally_normalised_luminance():
+    """Each view's 'lcn' source against its definition written in NumPy (float64): the masked
+    luminance's window mean and mean square over the window's seen share (reflected at the
+    borders), n = (L - mu) / sqrt(max(E[L^2] - mu^2, 0) + eps mu^2 + floor), on views with a
+    rim (the twin's disc masks) and a flat region (where the floor and eps terms dominate)."""
+    from lfring.calibration import RingCalibration
+    from lfring.depth.costs.lcn import LCN_EPS, LCN_FLOOR, lcn_sources
+    from lfring.depth.plan import DEPTH_TAPER, sweep_masks
+    from lfring.optics import load_device
+    from lfring.views import layout_from_circles
+
+    dev = load_device("prototype")
+    w, h = dev.sensor_width_px, dev.sensor_height_px
+    side = 64
+    circles = [(200.0 + dx, 150.0 + dy, side / 2) for dy in (0, h / 2) for dx in (0, w / 2)]
+    cal = RingCalibration.from_optics(dev, layout=layout_from_circles(circles, w, h))
+    rng = np.random.default_rng(5)
+    views = rng.random((4, side, side, 3)).astype(np.float32)
+    views[:, 20:40, 20:40] = 0.25  # flat
+    window = 9
+    got = lcn_sources(views, cal, window, threads=2)
+
+    masks = sweep_masks(cal, (side, side), DEPTH_TAPER).astype(np.float64)
+    lum = views.astype(np.float64).mean(axis=3)
+    pad = window // 2
+
+    def box(img):  # the window's sum, reflected at the borders as OpenCV's BORDER_REFLECT_101
+        p = np.pad(img, pad, mode="reflect")
+        return sum(p[i:i + side, j:j + side] for i in range(window) for j in range(window))
+
+    for k in range(4):
+        seen = box(masks[k])
+        mu = np.where(seen > 0, box(lum[k] * masks[k]) / np.maximum(seen, 1e-300), 0.0)
+        msq = np.where(seen > 0, box(lum[k] ** 2 * masks[k]) / np.maximum(seen, 1e-300), 0.0)
+        want = (lum[k] - mu) / np.sqrt(np.maximum(msq - mu ** 2, 0.0) + LCN_EPS * mu ** 2 + LCN_FLOOR)
+        inside = seen > 0.5 * window ** 2  # away from where the seen share is floored
+        assert inside.mean() > 0.5
+        np.testing.assert_allclose(got[k][inside], want[inside], rtol=2e-4, atol=2e-4)

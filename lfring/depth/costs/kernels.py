@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-__all__ = ["fold_half", "half_terms", "leave_one_out", "pair_terms", "take_least",
+__all__ = ["fold_half", "half_terms", "leave_one_out", "lcn_normalise", "pair_terms", "take_least",
            "take_where", "volume_minima"]
 
 _JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")  # numpy: no zero-division checks, so loops vectorise
@@ -21,6 +21,31 @@ _JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")  # nump
 def _weighted_square(a, w, floor):
     """A view's term of S2 (:func:`lfring.depth.costs.lcn.weighted_square`): ``a^2 / max(w, floor)``."""
     return (a * a) / (w if w > floor else floor)
+
+
+@njit(**_JIT)
+def lcn_normalise(x, mean, mean_sq, scale, eps, floor, out):
+    """The 'lcn' normalisation of a strip (:func:`lfring.depth.costs.lcn.lcn_sources`), per
+    pixel in float32: ``m = mean scale``, ``s = mean_sq scale``,
+    ``out = (x - m) / sqrt(max(s - m^2, 0) + eps m^2 + floor)``. The eps term is added as one
+    fused multiply-add (a float64 product and sum, rounded once), as OpenCV's ``scaleAdd`` does
+    on a CPU with FMA: the same floats as the chain of OpenCV passes it replaces, in one pass."""
+    h, w = out.shape
+    zero = np.float32(0.0)
+    e = np.float64(eps)
+    for y in range(h):
+        xr = x[y]
+        mr = mean[y]
+        sr = mean_sq[y]
+        wr = scale[y]
+        dr = out[y]
+        for i in range(w):
+            m = mr[i] * wr[i]
+            sq = m * m
+            var = sr[i] * wr[i] - sq
+            var = var if var > zero else zero
+            var = np.float32(np.float64(sq) * e + np.float64(var)) + floor
+            dr[i] = (xr[i] - m) / np.sqrt(var)
 
 
 @njit(**_JIT)

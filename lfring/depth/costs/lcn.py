@@ -25,7 +25,7 @@ import numpy as np
 from lfring.core.filters import box_filter, luminance
 from lfring.core.threads import STRIP_PIXELS, run_threads
 from lfring.core.viewstack import WEIGHT_FLOOR, cached_view_masks
-from lfring.depth.costs.base import DepthCost
+from lfring.depth.costs.base import DepthCost, compiled_kernels
 from lfring.depth.plan import DEPTH_TAPER, sweep_masks
 
 __all__ = ["LCN", "LCN_AGGREGATE_PX", "LCN_EPS", "LCN_FLOOR", "lcn_cost", "lcn_cost_torch", "lcn_slice_cost",
@@ -51,6 +51,8 @@ def lcn_sources(views: np.ndarray, calibration, window_px: int, *, threads: int 
     v, h, w = lum.shape
     pad = window_px // 2
     rows = max(8, STRIP_PIXELS // (2 * max(w, 1)))  # row strips of every view, in the cache
+    normalise = compiled_kernels().lcn_normalise
+    eps, floor = np.float32(LCN_EPS), np.float32(LCN_FLOOR)
 
     def one(k: int, r0: int, r1: int) -> None:
         q0, q1 = max(0, r0 - pad), min(h, r1 + pad)
@@ -60,19 +62,9 @@ def lcn_sources(views: np.ndarray, calibration, window_px: int, *, threads: int 
         mu = box_filter(a, window_px)[inner]
         cv2.multiply(a, x, dst=a)
         s2 = box_filter(a, window_px)[inner]
-        wk = weights[k][r0:r1]
-        cv2.multiply(mu, wk, dst=mu)
-        cv2.multiply(s2, wk, dst=s2)
-        # sqrt(max(E[x^2] - mu^2, 0) + eps mu^2 + floor)
-        sq = cv2.multiply(mu, mu)
-        var = cv2.subtract(s2, sq)
-        cv2.max(var, 0.0, dst=var)
-        cv2.scaleAdd(sq, LCN_EPS, var, dst=var)
-        cv2.add(var, LCN_FLOOR, dst=var)
-        cv2.sqrt(var, dst=var)
-        dst = out[k][r0:r1]
-        cv2.subtract(x[inner], mu, dst=dst)
-        cv2.divide(dst, var, dst=dst)
+        # (x - mu) / sqrt(max(E[x^2] - mu^2, 0) + eps mu^2 + floor), the means' window weights
+        # applied first, in one pass.
+        normalise(x[inner], mu, s2, weights[k][r0:r1], eps, floor, out[k][r0:r1])
 
     run_threads([lambda k=k, r=r: one(k, r, min(h, r + rows)) for k in range(v) for r in range(0, h, rows)], threads)
     return out
