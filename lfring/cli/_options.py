@@ -375,7 +375,8 @@ def progress_bar(total: int, desc: str, unit: str):
 
 # The modules whose numba kernels the commands' default path compiles (numba caches them on
 # disk): the depth engine's, and the depth-aware renderer's besides for refocusing and the viewer.
-DEPTH_KERNELS = ("lfring.depth.engines.fused_volume", "lfring.depth.engines.fused_paths", "lfring.depth.refine_kernels")
+DEPTH_KERNELS = ("lfring.depth.costs.kernels", "lfring.depth.engines.fused_volume", "lfring.depth.engines.fused_paths",
+                 "lfring.depth.refine_kernels")
 REFOCUS_KERNELS = (*DEPTH_KERNELS, "lfring.focus.depth_aware_kernels")
 
 

@@ -94,7 +94,7 @@ def filled_map(known, refined, num, den, floor, out):
 
 
 # A row's pixels whose window spans one bin or two adjacent ones take the median from four sums
-# a pixel, accumulated offset by offset along the row in float32 loops over whole rows; the others
+# a pixel, accumulated offset by offset along the row in float32 loops; the others
 # (and rows where they are too few) take a histogram each. The sums cost every column between the
 # row's first and last such pixel, a histogram only its own pixel: the sums are used where those
 # pixels make at least this share of the columns they span (about the ratio of the two costs per
@@ -220,8 +220,9 @@ def _two_bin_sums(values, bins, guide, y, radius, lut32):
     least bin (rows 0 and 1), and of the others (rows 2 and 3). No pixel takes them where too few
     would (:func:`_enough`; the caller calls this only for rows whose known pixels are not too
     few). The values are summed less the pixel's own: a window of equal values sums to 0 exactly,
-    and the float32 sums of values that differ little keep their precision. The values of unknown
-    entries are never read (they may be NaN)."""
+    and the float32 sums of values that differ little keep their precision. An unknown entry's
+    value (it may be NaN) enters no sum; an unknown pixel's own value may spoil its own column's
+    sums, which no pixel takes."""
     h, w = bins.shape
     y0 = max(0, y - radius)
     y1 = min(h, y + radius + 1)

@@ -1,4 +1,5 @@
-"""The compiled kernels of the 'lcn-occlusion' and 'lcn-halves' costs: numba, cached on disk.
+"""The compiled kernels of the 'lcn' sources and of the 'lcn-occlusion' and 'lcn-halves' costs:
+numba, cached on disk.
 
 Importing this module imports numba; the cost modules import it on first use only. The per-strip
 kernels are one pass over their (h, w) arrays with no temporaries, and release the GIL, so the
@@ -27,9 +28,10 @@ def _weighted_square(a, w, floor):
 def lcn_normalise(x, mean, mean_sq, scale, eps, floor, out):
     """The 'lcn' normalisation of a strip (:func:`lfring.depth.costs.lcn.lcn_sources`), per
     pixel in float32: ``m = mean scale``, ``s = mean_sq scale``,
-    ``out = (x - m) / sqrt(max(s - m^2, 0) + eps m^2 + floor)``. The eps term is added as one
-    fused multiply-add (a float64 product and sum, rounded once), as OpenCV's ``scaleAdd`` does
-    on a CPU with FMA: the same floats as the chain of OpenCV passes it replaces, in one pass."""
+    ``out = (x - m) / sqrt(max(s - m^2, 0) + eps m^2 + floor)``, in one pass. The eps term is
+    added as a fused multiply-add would (the float32 product exact in float64, the sum rounded
+    to float64 and then to float32: a single rounding but in rare halfway cases), as OpenCV's
+    ``scaleAdd`` adds it on a CPU with FMA; the numbers do not depend on the CPU."""
     h, w = out.shape
     zero = np.float32(0.0)
     e = np.float64(eps)

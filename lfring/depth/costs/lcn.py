@@ -62,8 +62,7 @@ def lcn_sources(views: np.ndarray, calibration, window_px: int, *, threads: int 
         mu = box_filter(a, window_px)[inner]
         cv2.multiply(a, x, dst=a)
         s2 = box_filter(a, window_px)[inner]
-        # (x - mu) / sqrt(max(E[x^2] - mu^2, 0) + eps mu^2 + floor), the means' window weights
-        # applied first, in one pass.
+        # The means over the seen share of the window, and the normalisation (see the kernel).
         normalise(x[inner], mu, s2, weights[k][r0:r1], eps, floor, out[k][r0:r1])
 
     run_threads([lambda k=k, r=r: one(k, r, min(h, r + rows)) for k in range(v) for r in range(0, h, rows)], threads)

@@ -138,7 +138,9 @@ def _padded(images, remaps, pad, scale=None, threads: int = 1):
 
     def one(k: int) -> None:
         inside = out[k, pad:pad + h, pad:pad + w]
-        if remaps[k] is None and scale is not None:  # the product written in place, no temporary
+        if remaps[k] is None and scale is not None and images.dtype == scale.dtype == np.float32:
+            # The product written in place, no temporary (OpenCV writes into a given output of
+            # its inputs' type only, and would otherwise return a new array).
             cv2.multiply(images[k], scale[k], dst=inside)
             return
         img = images[k] if scale is None else images[k] * scale[k]
