@@ -4,8 +4,8 @@ Two outputs, so that nothing guessed passes for measured:
 
 * ``refined``: a weighted median of the confident pixels over a small window, weighted by their
   similarity to the centre in the guide image (as ``cv2.ximgproc.weightedMedianFilter``, Zhang et
-  al. 2014, with its exponential weight; :mod:`lfring.depth.refine_kernels`, a histogram per
-  pixel, several times faster). It removes isolated outliers and snaps depth edges to image
+  al. 2014, with its exponential weight; :mod:`lfring.depth.refine_kernels`: sums along the row
+  for windows on one surface, a histogram per pixel for the others). It removes isolated outliers and snaps depth edges to image
   edges; pixels that were not confident stay NaN.
 * ``filled``: ``refined`` where known, elsewhere a confidence-weighted edge-aware interpolation by
   the fast global smoother (``cv2.ximgproc.createFastGlobalSmootherFilter``, Min et al. 2014) used

@@ -376,9 +376,9 @@ def median_kernel(values_ptr, bins_ptr, guide_ptr, lut_ptr, out_ptr, h, w, RADIU
     a bin (``bins >= 0``), of the known values of its (2 RADIUS + 1)^2 window (clipped at the
     image's edges), weighted by ``lut[|guide_p - guide_q|]``: the lowest bin of the window whose
     cumulative weight reaches half the window's, and the weighted mean of the values in it; NaN
-    where the pixel has no bin. Sums in float32 (the reference's float64 sums of at most a window
-    of weights in [0, 1] decide the same bin but where the weights below it make half to within
-    float32 rounding). ``WIN`` >= (2 RADIUS + 1)^2, a power of two."""
+    where the pixel has no bin. Sums in float32 (the reference's sums, float32 for windows of at most
+    two adjacent bins and float64 for the others, decide the same bin but where the weights below
+    it make half to within float32 rounding). ``WIN`` >= (2 RADIUS + 1)^2, a power of two."""
     pid = tl.program_id(0)
     hw = h * w
     p = pid * P + tl.arange(0, P)
