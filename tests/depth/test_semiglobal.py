@@ -269,7 +269,7 @@ def test_the_volumes_kept_with_the_calibration_change_no_answer(prototype, monke
     import threading
 
     from lfring.core.viewstack import calibration_cache
-    from lfring.depth.engines import fused
+    from lfring.depth.engines import fused, fused_paths
     from lfring.synth.presets import three_depth_scene
 
     r = render(prototype, three_depth_scene(), binning=8, seed=2, noise="realistic")
@@ -281,7 +281,11 @@ def test_the_volumes_kept_with_the_calibration_change_no_answer(prototype, monke
 
     first = maps(estimate_depth(r.views, cal, **kw))
     kept = calibration_cache(cal, "fused volumes", list)
-    assert len(kept) == 1 and all(v.dtype == np.uint16 and v.shape[::2] == first.shape[1:] for v in kept[0])
+    assert len(kept) == 1 and all(v.dtype == np.uint16 for v in kept[0])
+    costs, sums, *eroded = kept[0]  # the paths' sums in tiles of columns, the others (h, N, w)
+    h, w = first.shape[1:]
+    assert costs.shape[::2] == (h, w) and all(e.shape == costs.shape for e in eroded)
+    assert fused_paths.untiled(sums, w).shape == costs.shape
     n = kept[0][0].shape[1]
     np.testing.assert_array_equal(maps(estimate_depth(r.views, cal, **kw)), first)
     other = estimate_depth(r.views, cal, num_planes=n + 7, **kw)
@@ -383,18 +387,21 @@ def test_the_paths_in_16_bits_add_up_as_plain_sgm_at_the_largest_costs_and_penal
     vol = np.where(rng.random((h, n, w)) < 0.6, COST_MAX, rng.integers(0, COST_MAX, (h, n, w))).astype(np.uint16)
     p1, p2 = PENALTY_MAX // 8, PENALTY_MAX  # across a guide step of 1 the large jump costs p2 / 5 = 800
     guide = (rng.random((h, w)) < 0.3).astype(np.float32)
-    total = np.zeros((h, n, w), np.uint16)
-    fused_paths.horizontal_paths(vol, guide, True, p1, p2, np.float32(0.25), 0, total, np.zeros((0, 0, 0), np.uint16))
+    # Tiles of 48 columns: the side-by-side chunks of 32 columns straddle their edges.
+    total = np.zeros(fused_paths.tile_shape(h, n, w, 48), np.uint16)
+    eroded = np.zeros_like(vol)
+    fused_paths.horizontal_paths(vol, guide, True, p1, p2, np.float32(0.25), 0, total, eroded)
     cost = vol.astype(np.int64)
+    np.testing.assert_array_equal(eroded, vol)  # eroded over one pixel: the costs
     lr, rl = (_path_numpy(cost, p1, p2, 2, back, guide) for back in (False, True))
-    np.testing.assert_array_equal(total, lr + rl)
+    np.testing.assert_array_equal(fused_paths.untiled(total, w), lr + rl)
     assert (lr + rl).max() > 2 * COST_MAX + PENALTY_MAX  # the paths reach well past one cost's range
     index = np.empty((h, w), np.float32)
     conf = np.empty((h, w), np.float32)
-    fused_paths.vertical_paths(vol, vol, total, guide, True, p1, p2, np.float32(0.25), 0, 1, 1, 16, WEIGHT_FLOOR,
+    fused_paths.vertical_paths(vol, eroded, total, guide, True, p1, p2, np.float32(0.25), 0, 1, 1, WEIGHT_FLOOR,
                                index, conf)
     three = lr + rl + _path_numpy(cost, p1, p2, 0, False, guide)
-    np.testing.assert_array_equal(total, three)
+    np.testing.assert_array_equal(fused_paths.untiled(total, w), three)
     assert three.max() > 3 * COST_MAX + PENALTY_MAX
     assert np.isfinite(index).all() and index.min() >= -0.5 and index.max() <= n - 0.5
 
@@ -512,12 +519,12 @@ def test_the_selection_fits_its_parabola_to_the_known_cost_s_box_mean(block):
     vol[rng.random((h, n, w)) < 0.15] = UNKNOWN
     vol[:, :, 30:33] = UNKNOWN  # columns no hypothesis knows
     eroded = np.full((h, n, w), 100, np.uint16)
-    total = np.zeros((h, n, w), np.uint16)
+    total = np.zeros(fused_paths.tile_shape(h, n, w, block), np.uint16)
     index = np.full((h, w), np.nan, np.float32)
     conf = np.full((h, w), np.nan, np.float32)
     guide = np.zeros((h, w), np.float32)
-    fused_paths.vertical_paths(vol, eroded, total, guide, True, 8, 32, np.float32(0.1), 2, rad, 1, block, WEIGHT_FLOOR,
-                               index, conf)
+    fused_paths.vertical_paths(vol, eroded, total, guide, True, 8, 32, np.float32(0.1), 2, rad, 1, WEIGHT_FLOOR, index,
+                               conf)
 
     known = vol != UNKNOWN
     padded = [np.pad(a.astype(np.int64), ((rad, rad), (0, 0), (rad, rad)), mode="reflect")

@@ -45,9 +45,12 @@ UNITS_PER_SCALE = 64
 # when what is left over after that is within this many pixels everywhere in the frame.
 RESAMPLE_TOL_PX = 0.01
 # Rows of a strip of the sweep (per parallel task), and the fewest columns of a block of the
-# vertical paths (one block per thread).
+# vertical paths (one block per thread, a tile of the paths' volumes: fused_paths), whose width is
+# a multiple of COLUMN_ALIGN (16 uint16 costs, 32 bytes: two blocks share no cache line but where
+# the image's last block ends).
 STRIP_ROWS = 16
 MIN_COLUMN_BLOCK = 32
+COLUMN_ALIGN = 16
 # Rows sampled for a first estimate of the cost's scale (which sets the integer unit).
 SCALE_SAMPLE_ROWS = 16
 # The call's two 16-bit volumes (the costs and the horizontal paths' sums) are kept with the
@@ -238,7 +241,11 @@ def fused_index(views, calibration, plan, settings, subpixel_box_px: int, on_sta
     first = float(np.median(spread)) if spread.size else 1.0
     unit = (first if first > 0 and math.isfinite(first) else 1.0) / UNITS_PER_SCALE
 
-    vol, paths, *kept = _volumes(calibration, (h, n, w), eroded=2 * h * n * w <= ERODED_VOLUME_BYTES)
+    # As few blocks as threads: every block pays a fixed cost per row and hypothesis.
+    block = max(MIN_COLUMN_BLOCK, -(-w // max(1, settings.threads)))
+    block = -(-block // COLUMN_ALIGN) * COLUMN_ALIGN
+    tiles = fused_paths.tile_shape(h, n, w, block)
+    vol, paths, *kept = _volumes(calibration, (h, n, w), tiles, eroded=2 * h * n * w <= ERODED_VOLUME_BYTES)
     eroded = kept[0] if kept else _NOT_KEPT
     best = np.empty((h, w), np.float32)
     total = np.empty((h, w), np.float32)
@@ -265,28 +272,28 @@ def fused_index(views, calibration, plan, settings, subpixel_box_px: int, on_sta
     stage(0.7)
     index = np.empty((h, w), np.float32)
     confidence = np.empty((h, w), np.float32)
-    # As few blocks as threads: every block pays a fixed cost per row and hypothesis.
-    block = max(MIN_COLUMN_BLOCK, -(-w // max(1, settings.threads)))
     fused_paths.vertical_paths(vol, eroded, paths, guide, True, p1, p2, np.float32(EDGE_SCALE), erode,
-                               subpixel_box_px // 2, int(plan.exclude), block, WEIGHT_FLOOR, index, confidence)
+                               subpixel_box_px // 2, int(plan.exclude), WEIGHT_FLOOR, index, confidence)
     _keep_volumes(calibration, (vol, paths, *kept))
     stage(1.0)
     return index, confidence, nviews, guide
 
 
-def _volumes(calibration, shape, eroded: bool) -> tuple:
-    """The uint16 volumes of ``shape`` for one call, two or with ``eroded`` three: those the
-    calibration's last call left (:data:`KEEP_VOLUMES_BYTES`) when they match, else new ones. A
-    call takes them out of the cache, so calls running at once never share them."""
+def _volumes(calibration, shape, tiles, eroded: bool) -> tuple:
+    """The uint16 volumes for one call: the costs' of ``shape``, the paths' sums in ``tiles``
+    (:func:`lfring.depth.engines.fused_paths.tile_shape`) and with ``eroded`` the eroded
+    volume's of ``shape``: those the calibration's last call left
+    (:data:`KEEP_VOLUMES_BYTES`) when they match, else new ones. A call takes them out of the
+    cache, so calls running at once never share them."""
     kept = calibration_cache(calibration, "fused volumes", list)
     try:
         vols = kept.pop()
     except IndexError:
         vols = None
-    count = 3 if eroded else 2
-    if vols is not None and vols[0].shape == tuple(shape) and len(vols) == count:
+    shapes = (tuple(shape), tuple(tiles), tuple(shape))[:3 if eroded else 2]
+    if vols is not None and tuple(v.shape for v in vols) == shapes:
         return vols
-    return tuple(fresh_zeros(shape, np.uint16) for _ in range(count))  # written before they are read
+    return tuple(fresh_zeros(s, np.uint16) for s in shapes)  # written before they are read
 
 
 def _keep_volumes(calibration, vols) -> None:

@@ -3,12 +3,19 @@
 
 1. :func:`horizontal_paths`: per row (or block of rows side by side, for few hypotheses), the
    volume eroded (shiftable windows) and the left-right and right-left scan paths, summed into
-   a (h, N, w) uint16 accumulator; the eroded volume is kept for the next pass where the caller
-   gives it a buffer.
-2. :func:`vertical_paths`: per block of columns, the top-down path, then the bottom-up one, at
+   a uint16 accumulator in tiles of columns (:func:`tile_shape`); the eroded volume is kept for
+   the next pass where the caller gives it a buffer.
+2. :func:`vertical_paths`: per tile of columns, the top-down path, then the bottom-up one, at
    whose every pixel the sum of the paths is complete: the winner, its parabola on the wider box
    of the cost and the confidence are taken there, and the sum is never written back. Without
    the kept eroded volume each direction erodes its rows again.
+
+The vertical pass runs a block of columns per thread, row after row. In the (h, N, w) layout of
+the cost volume a block's part of a row is N pieces scattered over the row's N * w values, and
+streaming such pieces from memory ran several times slower than whole rows (see
+benchmarks/RESULTS.md). The horizontal paths' sums, which that pass reads and writes at every row,
+are therefore laid out (h, tiles, N, block): a block's part of a row is one contiguous run. (The
+eroded volume in tiles too gained the vertical pass less than it cost the horizontal one.)
 """
 
 from __future__ import annotations
@@ -19,7 +26,7 @@ from numba import njit, prange
 from lfring.depth.aggregation_kernels import reflect
 from lfring.depth.engines.fused_common import COST_ZERO, INLINE, JIT, ONE_PASS_MIN_WIDTH, PARALLEL, PENALTY_MAX, UNKNOWN
 
-__all__ = ["horizontal_paths", "vertical_paths"]
+__all__ = ["horizontal_paths", "tile_shape", "untiled", "vertical_paths"]
 
 # The horizontal paths of a few hypotheses run rows side by side: a pixel's step over its own
 # hypotheses is too short to vectorise, and its least is a serial reduction per pixel. Reordering
@@ -31,6 +38,19 @@ SIDE_BY_SIDE_COLUMNS = 32
 # The ends of a padded path state (:func:`_chain_step`): with p1 added it stays above any jump
 # (a path's least plus a penalty, fused_common) and within int16.
 PAD = 32767 - PENALTY_MAX
+
+
+def tile_shape(h: int, n: int, w: int, block: int) -> tuple:
+    """The shape (h, tiles, N, block) of a volume of h rows, N hypotheses and w columns laid out in
+    tiles of ``block`` columns (the last one may reach past the image; its extra columns are never
+    read)."""
+    return (h, -(-w // block), n, block)
+
+
+def untiled(tiles: np.ndarray, w: int) -> np.ndarray:
+    """The (h, N, w) volume of ``tiles`` (:func:`tile_shape`), a copy."""
+    h, t, n, b = tiles.shape
+    return np.ascontiguousarray(tiles.transpose(0, 2, 1, 3).reshape(h, n, t * b)[:, :, :w])
 
 
 @njit(**INLINE)
@@ -291,14 +311,18 @@ def _horizontal_rows(vol, y, y2, guide, use_guide, p1, p2, edge_scale, erode_rad
 
 @njit(**INLINE)
 def _put_sums(acc, out):
-    """out (N, w) uint16 = acc (w, N) int16 transposed: the sums fit in 16 bits (fused_common).
-    An explicit loop, a row of ``out`` at a time: numba's assignment of a transposed view runs
-    several times slower."""
+    """out (tiles, N, block) uint16 = acc (w, N) int16 transposed into its tiles: the sums fit in
+    16 bits (fused_common). An explicit loop, a row of a tile at a time: numba's assignment of a
+    transposed view runs several times slower."""
     w, n = acc.shape
-    for d in range(n):
-        row = out[d]
-        for x in range(w):
-            row[x] = np.uint16(acc[x, d])
+    t, _, b = out.shape
+    for k in range(t):
+        x0 = k * b
+        part = acc[x0:min(w, x0 + b)]  # sliced first: an index x0 + x would not vectorise
+        for d in range(n):
+            row = out[k, d]
+            for x in range(part.shape[0]):
+                row[x] = np.uint16(part[x, d])
 
 
 @njit(**JIT)
@@ -307,6 +331,7 @@ def _horizontal_block(vol, y0, y1, guide, use_guide, p1, p2, edge_scale, erode_r
     columns (see :func:`horizontal_paths`), ``chunk`` columns of costs at a time."""
     _, n, w = vol.shape
     b = y1 - y0
+    tw = total.shape[3]
     kept = _kept(eroded, vol)
     block = eroded[y0:y1] if kept else np.empty((b, n, w), np.uint16)
     ext = np.empty(w + 2 * erode_rad, np.uint16)
@@ -346,22 +371,30 @@ def _horizontal_block(vol, y0, y1, guide, use_guide, p1, p2, edge_scale, erode_r
                     _p2_row(ga, gb, use_guide, p1, p2, edge_scale, p2e)
                 acc[j] = _next_step(t, j, 0, state, mins, p2e, i, p1)
                 i += 1
-            for r in range(b):
-                for d in range(n):
-                    out = total[y0 + r, d, c0:c0 + m]
-                    if direction == 0:
-                        for j in range(m):
-                            out[j] = np.uint16(acc[j, d, r])
-                    else:
-                        for j in range(m):
-                            out[j] = np.uint16(np.int32(out[j]) + np.int32(acc[j, d, r]))  # fits (fused_common)
+            # The chunk's columns by the tiles they lie in (a chunk may straddle two).
+            xs = c0
+            while xs < c0 + m:
+                k = xs // tw
+                xe = min(c0 + m, (k + 1) * tw)
+                for r in range(b):
+                    for d in range(n):
+                        out = total[y0 + r, k, d, xs - k * tw:xe - k * tw]
+                        a = acc[xs - c0:xe - c0, d, r]
+                        if direction == 0:
+                            for j in range(xe - xs):
+                                out[j] = np.uint16(a[j])
+                        else:
+                            for j in range(xe - xs):
+                                out[j] = np.uint16(np.int32(out[j]) + np.int32(a[j]))  # fits (fused_common)
+                xs = xe
 
 
 @njit(**PARALLEL)
 def horizontal_paths(vol, guide, use_guide, p1, p2, edge_scale, erode_rad, total, eroded):
-    """The left-right and right-left paths of every row of the eroded volume: ``total`` (h, N, w)
-    uint16 = their sum. ``eroded``: an (h, N, w) uint16 buffer that receives the eroded volume
-    (its unknown costs filled) for :func:`vertical_paths`, or an empty array.
+    """The left-right and right-left paths of every row of the eroded volume: ``total`` uint16 in
+    tiles (:func:`tile_shape`; they set the blocks of :func:`vertical_paths`) = their sum.
+    ``eroded``: an (h, N, w) uint16 buffer that receives the eroded volume (its unknown costs
+    filled) for :func:`vertical_paths`, or an empty array.
 
     Up to :data:`SIDE_BY_SIDE_HYPOTHESES` hypotheses, blocks of :data:`SIDE_BY_SIDE_ROWS` rows
     run side by side (one step of all their paths at a time, vectorised across the rows, after
@@ -432,11 +465,15 @@ def _distinctness(b, s):
 
 
 @njit(**JIT)
-def _vertical_block(vol, eroded, total, guide, use_guide, p1, p2, edge_scale, erode_rad, raw_rad, exclude, floor, x0,
-                    x1, index, conf):
-    """The two vertical paths and the selection of columns x0..x1 (see :func:`vertical_paths`)."""
+def _vertical_block(vol, eroded, total, guide, use_guide, p1, p2, edge_scale, erode_rad, raw_rad, exclude, floor, tile,
+                    index, conf):
+    """The two vertical paths and the selection of the columns of tile ``tile`` (see
+    :func:`vertical_paths`)."""
     h, n, w = vol.shape
+    tw = total.shape[3]
     kept = _kept(eroded, vol)
+    x0 = tile * tw
+    x1 = min(w, x0 + tw)
     m = x1 - x0
     e = np.empty((1, n, m), np.uint16)  # the eroded row where it is not kept
     ext = np.empty(m + 2 * max(erode_rad, raw_rad), np.uint16)
@@ -462,7 +499,7 @@ def _vertical_block(vol, eroded, total, guide, use_guide, p1, p2, edge_scale, er
                 cur = _next_step(e, 0, 0, state, mins, p2e, i, p1)
             if direction == 0:
                 for d in range(n):
-                    row = total[y, d, x0:x1]
+                    row = total[y, tile, d, :m]
                     cr = cur[d]
                     for x in range(m):
                         row[x] = np.uint16(np.int32(row[x]) + cr[x])
@@ -478,24 +515,21 @@ def _vertical_block(vol, eroded, total, guide, use_guide, p1, p2, edge_scale, er
                 else:
                     _raw_move(vol, reflect(y - raw_rad, h), reflect(y + raw_rad + 1, h), d, x0, m, raw_rad, col_sum[d],
                               col_cnt[d])
-            _select_row(vol, total, cur, y, x0, x1, raw_rad, exclude, floor, col_sum, col_cnt, raw, index, conf)
+            _select_row(vol, total[y, tile], cur, y, x0, x1, raw_rad, exclude, floor, col_sum, col_cnt, raw, index, conf)
 
 
 @njit(**PARALLEL)
-def vertical_paths(vol, eroded, total, guide, use_guide, p1, p2, edge_scale, erode_rad, raw_rad, exclude, block, floor,
-                   index, conf):
-    """The top-down and bottom-up paths of every block of ``block`` columns, added to the
-    horizontal paths' ``total``; at every pixel of the bottom-up pass the winner of the sum, its
-    sub-hypothesis offset from the parabola through the wider box's mean known cost ('raw') at
-    the winner and its neighbours, and the confidence (the sum's distinctness times the raw
-    curve's): ``index`` and ``conf`` (h, w) float32. ``eroded``: the eroded volume
+def vertical_paths(vol, eroded, total, guide, use_guide, p1, p2, edge_scale, erode_rad, raw_rad, exclude, floor, index,
+                   conf):
+    """The top-down and bottom-up paths of every tile of columns of the horizontal paths' ``total``
+    (:func:`tile_shape`; one tile per parallel task), added to it; at every pixel of the bottom-up
+    pass the winner of the sum, its sub-hypothesis offset from the parabola through the wider
+    box's mean known cost ('raw') at the winner and its neighbours, and the confidence (the sum's
+    distinctness times the raw curve's): ``index`` and ``conf`` (h, w) float32. ``eroded``: the eroded volume
     :func:`horizontal_paths` kept, or an empty array (each row is eroded again)."""
-    w = vol.shape[2]
-    nblocks = (w + block - 1) // block
-    for b in prange(nblocks):
-        x0 = b * block
-        _vertical_block(vol, eroded, total, guide, use_guide, p1, p2, edge_scale, erode_rad, raw_rad, exclude, floor, x0,
-                        min(w, x0 + block), index, conf)
+    for k in prange(total.shape[1]):
+        _vertical_block(vol, eroded, total, guide, use_guide, p1, p2, edge_scale, erode_rad, raw_rad, exclude, floor, k,
+                        index, conf)
 
 
 @njit(**INLINE)
@@ -564,9 +598,10 @@ def _raw_row(col_sum, col_cnt, centre, rad, area, floor, sums, counts, out):
 
 
 @njit(**INLINE)
-def _select_row(vol, total, cur, y, x0, x1, raw_rad, exclude, floor, col_sum, col_cnt, raw, index, conf):
+def _select_row(vol, sums_row, cur, y, x0, x1, raw_rad, exclude, floor, col_sum, col_cnt, raw, index, conf):
     """Winner, offset and confidence of the pixels x0..x1 of row ``y`` from the complete sum
-    (``total`` + the bottom-up path ``cur``) and the raw cost's box mean."""
+    (``sums_row``, (N, tile width), the other paths' sum there, + the bottom-up path ``cur``) and
+    the raw cost's box mean."""
     h, n, w = vol.shape
     m = x1 - x0
     area = (2 * raw_rad + 1) ** 2
@@ -581,7 +616,7 @@ def _select_row(vol, total, cur, y, x0, x1, raw_rad, exclude, floor, col_sum, co
     tie = np.full(m, np.inf, np.float32)
     arg = np.zeros(m, np.int32)
     for d in range(n):
-        trow = total[y, d, x0:x1]
+        trow = sums_row[d, :m]
         cr = cur[d]
         rr = raw[d]
         di = np.int32(d)
@@ -599,7 +634,7 @@ def _select_row(vol, total, cur, y, x0, x1, raw_rad, exclude, floor, col_sum, co
     rarg = np.zeros(m, np.int32)
     ex = np.int32(exclude)
     for d in range(n):
-        trow = total[y, d, x0:x1]
+        trow = sums_row[d, :m]
         cr = cur[d]
         rr = raw[d]
         di = np.int32(d)
