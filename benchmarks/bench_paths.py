@@ -17,7 +17,9 @@ Each pass's outputs are compared between the checkouts: the same numbers to the 
 The other checkout's module is the only part of it used: it imports this checkout's
 ``fused_common`` and helpers, and "this checkout" is the ``lfring`` that Python imports (run from
 the checkout's root, or put it on ``PYTHONPATH``). At 64 planes the horizontal pass runs each row
-alone; ``--case twin`` or ``--planes 16`` exercise the rows side by side.
+alone; ``--case twin`` or ``--planes 16`` exercise the rows side by side. Both checkouts' passes
+must take the same arguments: from c07dcf1 on, the paths' sums are in tiles of columns
+(``fused_paths.tile_shape``) and the vertical pass has no block argument.
 """
 
 from __future__ import annotations
@@ -38,7 +40,7 @@ from _common import ZMAX, ZMIN, machine_line, random_views, twin_scene
 from lfring.depth import estimate_depth
 from lfring.depth.engines import fused_paths
 
-PASSES = {"horizontal": (7, 8), "vertical": (2, 13, 14)}  # each pass's arguments that it writes
+PASSES = {"horizontal": (7, 8), "vertical": (2, 12, 13)}  # each pass's arguments that it writes
 
 
 def _capture(case: str, planes: int) -> dict:
@@ -109,6 +111,10 @@ def main(argv=None) -> int:
 def _compare(other, args) -> int:
     import numba
 
+    if not hasattr(other, "tile_shape"):
+        print(f"{args.other}: its path passes take the paths' sums as (h, N, w), not in tiles: "
+              "compare against c07dcf1 or later", file=sys.stderr)
+        return 2
     inputs = _capture(args.case, args.planes)
     print(machine_line())
     what = f"4 x 1060^2 x {args.planes} planes" if args.case == "big" else "the twin's three-depth scene"
