@@ -2,7 +2,7 @@
 horizontal paths (with the erosion) and the vertical paths (with the winner selection), on the
 inputs a real call gives them.
 
-    git worktree add /tmp/lfring-old 5db557c
+    git worktree add /tmp/lfring-old c07dcf1
     python benchmarks/bench_paths.py /tmp/lfring-old          # this checkout against that one
     python benchmarks/bench_paths.py /tmp/lfring-old --runs 9 --threads 1 2
     python benchmarks/bench_paths.py /tmp/lfring-old --case twin   # the twin's three-depth scene
@@ -19,7 +19,9 @@ The other checkout's module is the only part of it used: it imports this checkou
 the checkout's root, or put it on ``PYTHONPATH``). At 64 planes the horizontal pass runs each row
 alone; ``--case twin`` or ``--planes 16`` exercise the rows side by side. Both checkouts' passes
 must take the same arguments: from c07dcf1 on, the paths' sums are in tiles of columns
-(``fused_paths.tile_shape``) and the vertical pass has no block argument.
+(``fused_paths.tile_shape``) and the vertical pass has no block argument. The tiles are those of
+the captured call, one per thread of this process's default count: ``--threads`` changes the
+threads that run them, not their number.
 """
 
 from __future__ import annotations

@@ -368,12 +368,14 @@ def _path_numpy(cost, p1, p2, axis, backwards, guide):
     return out if axis == 0 else out.transpose(2, 1, 0)
 
 
+@pytest.mark.parametrize("kept", [True, False])
 @pytest.mark.parametrize("n", [9, 16, 17, 40])
-def test_the_paths_in_16_bits_add_up_as_plain_sgm_at_the_largest_costs_and_penalties(n):
+def test_the_paths_in_16_bits_add_up_as_plain_sgm_at_the_largest_costs_and_penalties(n, kept):
     """The paths hold their values in int16 and the sums in uint16 (fused_common's bounds): at
     costs up to COST_MAX and the large-jump penalty at PENALTY_MAX, where the values come
     closest to those bounds, the horizontal pass's sum of its two paths and the vertical pass's
-    top-down path added to it are plain int64 SGM's, exactly, in blocks of columns too; with
+    top-down path added to it are plain int64 SGM's, exactly, in tiles of columns whose edges
+    cut the side-by-side chunks and with the eroded volume kept or not; with
     few hypotheses (the rows side by side, in blocks and chunks that do not divide the frame)
     and with many (rows in pairs, an odd one alone; an odd row's middle pixel reached by both
     paths at one step)."""
@@ -389,10 +391,11 @@ def test_the_paths_in_16_bits_add_up_as_plain_sgm_at_the_largest_costs_and_penal
     guide = (rng.random((h, w)) < 0.3).astype(np.float32)
     # Tiles of 48 columns: the side-by-side chunks of 32 columns straddle their edges.
     total = np.zeros(fused_paths.tile_shape(h, n, w, 48), np.uint16)
-    eroded = np.zeros_like(vol)
+    eroded = np.zeros_like(vol) if kept else np.zeros((0, 0, 0), np.uint16)
     fused_paths.horizontal_paths(vol, guide, True, p1, p2, np.float32(0.25), 0, total, eroded)
     cost = vol.astype(np.int64)
-    np.testing.assert_array_equal(eroded, vol)  # eroded over one pixel: the costs
+    if kept:
+        np.testing.assert_array_equal(eroded, vol)  # eroded over one pixel: the costs
     lr, rl = (_path_numpy(cost, p1, p2, 2, back, guide) for back in (False, True))
     np.testing.assert_array_equal(fused_paths.untiled(total, w), lr + rl)
     assert (lr + rl).max() > 2 * COST_MAX + PENALTY_MAX  # the paths reach well past one cost's range
@@ -404,6 +407,28 @@ def test_the_paths_in_16_bits_add_up_as_plain_sgm_at_the_largest_costs_and_penal
     np.testing.assert_array_equal(fused_paths.untiled(total, w), three)
     assert three.max() > 3 * COST_MAX + PENALTY_MAX
     assert np.isfinite(index).all() and index.min() >= -0.5 and index.max() <= n - 0.5
+
+
+@pytest.mark.parametrize("tiles", [(2, 40), (4, 40), (1, 80), (3, 0)])
+def test_the_path_passes_refuse_sums_not_in_the_image_s_tiles(tiles):
+    """The passes index the paths' sums unchecked: sums whose tiles leave columns out, add a
+    whole tile past the image or have no width are refused before any is written."""
+    from lfring.core.viewstack import WEIGHT_FLOOR
+    from lfring.depth.engines import fused_paths
+
+    h, n, w = 6, 3, 100
+    vol = np.full((h, n, w), 1000, np.uint16)
+    guide = np.zeros((h, w), np.float32)
+    total = np.full((h, tiles[0], n, tiles[1]), 7, np.uint16)
+    out = np.full((h, w), np.nan, np.float32)
+    none = np.zeros((0, 0, 0), np.uint16)
+    with pytest.raises(ValueError, match="tiles"):
+        fused_paths.horizontal_paths(vol, guide, True, 8, 32, np.float32(0.25), 0, total, none)
+    with pytest.raises(ValueError, match="tiles"):
+        fused_paths.vertical_paths(vol, none, total, guide, True, 8, 32, np.float32(0.25), 0, 1, 1, WEIGHT_FLOOR, out,
+                                   out.copy())
+    assert (total == 7).all() and np.isnan(out).all()
+    assert fused_paths.tile_shape(h, n, w, 40) == (h, 3, n, 40)
 
 
 @pytest.mark.parametrize("all_valid", [True, False])

@@ -45,12 +45,9 @@ UNITS_PER_SCALE = 64
 # when what is left over after that is within this many pixels everywhere in the frame.
 RESAMPLE_TOL_PX = 0.01
 # Rows of a strip of the sweep (per parallel task), and the fewest columns of a block of the
-# vertical paths (one block per thread, a tile of the paths' volumes: fused_paths), whose width is
-# a multiple of COLUMN_ALIGN (16 uint16 costs, 32 bytes: two blocks share no cache line but where
-# the image's last block ends).
+# vertical paths (one block per thread, a tile of the paths' sums: fused_paths).
 STRIP_ROWS = 16
 MIN_COLUMN_BLOCK = 32
-COLUMN_ALIGN = 16
 # Rows sampled for a first estimate of the cost's scale (which sets the integer unit).
 SCALE_SAMPLE_ROWS = 16
 # The call's two 16-bit volumes (the costs and the horizontal paths' sums) are kept with the
@@ -61,7 +58,8 @@ KEEP_VOLUMES_BYTES = 512 << 20
 # The horizontal paths keep the eroded volume for the vertical ones (which would otherwise erode
 # every row again in each of their two directions) when it takes at most this many bytes: a third
 # 16-bit volume, left out on the largest volumes so that a call's peak memory stays near two, and
-# small enough that the three are kept for the next call.
+# small enough that the three are kept for the next call (but just under this limit, where the
+# paths' sums padded to whole tiles tip them over KEEP_VOLUMES_BYTES).
 ERODED_VOLUME_BYTES = KEEP_VOLUMES_BYTES // 3
 # The eroded volume's stand-in where it is not kept.
 _NOT_KEPT = np.empty((0, 0, 0), np.uint16)
@@ -243,7 +241,6 @@ def fused_index(views, calibration, plan, settings, subpixel_box_px: int, on_sta
 
     # As few blocks as threads: every block pays a fixed cost per row and hypothesis.
     block = max(MIN_COLUMN_BLOCK, -(-w // max(1, settings.threads)))
-    block = -(-block // COLUMN_ALIGN) * COLUMN_ALIGN
     tiles = fused_paths.tile_shape(h, n, w, block)
     vol, paths, *kept = _volumes(calibration, (h, n, w), tiles, eroded=2 * h * n * w <= ERODED_VOLUME_BYTES)
     eroded = kept[0] if kept else _NOT_KEPT

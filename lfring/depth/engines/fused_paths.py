@@ -47,6 +47,15 @@ def tile_shape(h: int, n: int, w: int, block: int) -> tuple:
     return (h, -(-w // block), n, block)
 
 
+@njit(**INLINE)
+def _check_tiles(total, w):
+    """Raise unless ``total``'s tiles are those of :func:`tile_shape` for ``w`` columns (the
+    passes index them unchecked)."""
+    t, b = total.shape[1], total.shape[3]
+    if not (b > 0 and (t - 1) * b < w <= t * b):
+        raise ValueError("the paths' sums are not in tiles of the image's columns (fused_paths.tile_shape)")
+
+
 def untiled(tiles: np.ndarray, w: int) -> np.ndarray:
     """The (h, N, w) volume of ``tiles`` (:func:`tile_shape`), a copy."""
     h, t, n, b = tiles.shape
@@ -400,7 +409,8 @@ def horizontal_paths(vol, guide, use_guide, p1, p2, edge_scale, erode_rad, total
     run side by side (one step of all their paths at a time, vectorised across the rows, after
     the costs are reordered pixel-outermost); with more, rows run in pairs (the four paths' steps
     interleaved), a step vectorised across its hypotheses."""
-    h, n, _ = vol.shape
+    h, n, w = vol.shape
+    _check_tiles(total, w)
     if n <= SIDE_BY_SIDE_HYPOTHESES:
         for k in prange((h + SIDE_BY_SIDE_ROWS - 1) // SIDE_BY_SIDE_ROWS):
             _horizontal_block(vol, k * SIDE_BY_SIDE_ROWS, min(h, (k + 1) * SIDE_BY_SIDE_ROWS), guide, use_guide, p1, p2,
@@ -527,6 +537,7 @@ def vertical_paths(vol, eroded, total, guide, use_guide, p1, p2, edge_scale, ero
     box's mean known cost ('raw') at the winner and its neighbours, and the confidence (the sum's
     distinctness times the raw curve's): ``index`` and ``conf`` (h, w) float32. ``eroded``: the eroded volume
     :func:`horizontal_paths` kept, or an empty array (each row is eroded again)."""
+    _check_tiles(total, vol.shape[2])
     for k in prange(total.shape[1]):
         _vertical_block(vol, eroded, total, guide, use_guide, p1, p2, edge_scale, erode_rad, raw_rad, exclude, floor, k,
                         index, conf)
