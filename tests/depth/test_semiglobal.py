@@ -409,17 +409,19 @@ def test_the_paths_in_16_bits_add_up_as_plain_sgm_at_the_largest_costs_and_penal
     assert np.isfinite(index).all() and index.min() >= -0.5 and index.max() <= n - 0.5
 
 
-@pytest.mark.parametrize("tiles", [(2, 40), (4, 40), (1, 80), (3, 0)])
-def test_the_path_passes_refuse_sums_not_in_the_image_s_tiles(tiles):
+@pytest.mark.parametrize("shape", [(6, 2, 3, 40), (6, 4, 3, 40), (6, 1, 3, 80), (6, 3, 3, 0), (5, 3, 3, 40),
+                                   (6, 3, 4, 40)])
+def test_the_path_passes_refuse_sums_not_in_the_image_s_tiles(shape):
     """The passes index the paths' sums unchecked: sums whose tiles leave columns out, add a
-    whole tile past the image or have no width are refused before any is written."""
+    whole tile past the image or have no width, or whose rows or hypotheses are not the
+    volume's, are refused before any is written."""
     from lfring.core.viewstack import WEIGHT_FLOOR
     from lfring.depth.engines import fused_paths
 
     h, n, w = 6, 3, 100
     vol = np.full((h, n, w), 1000, np.uint16)
     guide = np.zeros((h, w), np.float32)
-    total = np.full((h, tiles[0], n, tiles[1]), 7, np.uint16)
+    total = np.full(shape, 7, np.uint16)
     out = np.full((h, w), np.nan, np.float32)
     none = np.zeros((0, 0, 0), np.uint16)
     with pytest.raises(ValueError, match="tiles"):
@@ -526,14 +528,14 @@ def test_the_halves_pass_gives_each_poor_pixel_the_same_cost_however_its_columns
     np.testing.assert_array_equal(got[~mask], before[~mask])
 
 
-@pytest.mark.parametrize("block", [41, 9])
+@pytest.mark.parametrize("block", [41, 9, 64])
 def test_the_selection_fits_its_parabola_to_the_known_cost_s_box_mean(block):
     """Where every hypothesis's summed paths tie (a flat eroded cost), the vertical pass's winner
     is the hypothesis of the least box mean of the raw cost over the wider box (15 x 15, over its
     known pixels, reflected at the image's sides) and its offset the parabola through that mean's
     neighbours (the range's ends: the one-sided fit; unknown neighbours: the mean of the known
-    ones). Checked against NumPy on a cost with unknown pixels, in one block of columns and in
-    blocks whose edges lie inside the image."""
+    ones). Checked against NumPy on a cost with unknown pixels, in one block of columns (as wide
+    as the image, or a tile wider) and in blocks whose edges lie inside the image."""
     from lfring.core.viewstack import WEIGHT_FLOOR
     from lfring.depth.engines import fused_paths
     from lfring.depth.engines.fused_common import UNKNOWN

@@ -48,12 +48,13 @@ def tile_shape(h: int, n: int, w: int, block: int) -> tuple:
 
 
 @njit(**INLINE)
-def _check_tiles(total, w):
-    """Raise unless ``total``'s tiles are those of :func:`tile_shape` for ``w`` columns (the
-    passes index them unchecked)."""
+def _check_tiles(total, vol):
+    """Raise unless ``total`` is laid out as :func:`tile_shape` lays out a volume of ``vol``'s
+    shape (the passes index it unchecked)."""
+    h, n, w = vol.shape
     t, b = total.shape[1], total.shape[3]
-    if not (b > 0 and (t - 1) * b < w <= t * b):
-        raise ValueError("the paths' sums are not in tiles of the image's columns (fused_paths.tile_shape)")
+    if not (total.shape[0] == h and total.shape[2] == n and b > 0 and (t - 1) * b < w <= t * b):
+        raise ValueError("the paths' sums are not in tiles of the cost volume's shape (fused_paths.tile_shape)")
 
 
 def untiled(tiles: np.ndarray, w: int) -> np.ndarray:
@@ -267,8 +268,8 @@ def _horizontal_rows(vol, y, y2, guide, use_guide, p1, p2, edge_scale, erode_rad
     pair = y2 != y
     ext = np.empty(w + 2 * erode_rad, np.uint16)
     fill = np.empty(w, np.int64)
-    # One pixel per step: its N costs side by side, gathered pixel by pixel (twice as fast as
-    # numba's copy of the transposed view, and than explicit tiles).
+    # One pixel per step: its N costs side by side, gathered pixel by pixel (about twice as fast
+    # as numba's copy of the transposed view, and faster than 8 x 8 tiles: benchmarks/RESULTS.md).
     c = np.empty((2, w, n), np.int16)
     for r in range(2 if pair else 1):
         yy = y if r == 0 else y2
@@ -413,8 +414,8 @@ def horizontal_paths(vol, guide, use_guide, p1, p2, edge_scale, erode_rad, total
     run side by side (one step of all their paths at a time, vectorised across the rows, after
     the costs are reordered pixel-outermost); with more, rows run in pairs (the four paths' steps
     interleaved), a step vectorised across its hypotheses."""
-    h, n, w = vol.shape
-    _check_tiles(total, w)
+    h, n, _ = vol.shape
+    _check_tiles(total, vol)
     if n <= SIDE_BY_SIDE_HYPOTHESES:
         for k in prange((h + SIDE_BY_SIDE_ROWS - 1) // SIDE_BY_SIDE_ROWS):
             _horizontal_block(vol, k * SIDE_BY_SIDE_ROWS, min(h, (k + 1) * SIDE_BY_SIDE_ROWS), guide, use_guide, p1, p2,
@@ -541,7 +542,7 @@ def vertical_paths(vol, eroded, total, guide, use_guide, p1, p2, edge_scale, ero
     box's mean known cost ('raw') at the winner and its neighbours, and the confidence (the sum's
     distinctness times the raw curve's): ``index`` and ``conf`` (h, w) float32. ``eroded``: the eroded volume
     :func:`horizontal_paths` kept, or an empty array (each row is eroded again)."""
-    _check_tiles(total, vol.shape[2])
+    _check_tiles(total, vol)
     for k in prange(total.shape[1]):
         _vertical_block(vol, eroded, total, guide, use_guide, p1, p2, edge_scale, erode_rad, raw_rad, exclude, floor, k,
                         index, conf)
