@@ -282,9 +282,9 @@ def test_the_volumes_kept_with_the_calibration_change_no_answer(prototype, monke
     first = maps(estimate_depth(r.views, cal, **kw))
     kept = calibration_cache(cal, "fused volumes", list)
     assert len(kept) == 1 and all(v.dtype == np.uint16 for v in kept[0])
-    costs, sums, *eroded = kept[0]  # the paths' sums in tiles of columns, the others (h, N, w)
+    costs, sums, *eroded = kept[0]  # the costs (h, N, w); the paths' sums and the eroded in tiles
     h, w = first.shape[1:]
-    assert costs.shape[::2] == (h, w) and all(e.shape == costs.shape for e in eroded)
+    assert costs.shape[::2] == (h, w) and all(e.shape == sums.shape for e in eroded)
     assert fused_paths.untiled(sums, w).shape == costs.shape
     n = kept[0][0].shape[1]
     np.testing.assert_array_equal(maps(estimate_depth(r.views, cal, **kw)), first)
@@ -310,14 +310,14 @@ def test_the_volumes_kept_with_the_calibration_change_no_answer(prototype, monke
 
 
 def test_the_eroded_volume_kept_between_the_passes_changes_no_answer(prototype, monkeypatch):
-    """The horizontal paths keep the eroded volume for the vertical ones below a size limit: the
-    kept volume is the cost's least over each 5 x 5 window (clipped at the image's sides), with
+    """The horizontal paths keep the eroded volume (in the paths' tiles) for the vertical ones
+    below a size limit: the kept volume is the cost's least over each 5 x 5 window (clipped at the image's sides), with
     a pixel's unknown costs replaced by the rounded mean of its known ones, and the maps are
     those of a call that keeps none and erodes every row again, to the bit."""
     from scipy.ndimage import minimum_filter
 
     from lfring.core.viewstack import calibration_cache
-    from lfring.depth.engines import fused
+    from lfring.depth.engines import fused, fused_paths
     from lfring.depth.engines.fused_common import UNKNOWN
     from lfring.synth.presets import three_depth_scene
 
@@ -335,6 +335,7 @@ def test_the_eroded_volume_kept_between_the_passes_changes_no_answer(prototype, 
     assert len(kept[0]) == 3 and len(none[0]) == 2
     np.testing.assert_array_equal(kept_maps, none_maps)
     vol, _, eroded = kept[0]
+    eroded = fused_paths.untiled(eroded, vol.shape[2])  # kept in the paths' tiles
     least = minimum_filter(vol, size=(5, 1, 5), mode="nearest").astype(np.int64)  # (h, N, w)
     known = least != UNKNOWN
     count = known.sum(axis=1, keepdims=True)
@@ -391,11 +392,11 @@ def test_the_paths_in_16_bits_add_up_as_plain_sgm_at_the_largest_costs_and_penal
     guide = (rng.random((h, w)) < 0.3).astype(np.float32)
     # Tiles of 48 columns: the side-by-side chunks of 32 columns straddle their edges.
     total = np.zeros(fused_paths.tile_shape(h, n, w, 48), np.uint16)
-    eroded = np.zeros_like(vol) if kept else np.zeros((0, 0, 0), np.uint16)
+    eroded = np.zeros_like(total) if kept else np.zeros((0, 0, 0, 0), np.uint16)
     fused_paths.horizontal_paths(vol, guide, True, p1, p2, np.float32(0.25), 0, total, eroded)
     cost = vol.astype(np.int64)
     if kept:
-        np.testing.assert_array_equal(eroded, vol)  # eroded over one pixel: the costs
+        np.testing.assert_array_equal(fused_paths.untiled(eroded, w), vol)  # eroded over one pixel: the costs
     lr, rl = (_path_numpy(cost, p1, p2, 2, back, guide) for back in (False, True))
     np.testing.assert_array_equal(fused_paths.untiled(total, w), lr + rl)
     assert (lr + rl).max() > 2 * COST_MAX + PENALTY_MAX  # the paths reach well past one cost's range
@@ -423,7 +424,7 @@ def test_the_path_passes_refuse_sums_not_in_the_image_s_tiles(shape):
     guide = np.zeros((h, w), np.float32)
     total = np.full(shape, 7, np.uint16)
     out = np.full((h, w), np.nan, np.float32)
-    none = np.zeros((0, 0, 0), np.uint16)
+    none = np.zeros((0, 0, 0, 0), np.uint16)
     with pytest.raises(ValueError, match="tiles"):
         fused_paths.horizontal_paths(vol, guide, True, 8, 32, np.float32(0.25), 0, total, none)
     with pytest.raises(ValueError, match="tiles"):
@@ -545,8 +546,8 @@ def test_the_selection_fits_its_parabola_to_the_known_cost_s_box_mean(block):
     vol = rng.integers(1024, 6000, (h, n, w)).astype(np.uint16)
     vol[rng.random((h, n, w)) < 0.15] = UNKNOWN
     vol[:, :, 30:33] = UNKNOWN  # columns no hypothesis knows
-    eroded = np.full((h, n, w), 100, np.uint16)
     total = np.zeros(fused_paths.tile_shape(h, n, w, block), np.uint16)
+    eroded = np.full(total.shape, 100, np.uint16)
     index = np.full((h, w), np.nan, np.float32)
     conf = np.full((h, w), np.nan, np.float32)
     guide = np.zeros((h, w), np.float32)

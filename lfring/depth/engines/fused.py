@@ -62,7 +62,7 @@ KEEP_VOLUMES_BYTES = 512 << 20
 # paths' sums padded to whole tiles tip them over KEEP_VOLUMES_BYTES).
 ERODED_VOLUME_BYTES = KEEP_VOLUMES_BYTES // 3
 # The eroded volume's stand-in where it is not kept.
-_NOT_KEPT = np.empty((0, 0, 0), np.uint16)
+_NOT_KEPT = np.empty((0, 0, 0, 0), np.uint16)
 
 
 def _all_valid(masks) -> bool:
@@ -279,7 +279,7 @@ def fused_index(views, calibration, plan, settings, subpixel_box_px: int, on_sta
 def _volumes(calibration, shape, tiles, eroded: bool) -> tuple:
     """The uint16 volumes for one call: the costs' of ``shape``, the paths' sums in ``tiles``
     (:func:`lfring.depth.engines.fused_paths.tile_shape`) and with ``eroded`` the eroded
-    volume's of ``shape``: those the calibration's last call left
+    volume's in the same tiles: those the calibration's last call left
     (:data:`KEEP_VOLUMES_BYTES`) when they match, else new ones. A call takes them out of the
     cache, so calls running at once never share them."""
     kept = calibration_cache(calibration, "fused volumes", list)
@@ -287,7 +287,7 @@ def _volumes(calibration, shape, tiles, eroded: bool) -> tuple:
         vols = kept.pop()
     except IndexError:
         vols = None
-    shapes = (tuple(shape), tuple(tiles), tuple(shape))[:3 if eroded else 2]
+    shapes = (tuple(shape), tuple(tiles), tuple(tiles))[:3 if eroded else 2]
     if vols is not None and tuple(v.shape for v in vols) == shapes:
         return vols
     return tuple(fresh_zeros(s, np.uint16) for s in shapes)  # written before they are read

@@ -3,8 +3,8 @@
 
 1. :func:`horizontal_paths`: per row (or block of rows side by side, for few hypotheses), the
    volume eroded (shiftable windows) and the left-right and right-left scan paths, summed into
-   a uint16 accumulator in tiles of columns (:func:`tile_shape`); the eroded volume is kept for
-   the next pass where the caller gives it a buffer.
+   a uint16 accumulator in tiles of columns (:func:`tile_shape`); the eroded volume is kept, in
+   the same tiles, for the next pass where the caller gives it a buffer.
 2. :func:`vertical_paths`: per tile of columns, the top-down path, then the bottom-up one, at
    whose every pixel the sum of the paths is complete: the winner, its parabola on the wider box
    of the cost and the confidence are taken there, and the sum is never written back. Without
@@ -13,9 +13,9 @@
 The vertical pass runs a block of columns per thread, row after row. In the (h, N, w) layout of
 the cost volume a block's part of a row is N pieces scattered over the row's N * w values, and
 streaming such pieces from memory ran several times slower than whole rows (see
-benchmarks/RESULTS.md). The horizontal paths' sums, which that pass reads and writes at every row,
-are therefore laid out (h, tiles, N, block): a block's part of a row is one contiguous run. (The
-eroded volume in tiles too gained the vertical pass less than it cost the horizontal one.)
+benchmarks/RESULTS.md). The horizontal paths' sums and the eroded volume, which that pass reads at
+every row, are therefore laid out (h, tiles, N, block): a block's part of a row is one contiguous
+run.
 """
 
 from __future__ import annotations
@@ -233,9 +233,22 @@ def _chain_step(c, prev, cur, pmin, jump, p1):
 
 
 @njit(**INLINE)
-def _kept(eroded, vol):
-    """Whether ``eroded`` is a volume of ``vol``'s shape (not the empty stand-in)."""
-    return eroded.shape[0] == vol.shape[0] and eroded.shape[1] == vol.shape[1] and eroded.shape[2] == vol.shape[2]
+def _kept(eroded, total):
+    """Whether ``eroded`` is a volume in the tiles of ``total`` (not the empty stand-in)."""
+    return (eroded.shape[0] == total.shape[0] and eroded.shape[1] == total.shape[1]
+            and eroded.shape[2] == total.shape[2] and eroded.shape[3] == total.shape[3])
+
+
+@njit(**INLINE)
+def _put_tiles(row, out):
+    """out (tiles, N, block) = row (N, w) cut into its tiles."""
+    t, n, b = out.shape
+    w = row.shape[1]
+    for k in range(t):
+        x0 = k * b
+        m = min(w, x0 + b) - x0
+        for d in range(n):
+            _copy(row[d, x0:x0 + m], out[k, d, :m])
 
 
 @njit(**INLINE)
@@ -271,9 +284,10 @@ def _horizontal_rows(vol, y, y2, guide, use_guide, p1, p2, edge_scale, erode_rad
     # One pixel per step: its N costs side by side, gathered pixel by pixel (about twice as fast
     # as numba's copy of the transposed view, and faster than 8 x 8 tiles: benchmarks/RESULTS.md).
     c = np.empty((2, w, n), np.int16)
+    e = np.empty((n, w), np.uint16)
+    kept = _kept(eroded, total)
     for r in range(2 if pair else 1):
         yy = y if r == 0 else y2
-        e = eroded[yy] if _kept(eroded, vol) else np.empty((n, w), np.uint16)
         _eroded_rows(vol, yy, erode_rad, 0, w, ext, e)
         _fill_unknown(e, fill)
         cr = c[r]
@@ -281,6 +295,8 @@ def _horizontal_rows(vol, y, y2, guide, use_guide, p1, p2, edge_scale, erode_rad
             px = cr[x]
             for d in range(n):
                 px[d] = np.int16(e[d, x])
+        if kept:
+            _put_tiles(e, eroded[yy])
     # A step's least over the hypotheses is a serial chain from one pixel to the next: the
     # left-right and right-left paths of both rows (four independent chains) run step by step
     # together, so that one chain's reduction overlaps the others' arithmetic.
@@ -346,13 +362,15 @@ def _horizontal_block(vol, y0, y1, guide, use_guide, p1, p2, edge_scale, erode_r
     _, n, w = vol.shape
     b = y1 - y0
     tw = total.shape[3]
-    kept = _kept(eroded, vol)
-    block = eroded[y0:y1] if kept else np.empty((b, n, w), np.uint16)
+    kept = _kept(eroded, total)
+    block = np.empty((b, n, w), np.uint16)
     ext = np.empty(w + 2 * erode_rad, np.uint16)
     fill = np.empty(w, np.int64)
     for r in range(b):
         _eroded_rows(vol, y0 + r, erode_rad, 0, w, ext, block[r])
         _fill_unknown(block[r], fill)
+        if kept:
+            _put_tiles(block[r], eroded[y0 + r])
     # A chunk of the rows' costs with the pixel outermost: t[j] (N, b) is one step of the b
     # paths; acc the chunk's path values, in the same order.
     t = np.empty((chunk, n, b), np.int16)
@@ -407,8 +425,8 @@ def _horizontal_block(vol, y0, y1, guide, use_guide, p1, p2, edge_scale, erode_r
 def horizontal_paths(vol, guide, use_guide, p1, p2, edge_scale, erode_rad, total, eroded):
     """The left-right and right-left paths of every row of the eroded volume: ``total`` uint16 in
     tiles (:func:`tile_shape`; they set the blocks of :func:`vertical_paths`) = their sum.
-    ``eroded``: an (h, N, w) uint16 buffer that receives the eroded volume (its unknown costs
-    filled) for :func:`vertical_paths`, or an empty array.
+    ``eroded``: a uint16 buffer in the same tiles that receives the eroded volume (its unknown
+    costs filled) for :func:`vertical_paths`, or an empty 4-d array.
 
     Up to :data:`SIDE_BY_SIDE_HYPOTHESES` hypotheses, blocks of :data:`SIDE_BY_SIDE_ROWS` rows
     run side by side (one step of all their paths at a time, vectorised across the rows, after
@@ -486,7 +504,7 @@ def _vertical_block(vol, eroded, total, guide, use_guide, p1, p2, edge_scale, er
     :func:`vertical_paths`)."""
     h, n, w = vol.shape
     tw = total.shape[3]
-    kept = _kept(eroded, vol)
+    kept = _kept(eroded, total)
     x0 = tile * tw
     x1 = min(w, x0 + tw)
     m = x1 - x0
@@ -509,7 +527,7 @@ def _vertical_block(vol, eroded, total, guide, use_guide, p1, p2, edge_scale, er
                 yp = y - 1 if direction == 0 else y + 1
                 _p2_row(guide[y, x0:x1], guide[yp, x0:x1], use_guide, p1, p2, edge_scale, p2e)
             if kept:
-                cur = _next_step(eroded, y, x0, state, mins, p2e, i, p1)
+                cur = _next_step(eroded[y], tile, 0, state, mins, p2e, i, p1)
             else:
                 cur = _next_step(e, 0, 0, state, mins, p2e, i, p1)
             if direction == 0:
@@ -541,7 +559,8 @@ def vertical_paths(vol, eroded, total, guide, use_guide, p1, p2, edge_scale, ero
     pass the winner of the sum, its sub-hypothesis offset from the parabola through the wider
     box's mean known cost ('raw') at the winner and its neighbours, and the confidence (the sum's
     distinctness times the raw curve's): ``index`` and ``conf`` (h, w) float32. ``eroded``: the eroded volume
-    :func:`horizontal_paths` kept, or an empty array (each row is eroded again)."""
+    :func:`horizontal_paths` kept (in ``total``'s tiles), or an empty 4-d array (each row is
+    eroded again)."""
     _check_tiles(total, vol)
     for k in prange(total.shape[1]):
         _vertical_block(vol, eroded, total, guide, use_guide, p1, p2, edge_scale, erode_rad, raw_rad, exclude, floor, k,
