@@ -58,8 +58,8 @@ KEEP_VOLUMES_BYTES = 512 << 20
 # The horizontal paths keep the eroded volume for the vertical ones (which would otherwise erode
 # every row again in each of their two directions) when it takes at most this many bytes: a third
 # 16-bit volume, left out on the largest volumes so that a call's peak memory stays near two, and
-# small enough that the three are kept for the next call (but just under this limit, where the
-# paths' sums padded to whole tiles tip them over KEEP_VOLUMES_BYTES).
+# small enough that the three are kept for the next call (judged on the tiles' size, which is at
+# least the cost volume's: the three then fit in KEEP_VOLUMES_BYTES).
 ERODED_VOLUME_BYTES = KEEP_VOLUMES_BYTES // 3
 # The eroded volume's stand-in where it is not kept.
 _NOT_KEPT = np.empty((0, 0, 0, 0), np.uint16)
@@ -242,7 +242,7 @@ def fused_index(views, calibration, plan, settings, subpixel_box_px: int, on_sta
     # As few blocks as threads: every block pays a fixed cost per row and hypothesis.
     block = max(MIN_COLUMN_BLOCK, -(-w // max(1, settings.threads)))
     tiles = fused_paths.tile_shape(h, n, w, block)
-    vol, paths, *kept = _volumes(calibration, (h, n, w), tiles, eroded=2 * h * n * w <= ERODED_VOLUME_BYTES)
+    vol, paths, *kept = _volumes(calibration, (h, n, w), tiles, eroded=2 * math.prod(tiles) <= ERODED_VOLUME_BYTES)
     eroded = kept[0] if kept else _NOT_KEPT
     best = np.empty((h, w), np.float32)
     total = np.empty((h, w), np.float32)
