@@ -19,11 +19,10 @@ The other checkout's module is the only part of it used: it imports this checkou
 the checkout's root, or put it on ``PYTHONPATH``). At 64 planes the horizontal pass runs each row
 alone; ``--case twin`` or ``--planes 16`` exercise the rows side by side. Both checkouts' passes
 must take the same arguments and layouts: from c07dcf1 on, the paths' sums are in tiles of columns
-(``fused_paths.tile_shape``) and the vertical pass has no block argument; later the eroded volume
-is in the same tiles too (the run stops with a message where the other checkout's passes refuse
-the inputs). The tiles are those of
-the captured call, one per thread of this process's default count: ``--threads`` changes the
-threads that run them, not their number.
+(``fused_paths.tile_shape``) and the vertical pass has no block argument; from ab4edc4 on, the
+eroded volume is in the same tiles too (the run stops with a message where the other checkout's
+passes refuse the inputs). The tiles are those of the captured call, one per thread of this
+process's default count: ``--threads`` changes the threads that run them, not their number.
 """
 
 from __future__ import annotations
