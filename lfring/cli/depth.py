@@ -45,7 +45,8 @@ MAX_PLANES = 1000
               help="Spatial aggregation of the cost (guided: edge-aware, slower, measured more accurate on the twin).")
 @click.option("--method", type=click.Choice(["sgm", "local"]), default="sgm", show_default=True,
               help="sgm: semi-global optimisation of the whole sweep (fills weak texture, rejects occlusions); "
-                   "local: each pixel's best hypothesis alone (several times faster).")
+                   "local: each pixel's best hypothesis alone (faster on small frames, not on large views over many "
+                   "planes).")
 @click.option("--paths", "scan_paths", type=click.Choice(["4", "8"]), default="4", show_default=True,
               help="Scan paths of --method sgm (8 adds the diagonals: about twice the optimisation's time).")
 @click.option("--consistency/--no-consistency", default=None,

@@ -135,8 +135,8 @@ def estimate_depth(
         otherwise). The result is refined by an edge-aware weighted median;
         ``DepthResult.depth_filled_m`` also fills the unconfident pixels
         (:mod:`lfring.depth.refine`). 'local': winner-take-all on the aggregated cost of each
-        pixel alone, streamed (memory does not grow with the number of hypotheses): the
-        fastest, and exact where the texture is good.
+        pixel alone, streamed (memory does not grow with the number of hypotheses): faster on
+        small frames (not on large views over many planes), and exact where the texture is good.
     paths : {4, 8}
         Scan paths of 'sgm' (the other engines refuse 8).
     consistency : bool, optional
