@@ -4,6 +4,7 @@ selection), the refinement, and the rest of the call, at 1, 2, 4, ... up to all 
 
     python benchmarks/bench_threads.py               # 4 x 1060^2 x 64 planes and the twin
     python benchmarks/bench_threads.py --runs 5 --case twin --threads 1 16
+    python benchmarks/bench_threads.py --case twin --threads 1 2 --rest   # the rest's parts too
 
 Each pass is timed by wrapping its module function (wall time, the calls in between are what
 "rest" holds). Cases: the random-texture (``_common.random_views``) 4 x 1060^2 views at 64 planes, and the
@@ -25,8 +26,9 @@ import warnings
 import numpy as np
 from _common import ZMAX, ZMIN, machine_line, random_views, twin_scene
 
-from lfring.depth import estimate_depth
-from lfring.depth.engines import fused_paths, fused_volume, semiglobal
+from lfring.depth import estimate_depth, refine_kernels
+from lfring.depth.costs import lcn
+from lfring.depth.engines import fused, fused_paths, fused_volume, semiglobal
 
 PASSES = (
     (fused_volume, "sweep_volume", "sweep"),
@@ -36,10 +38,20 @@ PASSES = (
     (semiglobal, "refine_index", "refinement"),
 )
 
+# With --rest: the parts of the rest and of the refinement named where they are looked up (the
+# depth and filled maps' strips are semiglobal's only run_threads call).
+REST = (
+    (fused, "guide_image", "guide image"),
+    (lcn, "lcn_sources", "cost sources"),
+    (fused_volume, "sample_costs", "scale sample"),
+    (semiglobal, "run_threads", "map strips"),
+    (refine_kernels, "weighted_median", "weighted median (of the refinement)"),
+)
 
-def _timed(spent: dict):
-    """Wrap every pass of PASSES so that its wall time adds up in ``spent``."""
-    for module, name, label in PASSES:
+
+def _timed(spent: dict, parts=PASSES):
+    """Wrap every pass of ``parts`` so that its wall time adds up in ``spent``."""
+    for module, name, label in parts:
         fn = getattr(module, name)
 
         @functools.wraps(fn)
@@ -69,10 +81,14 @@ def main(argv=None) -> int:
     ap.add_argument("--runs", type=int, default=3)
     ap.add_argument("--case", choices=("big", "twin", "all"), default="all")
     ap.add_argument("--threads", type=int, nargs="+", help="thread counts (default 1, 2, 4, ... up to all cores)")
+    ap.add_argument("--rest", action="store_true", help="also time the named parts of the rest and the refinement")
     args = ap.parse_args(argv)
     warnings.simplefilter("ignore")
     spent: dict = {}
     _timed(spent)
+    parts: dict = {}
+    if args.rest:
+        _timed(parts, REST)
     cores = os.cpu_count() or 1
     counts = args.threads or sorted({t for t in (1, 2, 4, 8, 16, 32, 64) if t <= cores} | {cores})
     print(machine_line())
@@ -87,11 +103,14 @@ def main(argv=None) -> int:
         for t in counts:
             estimate_depth(views, cal, threads=t, **kw)
             rows = []
+            part_rows = []
             for _ in range(args.runs):
                 spent.clear()
+                parts.clear()
                 t0 = time.perf_counter()
                 r = estimate_depth(views, cal, threads=t, **kw)
                 rows.append(dict(spent, whole=time.perf_counter() - t0))
+                part_rows.append(dict(parts))
             depth = np.nan_to_num(r.depth_m, nan=-1.0)
             base = depth if base is None else base
             med = {k: statistics.median(row.get(k, 0.0) for row in rows) for k in (*labels, "whole")}
@@ -100,6 +119,10 @@ def main(argv=None) -> int:
             cells = " | ".join(f"{med[k] * 1e3:.0f}" for k in labels)
             print(f"| {t} | {cells} | {rest * 1e3:.0f} | {med['whole'] * 1e3:.0f} | {one / med['whole']:.2f} | "
                   f"{'yes' if np.array_equal(depth, base) else 'NO'} |", flush=True)
+            if args.rest:
+                print("|   of which | " + ", ".join(
+                    f"{label} {statistics.median(row.get(label, 0.0) for row in part_rows) * 1e3:.1f}"
+                    for _, _, label in REST) + " |", flush=True)
     return 0
 
 
