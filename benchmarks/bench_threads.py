@@ -45,7 +45,7 @@ REST = (
     (lcn, "lcn_sources", "cost sources"),
     (fused_volume, "sample_costs", "scale sample"),
     (semiglobal, "run_threads", "map strips"),
-    (refine_kernels, "weighted_median", "weighted median (of the refinement)"),
+    (refine_kernels, "weighted_median", "weighted median kernel (of the refinement)"),
 )
 
 

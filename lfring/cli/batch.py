@@ -50,7 +50,8 @@ def _refocus_depths(text: str) -> tuple[float, ...]:
                    "infinity, where the views stop moving).")
 @click.option("--planes", type=int, default=None, metavar="N", help="Depth hypotheses (default: 1 px of view motion apart).")
 @click.option("--depth-method", type=click.Choice(["sgm", "local"]), default="sgm", show_default=True,
-              help="Depth maps by semi-global optimisation, or by the faster local sweep (see lfring depth --method).")
+              help="Depth maps by semi-global optimisation, or by the local sweep (faster on small frames; see lfring "
+                   "depth --method).")
 @click.option("--all-in-focus", "aif", is_flag=True, help="All-in-focus image of every frame.")
 @click.option("--viewer", is_flag=True, help="Interactive HTML viewer of every frame, NAME_viewer.html (see lfring view).")
 @click.option("--reference", default="center", show_default=True, metavar="center|0..3", help="Frame of the results.")

@@ -240,8 +240,9 @@ def _target(plane_m: float, reference_depth) -> np.ndarray | float:
 # of a good part. ZNCC with guided aggregation found the same defects, several times slower.
 SWEEP_COST = "lcn"
 SWEEP_AGGREGATION = "box"
-# The local sweep (winner-take-all per pixel): what these figures were measured with, and the
-# fastest; its confidence says where a pixel's own cost curve is distinct.
+# The local sweep (winner-take-all per pixel): what these figures were measured with, and faster
+# than the semi-global engine on frames of this size; its confidence says where a pixel's own cost
+# curve is distinct.
 SWEEP_METHOD = "local"
 SWEEP_MIN_VIEWS = 2
 # Each view's weight rises over the refocusing taper (TAPER, the outer part of its disc), not the
