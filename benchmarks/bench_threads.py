@@ -38,13 +38,12 @@ PASSES = (
     (semiglobal, "refine_index", "refinement"),
 )
 
-# With --rest: the parts of the rest and of the refinement named where they are looked up (the
-# depth and filled maps' strips are semiglobal's only run_threads call).
+# With --rest: the parts of the rest and of the refinement, named where they are looked up.
 REST = (
     (fused, "guide_image", "guide image"),
     (lcn, "lcn_sources", "cost sources"),
     (fused_volume, "sample_costs", "scale sample"),
-    (semiglobal, "run_threads", "map strips"),
+    (refine_kernels, "depth_maps", "depth maps"),
     (refine_kernels, "weighted_median", "weighted median kernel (of the refinement)"),
 )
 

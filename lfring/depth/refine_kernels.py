@@ -2,7 +2,9 @@
 
 Besides the weighted median, the refinement's per-pixel steps around it (which pixels are known,
 their range and bins, the smoother's inputs and the filled map) run here row-parallel, in float32
-as NumPy computes them: in NumPy they were serial passes that bound the call on many cores.
+as NumPy computes them: in NumPy they were serial passes that bound the call on many cores. So
+does the semi-global engine's last step, from the refined and filled index maps to the depth maps
+(:func:`depth_maps`).
 
 Importing this module imports numba; :mod:`lfring.depth.refine` imports it on first use only.
 """
@@ -12,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-__all__ = ["bin_values", "fill_inputs", "filled_map", "known_pixels", "value_range", "weighted_median"]
+__all__ = ["bin_values", "depth_maps", "fill_inputs", "filled_map", "known_pixels", "value_range", "weighted_median"]
 
 
 KERNEL = dict(parallel=True, cache=True, nogil=True, fastmath=False, error_model="numpy")
@@ -91,6 +93,34 @@ def filled_map(known, refined, num, den, floor, out):
                 out[y, x] = refined[y, x]
             else:
                 out[y, x] = num[y, x] / den[y, x] if den[y, x] > floor else np.float32(np.nan)
+
+
+@njit(**KERNEL)
+def depth_maps(refined, index, filled, confidence, nviews, use_index, step, inv0, z0, seen_views, depth, conf_out,
+               index_out, filled_depth):
+    """The semi-global engine's maps from its index maps, for hypotheses evenly spaced in
+    1 / (Z - z0), in one pass with :class:`lfring.depth.selection.Finisher`'s floats.
+
+    A pixel's index is ``refined`` where finite, else ``index`` with ``use_index`` (NaN without).
+    Where ``nviews`` reaches ``seen_views`` and that index is finite: ``depth`` = 1 / (index
+    ``step`` + ``inv0``) + ``z0``, ``conf_out`` the confidence, ``index_out`` the index; elsewhere
+    NaN, 0 and NaN. ``filled_depth``: the depth of ``filled`` where finite, else of that index,
+    wherever ``nviews`` reaches ``seen_views``; NaN elsewhere."""
+    h, w = refined.shape
+    nan = np.float32(np.nan)
+    one = np.float32(1.0)
+    for y in prange(h):
+        for x in range(w):
+            r = refined[y, x]
+            i = r if np.isfinite(r) else (index[y, x] if use_index else nan)
+            f = filled[y, x]
+            f = f if np.isfinite(f) else i
+            views_ok = nviews[y, x] >= seen_views
+            seen = views_ok and np.isfinite(i)
+            depth[y, x] = one / (i * step + inv0) + z0 if seen else nan
+            conf_out[y, x] = confidence[y, x] if seen else np.float32(0.0)
+            index_out[y, x] = i if seen else nan
+            filled_depth[y, x] = one / (f * step + inv0) + z0 if views_ok else nan
 
 
 # A row's pixels whose window spans one bin or two adjacent ones take the median from four sums

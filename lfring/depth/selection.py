@@ -259,10 +259,16 @@ class Finisher:
         idx, conf = refine(best_i, c_best, c_prev, c_next, c_second, self.n)
         self.rows(r0, r1, idx, conf, c_best, nviews)
 
+    @property
+    def seen_views(self) -> float:
+        """The views' summed weight from which a pixel counts as seen: ``min_views`` less half a
+        view (the views' weights taper at their rims)."""
+        return self.min_views - 0.5
+
     def rows(self, r0, r1, idx, conf, c_best, nviews):
         """Rows r0 to r1 from fractional hypothesis indices and confidences."""
         depth = self._depth(idx)
-        seen = (nviews >= self.min_views - 0.5) & np.isfinite(c_best)
+        seen = (nviews >= self.seen_views) & np.isfinite(c_best)
         self.depth[r0:r1] = np.where(seen, depth, np.float32(np.nan))
         self.conf[r0:r1] = np.where(seen, conf, np.float32(0.0))
         self.index[r0:r1] = np.where(seen, idx, np.float32(np.nan))
@@ -270,7 +276,7 @@ class Finisher:
     def depth_of(self, idx, nviews) -> np.ndarray:
         """Depth in metres (float32) of a map (or a strip of rows) of fractional indices; NaN
         where the index is NaN or fewer than ``min_views`` views see the pixel."""
-        seen = nviews >= self.min_views - 0.5
+        seen = nviews >= self.seen_views
         return np.where(seen, self._depth(np.asarray(idx, np.float32)), np.float32(np.nan)).astype(np.float32)
 
     def _depth(self, idx):

@@ -188,6 +188,53 @@ def test_the_compiled_steps_around_the_median_are_numpy_s_to_the_bit():
     assert all(m.shape == (0, 5) for m in empty)
 
 
+@pytest.mark.parametrize("use_index", [True, False])
+def test_the_compiled_depth_maps_are_the_finishers_to_the_bit(use_index):
+    """The semi-global engine's last step (index maps to depth, confidence, index and filled
+    depth) in one compiled pass equals :class:`Finisher`'s NumPy steps on the whole frame, on
+    maps with NaN and infinities, views seen by too few, and the fallback to the unrefined index
+    with and without it (``use_index``: without the left-right check)."""
+    from lfring.calibration import RingCalibration
+    from lfring.depth import refine_kernels
+    from lfring.depth.hypotheses import depth_hypotheses
+    from lfring.depth.selection import Finisher
+
+    cal = RingCalibration.load("twin_binned2")
+    depths = depth_hypotheses(cal, 0.3, 1.1)
+    rng = np.random.default_rng(7)
+    h, w = 41, 59
+    n = len(depths)
+
+    def holes(a, share, value):
+        a[rng.random((h, w)) < share] = value
+        return a
+
+    refined = holes(holes(rng.uniform(0, n - 1, (h, w)).astype(np.float32), 0.2, np.nan), 0.02, np.inf)
+    index = holes(rng.uniform(0, n - 1, (h, w)).astype(np.float32), 0.1, np.nan)
+    filled = holes(holes(rng.uniform(0, n - 1, (h, w)).astype(np.float32), 0.1, np.nan), 0.02, -np.inf)
+    confidence = rng.uniform(0, 1, (h, w)).astype(np.float32)
+    nviews = rng.choice(np.float32([0.0, 1.2, 1.5, 2.0, 3.7, 4.0]), (h, w))
+
+    want = Finisher(depths, cal.depth_origin_m, (h, w), 2)
+    assert want.linear
+    idx = np.where(np.isfinite(refined), refined, index if use_index else np.nan).astype(np.float32)
+    fills = np.where(np.isfinite(filled), filled, idx).astype(np.float32)
+    missing = np.where(np.isfinite(idx), np.float32(0.0), np.float32(np.inf))
+    want.rows(0, h, np.nan_to_num(idx), confidence, missing, nviews)
+    want_filled = want.depth_of(fills, nviews)
+
+    got = Finisher(depths, cal.depth_origin_m, (h, w), 2)
+    got_filled = np.empty((h, w), np.float32)
+    refine_kernels.depth_maps(refined, index, filled, confidence, nviews, use_index, np.float32(got.step),
+                              np.float32(got.inv[0]), np.float32(got.z0), np.float32(got.seen_views), got.depth, got.conf,
+                              got.index, got_filled)
+    for a, b in ((got.depth, want.depth), (got.conf, want.conf), (got.index, want.index), (got_filled, want_filled)):
+        np.testing.assert_array_equal(a, b)
+    seen = (nviews >= 1.5) & np.isfinite(idx)
+    assert 0.3 < seen.mean() < 0.8 and np.isnan(got.depth[~seen]).all() and np.isfinite(got.depth[seen]).all()
+    assert np.isnan(got_filled[nviews < 1.5]).all()
+
+
 def _window_median(values, bins, guide8, lut, radius):
     """The weighted median written plainly: per known pixel, its window's known entries sorted by
     bin, the lowest bin whose cumulative weight reaches half the total, the weighted mean of the

@@ -649,7 +649,7 @@ def finish_device(finisher, index, confidence, missing, nviews, filled):
     """What :meth:`lfring.depth.selection.Finisher.rows` and ``depth_of`` make of the method's
     maps, on their device: depth, confidence, index and filled depth ((h, w) float32)."""
     torch = require_torch()
-    seen = nviews >= finisher.min_views - 0.5
+    seen = nviews >= finisher.seen_views
     rows = seen & torch.isfinite(missing)
     nan = float("nan")
     depth = torch.where(rows, _depth_of(finisher, index), nan)

@@ -20,7 +20,7 @@ import warnings
 
 import numpy as np
 
-from lfring.core.threads import STRIP_PIXELS, numba_threads, run_threads
+from lfring.core.threads import numba_threads
 from lfring.depth.aggregation import box_mean_of_finite, least_over_windows
 from lfring.depth.costs.lcn_halves import take_halves, view_halves
 from lfring.depth.engines.base import DepthEngine
@@ -143,22 +143,20 @@ def _optimise(views, calibration, plan, settings, fin, consistency=True, report=
         # fewer bad pixels in depth_filled_m on real stereo pairs, and no more on the twin's pairs.
         behind = fill_from_farther_side(refined, ~keep, axis=baseline_axis(plan, other.reference))
         filled = np.where(~keep & np.isfinite(behind), behind, filled).astype(np.float32)
-    depth_filled = np.empty((h, w), np.float32)
+    if fin.linear:  # hypotheses evenly spaced in 1 / (Z - z0), as depth_hypotheses makes them
+        from lfring.depth import refine_kernels
 
-    def finish(r0: int, r1: int) -> None:  # a strip of rows: the whole-frame steps, shared among the threads
-        rows = slice(r0, r1)
-        idx = np.where(np.isfinite(refined[rows]), refined[rows], np.nan if consistency else index[rows])
-        idx = idx.astype(np.float32)
-        fills = np.where(np.isfinite(filled[rows]), filled[rows], idx).astype(np.float32)  # never unknown where idx is known
-        missing = np.where(np.isfinite(idx), np.float32(0.0), np.float32(np.inf))
-        fin.rows(r0, r1, np.nan_to_num(idx), confidence[rows], missing, nviews[rows])
-        depth_filled[rows] = fin.depth_of(fills, nviews[rows])
-
-    # A strip per thread, none under STRIP_PIXELS: on small frames many threads would each pay
-    # more in per-call overhead than their rows take.
-    step = max(1, -(-h // max(1, settings.threads)), STRIP_PIXELS // max(w, 1))
-    run_threads([lambda r0=r0: finish(r0, min(h, r0 + step)) for r0 in range(0, h, step)], settings.threads)
-    return depth_filled
+        depth_filled = np.empty((h, w), np.float32)
+        maps = (np.ascontiguousarray(a, np.float32) for a in (refined, index, filled, confidence, nviews))
+        refine_kernels.depth_maps(*maps, not consistency, np.float32(fin.step), np.float32(fin.inv[0]),
+                                  np.float32(fin.z0), np.float32(fin.seen_views), fin.depth, fin.conf, fin.index,
+                                  depth_filled)
+        return depth_filled
+    idx = np.where(np.isfinite(refined), refined, np.nan if consistency else index).astype(np.float32)
+    fills = np.where(np.isfinite(filled), filled, idx).astype(np.float32)  # never unknown where idx is known
+    missing = np.where(np.isfinite(idx), np.float32(0.0), np.float32(np.inf))
+    fin.rows(0, h, np.nan_to_num(idx), confidence, missing, nviews)
+    return fin.depth_of(fills, nviews)
 
 
 def semiglobal_index(views, calibration, plan, settings, report=None, start=0.0, end=1.0):
