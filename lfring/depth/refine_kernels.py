@@ -103,7 +103,7 @@ def depth_maps(refined, index, filled, confidence, nviews, use_index, step, inv0
 
     A pixel's index is ``refined`` where finite, else ``index`` with ``use_index`` (NaN without).
     Where ``nviews`` reaches ``seen_views`` and that index is finite: ``depth`` = 1 / (index
-    ``step`` + ``inv0``) + ``z0``, ``conf_out`` the confidence, ``index_out`` the index; elsewhere
+    times ``step`` + ``inv0``) + ``z0``, ``conf_out`` the confidence, ``index_out`` the index; elsewhere
     NaN, 0 and NaN. ``filled_depth``: the depth of ``filled`` where finite, else of that index,
     wherever ``nviews`` reaches ``seen_views``; NaN elsewhere."""
     h, w = refined.shape

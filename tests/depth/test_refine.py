@@ -205,15 +205,17 @@ def test_the_compiled_depth_maps_are_the_finishers_to_the_bit(use_index):
     h, w = 41, 59
     n = len(depths)
 
-    def holes(a, share, value):
-        a[rng.random((h, w)) < share] = value
+    def holes(a, nan_share):
+        """NaN at a share of the pixels, +inf and -inf at a few."""
+        for value, share in ((np.nan, nan_share), (np.inf, 0.02), (-np.inf, 0.02)):
+            a[rng.random((h, w)) < share] = value
         return a
 
-    refined = holes(holes(rng.uniform(0, n - 1, (h, w)).astype(np.float32), 0.2, np.nan), 0.02, np.inf)
-    index = holes(rng.uniform(0, n - 1, (h, w)).astype(np.float32), 0.1, np.nan)
-    filled = holes(holes(rng.uniform(0, n - 1, (h, w)).astype(np.float32), 0.1, np.nan), 0.02, -np.inf)
-    confidence = rng.uniform(0, 1, (h, w)).astype(np.float32)
-    nviews = rng.choice(np.float32([0.0, 1.2, 1.5, 2.0, 3.7, 4.0]), (h, w))
+    refined = holes(rng.uniform(0, n - 1, (h, w)).astype(np.float32), 0.2)
+    index = holes(rng.uniform(0, n - 1, (h, w)).astype(np.float32), 0.1)
+    filled = holes(rng.uniform(0, n - 1, (h, w)).astype(np.float32), 0.1)
+    confidence = holes(rng.uniform(0, 1, (h, w)).astype(np.float32), 0.02)
+    nviews = holes(rng.choice(np.float32([0.0, 1.2, 1.5, 2.0, 3.7, 4.0]), (h, w)), 0.02)
 
     want = Finisher(depths, cal.depth_origin_m, (h, w), 2)
     assert want.linear
@@ -230,9 +232,9 @@ def test_the_compiled_depth_maps_are_the_finishers_to_the_bit(use_index):
                               got.index, got_filled)
     for a, b in ((got.depth, want.depth), (got.conf, want.conf), (got.index, want.index), (got_filled, want_filled)):
         np.testing.assert_array_equal(a, b)
-    seen = (nviews >= 1.5) & np.isfinite(idx)
+    seen = (nviews >= want.seen_views) & np.isfinite(idx)
     assert 0.3 < seen.mean() < 0.8 and np.isnan(got.depth[~seen]).all() and np.isfinite(got.depth[seen]).all()
-    assert np.isnan(got_filled[nviews < 1.5]).all()
+    assert np.isnan(got_filled[~(nviews >= want.seen_views)]).all()
 
 
 def _window_median(values, bins, guide8, lut, radius):

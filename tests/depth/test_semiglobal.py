@@ -597,12 +597,37 @@ def test_the_maps_do_not_depend_on_the_thread_count(twin, pair):
     from lfring.core.threads import STRIP_PIXELS
 
     r, cal, views, *_ = twin
-    assert views.shape[1] * views.shape[2] >= 3 * STRIP_PIXELS  # several finishing strips
+    assert views.shape[1] * views.shape[2] >= 3 * STRIP_PIXELS  # several strips of the cost's sources
     if pair:
         views, cal = views[:2], cal.select_views([0, 1])
     one, three = (estimate_depth(views, cal, zmin_m=0.3, zmax_m=1.0, threads=t) for t in (1, 3))
     for name in ("depth_m", "confidence", "depth_filled_m", "hypothesis_index"):
         np.testing.assert_array_equal(getattr(three, name), getattr(one, name))
+
+
+def test_hypotheses_not_evenly_spaced_take_the_finishers_numpy_steps(twin, monkeypatch):
+    """The engine makes its maps in one compiled pass where the hypotheses are evenly spaced in
+    1 / (Z - z0), as depth_hypotheses spaces them; a finisher that interpolates between its
+    depths (any other spacing) takes the finisher's NumPy steps: the same maps, the depths to
+    float32 rounding."""
+    from lfring.depth import selection
+
+    _, cal, views, *_ = twin
+    compiled = estimate_depth(views, cal, zmin_m=0.3, zmax_m=1.0)
+    init = selection.Finisher.__init__
+
+    def interpolating(self, *args, **kwargs):
+        init(self, *args, **kwargs)
+        self.linear = False
+
+    monkeypatch.setattr(selection.Finisher, "__init__", interpolating)
+    stepped = estimate_depth(views, cal, zmin_m=0.3, zmax_m=1.0)
+    for name in ("confidence", "hypothesis_index"):
+        np.testing.assert_array_equal(getattr(stepped, name), getattr(compiled, name))
+    for name in ("depth_m", "depth_filled_m"):
+        a, b = getattr(stepped, name), getattr(compiled, name)
+        assert np.array_equal(np.isnan(a), np.isnan(b)) and 0.5 < np.isfinite(a).mean()
+        np.testing.assert_allclose(a, b, rtol=1e-6)
 
 
 def test_a_range_too_narrow_says_how_many_planes_would_do(twin):
