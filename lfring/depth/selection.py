@@ -273,6 +273,29 @@ class Finisher:
         self.conf[r0:r1] = np.where(seen, conf, np.float32(0.0))
         self.index[r0:r1] = np.where(seen, idx, np.float32(np.nan))
 
+    def refined_maps(self, refined, index, filled, confidence, nviews, *, fallback_index: bool) -> np.ndarray:
+        """The whole frame's rows from a refined index map (``refined``; where it is unknown the
+        unrefined ``index`` with ``fallback_index``, else unknown) and its confidence; returns the
+        depth of the ``filled`` index map (that index where it is unknown). Hypotheses evenly
+        spaced in 1 / (Z - z0), as :func:`lfring.depth.hypotheses.depth_hypotheses` makes them,
+        take one compiled pass (:func:`lfring.depth.refine_kernels.depth_maps`, the same floats);
+        others these NumPy steps."""
+        h, w = self.depth.shape
+        if self.linear:
+            from lfring.depth import refine_kernels
+
+            depth_filled = np.empty((h, w), np.float32)
+            maps = (np.ascontiguousarray(a, np.float32) for a in (refined, index, filled, confidence, nviews))
+            refine_kernels.depth_maps(*maps, fallback_index, np.float32(self.step), np.float32(self.inv[0]),
+                                      np.float32(self.z0), np.float32(self.seen_views), self.depth, self.conf,
+                                      self.index, depth_filled)
+            return depth_filled
+        idx = np.where(np.isfinite(refined), refined, index if fallback_index else np.nan).astype(np.float32)
+        fills = np.where(np.isfinite(filled), filled, idx).astype(np.float32)  # never unknown where idx is known
+        missing = np.where(np.isfinite(idx), np.float32(0.0), np.float32(np.inf))
+        self.rows(0, h, np.nan_to_num(idx), confidence, missing, nviews)
+        return self.depth_of(fills, nviews)
+
     def depth_of(self, idx, nviews) -> np.ndarray:
         """Depth in metres (float32) of a map (or a strip of rows) of fractional indices; NaN
         where the index is NaN or fewer than ``min_views`` views see the pixel."""

@@ -124,7 +124,6 @@ def _optimise(views, calibration, plan, settings, fin, consistency=True, report=
     ``consistency``, the same from a second reference frame, and pixels whose two answers
     disagree become unknown. The finisher gets the depth and confidence; the hole-filled depth
     is returned."""
-    h, w = views.shape[1:3]
     share = 0.5 if consistency else 1.0  # of the work, per reference frame
     index, confidence, nviews, guide = _index(views, calibration, plan, settings, report, 0.0, share, fused)
     if consistency:
@@ -143,20 +142,7 @@ def _optimise(views, calibration, plan, settings, fin, consistency=True, report=
         # fewer bad pixels in depth_filled_m on real stereo pairs, and no more on the twin's pairs.
         behind = fill_from_farther_side(refined, ~keep, axis=baseline_axis(plan, other.reference))
         filled = np.where(~keep & np.isfinite(behind), behind, filled).astype(np.float32)
-    if fin.linear:  # hypotheses evenly spaced in 1 / (Z - z0), as depth_hypotheses makes them
-        from lfring.depth import refine_kernels
-
-        depth_filled = np.empty((h, w), np.float32)
-        maps = (np.ascontiguousarray(a, np.float32) for a in (refined, index, filled, confidence, nviews))
-        refine_kernels.depth_maps(*maps, not consistency, np.float32(fin.step), np.float32(fin.inv[0]),
-                                  np.float32(fin.z0), np.float32(fin.seen_views), fin.depth, fin.conf, fin.index,
-                                  depth_filled)
-        return depth_filled
-    idx = np.where(np.isfinite(refined), refined, np.nan if consistency else index).astype(np.float32)
-    fills = np.where(np.isfinite(filled), filled, idx).astype(np.float32)  # never unknown where idx is known
-    missing = np.where(np.isfinite(idx), np.float32(0.0), np.float32(np.inf))
-    fin.rows(0, h, np.nan_to_num(idx), confidence, missing, nviews)
-    return fin.depth_of(fills, nviews)
+    return fin.refined_maps(refined, index, filled, confidence, nviews, fallback_index=not consistency)
 
 
 def semiglobal_index(views, calibration, plan, settings, report=None, start=0.0, end=1.0):
