@@ -235,8 +235,7 @@ def _chain_step(c, prev, cur, pmin, jump, p1):
 @njit(**INLINE)
 def _kept(eroded, total):
     """Whether ``eroded`` is a volume in the tiles of ``total`` (not the empty stand-in)."""
-    return (eroded.shape[0] == total.shape[0] and eroded.shape[1] == total.shape[1]
-            and eroded.shape[2] == total.shape[2] and eroded.shape[3] == total.shape[3])
+    return eroded.shape == total.shape
 
 
 @njit(**INLINE)
