@@ -168,10 +168,11 @@ def main(argv=None) -> int:
 
     args = hoist_verbosity(sys.argv[1:] if argv is None else argv)
     if argv is None:
-        # Ctrl-C inside an import can drop the file the interpreter's loader was reading
-        # unclosed: its ResourceWarning (an error under -W error) is the interpreter's, not the
-        # command's, and would come after our one line. Only a script run sets this filter.
-        warnings.filterwarnings("ignore", category=ResourceWarning, module=r"importlib\._bootstrap")
+        # Ctrl-C or SIGTERM inside an import, or inside a read through pathlib (a calibration,
+        # a sidecar), can drop the file being read unclosed in the standard library's own frame:
+        # its ResourceWarning (an error under -W error) is the interpreter's, not the command's,
+        # and would come after our one line. Only a script run sets this filter.
+        warnings.filterwarnings("ignore", category=ResourceWarning, module=r"(importlib\._bootstrap|pathlib)")
     ours = threading.current_thread() is threading.main_thread() and signal.getsignal(signal.SIGTERM) == signal.SIG_DFL
     if ours:
         signal.signal(signal.SIGTERM, _terminate)
