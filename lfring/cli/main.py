@@ -72,6 +72,23 @@ def _terminate(signum, frame):
     raise Terminated()
 
 
+def _stopping() -> None:
+    """The script is being stopped: a file that the stop drops unclosed (it came between the
+    file's opening and its ``with``, in our code or the standard library's) is the stop's, not a
+    leak to report; under -W error its ResourceWarning would print a traceback after our line."""
+    warnings.filterwarnings("ignore", category=ResourceWarning)
+
+
+def _terminate_script(signum, frame):
+    _stopping()
+    raise Terminated()
+
+
+def _interrupt_script(signum, frame):
+    _stopping()
+    raise KeyboardInterrupt()
+
+
 #: Exit codes of a command stopped by Ctrl-C and by SIGTERM (128 + the signal's number, as a shell says).
 EXIT_INTERRUPTED = 130
 EXIT_TERMINATED = 143
@@ -162,20 +179,22 @@ def hoist_verbosity(args: list[str]) -> list[str]:
 
 def main(argv=None) -> int:
     """Entry point of the ``lfring`` script; returns the exit code (130 after Ctrl-C, 143
-    after SIGTERM, each with one line on stderr and no traceback)."""
+    after SIGTERM, each with one line on stderr and no traceback: run as the script, a file that
+    the stop drops unclosed is not reported, :func:`_stopping`)."""
     import signal
     import threading
 
     args = hoist_verbosity(sys.argv[1:] if argv is None else argv)
     if argv is None:
-        # Ctrl-C or SIGTERM inside an import, or inside a read through pathlib (a calibration,
-        # a sidecar), can drop the file being read unclosed in the standard library's own frame:
-        # its ResourceWarning (an error under -W error) is the interpreter's, not the command's,
-        # and would come after our one line. Only a script run sets this filter.
-        warnings.filterwarnings("ignore", category=ResourceWarning, module=r"(importlib\._bootstrap|pathlib)")
+        # Ctrl-C inside an import can drop the file the interpreter's loader was reading
+        # unclosed: its ResourceWarning (an error under -W error) is the interpreter's, not the
+        # command's, and would come after our one line. Only a script run sets this filter.
+        warnings.filterwarnings("ignore", category=ResourceWarning, module=r"importlib\._bootstrap")
     ours = threading.current_thread() is threading.main_thread() and signal.getsignal(signal.SIGTERM) == signal.SIG_DFL
     if ours:
-        signal.signal(signal.SIGTERM, _terminate)
+        signal.signal(signal.SIGTERM, _terminate if argv is not None else _terminate_script)
+        if argv is None and signal.getsignal(signal.SIGINT) is signal.default_int_handler:  # not where it is ignored
+            signal.signal(signal.SIGINT, _interrupt_script)
     try:
         # A Ctrl-C in a weakref callback of an import still stops the command.
         with redelivered_stops() if ours else contextlib.nullcontext():
