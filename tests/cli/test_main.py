@@ -9,6 +9,7 @@ import weakref
 
 import click
 import pytest
+from child_processes import default_sigint
 
 from lfring.cli.main import COMMANDS, Terminated, main
 
@@ -75,7 +76,7 @@ def test_a_file_a_stop_drops_unclosed_is_not_reported(tmp_path, sig, code, line)
     (tmp_path / "lfring_script.py").write_text(DROPPED)
     env = {"PYTHONWARNINGS": "error", "PATH": "/usr/bin:/bin"}
     proc = subprocess.run([sys.executable, "-m", "lfring_script", "dropped", sig], capture_output=True, text=True,
-                          timeout=120, cwd=tmp_path, env=env)
+                          timeout=120, cwd=tmp_path, env=env, preexec_fn=default_sigint)
     assert proc.returncode == code, (proc.returncode, proc.stderr)
     assert proc.stderr.strip() == line
 
