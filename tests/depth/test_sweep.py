@@ -104,3 +104,53 @@ def test_the_reference_frame_image_is_the_views_warped_mean_on_any_number_of_thr
     assert inside.mean() > 0.5
     np.testing.assert_allclose(one[inside], num[inside] / den[inside], rtol=1e-5)
     np.testing.assert_array_equal(in_reference_frame(lum, plan_sweep(views, cal, 0.3, 1.0, 8, 2, DEPTH_TAPER)), lum[2])
+
+
+@pytest.mark.parametrize("seed, kind", list(enumerate(["uniform", "ties", "normal", "constant", "sorted", "skewed",
+                                                           "sampled top"])))
+def test_the_high_percentile_is_numpys_to_the_bit(seed, kind):
+    """The guide's white (:func:`lfring.depth.plan.high_percentile`) is ``np.percentile``'s value
+    and type, to the bit, for float32 and float64 values of many sizes and kinds, high
+    percentiles between ranks and on them, and where it hands the question to NumPy (low or
+    top percentiles, small arrays, a sample that leaves too few values above its threshold)."""
+    from lfring.depth.plan import PERCENTILE_SAMPLE, high_percentile
+
+    rng = np.random.default_rng(seed)
+    for size in (7, 1000, 40_000, 123_457, 495_616, 1_123_600):
+        x = {"uniform": lambda: rng.random(size),
+             "ties": lambda: rng.integers(0, 20, size).astype(np.float64),
+             "normal": lambda: rng.normal(size=size) * 3,
+             "constant": lambda: np.full(size, 0.25),
+             "sorted": lambda: np.sort(rng.random(size)),
+             "skewed": lambda: rng.random(size) ** 8,
+             # the largest values just where the sample looks: its threshold leaves too few above
+             "sampled top": lambda: np.where(np.arange(size) % max(1, size // PERCENTILE_SAMPLE) == 0, 5.0, 0.0)
+             + rng.random(size)}[kind]()
+        for dtype in (np.float32, np.float64):
+            a = x.astype(dtype).reshape(-1, 1) if size % 2 else x.astype(dtype)
+            for q in (99.5, 90.0, 99.0, 99.99, 99.999, 100.0, 50.0):
+                want = np.percentile(a, q)
+                got = high_percentile(a, q)
+                assert got == want and type(got) is type(want), (kind, size, dtype, q, got, want)
+
+
+def test_the_high_percentile_interpolates_and_hands_over_as_numpy():
+    """Where NumPy's interpolation between two ranks takes its second form, and for integer and
+    NaN-holding values, :func:`lfring.depth.plan.high_percentile` gives NumPy's answer."""
+    from lfring.depth.plan import high_percentile
+
+    rng = np.random.default_rng(11)
+    # The 99.5th percentile of 200 003 values lies 0.99 of the way from rank 199 001 to 199 002:
+    # NumPy takes the upper value less the rest of the step, which differs in float32 from the
+    # lower value plus the step's part for these two.
+    below, above = np.float32(0.391619), np.float32(0.89027435)
+    x = np.concatenate([rng.random(199_001).astype(np.float32) * below, [below, above],
+                        above + rng.random(1000).astype(np.float32)])
+    rng.shuffle(x)
+    want = np.percentile(x, 99.5)
+    assert want != below + (above - below) * 0.99 and high_percentile(x, 99.5) == want
+    ints = rng.integers(0, 1000, 200_000)
+    assert high_percentile(ints, 99.5) == np.percentile(ints, 99.5)
+    holed = rng.random(200_000).astype(np.float32)
+    holed[12345] = np.nan
+    assert np.isnan(high_percentile(holed, 99.5))

@@ -38,7 +38,7 @@ from lfring.depth.costs.lcn import LCN_EPS, LCN_FLOOR, window_weights
 from lfring.depth.costs.lcn_halves import (HALVES_GAIN, HALVES_MEDIAN_SAMPLE, HALVES_MIN_SUPPORT, halves_poor,
                                            halves_least_torch, view_halves)
 from lfring.depth.costs.lcn_occlusion import OCCLUSION_PENALTY, leavable_views, occlusion_aggregate_torch
-from lfring.depth.plan import baseline_axis, in_reference_frame, other_reference
+from lfring.depth.plan import GUIDE_WHITE_PERCENTILE, baseline_axis, in_reference_frame, other_reference
 from lfring.depth.refine import (FGS_ATTENUATION, FGS_ITERATIONS, FGS_LAMBDA, FGS_SIGMA, FILL_WEIGHT_FLOOR,
                                  MEDIAN_COARSE_BINS, MEDIAN_FINE_BINS, MEDIAN_RADIUS_PX, MEDIAN_SIGMA, MIN_CONFIDENCE)
 from lfring.depth.selection import Finisher
@@ -193,7 +193,8 @@ def lcn_sources_device(lum, masks, weights, window_px: int):
 def guide_device(lum, masks, hinv_mid, reference):
     """:func:`lfring.depth.plan.guide_image` from the views' luminances (V, h, w) on their device:
     the reference view's, or for 'center' the views' weighted mean warped by ``hinv_mid`` (V, 9,
-    the middle hypothesis), over its 99.5th percentile, clipped to [0, 1]."""
+    the middle hypothesis), divided by its percentile :data:`lfring.depth.plan.GUIDE_WHITE_PERCENTILE`
+    and clipped to [0, 1]."""
     torch = require_torch()
     if reference == "center":
         v, h, w = lum.shape
@@ -209,7 +210,7 @@ def guide_device(lum, masks, hinv_mid, reference):
         g = acc / wsum.clamp_min(WEIGHT_FLOOR)
     else:
         g = lum[reference]
-    top = _quantile(g.reshape(-1), 0.995)
+    top = _quantile(g.reshape(-1), GUIDE_WHITE_PERCENTILE / 100.0)
     return (g / top.clamp_min(1e-6)).clamp(0.0, 1.0).contiguous()
 
 
