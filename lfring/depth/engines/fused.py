@@ -25,6 +25,7 @@ import math
 import cv2
 import numpy as np
 
+from lfring.core.filters import luminance
 from lfring.core.memory import fresh_zeros
 from lfring.core.threads import run_threads
 from lfring.core.viewstack import WEIGHT_FLOOR, cached_view_masks, calibration_cache
@@ -196,7 +197,10 @@ def fused_index(views, calibration, plan, settings, subpixel_box_px: int, on_sta
     shifts, remaps = planned
     n, v = shifts.shape[:2]
     masks = plan.masks
-    src = cost.sources(views, calibration, plan, settings.window_px, settings.threads)
+    # The 'lcn' sources and the guide both start from the views' luminance: made once, it is
+    # their views (of one channel, which luminance passes through unchanged).
+    gray = luminance(views, settings.threads)[..., None]
+    src = cost.sources(gray, calibration, plan, settings.window_px, settings.threads)
     pad = int(math.ceil(np.abs(shifts).max(initial=0.0))) + 2
     weighted = _padded(src, remaps, pad, scale=masks, threads=settings.threads)
     all_valid = cached_view_masks(calibration, (h, w), "all_valid", _all_valid, taper=plan.taper) and \
@@ -262,7 +266,7 @@ def fused_index(views, calibration, plan, settings, subpixel_box_px: int, on_sta
                             np.float32(HALVES_MIN_SUPPORT), np.float32(HALVES_GAIN), np.float32(unit), poor, best, vol)
     p1 = int(round(min(P1_SCALE * scale / unit, PENALTY_MAX)))
     p2 = int(round(min(max(P2_SCALE * scale / unit, p1), PENALTY_MAX)))
-    guide = guide_image(views, plan, settings.threads)
+    guide = guide_image(gray, plan, settings.threads)
     erode = settings.aggregate_px // 2
     stage(0.5)
     fused_paths.horizontal_paths(vol, guide, True, p1, p2, np.float32(EDGE_SCALE), erode, paths, eroded)
