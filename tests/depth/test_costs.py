@@ -242,7 +242,6 @@ def test_the_four_view_row_kernels_sum_as_the_general_one(all_valid):
     views = np.arange(v, dtype=np.int64)
     floor = np.float32(WEIGHT_FLOOR)
     ones = np.ones(w, np.float32)
-    t = np.empty(w + 1, np.float32)
     a_buf, w_buf = np.empty((v, w), np.float32), np.empty((v, w), np.float32)
     s1, s2, cn = (np.empty(w, np.float32) for _ in range(3))
     kernel = fused_volume._all_terms_valid_four if all_valid else fused_volume._all_terms_masked_four
@@ -251,7 +250,20 @@ def test_the_four_view_row_kernels_sum_as_the_general_one(all_valid):
         for y in range(h):
             want_t, want_seen = np.empty(w, np.float32), np.empty(w, np.float32)
             fused_volume._view_span(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, y, d, views,
-                                    0, w, 0, t, a_buf, w_buf)
+                                    0, w, 0, a_buf, w_buf)
+            # The general kernel's samples and weights: bilinear shifts of the padded rows.
+            for k in range(v):
+                r, c = y + iy[d, k] + pad, ix[d, k] + pad + np.arange(w)
+                a, b = np.float64(fx[d, k]), np.float64(fy[d, k])
+
+                def bilinear(img):
+                    img = img.astype(np.float64)
+                    return ((1 - b) * ((1 - a) * img[r, c] + a * img[r, c + 1])
+                            + b * ((1 - a) * img[r + 1, c] + a * img[r + 1, c + 1]))
+
+                np.testing.assert_allclose(a_buf[k], bilinear(src[k]), rtol=1e-5, atol=1e-5)
+                weight = edge_y[d, k, y] * edge_x[d, k, :w] if all_valid else bilinear(msk[k])
+                np.testing.assert_allclose(w_buf[k], weight, rtol=1e-5, atol=1e-6)
             fused_volume._all_terms(a_buf, w_buf, floor, ones, s1, s2, cn, want_t, want_seen)
             want_cn = cn.copy()
             got_t, got_seen, got_cn = (np.full(w, np.nan, np.float32) for _ in range(3))

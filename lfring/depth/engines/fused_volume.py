@@ -31,26 +31,6 @@ HALVES_GROUP_COLUMNS = 512
 
 
 @njit(**INLINE)
-def _lerp(s0, s1, p, q, t):
-    """t = p s0 + q s1 (the vertical tap pair of a bilinear shift)."""
-    for x in range(t.shape[0]):
-        t[x] = p * s0[x] + q * s1[x]
-
-
-@njit(**INLINE)
-def _shifted(t, a, b, out):
-    """out = a t[x] + b t[x + 1] (the horizontal tap pair)."""
-    for x in range(out.shape[0]):
-        out[x] = a * t[x] + b * t[x + 1]
-
-
-@njit(**INLINE)
-def _scaled(row, s, out):
-    for x in range(out.shape[0]):
-        out[x] = s * row[x]
-
-
-@njit(**INLINE)
 def _weighted_square(v, g, floor):
     """A view's term of the sum of squares: its value ``v`` (premultiplied by its weight ``g``)
     squared over ``g`` (:func:`lfring.depth.costs.lcn.weighted_square`)."""
@@ -211,24 +191,6 @@ def _ones_run(ones_lo, ones_hi, r, c0, m):
 
 
 @njit(**INLINE)
-def _weights(m0, m1, ones_lo, ones_hi, r, c0, p, q, a, b, t, out):
-    """out[x] = the bilinear mask at padded columns c0 + x (+1) of padded rows r, r + 1 (``m0``,
-    ``m1``: those rows from c0), 1 where all four taps lie in both rows' run of ones
-    [ones_lo, ones_hi) (a disc's inside, where nothing needs computing)."""
-    m = out.shape[0]
-    lo, hi = _ones_run(ones_lo, ones_hi, r, c0, m)
-    if hi - lo < m:
-        _lerp(m0, m1, p, q, t)
-        for x in range(lo):
-            out[x] = a * t[x] + b * t[x + 1]
-        for x in range(hi, m):
-            out[x] = a * t[x] + b * t[x + 1]
-    for x in range(lo, hi):
-        out[x] = np.float32(1.0)
-
-
-
-@njit(**INLINE)
 def _view_taps(src, iy, ix, fy, fx, pad, y, d, k, x0, m):
     """View ``k``'s bilinear taps for ``m`` columns from x0 of row ``y`` at hypothesis ``d``: its
     two padded rows of ``src`` from column c0 (m + 1 values each), r and c0, and the weights p,
@@ -244,7 +206,7 @@ def _view_taps(src, iy, ix, fy, fx, pad, y, d, k, x0, m):
 @njit(**INLINE)
 def _sample(s0, s1, p, q, a, b, x):
     """The bilinear sample between columns x, x + 1 of rows ``s0``, ``s1`` (weights p, q down,
-    a, b across), in :func:`_lerp` and :func:`_shifted`'s floats."""
+    a, b across): the vertical pairs first, then across."""
     return a * (p * s0[x] + q * s1[x]) + b * (p * s0[x + 1] + q * s1[x + 1])
 
 
@@ -359,8 +321,8 @@ def _mask_taps(msk, ones_lo, ones_hi, k, r, c0, m):
 
 @njit(**INLINE)
 def _mask_weight(mu, ml, lo, hi, p, q, a, b, x):
-    """A view's weight at column x: its bilinear mask, 1 inside its run of ones (:func:`_weights`'
-    floats)."""
+    """A view's weight at column x: its bilinear mask, 1 inside its run of ones (lo..hi,
+    :func:`_ones_run`), where all four taps weigh 1 for certain."""
     return np.float32(1.0) if lo <= x < hi else _sample(mu, ml, p, q, a, b, x)
 
 
@@ -396,7 +358,7 @@ def _masked_four_span(t0, t1, t2, t3, m0, m1, m2, m3, floor, ones, cn, t, seen):
 @njit(**JIT)
 def _all_terms_masked_four(src, msk, ones_lo, ones_hi, iy, ix, fy, fx, pad, y, d, views, floor, ones, cn, t, seen):
     """:func:`_all_terms_valid_four` for four views with masks: each view's weight its bilinear
-    mask (:func:`_weights`), made where the sums take it (the same sums, up to rounding). Where
+    mask (:func:`_mask_weight`), made where the sums take it (the same sums, up to rounding). Where
     all four runs of ones overlap no weight is divided by."""
     w = t.shape[0]
     u0, l0, r0, c0, p0, q0, a0, b0 = _view_taps(src, iy, ix, fy, fx, pad, y, d, views[0], 0, w)
@@ -439,8 +401,8 @@ def _all_terms(a_buf, w_buf, floor, ones, s1, s2, cn, t, seen):
 
 
 @njit(**INLINE)
-def _row_terms(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, y, d, views, floor, ones, t,
-               a_buf, w_buf, s1, s2, cn, t_row, seen_row):
+def _row_terms(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, y, d, views, floor, ones, a_buf,
+               w_buf, s1, s2, cn, t_row, seen_row):
     """The 'lcn' cost of all views at row ``y`` and hypothesis ``d`` (``t_row``), its seen flags
     and the views' weights' sum ``cn``: four views sampled where the sums take them
     (:func:`_all_terms_valid_four`, :func:`_all_terms_masked_four`), other numbers of views
@@ -453,7 +415,7 @@ def _row_terms(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo
                                seen_row)
     else:
         _view_span(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, y, d, views, 0,
-                   t_row.shape[0], 0, t, a_buf, w_buf)
+                   t_row.shape[0], 0, a_buf, w_buf)
         _all_terms(a_buf, w_buf, floor, ones, s1, s2, cn, t_row, seen_row)
 
 
@@ -550,7 +512,6 @@ def sample_costs(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_
     ncol = best_out.shape[1]
     for i in prange(sample_rows.shape[0]):
         y = sample_rows[i]
-        t = np.empty(w + 1, np.float32)
         a_buf = np.empty((n_views, w), np.float32)
         w_buf = np.empty((n_views, w), np.float32)
         ones = np.ones(w, np.float32)
@@ -571,7 +532,7 @@ def sample_costs(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_
             for k in range(2 * rad + 1):
                 yy = reflect(y - rad + k, h)
                 _row_terms(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, yy, d, views, floor, ones,
-                           t, a_buf, w_buf, s1, s2, cn, t_rows[k], seen_rows[k])
+                           a_buf, w_buf, s1, s2, cn, t_rows[k], seen_rows[k])
             _vsum(t_rows, 0, 2 * rad + 1, col)
             _hsum(col, rad, tmp, bt)
             _vsum(seen_rows, 0, 2 * rad + 1, col)
@@ -659,7 +620,6 @@ def sweep_volume(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_
         q0 = max(0, y0 - rad)
         q1 = min(h, y1 + rad)
         nq = q1 - q0
-        t = np.empty(w + 1, np.float32)
         a_buf = np.empty((n_views, w), np.float32)
         w_buf = np.empty((n_views, w), np.float32)
         ones = np.ones(w, np.float32)
@@ -681,7 +641,7 @@ def sweep_volume(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_
         for d in range(n):
             for r in range(nq):
                 _row_terms(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, q0 + r, d, views, floor,
-                           ones, t, a_buf, w_buf, s1, s2, cn, t_rows[r], seen_rows[r])
+                           ones, a_buf, w_buf, s1, s2, cn, t_rows[r], seen_rows[r])
                 if q0 + r >= y0 and q0 + r < y1:
                     nvr = nviews[q0 + r]
                     for x in range(w):
@@ -806,7 +766,6 @@ def _halves_strip(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones
         base[i] = total + rad
         total += sw[i] + 2 * rad
         widest = max(widest, sw[i])
-    t = np.empty(widest + 1, np.float32)
     # Zeros in the padding: no terms are made there, and its box sums are never used.
     a_buf = np.zeros((n_views, total), np.float32)
     w_buf = np.zeros((n_views, total), np.float32)
@@ -832,7 +791,7 @@ def _halves_strip(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones
         for r in range(nq):
             for i in range(n_spans):
                 _view_span(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, q0 + r, d, views, ta[i],
-                           sw[i], base[i], t, a_buf, w_buf)
+                           sw[i], base[i], a_buf, w_buf)
             _seen_row(w_buf, seen_rows[r])
             for h_i in range(n_halves):
                 _half_terms(a_buf, w_buf, halves, half_ptr, h_i, floor, seen_rows[r], s1, s2, cn, hc_rows[h_i, r],
@@ -882,22 +841,28 @@ def _halves_strip(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones
 
 
 @njit(**JIT)
-def _view_span(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, y, d, views, x0, m, at, t, a_buf,
+def _view_span(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones_lo, ones_hi, y, d, views, x0, m, at, a_buf,
                w_buf):
     """Every view's value (premultiplied by its mask) and weight at the ``m`` columns from x0 of
     row ``y`` shifted to hypothesis ``d`` (bilinear, zero outside the view), into ``a_buf`` and
-    ``w_buf`` from their column ``at``."""
+    ``w_buf`` from their column ``at``: one pass a view, each sample and weight made where it is
+    written (:func:`_sample`, :func:`_mask_weight`)."""
     for j in range(views.shape[0]):
         k = views[j]
         upper, lower, r, c0, p, q, a, b = _view_taps(src, iy, ix, fy, fx, pad, y, d, k, x0, m)
-        tt = t[:m + 1]
-        _lerp(upper, lower, p, q, tt)
-        _shifted(tt, a, b, a_buf[j, at:at + m])
+        out_a = a_buf[j, at:at + m]
+        out_w = w_buf[j, at:at + m]
         if all_valid:
-            _scaled(edge_x[d, k, x0:x0 + m], edge_y[d, k, y], w_buf[j, at:at + m])
+            e = edge_y[d, k, y]
+            ex = edge_x[d, k, x0:x0 + m]
+            for x in range(m):
+                out_a[x] = _sample(upper, lower, p, q, a, b, x)
+                out_w[x] = e * ex[x]
         else:
-            _weights(msk[k, r, c0:c0 + m + 1], msk[k, r + 1, c0:c0 + m + 1], ones_lo[k], ones_hi[k], r, c0, p, q, a, b,
-                     tt, w_buf[j, at:at + m])
+            mu, ml, lo, hi = _mask_taps(msk, ones_lo, ones_hi, k, r, c0, m)
+            for x in range(m):
+                out_a[x] = _sample(upper, lower, p, q, a, b, x)
+                out_w[x] = _mask_weight(mu, ml, lo, hi, p, q, a, b, x)
 
 
 @njit(**INLINE)
