@@ -23,8 +23,9 @@ from lfring.core.warping import warp_image
 from lfring.depth.hypotheses import depth_hypotheses, view_motion_px
 from lfring.errors import DepthRangeError, LfringWarning
 
-__all__ = ["DEPTH_TAPER", "GUIDE_WHITE_PERCENTILE", "MIN_RANGE_MOTION_PX", "DepthSettings", "Progress", "SweepPlan", "baseline_axis", "depths_key", "guide_image",
-           "high_percentile", "in_reference_frame", "other_reference", "plan_sweep", "sweep_masks"]
+__all__ = ["DEPTH_TAPER", "GUIDE_WHITE_PERCENTILE", "MIN_RANGE_MOTION_PX", "NUMPY_INTERPOLATION_MATCHED", "DepthSettings",
+           "Progress", "SweepPlan", "baseline_axis", "depths_key", "guide_image", "high_percentile", "in_reference_frame",
+           "other_reference", "plan_sweep", "sweep_masks"]
 
 # Fraction of a view's disc radius over which its weight rises from 0 to 1 in the sweep
 # (lfring.core.viewstack.view_masks). The refocusing taper (lfring.core.viewstack.TAPER, 15 %) hides seams in an image;
@@ -40,8 +41,20 @@ DEPTH_TAPER = 0.05
 MIN_RANGE_MOTION_PX = 1.0
 #: The guide image's white: its values' percentile that maps to 1 (a few brighter highlights clip).
 GUIDE_WHITE_PERCENTILE = 99.5
-# high_percentile's sample of the values, from which it picks the threshold above which it looks.
+# high_percentile's sample of the values, from which it picks the threshold above which it looks,
+# the sample's share above the threshold as a multiple of the share needed, and a few ranks more.
 PERCENTILE_SAMPLE = 1 << 13
+PERCENTILE_MARGIN = 2.0
+PERCENTILE_MARGIN_RANKS = 16
+# The arrays (at least this many values) and percentiles (from this one up) that high_percentile
+# answers itself; NumPy answers the others.
+PERCENTILE_MIN_VALUES = 4 * PERCENTILE_SAMPLE
+PERCENTILE_MIN_Q = 90.0
+# Whether this NumPy interpolates a percentile as high_percentile repeats it: a Python float
+# weight from a float64 rank, in the values' type. NumPy 2.0 to 2.3 work float32 values' rank in
+# float32; 1.26 and 2.4 were checked to match.
+_NUMPY = np.lib.NumpyVersion(np.__version__)
+NUMPY_INTERPOLATION_MATCHED = "1.26.0" <= _NUMPY < "2.0.0" or _NUMPY >= "2.4.0"
 
 
 def sweep_masks(calibration, view_shape, taper: float = DEPTH_TAPER) -> np.ndarray:
@@ -192,13 +205,15 @@ def guide_image(views, plan, threads: int = 1) -> np.ndarray:
 
 
 def high_percentile(values, q: float):
-    """``np.percentile(values, q)`` (linear interpolation), to the bit, for a high ``q``: only the
-    values above a threshold read off a sorted sample of them are partitioned, not all of them.
+    """``np.percentile(values, q)`` (linear interpolation) for a high ``q``, the same value and
+    type (the sign of a zero aside, which NumPy leaves to its partition's order): only the values
+    above a threshold read off a sorted sample of them are partitioned, not all of them.
 
     A percentile near 100 lies among the few largest values. The threshold is taken where the
-    sample has about twice their share above it; when fewer than needed lie above it (a sample
-    that missed them), or for small, NaN-holding or non-float arrays and low ``q``, NumPy's own
-    percentile answers.
+    sample has :data:`PERCENTILE_MARGIN` times their share above it, and a few ranks more. NumPy's
+    own percentile answers when fewer than needed lie above it (a sample that missed them), for
+    small, NaN-holding or non-float arrays, a ``q`` under :data:`PERCENTILE_MIN_Q` or not a Python
+    number, and on NumPy versions that interpolate otherwise (:data:`NUMPY_INTERPOLATION_MATCHED`).
 
     Examples
     --------
@@ -211,16 +226,16 @@ def high_percentile(values, q: float):
     flat = a.reshape(-1)
     n = flat.size
     virtual = (n - 1) * (q / 100.0)  # the interpolated rank, as NumPy's 'linear' method
-    if a.dtype not in (np.float32, np.float64) or n < 4 * PERCENTILE_SAMPLE or not 90.0 <= q < 100.0 \
-            or not virtual < n - 1:
+    if not NUMPY_INTERPOLATION_MATCHED or type(q) not in (int, float) or a.dtype not in (np.float32, np.float64) \
+            or n < PERCENTILE_MIN_VALUES or not PERCENTILE_MIN_Q <= q < 100.0 or not virtual < n - 1:
         return np.percentile(a, q)
     lo = int(math.floor(virtual))
     need = n - lo  # the values from rank lo up
     sample = np.sort(flat[::n // PERCENTILE_SAMPLE])
     m = sample.size
-    threshold = sample[max(0, m - 1 - math.ceil(2.0 * need * m / n) - 16)]
+    threshold = sample[max(0, m - 1 - math.ceil(PERCENTILE_MARGIN * need * m / n) - PERCENTILE_MARGIN_RANKS)]
     top = flat[flat >= threshold]  # the (n - top.size) values below it come before every one of these
-    if top.size < need or np.isnan(sample[-1]) or np.isnan(flat).any():
+    if top.size < need or np.isnan(flat).any():
         return np.percentile(a, q)
     k = lo - (n - top.size)
     top.partition((k, k + 1))

@@ -108,13 +108,22 @@ def test_the_reference_frame_image_is_the_views_warped_mean_on_any_number_of_thr
 
 @pytest.mark.parametrize("seed, kind", list(enumerate(["uniform", "ties", "normal", "constant", "sorted", "skewed",
                                                            "sampled top"])))
-def test_the_high_percentile_is_numpys_to_the_bit(seed, kind):
+def test_the_high_percentile_is_numpys_to_the_bit(seed, kind, monkeypatch):
     """The guide's white (:func:`lfring.depth.plan.high_percentile`) is ``np.percentile``'s value
-    and type, to the bit, for float32 and float64 values of many sizes and kinds, high
-    percentiles between ranks and on them, and where it hands the question to NumPy (low or
-    top percentiles, small arrays, a sample that leaves too few values above its threshold)."""
-    from lfring.depth.plan import PERCENTILE_SAMPLE, high_percentile
+    and type for float32 and float64 values of many sizes and kinds, high percentiles between
+    ranks and on them; it answers itself wherever it should (large arrays, high percentiles, a
+    NumPy that interpolates as it does) and hands the question to NumPy elsewhere (low or top
+    percentiles, small arrays, a sample that leaves too few values above its threshold)."""
+    from lfring.depth import plan
 
+    real = np.percentile
+    calls = []
+
+    def counted(*args, **kwargs):
+        calls.append(args)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(np, "percentile", counted)
     rng = np.random.default_rng(seed)
     for size in (7, 1000, 40_000, 123_457, 495_616, 1_123_600):
         x = {"uniform": lambda: rng.random(size),
@@ -124,33 +133,64 @@ def test_the_high_percentile_is_numpys_to_the_bit(seed, kind):
              "sorted": lambda: np.sort(rng.random(size)),
              "skewed": lambda: rng.random(size) ** 8,
              # the largest values just where the sample looks: its threshold leaves too few above
-             "sampled top": lambda: np.where(np.arange(size) % max(1, size // PERCENTILE_SAMPLE) == 0, 5.0, 0.0)
+             "sampled top": lambda: np.where(np.arange(size) % max(1, size // plan.PERCENTILE_SAMPLE) == 0, 5.0, 0.0)
              + rng.random(size)}[kind]()
         for dtype in (np.float32, np.float64):
             a = x.astype(dtype).reshape(-1, 1) if size % 2 else x.astype(dtype)
             for q in (99.5, 90.0, 99.0, 99.99, 99.999, 100.0, 50.0):
-                want = np.percentile(a, q)
-                got = high_percentile(a, q)
+                want = real(a, q)
+                calls.clear()
+                got = plan.high_percentile(a, q)
                 assert got == want and type(got) is type(want), (kind, size, dtype, q, got, want)
+                itself = (plan.NUMPY_INTERPOLATION_MATCHED and size >= plan.PERCENTILE_MIN_VALUES
+                          and plan.PERCENTILE_MIN_Q <= q < 100.0)
+                if kind != "sampled top":
+                    assert (not calls) == itself, (kind, size, dtype, q, len(calls))
+                elif itself and q == 99.5:  # most of the largest values are in the sample: too few above
+                    assert calls, (size, dtype)
 
 
-def test_the_high_percentile_interpolates_and_hands_over_as_numpy():
-    """Where NumPy's interpolation between two ranks takes its second form, and for integer and
-    NaN-holding values, :func:`lfring.depth.plan.high_percentile` gives NumPy's answer."""
-    from lfring.depth.plan import high_percentile
+def test_the_high_percentile_interpolates_and_hands_over_as_numpy(monkeypatch):
+    """Where NumPy's interpolation between two ranks takes its second form (a weight of one half
+    included), where exactly one value too few lies above the sample's threshold, and for
+    integer, NaN-holding values and a percentile that is not a Python number,
+    :func:`lfring.depth.plan.high_percentile` gives NumPy's answer."""
+    from lfring.depth.plan import NUMPY_INTERPOLATION_MATCHED, high_percentile
 
     rng = np.random.default_rng(11)
-    # The 99.5th percentile of 200 003 values lies 0.99 of the way from rank 199 001 to 199 002:
-    # NumPy takes the upper value less the rest of the step, which differs in float32 from the
-    # lower value plus the step's part for these two.
-    below, above = np.float32(0.391619), np.float32(0.89027435)
-    x = np.concatenate([rng.random(199_001).astype(np.float32) * below, [below, above],
-                        above + rng.random(1000).astype(np.float32)])
-    rng.shuffle(x)
-    want = np.percentile(x, 99.5)
-    assert want != below + (above - below) * 0.99 and high_percentile(x, 99.5) == want
+    real = np.percentile
+    calls = []
+
+    def counted(*args, **kwargs):
+        calls.append(args)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(np, "percentile", counted)
+    # The 99.5th percentile of 200 003 values lies 0.99 of the way from rank 199 001 to 199 002,
+    # the 93.75th of 40 009 values half way from rank 37 507 to 37 508: NumPy takes the upper
+    # value less the rest of the step, which differs in float32 from the lower value plus the
+    # step's part for these pairs.
+    for n, q, t, below, above in ((200_003, 99.5, 0.99, np.float32(0.391619), np.float32(0.89027435)),
+                                  (40_009, 93.75, 0.5, np.float32(0.08564917), np.float32(0.2368105))):
+        rank = int((n - 1) * (q / 100.0))
+        x = np.concatenate([rng.random(rank).astype(np.float32) * below, [below, above],
+                            above + rng.random(n - rank - 2).astype(np.float32)])
+        rng.shuffle(x)
+        want = real(x, q)
+        calls.clear()
+        assert want != below + (above - below) * t and high_percentile(x, q) == want
+        assert (not calls) == NUMPY_INTERPOLATION_MATCHED
+    # 100 000 values, the 99.5th percentile needs the 501 from rank 99 499 up; 500 equal largest
+    # values where the sample looks put its threshold on them, one value too few above it.
+    x = rng.random(100_000)
+    x[::12][:500] = 5.0
+    assert high_percentile(x, 99.5) == real(x, 99.5) < 5.0
     ints = rng.integers(0, 1000, 200_000)
-    assert high_percentile(ints, 99.5) == np.percentile(ints, 99.5)
+    assert high_percentile(ints, 99.5) == real(ints, 99.5)
     holed = rng.random(200_000).astype(np.float32)
     holed[12345] = np.nan
     assert np.isnan(high_percentile(holed, 99.5))
+    whole = rng.random(200_000).astype(np.float32)
+    for q in (np.float64(99.5), np.array(99.5), np.int64(99)):  # NumPy works these in float64
+        got, want = high_percentile(whole, q), real(whole, q)
+        assert got == want and type(got) is type(want), (q, got, want)
