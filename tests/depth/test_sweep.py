@@ -106,16 +106,10 @@ def test_the_reference_frame_image_is_the_views_warped_mean_on_any_number_of_thr
     np.testing.assert_array_equal(in_reference_frame(lum, plan_sweep(views, cal, 0.3, 1.0, 8, 2, DEPTH_TAPER)), lum[2])
 
 
-@pytest.mark.parametrize("seed, kind", list(enumerate(["uniform", "ties", "normal", "constant", "sorted", "skewed",
-                                                           "sampled top"])))
-def test_the_high_percentile_is_numpys_to_the_bit(seed, kind, monkeypatch):
-    """The guide's white (:func:`lfring.depth.plan.high_percentile`) is ``np.percentile``'s value
-    and type for float32 and float64 values of many sizes and kinds, high percentiles between
-    ranks and on them; it answers itself wherever it should (large arrays, high percentiles, a
-    NumPy that interpolates as it does) and hands the question to NumPy elsewhere (low or top
-    percentiles, small arrays, a sample that leaves too few values above its threshold)."""
-    from lfring.depth import plan
-
+@pytest.fixture
+def percentile_calls(monkeypatch):
+    """``np.percentile`` as it was, and the list of calls made to it from now on (its stand-in
+    counts them): whether :func:`lfring.depth.plan.high_percentile` handed a question to NumPy."""
     real = np.percentile
     calls = []
 
@@ -124,6 +118,20 @@ def test_the_high_percentile_is_numpys_to_the_bit(seed, kind, monkeypatch):
         return real(*args, **kwargs)
 
     monkeypatch.setattr(np, "percentile", counted)
+    return real, calls
+
+
+@pytest.mark.parametrize("seed, kind", list(enumerate(["uniform", "ties", "normal", "constant", "sorted", "skewed",
+                                                           "sampled top"])))
+def test_the_high_percentile_is_numpys_to_the_bit(seed, kind, percentile_calls):
+    """The guide's white (:func:`lfring.depth.plan.high_percentile`) is ``np.percentile``'s value
+    and type for float32 and float64 values of many sizes and kinds, high percentiles between
+    ranks and on them; it answers itself wherever it should (large arrays, high percentiles, a
+    NumPy that interpolates as it does) and hands the question to NumPy elsewhere (low or top
+    percentiles, small arrays, a sample that leaves too few values above its threshold)."""
+    from lfring.depth import plan
+
+    real, calls = percentile_calls
     rng = np.random.default_rng(seed)
     for size in (7, 1000, 40_000, 123_457, 495_616, 1_123_600):
         x = {"uniform": lambda: rng.random(size),
@@ -150,22 +158,15 @@ def test_the_high_percentile_is_numpys_to_the_bit(seed, kind, monkeypatch):
                     assert calls, (size, dtype)
 
 
-def test_the_high_percentile_interpolates_and_hands_over_as_numpy(monkeypatch):
+def test_the_high_percentile_interpolates_and_hands_over_as_numpy(percentile_calls):
     """Where NumPy's interpolation between two ranks takes its second form (a weight of one half
     included), where exactly one value too few lies above the sample's threshold, and for
     integer, NaN-holding values and a percentile that is not a Python number,
     :func:`lfring.depth.plan.high_percentile` gives NumPy's answer."""
     from lfring.depth.plan import NUMPY_INTERPOLATION_MATCHED, high_percentile
 
+    real, calls = percentile_calls
     rng = np.random.default_rng(11)
-    real = np.percentile
-    calls = []
-
-    def counted(*args, **kwargs):
-        calls.append(args)
-        return real(*args, **kwargs)
-
-    monkeypatch.setattr(np, "percentile", counted)
     # The 99.5th percentile of 200 003 values lies 0.99 of the way from rank 199 001 to 199 002,
     # the 93.75th of 40 009 values half way from rank 37 507 to 37 508: NumPy takes the upper
     # value less the rest of the step, which differs in float32 from the lower value plus the
