@@ -144,45 +144,65 @@ def _box_add(boxes, b, k, y, xa, xb):
 
 
 @njit(inline="always")
-def _scatter_pixels(colour, sharp, s, cover, q, y, col0, col1, n, shift, rb, area_inv, c, v, written, buf):
-    """Row ``y``'s pixels col0 .. col1 - 1 of :func:`scatter`, each rung ``k``'s cells of the row
-    from ``rb[k]`` on (the cell of column x at ``rb[k] + (x >> shift[k]) (c + 1)``); ``v``:
-    scratch of c + 1 values. A full-resolution rung's row holds what is written so far up to
-    ``written[k]``: the cells a pixel skips are cleared as it writes past them."""
+def _row_values(colour, sharp, s, cover, q, y, col0, col1, n, c, vr, ka, kb, wa, wb):
+    """Row ``y``'s pixels col0 .. col1 - 1 of :func:`scatter`, the i-th pixel of the row at i:
+    ``vr`` (flat, c + 1 values a pixel) its premultiplied colour and coverage, zeros where it is
+    not covered; ``ka``, ``kb`` the rung below its fractional rung and the one above where it
+    lies between them (-1: none, or not covered); ``wa``, ``wb`` their shares 1 - t and t. Loops
+    without branches or signed indices (each selects instead), which vectorise."""
     c1 = c + 1
-    with_sharp = sharp.shape[0] == colour.shape[0]
-    for xx in range(col0, col1):
-        cv = cover[y, xx]
-        if cv <= 0.0:
-            continue
-        sh = s[y, xx]
-        for ch in range(c):
-            col = colour[y, xx, ch]
-            if with_sharp and sh > 0.0:
-                col += sh * (sharp[y, xx, ch] - col)
-            v[ch] = col * cv
-        v[c] = cv
-        sq = q[y, xx]
+    m = col1 - col0
+    zero = np.float32(0.0)
+    one = np.float32(1.0)
+    cr = cover[y, col0:col1]
+    colr = colour[y, col0:col1].reshape(m * c)
+    if sharp.shape[0] == colour.shape[0]:
+        sr = s[y, col0:col1]
+        shr = sharp[y, col0:col1].reshape(m * c)
+        for j in range(m):
+            cv = cr[j]
+            sh = sr[j]
+            covered = cv > zero
+            mix = sh > zero
+            for ch in range(c):
+                col = colr[np.uintp(j * c + ch)]
+                mixed = col + sh * (shr[np.uintp(j * c + ch)] - col)
+                vr[np.uintp(j * c1 + ch)] = (mixed if mix else col) * cv if covered else zero
+            vr[np.uintp(j * c1 + c)] = cv if covered else zero
+    else:
+        for j in range(m):
+            cv = cr[j]
+            covered = cv > zero
+            for ch in range(c):
+                vr[np.uintp(j * c1 + ch)] = colr[np.uintp(j * c + ch)] * cv if covered else zero
+            vr[np.uintp(j * c1 + c)] = cv if covered else zero
+    qr = q[y, col0:col1]
+    nn = np.int32(n)
+    for j in range(m):
+        sq = qr[j]
+        neg = sq < zero
         frac = abs(sq)
-        lo = int(frac)
-        t = frac - lo
-        sign = -1 if sq < 0.0 else 1
-        for m in range(2):
-            if m == 1 and (t <= 0.0 or lo >= n):
-                break
-            k = n + sign * (lo + m)
-            f = shift[k]
-            scale = np.float32((t if m == 1 else 1.0 - t) * area_inv[f])
-            cell = rb[k] + (xx >> f) * c1  # unsigned below: see disc_blur
-            if f == 0:  # a full-resolution cell takes one pixel
-                if written[k] < cell:
-                    buf[written[k]:cell] = np.float32(0.0)
-                for ch in range(c1):
-                    buf[np.uintp(cell + ch)] = np.float32(0.0) + scale * v[ch]
-                written[k] = cell + c1
-            else:
-                for ch in range(c1):
-                    buf[np.uintp(cell + ch)] += scale * v[ch]
+        lo = np.int32(frac)
+        t = frac - np.float32(lo)  # exact
+        second = (t > zero) & (lo < nn)
+        k = nn + (-lo if neg else lo)
+        covered = cr[j] > zero
+        ka[j] = k if covered else np.int32(-1)
+        kb[j] = k + (np.int32(-1) if neg else np.int32(1)) if covered & second else np.int32(-1)
+        wa[j] = one - t
+        wb[j] = t if second else zero
+
+
+@njit(inline="always")
+def _full_row(buf, base, k, xa, xb, col0, vr, ka, kb, wa, wb, c1):
+    """The cells of columns xa .. xb - 1 of full-resolution rung ``k``'s row at ``buf[base:]``:
+    each pixel's values times its share of the rung, 0 where the rung is not one of its two."""
+    zero = np.float32(0.0)
+    for x in range(xa, xb):
+        j = np.uintp(x - col0)
+        w = wa[j] if ka[j] == k else (wb[j] if kb[j] == k else zero)
+        for ch in range(c1):
+            buf[np.uintp(base + (x - xa) * c1 + ch)] = zero + w * vr[np.uintp(j * c1 + ch)]
 
 
 @njit(parallel=True, **_JIT)
@@ -196,53 +216,80 @@ def scatter(colour, sharp, s, cover, q, window, n, shift, y0, x0, rows, cols, of
     image).
 
     A full-resolution rung's cell takes one pixel at most, so its box is written whole, once,
-    zeros where no pixel of the rung lies (its part of ``buf`` need not be cleared first); the reduced
-    grids' cells sum several pixels, and their parts of ``buf`` must hold zeros. RGB (C + 1 = 4
-    values a cell) runs the pixels' loop compiled for exactly 4 values, as :func:`over`."""
+    zeros where no pixel of the rung lies (its part of ``buf`` need not be cleared first): per
+    row, the rung's cells are one pass over the row's values, which vectorises. The reduced
+    grids' cells sum several pixels, and their parts of ``buf`` must hold zeros; each cell adds
+    its pixels in order, row by row. RGB (C + 1 = 4 values a cell) runs loops compiled for
+    exactly 4 values, as :func:`over`."""
     c = colour.shape[2]
     c1 = c + 1
     r0, r1, col0, col1 = window[0], window[1], window[2], window[3]
     nk = 2 * n + 1
     # The rows to visit: the window's and every full-resolution box's.
     lo_row, hi_row = r0, r1
+    reduced = False
     for k in range(nk):
         if rows[k] > 0 and shift[k] == 0:
             lo_row = min(lo_row, y0[k])
             hi_row = max(hi_row, y0[k] + rows[k])
-    # A cell's share of a pixel, 4 ** -f (exact: the same numbers as a division).
-    area_inv = np.empty(64, np.float64)
-    for f in range(64):
-        area_inv[f] = 0.25 ** f
+        reduced = reduced or (rows[k] > 0 and shift[k] > 0)
+    m = max(col1 - col0, 0)
     n_stripes = (hi_row + stripe - 1) // stripe
     for b in prange(lo_row // stripe, n_stripes):
-        v = np.empty(c1, np.float32)
-        rb = np.zeros(nk, np.int64)
-        written = np.zeros(nk, np.int64)
-        row_end = np.zeros(nk, np.int64)
+        vr = np.zeros(m * c1, np.float32)
+        ka = np.full(m, -1, np.int32)
+        kb = np.full(m, -1, np.int32)
+        wa = np.zeros(m, np.float32)
+        wb = np.zeros(m, np.float32)
+        share = np.zeros(m, np.float32)
         for y in range(max(lo_row, b * stripe), min(hi_row, (b + 1) * stripe)):
-            # Where each rung's cells of the row start (and, at full resolution, end).
-            for k in range(nk):
-                written[k] = 0
-                row_end[k] = 0
-                if rows[k] == 0:
-                    continue
-                f = shift[k]
-                if f > 0:
-                    rb[k] = offset[k] + (((y >> f) - (y0[k] >> f)) * cols[k] - (x0[k] >> f)) * c1
-                elif y0[k] <= y < y0[k] + rows[k]:
-                    base = offset[k] + (y - y0[k]) * cols[k] * c1
-                    rb[k] = base - x0[k] * c1
-                    written[k] = base
-                    row_end[k] = base + cols[k] * c1
-            if r0 <= y < r1:
+            inside = r0 <= y < r1
+            if inside:
                 if c1 == 4:
-                    _scatter_pixels(colour, sharp, s, cover, q, y, col0, col1, n, shift, rb, area_inv, 3, v, written, buf)
+                    _row_values(colour, sharp, s, cover, q, y, col0, col1, n, 3, vr, ka, kb, wa, wb)
                 else:
-                    _scatter_pixels(colour, sharp, s, cover, q, y, col0, col1, n, shift, rb, area_inv, c, v, written, buf)
-            # The rest of each full-resolution box's row holds no pixel of its rung.
+                    _row_values(colour, sharp, s, cover, q, y, col0, col1, n, c, vr, ka, kb, wa, wb)
             for k in range(nk):
-                if written[k] < row_end[k]:
-                    buf[written[k]:row_end[k]] = np.float32(0.0)
+                if rows[k] == 0 or shift[k] != 0 or not y0[k] <= y < y0[k] + rows[k]:
+                    continue
+                base = offset[k] + (y - y0[k]) * cols[k] * c1
+                xa, xb = x0[k], x0[k] + cols[k]
+                # The window's columns take its pixels; the rest of the box's row is zeros.
+                ia = min(max(xa, col0), xb) if inside else xb
+                ib = max(min(xb, col1), ia) if inside else xb
+                if ia > xa:
+                    buf[base:base + (ia - xa) * c1] = np.float32(0.0)
+                if c1 == 4:
+                    _full_row(buf, base + (ia - xa) * c1, k, ia, ib, col0, vr, ka, kb, wa, wb, 4)
+                else:
+                    _full_row(buf, base + (ia - xa) * c1, k, ia, ib, col0, vr, ka, kb, wa, wb, c1)
+                if xb > ib:
+                    buf[base + (ib - xa) * c1:base + cols[k] * c1] = np.float32(0.0)
+            if not (reduced and inside):
+                continue
+            for k in range(nk):
+                f = shift[k]
+                if rows[k] == 0 or f == 0 or y < y0[k] or (y >> f) - (y0[k] >> f) >= rows[k]:
+                    continue
+                rb = offset[k] + (((y >> f) - (y0[k] >> f)) * cols[k] - (x0[k] >> f)) * c1
+                area = np.float32(0.25 ** f)  # a cell's share of a pixel (exact)
+                xa = max(col0, x0[k])
+                xb = min(col1, x0[k] + (cols[k] << f))
+                if xb <= xa:
+                    continue
+                for x in range(xa, xb):
+                    j = np.uintp(x - col0)
+                    share[j] = wa[j] * area if ka[j] == k else (wb[j] * area if kb[j] == k else np.float32(0.0))
+                for cx in range(xa >> f, ((xb - 1) >> f) + 1):
+                    cell = rb + cx * c1  # unsigned below: see disc_blur
+                    pa = max(xa, cx << f)
+                    pb = min(xb, (cx + 1) << f)
+                    for ch in range(c1):
+                        acc = buf[np.uintp(cell + ch)]
+                        for x in range(pa, pb):
+                            j = np.uintp(x - col0)
+                            acc += share[j] * vr[np.uintp(j * c1 + ch)]
+                        buf[np.uintp(cell + ch)] = acc
 
 
 @njit(inline="always")

@@ -247,6 +247,93 @@ def test_rungs_are_np_interp_of_the_moments_and_boxes_of_their_pixels(n, channel
             assert tuple(boxes[b, k]) == (rows.min(), rows.max(), cols.min(), cols.max())
 
 
+def _scatter_numpy(colour, sharp, s, cover, q, window, n, shift, y0, x0, rows, cols):
+    """Each rung's cells (rows, cols, C + 1) by the array rules, in float64."""
+    h, w, c = colour.shape
+    r0, r1, c0, c1 = window
+    mixed = colour + (np.where(s > 0, s, 0)[..., None] * (sharp - colour) if sharp.size else 0.0)
+    v = np.concatenate([mixed * cover[..., None], cover[..., None]], axis=2).astype(np.float64)
+    qa = np.abs(q.astype(np.float64))
+    lo = np.floor(qa).astype(int)
+    t = qa - lo
+    sign = np.where(q < 0, -1, 1)
+    out = [np.zeros((rows[k], cols[k], c + 1)) for k in range(2 * n + 1)]
+    for y in range(r0, r1):
+        for x in range(c0, c1):
+            if cover[y, x] <= 0:
+                continue
+            for k, share in ((n + sign[y, x] * lo[y, x], 1 - t[y, x]), (n + sign[y, x] * (lo[y, x] + 1), t[y, x])):
+                if share == 0 or not 0 <= k <= 2 * n:
+                    continue
+                f = shift[k]
+                out[k][(y >> f) - (y0[k] >> f), (x >> f) - (x0[k] >> f)] += share * v[y, x] / 4.0 ** f
+    return out
+
+
+# RGB's cells (4 values) and a single channel's (2) run loops compiled apart.
+@pytest.mark.parametrize("channels", [1, 3])
+@pytest.mark.parametrize("with_sharp", [True, False])
+def test_scatter_shares_every_pixel_between_its_two_rungs_on_their_grids(channels, with_sharp):
+    """Every covered pixel of the window adds its premultiplied colour (mixed with the
+    shift-and-add image by its share) and its coverage to the rung below its fractional rung
+    (1 - t) and the one above (t), on each rung's grid (full resolution, halved, quartered: area
+    averages); a full-resolution box is written whole (its cells no pixel reaches are zeros
+    though ``buf`` held NaN there, its rows outside the window too), a reduced one adds to the
+    zeros it holds. Rungs on either side of the focus, integer rungs (one rung), the top rung,
+    uncovered pixels, boxes reaching past the window."""
+    rng = np.random.default_rng(17 + channels + 2 * with_sharp)
+    h, w, n, stripe = 50, 70, 4, 16
+    colour = rng.random((h, w, channels)).astype(np.float32)
+    sharp = rng.random((h, w, channels)).astype(np.float32) if with_sharp else np.zeros((0, 0, 0), np.float32)
+    s = np.where(rng.random((h, w)) < 0.5, rng.random((h, w)), 0.0).astype(np.float32)
+    cover = rng.random((h, w)).astype(np.float32)
+    cover[cover < 0.15] = 0.0
+    # Smooth rungs (long runs) with jumps, whole numbers and the top rung.
+    q = (np.linspace(-n, n, w)[None, :] + np.zeros((h, 1))).astype(np.float32)
+    jump = rng.random((h, w)) < 0.1
+    q[jump] = rng.uniform(-n, n, jump.sum()).astype(np.float32)
+    whole = rng.random((h, w)) < 0.1
+    q[whole] = np.round(q[whole])
+    q[:, :3] = -n
+    window = np.array([5, h - 7, 3, w - 4], np.int64)
+    shift = np.array([2, 1, 0, 0, 0, 0, 0, 1, 2][:2 * n + 1], np.int64)
+    nk = 2 * n + 1
+    y0 = np.zeros(nk, np.int64)
+    x0 = np.zeros(nk, np.int64)
+    rows = np.zeros(nk, np.int64)
+    cols = np.zeros(nk, np.int64)
+    offset = np.zeros(nk, np.int64)
+    qa = np.abs(q.astype(np.float64))
+    lo = np.floor(qa).astype(int)
+    sign = np.where(q < 0, -1, 1)
+    r0, r1, c0, c1 = window
+    on = np.zeros((h, w), bool)
+    on[r0:r1, c0:c1] = cover[r0:r1, c0:c1] > 0
+    total = 0
+    for k in range(nk):
+        mine = on & ((n + sign * lo == k) | ((qa > lo) & (lo < n) & (n + sign * (lo + 1) == k)))
+        if not mine.any():
+            continue
+        ys, xs = np.nonzero(mine)
+        f = 1 << shift[k]
+        pad = 2  # boxes reach past the window's rows and columns
+        ya, yb = max(0, ys.min() - pad) // f * f, -(-(ys.max() + pad + 1) // f) * f
+        xa, xb = max(0, xs.min() - pad) // f * f, -(-(xs.max() + pad + 1) // f) * f
+        y0[k], x0[k], rows[k], cols[k], offset[k] = ya, xa, (yb - ya) // f, (xb - xa) // f, total
+        total += (channels + 1) * rows[k] * cols[k]
+    assert (rows[shift > 0] > 0).any() and (rows[shift == 0] > 0).any()
+    buf = np.full(total, np.nan, np.float32)
+    for k in range(nk):
+        if shift[k] > 0:
+            buf[offset[k]:offset[k] + (channels + 1) * rows[k] * cols[k]] = 0.0
+    kern.scatter(colour, sharp, s, cover, q, window, n, shift, y0, x0, rows, cols, offset, stripe, buf)
+    want = _scatter_numpy(colour, sharp, s, cover, q, window, n, shift, y0, x0, rows, cols)
+    for k in range(nk):
+        got = buf[offset[k]:offset[k] + (channels + 1) * rows[k] * cols[k]].reshape(rows[k], cols[k], channels + 1)
+        np.testing.assert_allclose(got, want[k], rtol=0, atol=2e-6, err_msg=f"rung {k}")
+    assert np.isfinite(buf).all()
+
+
 def _placed(shape, arr, y0, x0):
     """``arr`` placed at (y0, x0) of a zero array of ``shape`` (the part inside it), and where."""
     out = np.zeros(shape + arr.shape[2:], arr.dtype)
