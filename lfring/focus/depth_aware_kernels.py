@@ -13,7 +13,9 @@ coverage are interleaved (C + 1 values per pixel), one cache line for all of a p
 The per-cell loops run over flat rows, and each is an inlined helper called twice: with the
 cell's size given as 4 (RGB and coverage), which compiles a copy whose loops are unrolled and
 vectorise, and with the size of the call for any other channel count. Indexed as (row, column,
-value), or with a size known only at run time, the same loops compile to scalar code.
+value), or with a size known only at run time, the same loops compile to scalar code; so do
+loops whose index is a signed product or sum such as ``c1 * j + ch`` (numba checks a signed
+index for a negative value): those indices are unsigned.
 
 The renderer's all-in-focus colour, made once per depth map, has its own: :func:`shift_maps`
 and :func:`knot_maps` (where each view sees every pixel at its depth, for calibrations whose
@@ -298,10 +300,11 @@ def _keep_add(ar, wr, ws, wo, complement, gr, n, c1):
     ``wr[ws j + wo]`` (one minus it where ``complement``): a layer's own coverage (``over``) or
     a group's transmission (``merge``)."""
     for j in range(n):
-        w = wr[ws * j + wo]
+        w = wr[np.uintp(ws * j + wo)]
         keep = np.float32(1.0) - w if complement else w
         for ch in range(c1):
-            ar[c1 * j + ch] = ar[c1 * j + ch] * keep + gr[c1 * j + ch]
+            e = np.uintp(c1 * j + ch)
+            ar[e] = ar[e] * keep + gr[e]
 
 
 @njit(inline="always")
@@ -309,9 +312,10 @@ def _add_scaled(ar, wr, ws, wo, pr, n, c1):
     """``ar += w pr`` over ``n`` cells of ``c1`` values, each cell's ``w`` = ``wr[ws j + wo]``:
     the layer behind, under a layer's coverage (``over``) or a group's skip term (``merge``)."""
     for j in range(n):
-        w = wr[ws * j + wo]
+        w = wr[np.uintp(ws * j + wo)]
         for ch in range(c1):
-            ar[c1 * j + ch] += w * pr[c1 * j + ch]
+            e = np.uintp(c1 * j + ch)
+            ar[e] += w * pr[e]
 
 
 @njit(inline="always")
@@ -366,11 +370,11 @@ def over(acc, oy, ox, layer, prev, py, px, trans, skip, first):
         if with_trans:
             tr = trans[y, ox:ox + cols]
             for j in range(cols):
-                tr[j] *= np.float32(1.0) - lr[c1 * j + c1 - 1]
+                tr[j] *= np.float32(1.0) - lr[np.uintp(c1 * j + c1 - 1)]
         if with_skip:
             sr = skip[y, ox:ox + cols]
             for j in range(cols):
-                a = lr[c1 * j + c1 - 1]
+                a = lr[np.uintp(c1 * j + c1 - 1)]
                 sr[j] = a if first else sr[j] * (np.float32(1.0) - a)
 
 
@@ -423,10 +427,10 @@ def _divided(ar, orow, n, c1, floor):
     where that is at most ``floor``."""
     c = c1 - 1
     for j in range(n):
-        den = ar[c1 * j + c]
+        den = ar[np.uintp(c1 * j + c)]
         inv = np.float32(1.0) / den
         for ch in range(c):
-            orow[c * j + ch] = ar[c1 * j + ch] * inv if den > floor else np.float32(0.0)
+            orow[np.uintp(c * j + ch)] = ar[np.uintp(c1 * j + ch)] * inv if den > floor else np.float32(0.0)
 
 
 @njit(inline="always")
@@ -435,13 +439,13 @@ def _divided_filled(ar, br, orow, n, c1, floor):
     f = 1 - the coverage, clipped to [0, 1]."""
     c = c1 - 1
     for j in range(n):
-        alpha = ar[c1 * j + c]
+        alpha = ar[np.uintp(c1 * j + c)]
         fill = min(max(np.float32(1.0) - alpha, np.float32(0.0)), np.float32(1.0))
-        den = alpha + fill * br[c1 * j + c]
+        den = alpha + fill * br[np.uintp(c1 * j + c)]
         inv = np.float32(1.0) / den
         for ch in range(c):
-            num = ar[c1 * j + ch] + fill * br[c1 * j + ch]
-            orow[c * j + ch] = num * inv if den > floor else np.float32(0.0)
+            num = ar[np.uintp(c1 * j + ch)] + fill * br[np.uintp(c1 * j + ch)]
+            orow[np.uintp(c * j + ch)] = num * inv if den > floor else np.float32(0.0)
 
 
 @njit(parallel=True, **_JIT)
