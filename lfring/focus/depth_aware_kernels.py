@@ -506,13 +506,41 @@ def _disc_row(rows_of, y, rows, length, quarter, n, c1, zero, fold, cols, out):
     pad = n * c1
     stride = length + 2 * pad
     _fold_rows(rows_of, y, rows, length, n, pad, stride, zero, fold)
-    # Column j of the quarter applied to the folded rows, over the padded row ...
-    for j in range(n + 1):
+    # Columns j of the quarter applied to the folded rows, over the padded row, three columns a
+    # pass (each folded value loaded once for the three; more sums than three spill registers) ...
+    j = 0
+    while j + 3 <= n + 1:
         for e in range(stride):
-            acc = quarter[0, j] * fold[np.uintp(e)]
+            f0 = fold[np.uintp(e)]
+            a0 = quarter[0, j] * f0
+            a1 = quarter[0, j + 1] * f0
+            a2 = quarter[0, j + 2] * f0
             for i in range(1, n + 1):
-                acc += quarter[i, j] * fold[np.uintp(i * stride + e)]
-            cols[np.uintp(j * stride + e)] = acc
+                fi = fold[np.uintp(i * stride + e)]
+                a0 += quarter[i, j] * fi
+                a1 += quarter[i, j + 1] * fi
+                a2 += quarter[i, j + 2] * fi
+            cols[np.uintp(j * stride + e)] = a0
+            cols[np.uintp((j + 1) * stride + e)] = a1
+            cols[np.uintp((j + 2) * stride + e)] = a2
+        j += 3
+    if j + 2 == n + 1:
+        for e in range(stride):
+            f0 = fold[np.uintp(e)]
+            a0 = quarter[0, j] * f0
+            a1 = quarter[0, j + 1] * f0
+            for i in range(1, n + 1):
+                fi = fold[np.uintp(i * stride + e)]
+                a0 += quarter[i, j] * fi
+                a1 += quarter[i, j + 1] * fi
+            cols[np.uintp(j * stride + e)] = a0
+            cols[np.uintp((j + 1) * stride + e)] = a1
+    elif j + 1 == n + 1:
+        for e in range(stride):
+            a0 = quarter[0, j] * fold[np.uintp(e)]
+            for i in range(1, n + 1):
+                a0 += quarter[i, j] * fold[np.uintp(i * stride + e)]
+            cols[np.uintp(j * stride + e)] = a0
     # ... and shifted by j cells to either side.
     for e in range(length):
         acc = cols[np.uintp(pad + e)]
@@ -558,7 +586,8 @@ def disc_blur(cells, quarter, out):
     column of the quarter is applied to them, and the columns are added shifted by their offset
     to either side: about (n + 1)^2 + 3 n operations a value instead of (2 n + 1)^2. The reaches
     that carry most of a render's blurs, 4 and 5, run loops compiled for them, which unroll over
-    the taps and keep each value's sums in registers; the others (each such copy would lengthen
+    the taps and keep each value's sums in registers, three columns of the quarter at a time
+    (each folded value is loaded once for the three); the others (each such copy would lengthen
     the first compile) pass over the row once per tap. Indices are unsigned: numba checks a
     signed one for a negative value, which keeps a loop from vectorising."""
     rows, width, c1 = cells.shape
