@@ -84,48 +84,73 @@ def rungs(x, agree, cover, sharp, window, x_f, motion, aperture, sharp_px, ramp_
     n_stripes = (r1 + stripe - 1) // stripe
     for b in prange(r0 // stripe, n_stripes):
         m_row = np.empty(c1 - c0, np.float64)
+        lo_m = np.empty(c1 - c0, np.float64)
+        hi_m = np.empty(c1 - c0, np.float64)
+        i_row = np.empty(c1 - c0, np.int64)
+        ka = np.empty(c1 - c0, np.int64)
+        kb = np.empty(c1 - c0, np.int64)
         for y in range(max(r0, b * stripe), min(r1, (b + 1) * stripe)):
             sr = flat[(y * w + c0) * c:(y * w + c1) * c] if with_sharp else flat[0:0]
             xr, ar, cr, s_row = x[y, c0:c1], agree[y, c0:c1], cover[y, c0:c1], s[y, c0:c1]
-            if c == 3:
+            # Whether there is a shift-and-add image given as a literal too: a flag known only at
+            # run time inside the loop keeps it from vectorising.
+            if not with_sharp:
+                _moment_row(xr, ar, cr, sr, c1 - c0, 0, x_f, motion, aperture, sharp_px, ramp_px, share_px2,
+                            False, m_row, s_row)
+            elif c == 3:
                 _moment_row(xr, ar, cr, sr, c1 - c0, 3, x_f, motion, aperture, sharp_px, ramp_px, share_px2,
-                            with_sharp, m_row, s_row)
+                            True, m_row, s_row)
             else:
                 _moment_row(xr, ar, cr, sr, c1 - c0, c, x_f, motion, aperture, sharp_px, ramp_px, share_px2,
-                            with_sharp, m_row, s_row)
-            # Neighbours mostly share their rungs: the search for a pixel's rung starts from the
-            # last pixel's, and a row's run of pixels between the same rungs enters the boxes once.
-            i = 1
+                            True, m_row, s_row)
+            # The fractional index of m in the increasing moments (np.interp's): i - 1 and m's place
+            # between moments[i - 1] and moments[i], i the first index from 1 with m <= moments[i]
+            # (1 and the number of moments below m from index 1), found in passes over the row
+            # per rung (which vectorise); the top rung past the last (or for a NaN).
+            nj = c1 - c0
+            for j in range(nj):
+                i_row[j] = 1
+                lo_m[j] = moments[0]
+                hi_m[j] = moments[n]
+            for rung in range(1, n):
+                mr = moments[rung]
+                for j in range(nj):
+                    below = mr < m_row[j]
+                    i_row[j] += 1 if below else 0
+                    lo_m[j] = mr if below else lo_m[j]
+            for rung in range(n - 1, 0, -1):
+                mr = moments[rung]
+                for j in range(nj):
+                    hi_m[j] = mr if mr >= m_row[j] else hi_m[j]
+            q_row = q[y, c0:c1]
+            for j in range(nj):
+                m = m_row[j]
+                inside = (n > 0) & (m <= moments[n])
+                frac = (i_row[j] - 1) + (m - lo_m[j]) / (hi_m[j] - lo_m[j]) if inside else float(n)
+                neg = aperture * (motion * (xr[j] - x_f)) < 0.0
+                covered = not m < 0.0  # a NaN moment is covered (the top rung)
+                q_row[j] = (-frac if neg else frac) if covered else 0.0
+                lo = int(frac)
+                k = n - lo if neg else n + lo
+                k2 = n - lo - 1 if neg else n + lo + 1
+                ka[j] = k if covered else -2  # -2: not covered
+                kb[j] = -1 if frac <= lo or lo >= n else k2  # -1: the pixel has one rung
+            # Neighbours mostly share their rungs: a row's run of pixels between the same rungs
+            # enters the boxes once.
             run_k = -1
             run_k2 = -1
             run_x0 = 0
             run_x1 = 0
-            q_row = q[y]
-            for j in range(c1 - c0):
-                xx = c0 + j
-                m = m_row[j]
-                if m < 0.0:  # not covered
-                    q_row[xx] = 0.0
+            for j in range(nj):
+                k = ka[j]
+                if k == -2:
                     continue
-                # The fractional index of m in the increasing moments (np.interp's): the first i
-                # with m <= moments[i]; the top rung past the last (or for a NaN).
-                frac = float(n)
-                if n > 0 and m <= moments[n]:
-                    while i > 1 and m <= moments[i - 1]:
-                        i -= 1
-                    while m > moments[i]:
-                        i += 1
-                    frac = (i - 1) + (m - moments[i - 1]) / (moments[i] - moments[i - 1])
-                sign = -1 if aperture * (motion * (x[y, xx] - x_f)) < 0.0 else 1
-                q_row[xx] = sign * frac
-                lo = int(frac)
-                k = n + sign * lo
-                k2 = -1 if frac <= lo or lo >= n else n + sign * (lo + 1)  # -1: the pixel has one rung
+                k2 = kb[j]
                 if k != run_k or k2 != run_k2:
                     _box_add(boxes, b, run_k, y, run_x0, run_x1)
                     _box_add(boxes, b, run_k2, y, run_x0, run_x1)
-                    run_k, run_k2, run_x0 = k, k2, xx
-                run_x1 = xx
+                    run_k, run_k2, run_x0 = k, k2, c0 + j
+                run_x1 = c0 + j
             _box_add(boxes, b, run_k, y, run_x0, run_x1)
             _box_add(boxes, b, run_k2, y, run_x0, run_x1)
 
