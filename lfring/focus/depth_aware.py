@@ -446,13 +446,16 @@ class DepthOfField:
 
     # -- the background under occlusion edges --------------------------------------------------
     def _background(self, sources: list, masks: np.ndarray, nearest: list):
-        """The farther surface continued under nearer ones near occlusion edges: (under, x_b,
-        colour_b, distance_px), or None where the depth map has no step of :data:`BACK_STEP_PX`.
+        """The farther surface continued under nearer ones near occlusion edges: (distance_px,
+        x_b, colour_b, row_min, col_min, x_b_range), or None where the depth map has no step of
+        :data:`BACK_STEP_PX`.
 
-        ``under`` (h, w) bool marks the pixels with a background; ``x_b`` its inverse depth (the
-        nearest pixel across the step's); ``colour_b`` its colour, from the views that see it
-        there (they look behind the edge from their places in the aperture), else extended from
-        around; ``distance_px`` how far the pixel lies from the step."""
+        ``distance_px`` (h, w) is how far a pixel with a background lies from the step (inf
+        where it has none); ``x_b`` its inverse depth (the nearest pixel across the step's);
+        ``colour_b`` its colour, from the views that see it there (they look behind the edge
+        from their places in the aperture), else extended from around; ``row_min`` and
+        ``col_min`` the least distance of each row and column; ``x_b_range`` the least and
+        largest ``x_b`` where there is a background."""
         from lfring.focus import depth_aware_kernels as kern
 
         x = self.x
@@ -490,8 +493,9 @@ class DepthOfField:
         box = (slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1))
         colour[box] = np.stack(_fill_from_around([np.ascontiguousarray(colour[box + (i,)]) for i in range(c)],
                                                  source[box].astype(np.float32)), axis=2)
-        return (under, xb.astype(np.float32), np.ascontiguousarray(colour, dtype=np.float32), dist.astype(np.float32),
-                (float(xb[under].min()), float(xb[under].max())))
+        dist_under = np.where(under, dist, np.inf).astype(np.float32)
+        return (dist_under, xb.astype(np.float32), np.ascontiguousarray(colour, dtype=np.float32),
+                dist_under.min(axis=1), dist_under.min(axis=0), (float(xb[under].min()), float(xb[under].max())))
 
     # -- rendering -------------------------------------------------------------------------------
     def signed_radius_px(self, focus_m: float) -> np.ndarray:
@@ -516,22 +520,27 @@ class DepthOfField:
             sharp = np.ascontiguousarray(np.asarray(shift_and_add, dtype=np.float32).reshape(self.colour.shape))
         # The largest blur radius, from the depth map's ends: the ladder reaches it.
         rmax = aperture * motion * max(abs(self._x_range[0] - xf), abs(self._x_range[1] - xf))
-        back = None
+        window = None
         if self._back is not None:
-            under, _, colour_b, dist, xb_range = self._back
-            # Only as far from the edge as a nearer surface's blur can reach.
-            near_edge = under & (dist <= rmax + 2.0)
-            rows, cols = np.flatnonzero(near_edge.any(axis=1)), np.flatnonzero(near_edge.any(axis=0))
+            dist_under, _, _, row_min, col_min, xb_range = self._back
+            # Only as far from the edge as a nearer surface's blur can reach: the box of those
+            # pixels from the rows' and columns' least distances.
+            reach = rmax + 2.0
+            rows, cols = np.flatnonzero(row_min <= reach), np.flatnonzero(col_min <= reach)
             if rows.size:
-                back = (colour_b, near_edge.view(np.uint8).astype(np.float32), (rows[0], rows[-1] + 1, cols[0], cols[-1] + 1))
+                window = (rows[0], rows[-1] + 1, cols[0], cols[-1] + 1)
                 rmax = max(rmax, aperture * motion * max(abs(xb_range[0] - xf), abs(xb_range[1] - xf)))
         grid = _Grid(_ladder(rmax), (h, w), c, (xf, motion, aperture), self._scratch)
         acc = _composite(grid.layers(kern, self.x, self.agree, self._cover, self.colour, sharp), grid, kern)
         by, bx, summed = 0, 0, _EMPTY3
-        if back is not None:
-            colour_b, cover_b, window = back
-            by, bx, summed = _sum_layers(grid.layers(kern, self._back[1], self.agree, cover_b, colour_b, _EMPTY3, window,
-                                                     "back"), (h, w), c)
+        if window is not None:
+            _, x_b, colour_b = self._back[:3]
+            # The background's cover: 1 near the edge, 0 elsewhere; the passes read only the window.
+            cover_b = grid.buffer("back cover", (h, w))
+            box = (slice(window[0], window[1]), slice(window[2], window[3]))
+            np.less_equal(dist_under[box], np.float32(reach), out=cover_b[box], casting="unsafe")
+            by, bx, summed = _sum_layers(grid.layers(kern, x_b, self.agree, cover_b, colour_b, _EMPTY3, window, "back"),
+                                         (h, w), c)
         out = np.empty((h, w, c), np.float32)
         kern.finish(acc, summed, by, bx, np.float32(WEIGHT_FLOOR), out)
         return out
