@@ -535,7 +535,8 @@ class DepthOfField:
         by, bx, summed = 0, 0, _EMPTY3
         if window is not None:
             _, x_b, colour_b = self._back[:3]
-            # The background's cover: 1 near the edge, 0 elsewhere; the passes read only the window.
+            # The background's cover in the window: 1 near the edge, 0 elsewhere (the passes read
+            # only the window; outside it the kept scratch holds what an earlier render left).
             cover_b = grid.buffer("back cover", (h, w))
             box = (slice(window[0], window[1]), slice(window[2], window[3]))
             np.less_equal(dist_under[box], np.float32(reach), out=cover_b[box], casting="unsafe")

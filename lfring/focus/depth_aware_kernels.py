@@ -10,9 +10,9 @@ the surfaces leave uncovered); between them, :func:`disc_blur` blurs every rung'
 multiple of every rung's grid factor, so no two stripes write the same cell. Colour and
 coverage are interleaved (C + 1 values per pixel), one cache line for all of a pixel.
 
-The per-cell loops run over flat rows, and each is an inlined helper called twice: with the
-cell's size given as 4 (RGB and coverage), which compiles a copy whose loops are unrolled and
-vectorise, and with the size of the call for any other channel count. Indexed as (row, column,
+The per-cell loops run over flat rows, and each is an inlined helper called with the cell's size
+given as 4 (RGB and coverage), which compiles a copy whose loops are unrolled and vectorise, and
+again with the size of the call for any other channel count. Indexed as (row, column,
 value), or with a size known only at run time, the same loops compile to scalar code; so do
 loops whose index is a signed product or sum such as ``c1 * j + ch`` (numba checks a signed
 index for a negative value): those indices are unsigned.
@@ -175,8 +175,9 @@ def _row_values(colour, sharp, s, cover, q, y, col0, col1, n, c, vr, ka, kb, wa,
     """Row ``y``'s pixels col0 .. col1 - 1 of :func:`scatter`, the i-th pixel of the row at i:
     ``vr`` (flat, c + 1 values a pixel) its premultiplied colour and coverage, zeros where it is
     not covered; ``ka``, ``kb`` the rung below its fractional rung and the one above where it
-    lies between them (-1: none, or not covered); ``wa``, ``wb`` their shares 1 - t and t. Loops
-    without branches or signed indices (each selects instead), which vectorise."""
+    lies between them (-1: none, or not covered); ``wa``, ``wb`` their shares 1 - t and t.
+    Returns whether every value is finite. Loops without branches or signed indices (each
+    selects instead), which vectorise."""
     c1 = c + 1
     m = col1 - col0
     zero = np.float32(0.0)
@@ -218,18 +219,36 @@ def _row_values(colour, sharp, s, cover, q, y, col0, col1, n, c, vr, ka, kb, wa,
         kb[j] = k + (np.int32(-1) if neg else np.int32(1)) if covered & second else np.int32(-1)
         wa[j] = one - t
         wb[j] = t if second else zero
+    # Whether any value is infinite or NaN: all of its exponent's bits set (integer operations,
+    # which vectorise).
+    bits = vr[:m * c1].view(np.uint32)
+    exponent = np.uint32(0x7F800000)
+    bad = np.uint32(0)
+    for i in range(m * c1):
+        bad |= np.uint32((bits[i] & exponent) == exponent)
+    return bad == 0
 
 
 @njit(inline="always")
-def _full_row(buf, base, k, xa, xb, col0, vr, ka, kb, wa, wb, c1):
+def _full_row(buf, base, k, xa, xb, col0, vr, ka, kb, wa, wb, c1, finite):
     """The cells of columns xa .. xb - 1 of full-resolution rung ``k``'s row at ``buf[base:]``:
-    each pixel's values times its share of the rung, 0 where the rung is not one of its two."""
+    each pixel's values times its share of the rung, 0 where the rung is not one of its two.
+    Where every value is ``finite`` that 0 is a product with a share of 0; otherwise it is
+    selected, so that an infinite or NaN value stays out of the other rungs."""
     zero = np.float32(0.0)
+    if finite:
+        for x in range(xa, xb):
+            j = np.uintp(x - col0)
+            w = wa[j] if ka[j] == k else (wb[j] if kb[j] == k else zero)
+            for ch in range(c1):
+                buf[np.uintp(base + (x - xa) * c1 + ch)] = zero + w * vr[np.uintp(j * c1 + ch)]
+        return
     for x in range(xa, xb):
         j = np.uintp(x - col0)
-        w = wa[j] if ka[j] == k else (wb[j] if kb[j] == k else zero)
+        mine = (ka[j] == k) | (kb[j] == k)
+        w = wa[j] if ka[j] == k else wb[j]
         for ch in range(c1):
-            buf[np.uintp(base + (x - xa) * c1 + ch)] = zero + w * vr[np.uintp(j * c1 + ch)]
+            buf[np.uintp(base + (x - xa) * c1 + ch)] = zero + w * vr[np.uintp(j * c1 + ch)] if mine else zero
 
 
 @njit(parallel=True, **_JIT)
@@ -246,8 +265,9 @@ def scatter(colour, sharp, s, cover, q, window, n, shift, y0, x0, rows, cols, of
     zeros where no pixel of the rung lies (its part of ``buf`` need not be cleared first): per
     row, the rung's cells are one pass over the row's values, which vectorises. The reduced
     grids' cells sum several pixels, and their parts of ``buf`` must hold zeros; each cell adds
-    its pixels in order, row by row. RGB (C + 1 = 4 values a cell) runs loops compiled for
-    exactly 4 values, as :func:`over`."""
+    its pixels in order, row by row. A pixel enters no rung but its two, whatever its values
+    (an infinite or NaN one too). The rows' values and the full-resolution rows run loops
+    compiled for exactly 4 values for RGB (C + 1 = 4 values a cell), as :func:`over`."""
     c = colour.shape[2]
     c1 = c + 1
     r0, r1, col0, col1 = window[0], window[1], window[2], window[3]
@@ -271,11 +291,12 @@ def scatter(colour, sharp, s, cover, q, window, n, shift, y0, x0, rows, cols, of
         share = np.zeros(m, np.float32)
         for y in range(max(lo_row, b * stripe), min(hi_row, (b + 1) * stripe)):
             inside = r0 <= y < r1
+            finite = True
             if inside:
                 if c1 == 4:
-                    _row_values(colour, sharp, s, cover, q, y, col0, col1, n, 3, vr, ka, kb, wa, wb)
+                    finite = _row_values(colour, sharp, s, cover, q, y, col0, col1, n, 3, vr, ka, kb, wa, wb)
                 else:
-                    _row_values(colour, sharp, s, cover, q, y, col0, col1, n, c, vr, ka, kb, wa, wb)
+                    finite = _row_values(colour, sharp, s, cover, q, y, col0, col1, n, c, vr, ka, kb, wa, wb)
             for k in range(nk):
                 if rows[k] == 0 or shift[k] != 0 or not y0[k] <= y < y0[k] + rows[k]:
                     continue
@@ -287,9 +308,9 @@ def scatter(colour, sharp, s, cover, q, window, n, shift, y0, x0, rows, cols, of
                 if ia > xa:
                     buf[base:base + (ia - xa) * c1] = np.float32(0.0)
                 if c1 == 4:
-                    _full_row(buf, base + (ia - xa) * c1, k, ia, ib, col0, vr, ka, kb, wa, wb, 4)
+                    _full_row(buf, base + (ia - xa) * c1, k, ia, ib, col0, vr, ka, kb, wa, wb, 4, finite)
                 else:
-                    _full_row(buf, base + (ia - xa) * c1, k, ia, ib, col0, vr, ka, kb, wa, wb, c1)
+                    _full_row(buf, base + (ia - xa) * c1, k, ia, ib, col0, vr, ka, kb, wa, wb, c1, finite)
                 if xb > ib:
                     buf[base + (ib - xa) * c1:base + cols[k] * c1] = np.float32(0.0)
             if not (reduced and inside):
@@ -304,6 +325,9 @@ def scatter(colour, sharp, s, cover, q, window, n, shift, y0, x0, rows, cols, of
                 xb = min(col1, x0[k] + (cols[k] << f))
                 if xb <= xa:
                     continue
+                # Each pixel's share of the rung, 0 where the rung is not one of its two (every
+                # share of a pixel of the rung is above 0): such a pixel adds a product with 0
+                # where every value is finite, and nothing otherwise.
                 for x in range(xa, xb):
                     j = np.uintp(x - col0)
                     share[j] = wa[j] * area if ka[j] == k else (wb[j] * area if kb[j] == k else np.float32(0.0))
@@ -313,9 +337,15 @@ def scatter(colour, sharp, s, cover, q, window, n, shift, y0, x0, rows, cols, of
                     pb = min(xb, (cx + 1) << f)
                     for ch in range(c1):
                         acc = buf[np.uintp(cell + ch)]
-                        for x in range(pa, pb):
-                            j = np.uintp(x - col0)
-                            acc += share[j] * vr[np.uintp(j * c1 + ch)]
+                        if finite:
+                            for x in range(pa, pb):
+                                j = np.uintp(x - col0)
+                                acc += share[j] * vr[np.uintp(j * c1 + ch)]
+                        else:
+                            for x in range(pa, pb):
+                                j = np.uintp(x - col0)
+                                if share[j] > np.float32(0.0):
+                                    acc += share[j] * vr[np.uintp(j * c1 + ch)]
                         buf[np.uintp(cell + ch)] = acc
 
 

@@ -208,6 +208,11 @@ def test_rungs_are_np_interp_of_the_moments_and_boxes_of_their_pixels(n, channel
     moments = np.cumsum(np.r_[0.0, rng.uniform(0.2, 1.5, n)])
     window = np.array([3, h - 5, 4, w - 2], np.int64)
     x_f, motion, aperture, sharp_px, ramp_px, share_px2 = 1.1, 1.7, 0.8, 0.5, 1.0, 0.08
+    if n > 1:  # pixels whose moment is exactly one of the moments (a whole rung)
+        d = motion * (np.float64(x[10, 20]) - x_f)
+        moments[1] = 0.5 * (aperture * d) ** 2
+        cover[10, 20], sharp[10, 20] = 1.0, 0.0
+        moments = np.sort(moments)
     q = np.full((h, w), -7.0, np.float32)
     s = np.full((h, w), -7.0, np.float32)
     boxes = np.empty(((h + stripe - 1) // stripe, 2 * n + 1, 4), np.int64)
@@ -248,46 +253,57 @@ def test_rungs_are_np_interp_of_the_moments_and_boxes_of_their_pixels(n, channel
 
 
 def _scatter_numpy(colour, sharp, s, cover, q, window, n, shift, y0, x0, rows, cols):
-    """Each rung's cells (rows, cols, C + 1) by the array rules, in float64."""
+    """Each rung's cells (rows, cols, C + 1) by the array rules in float32, a reduced cell's
+    pixels added one by one, row by row and left to right, as the scatter adds them."""
     h, w, c = colour.shape
     r0, r1, c0, c1 = window
-    mixed = colour + (np.where(s > 0, s, 0)[..., None] * (sharp - colour) if sharp.size else 0.0)
-    v = np.concatenate([mixed * cover[..., None], cover[..., None]], axis=2).astype(np.float64)
-    qa = np.abs(q.astype(np.float64))
+    share_s = s[..., None]
+    mixed = np.where(share_s > 0, colour + share_s * (sharp - colour), colour) if sharp.size else colour
+    v = np.concatenate([mixed * cover[..., None], cover[..., None]], axis=2)
+    qa = np.abs(q)
     lo = np.floor(qa).astype(int)
-    t = qa - lo
+    t = qa - lo.astype(np.float32)  # exact
     sign = np.where(q < 0, -1, 1)
-    out = [np.zeros((rows[k], cols[k], c + 1)) for k in range(2 * n + 1)]
+    out = [np.zeros((rows[k], cols[k], c + 1), np.float32) for k in range(2 * n + 1)]
     for y in range(r0, r1):
         for x in range(c0, c1):
-            if cover[y, x] <= 0:
+            if not cover[y, x] > 0:
                 continue
-            for k, share in ((n + sign[y, x] * lo[y, x], 1 - t[y, x]), (n + sign[y, x] * (lo[y, x] + 1), t[y, x])):
-                if share == 0 or not 0 <= k <= 2 * n:
-                    continue
+            pairs = [(n + sign[y, x] * lo[y, x], np.float32(1) - t[y, x])]
+            if t[y, x] > 0 and lo[y, x] < n:
+                pairs.append((n + sign[y, x] * (lo[y, x] + 1), t[y, x]))
+            for k, share in pairs:
                 f = shift[k]
-                out[k][(y >> f) - (y0[k] >> f), (x >> f) - (x0[k] >> f)] += share * v[y, x] / 4.0 ** f
+                cell = (y >> f) - (y0[k] >> f), (x >> f) - (x0[k] >> f)
+                if f == 0:
+                    out[k][cell] = np.float32(0) + share * v[y, x]
+                else:
+                    out[k][cell] = out[k][cell] + (share * np.float32(0.25 ** f)) * v[y, x]
     return out
 
 
 # RGB's cells (4 values) and a single channel's (2) run loops compiled apart.
 @pytest.mark.parametrize("channels", [1, 3])
 @pytest.mark.parametrize("with_sharp", [True, False])
-def test_scatter_shares_every_pixel_between_its_two_rungs_on_their_grids(channels, with_sharp):
+@pytest.mark.parametrize("n", [0, 4])
+def test_scatter_shares_every_pixel_between_its_two_rungs_on_their_grids(channels, with_sharp, n):
     """Every covered pixel of the window adds its premultiplied colour (mixed with the
     shift-and-add image by its share) and its coverage to the rung below its fractional rung
-    (1 - t) and the one above (t), on each rung's grid (full resolution, halved, quartered: area
-    averages); a full-resolution box is written whole (its cells no pixel reaches are zeros
-    though ``buf`` held NaN there, its rows outside the window too), a reduced one adds to the
-    zeros it holds. Rungs on either side of the focus, integer rungs (one rung), the top rung,
-    uncovered pixels, boxes reaching past the window."""
-    rng = np.random.default_rng(17 + channels + 2 * with_sharp)
-    h, w, n, stripe = 50, 70, 4, 16
+    (1 - t) and the one above (t), on each rung's grid (full resolution, reduced 2, 4 and 8 times:
+    area averages, a cell's pixels added in order); a full-resolution box is written whole (its
+    cells no pixel reaches are zeros though ``buf`` held NaN there, its rows outside the window
+    too), a reduced one adds to the zeros it holds. Equal to the bit to the same float32 sums.
+    Rungs on either side of the focus, integer rungs (one rung), the top rung, a single rung,
+    pixels not covered (cover 0 or below), an infinite and a NaN value (they stay in their own
+    pixel's rungs), boxes reaching past the window."""
+    rng = np.random.default_rng(17 + channels + 2 * with_sharp + n)
+    h, w, stripe = 50, 70, 16
     colour = rng.random((h, w, channels)).astype(np.float32)
     sharp = rng.random((h, w, channels)).astype(np.float32) if with_sharp else np.zeros((0, 0, 0), np.float32)
     s = np.where(rng.random((h, w)) < 0.5, rng.random((h, w)), 0.0).astype(np.float32)
     cover = rng.random((h, w)).astype(np.float32)
     cover[cover < 0.15] = 0.0
+    cover[rng.random((h, w)) < 0.03] = -0.5
     # Smooth rungs (long runs) with jumps, whole numbers and the top rung.
     q = (np.linspace(-n, n, w)[None, :] + np.zeros((h, 1))).astype(np.float32)
     jump = rng.random((h, w)) < 0.1
@@ -296,17 +312,23 @@ def test_scatter_shares_every_pixel_between_its_two_rungs_on_their_grids(channel
     q[whole] = np.round(q[whole])
     q[:, :3] = -n
     window = np.array([5, h - 7, 3, w - 4], np.int64)
-    shift = np.array([2, 1, 0, 0, 0, 0, 0, 1, 2][:2 * n + 1], np.int64)
+    r0, r1, c0, c1 = window
+    # Values that must not spread: an infinite colour at a covered pixel on a whole rung (one
+    # rung), a NaN shift-and-add mixed in by a share above 0; an infinite colour where nothing
+    # covers and a NaN shift-and-add with a share of 0 (not mixed in) must not appear at all.
+    colour[20, 30, 0], cover[20, 30], q[20, 30] = np.inf, 0.7, 0.0
+    if with_sharp:
+        sharp[25, 10, -1] = np.nan
+        cover[25, 10], s[25, 10] = 0.6, 0.5
+        sharp[26, 12, 0] = np.nan
+        cover[26, 12], s[26, 12] = 0.6, 0.0
+    colour[30, 40, 0], cover[30, 40] = np.inf, 0.0
+    shift = np.array([3, 2, 1, 0, 0, 0, 1, 2, 3], np.int64)[4 - n:5 + n]
     nk = 2 * n + 1
-    y0 = np.zeros(nk, np.int64)
-    x0 = np.zeros(nk, np.int64)
-    rows = np.zeros(nk, np.int64)
-    cols = np.zeros(nk, np.int64)
-    offset = np.zeros(nk, np.int64)
+    y0, x0, rows, cols, offset = (np.zeros(nk, np.int64) for _ in range(5))
     qa = np.abs(q.astype(np.float64))
     lo = np.floor(qa).astype(int)
     sign = np.where(q < 0, -1, 1)
-    r0, r1, c0, c1 = window
     on = np.zeros((h, w), bool)
     on[r0:r1, c0:c1] = cover[r0:r1, c0:c1] > 0
     total = 0
@@ -321,17 +343,21 @@ def test_scatter_shares_every_pixel_between_its_two_rungs_on_their_grids(channel
         xa, xb = max(0, xs.min() - pad) // f * f, -(-(xs.max() + pad + 1) // f) * f
         y0[k], x0[k], rows[k], cols[k], offset[k] = ya, xa, (yb - ya) // f, (xb - xa) // f, total
         total += (channels + 1) * rows[k] * cols[k]
-    assert (rows[shift > 0] > 0).any() and (rows[shift == 0] > 0).any()
-    buf = np.full(total, np.nan, np.float32)
+    assert set(shift[rows > 0]) == ({0} if n == 0 else {0, 1, 2, 3})
+    buf = np.full(total + 8, np.nan, np.float32)  # 8 past the end: left as they are
     for k in range(nk):
         if shift[k] > 0:
             buf[offset[k]:offset[k] + (channels + 1) * rows[k] * cols[k]] = 0.0
     kern.scatter(colour, sharp, s, cover, q, window, n, shift, y0, x0, rows, cols, offset, stripe, buf)
-    want = _scatter_numpy(colour, sharp, s, cover, q, window, n, shift, y0, x0, rows, cols)
+    with np.errstate(invalid="ignore"):  # the infinite colour times a cover of 0
+        want = _scatter_numpy(colour, sharp, s, cover, q, window, n, shift, y0, x0, rows, cols)
     for k in range(nk):
         got = buf[offset[k]:offset[k] + (channels + 1) * rows[k] * cols[k]].reshape(rows[k], cols[k], channels + 1)
-        np.testing.assert_allclose(got, want[k], rtol=0, atol=2e-6, err_msg=f"rung {k}")
-    assert np.isfinite(buf).all()
+        np.testing.assert_array_equal(got, want[k], err_msg=f"rung {k}")
+    assert np.isnan(buf[total:]).all()
+    # The infinite value reached its pixel's one rung, the mixed NaN its pixel's rungs (one
+    # value a cell), nothing else.
+    assert 1 <= (~np.isfinite(buf[:total])).sum() <= (3 if with_sharp else 1)
 
 
 def _placed(shape, arr, y0, x0):
