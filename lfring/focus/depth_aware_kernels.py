@@ -374,6 +374,18 @@ def _add_scaled(ar, wr, ws, wo, pr, n, c1):
 
 
 @njit(inline="always")
+def _keep_add_behind(ar, lr, pr, n, c1):
+    """:func:`_keep_add` with the layer's own coverage, then :func:`_add_scaled` of ``pr`` under
+    it, in one pass over ``n`` cells (the same sums in the same order)."""
+    for j in range(n):
+        a = lr[np.uintp(c1 * j + c1 - 1)]
+        keep = np.float32(1.0) - a
+        for ch in range(c1):
+            e = np.uintp(c1 * j + ch)
+            ar[e] = (ar[e] * keep + lr[e]) + a * pr[e]
+
+
+@njit(inline="always")
 def _overlap(y, x0, n, oy, ox, hh, ww):
     """The row ``y - oy`` of an array of ``hh`` x ``ww`` placed at (``oy``, ``ox``), and the span
     [ja, jb) of the cells x0 .. x0 + n - 1 that it covers (ja = jb where it covers none)."""
@@ -409,19 +421,23 @@ def over(acc, oy, ox, layer, prev, py, px, trans, skip, first):
         a0 = (y * w + ox) * c1
         ar = af[a0:a0 + cols * c1]
         lr = lf[i * cols * c1:(i + 1) * cols * c1]
-        if c1 == 4:
-            _keep_add(ar, lr, 4, 3, True, lr, cols, 4)
-        else:
-            _keep_add(ar, lr, c1, c1 - 1, True, lr, cols, c1)
         pi, ja, jb = _overlap(y, ox, cols, py, px, ph, pw)
+        # The cells before the layer behind, over it (one pass for both terms), and after it.
+        for s0, s1 in ((0, ja), (jb, cols)):
+            if s1 > s0:
+                a_s, l_s = ar[c1 * s0:c1 * s1], lr[c1 * s0:c1 * s1]
+                if c1 == 4:
+                    _keep_add(a_s, l_s, 4, 3, True, l_s, s1 - s0, 4)
+                else:
+                    _keep_add(a_s, l_s, c1, c1 - 1, True, l_s, s1 - s0, c1)
         if jb > ja:
             p0 = (pi * pw + ox + ja - px) * c1
             pr = pf[p0:p0 + (jb - ja) * c1]
             ab, lb = ar[c1 * ja:c1 * jb], lr[c1 * ja:c1 * jb]
             if c1 == 4:
-                _add_scaled(ab, lb, 4, 3, pr, jb - ja, 4)
+                _keep_add_behind(ab, lb, pr, jb - ja, 4)
             else:
-                _add_scaled(ab, lb, c1, c1 - 1, pr, jb - ja, c1)
+                _keep_add_behind(ab, lb, pr, jb - ja, c1)
         if with_trans:
             tr = trans[y, ox:ox + cols]
             for j in range(cols):
