@@ -522,7 +522,7 @@ class DepthOfField:
         rmax = aperture * motion * max(abs(self._x_range[0] - xf), abs(self._x_range[1] - xf))
         window = None
         if self._back is not None:
-            dist_under, _, _, row_min, col_min, xb_range = self._back
+            dist_under, x_b, colour_b, row_min, col_min, xb_range = self._back
             # Only as far from the edge as a nearer surface's blur can reach: the box of those
             # pixels from the rows' and columns' least distances.
             reach = rmax + 2.0
@@ -534,7 +534,6 @@ class DepthOfField:
         acc = _composite(grid.layers(kern, self.x, self.agree, self._cover, self.colour, sharp), grid, kern)
         by, bx, summed = 0, 0, _EMPTY3
         if window is not None:
-            _, x_b, colour_b = self._back[:3]
             # The background's cover in the window: 1 near the edge, 0 elsewhere (the passes read
             # only the window; outside it the kept scratch holds what an earlier render left).
             cover_b = grid.buffer("back cover", (h, w))

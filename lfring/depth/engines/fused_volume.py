@@ -759,13 +759,11 @@ def _halves_strip(src, msk, all_valid, edge_y, edge_x, iy, ix, fy, fx, pad, ones
     sw = np.empty(n_spans, np.int64)
     base = np.empty(n_spans, np.int64)
     total = 0
-    widest = 0
     for i in range(n_spans):
         ta[i] = max(0, span_a[i] - rad)
         sw[i] = min(w, span_b[i] + rad) - ta[i]
         base[i] = total + rad
         total += sw[i] + 2 * rad
-        widest = max(widest, sw[i])
     # Zeros in the padding: no terms are made there, and its box sums are never used.
     a_buf = np.zeros((n_views, total), np.float32)
     w_buf = np.zeros((n_views, total), np.float32)
