@@ -22,8 +22,7 @@ and :func:`knot_maps` (where each view sees every pixel at its depth, for calibr
 views move by translations and for the others),
 :func:`splat_max` (the depth map seen from each view), :func:`occluded` (which views a nearer
 surface hides a pixel from), :func:`add_seen` (the background's samples) and
-:func:`robust_mean` (the views' robust mean: one pass over the pixels, not a dozen whole-frame
-arrays).
+:func:`robust_mean` (the views' robust mean: row by row, not a dozen whole-frame arrays).
 """
 
 from __future__ import annotations
@@ -730,83 +729,113 @@ def robust_mean(warped, weight, visible, agree_tol, spread_tol, full_visible, fl
     inv_c = 1.0 / c
     inv_tol = 1.0 / agree_tol
     for y in prange(h):
-        lum = np.empty(v)
-        wv = np.empty(v)
-        support = np.empty(v)
-        phi = np.empty(v)
-        scale = np.empty(v)
-        for xx in range(w):
-            any_present = False
-            visible_w = 0.0
-            for k in range(v):
-                wk = weight[k, y, xx]
+        # A row at a time, each step a loop over the row per view: such loops vectorise (the
+        # selects have no branches), where a loop over the views per pixel stays scalar. Every
+        # pixel's sums still add the views in order, so the results are those of a per-pixel loop.
+        lum = np.empty((v, w))
+        wv = np.empty((v, w))
+        support = np.empty((v, w))
+        scale = np.empty((v, w))
+        visible_w = np.zeros(w)
+        any_present = np.zeros(w, np.uint8)
+        for k in range(v):
+            wrow = weight[k, y]
+            vrow = visible[k, y].view(np.uint8)
+            for xx in range(w):
+                wk = wrow[xx]
                 present = wk > floor
-                any_present = any_present or present
-                if present and visible[k, y, xx]:
-                    visible_w += wk
-            hidden = max(1.0 - visible_w / full_visible, 0.0)
-            for k in range(v):
-                wk = weight[k, y, xx]
+                any_present[xx] |= np.uint8(present)
+                visible_w[xx] += wk if (present & (vrow[xx] != 0)) else 0.0
+        for k in range(v):
+            wrow = weight[k, y]
+            vrow = visible[k, y].view(np.uint8)
+            src = warped[k, y].reshape(w * c)
+            lum_k, scale_k, wv_k, support_k = lum[k], scale[k], wv[k], support[k]
+            for xx in range(w):
+                wk = wrow[xx]
                 present = wk > floor
                 s = 0.0
                 for ch in range(c):
-                    s += warped[k, y, xx, ch]
-                lum[k] = s * inv_c / wk if present else 0.0
-                scale[k] = (1.0 if visible[k, y, xx] else hidden) if present else 0.0
-                wv[k] = wk * scale[k]
-            # Each view's support: the weight of the views close to it (itself included), the
-            # closeness of a pair computed once.
+                    s += src[xx * c + ch]
+                lum_k[xx] = s * inv_c / wk if present else 0.0
+                hidden = max(1.0 - visible_w[xx] / full_visible, 0.0)
+                sc = (1.0 if vrow[xx] != 0 else hidden) if present else 0.0
+                scale_k[xx] = sc
+                wv_k[xx] = wk * sc
+                support_k[xx] = wk * sc
+        # Each view's support: the weight of the views close to it (itself included), the
+        # closeness of a pair computed once (float32: a closeness; the exponential is a call
+        # per pixel, in a loop of its own so that the others vectorise).
+        close = np.empty(w, np.float32)
+        for k in range(v):
+            for j in range(k + 1, v):
+                lum_k, lum_j = lum[k], lum[j]
+                for xx in range(w):
+                    dl = np.float32((lum_j[xx] - lum_k[xx]) * inv_tol)
+                    close[xx] = np.float32(-0.5) * dl * dl
+                for xx in range(w):
+                    close[xx] = np.exp(close[xx])
+                wv_k, wv_j, support_k, support_j = wv[k], wv[j], support[k], support[j]
+                for xx in range(w):
+                    both = (wv_k[xx] > 0.0) & (wv_j[xx] > 0.0)
+                    support_k[xx] += close[xx] * wv_j[xx] if both else 0.0
+                    support_j[xx] += close[xx] * wv_k[xx] if both else 0.0
+        # The centre: the views' luminance weighted by support^4 (support now holds that
+        # weight), or by their weights where no view has support.
+        total = np.zeros(w)
+        sum_wv = np.zeros(w)
+        sum_wl = np.zeros(w)
+        centre = np.zeros(w)
+        for k in range(v):
+            support_k, wv_k, lum_k = support[k], wv[k], lum[k]
+            for xx in range(w):
+                acc = support_k[xx] * support_k[xx]
+                sk = acc * acc * wv_k[xx]
+                support_k[xx] = sk
+                total[xx] += sk
+                sum_wv[xx] += wv_k[xx]
+                sum_wl[xx] += wv_k[xx] * lum_k[xx]
+                centre[xx] += sk * lum_k[xx]
+        for xx in range(w):
+            centre[xx] = centre[xx] / max(total[xx], 1e-30) if total[xx] > 0.0 else sum_wl[xx] / max(sum_wv[xx], floor)
+        tol = np.zeros(w)  # the views' weighted variance about the centre, then the tolerance
+        for k in range(v):
+            wv_k, lum_k = wv[k], lum[k]
+            for xx in range(w):
+                dev = lum_k[xx] - centre[xx]
+                tol[xx] += wv_k[xx] * dev * dev
+        for xx in range(w):
+            tol[xx] = max(agree_tol, spread_tol * np.sqrt(tol[xx] / max(sum_wv[xx], floor)))
+        # Each view's share phi (support now holds it), the worst agreement and phi's sum.
+        worst = np.ones(w)
+        den = np.zeros(w)
+        for k in range(v):
+            wv_k, lum_k, scale_k, support_k = wv[k], lum[k], scale[k], support[k]
+            wrow = weight[k, y]
+            for xx in range(w):
+                dev = abs(lum_k[xx] - centre[xx])
+                phi = min(max(2.0 - dev / tol[xx], 0.0), 1.0) * scale_k[xx] if wv_k[xx] > 0.0 else 0.0
+                wk = wrow[xx]
+                dis = min(max(dev / agree_tol - 1.0, 0.0), 1.0) * min(max(wk, 0.0), 1.0)
+                worst[xx] = min(worst[xx], 1.0 - dis) if wk > floor else worst[xx]
+                den[xx] += phi * wk
+                support_k[xx] = phi
+        agree_row = agree[y]
+        seen_row = seen[y].view(np.uint8)
+        for xx in range(w):
+            agree_row[xx] = worst[xx] if any_present[xx] != 0 else 0.0
+            seen_row[xx] = np.uint8(den[xx] > floor)
+        num = total  # reused
+        out = colour[y].reshape(w * c)
+        for ch in range(c):
+            num[:] = 0.0
             for k in range(v):
-                support[k] = wv[k]
-            for k in range(v):
-                if wv[k] <= 0.0:
-                    continue
-                for j in range(k + 1, v):
-                    if wv[j] > 0.0:
-                        dl = np.float32((lum[j] - lum[k]) * inv_tol)
-                        close = np.exp(np.float32(-0.5) * dl * dl)  # float32: a closeness
-                        support[k] += close * wv[j]
-                        support[j] += close * wv[k]
-            total = 0.0
-            sum_wv = 0.0
-            sum_wl = 0.0
-            for k in range(v):
-                acc = support[k] * support[k]
-                support[k] = acc * acc * wv[k]
-                total += support[k]
-                sum_wv += wv[k]
-                sum_wl += wv[k] * lum[k]
-            if total > 0.0:
-                med = 0.0
-                for k in range(v):
-                    med += support[k] * lum[k]
-                med /= max(total, 1e-30)
-            else:
-                med = sum_wl / max(sum_wv, floor)
-            var = 0.0
-            for k in range(v):
-                dev = lum[k] - med
-                var += wv[k] * dev * dev
-            tol = max(agree_tol, spread_tol * np.sqrt(var / max(sum_wv, floor)))
-            worst = 1.0
-            den = 0.0
-            for k in range(v):
-                dev = abs(lum[k] - med)
-                phi[k] = min(max(2.0 - dev / tol, 0.0), 1.0) * scale[k] if wv[k] > 0.0 else 0.0
-                wk = weight[k, y, xx]
-                if wk > floor:
-                    dis = min(max(dev / agree_tol - 1.0, 0.0), 1.0) * min(max(wk, 0.0), 1.0)
-                    worst = min(worst, 1.0 - dis)
-                den += phi[k] * wk
-            agree[y, xx] = worst if any_present else 0.0
-            seen[y, xx] = den > floor
-            for ch in range(c):
-                num = 0.0
-                if den > floor:
-                    for k in range(v):
-                        num += phi[k] * warped[k, y, xx, ch]
-                    num /= den
-                colour[y, xx, ch] = num
+                support_k = support[k]
+                src = warped[k, y].reshape(w * c)
+                for xx in range(w):
+                    num[xx] += support_k[xx] * src[xx * c + ch]
+            for xx in range(w):
+                out[xx * c + ch] = num[xx] / den[xx] if den[xx] > floor else 0.0
 
 
 @njit(parallel=True, **_JIT)
