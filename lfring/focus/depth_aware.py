@@ -118,6 +118,8 @@ DERIVED_RANGE_MAX_MOTION = 0.5
 # For calibrations that are not translations, view sampling positions are interpolated linearly
 # in 1/(Z - z0) between knots this many pixels of view motion apart.
 KNOT_STEP_PX = 0.25
+# Pixel lists are sampled as images of this width (OpenCV's remap takes maps under 32767 wide).
+LIST_ROW_PX = 1024
 # The shift-and-add image is already spread by its views' bilinear resampling (second moment
 # about this many px^2 besides its copies'): its share is blurred by that much less.
 SHARP_RESAMPLED_PX2 = 0.08
@@ -352,9 +354,10 @@ class DepthOfField:
         self._x_range = (float(self.x[self.seen].min()), float(self.x[self.seen].max())) if self.seen.any() else (1.0, 1.0)
 
     # -- sampling the views --------------------------------------------------------------------
-    def _sampling_maps(self, k_views: int, x: np.ndarray):
+    def _sampling_maps(self, k_views: int, x: np.ndarray, at=None):
         """(map_x, map_y), each (V, h, w) float32: the view pixel that every reference pixel
-        samples in each view at the inverse depth ``x`` (h, w)."""
+        samples in each view at the inverse depth ``x`` (h, w). With ``at`` ((rows, cols), each
+        (n,)), only those pixels', each map (V, n): the same values as the whole grid's there."""
         from lfring.focus import depth_aware_kernels as kern
 
         cal, (h, w) = self.calibration, self.view_shape
@@ -364,13 +367,20 @@ class DepthOfField:
             hi = lo + 1e-6
         ends = to_reference(cal.model(z0 + 1.0 / np.array([lo, hi])), self.reference)  # (2, V, 3, 3)
         shifts = translations(ends, (h, w))
-        map_x = np.empty((k_views, h, w), np.float32)
-        map_y = np.empty((k_views, h, w), np.float32)
+        x = np.ascontiguousarray(x, dtype=np.float32)
+        if at is not None:
+            rows, cols = at
+            x = np.ascontiguousarray(x[rows, cols])
+        map_x = np.empty((k_views, *x.shape), np.float32)
+        map_y = np.empty((k_views, *x.shape), np.float32)
         if shifts is not None:  # affine in x: exact from the two ends
             slope = (shifts[1] - shifts[0]) / (hi - lo)
-            kern.shift_maps(np.ascontiguousarray(x, dtype=np.float32), np.float32(lo),
-                            np.ascontiguousarray(shifts[0, :k_views], np.float32),
-                            np.ascontiguousarray(slope[:k_views], np.float32), map_x, map_y)
+            args = (x, np.float32(lo), np.ascontiguousarray(shifts[0, :k_views], np.float32),
+                    np.ascontiguousarray(slope[:k_views], np.float32), map_x, map_y)
+            if at is None:
+                kern.shift_maps(*args)
+            else:
+                kern.shift_maps_at(rows, cols, *args)
             return map_x, map_y
         # General homographies: piecewise linear in x between knots.
         corners = np.array([[0, 0], [w - 1, 0], [0, h - 1], [w - 1, h - 1]], dtype=np.float64)
@@ -379,7 +389,10 @@ class DepthOfField:
                      for k in range(k_views))
         knots = np.linspace(lo, hi, max(2, int(math.ceil(motion / KNOT_STEP_PX)) + 1))
         inv = np.ascontiguousarray(np.linalg.inv(to_reference(cal.model(z0 + 1.0 / knots), self.reference))[:, :k_views])
-        kern.knot_maps(np.ascontiguousarray(x, dtype=np.float32), knots, inv, map_x, map_y)
+        if at is None:
+            kern.knot_maps(x, knots, inv, map_x, map_y)
+        else:
+            kern.knot_maps_at(rows, cols, x, knots, inv, map_x, map_y)
         return map_x, map_y
 
     def _occluded(self, mx, my, x, nearest) -> np.ndarray:
@@ -388,7 +401,7 @@ class DepthOfField:
         splatted into the view)."""
         from lfring.focus import depth_aware_kernels as kern
 
-        out = np.empty(self.view_shape, bool)
+        out = np.empty(mx.shape, bool)
         kern.occluded(mx, my, x, nearest, OCCLUSION_PX / max(self.radius_px, 1e-12), out)
         return out
 
@@ -475,14 +488,26 @@ class DepthOfField:
             return None
         v = len(sources)
         (h, w), c = self.view_shape, sources[0].shape[2]
-        num = np.zeros((h, w, c), np.float32)
-        den = np.zeros((h, w), np.float32)
-        maps = self._sampling_maps(v, xb)
+        # The views are sampled at the pixels with a background only: a list in rows of
+        # LIST_ROW_PX, the last row filled up with the last pixel again.
+        rows, cols = np.nonzero(under)
+        n = rows.size
+        pad = -n % LIST_ROW_PX
+        at = (np.concatenate([rows, np.full(pad, rows[-1])]), np.concatenate([cols, np.full(pad, cols[-1])]))
+        grid = (-(-n // LIST_ROW_PX), LIST_ROW_PX)
+        maps = tuple(m.reshape(v, *grid) for m in self._sampling_maps(v, xb, at=at))
+        xb_at = np.ascontiguousarray(xb[at]).reshape(grid)
+        num = np.zeros((*grid, c), np.float32)
+        den = np.zeros(grid, np.float32)
+        wanted = np.ones(grid, bool)
         for k, (val, wk) in enumerate(zip(_remap_views(sources, maps), _remap_masks(masks, maps))):
-            kern.add_seen(val, wk, under, self._occluded(maps[0][k], maps[1][k], xb, nearest[k]), num, den)
-        known = den > WEIGHT_FLOOR
+            kern.add_seen(val, wk, wanted, self._occluded(maps[0][k], maps[1][k], xb_at, nearest[k]), num, den)
+        num, den = num.reshape(-1, c)[:n], den.reshape(-1)[:n]
+        seen_at = den > WEIGHT_FLOOR
+        known = np.zeros((h, w), bool)
+        known[rows[seen_at], cols[seen_at]] = True
         colour = np.zeros((h, w, c), np.float32)
-        np.divide(num, den[..., None], out=colour, where=known[..., None])
+        colour[rows[seen_at], cols[seen_at]] = num[seen_at] / den[seen_at, None]
         # The seeds are the farther surface itself, as the reference sees it.
         colour[seeds] = self.colour[seeds]
         source = known | seeds

@@ -19,7 +19,7 @@ index for a negative value): those indices are unsigned.
 
 The renderer's all-in-focus colour, made once per depth map, has its own: :func:`shift_maps`
 and :func:`knot_maps` (where each view sees every pixel at its depth, for calibrations whose
-views move by translations and for the others),
+views move by translations and for the others; ``*_at`` for a list of pixels),
 :func:`splat_max` (the depth map seen from each view), :func:`occluded` (which views a nearer
 surface hides a pixel from), :func:`add_seen` (the background's samples) and
 :func:`robust_mean` (the views' robust mean: row by row, not a dozen whole-frame arrays).
@@ -30,8 +30,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-__all__ = ["BLUR_TASK_ROWS", "add_seen", "disc_blur", "finish", "knot_maps", "merge", "occluded", "over", "robust_mean", "rungs", "scatter",
-           "shift_maps", "splat_max"]
+__all__ = ["BLUR_TASK_ROWS", "add_seen", "disc_blur", "finish", "knot_maps", "knot_maps_at", "merge", "occluded", "over",
+           "robust_mean", "rungs", "scatter", "shift_maps", "shift_maps_at", "splat_max"]
 
 _JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
 
@@ -872,6 +872,20 @@ def shift_maps(x, x0, shift, slope, map_x, map_y):
 
 
 @njit(parallel=True, **_JIT)
+def shift_maps_at(rows, cols, x, x0, shift, slope, map_x, map_y):
+    """:func:`shift_maps` for the listed pixels only: ``rows``, ``cols`` and ``x`` (n,) each, the
+    maps (V, n); the same values as at those pixels of the whole grid."""
+    n = x.shape[0]
+    for k in prange(shift.shape[0]):
+        sx, sy = shift[k, 0], shift[k, 1]
+        gx, gy = slope[k, 0], slope[k, 1]
+        for i in range(n):
+            dx = x[i] - x0
+            map_x[k, i] = np.float32(cols[i]) + sx + dx * gx
+            map_y[k, i] = np.float32(rows[i]) + sy + dx * gy
+
+
+@njit(parallel=True, **_JIT)
 def add_seen(val, weight, wanted, hidden, num, den):
     """``num += val`` (h, w, C) and ``den += weight`` (h, w) where ``wanted`` and not ``hidden``
     (a view's samples of the background that it sees)."""
@@ -884,35 +898,57 @@ def add_seen(val, weight, wanted, hidden, num, den):
                 den[y, xx] += weight[y, xx]
 
 
+@njit(inline="always")
+def _knot_segment(xv, knots):
+    """(j, t): the segment of the increasing ``knots`` that holds ``xv``, as
+    np.searchsorted(knots, xv, side="right") - 1 clipped to 0..K-2, and where in it (0 .. 1)."""
+    j = 0
+    hi = knots.shape[0] - 1
+    while hi - j > 1:
+        mid = (j + hi) // 2
+        if knots[mid] <= xv:
+            j = mid
+        else:
+            hi = mid
+    return j, (xv - knots[j]) / (knots[j + 1] - knots[j])
+
+
+@njit(inline="always")
+def _knot_point(inv, j, t, k, row, col):
+    """View k's pixel (x, y) for the reference pixel (``col``, ``row``): its homographies at
+    knots j and j + 1 of ``inv`` applied, and interpolated at ``t``."""
+    a = inv[j, k]
+    b = inv[j + 1, k]
+    wa = a[2, 0] * col + a[2, 1] * row + a[2, 2]
+    wb = b[2, 0] * col + b[2, 1] * row + b[2, 2]
+    ax = (a[0, 0] * col + a[0, 1] * row + a[0, 2]) / wa
+    ay = (a[1, 0] * col + a[1, 1] * row + a[1, 2]) / wa
+    bx = (b[0, 0] * col + b[0, 1] * row + b[0, 2]) / wb
+    by = (b[1, 0] * col + b[1, 1] * row + b[1, 2]) / wb
+    return ax + t * (bx - ax), ay + t * (by - ay)
+
+
 @njit(parallel=True, **_JIT)
 def knot_maps(x, knots, inv, map_x, map_y):
     """``map_x``, ``map_y`` (V, h, w): the view pixel that every reference pixel samples at its
     inverse depth ``x`` (h, w), linear in x between the increasing ``knots`` (K) where ``inv``
     (K, V, 3, 3) maps reference pixels into each view (a homography per knot and view)."""
     h, w = x.shape
-    n_knots = knots.shape[0]
     v = inv.shape[1]
     for y in prange(h):
         for xx in range(w):
-            xv = x[y, xx]
-            # The segment, as np.searchsorted(knots, xv, side="right") - 1 clipped to 0..K-2.
-            j = 0
-            hi = n_knots - 1
-            while hi - j > 1:
-                mid = (j + hi) // 2
-                if knots[mid] <= xv:
-                    j = mid
-                else:
-                    hi = mid
-            t = (xv - knots[j]) / (knots[j + 1] - knots[j])
+            j, t = _knot_segment(x[y, xx], knots)
             for k in range(v):
-                a = inv[j, k]
-                b = inv[j + 1, k]
-                wa = a[2, 0] * xx + a[2, 1] * y + a[2, 2]
-                wb = b[2, 0] * xx + b[2, 1] * y + b[2, 2]
-                ax = (a[0, 0] * xx + a[0, 1] * y + a[0, 2]) / wa
-                ay = (a[1, 0] * xx + a[1, 1] * y + a[1, 2]) / wa
-                bx = (b[0, 0] * xx + b[0, 1] * y + b[0, 2]) / wb
-                by = (b[1, 0] * xx + b[1, 1] * y + b[1, 2]) / wb
-                map_x[k, y, xx] = ax + t * (bx - ax)
-                map_y[k, y, xx] = ay + t * (by - ay)
+                map_x[k, y, xx], map_y[k, y, xx] = _knot_point(inv, j, t, k, y, xx)
+
+
+@njit(parallel=True, **_JIT)
+def knot_maps_at(rows, cols, x, knots, inv, map_x, map_y):
+    """:func:`knot_maps` for the listed pixels only: ``rows``, ``cols`` and ``x`` (n,) each, the
+    maps (V, n); the same values as at those pixels of the whole grid."""
+    n = x.shape[0]
+    v = inv.shape[1]
+    for i in prange(n):
+        j, t = _knot_segment(x[i], knots)
+        for k in range(v):
+            map_x[k, i], map_y[k, i] = _knot_point(inv, j, t, k, rows[i], cols[i])

@@ -372,6 +372,36 @@ def _placed(shape, arr, y0, x0):
 
 
 # RGB's cells (4 values) and a single channel's (2) run loops compiled apart.
+def test_the_maps_at_listed_pixels_are_the_whole_grids_there():
+    """``shift_maps_at`` and ``knot_maps_at`` (the background's samples) give, to the bit, the
+    values of ``shift_maps`` and ``knot_maps`` at the listed pixels, in any order, repeated."""
+    rng = np.random.default_rng(12)
+    h, w, v = 23, 31, 4
+    x = rng.uniform(0.5, 2.0, (h, w)).astype(np.float32)
+    rows = rng.integers(0, h, 300)
+    cols = rng.integers(0, w, 300)
+    rows[:3], cols[:3] = (0, h - 1, h - 1), (0, w - 1, 0)  # the corners, and a pixel twice
+    rows[3], cols[3] = rows[4], cols[4]
+    xs = np.ascontiguousarray(x[rows, cols])
+    shift = rng.uniform(-5.0, 5.0, (v, 2)).astype(np.float32)
+    slope = rng.uniform(-4.0, 4.0, (v, 2)).astype(np.float32)
+    knots = np.linspace(0.5, 2.0, 7)
+    inv = np.tile(np.eye(3), (7, v, 1, 1))
+    inv[:, :, :2, 2] = knots[:, None, None] * rng.uniform(-3.0, 3.0, (1, v, 2))
+    inv[:, :, 2, :2] = rng.uniform(-1e-3, 1e-3, (7, v, 2))
+    inv[:, :, :2, :2] += rng.uniform(-0.01, 0.01, (7, v, 2, 2))
+    grid_x, grid_y = np.empty((v, h, w), np.float32), np.empty((v, h, w), np.float32)
+    at_x, at_y = np.empty((v, rows.size), np.float32), np.empty((v, rows.size), np.float32)
+    kern.shift_maps(x, np.float32(0.5), shift, slope, grid_x, grid_y)
+    kern.shift_maps_at(rows, cols, xs, np.float32(0.5), shift, slope, at_x, at_y)
+    assert np.array_equal(at_x, grid_x[:, rows, cols]) and np.array_equal(at_y, grid_y[:, rows, cols])
+    kern.knot_maps(x, knots, inv, grid_x, grid_y)
+    kern.knot_maps_at(rows, cols, xs, knots, inv, at_x, at_y)
+    assert np.array_equal(at_x, grid_x[:, rows, cols]) and np.array_equal(at_y, grid_y[:, rows, cols])
+    # And the grid's are not all alike: the test would see a pixel taken for another.
+    assert np.unique(grid_x[0]).size > 0.9 * h * w
+
+
 @pytest.mark.parametrize("channels", [1, 3])
 def test_over_and_merge_composite_as_the_array_rules(channels):
     rng = np.random.default_rng(11 + channels)
