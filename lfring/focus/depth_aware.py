@@ -432,8 +432,8 @@ class DepthOfField:
         # between a nearer surface and a farther one).
         _, labels = cv2.distanceTransformWithLabels((~measured).view(np.uint8), cv2.DIST_L2, 5,
                                                     labelType=cv2.DIST_LABEL_PIXEL)
-        my, mx = np.nonzero(measured)
-        around = self.x[my[labels - 1], mx[labels - 1]]
+        # The labels number the measured pixels in row-major order, as a boolean index lists them.
+        around = self.x[measured][labels - 1]
         # A depth that continues its surroundings' is kept however few views see it.
         near = np.clip(2.0 - np.abs(self.x - around) * np.float32(self.radius_px / DEPTH_TOL_PX), 0.0, 1.0)
         trust = np.maximum(trust, near)
@@ -480,9 +480,7 @@ class DepthOfField:
             return None
         dist, labels = cv2.distanceTransformWithLabels((~seeds).astype(np.uint8), cv2.DIST_L2, 5,
                                                        labelType=cv2.DIST_LABEL_PIXEL)
-        sy, sx = np.nonzero(seeds)  # the labels number the seeds in this (row-major) order
-        idx = labels - 1
-        xb = x[sy[idx], sx[idx]]
+        xb = x[seeds][labels - 1]  # the labels number the seeds in row-major order
         under = (x - xb) > step
         if not under.any():
             return None
