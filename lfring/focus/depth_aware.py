@@ -488,24 +488,23 @@ class DepthOfField:
         (h, w), c = self.view_shape, sources[0].shape[2]
         # The views are sampled at the pixels with a background only: a list in rows of
         # LIST_ROW_PX, the last row filled up with the last pixel again.
-        rows, cols = np.nonzero(under)
-        n = rows.size
+        iy, ix = np.nonzero(under)
+        n = iy.size
         pad = -n % LIST_ROW_PX
-        at = (np.concatenate([rows, np.full(pad, rows[-1])]), np.concatenate([cols, np.full(pad, cols[-1])]))
+        at = (np.concatenate([iy, np.full(pad, iy[-1])]), np.concatenate([ix, np.full(pad, ix[-1])]))
         grid = (-(-n // LIST_ROW_PX), LIST_ROW_PX)
         maps = tuple(m.reshape(v, *grid) for m in self._sampling_maps(v, xb, at=at))
         xb_at = np.ascontiguousarray(xb[at]).reshape(grid)
         num = np.zeros((*grid, c), np.float32)
         den = np.zeros(grid, np.float32)
-        wanted = np.ones(grid, bool)
         for k, (val, wk) in enumerate(zip(_remap_views(sources, maps), _remap_masks(masks, maps))):
-            kern.add_seen(val, wk, wanted, self._occluded(maps[0][k], maps[1][k], xb_at, nearest[k]), num, den)
+            kern.add_seen(val, wk, self._occluded(maps[0][k], maps[1][k], xb_at, nearest[k]), num, den)
         num, den = num.reshape(-1, c)[:n], den.reshape(-1)[:n]
         seen_at = den > WEIGHT_FLOOR
         known = np.zeros((h, w), bool)
-        known[rows[seen_at], cols[seen_at]] = True
+        known[iy[seen_at], ix[seen_at]] = True
         colour = np.zeros((h, w, c), np.float32)
-        colour[rows[seen_at], cols[seen_at]] = num[seen_at] / den[seen_at, None]
+        colour[iy[seen_at], ix[seen_at]] = num[seen_at] / den[seen_at, None]
         # The seeds are the farther surface itself, as the reference sees it.
         colour[seeds] = self.colour[seeds]
         source = known | seeds

@@ -736,7 +736,7 @@ def robust_mean(warped, weight, visible, agree_tol, spread_tol, full_visible, fl
         wv = np.empty((v, w))
         support = np.empty((v, w))
         scale = np.empty((v, w))
-        visible_w = np.zeros(w)
+        hidden = np.zeros(w)  # the visible views' weight, then what a hidden view counts by
         any_present = np.zeros(w, np.uint8)
         for k in range(v):
             wrow = weight[k, y]
@@ -745,7 +745,9 @@ def robust_mean(warped, weight, visible, agree_tol, spread_tol, full_visible, fl
                 wk = wrow[xx]
                 present = wk > floor
                 any_present[xx] |= np.uint8(present)
-                visible_w[xx] += wk if (present & (vrow[xx] != 0)) else 0.0
+                hidden[xx] += wk if (present & (vrow[xx] != 0)) else 0.0
+        for xx in range(w):
+            hidden[xx] = max(1.0 - hidden[xx] / full_visible, 0.0)
         for k in range(v):
             wrow = weight[k, y]
             vrow = visible[k, y].view(np.uint8)
@@ -758,8 +760,7 @@ def robust_mean(warped, weight, visible, agree_tol, spread_tol, full_visible, fl
                 for ch in range(c):
                     s += src[xx * c + ch]
                 lum_k[xx] = s * inv_c / wk if present else 0.0
-                hidden = max(1.0 - visible_w[xx] / full_visible, 0.0)
-                sc = (1.0 if vrow[xx] != 0 else hidden) if present else 0.0
+                sc = (1.0 if vrow[xx] != 0 else hidden[xx]) if present else 0.0
                 scale_k[xx] = sc
                 wv_k[xx] = wk * sc
                 support_k[xx] = wk * sc
@@ -886,13 +887,13 @@ def shift_maps_at(rows, cols, x, x0, shift, slope, map_x, map_y):
 
 
 @njit(parallel=True, **_JIT)
-def add_seen(val, weight, wanted, hidden, num, den):
-    """``num += val`` (h, w, C) and ``den += weight`` (h, w) where ``wanted`` and not ``hidden``
-    (a view's samples of the background that it sees)."""
+def add_seen(val, weight, hidden, num, den):
+    """``num += val`` (h, w, C) and ``den += weight`` (h, w) where not ``hidden`` (a view's
+    samples of the background that it sees)."""
     h, w, c = val.shape
     for y in prange(h):
         for xx in range(w):
-            if wanted[y, xx] and not hidden[y, xx]:
+            if not hidden[y, xx]:
                 for ch in range(c):
                     num[y, xx, ch] += val[y, xx, ch]
                 den[y, xx] += weight[y, xx]
