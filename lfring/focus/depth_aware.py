@@ -6,7 +6,9 @@ depth map in the reference frame, :class:`DepthOfField` renders that:
 
 1. **The depth that was measured.** Where fewer than :data:`MIN_DEPTH_VIEWS` views' worth see
    a pixel at its own depth (the views' disc rims, the frame's edge), that depth was not
-   measured: the nearest measured pixel's depth is taken instead, unless they agree anyway.
+   measured: the nearest measured pixel's depth is taken instead, unless they agree anyway,
+   feathered where two surfaces' nearest pixels meet (a step there would cut a seam across the
+   rim).
 2. **All-in-focus colour.** Every view is sampled at every reference pixel's own depth (one
    ``cv2.remap`` per view) and the views are averaged where they agree: a view whose luminance
    is far from the views' robust mean there (it sees an occluder, or a specular highlight) is
@@ -67,7 +69,7 @@ from lfring.focus.base import RefocusMethod
 __all__ = [
     "AGREE_TOL", "BACK_EDGE_PX", "BACK_STEP_PX", "COARSE_DISC_PX", "DEPTH_TOL_PX", "GEOMETRIC_STEP", "LINEAR_UNTIL_PX",
     "MIN_DEPTH_VIEWS", "OCCLUSION_PX", "SHARP_PX", "SHARP_RAMP_PX", "SHARP_RESAMPLED_PX2", "SPREAD_TOL", "VISIBLE_VIEWS", "DepthOfField", "DEPTH_AWARE",
-    "DERIVED_RANGE_MAX_MOTION", "FAR_MOTION_PX", "aperture_from_f_number", "aperture_radius_px", "coc_radius_px", "depth_of_field", "disc_kernel",
+    "DERIVED_RANGE_MAX_MOTION", "FAR_MOTION_PX", "FEATHER_PX", "aperture_from_f_number", "aperture_radius_px", "coc_radius_px", "depth_of_field", "disc_kernel",
     "estimation_range", "prepare_depth_aware", "resolve_aperture",
 ]
 
@@ -129,6 +131,9 @@ SHARP_RESAMPLED_PX2 = 0.08
 # two are within DEPTH_TOL_PX of view motion.
 MIN_DEPTH_VIEWS = 2.0
 DEPTH_TOL_PX = 0.5
+# The nearest measured pixel's depth is feathered by a Gaussian of this standard deviation (px),
+# so that the depth continued into a rim changes smoothly where two surfaces' nearest pixels meet.
+FEATHER_PX = 8.0
 
 
 def _inverse_depth(depth_m, z0: float):
@@ -276,6 +281,17 @@ def _fill_from_around(planes: list, known: np.ndarray) -> list:
     return out
 
 
+def _feathered(image: np.ndarray, sigma_px: float) -> np.ndarray:
+    """(h, w) float32 ``image`` blurred by a Gaussian of about ``sigma_px``: on a grid reduced so
+    that the Gaussian there is about 2 px (area averaging down, bilinear up), which costs a
+    fraction of the full-resolution blur and is as smooth."""
+    h, w = image.shape
+    f = max(1, int(sigma_px // 2))
+    small = cv2.resize(image, (-(-w // f), -(-h // f)), interpolation=cv2.INTER_AREA) if f > 1 else image
+    small = cv2.GaussianBlur(small, (0, 0), math.sqrt(max(sigma_px * sigma_px - f * f / 3.0, 0.25)) / f)
+    return cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR) if f > 1 else small
+
+
 def _remap_masks(masks: np.ndarray, maps) -> np.ndarray:
     """(V, h, w) float32: every view's mask sampled (bilinearly, 0 outside) at its sampling map
     of ``maps`` ((V, h, w) map_x and map_y)."""
@@ -418,22 +434,25 @@ class DepthOfField:
 
     def _measured(self, k_views: int, masks: np.ndarray):
         """The depth map, continued from the nearest pixel that :data:`MIN_DEPTH_VIEWS` views'
-        worth see at its own depth where fewer do (a depth one view alone sees was not
-        measured: estimation picks such depths at the range's end, where the views drift off
-        their discs), unless it continues that pixel's depth anyway; and the views' sampling
-        maps at it, with the views' masks sampled there (V, h, w)."""
+        worth see at its own depth (feathered over :data:`FEATHER_PX`) where fewer do (a depth
+        one view alone sees was not measured: estimation picks such depths at the range's end,
+        where the views drift off their discs), unless it continues that pixel's depth anyway;
+        and the views' sampling maps at it, with the views' masks sampled there (V, h, w)."""
         maps = self._sampling_maps(k_views, self.x)
         weight = _remap_masks(masks, maps)
         trust = np.clip(weight.sum(axis=0) - (MIN_DEPTH_VIEWS - 1.0), 0.0, 1.0).astype(np.float32)
         measured = trust >= 1.0
         if measured.all() or not measured.any():
             return maps, weight
-        # The depth of the nearest measured pixel (not an average, which would invent depths
-        # between a nearer surface and a farther one).
+        # The depth of the nearest measured pixel (not an average of all around, which would
+        # invent depths between a nearer surface and a farther one), feathered over
+        # FEATHER_PX: where the nearest measured pixels of two surfaces meet, a step would cut a
+        # straight seam across the rim (the views sampled at one depth on one side, at the other
+        # across it). The labels number the measured pixels in row-major order, as a boolean
+        # index lists them.
         _, labels = cv2.distanceTransformWithLabels((~measured).view(np.uint8), cv2.DIST_L2, 5,
                                                     labelType=cv2.DIST_LABEL_PIXEL)
-        # The labels number the measured pixels in row-major order, as a boolean index lists them.
-        around = self.x[measured][labels - 1]
+        around = _feathered(self.x[measured][labels - 1], FEATHER_PX)
         # A depth that continues its surroundings' is kept however few views see it.
         near = np.clip(2.0 - np.abs(self.x - around) * np.float32(self.radius_px / DEPTH_TOL_PX), 0.0, 1.0)
         trust = np.maximum(trust, near)
