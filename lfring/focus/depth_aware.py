@@ -4,9 +4,10 @@ Shift-and-add shows every object away from the focus depth as V displaced copies
 lens whose aperture spans the views would show it as a smooth disc of blur instead. Given a
 depth map in the reference frame, :class:`DepthOfField` renders that:
 
-1. **The depth that was measured.** Where fewer than :data:`MIN_DEPTH_VIEWS` views' worth see
-   a pixel at its own depth (the views' disc rims, the frame's edge), that depth was not
-   measured: the nearest measured pixel's depth is taken instead, unless they agree anyway,
+1. **The depth that was measured.** Where the depth is unknown, or fewer than
+   :data:`MIN_DEPTH_VIEWS` views' worth see a pixel at its own depth (the views' disc rims, the
+   frame's edge; :data:`MIN_ESTIMATED_VIEWS` for a map that depth estimation made, which says
+   itself where it measured), that depth was not measured: the nearest measured pixel's depth is taken instead, unless they agree anyway,
    feathered where two surfaces' nearest pixels meet (a step there would cut a seam across the
    rim).
 2. **All-in-focus colour.** Every view is sampled at every reference pixel's own depth (one
@@ -68,7 +69,7 @@ from lfring.focus.base import RefocusMethod
 
 __all__ = [
     "AGREE_TOL", "BACK_EDGE_PX", "BACK_STEP_PX", "COARSE_DISC_PX", "DEPTH_TOL_PX", "GEOMETRIC_STEP", "LINEAR_UNTIL_PX",
-    "MIN_DEPTH_VIEWS", "OCCLUSION_PX", "SHARP_PX", "SHARP_RAMP_PX", "SHARP_RESAMPLED_PX2", "SPREAD_TOL", "VISIBLE_VIEWS", "DepthOfField", "DEPTH_AWARE",
+    "MIN_DEPTH_VIEWS", "MIN_ESTIMATED_VIEWS", "OCCLUSION_PX", "SHARP_PX", "SHARP_RAMP_PX", "SHARP_RESAMPLED_PX2", "SPREAD_TOL", "VISIBLE_VIEWS", "DepthOfField", "DEPTH_AWARE",
     "DERIVED_RANGE_MAX_MOTION", "FAR_MOTION_PX", "FEATHER_PX", "aperture_from_f_number", "aperture_radius_px", "coc_radius_px", "depth_of_field", "disc_kernel",
     "estimation_range", "prepare_depth_aware", "resolve_aperture",
 ]
@@ -131,6 +132,12 @@ SHARP_RESAMPLED_PX2 = 0.08
 # two are within DEPTH_TOL_PX of view motion.
 MIN_DEPTH_VIEWS = 2.0
 DEPTH_TOL_PX = 0.5
+# A depth map that depth estimation made (a DepthResult) says itself where its depth was measured
+# (NaN elsewhere): there the renderer keeps it wherever this many views' worth see the pixel at
+# that depth. The estimator counts a view by its own, wider taper, so a rim pixel it measured can
+# fall short of MIN_DEPTH_VIEWS by the renderer's; a depth that few views see there (the views
+# drifted off their discs at the range's end) is still continued from around.
+MIN_ESTIMATED_VIEWS = 1.5
 # The nearest measured pixel's depth is feathered by a Gaussian of this standard deviation (px),
 # so that the depth continued into a rim changes smoothly where two surfaces' nearest pixels meet.
 FEATHER_PX = 8.0
@@ -320,10 +327,15 @@ class DepthOfField:
     views : (V, h, w, C) float32 in [0, 1]
     calibration : RingCalibration
     depth_map_m : (h, w) float
-        Depth of every reference pixel in metres (NaN where unknown: filled with the median
-        of the known depths).
+        Depth of every reference pixel in metres (NaN where unknown: continued from the
+        nearest known depths, as a depth that too few views see).
     reference : 'center' or int
         The frame of the depth map and of the results.
+    measured_views : float
+        The views' worth that must see a pixel at its depth for that depth to count as measured
+        (elsewhere it is continued from the nearest measured pixel): :data:`MIN_DEPTH_VIEWS`
+        for a depth map of unknown origin, :data:`MIN_ESTIMATED_VIEWS` for one that depth
+        estimation made (:func:`depth_of_field` chooses).
 
     Attributes
     ----------
@@ -344,8 +356,9 @@ class DepthOfField:
     grids).
     """
 
-    def __init__(self, views, calibration, depth_map_m, *, reference="center"):
+    def __init__(self, views, calibration, depth_map_m, *, reference="center", measured_views: float = MIN_DEPTH_VIEWS):
         arr = check_views(views)
+        self.measured_views = check_number(measured_views, "measured_views", minimum=0.0, maximum=float(arr.shape[0]))
         h, w = arr.shape[1:3]
         dm = np.asarray(depth_map_m, dtype=np.float64)
         if dm.shape != (h, w):
@@ -356,6 +369,7 @@ class DepthOfField:
             raise InvalidInputError(f"the depth map holds no finite depth beyond the depth origin z0 = {z0:.4g} m")
         if not np.all(known):
             dm = np.where(known, dm, float(np.median(dm[known])))
+        self._known = known
         self.reference = check_reference(reference, calibration.num_views)
         self.calibration = calibration
         self.view_shape = (h, w)
@@ -433,14 +447,16 @@ class DepthOfField:
         return [cv2.dilate(nk, np.ones((3, 3), np.uint8)) for nk in nearest]
 
     def _measured(self, k_views: int, masks: np.ndarray):
-        """The depth map, continued from the nearest pixel that :data:`MIN_DEPTH_VIEWS` views'
-        worth see at its own depth (feathered over :data:`FEATHER_PX`) where fewer do (a depth
-        one view alone sees was not measured: estimation picks such depths at the range's end,
-        where the views drift off their discs), unless it continues that pixel's depth anyway;
-        and the views' sampling maps at it, with the views' masks sampled there (V, h, w)."""
+        """The depth map, continued from the nearest pixel that :attr:`measured_views` views'
+        worth see at its own depth (feathered over :data:`FEATHER_PX`) where fewer do or the
+        depth is unknown (a depth one view alone sees was not measured: estimation picks such
+        depths at the range's end, where the views drift off their discs), unless it continues
+        that pixel's depth anyway; and the views' sampling maps at it, with the views' masks
+        sampled there (V, h, w)."""
         maps = self._sampling_maps(k_views, self.x)
         weight = _remap_masks(masks, maps)
-        trust = np.clip(weight.sum(axis=0) - (MIN_DEPTH_VIEWS - 1.0), 0.0, 1.0).astype(np.float32)
+        trust = np.clip(weight.sum(axis=0) - (self.measured_views - 1.0), 0.0, 1.0).astype(np.float32)
+        trust[~self._known] = 0.0  # an unknown depth (its stand-in the median) was not measured
         measured = trust >= 1.0
         if measured.all() or not measured.any():
             return maps, weight
@@ -452,9 +468,15 @@ class DepthOfField:
         # index lists them.
         _, labels = cv2.distanceTransformWithLabels((~measured).view(np.uint8), cv2.DIST_L2, 5,
                                                     labelType=cv2.DIST_LABEL_PIXEL)
-        around = _feathered(self.x[measured][labels - 1], FEATHER_PX)
+        # Feathered among the continued pixels only: a measured depth edge stays where it is.
+        nearest = self.x[measured][labels - 1]
+        share = (~measured).astype(np.float32)
+        spread = _feathered(share, FEATHER_PX)
+        around = np.where(measured | (spread <= 1e-3), nearest,
+                          _feathered(nearest * share, FEATHER_PX) / np.maximum(spread, np.float32(1e-3))).astype(np.float32)
         # A depth that continues its surroundings' is kept however few views see it.
         near = np.clip(2.0 - np.abs(self.x - around) * np.float32(self.radius_px / DEPTH_TOL_PX), 0.0, 1.0)
+        near[~self._known] = 0.0
         trust = np.maximum(trust, near)
         self.x = (around + trust * (self.x - around)).astype(np.float32)
         maps = self._sampling_maps(k_views, self.x)
@@ -890,32 +912,38 @@ def estimation_range(calibration, zmin_m=None, zmax_m=None, *, reference="center
     return lo, float(hi)
 
 
-def _depth_map(arr, calibration, depth, zmin_m, zmax_m, reference) -> np.ndarray:
-    """The depth map of the views in the reference frame: given, or estimated."""
+def _depth_map(arr, calibration, depth, zmin_m, zmax_m, reference) -> tuple[np.ndarray, bool]:
+    """The depth map of the views in the reference frame, given or estimated, and whether depth
+    estimation made it (a :class:`lfring.DepthResult`)."""
     h, w = arr.shape[1:3]
     if depth is None:
         zmin_m, zmax_m = estimation_range(calibration, zmin_m, zmax_m, reference=reference)
         depth = estimate_depth(arr, calibration, zmin_m=zmin_m, zmax_m=zmax_m, reference=reference)
     elif zmin_m is not None or zmax_m is not None:
         raise InvalidInputError("zmin_m/zmax_m set the range of the depth estimation: give them or a depth map, not both")
-    if isinstance(depth, DepthResult):
+    estimated = isinstance(depth, DepthResult)
+    if estimated:
         if depth.reference != reference:
             raise InvalidInputError(f"the depth map is in the frame of reference {depth.reference!r}, the refocusing in {reference!r}")
         depth = depth.depth_m
     dm = np.asarray(depth, dtype=np.float64)
     if dm.shape != (h, w):
         raise InvalidInputError(f"the depth map must be (h, w) = ({h}, {w}) metres like the views, got shape {dm.shape}")
-    return dm
+    return dm, estimated
 
 
 def depth_of_field(views, calibration, *, depth=None, zmin_m=None, zmax_m=None, reference="center") -> DepthOfField:
     """A :class:`DepthOfField` renderer of the views: from a depth map (``depth``, a
     :class:`lfring.DepthResult` or (h, w) metres in the reference frame), or one estimated over
     ``zmin_m``..``zmax_m`` (by default the calibration's valid range). Reuse it to render many
-    focus depths and apertures from one depth map."""
+    focus depths and apertures from one depth map. An estimated map's depths count as measured
+    wherever :data:`MIN_ESTIMATED_VIEWS` views' worth see them; a bare map's wherever
+    :data:`MIN_DEPTH_VIEWS` do."""
     arr = check_views(views)
     ref = check_reference(reference, calibration.num_views)
-    return DepthOfField(arr, calibration, _depth_map(arr, calibration, depth, zmin_m, zmax_m, ref), reference=ref)
+    dm, estimated = _depth_map(arr, calibration, depth, zmin_m, zmax_m, ref)
+    return DepthOfField(arr, calibration, dm, reference=ref,
+                        measured_views=MIN_ESTIMATED_VIEWS if estimated else MIN_DEPTH_VIEWS)
 
 
 def prepare_depth_aware(views, calibration, reference, *, aperture=None, f_number=None, ring_device=None, depth=None,

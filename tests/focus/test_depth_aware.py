@@ -11,7 +11,9 @@ import pytest
 
 from lfring.calibration import RingCalibration
 from lfring.core.threads import numba_threads
-from lfring.focus.depth_aware import aperture_from_f_number, aperture_radius_px, coc_radius_px
+from lfring.focus.depth_aware import (MIN_DEPTH_VIEWS, MIN_ESTIMATED_VIEWS, DepthOfField, aperture_from_f_number,
+                                      aperture_radius_px, coc_radius_px)
+from lfring.depth import DepthResult
 from lfring.errors import InvalidInputError
 from lfring.focus import Refocuser, all_in_focus, depth_of_field, focal_stack, refocus, resolve_aperture
 from lfring.optics import load_device
@@ -22,6 +24,8 @@ FAR_M, NEAR_M = 2.0, 0.5  # x = 1/Z: 0.5 and 2 (z0 = 0)
 GAIN = 4.0  # view motion per unit x along each axis: shifts of 2 px (far) and 8 px (near)
 DIRS = np.array([[-1, -1], [1, -1], [-1, 1], [1, 1]])  # where each view sits in the aperture
 NEAR_BOX = (slice(30, 70), slice(20, 60))  # rows, cols of the near plane in the reference frame
+# Views valid only in discs, each a little off the frame's centre.
+DISCS = tuple((N / 2 + dx, N / 2 + dy, N / 2 - 10) for dx, dy in ((-6, -4), (5, -6), (-4, 6), (6, 5)))
 
 
 def _calibration(circles=None):
@@ -60,11 +64,18 @@ def _scene(far_tex, near_tex, *, with_near=True, box=NEAR_BOX):
     return np.stack(views).astype(np.float32), depth, near_mask
 
 
+def _textures():
+    """Random textures, padded by 16 px: a dark far one and a bright near one (every occlusion
+    is visible)."""
+    rng = np.random.default_rng(3)
+    far = (0.05 + 0.3 * rng.random((N + 32, N + 32, 3))).astype(np.float32)
+    near = (0.65 + 0.3 * rng.random((N + 32, N + 32, 3))).astype(np.float32)
+    return far, near
+
+
 @pytest.fixture(scope="module")
 def textured():
-    rng = np.random.default_rng(3)
-    far = (0.05 + 0.3 * rng.random((N + 32, N + 32, 3))).astype(np.float32)  # dark
-    near = (0.65 + 0.3 * rng.random((N + 32, N + 32, 3))).astype(np.float32)  # bright: every occlusion is visible
+    far, near = _textures()
     views, depth, mask = _scene(far, near)
     return _calibration(), views, depth, mask, far[16:-16, 16:-16], near[16:-16, 16:-16]
 
@@ -228,6 +239,9 @@ def test_bad_inputs(textured):
         refocus(views, cal, FAR_M, method="depth-aware", depth=depth, zmin_m=0.5, zmax_m=2.5)
     with pytest.raises(InvalidInputError, match="depth"):
         refocus(views, cal, -1.0, method="depth-aware", depth=depth)
+    for bad in (-0.5, 4.5, float("nan")):
+        with pytest.raises(InvalidInputError, match="measured_views"):
+            DepthOfField(views, cal, depth, measured_views=bad)
 
 
 def test_cli_depth_aware_stack_is_labelled(tmp_path, capsys):
@@ -413,7 +427,7 @@ def test_no_seam_follows_the_views_disc_rims():
     vignetting) and fade out at their discs' rims: the all-in-focus image of a plane changes
     across every rim no faster than shift-and-add's average of the same views, although a
     different number of views sees each pixel and they disagree."""
-    cal = _calibration(tuple((N / 2 + dx, N / 2 + dy, N / 2 - 10) for dx, dy in ((-6, -4), (5, -6), (-4, 6), (6, 5))))
+    cal = _calibration(DISCS)
     gains = np.array((0.84, 1.0, 1.12, 0.93), np.float32)
     ramp = np.broadcast_to(np.linspace(0.3, 0.6, N + 32, dtype=np.float32)[None, :, None], (N + 32, N + 32, 3))
     views, _, _ = _scene(np.ascontiguousarray(ramp), np.ascontiguousarray(ramp), with_near=False)
@@ -432,6 +446,31 @@ def test_no_seam_follows_the_views_disc_rims():
     assert steepest(out) < 1.25 * steepest(sa), (steepest(out), steepest(sa))
 
 
+def _rim_scene(box):
+    """Views valid only in discs of a far plane and a near plane over ``box`` that reaches the
+    discs' rims, both with smooth ramps (a sample taken at a wrong depth shows as an error), the
+    exact depth map, the far plane's texture and the views' summed weight at the far plane."""
+    cal = _calibration(DISCS)
+    yy, xx = np.mgrid[0:N + 32, 0:N + 32]
+
+    def ramp(lo, span):
+        return np.repeat((lo + span * (xx + yy) / (2 * (N + 32)))[..., None], 3, axis=2).astype(np.float32)
+
+    far = ramp(0.2, 0.5)
+    views, depth, near_mask = _scene(far, ramp(0.6, 0.3), box=box)
+    return cal, views, depth, near_mask, far[16:-16, 16:-16, 0], Refocuser(cal, FAR_M).weight
+
+
+def _far_rim_error(cal, views, depth, near_mask, truth, weight):
+    """The all-in-focus image's error on the far plane's pixels that some view sees, not at the
+    near plane's edge, and the rims among them (one to two views' worth)."""
+    out = refocus(views, cal, FAR_M, method="depth-aware", depth=depth, aperture=0.0)[..., 0]
+    far_px = (out > 0.05) & (weight > 0.5) & ~cv2.dilate(near_mask.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+    rim = far_px & (weight < 2.0)
+    assert rim.sum() > 500  # the rims are there, and some reach the near plane
+    return np.abs(out - truth)[far_px]
+
+
 @pytest.mark.parametrize("box", [(slice(4, 40), slice(30, 70)), (slice(30, 70), slice(4, 40)), (slice(56, 92), slice(30, 70))])
 def test_a_depth_continued_into_a_rim_cuts_no_seam(box):
     """Where fewer than two views' worth see a surface at its depth (the discs' rims), the
@@ -440,22 +479,52 @@ def test_a_depth_continued_into_a_rim_cuts_no_seam(box):
     meet, the far plane's rim beside the near one's corners was sampled at the near depth (wedges
     of misplaced texture cut by straight seams, as in the corners of the main job's image). With
     the exact depth map, the all-in-focus image of the far plane is its texture there."""
-    cal = _calibration(tuple((N / 2 + dx, N / 2 + dy, N / 2 - 10) for dx, dy in ((-6, -4), (5, -6), (-4, 6), (6, 5))))
-    yy, xx = np.mgrid[0:N + 32, 0:N + 32]
-
-    def ramp(lo, span):
-        return np.repeat((lo + span * (xx + yy) / (2 * (N + 32)))[..., None], 3, axis=2).astype(np.float32)
-
-    far = ramp(0.2, 0.5)
-    views, depth, near_mask = _scene(far, ramp(0.6, 0.3), box=box)
-    out = refocus(views, cal, FAR_M, method="depth-aware", depth=depth, aperture=0.0)[..., 0]
-    weight = Refocuser(cal, FAR_M).weight
-    # The far plane's pixels that some view sees, not at the near plane's edge.
-    far_px = (out > 0.05) & (weight > 0.5) & ~cv2.dilate(near_mask.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
-    rim = far_px & (weight < 2.0)
-    assert rim.sum() > 500  # the rims are there, and some reach the near plane
-    error = np.abs(out - far[16:-16, 16:-16, 0])[far_px]
+    error = _far_rim_error(*_rim_scene(box))
     assert np.percentile(error, 99) < 0.03, np.percentile(error, 99)
+
+
+def _estimated(depth_m: np.ndarray) -> DepthResult:
+    """``depth_m`` recorded as depth estimation's result (NaN where it was not measured)."""
+    h, w = depth_m.shape
+    return DepthResult(depth_m.astype(np.float32), np.ones((h, w), np.float32), np.zeros((h, w), np.float32),
+                       np.linspace(0.4, 3.0, 40), 1.0, "center", "lcn-halves", "box", "sgm")
+
+
+@pytest.mark.parametrize("box", [(slice(0, 96), slice(20, 60)), (slice(4, 40), slice(30, 70))])
+def test_an_estimated_depth_counts_where_a_view_sees_it(box):
+    """Depth estimation says itself where it measured a depth (NaN elsewhere), counting views by
+    its own taper: the renderer keeps such a depth wherever MIN_ESTIMATED_VIEWS views' worth see
+    the pixel, fewer than a bare map needs (MIN_DEPTH_VIEWS: its origin is unknown, and a depth
+    that few views see may be a stand-in). A strip of the far plane between a near plane and the
+    discs' rims, whose nearest pixels that two views see are the near plane's, is then sampled at
+    the far plane's depth and shows its texture."""
+    cal = _calibration(DISCS)
+    far, near = _textures()
+    views, depth, near_mask = _scene(far, near, box=box)
+    out = refocus(views, cal, FAR_M, method="depth-aware", depth=_estimated(depth), aperture=0.0)
+    weight = Refocuser(cal, FAR_M).weight
+    # The far plane's pixels that some view sees, beyond the reach of the near plane's occlusion
+    # (its copies lie 6 px from the far plane's: a rim's one view may see the near plane there).
+    far_px = (weight >= MIN_ESTIMATED_VIEWS) & ~cv2.dilate(near_mask.astype(np.uint8), np.ones((15, 15), np.uint8)).astype(bool)
+    assert (far_px & (weight < MIN_DEPTH_VIEWS)).sum() > 100  # where a bare map's depth would not count
+    error = np.abs(out - far[16:-16, 16:-16]).max(axis=2)[far_px]
+    assert error.max() < 0.02, error.max()
+
+
+def test_unknown_depths_are_continued_from_the_nearest_known_ones():
+    """An unknown depth (NaN) is not a measurement: it takes the nearest known pixel's depth,
+    not a stand-in that happens to be seen by enough views (the known depths' median, here the
+    near plane's, which covers most of the frame)."""
+    cal = _calibration()
+    far, near = _textures()
+    big = (slice(0, 96), slice(0, 60))  # the near plane over most of the frame
+    views, depth, _ = _scene(far, near, box=big)
+    hole = (slice(40, 56), slice(72, 88))  # inside the far plane, every view sees it
+    unknown = depth.astype(np.float64)
+    unknown[hole] = np.nan
+    for given in (unknown, _estimated(unknown)):
+        out = refocus(views, cal, FAR_M, method="depth-aware", depth=given, aperture=0.0)
+        np.testing.assert_allclose(out[hole], far[16:-16, 16:-16][hole], atol=0.02)
 
 
 def test_f_number_works_with_the_built_in_calibration():
