@@ -7,9 +7,9 @@ depth map in the reference frame, :class:`DepthOfField` renders that:
 1. **The depth that was measured.** Where the depth is unknown, or fewer than
    :data:`MIN_DEPTH_VIEWS` views' worth see a pixel at its own depth (the views' disc rims, the
    frame's edge; :data:`MIN_ESTIMATED_VIEWS` for a map that depth estimation made, which says
-   itself where it measured), that depth was not measured: the nearest measured pixel's depth is taken instead, unless they agree anyway,
-   feathered where two surfaces' nearest pixels meet (a step there would cut a seam across the
-   rim).
+   itself where it measured), that depth was not measured: the nearest measured pixel's depth
+   is taken instead, unless they agree anyway, feathered where two surfaces' nearest pixels
+   meet (a step there would cut a seam across the rim).
 2. **All-in-focus colour.** Every view is sampled at every reference pixel's own depth (one
    ``cv2.remap`` per view) and the views are averaged where they agree: a view whose luminance
    is far from the views' robust mean there (it sees an occluder, or a specular highlight) is
@@ -70,7 +70,7 @@ from lfring.focus.base import RefocusMethod
 __all__ = [
     "AGREE_TOL", "BACK_EDGE_PX", "BACK_STEP_PX", "COARSE_DISC_PX", "DEPTH_TOL_PX", "GEOMETRIC_STEP", "LINEAR_UNTIL_PX",
     "MIN_DEPTH_VIEWS", "MIN_ESTIMATED_VIEWS", "OCCLUSION_PX", "SHARP_PX", "SHARP_RAMP_PX", "SHARP_RESAMPLED_PX2", "SPREAD_TOL", "VISIBLE_VIEWS", "DepthOfField", "DEPTH_AWARE",
-    "DERIVED_RANGE_MAX_MOTION", "FAR_MOTION_PX", "FEATHER_PX", "aperture_from_f_number", "aperture_radius_px", "coc_radius_px", "depth_of_field", "disc_kernel",
+    "DERIVED_RANGE_MAX_MOTION", "FAR_MOTION_PX", "FEATHER_FLOOR", "FEATHER_PX", "aperture_from_f_number", "aperture_radius_px", "coc_radius_px", "depth_of_field", "disc_kernel",
     "estimation_range", "prepare_depth_aware", "resolve_aperture",
 ]
 
@@ -133,14 +133,18 @@ SHARP_RESAMPLED_PX2 = 0.08
 MIN_DEPTH_VIEWS = 2.0
 DEPTH_TOL_PX = 0.5
 # A depth map that depth estimation made (a DepthResult) says itself where its depth was measured
-# (NaN elsewhere): there the renderer keeps it wherever this many views' worth see the pixel at
-# that depth. The estimator counts a view by its own, wider taper, so a rim pixel it measured can
-# fall short of MIN_DEPTH_VIEWS by the renderer's; a depth that few views see there (the views
-# drifted off their discs at the range's end) is still continued from around.
+# (NaN elsewhere): there the renderer keeps it wherever this many views' worth, by the renderer's
+# taper, see the pixel at that depth. The estimator counts a view by its own, wider taper, so a
+# rim pixel it measured can fall short of MIN_DEPTH_VIEWS by the renderer's; a depth that few
+# views see there (the views drifted off their discs at the range's end) is still continued from
+# around. A renderer's rule, whatever min_views the estimate was made with (a DepthResult does not
+# record it).
 MIN_ESTIMATED_VIEWS = 1.5
 # The nearest measured pixel's depth is feathered by a Gaussian of this standard deviation (px),
-# so that the depth continued into a rim changes smoothly where two surfaces' nearest pixels meet.
+# so that the depth continued into a rim changes smoothly where two surfaces' nearest pixels meet;
+# the feathering is normalised by the continued pixels' share, floored at FEATHER_FLOOR.
 FEATHER_PX = 8.0
+FEATHER_FLOOR = 1e-3
 
 
 def _inverse_depth(depth_m, z0: float):
@@ -347,6 +351,8 @@ class DepthOfField:
         Whether any view sees the pixel at its depth.
     radius_px : float
         R of :func:`aperture_radius_px`.
+    measured_views : float
+        The parameter: the views' worth from which a depth counts as measured.
 
     Notes
     -----
@@ -468,13 +474,15 @@ class DepthOfField:
         # index lists them.
         _, labels = cv2.distanceTransformWithLabels((~measured).view(np.uint8), cv2.DIST_L2, 5,
                                                     labelType=cv2.DIST_LABEL_PIXEL)
-        # Feathered among the continued pixels only: a measured depth edge stays where it is.
+        # Feathered over the continued pixels only, so that the depths of measured pixels further
+        # off (across a measured depth edge) do not leak in.
         nearest = self.x[measured][labels - 1]
         share = (~measured).astype(np.float32)
-        spread = _feathered(share, FEATHER_PX)
-        around = np.where(measured | (spread <= 1e-3), nearest,
-                          _feathered(nearest * share, FEATHER_PX) / np.maximum(spread, np.float32(1e-3))).astype(np.float32)
-        # A depth that continues its surroundings' is kept however few views see it.
+        spread = np.maximum(_feathered(share, FEATHER_PX), np.float32(FEATHER_FLOOR))
+        around = np.where(measured, nearest, _feathered(nearest * share, FEATHER_PX) / spread).astype(np.float32)
+        # A depth that continues its surroundings' (the feathered depth) is kept however few
+        # views see it. (Also keeping a depth that continues the nearest pixel's brought the
+        # misplaced wedges back beside a nearer surface's corners at the rims.)
         near = np.clip(2.0 - np.abs(self.x - around) * np.float32(self.radius_px / DEPTH_TOL_PX), 0.0, 1.0)
         near[~self._known] = 0.0
         trust = np.maximum(trust, near)

@@ -467,7 +467,7 @@ def _far_rim_error(cal, views, depth, near_mask, truth, weight):
     out = refocus(views, cal, FAR_M, method="depth-aware", depth=depth, aperture=0.0)[..., 0]
     far_px = (out > 0.05) & (weight > 0.5) & ~cv2.dilate(near_mask.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
     rim = far_px & (weight < 2.0)
-    assert rim.sum() > 500  # the rims are there, and some reach the near plane
+    assert rim.sum() > 500  # the rims are there
     return np.abs(out - truth)[far_px]
 
 
@@ -491,7 +491,7 @@ def _estimated(depth_m: np.ndarray) -> DepthResult:
 
 
 @pytest.mark.parametrize("box", [(slice(0, 96), slice(20, 60)), (slice(4, 40), slice(30, 70))])
-def test_an_estimated_depth_counts_where_a_view_sees_it(box):
+def test_an_estimated_depth_counts_where_fewer_views_see_it(box):
     """Depth estimation says itself where it measured a depth (NaN elsewhere), counting views by
     its own taper: the renderer keeps such a depth wherever MIN_ESTIMATED_VIEWS views' worth see
     the pixel, fewer than a bare map needs (MIN_DEPTH_VIEWS: its origin is unknown, and a depth
