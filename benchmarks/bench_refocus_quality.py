@@ -5,6 +5,7 @@ true depth map and with the estimated one.
     python benchmarks/bench_refocus_quality.py --no-speed        # quality only
     python benchmarks/bench_refocus_quality.py --no-quality      # speed only
     python benchmarks/bench_refocus_quality.py --cases lytro,slant --no-speed
+    python benchmarks/bench_refocus_quality.py --no-speed --estimate-as result   # as lfring refocus gives it
     (from a worktree elsewhere: --lytro /path/to/shared/data/lytro_gen1/IMG_0001)
 
 Quality (:func:`compare`): PSNR and SSIM (scikit-image) of shift-and-add and of the depth-aware
@@ -213,21 +214,22 @@ def compare(name, views, calibration, depths, truth, focus_m, aperture, *, borde
     return rows
 
 
-def lytro_cases(folder):
+def lytro_cases(folder, *, as_result: bool = False):
     grid = load_lytro(folder)
     idx = [(r, c) for r in QUADRANT for c in QUADRANT]
     views = np.stack([grid[r - 1, c - 1] for r, c in idx])
     positions = [position(r, c) for r, c in idx]
     cal = grid_calibration(views.shape[1:3], positions)
     lo, hi = cal.valid_depth_range_m
-    est = estimate_depth(views, cal, zmin_m=lo, zmax_m=hi).depth_m
+    res = estimate_depth(views, cal, zmin_m=lo, zmax_m=hi)
+    est = res.depth_m
     dense = dense_disparity(grid)
     disp = D_PER_X / est + D0
     print(f"Lytro IMG_0001: 4 views of {views.shape[2]} x {views.shape[1]} px; disparity per step "
           f"{np.nanpercentile(dense, 2):.2f} .. {np.nanpercentile(dense, 98):.2f} from all 100 views, "
           f"{np.nanpercentile(disp, 2):.2f} .. {np.nanpercentile(disp, 98):.2f} estimated from the four "
           f"(2nd..98th percentile; median difference {np.nanmedian(np.abs(disp - dense)):.3f}); aperture {LYTRO_APERTURE:.3f}")
-    depths = {"true": depth_of_disparity(dense), "estimated": est}
+    depths = {"true": depth_of_disparity(dense), "estimated": res if as_result else est}
     rows = []
     for d in FOCUS_DISPARITIES:
         rows += compare(f"lytro d={d:+.2f}", views, cal, depths, full_aperture(grid, d), float(depth_of_disparity(d)),
@@ -307,12 +309,14 @@ def _cached(cache, name, make):
     return out
 
 
-def twin_cases(scene_name: str, *, seed: int = 5, view_defocus: bool | None = None, cache=None):
+def twin_cases(scene_name: str, *, seed: int = 5, view_defocus: bool | None = None, cache=None, as_result: bool = False):
     """The twin: a Bayer frame with realistic noise (optical vignetting off, since the truth has
     none), demosaiced and split; the truth is the conventional image through the aperture the
     four views span (aperture_scale 1, lfring.synth.render_conventional), times the render's
     exposure (the views' photometric scale). The estimated depth map is estimate_depth's
-    (defaults) over 0.27..1.1 m, the hole-filled one; the true one the central viewpoint's."""
+    (defaults) over 0.27..1.1 m: the hole-filled map with NaN replaced by the median, as an
+    array, or with ``as_result`` the DepthResult itself (the renderer then knows which depths
+    were measured); the true one the central viewpoint's."""
     from lfring.io.demosaic import demosaic
     from lfring.io.raw import RawFrame
     from lfring.optics import load_device
@@ -333,7 +337,7 @@ def twin_cases(scene_name: str, *, seed: int = 5, view_defocus: bool | None = No
         warnings.simplefilter("ignore", LfringWarning)
         res = estimate_depth(views, cal, zmin_m=0.27, zmax_m=1.1)
     est = res.depth_filled_m if res.depth_filled_m is not None else res.depth_m
-    est = np.where(np.isfinite(est), est, np.nanmedian(est)).astype(np.float32)
+    est = res if as_result else np.where(np.isfinite(est), est, np.nanmedian(est)).astype(np.float32)
     true = central_depth(scene, dev, binning)
     true = np.where(np.isfinite(true), true, np.nanmax(true)).astype(np.float32)
     exposure = r.settings.exposure
@@ -341,7 +345,7 @@ def twin_cases(scene_name: str, *, seed: int = 5, view_defocus: bool | None = No
     print(f"twin {scene_name}: 4 views of {views.shape[2]} x {views.shape[1]} px (binning {binning}), true depth "
           f"{np.nanmin(true):.3f} .. {np.nanmax(true):.3f} m, blur radius up to {np.max(rad):.1f} px at "
           f"{TWIN_FOCUS_M[scene_name][0]} m; views {'with' if view_defocus else 'without'} their own defocus; "
-          "truth at aperture_scale 1 = aperture 1")
+          f"truth at aperture_scale 1 = aperture 1; estimated depth given as {'its DepthResult' if as_result else 'a filled array'}")
     rows = []
     for z in TWIN_FOCUS_M[scene_name]:
         truth = exposure * _cached(cache, f"truth_{scene_name}_{z:g}m",
@@ -442,9 +446,14 @@ def main() -> None:
                     help="twin views rendered with their own mini-lens defocus: auto = on for three-depth and hard, "
                          "off for the continuous-depth scenes")
     ap.add_argument("--cache", type=Path, default=None, help="keep the twin's ground-truth images in this folder")
+    ap.add_argument("--estimate-as", choices=("filled-array", "result"), default="filled-array",
+                    help="the twin's estimated depth given to the renderer as its hole-filled map, NaN replaced by "
+                         "the median, as a bare array (the default, as the figures so far), or as the DepthResult "
+                         "itself, as lfring refocus and batches give it")
     ap.add_argument("--lytro", type=Path, default=LYTRO, help="the IMG_0001 folder (default: ../shared/data/... from the repo root)")
     args = ap.parse_args()
-    twin = {"view_defocus": {"auto": None, "on": True, "off": False}[args.view_defocus], "cache": args.cache}
+    twin = {"view_defocus": {"auto": None, "on": True, "off": False}[args.view_defocus], "cache": args.cache,
+            "as_result": args.estimate_as == "result"}
     cases = [c for c in args.cases.split(",") if c]
     unknown = sorted(set(cases) - set(CASES))
     if unknown:
@@ -455,7 +464,7 @@ def main() -> None:
             if not args.lytro.is_dir():
                 print(f"no Lytro data at {args.lytro}: Lytro skipped", file=sys.stderr)
             else:
-                print_quality(lytro_cases(args.lytro), "Lytro")
+                print_quality(lytro_cases(args.lytro, as_result=twin["as_result"]), "Lytro")
         old = [c for c in cases if c in ("three-depth", "hard")]
         if old:
             print_quality([r for c in old for r in twin_cases(c, **twin)], "twin, planes with depth edges")
