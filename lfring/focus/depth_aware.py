@@ -70,7 +70,7 @@ from lfring.focus.base import RefocusMethod
 __all__ = [
     "AGREE_TOL", "BACK_EDGE_PX", "BACK_STEP_PX", "COARSE_DISC_PX", "DEPTH_TOL_PX", "GEOMETRIC_STEP", "LINEAR_UNTIL_PX",
     "MIN_DEPTH_VIEWS", "MIN_ESTIMATED_VIEWS", "OCCLUSION_PX", "SHARP_PX", "SHARP_RAMP_PX", "SHARP_RESAMPLED_PX2", "SPREAD_TOL", "VISIBLE_VIEWS", "DepthOfField", "DEPTH_AWARE",
-    "DERIVED_RANGE_MAX_MOTION", "FAR_MOTION_PX", "FEATHER_FLOOR", "FEATHER_PX", "aperture_from_f_number", "aperture_radius_px", "coc_radius_px", "depth_of_field", "disc_kernel",
+    "DERIVED_RANGE_MAX_MOTION", "FAR_MOTION_PX", "FEATHER_FLOOR", "FEATHER_PX", "FILL_SMOOTH_PX", "FILL_WINDOW_PX", "aperture_from_f_number", "aperture_radius_px", "coc_radius_px", "depth_of_field", "disc_kernel",
     "estimation_range", "prepare_depth_aware", "resolve_aperture",
 ]
 
@@ -140,6 +140,12 @@ DEPTH_TOL_PX = 0.5
 # around. A renderer's rule, whatever min_views the estimate was made with (a DepthResult does not
 # record it).
 MIN_ESTIMATED_VIEWS = 1.5
+# Where depth estimation was not confident of a pixel, the renderer takes its hole-filled depth
+# if the confident depths within FILL_WINDOW_PX (an odd side, px) span at most FILL_SMOOTH_PX px
+# of view motion (at aperture 1): a smooth surface, which the fill continues; elsewhere the
+# estimate's own winner (at a depth edge the fill lies between the two surfaces).
+FILL_SMOOTH_PX = 3.0
+FILL_WINDOW_PX = 21
 # The nearest measured pixel's depth is feathered by a Gaussian of this standard deviation (px),
 # so that the depth continued into a rim changes smoothly where two surfaces' nearest pixels meet;
 # the feathering is normalised by the continued pixels' share, floored at FEATHER_FLOOR.
@@ -920,6 +926,35 @@ def estimation_range(calibration, zmin_m=None, zmax_m=None, *, reference="center
     return lo, float(hi)
 
 
+def _estimated_depth(result: DepthResult, calibration, reference) -> np.ndarray:
+    """(h, w) metres to render of a depth estimate: its depth, and at the pixels it was not
+    confident of (under ``lfring.depth.refine.MIN_CONFIDENCE``, where ``depth_m`` keeps the
+    unrefined winner) its hole-filled depth where the confident depths within
+    :data:`FILL_WINDOW_PX` span at most :data:`FILL_SMOOTH_PX` px of view motion: on a smooth
+    surface the fill continues it, at a depth edge it would lie between the two surfaces."""
+    from lfring.depth.refine import MIN_CONFIDENCE
+
+    d = np.asarray(result.depth_m, dtype=np.float64)
+    filled = result.depth_filled_m
+    if filled is None or np.shape(filled) != d.shape:
+        return d
+    z0 = calibration.depth_origin_m
+    confident = np.isfinite(d) & (d > z0) & (np.asarray(result.confidence) >= MIN_CONFIDENCE)
+    unsure = np.isfinite(d) & ~confident & np.isfinite(filled)
+    if not unsure.any() or not confident.any():
+        return d
+    x = np.where(confident, 1.0 / np.where(confident, d - z0, 1.0), 0.0).astype(np.float32)
+    window = np.ones((FILL_WINDOW_PX, FILL_WINDOW_PX), np.uint8)
+    top = cv2.dilate(np.where(confident, x, -np.inf).astype(np.float32), window)
+    bottom = cv2.erode(np.where(confident, x, np.inf).astype(np.float32), window)
+    # No confident depth within the window (top below bottom: the fill values, or the largest
+    # float at the frame's border): not known to be smooth.
+    some = top >= bottom
+    span = np.subtract(top, bottom, out=np.zeros_like(top), where=some)
+    smooth = some & (span * np.float32(aperture_radius_px(calibration, reference)) <= FILL_SMOOTH_PX)
+    return np.where(unsure & smooth, np.asarray(filled, dtype=np.float64), d)
+
+
 def _depth_map(arr, calibration, depth, zmin_m, zmax_m, reference) -> tuple[np.ndarray, bool]:
     """The depth map of the views in the reference frame, given or estimated, and whether depth
     estimation made it (a :class:`lfring.DepthResult`)."""
@@ -933,7 +968,7 @@ def _depth_map(arr, calibration, depth, zmin_m, zmax_m, reference) -> tuple[np.n
     if estimated:
         if depth.reference != reference:
             raise InvalidInputError(f"the depth map is in the frame of reference {depth.reference!r}, the refocusing in {reference!r}")
-        depth = depth.depth_m
+        depth = _estimated_depth(depth, calibration, reference)
     dm = np.asarray(depth, dtype=np.float64)
     if dm.shape != (h, w):
         raise InvalidInputError(f"the depth map must be (h, w) = ({h}, {w}) metres like the views, got shape {dm.shape}")
@@ -945,8 +980,9 @@ def depth_of_field(views, calibration, *, depth=None, zmin_m=None, zmax_m=None, 
     :class:`lfring.DepthResult` or (h, w) metres in the reference frame), or one estimated over
     ``zmin_m``..``zmax_m`` (by default the calibration's valid range). Reuse it to render many
     focus depths and apertures from one depth map. An estimated map's depths count as measured
-    wherever :data:`MIN_ESTIMATED_VIEWS` views' worth see them; a bare map's wherever
-    :data:`MIN_DEPTH_VIEWS` do."""
+    wherever :data:`MIN_ESTIMATED_VIEWS` views' worth see them, a bare map's wherever
+    :data:`MIN_DEPTH_VIEWS` do; where estimation was not confident, its hole-filled depth is
+    rendered on smooth surfaces (:data:`FILL_SMOOTH_PX`)."""
     arr = check_views(views)
     ref = check_reference(reference, calibration.num_views)
     dm, estimated = _depth_map(arr, calibration, depth, zmin_m, zmax_m, ref)

@@ -483,11 +483,35 @@ def test_a_depth_continued_into_a_rim_cuts_no_seam(box):
     assert np.percentile(error, 99) < 0.03, np.percentile(error, 99)
 
 
-def _estimated(depth_m: np.ndarray) -> DepthResult:
-    """``depth_m`` recorded as depth estimation's result (NaN where it was not measured)."""
+def _estimated(depth_m: np.ndarray, filled_m=None, confidence=None) -> DepthResult:
+    """``depth_m`` recorded as depth estimation's result (NaN where it was not measured), with
+    ``filled_m`` as its hole-filled map and its ``confidence`` (1 everywhere by default)."""
     h, w = depth_m.shape
-    return DepthResult(depth_m.astype(np.float32), np.ones((h, w), np.float32), np.zeros((h, w), np.float32),
-                       np.linspace(0.4, 3.0, 40), 1.0, "center", "lcn-halves", "box", "sgm")
+    conf = np.ones((h, w), np.float32) if confidence is None else confidence.astype(np.float32)
+    return DepthResult(depth_m.astype(np.float32), conf, np.zeros((h, w), np.float32), np.linspace(0.4, 3.0, 40), 1.0,
+                       "center", "lcn-halves", "box", "sgm",
+                       depth_filled_m=None if filled_m is None else filled_m.astype(np.float32))
+
+
+def test_an_estimate_takes_its_fill_on_a_smooth_surface_and_its_winner_at_an_edge():
+    """Where depth estimation was not confident, its depth is the unrefined winner and its
+    hole-filled map the smoother's fill. On a smooth surface (a patch of the far plane, its
+    winner wrong) the fill is rendered; across a depth edge (a band over the near plane's right
+    edge, its fill between the two planes) the winner."""
+    cal = _calibration()
+    far, near = _textures()
+    views, depth, near_mask = _scene(far, near)
+    truth = np.where(near_mask[..., None], near[16:-16, 16:-16], far[16:-16, 16:-16])
+    winner, filled = depth.astype(np.float64), depth.astype(np.float64)
+    confidence = np.ones(depth.shape)
+    patch = (slice(78, 90), slice(72, 88))  # inside the far plane, over 10 px from the near one
+    winner[patch] = NEAR_M
+    band = (slice(36, 64), slice(57, 64))  # over the near plane's right edge (column 60), as narrow as such bands are
+    filled[band] = 2.0 / (1.0 / NEAR_M + 1.0 / FAR_M)
+    confidence[patch] = confidence[band] = 0.0
+    out = refocus(views, cal, FAR_M, method="depth-aware", depth=_estimated(winner, filled, confidence), aperture=0.0)
+    np.testing.assert_allclose(out[patch], truth[patch], atol=0.02)
+    np.testing.assert_allclose(out[band], truth[band], atol=0.02)
 
 
 @pytest.mark.parametrize("box", [(slice(0, 96), slice(20, 60)), (slice(4, 40), slice(30, 70))])
