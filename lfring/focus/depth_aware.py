@@ -303,10 +303,12 @@ def _feathered(image: np.ndarray, sigma_px: float) -> np.ndarray:
     that the Gaussian there is about 2 px (area averaging down, bilinear up), which costs a
     fraction of the full-resolution blur and is as smooth."""
     h, w = image.shape
-    f = max(1, int(sigma_px // 2))
-    small = cv2.resize(image, (-(-w // f), -(-h // f)), interpolation=cv2.INTER_AREA) if f > 1 else image
+    f = int(sigma_px // 2)
+    if f <= 1:
+        return cv2.GaussianBlur(image, (0, 0), sigma_px)
+    small = cv2.resize(image, (-(-w // f), -(-h // f)), interpolation=cv2.INTER_AREA)
     small = cv2.GaussianBlur(small, (0, 0), math.sqrt(max(sigma_px * sigma_px - f * f / 3.0, 0.25)) / f)
-    return cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR) if f > 1 else small
+    return cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR)
 
 
 def _remap_masks(masks: np.ndarray, maps) -> np.ndarray:
@@ -381,7 +383,6 @@ class DepthOfField:
             raise InvalidInputError(f"the depth map holds no finite depth beyond the depth origin z0 = {z0:.4g} m")
         if not np.all(known):
             dm = np.where(known, dm, float(np.median(dm[known])))
-        self._known = known
         self.reference = check_reference(reference, calibration.num_views)
         self.calibration = calibration
         self.view_shape = (h, w)
@@ -389,7 +390,7 @@ class DepthOfField:
         self.radius_px = aperture_radius_px(calibration, self.reference)
         masks = cached_view_masks(calibration, (h, w))
         sources = [arr[k] if np.all(masks[k] == 1.0) else arr[k] * masks[k][..., None] for k in range(len(arr))]
-        self.colour, self.agree, self.seen, nearest = self._all_in_focus(sources, masks)
+        self.colour, self.agree, self.seen, nearest = self._all_in_focus(sources, masks, known)
         self._back = self._background(sources, masks, nearest)
         self._cover = self.seen.astype(np.float32)
         self._scratch: dict = {}
@@ -458,17 +459,17 @@ class DepthOfField:
         kern.splat_max(map_x, map_y, self.x, nearest)
         return [cv2.dilate(nk, np.ones((3, 3), np.uint8)) for nk in nearest]
 
-    def _measured(self, k_views: int, masks: np.ndarray):
+    def _measured(self, k_views: int, masks: np.ndarray, known: np.ndarray):
         """The depth map, continued from the nearest pixel that :attr:`measured_views` views'
         worth see at its own depth (feathered over :data:`FEATHER_PX`) where fewer do or the
         depth is unknown (a depth one view alone sees was not measured: estimation picks such
         depths at the range's end, where the views drift off their discs), unless it continues
-        that pixel's depth anyway; and the views' sampling maps at it, with the views' masks
-        sampled there (V, h, w)."""
+        that pixel's depth anyway (``known``: where the given map had a depth); and the views'
+        sampling maps at it, with the views' masks sampled there (V, h, w)."""
         maps = self._sampling_maps(k_views, self.x)
         weight = _remap_masks(masks, maps)
         trust = np.clip(weight.sum(axis=0) - (self.measured_views - 1.0), 0.0, 1.0).astype(np.float32)
-        trust[~self._known] = 0.0  # an unknown depth (its stand-in the median) was not measured
+        trust[~known] = 0.0  # an unknown depth (its stand-in the median) was not measured
         measured = trust >= 1.0
         if measured.all() or not measured.any():
             return maps, weight
@@ -490,18 +491,18 @@ class DepthOfField:
         # views see it. (Also keeping a depth that continues the nearest pixel's brought the
         # misplaced wedges back beside a nearer surface's corners at the rims.)
         near = np.clip(2.0 - np.abs(self.x - around) * np.float32(self.radius_px / DEPTH_TOL_PX), 0.0, 1.0)
-        near[~self._known] = 0.0
+        near[~known] = 0.0
         trust = np.maximum(trust, near)
         self.x = (around + trust * (self.x - around)).astype(np.float32)
         maps = self._sampling_maps(k_views, self.x)
         return maps, _remap_masks(masks, maps)
 
-    def _all_in_focus(self, sources: list, masks: np.ndarray):
+    def _all_in_focus(self, sources: list, masks: np.ndarray, known: np.ndarray):
         from lfring.focus import depth_aware_kernels as kern
 
         v = len(sources)
         (h, w), c = self.view_shape, sources[0].shape[2]
-        maps, weight = self._measured(v, masks)
+        maps, weight = self._measured(v, masks, known)
         warped = _remap_views(sources, maps)
         nearest = self._splat(maps)
         visible = np.stack([~self._occluded(mx, my, self.x, nk) for mx, my, nk in zip(*maps, nearest)])
@@ -943,7 +944,7 @@ def _estimated_depth(result: DepthResult, calibration, reference) -> np.ndarray:
     unsure = np.isfinite(d) & ~confident & np.isfinite(filled)
     if not unsure.any() or not confident.any():
         return d
-    x = np.where(confident, 1.0 / np.where(confident, d - z0, 1.0), 0.0).astype(np.float32)
+    x = _inverse_depth(np.where(confident, d, np.inf), z0).astype(np.float32)  # 0 where not confident
     window = np.ones((FILL_WINDOW_PX, FILL_WINDOW_PX), np.uint8)
     top = cv2.dilate(np.where(confident, x, -np.inf).astype(np.float32), window)
     bottom = cv2.erode(np.where(confident, x, np.inf).astype(np.float32), window)

@@ -446,10 +446,15 @@ def test_no_seam_follows_the_views_disc_rims():
     assert steepest(out) < 1.25 * steepest(sa), (steepest(out), steepest(sa))
 
 
-def _rim_scene(box):
-    """Views valid only in discs of a far plane and a near plane over ``box`` that reaches the
-    discs' rims, both with smooth ramps (a sample taken at a wrong depth shows as an error), the
-    exact depth map, the far plane's texture and the views' summed weight at the far plane."""
+@pytest.mark.parametrize("box", [(slice(4, 40), slice(30, 70)), (slice(30, 70), slice(4, 40)), (slice(56, 92), slice(30, 70))])
+def test_a_depth_continued_into_a_rim_cuts_no_seam(box):
+    """Where fewer than two views' worth see a surface at its depth (the discs' rims), the
+    renderer continues the depth of the nearest pixel that enough views see. A near plane that
+    reaches the rim of a far one: continued with a step where the two planes' nearest pixels
+    meet, the far plane's rim beside the near one's corners was sampled at the near depth (wedges
+    of misplaced texture cut by straight seams, as in the corners of the main job's image). With
+    the exact depth map, the all-in-focus image of the far plane is its texture there. Both
+    planes carry smooth ramps, so a sample taken at a wrong depth shows as an error."""
     cal = _calibration(DISCS)
     yy, xx = np.mgrid[0:N + 32, 0:N + 32]
 
@@ -458,28 +463,12 @@ def _rim_scene(box):
 
     far = ramp(0.2, 0.5)
     views, depth, near_mask = _scene(far, ramp(0.6, 0.3), box=box)
-    return cal, views, depth, near_mask, far[16:-16, 16:-16, 0], Refocuser(cal, FAR_M).weight
-
-
-def _far_rim_error(cal, views, depth, near_mask, truth, weight):
-    """The all-in-focus image's error on the far plane's pixels that some view sees, not at the
-    near plane's edge, and the rims among them (one to two views' worth)."""
+    weight = Refocuser(cal, FAR_M).weight
     out = refocus(views, cal, FAR_M, method="depth-aware", depth=depth, aperture=0.0)[..., 0]
+    # The far plane's pixels that some view sees, not at the near plane's edge; the rims among them.
     far_px = (out > 0.05) & (weight > 0.5) & ~cv2.dilate(near_mask.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
-    rim = far_px & (weight < 2.0)
-    assert rim.sum() > 500  # the rims are there
-    return np.abs(out - truth)[far_px]
-
-
-@pytest.mark.parametrize("box", [(slice(4, 40), slice(30, 70)), (slice(30, 70), slice(4, 40)), (slice(56, 92), slice(30, 70))])
-def test_a_depth_continued_into_a_rim_cuts_no_seam(box):
-    """Where fewer than two views' worth see a surface at its depth (the discs' rims), the
-    renderer continues the depth of the nearest pixel that enough views see. A near plane that
-    reaches the rim of a far one: continued with a step where the two planes' nearest pixels
-    meet, the far plane's rim beside the near one's corners was sampled at the near depth (wedges
-    of misplaced texture cut by straight seams, as in the corners of the main job's image). With
-    the exact depth map, the all-in-focus image of the far plane is its texture there."""
-    error = _far_rim_error(*_rim_scene(box))
+    assert (far_px & (weight < 2.0)).sum() > 500  # the rims are there
+    error = np.abs(out - far[16:-16, 16:-16, 0])[far_px]
     assert np.percentile(error, 99) < 0.03, np.percentile(error, 99)
 
 

@@ -371,7 +371,6 @@ def _placed(shape, arr, y0, x0):
     return out, inside
 
 
-# RGB's cells (4 values) and a single channel's (2) run loops compiled apart.
 def test_the_maps_at_listed_pixels_are_the_whole_grids_there():
     """``shift_maps_at`` and ``knot_maps_at`` (the background's samples) give, to the bit, the
     values of ``shift_maps`` and ``knot_maps`` at the listed pixels, in any order, repeated."""
@@ -402,6 +401,7 @@ def test_the_maps_at_listed_pixels_are_the_whole_grids_there():
     assert np.unique(grid_x[0]).size > 0.9 * h * w
 
 
+# RGB's cells (4 values) and a single channel's (2) run loops compiled apart.
 @pytest.mark.parametrize("channels", [1, 3])
 def test_over_and_merge_composite_as_the_array_rules(channels):
     rng = np.random.default_rng(11 + channels)
