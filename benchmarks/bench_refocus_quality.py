@@ -336,8 +336,10 @@ def twin_cases(scene_name: str, *, seed: int = 5, view_defocus: bool | None = No
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", LfringWarning)
         res = estimate_depth(views, cal, zmin_m=0.27, zmax_m=1.1)
-    est = res.depth_filled_m if res.depth_filled_m is not None else res.depth_m
-    est = res if as_result else np.where(np.isfinite(est), est, np.nanmedian(est)).astype(np.float32)
+    est = res
+    if not as_result:
+        filled = res.depth_filled_m if res.depth_filled_m is not None else res.depth_m
+        est = np.where(np.isfinite(filled), filled, np.nanmedian(filled)).astype(np.float32)
     true = central_depth(scene, dev, binning)
     true = np.where(np.isfinite(true), true, np.nanmax(true)).astype(np.float32)
     exposure = r.settings.exposure

@@ -65,9 +65,9 @@ def depth_accuracy(views, cal, truth: np.ndarray, zmin: float, zmax: float) -> t
     return 100.0 * est.sum() / known.sum(), 100.0 * float((rel > BAD_REL).mean())
 
 
-def truth_table(views, cal, zmin: float, zmax: float) -> None:
-    """The main job's depth-aware image and shift-and-add against the conventional image of the
-    bundled scene (see the module's description)."""
+def truth_table(views, cal, depth_aware: np.ndarray) -> None:
+    """The main job's ``depth_aware`` image (RENDERS[0] of ``views``) and shift-and-add against
+    the conventional image of the bundled scene (see the module's description)."""
     import json
 
     from lfring.focus import Refocuser
@@ -81,9 +81,7 @@ def truth_table(views, cal, zmin: float, zmax: float) -> None:
                                                        aperture_scale=aperture, binning=settings["binning"])
     h, w = truth.shape[:2]
     sa = refocus(views, cal, focus)[:h, :w]
-    images = {"shift-and-add": sa,
-              "depth-aware (the main job)": refocus(views, cal, focus, method="depth-aware", aperture=aperture,
-                                                    zmin_m=zmin, zmax_m=zmax)[:h, :w]}
+    images = {"shift-and-add": sa, "depth-aware (the main job)": depth_aware[:h, :w]}
     grey = lambda img: np.ascontiguousarray(img.mean(axis=2), np.float32)
     (dx, dy), _ = cv2.phaseCorrelate(grey(truth), grey(sa), cv2.createHanningWindow((w, h), cv2.CV_32F))
     truth = cv2.warpAffine(truth.astype(np.float32), np.float32([[1, 0, dx], [0, 1, dy]]), (w, h), flags=cv2.INTER_CUBIC)
@@ -127,14 +125,18 @@ def main() -> None:
     print()
     print("| flat field | image | dark specks | bright specks | pixels seen |")
     print("|---|---|---|---|---|")
+    main_job = settings[1 if cal.flat_field is not None else 0][0]
     for label, views in settings:
         dof = depth_of_field(views, cal, zmin_m=zmin, zmax_m=zmax)
+        renders = [dof.render(f, a, refocus(views, cal, f)) for f, a in RENDERS]
         rows = [("all-in-focus colour", dof.colour)]
-        rows += [(f"render at {f:g} m, aperture {a:g}", dof.render(f, a, refocus(views, cal, f))) for f, a in RENDERS]
+        rows += [(f"render at {f:g} m, aperture {a:g}", img) for (f, a), img in zip(RENDERS, renders)]
         for what, img in rows:
             dark, bright = specks(img, dof.seen)
             print(f"| {label} | {what} | {dark} | {bright} | {int(dof.seen.sum())} |")
-    truth_table(settings[1 if cal.flat_field is not None else 0][1], cal, zmin, zmax)
+        if label == main_job:
+            job = (views, renders[0])
+    truth_table(job[0], cal, job[1])
 
 
 if __name__ == "__main__":
