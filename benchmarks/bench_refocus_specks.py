@@ -15,8 +15,9 @@ lens of that aperture records of the same scene (``lfring.synth.render_conventio
 preset the frame was made from, times its exposure, registered to the image by phase
 correlation: the built-in calibration's central frame lies a fraction of a pixel from the
 synthetic one), on the pixels two or more views see and on the rims that one to two views see,
-shift-and-add beside it. The truth has neither the views' own defocus nor their noise, so the
-figures are low in absolute terms: compare trees.
+shift-and-add beside it; and the all-in-focus images against a pinhole's. The truth has
+neither the views' own defocus nor their noise, so the figures are low in absolute terms:
+compare trees.
 
     python benchmarks/bench_refocus_specks.py
 
@@ -95,6 +96,37 @@ def truth_table(views, cal, depth_aware: np.ndarray) -> None:
     print("|---|" + "---|" * len(masks))
     for name, img in images.items():
         psnr = [10 * np.log10(1.0 / np.mean((np.clip(img, 0, 1) - truth)[m] ** 2)) for m in masks.values()]
+        print(f"| {name} | " + " | ".join(f"{p:.2f}" for p in psnr) + " |")
+    aif_table(views, cal, (dx, dy), masks)
+
+
+def aif_table(views, cal, shift, masks) -> None:
+    """The all-in-focus images of ``views`` against the conventional image of a pinhole at the
+    central viewpoint (registered by the main job's ``shift``): from the depth map as its
+    :class:`lfring.DepthResult` (as the CLI, batches and the viewer pass it), as its bare
+    ``depth_m`` array, and by the views' photo-consistency without a map."""
+    import json
+
+    from lfring.focus import all_in_focus
+    from lfring.optics import load_device
+    from lfring.synth import render_conventional
+    from lfring.synth.presets import three_depth_scene
+
+    settings = json.loads((DATA / "scene_truth" / "truth.json").read_text())["settings"]
+    truth = settings["exposure"] * render_conventional(three_depth_scene(), load_device("prototype"), RENDERS[0][0],
+                                                       f_number=np.inf, binning=settings["binning"])
+    h, w = truth.shape[:2]
+    truth = cv2.warpAffine(truth.astype(np.float32), np.float32([[1, 0, shift[0]], [0, 1, shift[1]]]), (w, h),
+                           flags=cv2.INTER_CUBIC)
+    depth = estimate_depth(views, cal, zmin_m=estimation_range(cal)[0], zmax_m=estimation_range(cal)[1])
+    images = {"from the depth result": all_in_focus(views, cal, depth.depths_m, depth_map_m=depth)[0],
+              "from its depth_m array": all_in_focus(views, cal, depth.depths_m, depth_map_m=depth.depth_m)[0],
+              "by photo-consistency": all_in_focus(views, cal)[0]}
+    print("\nThe all-in-focus images against a pinhole's conventional image: PSNR (dB)")
+    print("| image | " + " | ".join(masks) + " |")
+    print("|---|" + "---|" * len(masks))
+    for name, img in images.items():
+        psnr = [10 * np.log10(1.0 / np.mean((np.clip(img[:h, :w], 0, 1) - truth)[m] ** 2)) for m in masks.values()]
         print(f"| {name} | " + " | ".join(f"{p:.2f}" for p in psnr) + " |")
 
 

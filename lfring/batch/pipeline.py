@@ -199,7 +199,7 @@ def _process(input_path, settings: BatchSettings, outputs, timings) -> tuple[dic
         t = time.perf_counter()
         if depth_res is not None:
             zs = depth_res.depths_m
-            img, _ = all_in_focus(views, cal, zs, depth_map_m=depth_res.depth_m, reference=settings.reference)
+            img, _ = all_in_focus(views, cal, zs, depth_map_m=depth_res, reference=settings.reference)
         else:
             zs = list(settings.refocus_m) if len(settings.refocus_m) > 1 else None
             img, _ = all_in_focus(views, cal, zs, reference=settings.reference)

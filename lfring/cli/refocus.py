@@ -79,7 +79,8 @@ def _depths(depth, depths, sweep) -> list[float]:
 @click.option("--depths", default=None, metavar="Z1,Z2,...", help="Several depths [m]: a focal stack.")
 @click.option("--sweep", default=None, metavar=SWEEP_METAVAR, help="N depths from START to STOP [m]: a focal stack.")
 @click.option("--all-in-focus", "aif", is_flag=True,
-              help="Also write an all-in-focus image chosen over the stack's depths (or the calibrated range).")
+              help="Also write an all-in-focus image: every pixel at its depth in the depth map (--method depth-aware), "
+                   "else at the depth of the stack's (or the calibrated range's) where the views agree best.")
 @click.option("--calib", type=click.Path(dir_okay=False), default=None, metavar="FILE",
               help="Calibration JSON (default: the built-in one for the frame's size).")
 @click.option("--reference", default="center", show_default=True, metavar="center|INDEX", help="Frame of the result.")
@@ -130,6 +131,7 @@ def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolat
     from lfring.core.geometry import check_reference
     from lfring.io.writers import write_gif, write_image, write_json, write_tiff_stack
     from lfring.focus import Refocuser, all_in_focus, focal_stack, resolve_aperture
+    from lfring.depth.estimate import estimate_depth
     from lfring.focus.depth_aware import estimation_range
 
     zs = _depths(depth, depths, sweep)
@@ -189,8 +191,11 @@ def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolat
     narrow = depth_range_words("widen the range, or use --method shift-and-add (it needs no depth map)")
     with outputs.writing() as stage, narrow, warnings.catch_warnings(), progress_bar(len(zs), "refocus", "depth") as bar:
         warnings.simplefilter("ignore", LfringWarning)
-        if method == "depth-aware":  # one depth map for the whole stack
-            images = focal_stack(views, cal, render_zs, reference=ref, interpolation=interpolation, method=method, **dof)
+        depth_map = None
+        if method == "depth-aware":  # one depth map for the whole stack and the all-in-focus image
+            depth_map = estimate_depth(views, cal, zmin_m=zmin, zmax_m=zmax, reference=ref)
+            images = focal_stack(views, cal, render_zs, reference=ref, interpolation=interpolation, method=method,
+                                 depth=depth_map, **{k: v for k, v in dof.items() if k in ("aperture", "f_number")})
         else:
             images = (Refocuser(cal, zr, reference=ref, view_shape=views.shape[1:3], interpolation=interpolation)(views)
                       for zr in render_zs)
@@ -208,12 +213,16 @@ def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolat
             write_gif(stage(extra[1]), np.stack([caption(encode(s, 8, "srgb"), t) for s, t in zip(stack, labels)]),
                       frame_ms=250)
         if aif:
-            img, chosen = all_in_focus(views, cal, render_zs if len(zs) > 1 else None, reference=ref)
+            if depth_map is not None:  # each pixel at its depth in the map, as the stack renders it
+                img, chosen = all_in_focus(views, cal, depth_map.depths_m, depth_map_m=depth_map, reference=ref)
+                chosen_over = "depth map"
+            else:  # each pixel at the depth where the views agree best
+                img, chosen = all_in_focus(views, cal, render_zs if len(zs) > 1 else None, reference=ref)
+                chosen_over = zs if len(zs) > 1 else "calibrated range"
             write_image(stage(aif_path), encode(img, bits, encoding))
             # The all-in-focus image is the depth-aware renderer's at aperture 0, whatever --method.
             write_json(stage(str(aif_path) + ".json"), {
-                **meta, "method": "depth-aware", "aperture": 0.0,
-                "all_in_focus_depths_m": zs if len(zs) > 1 else "calibrated range",
+                **meta, "method": "depth-aware", "aperture": 0.0, "all_in_focus_depths_m": chosen_over,
                 "chosen_depth_range_m": [float(np.nanmin(chosen)), float(np.nanmax(chosen))]})
     log.info("wrote %s", ", ".join(map(str, all_outputs)) if len(all_outputs) <= 4 else
              f"{len(all_outputs)} files in {base.parent}")

@@ -70,7 +70,7 @@ from lfring.focus.base import RefocusMethod
 __all__ = [
     "AGREE_TOL", "BACK_EDGE_PX", "BACK_STEP_PX", "COARSE_DISC_PX", "DEPTH_TOL_PX", "GEOMETRIC_STEP", "LINEAR_UNTIL_PX",
     "MIN_DEPTH_VIEWS", "MIN_ESTIMATED_VIEWS", "OCCLUSION_PX", "SHARP_PX", "SHARP_RAMP_PX", "SHARP_RESAMPLED_PX2", "SPREAD_TOL", "VISIBLE_VIEWS", "DepthOfField", "DEPTH_AWARE",
-    "DERIVED_RANGE_MAX_MOTION", "FAR_MOTION_PX", "FEATHER_FLOOR", "FEATHER_PX", "FILL_SMOOTH_PX", "FILL_WINDOW_PX", "aperture_from_f_number", "aperture_radius_px", "coc_radius_px", "depth_of_field", "disc_kernel",
+    "DERIVED_RANGE_MAX_MOTION", "FAR_MOTION_PX", "FEATHER_FLOOR", "FEATHER_PX", "FILL_SMOOTH_PX", "FILL_WINDOW_PX", "aperture_from_f_number", "aperture_radius_px", "coc_radius_px", "depth_of_field", "depth_to_render", "disc_kernel",
     "estimation_range", "prepare_depth_aware", "resolve_aperture",
 ]
 
@@ -956,24 +956,34 @@ def _estimated_depth(result: DepthResult, calibration, reference) -> np.ndarray:
     return np.where(unsure & smooth, np.asarray(filled, dtype=np.float64), d)
 
 
-def _depth_map(arr, calibration, depth, zmin_m, zmax_m, reference) -> tuple[np.ndarray, bool]:
-    """The depth map of the views in the reference frame, given or estimated, and whether depth
-    estimation made it (a :class:`lfring.DepthResult`)."""
-    h, w = arr.shape[1:3]
-    if depth is None:
-        zmin_m, zmax_m = estimation_range(calibration, zmin_m, zmax_m, reference=reference)
-        depth = estimate_depth(arr, calibration, zmin_m=zmin_m, zmax_m=zmax_m, reference=reference)
-    elif zmin_m is not None or zmax_m is not None:
-        raise InvalidInputError("zmin_m/zmax_m set the range of the depth estimation: give them or a depth map, not both")
+def depth_to_render(depth, calibration, reference, shape) -> tuple[np.ndarray, float]:
+    """A given depth map as the renderer takes it: (h, w) metres in the reference frame (NaN
+    where unknown) and the views' worth from which its depths count as measured.
+
+    ``depth`` is a :class:`lfring.DepthResult` (its depth, and where estimation was not
+    confident its hole-filled depth on smooth surfaces, :data:`FILL_SMOOTH_PX`; measured
+    wherever :data:`MIN_ESTIMATED_VIEWS` views' worth see it) or (h, w) metres of unknown
+    origin (measured wherever :data:`MIN_DEPTH_VIEWS` do). ``shape`` is (h, w) of the views."""
     estimated = isinstance(depth, DepthResult)
     if estimated:
         if depth.reference != reference:
             raise InvalidInputError(f"the depth map is in the frame of reference {depth.reference!r}, the refocusing in {reference!r}")
         depth = _estimated_depth(depth, calibration, reference)
     dm = np.asarray(depth, dtype=np.float64)
-    if dm.shape != (h, w):
-        raise InvalidInputError(f"the depth map must be (h, w) = ({h}, {w}) metres like the views, got shape {dm.shape}")
-    return dm, estimated
+    if dm.shape != tuple(shape):
+        raise InvalidInputError(f"the depth map must be (h, w) = ({shape[0]}, {shape[1]}) metres like the views, got shape {dm.shape}")
+    return dm, MIN_ESTIMATED_VIEWS if estimated else MIN_DEPTH_VIEWS
+
+
+def _depth_map(arr, calibration, depth, zmin_m, zmax_m, reference) -> tuple[np.ndarray, float]:
+    """The depth map of the views in the reference frame, given or estimated, and the views'
+    worth from which its depths count as measured (:func:`depth_to_render`)."""
+    if depth is None:
+        zmin_m, zmax_m = estimation_range(calibration, zmin_m, zmax_m, reference=reference)
+        depth = estimate_depth(arr, calibration, zmin_m=zmin_m, zmax_m=zmax_m, reference=reference)
+    elif zmin_m is not None or zmax_m is not None:
+        raise InvalidInputError("zmin_m/zmax_m set the range of the depth estimation: give them or a depth map, not both")
+    return depth_to_render(depth, calibration, reference, arr.shape[1:3])
 
 
 def depth_of_field(views, calibration, *, depth=None, zmin_m=None, zmax_m=None, reference="center") -> DepthOfField:
@@ -986,9 +996,8 @@ def depth_of_field(views, calibration, *, depth=None, zmin_m=None, zmax_m=None, 
     rendered on smooth surfaces (:data:`FILL_SMOOTH_PX`)."""
     arr = check_views(views)
     ref = check_reference(reference, calibration.num_views)
-    dm, estimated = _depth_map(arr, calibration, depth, zmin_m, zmax_m, ref)
-    return DepthOfField(arr, calibration, dm, reference=ref,
-                        measured_views=MIN_ESTIMATED_VIEWS if estimated else MIN_DEPTH_VIEWS)
+    dm, measured_views = _depth_map(arr, calibration, depth, zmin_m, zmax_m, ref)
+    return DepthOfField(arr, calibration, dm, reference=ref, measured_views=measured_views)
 
 
 def prepare_depth_aware(views, calibration, reference, *, aperture=None, f_number=None, ring_device=None, depth=None,

@@ -18,11 +18,12 @@ import numpy as np
 
 from lfring.calibration.overlap import check_renderable
 from lfring.core.backend import check_backend
+from lfring.core.geometry import check_reference
 from lfring.core.viewstack import WEIGHT_FLOOR, cached_view_masks, check_views
 from lfring.core.warping import DEFAULT_INTERPOLATION, warp_views
 from lfring.depth.hypotheses import depth_hypotheses
 from lfring.errors import InvalidInputError, LfringWarning
-from lfring.focus.depth_aware import DepthOfField, estimation_range
+from lfring.focus.depth_aware import MIN_DEPTH_VIEWS, DepthOfField, depth_to_render, estimation_range
 from lfring.focus.methods import METHODS
 from lfring.focus.shift_and_add import Refocuser, refocus_torch
 
@@ -192,9 +193,12 @@ def all_in_focus(views, calibration, depths_m=None, *, depth_map_m=None, referen
     depths_m : sequence of float, optional
         Depths to choose from (default: depth-aware refocusing's range,
         :func:`lfring.focus.depth_aware.estimation_range`, evenly in disparity, one pixel apart).
-    depth_map_m : (h, w) float, optional
-        Depth of every reference pixel (from :func:`lfring.estimate_depth`, say): each pixel is
-        then refocused at its own depth, taken from the nearest of ``depths_m``.
+    depth_map_m : DepthResult or (h, w) float, optional
+        Depth of every reference pixel (a :class:`lfring.DepthResult` from
+        :func:`lfring.estimate_depth`, or metres; NaN where unknown): each pixel is then
+        refocused at its own depth, taken from the nearest of ``depths_m``. Where the depth is
+        unknown, or too few views see it, the renderer continues the nearest measured depth, as
+        depth-aware refocusing does with the same map (:func:`lfring.focus.depth_aware.depth_to_render`).
     window_px : int
         Side of the box over which the photo-consistency is averaged.
 
@@ -202,7 +206,8 @@ def all_in_focus(views, calibration, depths_m=None, *, depth_map_m=None, referen
     -------
     image : (h, w, C) float32
     depth_m : (h, w) float32
-        The depth each pixel was taken from.
+        The depth each pixel was taken from (of ``depths_m``); NaN where no view sees it at any
+        of them, and where the given depth map has no depth.
 
     Notes
     -----
@@ -239,11 +244,15 @@ def all_in_focus(views, calibration, depths_m=None, *, depth_map_m=None, referen
     z = np.atleast_1d(np.asarray(depths_m, dtype=np.float64))
     calibration.check_depth(z)
     masks = cached_view_masks(calibration, (h, w))
+    measured_views = MIN_DEPTH_VIEWS
     if depth_map_m is not None:
-        dm = np.asarray(depth_map_m, dtype=np.float64)
-        if dm.shape != (h, w):
-            raise InvalidInputError(f"depth_map_m must be {h} x {w}, got {dm.shape}")
-        target = np.where(np.isfinite(dm), dm, z[0])
+        dm, measured_views = depth_to_render(depth_map_m, calibration, check_reference(reference, calibration.num_views),
+                                             (h, w))
+        known = np.isfinite(dm) & (dm > calibration.depth_origin_m)
+        if not known.any():
+            raise InvalidInputError(f"depth_map_m holds no finite depth beyond the depth origin z0 = "
+                                    f"{calibration.depth_origin_m:.4g} m")
+        target = np.where(known, dm, z[0])
     best_cost = np.full((h, w), np.inf, np.float32)
     out = np.zeros((h, w, arr.shape[3]), np.float32)
     chosen = np.full((h, w), np.nan, np.float32)
@@ -266,8 +275,11 @@ def all_in_focus(views, calibration, depths_m=None, *, depth_map_m=None, referen
         better = (cost < best_cost) & ok
         best_cost[better] = cost[better]
         chosen[better] = d
-    if np.all(np.isnan(chosen)):
+    covered = np.isfinite(chosen)
+    if depth_map_m is not None:
+        chosen[~known] = np.nan  # the renderer continues the nearest measured depth there
+    if not covered.any():
         return out, chosen
-    out = DepthOfField(arr, calibration, chosen, reference=reference).render(float(z[0]), 0.0)
-    out[np.isnan(chosen)] = 0.0
+    out = DepthOfField(arr, calibration, chosen, reference=reference, measured_views=measured_views).render(float(z[0]), 0.0)
+    out[~covered] = 0.0
     return out, chosen

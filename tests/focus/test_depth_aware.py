@@ -538,6 +538,17 @@ def test_unknown_depths_are_continued_from_the_nearest_known_ones():
     for given in (unknown, _estimated(unknown)):
         out = refocus(views, cal, FAR_M, method="depth-aware", depth=given, aperture=0.0)
         np.testing.assert_allclose(out[hole], far[16:-16, 16:-16][hole], atol=0.02)
+        # The all-in-focus image from the same map, its first depth the near plane's: the hole
+        # continues the far plane too, and says it had no depth of its own.
+        img, chosen = all_in_focus(views, cal, [NEAR_M, FAR_M], depth_map_m=given)
+        np.testing.assert_allclose(img[hole], far[16:-16, 16:-16][hole], atol=0.02)
+        assert np.isnan(chosen[hole]).all() and np.isnan(chosen).sum() == chosen[hole].size
+    with pytest.raises(InvalidInputError, match="frame of reference 'center', the refocusing in 0"):
+        all_in_focus(views, cal, [NEAR_M, FAR_M], depth_map_m=_estimated(unknown), reference=0)
+    with pytest.raises(InvalidInputError, match="depth_map_m holds no finite depth beyond the depth origin"):
+        all_in_focus(views, cal, [NEAR_M, FAR_M], depth_map_m=np.full(depth.shape, np.nan))
+    with pytest.raises(InvalidInputError, match=r"must be \(h, w\) = \(96, 96\) metres like the views, got shape \(4, 4\)"):
+        all_in_focus(views, cal, [NEAR_M, FAR_M], depth_map_m=np.ones((4, 4)))
 
 
 def test_f_number_works_with_the_built_in_calibration():
