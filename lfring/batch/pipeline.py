@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lfring.batch.settings import BatchSettings
+from lfring.batch.settings import BatchSettings, all_in_focus_from_depth_map
 from lfring.core.signals import interrupt_behind
 from lfring.errors import DepthRangeError, InvalidInputError, LfringError, LfringWarning
 
@@ -161,7 +161,11 @@ def _process(input_path, settings: BatchSettings, outputs, timings) -> tuple[dic
     needs_depth = "depth" in method.options  # a method that renders from the frame's depth map
     depth_res = None
     depth_range = None
-    if settings.depth or settings.viewer or (needs_depth and refocus):
+    # The all-in-focus image from the frame's depth map when the settings make one (see
+    # all_in_focus_from_depth_map), whether or not their refocused images are still to make.
+    aif_depth = "all_in_focus" in outputs and all_in_focus_from_depth_map(settings.depth, settings.refocus_m,
+                                                                           settings.refocus_method)
+    if settings.depth or settings.viewer or (needs_depth and refocus) or aif_depth:
         # Every depth map of the frame spans one range, by depth-aware refocusing's rule (as
         # lfring depth's and lfring refocus's): a range given as the calibration's own makes the
         # same maps and images as none, which the outputs' keys rely on.
@@ -170,7 +174,7 @@ def _process(input_path, settings: BatchSettings, outputs, timings) -> tuple[dic
         depth_range = estimation_range(cal, settings.zmin_m, settings.zmax_m, reference=settings.reference)
         info["depth_range_m"] = [float(depth_range[0]), float(depth_range[1])]
     depth_wanted = {"depth", "confidence", "depth_preview", "all_in_focus"} & set(outputs)
-    if settings.depth and (depth_wanted or (needs_depth and refocus)):
+    if (settings.depth and (depth_wanted or (needs_depth and refocus))) or aif_depth:
         from lfring.depth import estimate_depth
 
         t = time.perf_counter()
@@ -197,7 +201,7 @@ def _process(input_path, settings: BatchSettings, outputs, timings) -> tuple[dic
 
     if "all_in_focus" in outputs:
         t = time.perf_counter()
-        if depth_res is not None:
+        if aif_depth:
             zs = depth_res.depths_m
             img, _ = all_in_focus(views, cal, zs, depth_map_m=depth_res, reference=settings.reference)
         else:

@@ -295,6 +295,8 @@ def decide_resume(planned: dict[str, str], planned_keys: dict[str, str], record:
                     f"{rel} exists, made with other settings: {'; '.join(what)}. Give the settings that made it, "
                     "leave it out of this run (its record keeps it), or pass overwrite=True to replace it"))
             return ResumeDecision("refuse", reason=f"outputs exist ({rel}...) and other settings made them (or an "
-                                                   "earlier lfring's default depth cost); pass overwrite=True to replace them")
+                                                   "earlier lfring made them another way: with its default depth cost "
+                                                   "then, or an all-in-focus image without the depth map); pass "
+                                                   "overwrite=True to replace them")
         # else: our own run with these settings, cut short: its file may be replaced
     return ResumeDecision("run", todo)

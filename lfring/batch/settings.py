@@ -17,7 +17,7 @@ from lfring.focus.methods import METHODS
 from lfring.io.writers import json_default
 from lfring.optics.paraxial import check_f_number
 
-__all__ = ["BatchSettings", "refocus_depth_problem"]
+__all__ = ["BatchSettings", "all_in_focus_from_depth_map", "refocus_depth_problem"]
 
 _COMMON_FIELDS = ("calibration_name", "calibration_sha256", "reference", "bit_depth", "encoding", "pattern", "black_level",
                   "white_level")
@@ -103,6 +103,13 @@ def _range_of(calibration, zmin_m, zmax_m, reference) -> dict:
     return {"zmin_m": float(lo), "zmax_m": float(hi)}
 
 
+def all_in_focus_from_depth_map(depth: bool, refocus_m, refocus_method: str) -> bool:
+    """Whether a batch's all-in-focus image is made from a depth map: the batch's own
+    (``depth``), or the one its refocusing method renders from (depth-aware refocusing at any
+    ``refocus_m``), as ``lfring refocus --all-in-focus`` makes it; else by photo-consistency."""
+    return bool(depth or (len(refocus_m) and "depth" in METHODS[refocus_method].options))
+
+
 def _output_parts(d: dict, zrange: dict, *, explained: bool = False) -> dict[str, dict]:
     """Kind -> every setting that changes that output, from settings as
     :meth:`BatchSettings.describe` gives them and the depth range ``zrange``; the outputs' keys
@@ -135,8 +142,12 @@ def _output_parts(d: dict, zrange: dict, *, explained: bool = False) -> dict[str
         refocus_part["refocus_method"] = stack["refocus_method"] = method
     parts = {f"refocus_{_depth_label(z)}m": {**common, "refocus_m": z, **refocus_part} for z in zs}
     if d.get("all_in_focus"):
-        source = ({"depth": depth_part} if d["depth"]
-                  else {"depths_m": zs} if len(zs) > 1 else {"depths_m": "calibrated range"})
+        if d["depth"]:
+            source = {"depth": depth_part}
+        elif all_in_focus_from_depth_map(False, zs, method):  # the map depth-aware refocusing renders from
+            source = {"depth": {k: depth_part[k] for k in _REFOCUS_DEPTH_FIELDS}}
+        else:
+            source = {"depths_m": zs} if len(zs) > 1 else {"depths_m": "calibrated range"}
         parts["all_in_focus"] = {**common, "all_in_focus": source, **({"depth": d["depth"]} if explained else {})}
     if d["depth"]:
         for kind in ("depth", "confidence", "depth_preview"):
@@ -202,8 +213,10 @@ class BatchSettings:
         (``lfring depth``, ``lfring refocus``): the calibration's valid range, its far end derived
         when it has none.
     all_in_focus : bool
-        Also write an all-in-focus image (from the depth map when there is one, else over the
-        refocus depths when there are two or more, else over the calibrated range).
+        Also write an all-in-focus image: from the depth map when there is one (the batch's own
+        with ``depth``, else the one depth-aware refocusing renders from;
+        :func:`all_in_focus_from_depth_map`), else over the refocus depths when there are two
+        or more, else over the calibrated range.
     calibration : RingCalibration, optional
         None: the built-in calibration for each frame's size.
     calibration_name : str

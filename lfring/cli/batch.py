@@ -52,7 +52,9 @@ def _refocus_depths(text: str) -> tuple[float, ...]:
 @click.option("--depth-method", type=click.Choice(["sgm", "local"]), default="sgm", show_default=True,
               help="Depth maps by semi-global optimisation, or by the local sweep (faster on small frames; see lfring "
                    "depth --method).")
-@click.option("--all-in-focus", "aif", is_flag=True, help="All-in-focus image of every frame.")
+@click.option("--all-in-focus", "aif", is_flag=True,
+              help="All-in-focus image of every frame: from its depth map when the batch makes one (--depth, or "
+                   "depth-aware --refocus), else where the views agree best.")
 @click.option("--viewer", is_flag=True, help="Interactive HTML viewer of every frame, NAME_viewer.html (see lfring view).")
 @click.option("--reference", default="center", show_default=True, metavar="center|0..3", help="Frame of the results.")
 @click.option("--interpolation", type=click.Choice(["cubic", "linear"]), default=DEFAULT_INTERPOLATION, show_default=True,

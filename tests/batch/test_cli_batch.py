@@ -141,14 +141,15 @@ def test_an_optics_calibration_gets_one_depth_range_from_refocus_batch_and_the_a
     assert picked.size > 1 and np.isin(picked, hyps.astype(np.float32)).all()
     assert main(["refocus", str(d / "scene.png"), "--depth", "0.5", "--all-in-focus", "--calib", str(cal_path),
                  "-o", str(tmp_path / "a.png")]) == 0
-    # With depth-aware refocusing it is made from the command's depth map, as lfring batch
-    # makes it from the depth map it saves.
+    # With depth-aware refocusing it is made from the depth map the images render from, by
+    # lfring refocus and by lfring batch alike (with --depth, from the map it saves: the same).
     assert json.loads((tmp_path / "a_all_in_focus.png.json").read_text())["all_in_focus_depths_m"] == "depth map"
-    aif = tmp_path / "aif"
-    assert main(["batch", str(d / "scene.png"), "-o", str(aif), "--depth", "--all-in-focus", "--calib", str(cal_path),
-                 "--workers", "1", "--no-progress"]) == 0
-    np.testing.assert_array_equal(cv2.imread(str(tmp_path / "a_all_in_focus.png")),
-                                  cv2.imread(str(aif / "scene_all_in_focus.png")))
+    cli_aif = cv2.imread(str(tmp_path / "a_all_in_focus.png"))
+    for extra in ([], ["--depth"]):
+        aif = tmp_path / f"aif{len(extra)}"
+        assert main(["batch", str(d / "scene.png"), "-o", str(aif), "--refocus", "0.5", "--all-in-focus", *extra,
+                     "--calib", str(cal_path), "--workers", "1", "--no-progress"]) == 0
+        np.testing.assert_array_equal(cli_aif, cv2.imread(str(aif / "scene_all_in_focus.png")))
     # So does lfring depth without --zmax.
     assert main(["depth", str(d / "scene.png"), "--calib", str(cal_path), "--method", "local", "-o", str(tmp_path / "dep")]) == 0
     rec = json.loads((tmp_path / "dep" / "scene_depth.json").read_text())

@@ -67,6 +67,21 @@ def test_refocus_keys_hold_the_method_and_its_aperture():
     assert d["refocus_method"] == "depth-aware" and d["f_number"] == 2.8
 
 
+def test_an_all_in_focus_image_from_the_refocusing_depth_map_is_keyed_by_that_map():
+    """With depth-aware refocusing the all-in-focus image comes from the depth map the images
+    render from: the settings of that map make it (another depth range, another image); by
+    photo-consistency (shift-and-add, or no refocusing) they do not."""
+    def key(**kw):
+        return BatchSettings(all_in_focus=True, **kw).output_keys()["all_in_focus"]
+
+    assert key(refocus_m=(0.5,)) != key(refocus_m=(0.5,), zmin_m=0.3, zmax_m=0.8)
+    assert key(refocus_m=(0.5,)) != key(refocus_m=(0.5,), refocus_method="shift-and-add")
+    # The refocusing's aperture and depths make the refocused images, not this one.
+    assert key(refocus_m=(0.5,)) == key(refocus_m=(0.5,), aperture=0.5) == key(refocus_m=(0.7,))
+    sa = {"refocus_m": (0.5,), "refocus_method": "shift-and-add"}
+    assert key(**sa) == key(**sa, zmin_m=0.3, zmax_m=0.8) == key()
+
+
 def test_a_calibration_without_a_depth_range_is_refused_when_a_depth_map_must_be_estimated():
     """The frames' depth maps for depth-aware refocusing and the viewer are estimated over
     lfring.focus.depth_aware.estimation_range: a grid pair's open range is refused at once,
