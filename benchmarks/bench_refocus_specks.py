@@ -103,8 +103,9 @@ def truth_table(views, cal, depth_aware: np.ndarray) -> None:
 def aif_table(views, cal, shift, masks) -> None:
     """The all-in-focus images of ``views`` against the conventional image of a pinhole at the
     central viewpoint (registered by the main job's ``shift``): from the depth map as its
-    :class:`lfring.DepthResult` (as the CLI, batches and the viewer pass it), as its bare
-    ``depth_m`` array, and by the views' photo-consistency without a map."""
+    :class:`lfring.DepthResult` (as the CLI, batches and the viewer pass it; also snapped to its
+    hypotheses), as its bare ``depth_m`` array, and by the views' photo-consistency without a
+    map."""
     import json
 
     from lfring.focus import all_in_focus
@@ -119,8 +120,10 @@ def aif_table(views, cal, shift, masks) -> None:
     truth = cv2.warpAffine(truth.astype(np.float32), np.float32([[1, 0, shift[0]], [0, 1, shift[1]]]), (w, h),
                            flags=cv2.INTER_CUBIC)
     depth = estimate_depth(views, cal, zmin_m=estimation_range(cal)[0], zmax_m=estimation_range(cal)[1])
-    images = {"from the depth result": all_in_focus(views, cal, depth.depths_m, depth_map_m=depth)[0],
-              "from its depth_m array": all_in_focus(views, cal, depth.depths_m, depth_map_m=depth.depth_m)[0],
+    images = {"from the depth result (the CLI's, batches', the viewer's)": all_in_focus(views, cal, depth_map_m=depth)[0],
+              "from the depth result, snapped to its hypotheses": all_in_focus(views, cal, depth.depths_m,
+                                                                               depth_map_m=depth)[0],
+              "from its depth_m array": all_in_focus(views, cal, depth_map_m=depth.depth_m)[0],
               "by photo-consistency": all_in_focus(views, cal)[0]}
     print("\nThe all-in-focus images against a pinhole's conventional image: PSNR (dB)")
     print("| image | " + " | ".join(masks) + " |")

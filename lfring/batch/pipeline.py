@@ -202,8 +202,7 @@ def _process(input_path, settings: BatchSettings, outputs, timings) -> tuple[dic
     if "all_in_focus" in outputs:
         t = time.perf_counter()
         if aif_depth:
-            zs = depth_res.depths_m
-            img, _ = all_in_focus(views, cal, zs, depth_map_m=depth_res, reference=settings.reference)
+            img, _ = all_in_focus(views, cal, depth_map_m=depth_res, reference=settings.reference)
         else:
             zs = list(settings.refocus_m) if len(settings.refocus_m) > 1 else None
             img, _ = all_in_focus(views, cal, zs, reference=settings.reference)

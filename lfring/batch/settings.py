@@ -44,6 +44,7 @@ _SETTING_WORDS = {
     "f_number": "f_number", "zmin_m": "zmin_m", "zmax_m": "zmax_m", "planes": "the number of depth planes",
     "min_confidence": "the depth preview's confidence threshold", "depth_method": "the depth method",
     "depths_m": "the depths it chose from", "depth": "the batch's own depth map",
+    "from_depth_map": "the all-in-focus image from a depth map",
 }
 """How a refusal names each setting that differs between the run that made an output and this
 one: in words, or by the parameter name that the command line turns into its option
@@ -142,13 +143,11 @@ def _output_parts(d: dict, zrange: dict, *, explained: bool = False) -> dict[str
         refocus_part["refocus_method"] = stack["refocus_method"] = method
     parts = {f"refocus_{_depth_label(z)}m": {**common, "refocus_m": z, **refocus_part} for z in zs}
     if d.get("all_in_focus"):
-        if d["depth"]:
-            source = {"depth": depth_part}
-        elif all_in_focus_from_depth_map(False, zs, method):  # the map depth-aware refocusing renders from
-            source = {"depth": {k: depth_part[k] for k in _REFOCUS_DEPTH_FIELDS}}
-        else:
-            source = {"depths_m": zs} if len(zs) > 1 else {"depths_m": "calibrated range"}
-        parts["all_in_focus"] = {**common, "all_in_focus": source, **({"depth": d["depth"]} if explained else {})}
+        # From a depth map, the batch's own or the one depth-aware refocusing renders from: the
+        # same map, so one key whichever made it.
+        from_map = all_in_focus_from_depth_map(d["depth"], zs, method)
+        source = {"depth": depth_part} if from_map else {"depths_m": zs} if len(zs) > 1 else {"depths_m": "calibrated range"}
+        parts["all_in_focus"] = {**common, "all_in_focus": source, **({"from_depth_map": from_map} if explained else {})}
     if d["depth"]:
         for kind in ("depth", "confidence", "depth_preview"):
             parts[kind] = {**common, **depth_part, "kind": kind}

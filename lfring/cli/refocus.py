@@ -214,7 +214,7 @@ def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolat
                       frame_ms=250)
         if aif:
             if depth_map is not None:  # each pixel at its depth in the map, as the stack renders it
-                img, chosen = all_in_focus(views, cal, depth_map.depths_m, depth_map_m=depth_map, reference=ref)
+                img, chosen = all_in_focus(views, cal, depth_map_m=depth_map, reference=ref)
                 chosen_over = "depth map"
             else:  # each pixel at the depth where the views agree best
                 img, chosen = all_in_focus(views, cal, render_zs if len(zs) > 1 else None, reference=ref)

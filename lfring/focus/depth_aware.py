@@ -70,7 +70,7 @@ from lfring.focus.base import RefocusMethod
 __all__ = [
     "AGREE_TOL", "BACK_EDGE_PX", "BACK_STEP_PX", "COARSE_DISC_PX", "DEPTH_TOL_PX", "GEOMETRIC_STEP", "LINEAR_UNTIL_PX",
     "MIN_DEPTH_VIEWS", "MIN_ESTIMATED_VIEWS", "OCCLUSION_PX", "SHARP_PX", "SHARP_RAMP_PX", "SHARP_RESAMPLED_PX2", "SPREAD_TOL", "VISIBLE_VIEWS", "DepthOfField", "DEPTH_AWARE",
-    "DERIVED_RANGE_MAX_MOTION", "FAR_MOTION_PX", "FEATHER_FLOOR", "FEATHER_PX", "FILL_SMOOTH_PX", "FILL_WINDOW_PX", "aperture_from_f_number", "aperture_radius_px", "coc_radius_px", "depth_of_field", "depth_to_render", "disc_kernel",
+    "DERIVED_RANGE_MAX_MOTION", "FAR_MOTION_PX", "FEATHER_FLOOR", "FEATHER_PX", "FILL_SMOOTH_PX", "FILL_WINDOW_PX", "aperture_from_f_number", "aperture_radius_px", "coc_radius_px", "depth_of_field", "depth_to_render", "disc_kernel", "known_depths",
     "estimation_range", "prepare_depth_aware", "resolve_aperture",
 ]
 
@@ -378,9 +378,7 @@ class DepthOfField:
         if dm.shape != (h, w):
             raise InvalidInputError(f"the depth map must be {h} x {w} px like the views, got shape {dm.shape}")
         z0 = calibration.depth_origin_m
-        known = np.isfinite(dm) & (dm > z0)
-        if not np.any(known):
-            raise InvalidInputError(f"the depth map holds no finite depth beyond the depth origin z0 = {z0:.4g} m")
+        known = known_depths(dm, calibration)
         if not np.all(known):
             dm = np.where(known, dm, float(np.median(dm[known])))
         self.reference = check_reference(reference, calibration.num_views)
@@ -954,6 +952,17 @@ def _estimated_depth(result: DepthResult, calibration, reference) -> np.ndarray:
     span = np.subtract(top, bottom, out=np.zeros_like(top), where=some)
     smooth = some & (span * np.float32(aperture_radius_px(calibration, reference)) <= FILL_SMOOTH_PX)
     return np.where(unsure & smooth, np.asarray(filled, dtype=np.float64), d)
+
+
+def known_depths(depth_map_m: np.ndarray, calibration) -> np.ndarray:
+    """(h, w) bool: where ``depth_map_m`` holds a depth (finite, beyond the calibration's depth
+    origin); elsewhere the renderer continues the nearest measured depth. A map that holds
+    none is refused."""
+    z0 = calibration.depth_origin_m
+    known = np.isfinite(depth_map_m) & (depth_map_m > z0)
+    if not np.any(known):
+        raise InvalidInputError(f"the depth map holds no finite depth beyond the depth origin z0 = {z0:.4g} m")
+    return known
 
 
 def depth_to_render(depth, calibration, reference, shape) -> tuple[np.ndarray, float]:

@@ -23,7 +23,7 @@ from lfring.core.viewstack import WEIGHT_FLOOR, cached_view_masks, check_views
 from lfring.core.warping import DEFAULT_INTERPOLATION, warp_views
 from lfring.depth.hypotheses import depth_hypotheses
 from lfring.errors import InvalidInputError, LfringWarning
-from lfring.focus.depth_aware import MIN_DEPTH_VIEWS, DepthOfField, depth_to_render, estimation_range
+from lfring.focus.depth_aware import MIN_DEPTH_VIEWS, DepthOfField, depth_to_render, estimation_range, known_depths
 from lfring.focus.methods import METHODS
 from lfring.focus.shift_and_add import Refocuser, refocus_torch
 
@@ -192,13 +192,15 @@ def all_in_focus(views, calibration, depths_m=None, *, depth_map_m=None, referen
     calibration : RingCalibration
     depths_m : sequence of float, optional
         Depths to choose from (default: depth-aware refocusing's range,
-        :func:`lfring.focus.depth_aware.estimation_range`, evenly in disparity, one pixel apart).
+        :func:`lfring.focus.depth_aware.estimation_range`, evenly in disparity, one pixel
+        apart; with ``depth_map_m``, the map's own depths).
     depth_map_m : DepthResult or (h, w) float, optional
         Depth of every reference pixel (a :class:`lfring.DepthResult` from
         :func:`lfring.estimate_depth`, or metres; NaN where unknown): each pixel is then
-        refocused at its own depth, taken from the nearest of ``depths_m``. Where the depth is
-        unknown, or too few views see it, the renderer continues the nearest measured depth, as
-        depth-aware refocusing does with the same map (:func:`lfring.focus.depth_aware.depth_to_render`).
+        refocused at its own depth (the nearest of ``depths_m`` when they are given), as
+        depth-aware refocusing renders the same map at aperture 0: where the depth is unknown,
+        or too few views see it, the nearest measured depth is continued
+        (:func:`lfring.focus.depth_aware.depth_to_render`).
     window_px : int
         Side of the box over which the photo-consistency is averaged.
 
@@ -206,8 +208,14 @@ def all_in_focus(views, calibration, depths_m=None, *, depth_map_m=None, referen
     -------
     image : (h, w, C) float32
     depth_m : (h, w) float32
-        The depth each pixel was taken from (of ``depths_m``); NaN where no view sees it at any
-        of them, and where the given depth map has no depth.
+        The depth each pixel was taken from (of ``depths_m``, or the map's own); NaN where no
+        view sees it, and where the given depth map has no depth.
+
+    Raises
+    ------
+    InvalidInputError
+        A depth map of another shape or (a :class:`lfring.DepthResult`) another reference frame,
+        or one that holds no depth beyond the calibration's depth origin.
 
     Notes
     -----
@@ -232,6 +240,16 @@ def all_in_focus(views, calibration, depths_m=None, *, depth_map_m=None, referen
     """
     arr = check_views(views)
     h, w = arr.shape[1:3]
+    measured_views = MIN_DEPTH_VIEWS
+    if depth_map_m is not None:
+        dm, measured_views = depth_to_render(depth_map_m, calibration, check_reference(reference, calibration.num_views),
+                                             (h, w))
+        known = known_depths(dm, calibration)
+        if depths_m is None:  # every pixel at its own depth
+            dof = DepthOfField(arr, calibration, dm, reference=reference, measured_views=measured_views)
+            out = dof.render(float(np.median(dm[known])), 0.0)
+            out[~dof.seen] = 0.0
+            return out, np.where(known & dof.seen, dm, np.nan).astype(np.float32)
     if depths_m is None:
         # Depth-aware refocusing's range, by its one rule (a calibration open to infinity ends
         # where the views stop moving, when that is a range of depths at all).
@@ -244,14 +262,7 @@ def all_in_focus(views, calibration, depths_m=None, *, depth_map_m=None, referen
     z = np.atleast_1d(np.asarray(depths_m, dtype=np.float64))
     calibration.check_depth(z)
     masks = cached_view_masks(calibration, (h, w))
-    measured_views = MIN_DEPTH_VIEWS
     if depth_map_m is not None:
-        dm, measured_views = depth_to_render(depth_map_m, calibration, check_reference(reference, calibration.num_views),
-                                             (h, w))
-        known = np.isfinite(dm) & (dm > calibration.depth_origin_m)
-        if not known.any():
-            raise InvalidInputError(f"depth_map_m holds no finite depth beyond the depth origin z0 = "
-                                    f"{calibration.depth_origin_m:.4g} m")
         target = np.where(known, dm, z[0])
     best_cost = np.full((h, w), np.inf, np.float32)
     out = np.zeros((h, w, arr.shape[3]), np.float32)

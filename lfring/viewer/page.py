@@ -133,7 +133,7 @@ def viewer_data(views, calibration, *, zmin_m=None, zmax_m=None, num_planes=None
     if depth_m.shape != (h, w) or conf.shape != (h, w):
         raise InvalidInputError(f"the depth map and confidence must be {h} x {w} (the reference frame), "
                                 f"got {depth_m.shape} and {conf.shape}; estimate them with the same reference")
-    aif, _ = all_in_focus(views, calibration, zs, depth_map_m=depth, reference=reference)
+    aif, _ = all_in_focus(views, calibration, depth_map_m=depth, reference=reference)
 
     suffix, mime, flag = IMAGE_FORMATS[image_format]
     params = (flag, int(quality))

@@ -150,6 +150,12 @@ def test_an_optics_calibration_gets_one_depth_range_from_refocus_batch_and_the_a
         assert main(["batch", str(d / "scene.png"), "-o", str(aif), "--refocus", "0.5", "--all-in-focus", *extra,
                      "--calib", str(cal_path), "--workers", "1", "--no-progress"]) == 0
         np.testing.assert_array_equal(cli_aif, cv2.imread(str(aif / "scene_all_in_focus.png")))
+    # So does a rerun that adds it to the refocused image made above (that one is not made again).
+    made = (out / "scene_refocus_0.5m.png").stat().st_mtime_ns
+    assert main(["batch", str(d / "scene.png"), "-o", str(out), "--refocus", "0.5", "--all-in-focus", "--calib",
+                 str(cal_path), "--workers", "1", "--no-progress"]) == 0
+    assert (out / "scene_refocus_0.5m.png").stat().st_mtime_ns == made
+    np.testing.assert_array_equal(cli_aif, cv2.imread(str(out / "scene_all_in_focus.png")))
     # So does lfring depth without --zmax.
     assert main(["depth", str(d / "scene.png"), "--calib", str(cal_path), "--method", "local", "-o", str(tmp_path / "dep")]) == 0
     rec = json.loads((tmp_path / "dep" / "scene_depth.json").read_text())

@@ -80,6 +80,11 @@ def test_an_all_in_focus_image_from_the_refocusing_depth_map_is_keyed_by_that_ma
     assert key(refocus_m=(0.5,)) == key(refocus_m=(0.5,), aperture=0.5) == key(refocus_m=(0.7,))
     sa = {"refocus_m": (0.5,), "refocus_method": "shift-and-add"}
     assert key(**sa) == key(**sa, zmin_m=0.3, zmax_m=0.8) == key()
+    # The batch's own map (--depth) is the one the images render from: the same image, one key.
+    assert key(refocus_m=(0.5,), depth=True) == key(refocus_m=(0.5,))
+    # A rerun that adds depth-aware refocusing changes the image's source, and says so.
+    then, now = BatchSettings(all_in_focus=True), BatchSettings(all_in_focus=True, refocus_m=(0.5,))
+    assert now.differences("all_in_focus", _record(then)) == ["the all-in-focus image from a depth map (no then, yes now)"]
 
 
 def test_a_calibration_without_a_depth_range_is_refused_when_a_depth_map_must_be_estimated():
@@ -141,7 +146,7 @@ def test_differences_of_the_all_in_focus_image_name_its_source():
     then = BatchSettings(refocus_m=(0.5, 0.7), refocus_method="shift-and-add", all_in_focus=True)
     with_depth = BatchSettings(refocus_m=(0.5, 0.7), refocus_method="shift-and-add", all_in_focus=True, depth=True,
                                depth_method="local", zmin_m=0.3, zmax_m=1.0)
-    assert with_depth.differences("all_in_focus", _record(then)) == ["the batch's own depth map (no then, yes now)"]
+    assert with_depth.differences("all_in_focus", _record(then)) == ["the all-in-focus image from a depth map (no then, yes now)"]
     more = BatchSettings(refocus_m=(0.5, 0.7, 0.9), refocus_method="shift-and-add", all_in_focus=True)
     said = more.differences("all_in_focus", _record(then))
     assert said == ["the depths it chose from (0.5, 0.7 m then, 0.5, 0.7, 0.9 m now)"]

@@ -498,9 +498,12 @@ def test_an_estimate_takes_its_fill_on_a_smooth_surface_and_its_winner_at_an_edg
     band = (slice(36, 64), slice(57, 64))  # over the near plane's right edge (column 60), as narrow as such bands are
     filled[band] = 2.0 / (1.0 / NEAR_M + 1.0 / FAR_M)
     confidence[patch] = confidence[band] = 0.0
-    out = refocus(views, cal, FAR_M, method="depth-aware", depth=_estimated(winner, filled, confidence), aperture=0.0)
-    np.testing.assert_allclose(out[patch], truth[patch], atol=0.02)
-    np.testing.assert_allclose(out[band], truth[band], atol=0.02)
+    estimate = _estimated(winner, filled, confidence)
+    out = refocus(views, cal, FAR_M, method="depth-aware", depth=estimate, aperture=0.0)
+    aif = all_in_focus(views, cal, depth_map_m=estimate)[0]  # the same rule
+    for img in (out, aif):
+        np.testing.assert_allclose(img[patch], truth[patch], atol=0.02)
+        np.testing.assert_allclose(img[band], truth[band], atol=0.02)
 
 
 @pytest.mark.parametrize("box", [(slice(0, 96), slice(20, 60)), (slice(4, 40), slice(30, 70))])
@@ -520,8 +523,11 @@ def test_an_estimated_depth_counts_where_fewer_views_see_it(box):
     # (its copies lie 6 px from the far plane's: a rim's one view may see the near plane there).
     far_px = (weight >= MIN_ESTIMATED_VIEWS) & ~cv2.dilate(near_mask.astype(np.uint8), np.ones((15, 15), np.uint8)).astype(bool)
     assert (far_px & (weight < MIN_DEPTH_VIEWS)).sum() > 100  # where a bare map's depth would not count
-    error = np.abs(out - far[16:-16, 16:-16]).max(axis=2)[far_px]
-    assert error.max() < 0.02, error.max()
+    # The all-in-focus image from the estimate follows the same rule, with or without depths to snap to.
+    for img in (out, all_in_focus(views, cal, depth_map_m=_estimated(depth))[0],
+                all_in_focus(views, cal, [NEAR_M, FAR_M], depth_map_m=_estimated(depth))[0]):
+        error = np.abs(img - far[16:-16, 16:-16]).max(axis=2)[far_px]
+        assert error.max() < 0.02, error.max()
 
 
 def test_unknown_depths_are_continued_from_the_nearest_known_ones():
@@ -540,12 +546,13 @@ def test_unknown_depths_are_continued_from_the_nearest_known_ones():
         np.testing.assert_allclose(out[hole], far[16:-16, 16:-16][hole], atol=0.02)
         # The all-in-focus image from the same map, its first depth the near plane's: the hole
         # continues the far plane too, and says it had no depth of its own.
-        img, chosen = all_in_focus(views, cal, [NEAR_M, FAR_M], depth_map_m=given)
-        np.testing.assert_allclose(img[hole], far[16:-16, 16:-16][hole], atol=0.02)
-        assert np.isnan(chosen[hole]).all() and np.isnan(chosen).sum() == chosen[hole].size
+        for depths in ([NEAR_M, FAR_M], None):
+            img, chosen = all_in_focus(views, cal, depths, depth_map_m=given)
+            np.testing.assert_allclose(img[hole], far[16:-16, 16:-16][hole], atol=0.02)
+            assert np.isnan(chosen[hole]).all() and np.isnan(chosen).sum() == chosen[hole].size
     with pytest.raises(InvalidInputError, match="frame of reference 'center', the refocusing in 0"):
         all_in_focus(views, cal, [NEAR_M, FAR_M], depth_map_m=_estimated(unknown), reference=0)
-    with pytest.raises(InvalidInputError, match="depth_map_m holds no finite depth beyond the depth origin"):
+    with pytest.raises(InvalidInputError, match="the depth map holds no finite depth beyond the depth origin"):
         all_in_focus(views, cal, [NEAR_M, FAR_M], depth_map_m=np.full(depth.shape, np.nan))
     with pytest.raises(InvalidInputError, match=r"must be \(h, w\) = \(96, 96\) metres like the views, got shape \(4, 4\)"):
         all_in_focus(views, cal, [NEAR_M, FAR_M], depth_map_m=np.ones((4, 4)))
