@@ -230,8 +230,11 @@ def _process(input_path, settings: BatchSettings, outputs, timings) -> tuple[dic
         stack = {"method": settings.refocus_method}
         if "aperture" in method.options:
             stack["aperture"] = info["aperture"]
+        # The batch's own depth map (depth), else the viewer's default one: a map made only for
+        # refocusing follows the batch's depth method, the viewer's is always semi-global.
+        own = depth_res if settings.depth else None
         files["viewer"] = viewer_html(views, cal, zmin_m=depth_range[0], zmax_m=depth_range[1], reference=settings.reference,
-                                      depth=depth_res, num_planes=None if depth_res is not None else settings.planes,
+                                      depth=own, num_planes=None if own is not None else settings.planes,
                                       min_confidence=settings.min_confidence, title=Path(input_path).name,
                                       metadata={"input": str(input_path), "calibration": cal_name, **_stack_record(info)},
                                       **stack).encode("utf-8")

@@ -70,3 +70,18 @@ def test_ctrl_c_raised_as_another_error_stops_the_run_instead_of_failing_the_fra
     monkeypatch.setattr(lfring.io.levels, "load_frame", broken)
     res = process_frame(str(d / "scene.png"), settings)
     assert not res.ok and "a bug" in res.error
+
+
+def test_the_viewer_keeps_its_own_depth_map_when_the_all_in_focus_image_takes_the_refocusing_one(frames):
+    """Without --depth the viewer estimates its semi-global map, whatever the batch's depth
+    method; the all-in-focus image asked for beside it takes the map the refocused images render
+    from (here the local method's), and must not hand that one to the viewer."""
+    d, cal_path = frames
+    common = dict(refocus_m=(0.5,), viewer=True, depth_method="local", calibration=load_calibration(cal_path))
+    pages = []
+    for aif in (False, True):
+        settings = BatchSettings(all_in_focus=aif, **common)
+        res = process_frame(str(d / "scene.png"), settings, settings.outputs("scene"))
+        assert res.ok, res.error
+        pages.append(res.files["viewer"])
+    assert pages[0] == pages[1]
