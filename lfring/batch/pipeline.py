@@ -174,7 +174,7 @@ def _process(input_path, settings: BatchSettings, outputs, timings) -> tuple[dic
         depth_range = estimation_range(cal, settings.zmin_m, settings.zmax_m, reference=settings.reference)
         info["depth_range_m"] = [float(depth_range[0]), float(depth_range[1])]
     depth_wanted = {"depth", "confidence", "depth_preview", "all_in_focus"} & set(outputs)
-    if (settings.depth and (depth_wanted or (needs_depth and refocus))) or aif_depth:
+    if (settings.depth and (depth_wanted or "viewer" in outputs or (needs_depth and refocus))) or aif_depth:
         from lfring.depth import estimate_depth
 
         t = time.perf_counter()

@@ -119,7 +119,7 @@ def _output_parts(d: dict, zrange: dict, *, explained: bool = False) -> dict[str
 
     ``explained``: with the settings that decide which others make an output besides, where its
     key leaves them out (the refocusing method of the refocused images and the viewer, and
-    whether the batch made its own depth map for the all-in-focus image): the parts that
+    whether the all-in-focus image comes from a depth map): the parts that
     :meth:`BatchSettings.differences` compares."""
     d = {**_EARLIER_DEFAULTS, **d}
     common = {k: d.get(k) for k in _COMMON_FIELDS}
@@ -298,8 +298,10 @@ class BatchSettings:
         needs_range = self.depth or self.viewer or (zs and "depth" in METHODS[self.refocus_method].options)
         if needs_range and self.calibration is not None:
             estimation_range(self.calibration, self.zmin_m, self.zmax_m, reference=self.reference)
-        # The viewer's depth map, when the batch makes none, is the semi-global default.
-        least = SGM_MIN_PLANES if (self.depth and self.depth_method == "sgm") or self.viewer else 2
+        # The viewer's depth map, when the batch makes none, is the semi-global default; the
+        # batch's own and the one depth-aware refocusing renders from follow depth_method.
+        renders_from_map = bool(zs) and "depth" in METHODS[self.refocus_method].options
+        least = SGM_MIN_PLANES if ((self.depth or renders_from_map) and self.depth_method == "sgm") or self.viewer else 2
         if self.planes is not None:
             check_int(self.planes, "planes", minimum=least, hint=" for the semi-global depth" if least > 2 else "")
         check_fraction(self.min_confidence, "min_confidence")

@@ -54,7 +54,7 @@ def _refocus_depths(text: str) -> tuple[float, ...]:
                    "depth --method).")
 @click.option("--all-in-focus", "aif", is_flag=True,
               help="All-in-focus image of every frame: from its depth map when the batch makes one (--depth, or "
-                   "depth-aware --refocus), else where the views agree best.")
+                   "depth-aware --refocus; not --viewer's own), else where the views agree best.")
 @click.option("--viewer", is_flag=True, help="Interactive HTML viewer of every frame, NAME_viewer.html (see lfring view).")
 @click.option("--reference", default="center", show_default=True, metavar="center|0..3", help="Frame of the results.")
 @click.option("--interpolation", type=click.Choice(["cubic", "linear"]), default=DEFAULT_INTERPOLATION, show_default=True,
@@ -88,8 +88,9 @@ def command(ctx, inputs, outdir, calib, refocus_m, refocus_method, aperture, f_n
     --overwrite). A folder refocused with one method is not done for another. Frames already
     done with the same settings are skipped, and a rerun that adds an output (another --refocus
     depth, --depth) computes only what is missing; an output that the new settings would make
-    differently (depth-aware images when --zmin/--zmax change their depth map's range) is
-    refused with the setting named, or redone with --overwrite. A bad frame is reported by name
+    differently (depth-aware images when --zmin/--zmax change their depth map's range, the
+    all-in-focus image once depth-aware --refocus gives it a depth map) is refused with the
+    setting named, or redone with --overwrite. A bad frame is reported by name
     and the rest go on. Folder walks leave out files that are not frames (sidecars, *_truth/
     folders, images of a size no calibration fits): one line says how many, -v lists them; flat
     (white) frames are read and left out with that reason. Ctrl-C or SIGTERM stops the workers

@@ -85,3 +85,14 @@ def test_the_viewer_keeps_its_own_depth_map_when_the_all_in_focus_image_takes_th
         assert res.ok, res.error
         pages.append(res.files["viewer"])
     assert pages[0] == pages[1]
+
+
+def test_a_viewer_left_to_make_takes_the_batchs_own_depth_map(frames):
+    """With --depth the viewer shows the batch's own map (here the local method's): also on a
+    rerun where the viewer is the only output left to make."""
+    d, cal_path = frames
+    settings = BatchSettings(depth=True, viewer=True, depth_method="local", calibration=load_calibration(cal_path))
+    outputs = settings.outputs("scene")
+    pages = [process_frame(str(d / "scene.png"), settings, kinds).files["viewer"]
+             for kinds in (outputs, {"viewer": outputs["viewer"]})]
+    assert pages[0] == pages[1]

@@ -22,14 +22,21 @@ from lfring.errors import InvalidInputError
         ({"refocus_m": (0.5,), "bit_depth": 12}, "bit_depth"),
         ({"refocus_m": (0.5,), "planes": 1}, "planes"),
         # Two planes leave the semi-global depth nothing to judge its answers against: the
-        # batch's own depth map or the viewer's.
+        # batch's own depth map, the viewer's, or the one depth-aware refocusing renders from.
         ({"depth": True, "zmin_m": 0.3, "zmax_m": 1.0, "planes": 2}, "planes must be an integer >= 3"),
         ({"viewer": True, "planes": 2}, "planes must be an integer >= 3"),
+        ({"refocus_m": (0.5,), "planes": 2}, "planes must be an integer >= 3"),
     ],
 )
 def test_settings_errors(kwargs, text):
     with pytest.raises(InvalidInputError, match=text):
         BatchSettings(**kwargs)
+
+
+def test_two_planes_serve_a_depth_map_that_is_not_semi_global():
+    BatchSettings(refocus_m=(0.5,), planes=2, refocus_method="shift-and-add")
+    BatchSettings(refocus_m=(0.5,), planes=2, depth_method="local")
+    BatchSettings(depth=True, planes=2, depth_method="local")
 
 
 def test_legacy_key_is_the_key_of_records_before_output_keys():
