@@ -18,7 +18,7 @@ import threading
 from collections.abc import Iterator
 
 __all__ = ["HELD_SIGNALS", "blocked_in_children", "deliver_lost_stops", "held_signals", "interrupt_behind",
-           "redelivered_stops"]
+           "redelivered_stops", "signals_between"]
 
 HELD_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM") if hasattr(signal, name))
 """The signals that ask a run to stop: Ctrl-C and a polite kill."""
@@ -53,6 +53,59 @@ def held_signals(signums=HELD_SIGNALS) -> Iterator[None]:
                 h(s, None)
             else:  # SIG_DFL: the default action, now
                 signal.raise_signal(s)
+
+
+@contextlib.contextmanager
+def signals_between(signums=HELD_SIGNALS) -> Iterator:
+    """Hold ``signums`` while the block runs but at the points where it calls the function it
+    is given: each signal that came by then is delivered there (its handler runs, and may
+    raise), and the rest when the block ends. For a loop of steps that must not be cut inside
+    one, at the cost of one call a step. Only the main thread receives Python's signal handlers:
+    elsewhere the function does nothing.
+
+    Examples
+    --------
+    >>> with signals_between() as deliver:
+    ...     for step in range(3):
+    ...         deliver()  # a Ctrl-C that came during the last step is raised here
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield lambda: None
+        return
+    came: list[int] = []
+    old = {}
+    for s in signums:
+        h = signal.getsignal(s)
+        if h in (signal.SIG_IGN, None):
+            continue
+        old[s] = h
+
+    def hold():
+        for s in old:
+            signal.signal(s, lambda signum, frame: came.append(signum))
+
+    def release():
+        for s, h in old.items():
+            signal.signal(s, h)
+        pending = list(dict.fromkeys(came))
+        came.clear()
+        for s in pending:
+            h = old[s]
+            if callable(h):
+                h(s, None)
+            else:  # SIG_DFL: the default action, now
+                signal.raise_signal(s)
+
+    def deliver():
+        if came:
+            release()  # raises, as a rule; if the handler returns, the block goes on held
+            hold()
+
+    hold()
+    try:
+        yield deliver
+    finally:
+        release()
 
 
 # Stops (exception types) that came where Python could not raise them, not yet delivered, and

@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import os
 import threading
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor, wait
 
-from lfring.core.signals import held_signals
+from lfring.core.signals import held_signals, signals_between
 
 __all__ = ["STRIP_PIXELS", "numba_threads", "run_threads"]
 
@@ -30,8 +30,12 @@ def run_threads(tasks, threads: int) -> None:
     """Run the callables, shared among ``threads`` threads: this one and the pool's (which take
     the next task as they free up; OpenCV and NumPy release the GIL).
 
-    When this thread's share raises (a Ctrl-C, a SIGTERM raised as one, an error), the pool's
-    threads finish the task in hand and take no other; the exception is raised once they have.
+    A Ctrl-C (or a SIGTERM raised as one) that comes while this thread runs a task is taken
+    when the task ends. When this thread's share raises (such a stop, an error), the pool's
+    threads finish the task in hand and take no other; the exception is raised once they have,
+    rather than an error of theirs that the same interruption may have caused (a Ctrl-C inside
+    numba's loading of a cached kernel leaves its loaders half-way for the other threads). An
+    error in a pool thread's share is raised likewise, once the others have stopped.
     """
     lock = threading.Lock()
     todo = iter(tasks)
@@ -45,6 +49,20 @@ def run_threads(tasks, threads: int) -> None:
                 return
             task()
 
+    def callers_share() -> None:
+        # A Ctrl-C or SIGTERM is taken between this thread's tasks, never inside one: cut inside
+        # an import (numba loads a kernel's cache on its first call, in whichever thread makes
+        # it), the import's module lock could stay taken, and a pool thread that then needs the
+        # module would wait for it forever.
+        with signals_between() as deliver:
+            while True:
+                deliver()
+                with lock:
+                    task = None if stopped else next(todo, None)
+                if task is None:
+                    return
+                task()
+
     threads = max(1, min(int(threads), len(tasks)))
     if threads == 1:
         worker()
@@ -57,14 +75,14 @@ def run_threads(tasks, threads: int) -> None:
         # delivered after, here, where they stop the pool's threads as any other interruption.
         with held_signals():
             futures.extend(_pool(threads - 1).submit(worker) for _ in range(threads - 1))
-        worker()
+        callers_share()
+        for f in futures:
+            f.result()
     except BaseException:
         with lock:
             stopped = True
+        wait(futures)
         raise
-    finally:
-        for f in futures:
-            f.result()
 
 
 class numba_threads:

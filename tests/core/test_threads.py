@@ -60,6 +60,52 @@ def test_an_interrupt_in_the_callers_share_stops_the_pool_taking_tasks():
     assert len(ran_elsewhere) < 10, ran_elsewhere
 
 
+def test_the_callers_interrupt_is_raised_rather_than_an_error_it_caused_in_the_pool():
+    """Ctrl-C in the calling thread while a pool thread fails because of it (numba's loaders
+    left half-way raise "generator raised StopIteration" there): the caller gets the Ctrl-C, as
+    a command that stops cleanly needs, not the pool thread's error."""
+    import time
+
+    caller = threading.current_thread()
+
+    def task():
+        if threading.current_thread() is caller:
+            time.sleep(0.05)  # the pool thread takes the other task meanwhile
+            raise KeyboardInterrupt
+        raise RuntimeError("generator raised StopIteration")
+
+    with pytest.raises(KeyboardInterrupt):
+        run_threads([task, task], 2)
+
+
+def test_a_signal_during_the_callers_task_is_taken_when_the_task_ends():
+    """A Ctrl-C that comes while the calling thread runs a task stops the run once that task
+    is done, never inside it (inside an import, numba's loading of a kernel, the module's lock
+    could stay taken and a pool thread wait for it forever); the caller takes no other task."""
+    import subprocess
+    import sys
+
+    code = """
+import signal, threading, time
+from lfring.core.threads import run_threads
+caller = threading.current_thread()
+done = []
+def task(i):
+    time.sleep(0.01)
+    if threading.current_thread() is caller:
+        signal.raise_signal(signal.SIGINT)
+        time.sleep(0.01)
+        done.append(i)  # the task goes on to its end
+try:
+    run_threads([lambda i=i: task(i) for i in range(8)], 2)
+except KeyboardInterrupt:
+    print("interrupted after", len(done))
+"""
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=30,
+                          preexec_fn=default_sigint)
+    assert proc.returncode == 0 and proc.stdout.strip() == "interrupted after 1", (proc.stdout, proc.stderr)
+
+
 # A child process whose pool threads raise SIGINT as they start, between the start and the pool's
 # record of the thread (run with preexec_fn=default_sigint: a parent that ignores SIGINT, a test
 # runner's worker, would pass that on, and Python would not install its Ctrl-C handler).
