@@ -31,28 +31,8 @@ def held_signals(signums=HELD_SIGNALS) -> Iterator[None]:
     Only the main thread receives Python's signal handlers: elsewhere this does nothing. A
     signal that is ignored (``SIG_IGN``) stays ignored.
     """
-    if threading.current_thread() is not threading.main_thread():
+    with signals_between(signums):
         yield
-        return
-    came: list[int] = []
-    old = {}
-    for s in signums:
-        h = signal.getsignal(s)
-        if h in (signal.SIG_IGN, None):
-            continue
-        old[s] = h
-        signal.signal(s, lambda signum, frame: came.append(signum))
-    try:
-        yield
-    finally:
-        for s, h in old.items():
-            signal.signal(s, h)
-        for s in dict.fromkeys(came):
-            h = old[s]
-            if callable(h):
-                h(s, None)
-            else:  # SIG_DFL: the default action, now
-                signal.raise_signal(s)
 
 
 @contextlib.contextmanager
