@@ -174,7 +174,9 @@ def _process(input_path, settings: BatchSettings, outputs, timings) -> tuple[dic
         depth_range = estimation_range(cal, settings.zmin_m, settings.zmax_m, reference=settings.reference)
         info["depth_range_m"] = [float(depth_range[0]), float(depth_range[1])]
     depth_wanted = {"depth", "confidence", "depth_preview", "all_in_focus"} & set(outputs)
-    if (settings.depth and (depth_wanted or "viewer" in outputs or (needs_depth and refocus))) or aif_depth:
+    # The frame's one depth map: for its own outputs and the viewer with --depth, for depth-aware
+    # refocusing and for the all-in-focus image (the same map either way).
+    if (settings.depth and (depth_wanted or "viewer" in outputs)) or (needs_depth and refocus) or aif_depth:
         from lfring.depth import estimate_depth
 
         t = time.perf_counter()
@@ -193,7 +195,7 @@ def _process(input_path, settings: BatchSettings, outputs, timings) -> tuple[dic
     if refocus or settings.viewer:
         info.update(_refocus_record(cal, settings))
     if refocus and method.prepare is not None:
-        finish = _finisher(views, cal, settings, depth_res, depth_range, info["aperture"], timings)
+        finish = _finisher(views, cal, settings, depth_res, info["aperture"], timings)
     for z in refocus:
         sharp = _refocuser(cal, cal_name, z, settings, views.shape[1:3])(views)
         arrays[f"refocus_{z:g}m"] = sharp if finish is None else finish(sharp, z)
@@ -273,23 +275,16 @@ def _stack_record(info: dict) -> dict:
     return {k: info[k] for k in ("refocus_method", "aperture", "f_number") if k in info}
 
 
-def _finisher(views, cal, settings: BatchSettings, depth_res, depth_range, aperture, timings: dict):
+def _finisher(views, cal, settings: BatchSettings, depth_res, aperture, timings: dict):
     """The refocusing method's ``finish(sharp, z)`` for one frame (:class:`lfring.focus.base.RefocusMethod`),
-    made once for all its depths; a method that renders from a depth map gets the batch's when
-    it makes one, else one estimated with the batch's depth settings over ``depth_range`` (of
-    :func:`lfring.focus.depth_aware.estimation_range`): the same map either way."""
+    made once for all its depths; a method that renders from a depth map gets the frame's
+    (``depth_res``)."""
     from lfring.focus import METHODS
 
     method = METHODS[settings.refocus_method]
     t = time.perf_counter()
     options = {}
     if "depth" in method.options:
-        if depth_res is None:
-            from lfring.depth import estimate_depth
-
-            lo, hi = depth_range
-            depth_res = estimate_depth(views, cal, zmin_m=lo, zmax_m=hi, num_planes=settings.planes,
-                                       reference=settings.reference, method=settings.depth_method)
         options["depth"] = depth_res
     if "aperture" in method.options:
         options["aperture"] = aperture
