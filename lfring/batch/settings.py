@@ -108,7 +108,12 @@ def all_in_focus_from_depth_map(depth: bool, refocus_m, refocus_method: str) -> 
     """Whether a batch's all-in-focus image is made from a depth map: the batch's own
     (``depth``), or the one its refocusing method renders from (depth-aware refocusing at any
     ``refocus_m``), as ``lfring refocus --all-in-focus`` makes it; else by photo-consistency."""
-    return bool(depth or (len(refocus_m) and "depth" in METHODS[refocus_method].options))
+    return bool(depth) or _refocus_from_map(refocus_m, refocus_method)
+
+
+def _refocus_from_map(refocus_m, refocus_method: str) -> bool:
+    """Whether the batch refocuses at any depth by a method that renders from a depth map."""
+    return len(refocus_m) > 0 and "depth" in METHODS[refocus_method].options
 
 
 def _output_parts(d: dict, zrange: dict, *, explained: bool = False) -> dict[str, dict]:
@@ -295,12 +300,12 @@ class BatchSettings:
         # Every depth map (the batch's own, the one depth-aware refocusing renders from, the
         # viewer's) is estimated over depth-aware refocusing's range: a calibration that gives
         # none is refused here, before any frame is read or any file written.
-        needs_range = self.depth or self.viewer or (zs and "depth" in METHODS[self.refocus_method].options)
+        renders_from_map = _refocus_from_map(zs, self.refocus_method)
+        needs_range = self.depth or self.viewer or renders_from_map
         if needs_range and self.calibration is not None:
             estimation_range(self.calibration, self.zmin_m, self.zmax_m, reference=self.reference)
         # The viewer's depth map, when the batch makes none, is the semi-global default; the
         # batch's own and the one depth-aware refocusing renders from follow depth_method.
-        renders_from_map = bool(zs) and "depth" in METHODS[self.refocus_method].options
         least = SGM_MIN_PLANES if ((self.depth or renders_from_map) and self.depth_method == "sgm") or self.viewer else 2
         if self.planes is not None:
             check_int(self.planes, "planes", minimum=least, hint=" for the semi-global depth" if least > 2 else "")
