@@ -66,71 +66,67 @@ def depth_accuracy(views, cal, truth: np.ndarray, zmin: float, zmax: float) -> t
     return 100.0 * est.sum() / known.sum(), 100.0 * float((rel > BAD_REL).mean())
 
 
-def truth_table(views, cal, depth_aware: np.ndarray) -> None:
-    """The main job's ``depth_aware`` image (RENDERS[0] of ``views``) and shift-and-add against
-    the conventional image of the bundled scene (see the module's description)."""
+def conventional(focus_m: float, **aperture) -> np.ndarray:
+    """The conventional image of the bundled scene focused at ``focus_m`` (``aperture``:
+    ``render_conventional``'s), times the frame's exposure."""
     import json
 
-    from lfring.focus import Refocuser
-    from lfring.optics import load_device
-    from lfring.synth import render_conventional
-    from lfring.synth.presets import three_depth_scene
-
-    focus, aperture = RENDERS[0]
-    settings = json.loads((DATA / "scene_truth" / "truth.json").read_text())["settings"]
-    truth = settings["exposure"] * render_conventional(three_depth_scene(), load_device("prototype"), focus,
-                                                       aperture_scale=aperture, binning=settings["binning"])
-    h, w = truth.shape[:2]
-    sa = refocus(views, cal, focus)[:h, :w]
-    images = {"shift-and-add": sa, "depth-aware (the main job)": depth_aware[:h, :w]}
-    grey = lambda img: np.ascontiguousarray(img.mean(axis=2), np.float32)
-    (dx, dy), _ = cv2.phaseCorrelate(grey(truth), grey(sa), cv2.createHanningWindow((w, h), cv2.CV_32F))
-    truth = cv2.warpAffine(truth.astype(np.float32), np.float32([[1, 0, dx], [0, 1, dy]]), (w, h), flags=cv2.INTER_CUBIC)
-    weight = Refocuser(cal, focus).weight[:h, :w]
-    inner = np.zeros((h, w), bool)
-    inner[12:-12, 12:-12] = True  # the registration's border left out
-    masks = {"two or more views": inner & (weight >= 2.0), "one to two views (the rims)": inner & (weight >= 1.0) & (weight < 2.0)}
-    print(f"\nThe main job's image ({focus:g} m, aperture {aperture:g}) against the conventional image, registered by "
-          f"({dx:.2f}, {dy:.2f}) px: PSNR (dB)")
-    print("| image | " + " | ".join(f"{k} ({100 * m.mean():.0f} % of the frame)" for k, m in masks.items()) + " |")
-    print("|---|" + "---|" * len(masks))
-    for name, img in images.items():
-        psnr = [10 * np.log10(1.0 / np.mean((np.clip(img, 0, 1) - truth)[m] ** 2)) for m in masks.values()]
-        print(f"| {name} | " + " | ".join(f"{p:.2f}" for p in psnr) + " |")
-    aif_table(views, cal, (dx, dy), masks)
-
-
-def aif_table(views, cal, shift, masks) -> None:
-    """The all-in-focus images of ``views`` against the conventional image of a pinhole at the
-    central viewpoint (registered by the main job's ``shift``): from the depth map as its
-    :class:`lfring.DepthResult` (as the CLI, batches and the viewer pass it; also snapped to its
-    hypotheses), as its bare ``depth_m`` array, and by the views' photo-consistency without a
-    map."""
-    import json
-
-    from lfring.focus import all_in_focus
     from lfring.optics import load_device
     from lfring.synth import render_conventional
     from lfring.synth.presets import three_depth_scene
 
     settings = json.loads((DATA / "scene_truth" / "truth.json").read_text())["settings"]
-    truth = settings["exposure"] * render_conventional(three_depth_scene(), load_device("prototype"), RENDERS[0][0],
-                                                       f_number=np.inf, binning=settings["binning"])
+    truth = settings["exposure"] * render_conventional(three_depth_scene(), load_device("prototype"), focus_m,
+                                                       binning=settings["binning"], **aperture)
+    return truth.astype(np.float32)
+
+
+def moved(image: np.ndarray, shift) -> np.ndarray:
+    """``image`` moved by ``shift`` (dx, dy) px, bicubically."""
+    h, w = image.shape[:2]
+    return cv2.warpAffine(image, np.float32([[1, 0, shift[0]], [0, 1, shift[1]]]), (w, h), flags=cv2.INTER_CUBIC)
+
+
+def psnr_table(images: dict, truth: np.ndarray, masks: dict) -> None:
+    """One row a named image: its PSNR (dB) against ``truth`` on each mask."""
     h, w = truth.shape[:2]
-    truth = cv2.warpAffine(truth.astype(np.float32), np.float32([[1, 0, shift[0]], [0, 1, shift[1]]]), (w, h),
-                           flags=cv2.INTER_CUBIC)
-    depth = estimate_depth(views, cal, zmin_m=estimation_range(cal)[0], zmax_m=estimation_range(cal)[1])
-    images = {"from the depth result (the CLI's, batches', the viewer's)": all_in_focus(views, cal, depth_map_m=depth)[0],
-              "from the depth result, snapped to its hypotheses": all_in_focus(views, cal, depth.depths_m,
-                                                                               depth_map_m=depth)[0],
-              "from its depth_m array": all_in_focus(views, cal, depth_map_m=depth.depth_m)[0],
-              "by photo-consistency": all_in_focus(views, cal)[0]}
-    print("\nThe all-in-focus images against a pinhole's conventional image: PSNR (dB)")
     print("| image | " + " | ".join(masks) + " |")
     print("|---|" + "---|" * len(masks))
     for name, img in images.items():
         psnr = [10 * np.log10(1.0 / np.mean((np.clip(img[:h, :w], 0, 1) - truth)[m] ** 2)) for m in masks.values()]
         print(f"| {name} | " + " | ".join(f"{p:.2f}" for p in psnr) + " |")
+
+
+def truth_table(views, cal, depth_aware: np.ndarray, depth) -> None:
+    """The main job's ``depth_aware`` image (RENDERS[0] of ``views``) and shift-and-add against
+    the conventional image of the bundled scene, then the all-in-focus images from the main
+    job's ``depth`` estimate against a pinhole's (see the module's description)."""
+    from lfring.focus import Refocuser, all_in_focus
+
+    focus, aperture = RENDERS[0]
+    truth = conventional(focus, aperture_scale=aperture)
+    h, w = truth.shape[:2]
+    sa = refocus(views, cal, focus)[:h, :w]
+    grey = lambda img: np.ascontiguousarray(img.mean(axis=2), np.float32)
+    shift, _ = cv2.phaseCorrelate(grey(truth), grey(sa), cv2.createHanningWindow((w, h), cv2.CV_32F))
+    weight = Refocuser(cal, focus).weight[:h, :w]
+    inner = np.zeros((h, w), bool)
+    inner[12:-12, 12:-12] = True  # the registration's border left out
+    masks = {"two or more views": inner & (weight >= 2.0), "one to two views (the rims)": inner & (weight >= 1.0) & (weight < 2.0)}
+    print(f"\nThe main job's image ({focus:g} m, aperture {aperture:g}) against the conventional image, registered by "
+          f"({shift[0]:.2f}, {shift[1]:.2f}) px: PSNR (dB; the masks hold "
+          + ", ".join(f"{100 * m.mean():.0f} %" for m in masks.values()) + " of the frame)")
+    psnr_table({"shift-and-add": sa, "depth-aware (the main job)": depth_aware}, moved(truth, shift), masks)
+    # The all-in-focus images: from the estimate as its DepthResult (as the CLI, batches and the
+    # viewer pass it; also snapped to its hypotheses), as its bare depth_m array, and by the
+    # views' photo-consistency without a map.
+    print("\nThe all-in-focus images against a pinhole's conventional image: PSNR (dB)")
+    psnr_table({"from the depth result (the CLI's, batches', the viewer's)": all_in_focus(views, cal, depth_map_m=depth)[0],
+                "from the depth result, snapped to its hypotheses": all_in_focus(views, cal, depth.depths_m,
+                                                                                 depth_map_m=depth)[0],
+                "from its depth_m array": all_in_focus(views, cal, depth_map_m=depth.depth_m)[0],
+                "by photo-consistency": all_in_focus(views, cal)[0]},
+               moved(conventional(focus, f_number=np.inf), shift), masks)
 
 
 def main() -> None:
@@ -162,7 +158,8 @@ def main() -> None:
     print("|---|---|---|---|---|")
     main_job = settings[1 if cal.flat_field is not None else 0][0]
     for label, views in settings:
-        dof = depth_of_field(views, cal, zmin_m=zmin, zmax_m=zmax)
+        depth = estimate_depth(views, cal, zmin_m=zmin, zmax_m=zmax)
+        dof = depth_of_field(views, cal, depth=depth)
         renders = [dof.render(f, a, refocus(views, cal, f)) for f, a in RENDERS]
         rows = [("all-in-focus colour", dof.colour)]
         rows += [(f"render at {f:g} m, aperture {a:g}", img) for (f, a), img in zip(RENDERS, renders)]
@@ -170,8 +167,8 @@ def main() -> None:
             dark, bright = specks(img, dof.seen)
             print(f"| {label} | {what} | {dark} | {bright} | {int(dof.seen.sum())} |")
         if label == main_job:
-            job = (views, renders[0])
-    truth_table(job[0], cal, job[1])
+            job = (views, renders[0], depth)
+    truth_table(job[0], cal, job[1], job[2])
 
 
 if __name__ == "__main__":
