@@ -195,7 +195,7 @@ def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolat
         if method == "depth-aware":  # one depth map for the whole stack and the all-in-focus image
             depth_map = estimate_depth(views, cal, zmin_m=zmin, zmax_m=zmax, reference=ref)
             images = focal_stack(views, cal, render_zs, reference=ref, interpolation=interpolation, method=method,
-                                 depth=depth_map, **{k: v for k, v in dof.items() if k in ("aperture", "f_number")})
+                                 depth=depth_map, aperture=aperture, f_number=f_number)
         else:
             images = (Refocuser(cal, zr, reference=ref, view_shape=views.shape[1:3], interpolation=interpolation)(views)
                       for zr in render_zs)
