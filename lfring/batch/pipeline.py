@@ -101,26 +101,32 @@ def process_frame(input_path: str, settings: BatchSettings, outputs: dict[str, s
     except _LeftOut as exc:
         timings["total"] = time.perf_counter() - t_start
         return FrameResult(input_path, False, timings_s=timings, worker=worker, left_out=str(exc))
-    except DepthRangeError as exc:  # the depth method's message names estimate_depth's parameters, not the batch's
-        timings["total"] = time.perf_counter() - t_start
-        return FrameResult(input_path, False, timings_s=timings, error=f"{input_path}: {_narrow_range(exc)}", worker=worker)
-    except (LfringError, OSError, ValueError, MemoryError) as exc:
-        msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        timings["total"] = time.perf_counter() - t_start
-        error = msg if isinstance(exc, LfringError) else f"{type(exc).__name__}: {msg}"
-        if input_path not in error:
-            error = f"{input_path}: {error}"
-        return FrameResult(input_path, False, timings_s=timings, error=error, worker=worker)
     except Exception as exc:  # noqa: BLE001 - a bad frame must not stop the batch; the error is kept by name
-        stop = interrupt_behind(exc)  # Ctrl-C during an import, wrapped by Python 3.10 and 3.11: stop the run
-        if stop is not None:
-            raise stop from None
-        timings["total"] = time.perf_counter() - t_start
-        return FrameResult(input_path, False, timings_s=timings, error=f"unexpected {type(exc).__name__}: {exc}", worker=worker)
+        return _failed(input_path, exc, timings, t_start, worker)
     if caught:
         info["warnings"] = sorted(set(caught))
     timings["total"] = time.perf_counter() - t_start
     return FrameResult(input_path, True, files=files, info=info, timings_s=timings, worker=worker)
+
+
+def _failed(input_path, exc: Exception, timings, t_start, worker) -> FrameResult:
+    """The record of a frame that failed with ``exc``, or the stop that ``exc`` stands for, raised:
+    a Ctrl-C wrapped by Python 3.10 and 3.11 during an import, or turned into another error by a
+    library (:func:`lfring.core.signals.interrupt_behind`), stops the run."""
+    stop = interrupt_behind(exc)
+    if stop is not None:
+        raise stop from None
+    timings["total"] = time.perf_counter() - t_start
+    if isinstance(exc, DepthRangeError):  # the depth method's message names estimate_depth's parameters, not the batch's
+        error = f"{input_path}: {_narrow_range(exc)}"
+    elif isinstance(exc, (LfringError, OSError, ValueError, MemoryError)):
+        msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        error = msg if isinstance(exc, LfringError) else f"{type(exc).__name__}: {msg}"
+        if input_path not in error:
+            error = f"{input_path}: {error}"
+    else:
+        error = f"unexpected {type(exc).__name__}: {exc}"
+    return FrameResult(input_path, False, timings_s=timings, error=error, worker=worker)
 
 
 def _process(input_path, settings: BatchSettings, outputs, timings) -> tuple[dict[str, bytes], dict]:

@@ -12,7 +12,7 @@ import click
 
 from lfring import __version__
 from lfring.cli.words import CliFormatter, cli_words
-from lfring.core.signals import deliver_lost_stops, interrupt_behind, redelivered_stops
+from lfring.core.signals import deliver_lost_stops, interrupt_behind, raise_stop, redelivered_stops
 from lfring.errors import LfringError
 
 # command name -> module in lfring.cli defining a click command called ``command``.
@@ -55,10 +55,13 @@ class _LfringGroup(click.Group):
     def invoke(self, ctx):
         try:
             return super().invoke(ctx)
-        except LfringError as exc:
-            raise CliError(cli_words(str(exc))) from None
-        except OSError as exc:  # any file-system failure: one line naming the path, never a traceback
-            where = f": {exc.filename}" if exc.filename else ""
+        except (LfringError, OSError) as exc:
+            stop = interrupt_behind(exc)  # a Ctrl-C that a library turned into its own error
+            if stop is not None:
+                raise stop from None
+            if isinstance(exc, LfringError):
+                raise CliError(cli_words(str(exc))) from None
+            where = f": {exc.filename}" if exc.filename else ""  # any file-system failure: one line naming the path
             raise CliError(f"{exc.strerror or exc}{where}") from None
 
 
@@ -69,7 +72,11 @@ class Terminated(KeyboardInterrupt):
 
 
 def _terminate(signum, frame):
-    raise Terminated()
+    raise_stop(Terminated)
+
+
+def _interrupt(signum, frame):
+    raise_stop(KeyboardInterrupt)
 
 
 def _stopping() -> None:
@@ -81,12 +88,12 @@ def _stopping() -> None:
 
 def _terminate_script(signum, frame):
     _stopping()
-    raise Terminated()
+    raise_stop(Terminated)
 
 
 def _interrupt_script(signum, frame):
     _stopping()
-    raise KeyboardInterrupt()
+    raise_stop(KeyboardInterrupt)
 
 
 #: Exit codes of a command stopped by Ctrl-C and by SIGTERM (128 + the signal's number, as a shell says).
@@ -191,10 +198,12 @@ def main(argv=None) -> int:
         # command's, and would come after our one line. Only a script run sets this filter.
         warnings.filterwarnings("ignore", category=ResourceWarning, module=r"importlib\._bootstrap")
     ours = threading.current_thread() is threading.main_thread() and signal.getsignal(signal.SIGTERM) == signal.SIG_DFL
+    # Ours to replace: Python's default, not where Ctrl-C is ignored or the caller's own.
+    ours_int = ours and signal.getsignal(signal.SIGINT) is signal.default_int_handler
     if ours:
         signal.signal(signal.SIGTERM, _terminate if argv is not None else _terminate_script)
-        if argv is None and signal.getsignal(signal.SIGINT) is signal.default_int_handler:  # not where it is ignored
-            signal.signal(signal.SIGINT, _interrupt_script)
+    if ours_int:
+        signal.signal(signal.SIGINT, _interrupt if argv is not None else _interrupt_script)
     try:
         # A Ctrl-C in a weakref callback of an import still stops the command.
         with redelivered_stops() if ours else contextlib.nullcontext():
@@ -211,8 +220,10 @@ def main(argv=None) -> int:
             # the interpreter's exit short (killed by it, or a traceback from a KeyboardInterrupt).
             signal.signal(signal.SIGTERM, signal.SIG_IGN)
             signal.signal(signal.SIGINT, signal.SIG_IGN)
-        elif ours:  # called from Python: SIGTERM is the caller's again
+        elif ours:  # called from Python: SIGTERM and SIGINT are the caller's again
             signal.signal(signal.SIGTERM, signal.SIG_DFL)
+            if ours_int:
+                signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 def _run(args: list[str]) -> int:

@@ -6,7 +6,8 @@ it, as if they had come then; :func:`blocked_in_children` starts processes with 
 so that a Ctrl-C (which the terminal sends to every process of its group) reaches only the
 process that owns them, which stops them itself; :func:`redelivered_stops` keeps a Ctrl-C that
 landed where Python could only print it and go on, and :func:`deliver_lost_stops` delivers it
-before a commit.
+before a commit; :func:`raise_stop` raises a stop from a handler so that :func:`interrupt_behind`
+still finds it behind the error a library turned it into.
 """
 
 from __future__ import annotations
@@ -16,9 +17,10 @@ import signal
 import sys
 import threading
 from collections.abc import Iterator
+from typing import NoReturn
 
 __all__ = ["HELD_SIGNALS", "blocked_in_children", "deliver_lost_stops", "held_signals", "interrupt_behind",
-           "redelivered_stops", "signals_between"]
+           "raise_stop", "redelivered_stops", "signals_between"]
 
 HELD_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM") if hasattr(signal, name))
 """The signals that ask a run to stop: Ctrl-C and a polite kill."""
@@ -88,9 +90,11 @@ def signals_between(signums=HELD_SIGNALS) -> Iterator:
         release()
 
 
-# Stops (exception types) that came where Python could not raise them, not yet delivered, and
-# how many redelivered_stops blocks are open (the outermost one's end forgets what is left).
+# Stops (exception types) that came where Python could not raise them, not yet delivered; stops
+# that a signal's handler raised (raise_stop); and how many redelivered_stops blocks are open (the
+# outermost one's end forgets both lists).
 _LOST: list[type] = []
+_RAISED: list[type] = []
 _OPEN = [0]
 
 
@@ -125,6 +129,20 @@ def redelivered_stops() -> Iterator[None]:
         _OPEN[0] -= 1
         if _OPEN[0] == 0:
             _LOST.clear()
+            _RAISED.clear()
+
+
+def raise_stop(kind: type[KeyboardInterrupt] = KeyboardInterrupt) -> NoReturn:
+    """Raise a new ``kind`` from a signal's handler, and, inside :func:`redelivered_stops`, keep
+    that it came.
+
+    Code that catches every exception can turn the stop into an error of its own and forget it:
+    matplotlib's image resampling, cut by a Ctrl-C, reports an invalid transformation matrix. Any
+    error that reaches :func:`interrupt_behind` after a stop came stands for that stop.
+    """
+    if _OPEN[0]:
+        _RAISED.append(kind)
+    raise kind()
 
 
 def deliver_lost_stops() -> None:
@@ -157,8 +175,10 @@ def blocked_in_children(signums=(signal.SIGINT,)) -> Iterator[None]:
 
 
 def interrupt_behind(exc: BaseException) -> KeyboardInterrupt | None:
-    """The Ctrl-C (or SIGTERM raised as one) that ``exc`` stands for, if any: ``exc`` itself, or
-    the KeyboardInterrupt it was raised from.
+    """The Ctrl-C (or SIGTERM raised as one) that ``exc`` stands for, if any: ``exc`` itself, the
+    KeyboardInterrupt it was raised from, or (inside :func:`redelivered_stops`) a new stop of the
+    kind that the last :func:`raise_stop` raised, whatever ``exc`` is: a stop ends the command,
+    and an error that comes after it is its consequence.
 
     Python 3.10 and 3.11 turn an exception raised inside a class's ``__set_name__`` into a
     RuntimeError caused by it, so a Ctrl-C that comes while an import creates such a class (a
@@ -182,4 +202,4 @@ def interrupt_behind(exc: BaseException) -> KeyboardInterrupt | None:
             return exc
         seen.add(id(exc))
         exc = exc.__cause__
-    return None
+    return _RAISED[-1]() if _RAISED else None

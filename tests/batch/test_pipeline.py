@@ -72,6 +72,31 @@ def test_ctrl_c_raised_as_another_error_stops_the_run_instead_of_failing_the_fra
     assert not res.ok and "a bug" in res.error
 
 
+def test_ctrl_c_that_a_library_turned_into_its_own_error_stops_the_run(frames, monkeypatch):
+    """A library that catches every exception can turn a Ctrl-C into an error of its own and
+    forget it (matplotlib's image resampling reports an invalid matrix): after a signal's handler
+    raised the stop, the frame's error is the stop's, and the frame is not recorded as failed."""
+    import lfring.io.levels
+    from lfring.core.signals import raise_stop, redelivered_stops
+
+    d, cal_path = frames
+    settings = BatchSettings(refocus_m=(0.5,), refocus_method="shift-and-add", calibration=load_calibration(cal_path))
+
+    def forgets_a_stop(*args, **kwargs):
+        try:
+            raise_stop(KeyboardInterrupt)  # as a handler does when Ctrl-C comes
+        except KeyboardInterrupt:
+            pass
+        raise ValueError("Invalid affine transformation matrix")
+
+    monkeypatch.setattr(lfring.io.levels, "load_frame", forgets_a_stop)
+    with redelivered_stops(), pytest.raises(KeyboardInterrupt):
+        process_frame(str(d / "scene.png"), settings)
+    # Once the command is over, the same error is the frame's own.
+    res = process_frame(str(d / "scene.png"), settings)
+    assert not res.ok and "Invalid affine transformation matrix" in res.error
+
+
 def test_the_viewer_keeps_its_own_depth_map_when_the_all_in_focus_image_takes_the_refocusing_one(frames):
     """Without --depth the viewer estimates its semi-global map, whatever the batch's depth
     method; the all-in-focus image asked for beside it takes the map the refocused images render

@@ -1,6 +1,7 @@
 """The ``lfring`` script's exit: the code it returns is the process's, whatever the interpreter
 remembers of a Ctrl-C it handled."""
 
+import signal
 import subprocess
 import sys
 import textwrap
@@ -12,6 +13,7 @@ import pytest
 from child_processes import default_sigint
 
 from lfring.cli.main import COMMANDS, Terminated, main
+from lfring.errors import InvalidInputError
 
 SCRIPT = textwrap.dedent('''
     import sys
@@ -298,3 +300,44 @@ def test_an_error_raised_from_a_ctrl_c_in_a_weakref_callback_is_kept_too(monkeyp
     monkeypatch.setitem(COMMANDS, "interrupted", "interrupted")
     assert main(["interrupted"]) == 130
     assert capsys.readouterr().err.strip() == "lfring: aborted"
+
+
+def _command_whose_library_forgets_a_stop(signum, error):
+    """A command in which ``signum`` comes inside a library that catches every exception and
+    raises ``error`` in its place, with no trace of the stop: as matplotlib's image resampling,
+    cut by a Ctrl-C while it converts a matrix, reports an invalid transformation matrix."""
+
+    @click.command("interrupted")
+    def command():
+        failed = False
+        try:
+            signal.raise_signal(signum)
+        except BaseException:  # noqa: BLE001 - what the library does
+            failed = True
+        if failed:
+            raise error
+
+    return command
+
+
+@pytest.mark.parametrize("signum, code, line", [(signal.SIGINT, 130, "lfring: aborted"),
+                                                (signal.SIGTERM, 143, "lfring: terminated")])
+@pytest.mark.parametrize("error", [ValueError("Invalid affine transformation matrix"), OSError("cannot write"),
+                                   InvalidInputError("not a frame")], ids=["ValueError", "OSError", "LfringError"])
+def test_a_stop_that_a_library_turned_into_its_own_error_still_stops(monkeypatch, capsys, signum, code, line, error):
+    monkeypatch.setitem(sys.modules, "lfring.cli.interrupted",
+                        types.SimpleNamespace(command=_command_whose_library_forgets_a_stop(signum, error)))
+    monkeypatch.setitem(COMMANDS, "interrupted", "interrupted")
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        assert main(["interrupted"]) == code
+        assert capsys.readouterr().err.strip() == line
+        # The handlers are the caller's again, and the next command's errors are its own.
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+        assert signal.getsignal(signal.SIGTERM) == signal.SIG_DFL
+        monkeypatch.setitem(sys.modules, "lfring.cli.interrupted",
+                            types.SimpleNamespace(command=_command_building_a_class(ValueError("a bug"))))
+        with pytest.raises((RuntimeError, ValueError)):
+            main(["interrupted"])
+    finally:
+        signal.signal(signal.SIGINT, previous)

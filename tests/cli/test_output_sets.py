@@ -75,6 +75,37 @@ def test_interrupted_depth_leaves_nothing_and_the_rerun_completes(tmp_path):
     assert foreign.returncode == 2 and "exists; pass --overwrite" in foreign.stderr
 
 
+@pytest.mark.parametrize("sig, code, line", [(signal.SIGINT, 130, "lfring: aborted"),
+                                             (signal.SIGTERM, 143, "lfring: terminated")])
+def test_a_stop_inside_the_previews_drawing_stops_the_command(tmp_path, capsys, monkeypatch, sig, code, line):
+    """matplotlib converts a transformation to a matrix with its own Python code, inside C++ that
+    catches every error and reports an invalid matrix: a signal that comes there still stops the
+    command as itself, with nothing written."""
+    import matplotlib.transforms
+
+    from lfring.cli.main import main
+
+    to_matrix = matplotlib.transforms.AffineBase.__array__
+    came = []
+
+    def signalled(self, *args, **kwargs):
+        if not came:
+            came.append(sig)
+            signal.raise_signal(sig)
+        return to_matrix(self, *args, **kwargs)
+
+    monkeypatch.setattr(matplotlib.transforms.AffineBase, "__array__", signalled)
+    monkeypatch.chdir(tmp_path)
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        assert main(["depth", str(SCENE), "--zmin", "0.3", "--zmax", "1.0", "--method", "local", "-o", "d/"]) == code
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    assert came == [sig]
+    assert capsys.readouterr().err.strip().splitlines()[-1] == line
+    assert [str(p.relative_to(tmp_path)) for p in tmp_path.rglob("*")] in ([], ["d"])  # nor a staging folder
+
+
 @pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="needs Linux /proc to see the command start")
 def test_interrupted_focal_sweep_leaves_nothing(tmp_path):
     cmd = [sys.executable, "-m", "lfring", "refocus", str(SCENE), "--sweep", "0.3:1.0:8", "--method", "shift-and-add",
