@@ -20,6 +20,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
+from lfring.core.signals import held_signals
 from lfring.errors import InvalidInputError
 from lfring.io.atomic import atomic_write_bytes
 from lfring.io.readers import RECORD_KEY
@@ -123,7 +124,7 @@ def outdir_lock(outdir: Path) -> Iterator[None]:
     try:
         yield
     finally:
-        with contextlib.suppress(FileNotFoundError):
+        with held_signals(), contextlib.suppress(FileNotFoundError):  # a stop now waits for the unlink
             lock.unlink()
 
 

@@ -481,7 +481,8 @@ def run_batch(
             todo = _decide_jobs(run, jobs, overwrite)
             _execute(run, todo, workers=workers, executor=executor, scheduler=scheduler, progress=progress)
         finally:
-            shutil.rmtree(writer.tmp, ignore_errors=True)
+            with held_signals():  # a stop that comes now waits for the folder to be gone
+                shutil.rmtree(writer.tmp, ignore_errors=True)
     report.elapsed_s = time.perf_counter() - t0
     return report
 

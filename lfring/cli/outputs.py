@@ -232,7 +232,8 @@ class OutputSet:
                 if former:
                     self._former.unlink(missing_ok=True)
         finally:
-            shutil.rmtree(staging, ignore_errors=True)
+            with held_signals():  # a stop that comes now waits for the staged files to be gone
+                shutil.rmtree(staging, ignore_errors=True)
 
     def _write_record(self, status: str) -> None:
         from lfring import __version__

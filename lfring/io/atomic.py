@@ -27,13 +27,13 @@ def atomic_path(path: str | Path, *, tmp_dir: str | Path | None = None) -> Itera
         fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".part{path.suffix}", dir=where)
     except OSError as exc:
         raise _naming(exc, path) from None
-    os.close(fd)
     tmp_path = Path(tmp)
-    # mkstemp creates 0600; outputs get the ordinary permissions the umask allows.
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp_path, 0o666 & ~umask)
     try:
+        os.close(fd)
+        # mkstemp creates 0600; outputs get the ordinary permissions the umask allows.
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp_path, 0o666 & ~umask)
         yield tmp_path
         os.replace(tmp_path, path)
     except BaseException as exc:

@@ -142,3 +142,42 @@ def test_interrupted_batch_stops_cleanly_and_resumes(small_frames, tmp_path):
             _check_no_partial_output(out, view_shape)
             assert sorted(p.name for p in out.glob("*_refocus_0.5m.png")) == sorted(f"f{k}_refocus_0.5m.png" for k in range(FRAMES))
     assert codes.count(0) <= TRIES // 4, f"too few runs were interrupted: {codes}"
+
+
+@pytest.mark.parametrize("where", ["temporary folder", "lock"])
+def test_a_stop_during_the_cleanup_waits_for_it(small_frames, tmp_path, monkeypatch, where):
+    """Ctrl-C that comes while a run removes its temporary folder or its lock (as it ends, done or
+    stopped) is delivered after: neither is left behind, and the run still stops as asked."""
+    import shutil
+
+    import lfring.batch.record
+    import lfring.batch.run
+    from lfring.calibration import RingCalibration
+    from lfring.batch import BatchSettings, run_batch
+
+    inp, cal = small_frames
+    out = tmp_path / "out"
+    if where == "temporary folder":
+        module, name, real = lfring.batch.run.shutil, "rmtree", shutil.rmtree
+    else:
+        module, name, real = lfring.batch.record.Path, "unlink", Path.unlink
+    came = []
+
+    def cut(path, *args, **kwargs):
+        if not came and Path(path).name in (".lfring-tmp", ".lfring-batch.lock"):
+            came.append(True)
+            signal.raise_signal(signal.SIGINT)
+        return real(path, *args, **kwargs)
+
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        monkeypatch.setattr(module, name, cut)
+        settings = BatchSettings(refocus_m=(0.5,), refocus_method="shift-and-add", calibration=RingCalibration.load(cal))
+        with pytest.raises(KeyboardInterrupt):
+            run_batch([str(inp / "f0.png")], out, settings, workers=1, progress=False)
+    finally:
+        monkeypatch.undo()
+        signal.signal(signal.SIGINT, previous)
+    assert came == [True]
+    assert not (out / ".lfring-batch.lock").exists() and not (out / ".lfring-tmp").exists()
+    assert (out / "f0_refocus_0.5m.png").exists()  # the frame was done before the stop came

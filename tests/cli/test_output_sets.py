@@ -129,6 +129,33 @@ def test_interrupted_focal_sweep_leaves_nothing(tmp_path):
     assert "scene_stack.png.lfring.json" in files
 
 
+def test_a_stop_while_the_staging_folder_is_removed_waits_for_it(tmp_path, capsys, monkeypatch):
+    """Ctrl-C that comes as the staging folder is removed (the outputs already in place) is
+    delivered after: the folder is gone, the outputs are whole, and the command says it stopped."""
+    from lfring.cli import outputs
+    from lfring.cli.main import main
+
+    real = outputs.shutil.rmtree
+    came = []
+
+    def cut(path, *args, **kwargs):
+        if not came and Path(path).name.startswith(outputs.STAGING_PREFIX):
+            came.append(True)
+            signal.raise_signal(signal.SIGINT)
+        return real(path, *args, **kwargs)
+
+    monkeypatch.setattr(outputs.shutil, "rmtree", cut)
+    monkeypatch.chdir(tmp_path)
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        code = main(["refocus", str(SCENE), "--depth", "0.5", "--method", "shift-and-add", "-o", "r.png"])
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    assert came == [True] and code == 130
+    assert capsys.readouterr().err.strip().splitlines()[-1] == "lfring: aborted"
+    assert sorted(os.listdir(tmp_path)) == ["r.png", "r.png.json", "r.png.lfring.json"]
+
+
 def test_a_failing_command_leaves_no_staging_folder(tmp_path, capsys, monkeypatch):
     """An error while writing (here a full disk) removes what was staged and names the user's file."""
     from lfring.cli.main import main
