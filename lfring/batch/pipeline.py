@@ -196,12 +196,19 @@ def _process(input_path, settings: BatchSettings, outputs, timings) -> tuple[dic
         if ok.any():
             info["depth_median_m"] = float(np.median(depth_res.depth_m[ok]))
 
+    renderer = None
+    if aif_depth:  # the all-in-focus image's renderer of the map, which depth-aware refocusing reuses
+        from lfring.focus.depth_aware import depth_of_field
+
+        t = time.perf_counter()
+        renderer = depth_of_field(views, cal, depth=depth_res, reference=settings.reference)
+        timings["depth_of_field"] = time.perf_counter() - t
     t = time.perf_counter()
     finish = None
     if refocus or settings.viewer:
         info.update(_refocus_record(cal, settings))
     if refocus and method.prepare is not None:
-        finish = _finisher(views, cal, settings, depth_res, info["aperture"], timings)
+        finish = _finisher(views, cal, settings, depth_res if renderer is None else renderer, info["aperture"], timings)
     for z in refocus:
         sharp = _refocuser(cal, cal_name, z, settings, views.shape[1:3])(views)
         arrays[f"refocus_{z:g}m"] = sharp if finish is None else finish(sharp, z)
@@ -210,7 +217,7 @@ def _process(input_path, settings: BatchSettings, outputs, timings) -> tuple[dic
     if "all_in_focus" in outputs:
         t = time.perf_counter()
         if aif_depth:
-            img, _ = all_in_focus(views, cal, depth_map_m=depth_res, reference=settings.reference)
+            img, _ = all_in_focus(views, cal, depth_map_m=renderer, reference=settings.reference)
         else:
             zs = list(settings.refocus_m) if len(settings.refocus_m) > 1 else None
             img, _ = all_in_focus(views, cal, zs, reference=settings.reference)
@@ -281,17 +288,17 @@ def _stack_record(info: dict) -> dict:
     return {k: info[k] for k in ("refocus_method", "aperture", "f_number") if k in info}
 
 
-def _finisher(views, cal, settings: BatchSettings, depth_res, aperture, timings: dict):
+def _finisher(views, cal, settings: BatchSettings, depth, aperture, timings: dict):
     """The refocusing method's ``finish(sharp, z)`` for one frame (:class:`lfring.focus.base.RefocusMethod`),
     made once for all its depths; a method that renders from a depth map gets the frame's
-    (``depth_res``)."""
+    (``depth``: the estimate, or a renderer already made from it)."""
     from lfring.focus import METHODS
 
     method = METHODS[settings.refocus_method]
     t = time.perf_counter()
     options = {}
     if "depth" in method.options:
-        options["depth"] = depth_res
+        options["depth"] = depth
     if "aperture" in method.options:
         options["aperture"] = aperture
     finish = method.prepare(views, cal, settings.reference, **options)

@@ -132,7 +132,7 @@ def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolat
     from lfring.io.writers import write_gif, write_image, write_json, write_tiff_stack
     from lfring.focus import Refocuser, all_in_focus, focal_stack, resolve_aperture
     from lfring.depth.estimate import estimate_depth
-    from lfring.focus.depth_aware import estimation_range
+    from lfring.focus.depth_aware import depth_of_field, estimation_range
 
     zs = _depths(depth, depths, sweep)
     bits = int(bit_depth)
@@ -191,11 +191,12 @@ def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolat
     narrow = depth_range_words("widen the range, or use --method shift-and-add (it needs no depth map)")
     with outputs.writing() as stage, narrow, warnings.catch_warnings(), progress_bar(len(zs), "refocus", "depth") as bar:
         warnings.simplefilter("ignore", LfringWarning)
-        depth_map = None
-        if method == "depth-aware":  # one depth map for the whole stack and the all-in-focus image
+        renderer = None
+        if method == "depth-aware":  # one depth map, one renderer of it: the stack and the all-in-focus image
             depth_map = estimate_depth(views, cal, zmin_m=zmin, zmax_m=zmax, reference=ref)
+            renderer = depth_of_field(views, cal, depth=depth_map, reference=ref)
             images = focal_stack(views, cal, render_zs, reference=ref, interpolation=interpolation, method=method,
-                                 depth=depth_map, aperture=aperture, f_number=f_number)
+                                 depth=renderer, aperture=aperture, f_number=f_number)
         else:
             images = (Refocuser(cal, zr, reference=ref, view_shape=views.shape[1:3], interpolation=interpolation)(views)
                       for zr in render_zs)
@@ -213,8 +214,8 @@ def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolat
             write_gif(stage(extra[1]), np.stack([caption(encode(s, 8, "srgb"), t) for s, t in zip(stack, labels)]),
                       frame_ms=250)
         if aif:
-            if depth_map is not None:  # each pixel at its depth in the map, as the stack renders it
-                img, chosen = all_in_focus(views, cal, depth_map_m=depth_map, reference=ref)
+            if renderer is not None:  # each pixel at its depth in the map, as the stack renders it
+                img, chosen = all_in_focus(views, cal, depth_map_m=renderer, reference=ref)
                 chosen_over = "depth map"
             else:  # each pixel at the depth where the views agree best
                 img, chosen = all_in_focus(views, cal, render_zs if len(zs) > 1 else None, reference=ref)

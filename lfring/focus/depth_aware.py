@@ -361,6 +361,8 @@ class DepthOfField:
         R of :func:`aperture_radius_px`.
     measured_views : float
         The parameter: the views' worth from which a depth counts as measured.
+    depth_m : (h, w) float32
+        The depth map as given, NaN where it has no depth.
 
     Notes
     -----
@@ -379,6 +381,7 @@ class DepthOfField:
             raise InvalidInputError(f"the depth map must be {h} x {w} px like the views, got shape {dm.shape}")
         z0 = calibration.depth_origin_m
         known = known_depths(dm, calibration)
+        self.depth_m = np.where(known, dm, np.nan).astype(np.float32)
         if not np.all(known):
             dm = np.where(known, dm, float(np.median(dm[known])))
         self.reference = check_reference(reference, calibration.num_views)
@@ -393,6 +396,30 @@ class DepthOfField:
         self._cover = self.seen.astype(np.float32)
         self._scratch: dict = {}
         self._x_range = (float(self.x[self.seen].min()), float(self.x[self.seen].max())) if self.seen.any() else (1.0, 1.0)
+
+    def all_in_focus(self) -> tuple[np.ndarray, np.ndarray]:
+        """The all-in-focus image: every pixel at its own depth (aperture 0), black where no view
+        sees it; and that depth, (h, w) float32 metres, NaN where the map had none (the render
+        continued the nearest measured depth there) or no view sees it. What
+        :func:`lfring.all_in_focus` gives for this renderer's views and depth map."""
+        out = self.render(float(np.nanmedian(self.depth_m)), 0.0)  # at aperture 0 any focus renders the same
+        out[~self.seen] = 0.0
+        return out, np.where(self.seen, self.depth_m, np.float32(np.nan))
+
+    def check_made_from(self, views, calibration, reference) -> None:
+        """Raise :class:`InvalidInputError` unless this renderer could have been made from
+        ``views`` (their size and channels) with ``calibration`` (the same object) in the frame of
+        ``reference``: a prepared renderer passed where a depth map is taken is reused as is."""
+        arr = np.shape(views)
+        if len(arr) != 4 or tuple(arr[1:]) != self.colour.shape:
+            raise InvalidInputError(f"the depth-of-field renderer was made from views of {self.colour.shape} "
+                                    f"(h, w, C), these are {tuple(arr[1:])}")
+        if calibration is not self.calibration:
+            raise InvalidInputError("the depth-of-field renderer was made with another calibration")
+        ref = check_reference(reference, calibration.num_views)
+        if ref != self.reference:
+            raise InvalidInputError(f"the depth-of-field renderer is in the frame of reference {self.reference!r}, "
+                                    f"the refocusing in {ref!r}")
 
     # -- sampling the views --------------------------------------------------------------------
     def _sampling_maps(self, k_views: int, x: np.ndarray, at=None):
@@ -999,12 +1026,19 @@ def depth_of_field(views, calibration, *, depth=None, zmin_m=None, zmax_m=None, 
     """A :class:`DepthOfField` renderer of the views: from a depth map (``depth``, a
     :class:`lfring.DepthResult` or (h, w) metres in the reference frame), or one estimated over
     ``zmin_m``..``zmax_m`` (by default the calibration's valid range). Reuse it to render many
-    focus depths and apertures from one depth map. An estimated map's depths count as measured
+    focus depths and apertures from one depth map; given as ``depth`` (here, and so to
+    :func:`lfring.refocus`, :func:`lfring.focal_stack` and :func:`lfring.all_in_focus`), a renderer
+    made from the same views is used as it is. An estimated map's depths count as measured
     wherever :data:`MIN_ESTIMATED_VIEWS` views' worth see them, a bare map's wherever
     :data:`MIN_DEPTH_VIEWS` do; where estimation was not confident, its hole-filled depth is
     rendered on smooth surfaces (:data:`FILL_SMOOTH_PX`)."""
     arr = check_views(views)
     ref = check_reference(reference, calibration.num_views)
+    if isinstance(depth, DepthOfField):
+        if zmin_m is not None or zmax_m is not None:
+            raise InvalidInputError("zmin_m/zmax_m set the range of the depth estimation: give them or a depth map, not both")
+        depth.check_made_from(arr, calibration, ref)
+        return depth
     dm, measured_views = _depth_map(arr, calibration, depth, zmin_m, zmax_m, ref)
     return DepthOfField(arr, calibration, dm, reference=ref, measured_views=measured_views)
 

@@ -90,9 +90,11 @@ def refocus(views, calibration, depth_m: float, *, reference="center", interpola
         ``ring_device`` or a calibration made from a built-in device; see
         :func:`lfring.focus.depth_aware.resolve_aperture`).
     ring_device : RingDevice, optional
-    depth : DepthResult or (h, w) array of metres, optional
+    depth : DepthResult, (h, w) array of metres or DepthOfField, optional
         'depth-aware': the depth map in the reference frame (e.g. from
         :func:`lfring.estimate_depth`); estimated over ``zmin_m``..``zmax_m`` when not given.
+        A renderer made from these views (:func:`lfring.focus.depth_aware.depth_of_field`) is
+        used as it is: its preparation is not repeated.
     zmin_m, zmax_m : float, optional
         'depth-aware': the range of the depth estimation (default: the calibration's valid range).
 
@@ -194,9 +196,11 @@ def all_in_focus(views, calibration, depths_m=None, *, depth_map_m=None, referen
         Depths to choose from (default: depth-aware refocusing's range,
         :func:`lfring.focus.depth_aware.estimation_range`, evenly in disparity, one pixel
         apart; with ``depth_map_m``, the map's own depths).
-    depth_map_m : DepthResult or (h, w) float, optional
+    depth_map_m : DepthResult, (h, w) float or DepthOfField, optional
         Depth of every reference pixel (a :class:`lfring.DepthResult` from
-        :func:`lfring.estimate_depth`, or metres; NaN where unknown): each pixel is then
+        :func:`lfring.estimate_depth`, or metres; NaN where unknown; or a renderer made from these
+        views, :func:`lfring.focus.depth_aware.depth_of_field`, whose map and preparation are
+        used as they are): each pixel is then
         refocused at its own depth (the nearest of ``depths_m`` when they are given), as
         depth-aware refocusing renders the same map at aperture 0: where the depth is unknown,
         or too few views see it, the nearest measured depth is continued
@@ -241,15 +245,18 @@ def all_in_focus(views, calibration, depths_m=None, *, depth_map_m=None, referen
     arr = check_views(views)
     h, w = arr.shape[1:3]
     measured_views = MIN_DEPTH_VIEWS
-    if depth_map_m is not None:
+    if isinstance(depth_map_m, DepthOfField):
+        depth_map_m.check_made_from(arr, calibration, reference)
+        if depths_m is None:
+            return depth_map_m.all_in_focus()
+        dm, measured_views = depth_map_m.depth_m.astype(np.float64), depth_map_m.measured_views
+        known = known_depths(dm, calibration)
+    elif depth_map_m is not None:
         dm, measured_views = depth_to_render(depth_map_m, calibration, check_reference(reference, calibration.num_views),
                                              (h, w))
         known = known_depths(dm, calibration)
         if depths_m is None:  # every pixel at its own depth
-            dof = DepthOfField(arr, calibration, dm, reference=reference, measured_views=measured_views)
-            out = dof.render(float(np.median(dm[known])), 0.0)
-            out[~dof.seen] = 0.0
-            return out, np.where(known & dof.seen, dm, np.nan).astype(np.float32)
+            return DepthOfField(arr, calibration, dm, reference=reference, measured_views=measured_views).all_in_focus()
     if depths_m is None:
         # Depth-aware refocusing's range, by its one rule (a calibration open to infinity ends
         # where the views stop moving, when that is a range of depths at all).

@@ -12,6 +12,7 @@ import cv2
 import numpy as np
 
 from lfring.core.validate import check_choice, check_fraction, check_int, check_number, is_number
+from lfring.core.viewstack import check_views
 from lfring.depth import SGM_MIN_PLANES
 from lfring.errors import InvalidInputError
 
@@ -89,7 +90,7 @@ def viewer_data(views, calibration, *, zmin_m=None, zmax_m=None, num_planes=None
     from lfring.depth.io import colorize_depth
     from lfring.focus import METHODS, resolve_aperture
     from lfring.calibration.overlap import check_renderable
-    from lfring.focus.depth_aware import estimation_range
+    from lfring.focus.depth_aware import depth_of_field, estimation_range
     from lfring.io.writers import encode_image
 
     _check_options(num_planes, min_confidence, image_format, quality)
@@ -102,7 +103,8 @@ def viewer_data(views, calibration, *, zmin_m=None, zmax_m=None, num_planes=None
     else:
         f_number_given = None
     box_list = _check_boxes(boxes)
-    shape_hw = tuple(np.shape(views)[1:3])
+    views = check_views(views)
+    shape_hw = tuple(views.shape[1:3])
     unchecked = None if unchecked_mask is None else _overlay_png(unchecked_mask, shape_hw)
     if depth is not None and num_planes is not None:
         raise InvalidInputError("the stack's planes are the given depth result's hypotheses: give num_planes or depth, not both")
@@ -122,18 +124,20 @@ def viewer_data(views, calibration, *, zmin_m=None, zmax_m=None, num_planes=None
     zs = zs[(zs >= lo - 1e-9) & (zs <= hi + 1e-9)]
     if zs.size < 2:
         raise InvalidInputError(f"the depth result's hypotheses hold fewer than two depths within {lo:g}..{hi:g} m")
-    # The stack as lfring refocus makes it: depth-aware (by default) from the depth map above.
-    options = {"aperture": aperture, "f_number": f_number}
-    if "depth" in m.options:
-        options["depth"] = depth
-    stack = focal_stack(views, calibration, zs, reference=reference, method=m.name, **options)
-    h, w = stack.shape[1:3]
+    h, w = shape_hw
     depth_m = np.asarray(depth.depth_m, dtype=np.float64)
     conf = np.asarray(depth.confidence, dtype=np.float64)
     if depth_m.shape != (h, w) or conf.shape != (h, w):
         raise InvalidInputError(f"the depth map and confidence must be {h} x {w} (the reference frame), "
                                 f"got {depth_m.shape} and {conf.shape}; estimate them with the same reference")
-    aif, _ = all_in_focus(views, calibration, depth_map_m=depth, reference=reference)
+    # The all-in-focus image and a depth-aware stack render from one renderer of the map.
+    renderer = depth_of_field(views, calibration, depth=depth, reference=reference)
+    # The stack as lfring refocus makes it: depth-aware (by default) from the depth map above.
+    options = {"aperture": aperture, "f_number": f_number}
+    if "depth" in m.options:
+        options["depth"] = renderer
+    stack = focal_stack(views, calibration, zs, reference=reference, method=m.name, **options)
+    aif, _ = all_in_focus(views, calibration, depth_map_m=renderer, reference=reference)
 
     suffix, mime, flag = IMAGE_FORMATS[image_format]
     params = (flag, int(quality))

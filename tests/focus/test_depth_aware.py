@@ -558,6 +558,50 @@ def test_unknown_depths_are_continued_from_the_nearest_known_ones():
         all_in_focus(views, cal, [NEAR_M, FAR_M], depth_map_m=np.ones((4, 4)))
 
 
+def test_a_renderer_given_as_the_depth_map_is_used_as_it_is(monkeypatch):
+    """A renderer made from the views (depth_of_field) and given where a depth map is taken gives
+    refocus, focal_stack and all_in_focus what the map itself gives, to the bit, without being
+    prepared again; one that does not fit the views, the calibration or the reference is refused."""
+    import lfring.focus.depth_aware as depth_aware
+
+    cal = _calibration()
+    far, near = _textures()
+    views, depth, _ = _scene(far, near)
+    unknown = depth.astype(np.float64)
+    unknown[40:56, 72:88] = np.nan
+    for given in (unknown, _estimated(unknown)):
+        renderer = depth_of_field(views, cal, depth=given)
+        expected = (refocus(views, cal, NEAR_M, method="depth-aware", depth=given, aperture=0.7),
+                    focal_stack(views, cal, [NEAR_M, FAR_M], method="depth-aware", depth=given),
+                    *all_in_focus(views, cal, depth_map_m=given),
+                    *all_in_focus(views, cal, [NEAR_M, FAR_M], depth_map_m=given))
+        made = []
+        init = DepthOfField.__init__
+
+        def counted(self, *args, **kwargs):
+            made.append(True)
+            init(self, *args, **kwargs)
+
+        monkeypatch.setattr(depth_aware.DepthOfField, "__init__", counted)
+        got = (refocus(views, cal, NEAR_M, method="depth-aware", depth=renderer, aperture=0.7),
+               focal_stack(views, cal, [NEAR_M, FAR_M], method="depth-aware", depth=renderer),
+               *all_in_focus(views, cal, depth_map_m=renderer))
+        assert made == []  # none prepared again
+        got += all_in_focus(views, cal, [NEAR_M, FAR_M], depth_map_m=renderer)  # snapped: a new one from its map
+        assert len(made) == 1
+        monkeypatch.undo()
+        for a, b in zip(got, expected, strict=True):
+            np.testing.assert_array_equal(a, b)
+    with pytest.raises(InvalidInputError, match=r"made from views of \(96, 96, 3\) \(h, w, C\), these are \(96, 96, 1\)"):
+        all_in_focus(views[..., :1], cal, depth_map_m=renderer)
+    with pytest.raises(InvalidInputError, match="made with another calibration"):
+        refocus(views, _calibration(), NEAR_M, method="depth-aware", depth=renderer)
+    with pytest.raises(InvalidInputError, match="in the frame of reference 'center', the refocusing in 0"):
+        focal_stack(views, cal, [NEAR_M], method="depth-aware", depth=renderer, reference=0)
+    with pytest.raises(InvalidInputError, match="give them or a depth map, not both"):
+        depth_of_field(views, cal, depth=renderer, zmin_m=0.5)
+
+
 def test_f_number_works_with_the_built_in_calibration():
     """The shipped calibration of the twin records the device it was made from, so an f-number
     can be turned into an aperture without naming the device."""
