@@ -965,7 +965,7 @@ def _estimated_depth(result: DepthResult, calibration, reference) -> np.ndarray:
     if filled is None or np.shape(filled) != d.shape:
         return d
     z0 = calibration.depth_origin_m
-    confident = np.isfinite(d) & (d > z0) & (np.asarray(result.confidence) >= MIN_CONFIDENCE)
+    confident = known_depths(d, calibration, allow_none=True) & (np.asarray(result.confidence) >= MIN_CONFIDENCE)
     unsure = np.isfinite(d) & ~confident & np.isfinite(filled)
     if not unsure.any() or not confident.any():
         return d
@@ -981,13 +981,13 @@ def _estimated_depth(result: DepthResult, calibration, reference) -> np.ndarray:
     return np.where(unsure & smooth, np.asarray(filled, dtype=np.float64), d)
 
 
-def known_depths(depth_map_m: np.ndarray, calibration) -> np.ndarray:
+def known_depths(depth_map_m: np.ndarray, calibration, *, allow_none: bool = False) -> np.ndarray:
     """(h, w) bool: where ``depth_map_m`` holds a depth (finite, beyond the calibration's depth
     origin); elsewhere the renderer continues the nearest measured depth. A map that holds
-    none is refused."""
+    none is refused, unless ``allow_none``."""
     z0 = calibration.depth_origin_m
     known = np.isfinite(depth_map_m) & (depth_map_m > z0)
-    if not np.any(known):
+    if not allow_none and not np.any(known):
         raise InvalidInputError(f"the depth map holds no finite depth beyond the depth origin z0 = {z0:.4g} m")
     return known
 
