@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import contextlib
 import importlib
 import logging
 import sys
@@ -12,7 +11,7 @@ import click
 
 from lfring import __version__
 from lfring.cli.words import CliFormatter, cli_words
-from lfring.core.signals import deliver_lost_stops, interrupt_behind, raise_stop, redelivered_stops
+from lfring.core.signals import deliver_lost_stops, interrupt_behind, raise_stop, redelivered_stops, stop_record
 from lfring.errors import LfringError
 
 # command name -> module in lfring.cli defining a click command called ``command``.
@@ -200,13 +199,15 @@ def main(argv=None) -> int:
     ours = threading.current_thread() is threading.main_thread() and signal.getsignal(signal.SIGTERM) == signal.SIG_DFL
     # Ours to replace: Python's default, not where Ctrl-C is ignored or the caller's own.
     ours_int = ours and signal.getsignal(signal.SIGINT) is signal.default_int_handler
-    if ours:
-        signal.signal(signal.SIGTERM, _terminate if argv is not None else _terminate_script)
-    if ours_int:
-        signal.signal(signal.SIGINT, _interrupt if argv is not None else _interrupt_script)
     try:
-        # A Ctrl-C in a weakref callback of an import still stops the command.
-        with redelivered_stops() if ours else contextlib.nullcontext():
+        # Installed inside the try: the finally puts the caller's back whenever a signal comes.
+        if ours:
+            signal.signal(signal.SIGTERM, _terminate if argv is not None else _terminate_script)
+        if ours_int:
+            signal.signal(signal.SIGINT, _interrupt if argv is not None else _interrupt_script)
+        # A Ctrl-C in a weakref callback of an import still stops the command; the stops that come
+        # during it are its own (a command run inside another's has handlers that are not its own).
+        with redelivered_stops() if ours else stop_record():
             return _run(args)
     finally:
         # A KeyboardInterrupt that escaped code run from a string (the methods that dataclasses

@@ -20,7 +20,7 @@ from collections.abc import Iterator
 from typing import NoReturn
 
 __all__ = ["HELD_SIGNALS", "blocked_in_children", "deliver_lost_stops", "held_signals", "interrupt_behind",
-           "raise_stop", "redelivered_stops", "signals_between"]
+           "raise_stop", "redelivered_stops", "signals_between", "stop_record"]
 
 HELD_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM") if hasattr(signal, name))
 """The signals that ask a run to stop: Ctrl-C and a polite kill."""
@@ -91,18 +91,33 @@ def signals_between(signums=HELD_SIGNALS) -> Iterator:
 
 
 # Stops (exception types) that came where Python could not raise them, not yet delivered; stops
-# that a signal's handler raised (raise_stop); and how many redelivered_stops blocks are open (the
-# outermost one's end forgets both lists).
+# that a signal's handler raised (raise_stop); and how many stop_record blocks are open. Each
+# block's end forgets what came in it.
 _LOST: list[type] = []
 _RAISED: list[type] = []
 _OPEN = [0]
 
 
 @contextlib.contextmanager
+def stop_record() -> Iterator[None]:
+    """The stops that come while the block runs are its own: :func:`raise_stop` keeps them for
+    :func:`interrupt_behind`, and the block's end forgets them (and any that
+    :func:`redelivered_stops` kept), so that they never stand behind another block's errors: a
+    command's, run after or inside this one."""
+    marks = len(_LOST), len(_RAISED)
+    _OPEN[0] += 1
+    try:
+        yield
+    finally:
+        _OPEN[0] -= 1
+        del _LOST[marks[0]:], _RAISED[marks[1]:]
+
+
+@contextlib.contextmanager
 def redelivered_stops() -> Iterator[None]:
     """While the block runs, a Ctrl-C (any KeyboardInterrupt, such as a SIGTERM raised as one, or
-    an error raised from one: :func:`interrupt_behind`) that lands where Python cannot raise it is
-    kept for :func:`deliver_lost_stops`.
+    an error raised from one) that lands where Python cannot raise it is kept for
+    :func:`deliver_lost_stops`; the block is a :func:`stop_record`.
 
     A signal's handler runs wherever the main thread is. In a weakref callback or a ``__del__``
     (the import machinery's module locks have one) its exception cannot propagate: Python would
@@ -114,33 +129,29 @@ def redelivered_stops() -> Iterator[None]:
     previous = sys.unraisablehook
 
     def hook(unraisable):
-        stop = interrupt_behind(unraisable.exc_value) if unraisable.exc_value is not None else None
+        stop = _stop_in_chain(unraisable.exc_value)
         if stop is not None:
             _LOST.append(type(stop))
             return
         previous(unraisable)
 
     sys.unraisablehook = hook
-    _OPEN[0] += 1
     try:
-        yield
+        with stop_record():
+            yield
     finally:
         sys.unraisablehook = previous
-        _OPEN[0] -= 1
-        if _OPEN[0] == 0:
-            _LOST.clear()
-            _RAISED.clear()
 
 
 def raise_stop(kind: type[KeyboardInterrupt] = KeyboardInterrupt) -> NoReturn:
-    """Raise a new ``kind`` from a signal's handler, and, inside :func:`redelivered_stops`, keep
+    """Raise a new ``kind`` from a signal's handler, and, inside :func:`stop_record`, keep
     that it came.
 
     Code that catches every exception can turn the stop into an error of its own and forget it:
     matplotlib's image resampling, cut by a Ctrl-C, reports an invalid transformation matrix. Any
     error that reaches :func:`interrupt_behind` after a stop came stands for that stop.
     """
-    if _OPEN[0]:
+    if _OPEN[0] and threading.current_thread() is threading.main_thread():
         _RAISED.append(kind)
     raise kind()
 
@@ -176,9 +187,10 @@ def blocked_in_children(signums=(signal.SIGINT,)) -> Iterator[None]:
 
 def interrupt_behind(exc: BaseException) -> KeyboardInterrupt | None:
     """The Ctrl-C (or SIGTERM raised as one) that ``exc`` stands for, if any: ``exc`` itself, the
-    KeyboardInterrupt it was raised from, or (inside :func:`redelivered_stops`) a new stop of the
-    kind that the last :func:`raise_stop` raised, whatever ``exc`` is: a stop ends the command,
-    and an error that comes after it is its consequence.
+    KeyboardInterrupt it was raised from, or (inside :func:`stop_record`) a new stop of the
+    kind that the last :func:`raise_stop` raised in the open :func:`stop_record` block, whatever
+    ``exc`` is (in the main thread, whose handlers raise them): a stop ends the command, and an
+    error that comes after it is its consequence.
 
     Python 3.10 and 3.11 turn an exception raised inside a class's ``__set_name__`` into a
     RuntimeError caused by it, so a Ctrl-C that comes while an import creates such a class (a
@@ -196,10 +208,18 @@ def interrupt_behind(exc: BaseException) -> KeyboardInterrupt | None:
     ...     interrupt_behind(exc) is stop
     True
     """
+    stop = _stop_in_chain(exc)
+    if stop is None and _RAISED and threading.current_thread() is threading.main_thread():
+        stop = _RAISED[-1]()
+    return stop
+
+
+def _stop_in_chain(exc: BaseException | None) -> KeyboardInterrupt | None:
+    """``exc`` if it is a KeyboardInterrupt, else the first one it was raised from, if any."""
     seen = set()
     while exc is not None and id(exc) not in seen:
         if isinstance(exc, KeyboardInterrupt):
             return exc
         seen.add(id(exc))
         exc = exc.__cause__
-    return _RAISED[-1]() if _RAISED else None
+    return None

@@ -8,6 +8,8 @@ import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
+from lfring.core.signals import held_signals
+
 __all__ = ["atomic_path", "atomic_write_bytes", "atomic_write_text"]
 
 
@@ -21,26 +23,31 @@ def atomic_path(path: str | Path, *, tmp_dir: str | Path | None = None) -> Itera
     """
     path = Path(path)
     where = path.parent if tmp_dir is None else Path(tmp_dir)
+    tmp_path = None
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        where.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".part{path.suffix}", dir=where)
-    except OSError as exc:
-        raise _naming(exc, path) from None
-    tmp_path = Path(tmp)
-    try:
-        os.close(fd)
-        # mkstemp creates 0600; outputs get the ordinary permissions the umask allows.
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp_path, 0o666 & ~umask)
+        # A Ctrl-C or SIGTERM that comes while the temporary file is made waits until it is known
+        # (and so removed below): between its creation and the block it would be left behind.
+        with held_signals():
+            try:
+                path.parent.mkdir(parents=True, exist_ok=True)
+                where.mkdir(parents=True, exist_ok=True)
+                fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".part{path.suffix}", dir=where)
+            except OSError as exc:
+                raise _naming(exc, path) from None
+            tmp_path = Path(tmp)
+            os.close(fd)
+            # mkstemp creates 0600; outputs get the ordinary permissions the umask allows.
+            umask = os.umask(0)
+            os.umask(umask)
+            os.chmod(tmp_path, 0o666 & ~umask)
         yield tmp_path
         os.replace(tmp_path, path)
     except BaseException as exc:
-        with contextlib.suppress(FileNotFoundError):
-            tmp_path.unlink()
-        if isinstance(exc, OSError) and exc.filename in (str(tmp_path), tmp_path):
-            raise _naming(exc, path) from None
+        if tmp_path is not None:
+            with contextlib.suppress(FileNotFoundError):
+                tmp_path.unlink()
+            if isinstance(exc, OSError) and exc.filename in (str(tmp_path), tmp_path):
+                raise _naming(exc, path) from None
         raise
 
 

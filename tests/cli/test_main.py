@@ -341,3 +341,52 @@ def test_a_stop_that_a_library_turned_into_its_own_error_still_stops(monkeypatch
             main(["interrupted"])
     finally:
         signal.signal(signal.SIGINT, previous)
+
+
+def test_a_stop_stands_behind_the_errors_of_its_own_command_only(monkeypatch, capsys):
+    """A stop that came in one command is that command's: a command run inside another, or after
+    it in the caller's own block, does not pass it on to the other's genuine errors; nor does it
+    hide another exception that Python can only report."""
+    from lfring.core.signals import raise_stop, redelivered_stops
+
+    inner = _command_whose_library_forgets_a_stop(signal.SIGINT, ValueError("Invalid affine transformation matrix"))
+
+    @click.command("outer")
+    def outer():
+        assert main(["interrupted"]) == 130  # its handlers are the outer command's
+        raise ValueError("a bug of the outer command")
+
+    monkeypatch.setitem(sys.modules, "lfring.cli.interrupted", types.SimpleNamespace(command=inner))
+    monkeypatch.setitem(sys.modules, "lfring.cli.outer", types.SimpleNamespace(command=outer))
+    monkeypatch.setitem(COMMANDS, "interrupted", "interrupted")
+    monkeypatch.setitem(COMMANDS, "outer", "outer")
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with pytest.raises(ValueError, match="a bug of the outer command"):
+            main(["outer"])
+        with redelivered_stops():  # a caller's own block around two commands
+            assert main(["interrupted"]) == 130
+            monkeypatch.setitem(sys.modules, "lfring.cli.interrupted",
+                                types.SimpleNamespace(command=_command_building_a_class(ValueError("a bug"))))
+            with pytest.raises((RuntimeError, ValueError)):
+                main(["interrupted"])
+            # A stop kept in this block does not take another unraisable exception for itself.
+            try:
+                raise_stop()
+            except KeyboardInterrupt:
+                pass
+            seen = []
+            monkeypatch.setattr(sys, "unraisablehook", lambda u: seen.append(u.exc_type))
+            with redelivered_stops():
+                class Held:
+                    pass
+
+                def callback(ref):
+                    raise ValueError("reported")
+
+                held = Held()
+                ref = weakref.ref(held, callback)  # noqa: F841
+                del held
+            assert seen == [ValueError]
+    finally:
+        signal.signal(signal.SIGINT, previous)

@@ -83,3 +83,28 @@ def test_atomic_path_names_the_target_not_the_temporary(tmp_path, monkeypatch):
         with atomic_path(tmp_path / "out.png"):
             pass
     assert info.value.filename == str(tmp_path / "out.png")
+
+
+def test_a_stop_as_the_temporary_file_is_made_leaves_nothing(tmp_path, monkeypatch):
+    """Ctrl-C that comes right after the atomic write's temporary file was created (still inside
+    tempfile) stops the write and leaves neither the file nor its temporary beside it."""
+    import signal
+    import tempfile
+
+    from lfring.io import atomic
+
+    real = tempfile.mkstemp
+
+    def cut(*args, **kwargs):
+        made = real(*args, **kwargs)
+        signal.raise_signal(signal.SIGINT)
+        return made
+
+    monkeypatch.setattr(atomic.tempfile, "mkstemp", cut)
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            atomic.atomic_write_bytes(tmp_path / "out.bin", b"data")
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    assert list(tmp_path.iterdir()) == []
