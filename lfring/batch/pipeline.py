@@ -198,7 +198,7 @@ def _process(input_path, settings: BatchSettings, outputs, timings) -> tuple[dic
 
     renderer = None
     if aif_depth:  # the all-in-focus image's renderer of the map, which depth-aware refocusing reuses
-        from lfring.focus.depth_aware import depth_of_field
+        from lfring.focus.depth_aware import DEPTH_AWARE, depth_of_field
 
         t = time.perf_counter()
         renderer = depth_of_field(views, cal, depth=depth_res, reference=settings.reference)
@@ -208,7 +208,8 @@ def _process(input_path, settings: BatchSettings, outputs, timings) -> tuple[dic
     if refocus or settings.viewer:
         info.update(_refocus_record(cal, settings))
     if refocus and method.prepare is not None:
-        finish = _finisher(views, cal, settings, depth_res if renderer is None else renderer, info["aperture"], timings)
+        reuse = renderer is not None and method is DEPTH_AWARE  # another method takes the map itself
+        finish = _finisher(views, cal, settings, renderer if reuse else depth_res, info["aperture"], timings)
     for z in refocus:
         sharp = _refocuser(cal, cal_name, z, settings, views.shape[1:3])(views)
         arrays[f"refocus_{z:g}m"] = sharp if finish is None else finish(sharp, z)

@@ -361,8 +361,9 @@ class DepthOfField:
         R of :func:`aperture_radius_px`.
     measured_views : float
         The parameter: the views' worth from which a depth counts as measured.
-    depth_m : (h, w) float32
-        The depth map as given, NaN where it has no depth.
+    depth_m : (h, w) float64
+        The depth map it renders (for an estimate, :func:`depth_to_render`'s), NaN where it has no
+        depth (:func:`known_depths`).
 
     Notes
     -----
@@ -381,7 +382,8 @@ class DepthOfField:
             raise InvalidInputError(f"the depth map must be {h} x {w} px like the views, got shape {dm.shape}")
         z0 = calibration.depth_origin_m
         known = known_depths(dm, calibration)
-        self.depth_m = np.where(known, dm, np.nan).astype(np.float32)
+        self.depth_m = np.where(known, dm, np.nan)
+        self._views_sample = _views_sample(arr)
         if not np.all(known):
             dm = np.where(known, dm, float(np.median(dm[known])))
         self.reference = check_reference(reference, calibration.num_views)
@@ -404,16 +406,20 @@ class DepthOfField:
         :func:`lfring.all_in_focus` gives for this renderer's views and depth map."""
         out = self.render(float(np.nanmedian(self.depth_m)), 0.0)  # at aperture 0 any focus renders the same
         out[~self.seen] = 0.0
-        return out, np.where(self.seen, self.depth_m, np.float32(np.nan))
+        return out, np.where(self.seen, self.depth_m, np.nan).astype(np.float32)
 
     def check_made_from(self, views, calibration, reference) -> None:
-        """Raise :class:`InvalidInputError` unless this renderer could have been made from
-        ``views`` (their size and channels) with ``calibration`` (the same object) in the frame of
-        ``reference``: a prepared renderer passed where a depth map is taken is reused as is."""
-        arr = np.shape(views)
-        if len(arr) != 4 or tuple(arr[1:]) != self.colour.shape:
-            raise InvalidInputError(f"the depth-of-field renderer was made from views of {self.colour.shape} "
-                                    f"(h, w, C), these are {tuple(arr[1:])}")
+        """Raise :class:`InvalidInputError` unless this renderer was made from ``views`` (as many,
+        of the same size and channels, the same values at a sample of their pixels) with
+        ``calibration`` (the same object) in the frame of ``reference``: a prepared renderer passed
+        where a depth map is taken is reused as it is."""
+        arr = check_views(views)
+        if arr.shape[1:] != self.colour.shape or arr.shape[0] != self._views_sample[0]:
+            raise InvalidInputError(f"the depth-of-field renderer was made from {self._views_sample[0]} views of "
+                                    f"{self.colour.shape} (h, w, C), these are {arr.shape[0]} of {arr.shape[1:]}")
+        if _views_sample(arr) != self._views_sample:
+            raise InvalidInputError("the depth-of-field renderer was made from other views (another frame, or "
+                                    "views changed since): make it from these")
         if calibration is not self.calibration:
             raise InvalidInputError("the depth-of-field renderer was made with another calibration")
         ref = check_reference(reference, calibration.num_views)
@@ -648,6 +654,19 @@ class DepthOfField:
         kern.finish(acc, summed, by, bx, np.float32(WEIGHT_FLOOR), out)
         return out
 
+
+def _views_sample(arr: np.ndarray) -> tuple[int, str]:
+    """The number of views and a digest of their values on a sparse grid of pixels (every
+    :data:`_SAMPLE_STEP_PX`-th row and column): enough to tell another frame from the one a
+    renderer was made from, at a small fraction of the views' size."""
+    import hashlib
+
+    sample = np.ascontiguousarray(arr[:, ::_SAMPLE_STEP_PX, ::_SAMPLE_STEP_PX])
+    return arr.shape[0], hashlib.blake2b(sample.tobytes(), digest_size=16).hexdigest()
+
+
+_SAMPLE_STEP_PX = 7
+"""Rows and columns between the pixels whose values identify a renderer's views."""
 
 _EMPTY3 = np.zeros((0, 0, 0), np.float32)
 _EMPTY2 = np.zeros((0, 0), np.float32)

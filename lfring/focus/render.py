@@ -249,7 +249,7 @@ def all_in_focus(views, calibration, depths_m=None, *, depth_map_m=None, referen
         depth_map_m.check_made_from(arr, calibration, reference)
         if depths_m is None:
             return depth_map_m.all_in_focus()
-        dm, measured_views = depth_map_m.depth_m.astype(np.float64), depth_map_m.measured_views
+        dm, measured_views = depth_map_m.depth_m, depth_map_m.measured_views
         known = known_depths(dm, calibration)
     elif depth_map_m is not None:
         dm, measured_views = depth_to_render(depth_map_m, calibration, check_reference(reference, calibration.num_views),

@@ -90,7 +90,7 @@ def viewer_data(views, calibration, *, zmin_m=None, zmax_m=None, num_planes=None
     from lfring.depth.io import colorize_depth
     from lfring.focus import METHODS, resolve_aperture
     from lfring.calibration.overlap import check_renderable
-    from lfring.focus.depth_aware import depth_of_field, estimation_range
+    from lfring.focus.depth_aware import DEPTH_AWARE, depth_of_field, estimation_range
     from lfring.io.writers import encode_image
 
     _check_options(num_planes, min_confidence, image_format, quality)
@@ -104,6 +104,7 @@ def viewer_data(views, calibration, *, zmin_m=None, zmax_m=None, num_planes=None
         f_number_given = None
     box_list = _check_boxes(boxes)
     views = check_views(views)
+    calibration.check_fits(views.shape)
     shape_hw = tuple(views.shape[1:3])
     unchecked = None if unchecked_mask is None else _overlay_png(unchecked_mask, shape_hw)
     if depth is not None and num_planes is not None:
@@ -134,8 +135,8 @@ def viewer_data(views, calibration, *, zmin_m=None, zmax_m=None, num_planes=None
     renderer = depth_of_field(views, calibration, depth=depth, reference=reference)
     # The stack as lfring refocus makes it: depth-aware (by default) from the depth map above.
     options = {"aperture": aperture, "f_number": f_number}
-    if "depth" in m.options:
-        options["depth"] = renderer
+    if "depth" in m.options:  # depth-aware refocusing takes the renderer itself; another method the map
+        options["depth"] = renderer if m is DEPTH_AWARE else depth
     stack = focal_stack(views, calibration, zs, reference=reference, method=m.name, **options)
     aif, _ = all_in_focus(views, calibration, depth_map_m=renderer, reference=reference)
 

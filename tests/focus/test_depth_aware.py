@@ -592,8 +592,12 @@ def test_a_renderer_given_as_the_depth_map_is_used_as_it_is(monkeypatch):
         monkeypatch.undo()
         for a, b in zip(got, expected, strict=True):
             np.testing.assert_array_equal(a, b)
-    with pytest.raises(InvalidInputError, match=r"made from views of \(96, 96, 3\) \(h, w, C\), these are \(96, 96, 1\)"):
+    with pytest.raises(InvalidInputError, match=r"made from 4 views of \(96, 96, 3\) \(h, w, C\), these are 4 of \(96, 96, 1\)"):
         all_in_focus(views[..., :1], cal, depth_map_m=renderer)
+    with pytest.raises(InvalidInputError, match=r"made from 4 views .* these are 3 of \(96, 96, 3\)"):
+        all_in_focus(views[:3], cal, depth_map_m=renderer)
+    with pytest.raises(InvalidInputError, match="made from other views"):
+        focal_stack(views[:, ::-1].copy(), cal, [NEAR_M], method="depth-aware", depth=renderer)
     with pytest.raises(InvalidInputError, match="made with another calibration"):
         refocus(views, _calibration(), NEAR_M, method="depth-aware", depth=renderer)
     with pytest.raises(InvalidInputError, match="in the frame of reference 'center', the refocusing in 0"):

@@ -141,6 +141,10 @@ def test_overlays_and_bad_options(scene):
     for kw in bad:
         with pytest.raises(InvalidInputError):
             viewer_html(views, cal, **kw)
+    # Views that are not this calibration's are named as such, before any depth map is blamed.
+    for wrong in (views[0], views[:, :600]):
+        with pytest.raises(InvalidInputError, match="the calibration is for 4 views of 705 x 705 px"):
+            viewer_html(wrong, cal, depth=object())
 
 
 def test_a_stack_too_near_to_render_is_refused_before_any_depth_work(scene, monkeypatch):
