@@ -157,12 +157,20 @@ def raise_stop(kind: type[KeyboardInterrupt] = KeyboardInterrupt) -> NoReturn:
 
 
 def deliver_lost_stops() -> None:
-    """Raise the stop that :func:`redelivered_stops` kept (a new exception of its type), once.
-    Only the main thread delivers."""
-    if not _LOST or threading.current_thread() is not threading.main_thread():
+    """Raise the stop that :func:`redelivered_stops` kept (a new exception of its type), or one
+    that :func:`raise_stop` raised and that never reached its caller, once. Only the main thread
+    delivers.
+
+    lfring lets every stop through to the command's end, so one that :func:`raise_stop` raised in
+    the open block, met where the command goes on to commit its work, was swallowed whole by a
+    library (C code that clears the error it met)."""
+    if threading.current_thread() is not threading.main_thread():
         return
-    kind = _LOST[0]
+    kind = _LOST[0] if _LOST else _RAISED[-1] if _RAISED else None
+    if kind is None:
+        return
     _LOST.clear()
+    _RAISED.clear()
     raise kind()
 
 

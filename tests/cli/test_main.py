@@ -390,3 +390,31 @@ def test_a_stop_stands_behind_the_errors_of_its_own_command_only(monkeypatch, ca
             assert seen == [ValueError]
     finally:
         signal.signal(signal.SIGINT, previous)
+
+
+def test_a_stop_that_a_library_swallowed_whole_still_stops_the_command(monkeypatch, capsys):
+    """A library that clears the stop it met and goes on (no error at all): the command still
+    stops, as where it would commit its work, and says so."""
+    went_on = []
+
+    @click.command("interrupted")
+    def command():
+        try:
+            signal.raise_signal(signal.SIGINT)
+        except KeyboardInterrupt:
+            pass  # what such a library does
+        went_on.append(True)
+
+    monkeypatch.setitem(sys.modules, "lfring.cli.interrupted", types.SimpleNamespace(command=command))
+    monkeypatch.setitem(COMMANDS, "interrupted", "interrupted")
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        assert main(["interrupted"]) == 130
+        assert capsys.readouterr().err.strip() == "lfring: aborted"
+        # Delivered once: the next command runs as usual.
+        monkeypatch.setitem(sys.modules, "lfring.cli.interrupted",
+                            types.SimpleNamespace(command=click.command("interrupted")(lambda: None)))
+        assert main(["interrupted"]) == 0
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    assert went_on == [True]
