@@ -96,20 +96,25 @@ def signals_between(signums=HELD_SIGNALS) -> Iterator:
 _LOST: list[type] = []
 _RAISED: list[type] = []
 _OPEN = [0]
+# Where each open stop_record block's entries begin in _LOST and _RAISED (outside any: 0, 0).
+_MARKS: list[tuple[int, int]] = [(0, 0)]
 
 
 @contextlib.contextmanager
 def stop_record() -> Iterator[None]:
     """The stops that come while the block runs are its own: :func:`raise_stop` keeps them for
-    :func:`interrupt_behind`, and the block's end forgets them (and any that
-    :func:`redelivered_stops` kept), so that they never stand behind another block's errors: a
-    command's, run after or inside this one."""
+    :func:`interrupt_behind` and :func:`deliver_lost_stops`, which see only the innermost open
+    block's, and the block's end forgets them (and any that :func:`redelivered_stops` kept), so
+    that they never stand behind another block's errors or commits: a command's, run after or
+    inside this one, or the one around it."""
     marks = len(_LOST), len(_RAISED)
+    _MARKS.append(marks)
     _OPEN[0] += 1
     try:
         yield
     finally:
         _OPEN[0] -= 1
+        _MARKS.pop()
         del _LOST[marks[0]:], _RAISED[marks[1]:]
 
 
@@ -166,11 +171,11 @@ def deliver_lost_stops() -> None:
     library (C code that clears the error it met)."""
     if threading.current_thread() is not threading.main_thread():
         return
-    kind = _LOST[0] if _LOST else _RAISED[-1] if _RAISED else None
+    lost, raised = _MARKS[-1]  # the open block's own: an enclosing block's stops are its own
+    kind = _LOST[lost] if len(_LOST) > lost else _RAISED[-1] if len(_RAISED) > raised else None
     if kind is None:
         return
-    _LOST.clear()
-    _RAISED.clear()
+    del _LOST[lost:], _RAISED[raised:]
     raise kind()
 
 
@@ -217,7 +222,7 @@ def interrupt_behind(exc: BaseException) -> KeyboardInterrupt | None:
     True
     """
     stop = _stop_in_chain(exc)
-    if stop is None and _RAISED and threading.current_thread() is threading.main_thread():
+    if stop is None and len(_RAISED) > _MARKS[-1][1] and threading.current_thread() is threading.main_thread():
         stop = _RAISED[-1]()
     return stop
 

@@ -418,3 +418,38 @@ def test_a_stop_that_a_library_swallowed_whole_still_stops_the_command(monkeypat
     finally:
         signal.signal(signal.SIGINT, previous)
     assert went_on == [True]
+
+
+def test_a_stop_kept_around_a_command_is_not_that_commands(monkeypatch, capsys):
+    """A stop kept by a block around a command (the caller's, or the command that runs it) is
+    neither delivered in the inner command nor used up by it: the inner command runs as usual,
+    and the outer one still stops at its own commit point."""
+    from lfring.core.signals import deliver_lost_stops, raise_stop, redelivered_stops
+
+    monkeypatch.setitem(sys.modules, "lfring.cli.noop", types.SimpleNamespace(command=click.command("noop")(lambda: None)))
+    monkeypatch.setitem(COMMANDS, "noop", "noop")
+    with redelivered_stops():
+        try:
+            raise_stop()  # swallowed by the caller's own code
+        except KeyboardInterrupt:
+            pass
+        assert main(["noop"]) == 0
+        with pytest.raises(KeyboardInterrupt):
+            deliver_lost_stops()  # still the caller's, at its own commit point
+
+    @click.command("outer")
+    def outer():
+        try:
+            signal.raise_signal(signal.SIGINT)
+        except KeyboardInterrupt:
+            pass  # a library that swallows the stop
+        assert main(["noop"]) == 0
+
+    monkeypatch.setitem(sys.modules, "lfring.cli.outer", types.SimpleNamespace(command=outer))
+    monkeypatch.setitem(COMMANDS, "outer", "outer")
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        assert main(["outer"]) == 130
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    assert capsys.readouterr().err.strip() == "lfring: aborted"
