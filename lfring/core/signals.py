@@ -91,12 +91,11 @@ def signals_between(signums=HELD_SIGNALS) -> Iterator:
 
 
 # Stops (exception types) that came where Python could not raise them, not yet delivered; stops
-# that a signal's handler raised (raise_stop); and how many stop_record blocks are open. Each
-# block's end forgets what came in it.
+# that a signal's handler raised (raise_stop). Each block's end forgets what came in it.
 _LOST: list[type] = []
 _RAISED: list[type] = []
-_OPEN = [0]
-# Where each open stop_record block's entries begin in _LOST and _RAISED (outside any: 0, 0).
+# Where each open stop_record block's entries begin in _LOST and _RAISED, after the entry that
+# stands for no block (0, 0).
 _MARKS: list[tuple[int, int]] = [(0, 0)]
 
 
@@ -109,11 +108,9 @@ def stop_record() -> Iterator[None]:
     inside this one, or the one around it."""
     marks = len(_LOST), len(_RAISED)
     _MARKS.append(marks)
-    _OPEN[0] += 1
     try:
         yield
     finally:
-        _OPEN[0] -= 1
         _MARKS.pop()
         del _LOST[marks[0]:], _RAISED[marks[1]:]
 
@@ -156,7 +153,7 @@ def raise_stop(kind: type[KeyboardInterrupt] = KeyboardInterrupt) -> NoReturn:
     matplotlib's image resampling, cut by a Ctrl-C, reports an invalid transformation matrix. Any
     error that reaches :func:`interrupt_behind` after a stop came stands for that stop.
     """
-    if _OPEN[0] and threading.current_thread() is threading.main_thread():
+    if len(_MARKS) > 1 and threading.current_thread() is threading.main_thread():
         _RAISED.append(kind)
     raise kind()
 

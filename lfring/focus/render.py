@@ -250,13 +250,13 @@ def all_in_focus(views, calibration, depths_m=None, *, depth_map_m=None, referen
         if depths_m is None:
             return depth_map_m.all_in_focus()
         dm, measured_views = depth_map_m.depth_m, depth_map_m.measured_views
-        known = known_depths(dm, calibration)
     elif depth_map_m is not None:
         dm, measured_views = depth_to_render(depth_map_m, calibration, check_reference(reference, calibration.num_views),
                                              (h, w))
-        known = known_depths(dm, calibration)
         if depths_m is None:  # every pixel at its own depth
             return DepthOfField(arr, calibration, dm, reference=reference, measured_views=measured_views).all_in_focus()
+    if depth_map_m is not None:
+        known = known_depths(dm, calibration)
     if depths_m is None:
         # Depth-aware refocusing's range, by its one rule (a calibration open to infinity ends
         # where the views stop moving, when that is a range of depths at all).
