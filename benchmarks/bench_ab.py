@@ -16,11 +16,8 @@ depth map (equal digests: the same numbers to the bit).
 from __future__ import annotations
 
 import json
-import os
-import subprocess
 import sys
 import warnings
-from pathlib import Path
 
 
 def _median(fn, n):
@@ -80,32 +77,10 @@ def probe() -> None:
     print(json.dumps({k: round(v, 4) for k, v in out.items()}))
 
 
-def main() -> None:
-    import argparse
-
-    import numpy as np
-
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("old")
-    parser.add_argument("new")
-    parser.add_argument("--rounds", type=int, default=3)
-    args = parser.parse_args()
-    trees = [str(Path(p).resolve()) for p in (args.old, args.new)]
-    print(f"load {os.getloadavg()[0]:.2f}")
-    results = {tree: [] for tree in trees}
-    for _ in range(args.rounds):
-        for tree in trees:
-            env = {**os.environ, "PYTHONPATH": tree}
-            res = subprocess.run([sys.executable, __file__, "--probe"], env=env, capture_output=True, text=True, check=True)
-            print(Path(tree).name, res.stdout.strip(), flush=True)
-            results[tree].append(json.loads(res.stdout.strip().splitlines()[-1]))
-    print(f"load {os.getloadavg()[0]:.2f}")
-    for tree in trees:
-        keys = [k for k, v in results[tree][0].items() if not isinstance(v, str)]
-        digests = sorted({r[k] for r in results[tree] for k, v in r.items() if isinstance(v, str)})
-        print("median over rounds", Path(tree).name, json.dumps({k: round(float(np.median([r[k] for r in results[tree]])), 4)
-                                                                for k in keys}), *digests)
-
-
 if __name__ == "__main__":
-    probe() if sys.argv[1:] == ["--probe"] else main()
+    if sys.argv[1:] == ["--probe"]:
+        probe()
+    else:
+        from _timing import alternate_checkouts
+
+        alternate_checkouts(__file__, __doc__.splitlines()[0], default_rounds=3)

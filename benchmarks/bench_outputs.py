@@ -11,10 +11,8 @@ machine's load falls on both alike.
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import statistics
-import subprocess
 import sys
 import tempfile
 import time
@@ -55,29 +53,10 @@ def probe() -> None:
     print(json.dumps(times))
 
 
-def main() -> None:
-    import argparse
-
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("old")
-    parser.add_argument("new")
-    parser.add_argument("--rounds", type=int, default=5)
-    args = parser.parse_args()
-    trees = [str(Path(p).resolve()) for p in (args.old, args.new)]
-    print(f"load {os.getloadavg()[0]:.2f}")
-    results = {tree: [] for tree in trees}
-    for _ in range(args.rounds):
-        for tree in trees:
-            env = {**os.environ, "PYTHONPATH": tree}
-            res = subprocess.run([sys.executable, __file__, "--probe"], env=env, capture_output=True, text=True, check=True)
-            print(Path(tree).name, res.stdout.strip(), flush=True)
-            results[tree].append(json.loads(res.stdout.strip().splitlines()[-1]))
-    print(f"load {os.getloadavg()[0]:.2f}")
-    for tree in trees:
-        keys = results[tree][0]
-        print("median over rounds", Path(tree).name,
-              json.dumps({k: round(statistics.median(r[k] for r in results[tree]), 1) for k in keys}))
-
-
 if __name__ == "__main__":
-    probe() if sys.argv[1:] == ["--probe"] else main()
+    if sys.argv[1:] == ["--probe"]:
+        probe()
+    else:
+        from _timing import alternate_checkouts
+
+        alternate_checkouts(__file__, __doc__.splitlines()[0], default_rounds=5)
