@@ -20,6 +20,23 @@ def device(request):
     return request.param
 
 
+@pytest.fixture
+def renderers_made(monkeypatch):
+    """A list that grows by one each time a depth-of-field renderer (``DepthOfField``) is
+    prepared, while the test runs: clear it to count from a point on."""
+    import lfring.focus.depth_aware as depth_aware
+
+    made = []
+    init = depth_aware.DepthOfField.__init__
+
+    def counted(self, *args, **kwargs):
+        made.append(True)
+        init(self, *args, **kwargs)
+
+    monkeypatch.setattr(depth_aware.DepthOfField, "__init__", counted)
+    return made
+
+
 @pytest.fixture(scope="session")
 def prototype():
     from lfring.optics import load_device

@@ -123,29 +123,19 @@ def test_a_viewer_left_to_make_takes_the_batchs_own_depth_map(frames):
     assert pages[0] == pages[1]
 
 
-def test_refocused_images_and_the_all_in_focus_image_share_one_renderer(frames, monkeypatch):
+def test_refocused_images_and_the_all_in_focus_image_share_one_renderer(frames, renderers_made):
     """Depth-aware refocusing and the all-in-focus image render from the frame's one depth map:
     its renderer (the all-in-focus colour, the background) is prepared once for both, and each
     image is what the library gives from that map."""
-    import lfring.focus.depth_aware as depth_aware
     from lfring import all_in_focus, demosaic, estimate_depth, load_raw, refocus, split_views
     from lfring.io.writers import encode_image
 
     d, cal_path = frames
     cal = load_calibration(cal_path)
     settings = BatchSettings(refocus_m=(0.4, 0.6), all_in_focus=True, zmin_m=0.25, zmax_m=1.2, calibration=cal)
-    made = []
-    init = depth_aware.DepthOfField.__init__
-
-    def counted(self, *args, **kwargs):
-        made.append(True)
-        init(self, *args, **kwargs)
-
-    monkeypatch.setattr(depth_aware.DepthOfField, "__init__", counted)
     res = process_frame(str(d / "scene.png"), settings)
     assert res.ok, res.error
-    assert len(made) == 1
-    monkeypatch.undo()
+    assert len(renderers_made) == 1
     views = split_views(demosaic(load_raw(d / "scene.png")), cal.layout)
     est = estimate_depth(views, cal, zmin_m=0.25, zmax_m=1.2)
     expected = {"all_in_focus": all_in_focus(views, cal, depth_map_m=est)[0],

@@ -45,22 +45,12 @@ def test_refocus_stack_and_all_in_focus(tmp_path):
 
 @pytest.mark.parametrize("args", [["refocus", str(SCENE), "--depths", "0.3,0.5", "--all-in-focus", "-o", "s.png"],
                                   ["view", str(SCENE), "-o", "v.html"]], ids=["refocus", "view"])
-def test_the_stack_and_the_all_in_focus_image_share_one_renderer(tmp_path, monkeypatch, args):
+def test_the_stack_and_the_all_in_focus_image_share_one_renderer(tmp_path, monkeypatch, renderers_made, args):
     """The depth-aware stack and the all-in-focus image render from one depth map: its renderer
     (the all-in-focus colour, the background) is prepared once for both."""
-    import lfring.focus.depth_aware as depth_aware
-
-    made = []
-    init = depth_aware.DepthOfField.__init__
-
-    def counted(self, *a, **kw):
-        made.append(True)
-        init(self, *a, **kw)
-
-    monkeypatch.setattr(depth_aware.DepthOfField, "__init__", counted)
     monkeypatch.chdir(tmp_path)
     assert main(["-q", *args]) == 0
-    assert len(made) == 1
+    assert len(renderers_made) == 1
 
 
 @pytest.mark.parametrize(

@@ -558,12 +558,10 @@ def test_unknown_depths_are_continued_from_the_nearest_known_ones():
         all_in_focus(views, cal, [NEAR_M, FAR_M], depth_map_m=np.ones((4, 4)))
 
 
-def test_a_renderer_given_as_the_depth_map_is_used_as_it_is(monkeypatch):
+def test_a_renderer_given_as_the_depth_map_is_used_as_it_is(renderers_made):
     """A renderer made from the views (depth_of_field) and given where a depth map is taken gives
     refocus, focal_stack and all_in_focus what the map itself gives, to the bit, without being
     prepared again; one that does not fit the views, the calibration or the reference is refused."""
-    import lfring.focus.depth_aware as depth_aware
-
     cal = _calibration()
     far, near = _textures()
     views, depth, _ = _scene(far, near)
@@ -575,21 +573,13 @@ def test_a_renderer_given_as_the_depth_map_is_used_as_it_is(monkeypatch):
                     focal_stack(views, cal, [NEAR_M, FAR_M], method="depth-aware", depth=given),
                     *all_in_focus(views, cal, depth_map_m=given),
                     *all_in_focus(views, cal, [NEAR_M, FAR_M], depth_map_m=given))
-        made = []
-        init = DepthOfField.__init__
-
-        def counted(self, *args, **kwargs):
-            made.append(True)
-            init(self, *args, **kwargs)
-
-        monkeypatch.setattr(depth_aware.DepthOfField, "__init__", counted)
+        renderers_made.clear()
         got = (refocus(views, cal, NEAR_M, method="depth-aware", depth=renderer, aperture=0.7),
                focal_stack(views, cal, [NEAR_M, FAR_M], method="depth-aware", depth=renderer),
                *all_in_focus(views, cal, depth_map_m=renderer))
-        assert made == []  # none prepared again
+        assert renderers_made == []  # none prepared again
         got += all_in_focus(views, cal, [NEAR_M, FAR_M], depth_map_m=renderer)  # snapped: a new one from its map
-        assert len(made) == 1
-        monkeypatch.undo()
+        assert len(renderers_made) == 1
         for a, b in zip(got, expected, strict=True):
             np.testing.assert_array_equal(a, b)
     with pytest.raises(InvalidInputError, match=r"made from 4 views of \(96, 96, 3\) \(h, w, C\), these are 4 of \(96, 96, 1\)"):
