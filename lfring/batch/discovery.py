@@ -12,12 +12,11 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
 
 from lfring.batch.record import RECORD_SUFFIX
 from lfring.batch.settings import BatchSettings
 from lfring.errors import InvalidInputError
-from lfring.io.readers import PNG_SIGNATURE
+from lfring.io.readers import frame_size
 
 __all__ = ["TRUTH_SUFFIX", "BatchJob", "find_inputs", "frame_size", "plan_jobs", "scan_inputs"]
 
@@ -55,32 +54,6 @@ def find_inputs(inputs: Sequence[str], *, outdir: str | Path | None = None, excl
 TRUTH_SUFFIX = "_truth"
 """Folders whose name ends so hold a frame's ground truth (the synthetic twin writes them): never
 frames."""
-
-
-def frame_size(path: str | Path) -> tuple[int, int] | None:
-    """(width, height) of a PNG or TIFF read from its header (no pixels), None when it cannot
-    be told cheaply (camera RAW, unreadable files: the frame's own error says why later) or the
-    file holds float samples (a map, not raw counts: size (0, 0))."""
-    p = Path(path)
-    suffix = p.suffix.lower()
-    try:
-        if suffix == ".png":
-            with open(p, "rb") as f:
-                head = f.read(24)
-            if len(head) == 24 and head.startswith(PNG_SIGNATURE) and head[12:16] == b"IHDR":
-                return int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
-            return None
-        if suffix in (".tif", ".tiff"):
-            import tifffile
-
-            with tifffile.TiffFile(p) as tf:
-                page = tf.pages[0]
-                if np.dtype(page.dtype).kind == "f":
-                    return (0, 0)
-                return int(page.imagewidth), int(page.imagelength)
-    except Exception:  # noqa: BLE001 - any unreadable header: not decided here
-        return None
-    return None
 
 
 def scan_inputs(inputs: Sequence[str], *, outdir: str | Path | None = None, exclude: Sequence[str] = (),

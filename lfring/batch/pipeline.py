@@ -21,6 +21,7 @@ import numpy as np
 from lfring.batch.settings import BatchSettings, all_in_focus_from_depth_map
 from lfring.core.signals import interrupt_behind
 from lfring.errors import DepthRangeError, InvalidInputError, LfringError, LfringWarning
+from lfring.io.readers import frame_size
 
 __all__ = ["REFOCUSER_CACHE_SIZE", "FrameResult", "process_frame"]
 
@@ -137,13 +138,19 @@ def _process(input_path, settings: BatchSettings, outputs, timings) -> tuple[dic
     from lfring.views import split_views
 
     t = time.perf_counter()
+    # The calibration first where the file's header tells the frame's size: its pattern and
+    # levels stand in for those the frame lacks, as they do for the settings' calibration.
+    size = frame_size(input_path) if settings.calibration is None else None
+    known = settings.calibration is not None or (size is not None and size != (0, 0))
+    cal, cal_name = _worker_calibration(settings, size) if known else (None, None)
     frame, notes = load_frame(input_path, pattern=settings.pattern, black_level=settings.black_level,
-                              white_level=settings.white_level, calibration=settings.calibration)
+                              white_level=settings.white_level, calibration=cal)
     for level, message in notes:
         if level >= logging.WARNING:
             warnings.warn(message, LfringWarning, stacklevel=2)
     image = demosaic(frame)
-    cal, cal_name = _worker_calibration(settings, (image.shape[1], image.shape[0]))
+    if cal is None:
+        cal, cal_name = _worker_calibration(settings, (image.shape[1], image.shape[0]))
     cal.check_frame(image.shape, what=f"frame {input_path}")
     if settings.check_frames:
         from lfring.check import check_frame

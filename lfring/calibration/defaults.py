@@ -9,7 +9,7 @@ from lfring.calibration.jsonio import CALIBRATION_SUFFIX, builtin_calibrations, 
 from lfring.calibration.ring import RingCalibration
 from lfring.errors import LfringFileNotFoundError
 
-__all__ = ["builtin_calibrations", "default_calibration"]
+__all__ = ["builtin_calibrations", "calibration_for_frame", "default_calibration"]
 
 
 def default_calibration(raw_size: tuple[int, int]) -> tuple[RingCalibration, str]:
@@ -29,3 +29,17 @@ def default_calibration(raw_size: tuple[int, int]) -> tuple[RingCalibration, str
             for n in matches]
     cals.sort(key=lambda c: c[0].source != "planes")
     return cals[0]
+
+
+def calibration_for_frame(path) -> tuple[RingCalibration, str] | None:
+    """The shipped calibration for the frame file ``path`` and its name, told from the file's
+    header before its pixels are read (so that the calibration's Bayer pattern and levels can
+    stand in for those the frame lacks); None where the header does not tell the size (camera
+    RAW, float samples, unreadable files). Raises as :func:`default_calibration` where no
+    shipped calibration has that size."""
+    from lfring.io.readers import frame_size
+
+    size = frame_size(path)
+    if not size or size == (0, 0):
+        return None
+    return default_calibration(size)

@@ -48,7 +48,7 @@ import numpy as np
 from lfring.core.validate import check_int, check_number, is_number
 from lfring.errors import FileFormatError, InvalidInputError, LfringError, LfringFileNotFoundError
 from lfring.io.bayer import PATTERNS, validate_pattern
-from lfring.io.readers import PNG_SIGNATURE
+from lfring.io.readers import DNG_VERSION_TAG, PNG_SIGNATURE
 from lfring.core.records import record_repr
 
 __all__ = ["RawFrame", "load_raw", "write_dng", "RAW_SUFFIXES", "FILE_FORMATS", "sidecar_path"]
@@ -69,7 +69,6 @@ FILE_FORMATS = ("camera_raw", "png", "tiff")
 """Values of :attr:`RawFrame.file_format` for frames read from a file (None for arrays)."""
 
 _SIDECAR_KEYS = ("pattern", "black_level", "white_level", "bit_depth")
-_DNG_VERSION_TAG = 50706
 _CFA_CODES = {"R": 0, "G": 1, "B": 2}
 
 
@@ -406,7 +405,7 @@ def write_dng(path: str | PathLike[str], frame: RawFrame) -> Path:
     tags = [
         (33421, "H", 2, (2, 2), True),  # CFARepeatPatternDim
         (33422, "B", 4, bytes(_CFA_CODES[c] for c in frame.pattern), True),  # CFAPattern
-        (50706, "B", 4, (1, 4, 0, 0), True),  # DNGVersion
+        (DNG_VERSION_TAG, "B", 4, (1, 4, 0, 0), True),  # DNGVersion
         (50707, "B", 4, (1, 1, 0, 0), True),  # DNGBackwardVersion
         (50708, "s", 0, "lfring synthetic", True),  # UniqueCameraModel
         (50710, "B", 3, (0, 1, 2), True),  # CFAPlaneColor
@@ -632,7 +631,7 @@ def _read_tiff(p: Path) -> tuple[np.ndarray, dict[str, Any]] | None:
         size = p.stat().st_size
         with tifffile.TiffFile(p) as tif:
             page = tif.pages.first
-            if _DNG_VERSION_TAG in page.tags:
+            if DNG_VERSION_TAG in page.tags:
                 return None
             full = [pg for pg in tif.pages if not getattr(pg, "is_reduced", False)]
             if len(full) > 1:

@@ -1,17 +1,22 @@
 """Reading small JSON documents (calibrations, layouts) with errors that name the file, and
-telling an image file by its first bytes."""
+telling an image file and a frame's size by its first bytes."""
 
 from __future__ import annotations
 
 import json
 from pathlib import Path
 
+import numpy as np
+
 from lfring.errors import FileFormatError, LfringFileNotFoundError
 
-__all__ = ["IMAGE_SIGNATURES", "LAYOUT_KEY", "PNG_SIGNATURE", "RECORD_KEY", "image_format", "parse_json", "read_json", "read_json_object"]
+__all__ = ["DNG_VERSION_TAG", "IMAGE_SIGNATURES", "LAYOUT_KEY", "PNG_SIGNATURE", "RECORD_KEY", "frame_size", "image_format", "parse_json", "read_json", "read_json_object"]
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 """The first eight bytes of every PNG file."""
+
+DNG_VERSION_TAG = 50706
+"""The TIFF tag that marks a DNG file."""
 
 IMAGE_SIGNATURES = (
     (PNG_SIGNATURE, "PNG"), (b"II*\x00", "TIFF"), (b"MM\x00*", "TIFF"), (b"\xff\xd8\xff", "JPEG"), (b"GIF8", "GIF"),
@@ -34,6 +39,35 @@ def image_format(head: bytes) -> str | None:
     ('PNG', None)
     """
     return next((name for signature, name in IMAGE_SIGNATURES if head.startswith(signature)), None)
+
+
+def frame_size(path: str | Path) -> tuple[int, int] | None:
+    """(width, height) of a PNG or TIFF frame read from its header (no pixels); (0, 0) where the
+    file holds float samples (a map, not raw counts); None where the header does not tell it
+    cheaply (camera RAW, a DNG under a TIFF name, unreadable files: the frame's own error says why
+    when it is read)."""
+    p = Path(path)
+    suffix = p.suffix.lower()
+    try:
+        if suffix == ".png":
+            with open(p, "rb") as f:
+                head = f.read(24)
+            if len(head) == 24 and head.startswith(PNG_SIGNATURE) and head[12:16] == b"IHDR":
+                return int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
+            return None
+        if suffix in (".tif", ".tiff"):
+            import tifffile
+
+            with tifffile.TiffFile(p) as tf:
+                page = tf.pages[0]
+                if DNG_VERSION_TAG in page.tags:  # read through LibRaw, whose visible area may differ
+                    return None
+                if np.dtype(page.dtype).kind == "f":
+                    return (0, 0)
+                return int(page.imagewidth), int(page.imagelength)
+    except Exception:  # noqa: BLE001 - any unreadable header: not decided here
+        return None
+    return None
 
 
 def parse_json(raw: bytes) -> tuple[object, str]:

@@ -144,3 +144,22 @@ def test_refocused_images_and_the_all_in_focus_image_share_one_renderer(frames, 
         got = cv2.imdecode(np.frombuffer(res.files[kind], np.uint8), cv2.IMREAD_UNCHANGED)
         want = cv2.cvtColor(encode_image(img, settings.bit_depth, settings.encoding), cv2.COLOR_RGB2BGR)
         np.testing.assert_array_equal(got, want, err_msg=kind)
+
+
+def test_a_frame_without_its_levels_takes_the_builtin_calibrations_picked_by_its_size(tmp_path):
+    # No calibration in the settings: the built-in one for the frame's size gives the pattern
+    # and levels the frame's file lacks (it was picked only after the frame was read, with the
+    # levels 0 and 65535).
+    import shutil
+    from pathlib import Path
+
+    scene = Path(__file__).resolve().parents[2] / "data" / "synthetic" / "scene.png"
+    bare = tmp_path / "bare.png"
+    shutil.copyfile(scene, bare)
+    settings = BatchSettings(refocus_m=(0.5,), refocus_method="shift-and-add")
+    res, ref = process_frame(str(bare), settings), process_frame(str(scene), settings)
+    assert res.ok and ref.ok, (res.error, ref.error)
+    assert res.info["calibration"] == "twin_binned2"
+    assert not any("levels assumed" in w for w in res.info.get("warnings", []))
+    key = next(iter(ref.files))
+    assert res.files[key] == ref.files[key]

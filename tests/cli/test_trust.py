@@ -15,7 +15,8 @@ import pytest
 
 from lfring.cli.main import main
 
-DATA = Path(__file__).resolve().parents[2] / "data" / "synthetic"
+ROOT = Path(__file__).resolve().parents[2]
+DATA = ROOT / "data" / "synthetic"
 SCENE = DATA / "scene.png"
 # Where what is judged is how a frame is read or what the command says, not the refocusing method,
 # shift-and-add spares a depth map of the full-size frame a call.
@@ -28,6 +29,16 @@ def _photo(path: Path) -> Path:
 
     img = cv2.resize(data.astronaut(), (2456, 1842), interpolation=cv2.INTER_CUBIC)
     cv2.imwrite(str(path), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+    return path
+
+
+def _calibration_without_levels(folder: Path) -> Path:
+    """The built-in calibration's copy that records no Bayer pattern and no levels."""
+    cal = json.loads((ROOT / "calib" / "twin_binned2.json").read_text())
+    for key in ("bayer_pattern", "black_level", "white_level"):
+        del cal[key]
+    path = folder / "cal_without_levels.json"
+    path.write_text(json.dumps(cal))
     return path
 
 
@@ -110,19 +121,44 @@ def test_depth_inf_and_stack(tmp_path, capsys):
 
 
 def test_sidecar_with_only_pattern_warns_levels_assumed(tmp_path, capsys):
+    # A calibration that records no levels (the built-in one's copy without them): nothing gives them.
     frame = tmp_path / "s.png"
     shutil.copyfile(SCENE, frame)
     (tmp_path / "s.png.json").write_text(json.dumps({"pattern": "RGGB"}))
-    assert main(["refocus", str(frame), "--depth", "0.5", *SAA, "-o", str(tmp_path / "o.png")]) == 0
+    calib = ("--calib", str(_calibration_without_levels(tmp_path)))
+    assert main(["refocus", str(frame), "--depth", "0.5", *SAA, *calib, "-o", str(tmp_path / "o.png")]) == 0
     err = capsys.readouterr().err
     assert "levels assumed (black 0, white 65535)" in err and "--black-level and --white-level" in err
     assert "pass --white-level 4095" in err  # 12-bit counts in a 16-bit PNG
     # The options fix it: the same image as with the full sidecar, and no warning.
-    assert main(["refocus", str(frame), "--depth", "0.5", *SAA, "-o", str(tmp_path / "p.png"), "--black-level", "64",
-                 "--white-level", "4095"]) == 0
+    assert main(["refocus", str(frame), "--depth", "0.5", *SAA, *calib, "-o", str(tmp_path / "p.png"), "--black-level",
+                 "64", "--white-level", "4095"]) == 0
     assert "WARNING" not in capsys.readouterr().err
-    assert main(["refocus", str(SCENE), "--depth", "0.5", *SAA, "-o", str(tmp_path / "q.png")]) == 0
+    assert main(["refocus", str(SCENE), "--depth", "0.5", *SAA, *calib, "-o", str(tmp_path / "q.png")]) == 0
     np.testing.assert_array_equal(cv2.imread(str(tmp_path / "p.png")), cv2.imread(str(tmp_path / "q.png")))
+
+
+@pytest.mark.parametrize("sidecar", [None, {"pattern": "RGGB"}], ids=["no sidecar", "sidecar with the pattern only"])
+def test_the_builtin_calibration_picked_for_a_frame_gives_its_pattern_and_levels(tmp_path, capsys, sidecar):
+    # A frame without its sidecar (or with a partial one) and no --calib: the built-in calibration
+    # picked by the frame's size gives what the frame lacks, as a named one does. It was picked
+    # only after the frame was read, so the frame was refused for want of a pattern or read with
+    # the levels 0 and 65535 (an image four times too dark, said to be "assumed" as no
+    # calibration gave them).
+    frame = tmp_path / "bare.png"
+    shutil.copyfile(SCENE, frame)
+    if sidecar is not None:
+        (tmp_path / "bare.png.json").write_text(json.dumps(sidecar))
+    assert main(["refocus", str(frame), "--depth", "0.5", *SAA, "-o", str(tmp_path / "a.png")]) == 0
+    err = capsys.readouterr().err
+    assert "using the built-in calibration 'twin_binned2'" in err
+    assert "black level 64.0, white level 4095.0)" in err and "WARNING" not in err
+    assert main(["refocus", str(SCENE), "--depth", "0.5", *SAA, "-o", str(tmp_path / "b.png")]) == 0
+    np.testing.assert_array_equal(cv2.imread(str(tmp_path / "a.png")), cv2.imread(str(tmp_path / "b.png")))
+    capsys.readouterr()
+    assert main(["check", str(frame), "-o", str(tmp_path / "c.png")]) == 0
+    out = capsys.readouterr().out
+    assert "Bayer RGGB" in out and "black 64 white 4095 counts" in out
 
 
 def test_sidecarless_bayer_tiff_with_raw_options(tmp_path, capsys):
@@ -131,12 +167,17 @@ def test_sidecarless_bayer_tiff_with_raw_options(tmp_path, capsys):
     mosaic = cv2.imread(str(SCENE), cv2.IMREAD_UNCHANGED)
     tif = tmp_path / "bare.tiff"
     tifffile.imwrite(tif, mosaic)
-    assert main(["refocus", str(tif), "--depth", "0.5", *SAA, "-o", str(tmp_path / "a.png")]) == 2
+    # Neither the frame nor the calibration (one that records no pattern) gives a pattern: refused.
+    bare_cal = _calibration_without_levels(tmp_path)
+    assert main(["refocus", str(tif), "--depth", "0.5", *SAA, "--calib", str(bare_cal), "-o", str(tmp_path / "a.png")]) == 2
     _one_error(capsys.readouterr().err, "no Bayer pattern")
-    assert main(["refocus", str(tif), "--depth", "0.5", *SAA, "-o", str(tmp_path / "a.png"), "--pattern", "rggb",
-                 "--black-level", "64", "--white-level", "4095"]) == 0
+    assert main(["refocus", str(tif), "--depth", "0.5", *SAA, "--calib", str(bare_cal), "-o", str(tmp_path / "a.png"),
+                 "--pattern", "rggb", "--black-level", "64", "--white-level", "4095"]) == 0
     assert main(["refocus", str(SCENE), "--depth", "0.5", *SAA, "-o", str(tmp_path / "b.png")]) == 0
     np.testing.assert_array_equal(cv2.imread(str(tmp_path / "a.png")), cv2.imread(str(tmp_path / "b.png")))
+    # The built-in calibration picked by the frame's size gives them.
+    assert main(["refocus", str(tif), "--depth", "0.5", *SAA, "-o", str(tmp_path / "c.png")]) == 0
+    np.testing.assert_array_equal(cv2.imread(str(tmp_path / "c.png")), cv2.imread(str(tmp_path / "b.png")))
 
 
 @pytest.mark.parametrize("name", ["refocus", "depth", "inspect", "batch", "check", "split", "calibrate"])
@@ -287,8 +328,9 @@ def test_missing_pattern_is_an_error_that_names_the_option(tmp_path):
     import tifffile
 
     tifffile.imwrite(tmp_path / "grey.tif", np.zeros((1842, 2456), np.uint16))
-    proc = subprocess.run([sys.executable, "-m", "lfring", "refocus", "grey.tif", "--depth", "0.5"], capture_output=True,
-                          text=True, cwd=tmp_path, timeout=300)
+    cal = _calibration_without_levels(tmp_path)  # the built-in calibration would give its pattern
+    proc = subprocess.run([sys.executable, "-m", "lfring", "refocus", "grey.tif", "--depth", "0.5", "--calib", cal.name],
+                          capture_output=True, text=True, cwd=tmp_path, timeout=300)
     assert proc.returncode == 2 and "Pass --pattern with one of RGGB" in proc.stderr and "load_raw" not in proc.stderr
     readme = (DATA.parents[1] / "README.md").read_text()
     assert "the pattern has no default" in readme
