@@ -12,10 +12,11 @@ huge pages unless asked for, and comes zeroed, page by page as it is first writt
 from __future__ import annotations
 
 import mmap
+import os
 
 import numpy as np
 
-__all__ = ["fresh_zeros"]
+__all__ = ["available_memory_bytes", "fresh_zeros"]
 
 # Private to the process: a forked child gets its own copy on write, as with any NumPy array
 # (a shared map would let a child's writes reach the parent's arrays). Windows has no flags.
@@ -59,3 +60,20 @@ def fresh_zeros(shape, dtype=np.float32) -> np.ndarray:
         raise MemoryError(f"Unable to allocate {nbytes / 2**20:.1f} MiB for an array with shape {shape} and data type "
                           f"{dtype} ({exc})") from None
     return np.frombuffer(mem, dtype, count=size).reshape(shape)
+
+
+def available_memory_bytes() -> int | None:
+    """The memory the system can give a new allocation without swapping, in bytes: Linux's
+    ``MemAvailable`` (free memory and the caches it can drop), else the free physical pages;
+    None where the system says neither (a check that needs it cannot judge)."""
+    try:
+        with open("/proc/meminfo", "rb") as f:
+            for line in f:
+                if line.startswith(b"MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return int(os.sysconf("SC_AVPHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
+    except (AttributeError, OSError, ValueError):
+        return None

@@ -17,6 +17,7 @@ import cv2
 import numpy as np
 
 from lfring.core.backend import check_backend, require_torch, resolve_device
+from lfring.core.memory import available_memory_bytes
 from lfring.core.transfer import (check_frames, count_levels, download, download_maps, frames_dtype, is_tensor,
                                   normalised, to_device)
 from lfring.core.protocols import check_calibration
@@ -223,9 +224,35 @@ def estimate_depth(
                              min_views=min_views, threads=threads,
                              backend=backend, device=device, paths=paths, consistency=consistency)
     finisher = Finisher(plan.depths, calibration.depth_origin_m, arr.shape[1:3], min_views)
-    extra = engine.run(arr, calibration, plan, settings, finisher, Progress(progress, arr.shape[1]))
+    need = _check_memory(engine, len(plan.depths), arr.shape[1:3])
+    try:
+        extra = engine.run(arr, calibration, plan, settings, finisher, Progress(progress, arr.shape[1]))
+    except MemoryError:
+        raise InvalidInputError(f"{_memory_words(engine, len(plan.depths), arr.shape[1:3], need)} ran out of memory: "
+                                f"{_MEMORY_REMEDY}") from None
     return finisher.result(depths_m=plan.depths, step_px=plan.step_px, reference=plan.reference, cost=depth_cost.name,
                            aggregation=aggregation, method=engine.name, **extra)
+
+
+_MEMORY_REMEDY = ("give fewer num_planes, narrow zmin_m..zmax_m, or use method='local' (its memory does not grow "
+                  "with the hypotheses)")
+
+
+def _memory_words(engine, n: int, shape, need: int) -> str:
+    words = f"method={engine.name!r} over {n} depth hypotheses on {shape[1]} x {shape[0]} px views"
+    return words + (f" (at least {need / 2 ** 30:.1f} GiB)" if need else "")
+
+
+def _check_memory(engine, n: int, shape) -> int:
+    """The bytes the engine's cost volumes take at least for ``n`` hypotheses on views of
+    ``shape``; refused where that is more than the system has free (where it cannot say, the
+    call goes ahead)."""
+    need = engine.cell_bytes * n * int(shape[0]) * int(shape[1])
+    free = available_memory_bytes() if need else None
+    if free is not None and need > free:
+        raise InvalidInputError(f"{_memory_words(engine, n, shape, need)} needs more memory than the "
+                                f"{free / 2 ** 30:.1f} GiB free: {_MEMORY_REMEDY}")
+    return need
 
 
 def _thread_count(threads) -> int:
@@ -276,6 +303,8 @@ def _estimate_frames(views, calibration, engine, depth_cost, levels, progress, o
                              threads=_thread_count(threads), backend="torch",
                              device=dev, paths=options["paths"], consistency=options["consistency"])
     on_device = engine.device_frames and gpu.engine_runs_on(dev, plan)
+    if not on_device:  # the host holds the volumes
+        _check_memory(engine, len(plan.depths), (h, w))
     maps, extras = [], []
     for k in range(b):
         args = (plan.depths, calibration.depth_origin_m, (h, w), min_views)

@@ -334,3 +334,14 @@ def test_missing_pattern_is_an_error_that_names_the_option(tmp_path):
     assert proc.returncode == 2 and "Pass --pattern with one of RGGB" in proc.stderr and "load_raw" not in proc.stderr
     readme = (DATA.parents[1] / "README.md").read_text()
     assert "the pattern has no default" in readme
+
+
+def test_depth_planes_beyond_the_free_memory_refused_in_one_line(tmp_path, capsys, monkeypatch):
+    from lfring.depth import estimate
+
+    monkeypatch.setattr(estimate, "available_memory_bytes", lambda: 1 << 30)  # 1 GiB free
+    out = tmp_path / "d"
+    assert main(["depth", str(SCENE), "-o", str(out), "--planes", "1000"]) == 2
+    _one_error(capsys.readouterr().err, "--method sgm over 1000 depth hypotheses on 705 x 705 px views (at least 1.9 GiB) "
+                                        "needs more memory than the 1.0 GiB free: give fewer --planes")
+    assert not out.exists() or not any(out.iterdir())

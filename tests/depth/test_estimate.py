@@ -177,3 +177,50 @@ def test_a_calibration_that_is_none_is_refused(twin):
     r, cal, views, *_ = twin
     with pytest.raises(InvalidInputError, match="calibration must be a RingCalibration"):
         estimate_depth(views, None, zmin_m=0.3, zmax_m=1.0)
+
+
+def test_a_call_that_needs_more_memory_than_is_free_is_refused_before_it_starts(twin, monkeypatch):
+    # --planes 100000 allocated 95 GB and died with a MemoryError traceback: the engines' volumes
+    # grow with the hypotheses, so the call is weighed against the free memory first.
+    from lfring.depth import estimate
+    from lfring.depth.engines import ENGINES
+
+    r, cal, views, *_ = twin
+    h, w = views.shape[1:3]
+    n = 40
+    sgm = ENGINES["sgm"]
+    need = sgm.cell_bytes * n * h * w
+    monkeypatch.setattr(estimate, "available_memory_bytes", lambda: need - 1)
+    with pytest.raises(InvalidInputError, match=rf"method='sgm' over {n} depth hypotheses on {w} x {h} px views "
+                                                r"\(at least .* GiB\) needs more memory than the .* GiB free: give fewer num_planes"):
+        estimate_depth(views, cal, zmin_m=0.3, zmax_m=1.0, num_planes=n)
+    # Just enough is enough, the reference engine needs three times as much, 'local' streams.
+    monkeypatch.setattr(estimate, "available_memory_bytes", lambda: need)
+    assert np.isfinite(estimate_depth(views, cal, zmin_m=0.3, zmax_m=1.0, num_planes=n).depth_m).any()
+    with pytest.raises(InvalidInputError, match="method='sgm-reference'"):
+        estimate_depth(views, cal, zmin_m=0.3, zmax_m=1.0, num_planes=n, method="sgm-reference")
+    monkeypatch.setattr(estimate, "available_memory_bytes", lambda: 0)
+    assert estimate_depth(views, cal, zmin_m=0.3, zmax_m=1.0, num_planes=n, method="local").depth_m.shape == (h, w)
+    # Where the system cannot say, the call goes ahead.
+    monkeypatch.setattr(estimate, "available_memory_bytes", lambda: None)
+    assert estimate_depth(views, cal, zmin_m=0.3, zmax_m=1.0, num_planes=n).depth_m.shape == (h, w)
+
+
+def test_running_out_of_memory_in_an_engine_is_an_error_that_says_what_to_do(twin, monkeypatch):
+    from lfring.depth.engines import semiglobal
+
+    r, cal, views, *_ = twin
+
+    def no_memory(*args, **kwargs):
+        raise MemoryError("Unable to allocate 94800.0 MiB")
+
+    monkeypatch.setattr(semiglobal, "fused_index", no_memory)
+    with pytest.raises(InvalidInputError, match="ran out of memory: give fewer num_planes"):
+        estimate_depth(views, cal, zmin_m=0.3, zmax_m=1.0)
+
+
+def test_available_memory_is_read_from_the_system():
+    from lfring.core.memory import available_memory_bytes
+
+    free = available_memory_bytes()
+    assert free is None or 0 < free < 1 << 50

@@ -33,6 +33,10 @@ class DepthEngine:
         It holds the whole cost volume (costs that choose over it need that).
     options : frozenset of str
         The engine-specific options of ``estimate_depth`` it reads ('paths', 'consistency').
+    cell_bytes : int
+        Host memory its cost volumes take at least, per pixel and hypothesis, at its peak: a call
+        that would need more than the system has free is refused before it starts. 0 where the
+        memory does not grow with the hypotheses (a streamed sweep).
     device_frames : bool
         On the torch backend, where its GPU kernels run on the device
         (:func:`lfring.core.backend.kernels_run_on`), ``run`` also takes one frame's views
@@ -47,4 +51,5 @@ class DepthEngine:
     lcn_aggregate_px: int
     whole_volume: bool = False
     options: frozenset = frozenset()
+    cell_bytes: int = 0
     device_frames: bool = False

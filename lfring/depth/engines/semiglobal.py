@@ -201,6 +201,7 @@ SEMIGLOBAL = DepthEngine(
     lcn_aggregate_px=SGM_AGGREGATE_PX,
     whole_volume=True,
     options=frozenset({"paths", "consistency"}),
+    cell_bytes=4,  # the volume and the paths' sums, uint16 each (more outside the fused passes)
     device_frames=True,
 )
 
@@ -212,4 +213,5 @@ SEMIGLOBAL_REFERENCE = DepthEngine(
     lcn_aggregate_px=SGM_AGGREGATE_PX,
     whole_volume=True,
     options=frozenset({"paths", "consistency"}),
+    cell_bytes=12,  # three float32 volumes: the cost, its eroded copy, the optimised one
 )
