@@ -10,7 +10,8 @@ from dataclasses import dataclass, fields
 
 from lfring.core.validate import check_choice, check_fraction, check_int, check_number
 from lfring.core.warping import DEFAULT_INTERPOLATION, INTERPOLATIONS
-from lfring.depth import ENGINES, SGM_MIN_PLANES
+from lfring.depth import ENGINES
+from lfring.depth.plan import JUDGED_MIN_PLANES
 from lfring.errors import InvalidInputError
 from lfring.focus.depth_aware import estimation_range
 from lfring.focus.methods import METHODS
@@ -306,9 +307,8 @@ class BatchSettings:
             estimation_range(self.calibration, self.zmin_m, self.zmax_m, reference=self.reference)
         # The viewer's depth map, when the batch makes none, is the semi-global default; the
         # batch's own and the one depth-aware refocusing renders from follow depth_method.
-        least = SGM_MIN_PLANES if ((self.depth or renders_from_map) and self.depth_method == "sgm") or self.viewer else 2
         if self.planes is not None:
-            check_int(self.planes, "planes", minimum=least, hint=" for the semi-global depth" if least > 2 else "")
+            check_int(self.planes, "planes", minimum=JUDGED_MIN_PLANES, hint=" (a depth is judged against the others)")
         check_fraction(self.min_confidence, "min_confidence")
 
     def outputs(self, stem: str) -> dict[str, str]:

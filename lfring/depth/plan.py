@@ -23,9 +23,9 @@ from lfring.core.warping import warp_image
 from lfring.depth.hypotheses import depth_hypotheses, view_motion_px
 from lfring.errors import DepthRangeError, LfringWarning
 
-__all__ = ["DEPTH_TAPER", "GUIDE_WHITE_PERCENTILE", "MIN_RANGE_MOTION_PX", "NUMPY_INTERPOLATION_MATCHED", "DepthSettings",
-           "Progress", "SweepPlan", "baseline_axis", "depths_key", "guide_image", "high_percentile", "in_reference_frame",
-           "other_reference", "plan_sweep", "sweep_masks"]
+__all__ = ["DEPTH_TAPER", "GUIDE_WHITE_PERCENTILE", "JUDGED_MIN_PLANES", "MIN_RANGE_MOTION_PX", "NUMPY_INTERPOLATION_MATCHED",
+           "DepthSettings", "Progress", "SweepPlan", "baseline_axis", "check_judged", "depths_key", "guide_image",
+           "high_percentile", "in_reference_frame", "other_reference", "planes_needed", "plan_sweep", "sweep_masks"]
 
 # Fraction of a view's disc radius over which its weight rises from 0 to 1 in the sweep
 # (lfring.core.viewstack.view_masks). The refocusing taper (lfring.core.viewstack.TAPER, 15 %) hides seams in an image;
@@ -39,6 +39,9 @@ DEPTH_TAPER = 0.05
 #: A depth range across which the views move by this much (px) or less holds no depth to tell
 #: from another: every method refuses it.
 MIN_RANGE_MOTION_PX = 1.0
+#: Every method judges each answer against the hypotheses more than a pixel of view motion away
+#: from it (its confidence): it needs at least this many, however far apart.
+JUDGED_MIN_PLANES = 3
 #: The guide image's white: its values' percentile that maps to 1 (a few brighter highlights clip).
 GUIDE_WHITE_PERCENTILE = 99.5
 # high_percentile's sample of the values, from which it picks the threshold above which it looks,
@@ -98,6 +101,35 @@ def depths_key(depths_m) -> tuple:
     """A hashable key of a list of depths for the caches kept with a calibration (rounded to
     1e-12 m, so that depths computed twice the same way share their entries)."""
     return tuple(np.round(np.asarray(depths_m, np.float64), 12))
+
+
+def planes_needed(motion_px: float) -> int | None:
+    """The fewest hypotheses spread over ``motion_px`` of view motion among which every one has
+    others more than a pixel away (as the sweep plan spaces them and counts its ``exclude``);
+    None where the motion is a pixel or less and no number has."""
+    if motion_px <= 1.0:
+        return None
+    n = JUDGED_MIN_PLANES
+    while n < max(JUDGED_MIN_PLANES, math.ceil((n - 1) / motion_px) + 2):
+        n += 1
+    return n
+
+
+def check_judged(plan: SweepPlan, method: str, alternative: str = "") -> None:
+    """Refuse (:class:`lfring.errors.DepthRangeError`) a plan whose hypotheses leave no answer
+    anything to be judged against: none lies more than a pixel of view motion from another (the
+    confidence would be 0 everywhere). ``alternative`` ends the remedy (another method, say)."""
+    if len(plan.depths) >= max(JUDGED_MIN_PLANES, plan.exclude + 2):
+        return
+    zmin_m, zmax_m = float(plan.depths[0]), float(plan.depths[-1])
+    motion = plan.step_px * (len(plan.depths) - 1)
+    needed = planes_needed(motion)  # a number: the plan refused a range of a pixel or less
+    raise DepthRangeError(
+        f"method={method!r} judges each answer against hypotheses more than one pixel of view motion away: "
+        f"{len(plan.depths)} hypotheses over {motion:.2g} px of motion ({zmin_m:g}..{zmax_m:g} m) have none; "
+        f"give num_planes >= {needed}, widen the depth range{alternative}", zmin_m=zmin_m, zmax_m=zmax_m,
+        planes=len(plan.depths), motion_px=motion, planes_needed=needed,
+        hint=plan.calibration.millimetres_hint(zmin_m, zmax_m))
 
 
 def plan_sweep(views, calibration, zmin_m, zmax_m, num_planes, reference, taper) -> SweepPlan:

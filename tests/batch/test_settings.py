@@ -33,10 +33,14 @@ def test_settings_errors(kwargs, text):
         BatchSettings(**kwargs)
 
 
-def test_two_planes_serve_a_depth_map_that_is_not_semi_global():
-    BatchSettings(refocus_m=(0.5,), planes=2, refocus_method="shift-and-add")
-    BatchSettings(refocus_m=(0.5,), planes=2, depth_method="local")
-    BatchSettings(depth=True, planes=2, depth_method="local")
+def test_two_planes_serve_no_depth_method():
+    # Every method judges a depth against the hypotheses more than a pixel of motion away: with
+    # two there are none, and the local method's map came out with no confidence anywhere.
+    for kwargs in (dict(refocus_m=(0.5,), refocus_method="shift-and-add"), dict(refocus_m=(0.5,), depth_method="local"),
+                   dict(depth=True, depth_method="local")):
+        with pytest.raises(InvalidInputError, match="planes must be an integer >= 3"):
+            BatchSettings(planes=2, **kwargs)
+    BatchSettings(depth=True, planes=3, depth_method="local")
 
 
 def test_legacy_key_is_the_key_of_records_before_output_keys():

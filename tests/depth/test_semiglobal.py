@@ -649,3 +649,22 @@ def test_a_range_too_narrow_says_how_many_planes_would_do(twin):
     with pytest.raises(DepthRangeError) as err:
         estimate_depth(views, cal, zmin_m=0.3, zmax_m=0.305, num_planes=40)
     assert err.value.motion_px <= 1.0 and err.value.planes_needed is None and "widen it" in str(err.value)
+
+
+def test_the_local_method_refuses_a_range_that_judges_no_answer_as_the_semi_global_one_does(twin):
+    """With two hypotheses (or any too close for one to lie more than a pixel from another) the
+    local method's confidence was 0 at every pixel and its map said nothing, yet the call
+    succeeded: it is refused with the same rule and remedy."""
+    from lfring.errors import DepthRangeError
+
+    _, cal, views, *_ = twin
+    with pytest.raises(DepthRangeError, match=r"method='local' judges each answer .* give num_planes >= 3, widen the "
+                                              r"depth range$"):
+        estimate_depth(views, cal, zmin_m=0.3, zmax_m=1.0, num_planes=2, method="local")
+    with pytest.raises(DepthRangeError) as err:
+        estimate_depth(views, cal, zmin_m=0.3, zmax_m=0.35, num_planes=3, method="local")
+    need = err.value.planes_needed
+    res = estimate_depth(views, cal, zmin_m=0.3, zmax_m=0.35, num_planes=need, method="local")
+    assert (res.confidence > 0).mean() > 0.5
+    res = estimate_depth(views, cal, zmin_m=0.3, zmax_m=1.0, num_planes=3, method="local")
+    assert (res.confidence > 0).mean() > 0.5

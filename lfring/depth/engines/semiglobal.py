@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import math
 import warnings
 
 import numpy as np
@@ -26,11 +25,11 @@ from lfring.depth.costs.lcn_halves import take_halves, view_halves
 from lfring.depth.engines.base import DepthEngine
 from lfring.depth.engines.fused import fused_index
 from lfring.depth.engines.gpu import run_semiglobal_gpu
-from lfring.depth.plan import baseline_axis, guide_image, other_reference
+from lfring.depth.plan import JUDGED_MIN_PLANES, baseline_axis, check_judged, guide_image, other_reference
 from lfring.depth.refine import fill_from_farther_side, refine_index
 from lfring.depth.sgm import P1_SCALE, P2_SCALE, cost_scale, select, sgm_aggregate, sgm_aggregate_torch
 from lfring.depth.sweep import run_sweep
-from lfring.errors import DepthRangeError, LfringWarning
+from lfring.errors import LfringWarning
 
 __all__ = ["CONSISTENCY_STEPS", "SEMIGLOBAL", "SEMIGLOBAL_REFERENCE", "SGM_AGGREGATE_PX", "SGM_MIN_PLANES", "SUBPIXEL_BOX_PX", "SWEEP_SHARE",
            "run_semiglobal", "semiglobal_index"]
@@ -41,8 +40,8 @@ SGM_AGGREGATE_PX = 5
 # The box of the cost the sub-hypothesis parabola is fitted to after the optimisation.
 SUBPIXEL_BOX_PX = 15
 # The semi-global method judges each answer against the hypotheses more than one step of view
-# motion away (its confidence): it needs at least this many, however far apart.
-SGM_MIN_PLANES = 3
+# motion away (its confidence), as every method does: it needs at least this many.
+SGM_MIN_PLANES = JUDGED_MIN_PLANES
 # Two reference frames agree when their hypotheses differ by at most this many times the
 # smallest distinguishable step (one pixel of view motion).
 CONSISTENCY_STEPS = 1
@@ -50,32 +49,12 @@ CONSISTENCY_STEPS = 1
 SWEEP_SHARE = 0.3
 
 
-def _planes_needed(motion_px: float) -> int | None:
-    """The fewest hypotheses spread over ``motion_px`` of view motion among which every one has
-    others more than a pixel away (as the sweep plan spaces them and counts its ``exclude``);
-    None where the motion is a pixel or less and no number has."""
-    if motion_px <= 1.0:
-        return None
-    n = SGM_MIN_PLANES
-    while n < max(SGM_MIN_PLANES, math.ceil((n - 1) / motion_px) + 2):
-        n += 1
-    return n
-
-
 def run_semiglobal(views, calibration, plan, settings, finisher, progress, *, fused: bool = True) -> dict:
     """Optimise, select and refine (see the module's docstring); the finisher gets the depth and
     confidence, the returned fields the hole-filled map, the paths and whether the check ran.
     With ``fused`` the cost volume and its optimisation take the 16-bit passes of
     :mod:`lfring.depth.engines.fused` wherever they apply; without, the float32 reference."""
-    if len(plan.depths) < max(SGM_MIN_PLANES, plan.exclude + 2):
-        zmin_m, zmax_m = float(plan.depths[0]), float(plan.depths[-1])
-        motion = plan.step_px * (len(plan.depths) - 1)
-        needed = _planes_needed(motion)  # a number: the plan refused a range of a pixel or less
-        raise DepthRangeError(
-            f"method='sgm' judges each answer against hypotheses more than one pixel of view motion away: "
-            f"{len(plan.depths)} hypotheses over {motion:.2g} px of motion ({zmin_m:g}..{zmax_m:g} m) have none; "
-            f"give num_planes >= {needed}, widen the depth range, or use method='local'", zmin_m=zmin_m, zmax_m=zmax_m, planes=len(plan.depths), motion_px=motion,
-            planes_needed=needed, hint=calibration.millimetres_hint(zmin_m, zmax_m))
+    check_judged(plan, "sgm", ", or use method='local'")
     check = views.shape[0] == 2 if settings.consistency is None else bool(settings.consistency)
     if settings.backend == "torch" and fused:  # the GPU engine; None where its kernels cannot run on the device
         out = run_semiglobal_gpu(views, calibration, plan, settings, finisher, progress, consistency=check,
