@@ -7,7 +7,9 @@ are written, renames them into place together, with Ctrl-C and SIGTERM held, and
 :mod:`lfring.batch.record`, read by its :func:`~lfring.batch.record.decide_resume`. An
 interrupted command leaves nothing (its staging folder goes); a rerun with the same inputs and
 settings replaces its own outputs; a file the command did not make, or made from other inputs
-or with other settings, is replaced only with ``--overwrite``.
+or with other settings, is replaced only with ``--overwrite``. The files of the set a run
+replaces that it does not make again (a longer focal stack's) are removed with it: a folder
+never holds two sets' files under one record.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import json
+import logging
 import os
 import shutil
 import socket
@@ -167,6 +170,25 @@ class OutputSet:
             return None
         return rec
 
+    def _stale_outputs(self) -> list[Path]:
+        """The files that this set's record (of this command) lists and this run does not write:
+        the replaced set's, which would otherwise lie beside the new one as if they belonged to
+        it. Only files inside the set's folders, never an input of this run."""
+        rec = self._former_record() or read_record(self.record)
+        if rec is None or rec.get("command") != self.command:
+            return []
+        new = {self._rel(p) for p in self.paths}
+        keep = {os.path.realpath(p) for p in [*self.inputs, self.record]}
+        out = []
+        for rel in sorted(set((rec.get("outputs") or {}).values()) - new):
+            rel_path = Path(str(rel))
+            path = self._root / rel_path
+            if rel_path.is_absolute() or ".." in rel_path.parts or os.path.realpath(path) in keep:
+                continue
+            if path.is_file() and not path.is_symlink():
+                out.append(path)
+        return out
+
     def _clear_stale_staging(self) -> None:
         """Staging folders of runs that were killed (their process is gone) are removed."""
         host = socket.gethostname()
@@ -222,15 +244,22 @@ class OutputSet:
             if missing:
                 raise RuntimeError(f"outputs not written: {', '.join(missing)}")  # pragma: no cover - a bug
             former = self._former_record() is not None
+            stale = self._stale_outputs()
             deliver_lost_stops()  # a Ctrl-C that came where it could not stop the command: nothing is written
             with held_signals():
                 self._write_record("pending")
                 for final, s in staged.items():
                     final.parent.mkdir(parents=True, exist_ok=True)
                     os.replace(s, final)
+                for path in stale:
+                    path.unlink(missing_ok=True)
                 self._write_record("done")
                 if former:
                     self._former.unlink(missing_ok=True)
+            if stale:
+                logging.getLogger("lfring.cli").info(
+                    "removed %d file%s of the set this run replaced, which it does not make again: %s", len(stale),
+                    "s" * (len(stale) > 1), ", ".join(str(p) for p in stale[:5]) + (", ..." if len(stale) > 5 else ""))
         finally:
             with held_signals():  # a stop that comes now waits for the staged files to be gone
                 shutil.rmtree(staging, ignore_errors=True)

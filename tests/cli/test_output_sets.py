@@ -201,6 +201,28 @@ def test_outputs_of_one_stem_and_two_formats_have_records_of_their_own(tmp_path,
         "a.png", "a.png.json", "a.png.lfring.json", "a.tif", "a.tif.json", "a.tif.lfring.json"]
 
 
+def test_a_set_replaced_with_overwrite_leaves_none_of_its_files_behind(tmp_path, capsys):
+    """A 4-depth sweep replaced by a 2-depth one with --overwrite: the first set's files that
+    the second does not make were left beside it, not in its record (a folder holding two
+    stacks). They go; a file the record does not list stays."""
+    from lfring.cli.main import main
+
+    out = tmp_path / "stack"
+    run = ["refocus", str(SCENE), "--method", "shift-and-add", "-o", str(out / "scene.png")]
+    assert main([*run, "--sweep", "0.3:1.0:4"]) == 0, capsys.readouterr().err
+    first = _files(out)
+    (out / "notes.txt").write_text("mine\n")
+    assert main([*run, "--sweep", "0.3:1.0:2", "--overwrite"]) == 0
+    err = capsys.readouterr().err
+    record = json.loads((out / "scene_stack.png.lfring.json").read_text())
+    listed = set(record["outputs"].values())
+    assert set(_files(out)) == listed | {"scene_stack.png.lfring.json", "notes.txt"}
+    gone = sorted(set(first) - listed - {"scene_stack.png.lfring.json"})
+    assert gone and all(not (out / f).exists() for f in gone)  # the first set's 0.533 and 0.767 m images
+    assert f"removed {len(gone)} files of the set this run replaced" in err
+    assert (out / "notes.txt").read_text() == "mine\n"
+
+
 def test_a_record_under_its_former_name_still_counts_once(tmp_path, capsys):
     """Outputs whose record an earlier lfring named after the output's stem are still this
     command's own on a rerun; the record then takes its present name."""
