@@ -12,6 +12,7 @@ import numpy as np
 
 from lfring.cli._options import FRAME, raw_options, read_frame
 from lfring.cli.outputs import OutputSet
+from lfring.errors import LfringError
 
 log = logging.getLogger("lfring.cli.split")
 
@@ -40,6 +41,7 @@ def command(raw, outdir, layout_file, flat_file, rotate180, method, fmt, overwri
     The layout comes from --layout, else is detected on --flat, else on RAW itself (less
     precise: the scene's content near the view edges biases it).
     """
+    from lfring.calibration.defaults import calibration_for_frame
     from lfring.io.demosaic import demosaic
     from lfring.io.raw import load_raw
     from lfring.io.writers import write_image, write_json
@@ -49,7 +51,13 @@ def command(raw, outdir, layout_file, flat_file, rotate180, method, fmt, overwri
         raise click.UsageError("give --layout or --flat, not both")
     if layout_file and rotate180:
         raise click.UsageError("--rotate180 goes with --flat or detection; a layout file records its own rotation")
-    frame = read_frame(raw, levels)
+    # Its Bayer pattern and levels, where the frame lacks them, from the built-in calibration for
+    # its size, as every command takes them (the layout is detected, not the calibration's).
+    try:
+        builtin = calibration_for_frame(raw)
+    except LfringError:  # no built-in calibration has the frame's size: any camera's frame splits
+        builtin = None
+    frame = read_frame(raw, levels, builtin[0] if builtin else None)
     image = demosaic(frame, method=method)
     if layout_file:
         layout, source = Layout.load(layout_file), f"layout file {layout_file}"

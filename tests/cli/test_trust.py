@@ -159,6 +159,12 @@ def test_the_builtin_calibration_picked_for_a_frame_gives_its_pattern_and_levels
     assert main(["check", str(frame), "-o", str(tmp_path / "c.png")]) == 0
     out = capsys.readouterr().out
     assert "Bayer RGGB" in out and "black 64 white 4095 counts" in out
+    # lfring split detects its layout, but takes the pattern and levels by the same rule.
+    assert main(["split", str(frame), "-o", str(tmp_path / "s1")]) == 0
+    assert main(["split", str(SCENE), "-o", str(tmp_path / "s2")]) == 0
+    for k in range(4):
+        np.testing.assert_array_equal(cv2.imread(str(tmp_path / "s1" / f"bare_view{k}.png"), cv2.IMREAD_UNCHANGED),
+                                      cv2.imread(str(tmp_path / "s2" / f"scene_view{k}.png"), cv2.IMREAD_UNCHANGED))
 
 
 def test_sidecarless_bayer_tiff_with_raw_options(tmp_path, capsys):
