@@ -111,6 +111,9 @@ def command(ctx, inputs, outdir, calib, refocus_m, refocus_method, aperture, f_n
     if aperture is not None and f_number is not None:
         raise click.UsageError("give --aperture or --f-number, not both")
     if scheduler and executor != "dask":
+        if ctx.get_parameter_source("executor") is click.core.ParameterSource.COMMANDLINE:
+            raise click.UsageError(f"--scheduler {scheduler} is a Dask scheduler: give --executor dask (or leave "
+                                   f"--executor out), not --executor {executor}")
         executor = "dask"
     cal = None
     cal_name = "built-in"

@@ -71,7 +71,8 @@ def command(ctx, frame, calib, output, overwrite, levels):
         f"agreement    {res.agreement:.2f} at {res.best_depth_m:.3g} m, the best of {len(tried)} depths tried from "
         f"{min(tried):.3g} to {max(tried):.3g} m (ring frames score above {res.threshold:g}; not a depth measurement)"
         if res.best_depth_m is not None else f"agreement    none measurable (threshold {res.threshold:g})",
-        f"texture      {res.texture:.3f} of the mean inside the discs (a flat field's is below {FLAT_TEXTURE:g})",
+        f"texture      {res.texture:.3f} of the mean inside the discs (a flat field's is below {FLAT_TEXTURE:g})"
+        if np.isfinite(res.texture) else "texture      none measurable (no light inside the discs)",
         f"fit          views {res.fit_px:.3f} px from the calibration's homographies at {res.fit_depth_m:.4g} m "
         f"(median over tiles; lens distortion {'undone' if cal.distortion is not None else 'not modelled'}"
         f"{', flat field divided' if cal.flat_field is not None else ''})" if np.isfinite(res.fit_px)

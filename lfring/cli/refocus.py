@@ -61,6 +61,9 @@ def _depths(depth, depths, sweep) -> list[float]:
         zs, hint = list(parse_depths(depths, param_hint="--depths")), "--depths"
     else:
         start, stop, n = parse_range(sweep, with_count=True, param_hint="--sweep", metavar=SWEEP_METAVAR)
+        if not (math.isfinite(start) and math.isfinite(stop)):  # no even steps reach infinity
+            raise click.BadParameter(f"a sweep runs between two finite depths, got {sweep!r}; give infinity with "
+                                     "--depths Z1,...,inf", param_hint="--sweep")
         # Rounded to 12 significant digits: the depths as written (0.45, not 0.44999999999999996).
         zs, hint = [float(f"{z:.12g}") for z in np.linspace(start, stop, n)], "--sweep"
     for z in zs:

@@ -26,6 +26,7 @@ API_TO_CLI: tuple[tuple[str, str], ...] = (
     (r"\bmethod='([\w-]+)'", r"--method \1"),
     (r"\bgive depths_m\b", "give the depths to choose from (--depth Z1,Z2,...)"),
     (r"\boverwrite=True\b", "--overwrite"),
+    (r" \(None: the default spacing\)", " (leave --planes out for the default spacing)"),
     (r" or None\b", ""),  # an option left out is the API's None
     (r"\b(aperture|reference|workers|threads) must be\b", r"--\1 must be"),
     # Parameters and their options.

@@ -28,7 +28,7 @@ from lfring.core.viewstack import check_views
 from lfring.depth.aggregation import AGGREGATIONS
 from lfring.depth.costs import COSTS
 from lfring.depth.engines import ENGINES
-from lfring.depth.plan import DEPTH_TAPER, DepthSettings, Progress, plan_sweep
+from lfring.depth.plan import DEPTH_TAPER, JUDGED_MIN_PLANES, DepthSettings, Progress, plan_sweep
 from lfring.depth.sgm import check_paths
 from lfring.depth.selection import DepthResult, Finisher
 from lfring.errors import InvalidInputError
@@ -199,7 +199,7 @@ def estimate_depth(
     if aggregate_px is not None:
         check_odd_px(aggregate_px, "aggregate_px")
     threads = check_threads(threads)
-    check_int(num_planes, "num_planes", minimum=2, allow_none=True, hint=" (None: the default spacing)")
+    check_int(num_planes, "num_planes", minimum=JUDGED_MIN_PLANES, allow_none=True, hint=" (None: the default spacing)")
     check_callable(progress, "progress", what="a callable progress(fraction)")
     check_calibration(calibration)
     rim_taper = check_fraction(rim_taper, "rim_taper", hint=" (a fraction of the disc radius)")

@@ -103,7 +103,9 @@ def load_frame(path, *, pattern=None, black_level=None, white_level=None, calibr
                           f"{sidecar_path(p).name}) if the result looks too dark or too bright"))
     data = frame.mosaic if frame.mosaic is not None else frame.image
     peak = int(data.max()) if data.size else 0
-    if given["white_level"] is None and peak < LOW_PEAK_FRACTION * frame.white_level:
+    if peak == 0 and data.size:
+        notes.append((logging.WARNING, f"{path}: every count is 0: the frame holds no light"))
+    elif given["white_level"] is None and peak < LOW_PEAK_FRACTION * frame.white_level:
         bits = max(1, peak.bit_length())
         notes.append((logging.WARNING,
                       f"{path}: the brightest count is {peak}, far below the white level {frame.white_level:g}: if the data "

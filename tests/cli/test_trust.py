@@ -351,3 +351,30 @@ def test_depth_planes_beyond_the_free_memory_refused_in_one_line(tmp_path, capsy
     _one_error(capsys.readouterr().err, "--method sgm over 1000 depth hypotheses on 705 x 705 px views (at least 1.9 GiB) "
                                         "needs more memory than the 1.0 GiB free: give fewer --planes")
     assert not out.exists() or not any(out.iterdir())
+
+
+@pytest.mark.parametrize("args, text", [
+    (["depth", str(SCENE), "-o", "{tmp}/d", "--planes", "0"],
+     "--planes must be an integer >= 3 (leave --planes out for the default spacing), got 0"),
+    (["depth", str(SCENE), "-o", "{tmp}/d", "--planes", "2", "--method", "local"], "--planes must be an integer >= 3"),
+    (["refocus", str(SCENE), "--sweep", "0.3:inf:3", "-o", "{tmp}/s.png"],
+     "a sweep runs between two finite depths, got '0.3:inf:3'; give infinity with --depths Z1,...,inf"),
+    (["batch", str(SCENE), "-o", "{tmp}/b", "--refocus", "0.5", "--executor", "local", "--scheduler", "tcp://127.0.0.1:9"],
+     "--scheduler tcp://127.0.0.1:9 is a Dask scheduler: give --executor dask (or leave --executor out)"),
+], ids=["planes 0", "local over 2 planes", "sweep to inf", "local executor with a scheduler"])
+def test_refusals_say_what_to_give_in_the_commands_words(tmp_path, capsys, args, text):
+    assert main([a.replace("{tmp}", str(tmp_path)) for a in args]) == 2
+    err = capsys.readouterr().err
+    assert text in err and "None" not in err and "nan" not in err and "Traceback" not in err
+    assert not any(tmp_path.iterdir())
+
+
+def test_check_of_a_black_frame_says_it_holds_no_light(tmp_path, capsys):
+    import tifffile
+
+    frame = tmp_path / "black.tif"
+    tifffile.imwrite(frame, np.zeros((1842, 2456), np.uint16))
+    assert main(["check", str(frame), "-o", str(tmp_path / "c.png")]) == 1
+    captured = capsys.readouterr()
+    assert "texture      none measurable (no light inside the discs)" in captured.out and "nan" not in captured.out
+    assert "every count is 0: the frame holds no light" in captured.err and "1-bit" not in captured.err

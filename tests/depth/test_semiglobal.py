@@ -655,13 +655,13 @@ def test_the_local_method_refuses_a_range_that_judges_no_answer_as_the_semi_glob
     """With two hypotheses (or any too close for one to lie more than a pixel from another) the
     local method's confidence was 0 at every pixel and its map said nothing, yet the call
     succeeded: it is refused with the same rule and remedy."""
-    from lfring.errors import DepthRangeError
+    from lfring.errors import DepthRangeError, InvalidInputError
 
     _, cal, views, *_ = twin
-    with pytest.raises(DepthRangeError, match=r"method='local' judges each answer .* give num_planes >= 3, widen the "
-                                              r"depth range$"):
+    with pytest.raises(InvalidInputError, match=r"num_planes must be an integer >= 3"):
         estimate_depth(views, cal, zmin_m=0.3, zmax_m=1.0, num_planes=2, method="local")
-    with pytest.raises(DepthRangeError) as err:
+    with pytest.raises(DepthRangeError, match=r"method='local' judges each answer .* give num_planes >= \d+, widen the "
+                                              r"depth range$") as err:
         estimate_depth(views, cal, zmin_m=0.3, zmax_m=0.35, num_planes=3, method="local")
     need = err.value.planes_needed
     res = estimate_depth(views, cal, zmin_m=0.3, zmax_m=0.35, num_planes=need, method="local")
