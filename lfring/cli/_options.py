@@ -273,8 +273,8 @@ def load_views(raw, calib: str | None, levels: RawLevels | None = None, *, check
     default for the frame's size (logged). The split undoes the calibration's lens distortion
     and divides by the flat field (``flat``, a flat frame's path, else the calibration's own).
     Unless ``check`` is False, refuse a frame that does not look like a ring frame for the
-    calibration (:func:`lfring.check.check_frame`). Several paths are separate view images
-    instead (see :func:`load_view_files`)."""
+    calibration, and a flat frame that does not look like one (:func:`lfring.check.check_frame`).
+    Several paths are separate view images instead (see :func:`load_view_files`)."""
     from lfring.calibration import RingCalibration
     from lfring.io.demosaic import demosaic
     from lfring.views import flat_field_from_frame, split_views
@@ -295,7 +295,8 @@ def load_views(raw, calib: str | None, levels: RawLevels | None = None, *, check
     if flat:
         flat_image = demosaic(read_frame(flat, levels, cal))
         cal.check_frame(flat_image.shape, what=f"flat frame {flat}")
-        require_flat_frame(flat_image, cal, flat)
+        if check:  # --no-check takes the flat as it is too, as its refusal offers
+            require_flat_frame(flat_image, cal, flat)
         flat_field = flat_field_from_frame(flat_image, cal)
     return split_views(image, cal, flat=flat_field), cal, name
 

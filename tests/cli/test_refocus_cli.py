@@ -136,6 +136,10 @@ def test_a_flat_that_is_not_a_flat_frame_is_refused(tmp_path, capsys):
     assert not any(tmp_path.iterdir())
     assert main(["refocus", str(SCENE), "--depth", "0.5", "--method", "shift-and-add", "--flat", str(data / "flat.png"),
                  "-o", str(tmp_path / "o.png")]) == 0
+    # --no-check, which a refusal of an over-exposed flat offers, takes the frame as the flat (it
+    # was refused all the same).
+    assert main(["refocus", str(SCENE), "--depth", "0.5", "--method", "shift-and-add", "--flat", str(data / "scene.png"),
+                 "--no-check", "-o", str(tmp_path / "n.png")]) == 0
 
 
 def test_view_images_out_of_order_or_from_two_frames_are_refused(tmp_path, capsys):
