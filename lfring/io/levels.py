@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import logging
+import re
 from pathlib import Path
 
 from lfring.errors import InvalidInputError
@@ -39,6 +40,22 @@ def _sidecar_keys(p: Path) -> set:
     except (OSError, ValueError):
         return set()  # load_raw reports a broken sidecar by name
     return {k for k in LEVEL_KEYS if isinstance(content, dict) and content.get(k) is not None}
+
+
+def _load(p: Path, given: dict, from_cal: dict):
+    """:func:`lfring.io.raw.load_raw` with the given values and the calibration's; an error over
+    a value of the calibration names it as the calibration's, not as given."""
+    from lfring.io.raw import load_raw
+
+    try:
+        return load_raw(p, **{**given, **from_cal})
+    except InvalidInputError as exc:
+        message = str(exc)
+        for key in from_cal:
+            message = re.sub(rf"\b({key}\b[^()]*)\((from|by) argument\)", r"\1(\2 the calibration)", message)
+        if message == str(exc):
+            raise
+        raise InvalidInputError(message) from None
 
 
 def load_frame(path, *, pattern=None, black_level=None, white_level=None, calibration=None):
@@ -74,13 +91,13 @@ def load_frame(path, *, pattern=None, black_level=None, white_level=None, calibr
             if given[k] is None and k not in from_file and v is not None:
                 from_cal[k] = v
     try:
-        frame = load_raw(p, **{**given, **from_cal})
+        frame = _load(p, given, from_cal)
     except InvalidInputError as exc:
         if "pattern" not in from_cal or "already RGB" not in str(exc):
             raise
         del from_cal["pattern"]  # an RGB frame: the calibration's Bayer pattern does not apply
         try:
-            frame = load_raw(p, **{**given, **from_cal})
+            frame = _load(p, given, from_cal)
         except InvalidInputError:
             if not from_cal:
                 raise

@@ -3,6 +3,7 @@ only where they fit it."""
 
 import cv2
 import numpy as np
+import pytest
 
 from lfring.calibration import RingCalibration
 from lfring.io.levels import load_frame
@@ -28,3 +29,19 @@ def test_an_8_bit_rgb_image_takes_neither_the_calibrations_pattern_nor_its_level
     frame, notes = load_frame(path, calibration=cal)
     assert frame.pattern == "RGGB" and (frame.black_level, frame.white_level) == (64, 4095)
     assert any("using the calibration's" in message for _, message in notes)
+
+
+def test_a_calibrations_level_that_does_not_fit_the_frame_is_named_as_the_calibrations(tmp_path):
+    # It was reported "(from argument)", which the command line words "(from the command line)".
+    from types import SimpleNamespace
+
+    from lfring.errors import InvalidInputError
+    from lfring.io.levels import load_frame
+
+    path = tmp_path / "tiny.png"
+    cv2.imwrite(str(path), np.full((8, 8), 100, np.uint8))
+    cal = SimpleNamespace(pattern="RGGB", black_level=64.0, white_level=4095.0)
+    with pytest.raises(InvalidInputError, match=r"white_level 4095(\.0)? \(from the calibration\) must be in \(0, 255\]"):
+        load_frame(path, calibration=cal)
+    with pytest.raises(InvalidInputError, match=r"white_level 4095(\.0)? \(from argument\)"):
+        load_frame(path, pattern="RGGB", white_level=4095)
