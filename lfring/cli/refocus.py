@@ -171,6 +171,7 @@ def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolat
         # The depth estimation's range, by the rule every entry point follows (refused here,
         # before the long work, when the calibration gives none); the sidecar records it.
         zmin, zmax = estimation_range(cal, zmin, zmax, reference=ref)
+        cal.check_depth([zmin, zmax])  # warned here, as lfring depth does: the block below silences it
         dof = {"aperture": aperture, "f_number": f_number, "zmin_m": zmin, "zmax_m": zmax}
         note_first_compile(REFOCUS_KERNELS)
     check_renderable(cal, zs, reference=ref)

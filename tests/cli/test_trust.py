@@ -378,3 +378,10 @@ def test_check_of_a_black_frame_says_it_holds_no_light(tmp_path, capsys):
     captured = capsys.readouterr()
     assert "texture      none measurable (no light inside the discs)" in captured.out and "nan" not in captured.out
     assert "every count is 0: the frame holds no light" in captured.err and "1-bit" not in captured.err
+
+
+@pytest.mark.filterwarnings("always::lfring.errors.LfringWarning")
+def test_refocus_warns_of_an_estimation_range_outside_the_calibrated_one_as_depth_does(tmp_path, capsys):
+    assert main(["refocus", str(SCENE), "--depth", "0.5", "--zmin", "0.25", "--zmax", "3", "-o", str(tmp_path / "a.png")]) == 0
+    err = capsys.readouterr().err
+    assert err.count("WARNING") == 1 and "depth 0.25, 3 m is outside the calibrated range (0.3 to 1 m)" in err
