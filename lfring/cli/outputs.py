@@ -46,6 +46,27 @@ _NOT_SETTINGS = frozenset({"overwrite", "progress", "threads"})
 OUTPUT_OPTIONS = frozenset({"output", "outdir", "plot"})
 
 
+@contextlib.contextmanager
+def _folder_lock(folder: Path):
+    """Hold an exclusive lock on ``folder`` (the folder itself, no lock file), where the system
+    has such locks: two commands finishing into one folder check and rename one after the other."""
+    try:
+        import fcntl
+    except ImportError:  # no POSIX locks (Windows): the check right before the rename stands alone
+        yield
+        return
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:
+        yield
+        return
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)  # releases the lock
+
+
 def record_path(folder: str | Path, name: str) -> Path:
     """Where the record of the output set ``name`` lies in ``folder``."""
     return Path(folder) / f"{name}{RECORD_SUFFIX}"
@@ -243,26 +264,34 @@ class OutputSet:
             missing = [str(p) for p, s in staged.items() if not s.exists()]
             if missing:
                 raise RuntimeError(f"outputs not written: {', '.join(missing)}")  # pragma: no cover - a bug
-            former = self._former_record() is not None
-            stale = self._stale_outputs()
-            deliver_lost_stops()  # a Ctrl-C that came where it could not stop the command: nothing is written
-            with held_signals():
-                self._write_record("pending")
-                for final, s in staged.items():
-                    final.parent.mkdir(parents=True, exist_ok=True)
-                    os.replace(s, final)
-                for path in stale:
-                    path.unlink(missing_ok=True)
-                self._write_record("done")
-                if former:
-                    self._former.unlink(missing_ok=True)
-            if stale:
-                logging.getLogger("lfring.cli").info(
-                    "removed %d file%s of the set this run replaced, which it does not make again: %s", len(stale),
-                    "s" * (len(stale) > 1), ", ".join(str(p) for p in stale[:5]) + (", ..." if len(stale) > 5 else ""))
+            with _folder_lock(self._root):
+                self._commit(staged)
         finally:
             with held_signals():  # a stop that comes now waits for the staged files to be gone
                 shutil.rmtree(staging, ignore_errors=True)
+
+    def _commit(self, staged: dict) -> None:
+        """Rename the staged outputs into place and write the record, after checking again what
+        lies there now: another command may have written these outputs while this one worked
+        (two runs into one folder), and those are replaced only as the first check allows."""
+        self.check()
+        former = self._former_record() is not None
+        stale = self._stale_outputs()
+        deliver_lost_stops()  # a Ctrl-C that came where it could not stop the command: nothing is written
+        with held_signals():
+            self._write_record("pending")
+            for final, s in staged.items():
+                final.parent.mkdir(parents=True, exist_ok=True)
+                os.replace(s, final)
+            for path in stale:
+                path.unlink(missing_ok=True)
+            self._write_record("done")
+            if former:
+                self._former.unlink(missing_ok=True)
+        if stale:
+            logging.getLogger("lfring.cli").info(
+                "removed %d file%s of the set this run replaced, which it does not make again: %s", len(stale),
+                "s" * (len(stale) > 1), ", ".join(str(p) for p in stale[:5]) + (", ..." if len(stale) > 5 else ""))
 
     def _write_record(self, status: str) -> None:
         from lfring import __version__

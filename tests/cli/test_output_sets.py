@@ -223,6 +223,34 @@ def test_a_set_replaced_with_overwrite_leaves_none_of_its_files_behind(tmp_path,
     assert (out / "notes.txt").read_text() == "mine\n"
 
 
+def test_a_command_that_finds_its_outputs_written_by_another_while_it_worked_does_not_replace_them(
+        tmp_path, capsys, monkeypatch):
+    """Two commands into one output with other settings: the second to finish replaced the
+    first's image and record without a word (each had checked before the other wrote). The
+    outputs are checked again right before they are renamed into place."""
+    from lfring.cli.main import main
+    from lfring.focus import shift_and_add
+
+    out = tmp_path / "r.png"
+    original = shift_and_add.Refocuser.__call__
+    ran = []
+
+    def meanwhile(self, views):  # the other command runs to its end while this one works
+        if not ran:
+            ran.append(subprocess.run([sys.executable, "-m", "lfring", "refocus", str(SCENE), "--depth", "0.8", "--method",
+                                       "shift-and-add", "-o", str(out)], capture_output=True, text=True, timeout=300))
+        return original(self, views)
+
+    monkeypatch.setattr(shift_and_add.Refocuser, "__call__", meanwhile)
+    assert main(["refocus", str(SCENE), "--depth", "0.5", "--method", "shift-and-add", "-o", str(out)]) == 2
+    assert ran and ran[0].returncode == 0, ran[0].stderr
+    err = capsys.readouterr().err
+    assert f"{out} exists and was made by lfring refocus with other settings; pass --overwrite" in err
+    assert json.loads((tmp_path / "r.png.json").read_text())["depth_m"] == 0.8
+    assert json.loads((tmp_path / "r.png.lfring.json").read_text())["settings"]["depth"] == 0.8
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["r.png", "r.png.json", "r.png.lfring.json"]
+
+
 def test_a_record_under_its_former_name_still_counts_once(tmp_path, capsys):
     """Outputs whose record an earlier lfring named after the output's stem are still this
     command's own on a rerun; the record then takes its present name."""
