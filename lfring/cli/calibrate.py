@@ -150,13 +150,13 @@ def command(frames, depths, output, flat, layout_file, depth_origin, device_name
                           float(np.max(p.leave_one_out_px)) if p.leave_one_out_px is not None else 0.0)
         if plane_worst > worst:
             worst, worst_z = plane_worst, p.depth_m
-    _echo_distortion(cal)
     if worst > MAX_RESIDUAL_PX and not force:
         frame = dict(zip(zs, frames)).get(worst_z, "a frame")
         raise InvalidInputError(
             f"largest residual {worst:.3f} px (plane {worst_z:g} m, {frame}) exceeds {MAX_RESIDUAL_PX} px: it does not look "
             "like a planar target at that depth (check the frame, the target's texture, focus and the depths); "
             f"{output} is not written; pass --force to write it anyway")
+    _echo_distortion(cal)  # a verdict on a calibration that is kept: not before a refusal of it
     if worst > WARN_PX:
         log.warning("largest residual %.3f px exceeds %.1f px: check the target's texture, focus and the depths", worst, WARN_PX)
     with outputs.writing() as stage:

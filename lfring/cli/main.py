@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import importlib
 import logging
+import re
 import sys
 import warnings
 
@@ -227,6 +228,9 @@ def main(argv=None) -> int:
                 signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
+_NUMBER = re.compile(r"-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?")
+
+
 def _run(args: list[str]) -> int:
     try:
         rv = cli.main(args=args, prog_name="lfring", standalone_mode=False)
@@ -235,6 +239,12 @@ def _run(args: list[str]) -> int:
         return exc.exit_code
     except (click.Abort, KeyboardInterrupt) as exc:
         return _stopped(interrupt_behind(exc))
+    except click.NoSuchOption as exc:
+        if _NUMBER.fullmatch(exc.option_name or ""):  # a negative value read as an option's name
+            exc.message = (f"{exc.option_name} is not an option: was it meant as a value? Depths and distances are "
+                           "metres in front of the lens (> 0)")
+        exc.show()
+        return exc.exit_code
     except click.ClickException as exc:
         exc.show()
         return exc.exit_code

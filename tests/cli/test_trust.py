@@ -385,3 +385,24 @@ def test_refocus_warns_of_an_estimation_range_outside_the_calibrated_one_as_dept
     assert main(["refocus", str(SCENE), "--depth", "0.5", "--zmin", "0.25", "--zmax", "3", "-o", str(tmp_path / "a.png")]) == 0
     err = capsys.readouterr().err
     assert err.count("WARNING") == 1 and "depth 0.25, 3 m is outside the calibrated range (0.3 to 1 m)" in err
+
+
+def test_a_refused_calibration_gets_no_verdict_on_its_distortion(tmp_path, capsys):
+    # The scene given as the 1 m target: refused for its residuals, after a line that called
+    # the distortion "negligible, not modelled" as if the calibration were good.
+    out = tmp_path / "c.json"
+    assert main(["calibrate", str(DATA / "target_0.3m.png"), str(SCENE), "--depths", "0.3", "1.0", "-o", str(out)]) == 2
+    captured = capsys.readouterr()
+    _one_error(captured.err, "does not look like a planar target at that depth")
+    assert "distortion" not in captured.out and not out.exists()
+
+
+def test_a_negative_value_read_as_an_option_is_named_as_a_value(tmp_path, capsys):
+    args = ["calibrate", str(DATA / "target_0.3m.png"), str(DATA / "target_1m.png"), "--depths", "0.3", "-1",
+            "-o", str(tmp_path / "c.json")]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert "-1 is not an option: was it meant as a value? Depths and distances are metres in front of the lens" in err
+    assert "No such option" not in err and not any(tmp_path.iterdir())
+    assert main(["refocus", str(SCENE), "--dept", "0.5"]) == 2  # a misspelt option keeps click's suggestion
+    assert "Did you mean" in capsys.readouterr().err
