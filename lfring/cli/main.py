@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import importlib
 import logging
+import os
 import re
 import sys
 import warnings
@@ -61,8 +62,38 @@ class _LfringGroup(click.Group):
                 raise stop from None
             if isinstance(exc, LfringError):
                 raise CliError(cli_words(str(exc))) from None
+            if isinstance(exc, BrokenPipeError) and exc.filename is None and _stdout_gone():
+                raise ReaderGone() from None
             where = f": {exc.filename}" if exc.filename else ""  # any file-system failure: one line naming the path
             raise CliError(f"{exc.strerror or exc}{where}") from None
+
+
+class ReaderGone(click.ClickException):
+    """What the command printed had no reader left (``lfring check frame.png | head``): nothing
+    more is said, and the exit code is a shell's for SIGPIPE, as for any command in a pipe."""
+
+    exit_code = 141  # 128 + SIGPIPE, as a shell says
+
+    def __init__(self):
+        super().__init__("")
+
+    def show(self, file=None) -> None:
+        try:  # the interpreter's own flush at exit would fail on the closed pipe and say so
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        except (OSError, ValueError):
+            pass
+
+
+def _stdout_gone() -> bool:
+    """Whether standard output is a pipe whose reading end is closed."""
+    try:
+        import select
+
+        poll = select.poll()
+        poll.register(sys.stdout.fileno(), select.POLLOUT)
+        return any(ev & select.POLLERR for _, ev in poll.poll(0))
+    except (AttributeError, OSError, ValueError):  # no poll (Windows), no file descriptor
+        return False
 
 
 class Terminated(KeyboardInterrupt):

@@ -406,3 +406,14 @@ def test_a_negative_value_read_as_an_option_is_named_as_a_value(tmp_path, capsys
     assert "No such option" not in err and not any(tmp_path.iterdir())
     assert main(["refocus", str(SCENE), "--dept", "0.5"]) == 2  # a misspelt option keeps click's suggestion
     assert "Did you mean" in capsys.readouterr().err
+
+
+def test_output_into_a_pipe_that_closed_ends_quietly(tmp_path):
+    # `lfring check frame.png | head -2` printed "lfring: error: Broken pipe".
+    proc = subprocess.Popen([sys.executable, "-m", "lfring", "check", str(SCENE), "-o", str(tmp_path / "c.png")],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc.stdout.close()  # no reader: the first line printed meets a closed pipe
+    proc.stdout = None
+    err = proc.communicate(timeout=300)[1]
+    assert proc.returncode == 141
+    assert "error" not in err and "Traceback" not in err and "Exception ignored" not in err, err
