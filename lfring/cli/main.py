@@ -78,6 +78,8 @@ class ReaderGone(click.ClickException):
         super().__init__("")
 
     def show(self, file=None) -> None:
+        """Say nothing; standard output goes to the null device, where the interpreter's last
+        flush can go."""
         try:  # the interpreter's own flush at exit would fail on the closed pipe and say so
             os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         except (OSError, ValueError):

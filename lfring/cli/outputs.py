@@ -8,8 +8,9 @@ are written, renames them into place together, with Ctrl-C and SIGTERM held, and
 interrupted command leaves nothing (its staging folder goes); a rerun with the same inputs and
 settings replaces its own outputs; a file the command did not make, or made from other inputs
 or with other settings, is replaced only with ``--overwrite``. The files of the set a run
-replaces that it does not make again (a longer focal stack's) are removed with it: a folder
-never holds two sets' files under one record.
+replaces with ``--overwrite`` that it does not make again (a longer focal stack's) are removed
+with it, where they are as the set's record found them: a folder never holds two sets' files
+under one record.
 """
 
 from __future__ import annotations
@@ -61,10 +62,27 @@ def _folder_lock(folder: Path):
         yield
         return
     try:
-        fcntl.flock(fd, fcntl.LOCK_EX)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            logging.getLogger("lfring.cli").info("waiting for another lfring command writing into %s", folder)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX)
+            except OSError:
+                pass  # a lock the file system cannot keep: the check right before the rename stands alone
+        except OSError:  # NFS without byte-range locks on folders, no lock daemon: as above
+            pass
         yield
     finally:
         os.close(fd)  # releases the lock
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    """Whether two paths name one file (a case-insensitive file system's two spellings, links)."""
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False
 
 
 def record_path(folder: str | Path, name: str) -> Path:
@@ -192,22 +210,34 @@ class OutputSet:
         return rec
 
     def _stale_outputs(self) -> list[Path]:
-        """The files that this set's record (of this command) lists and this run does not write:
-        the replaced set's, which would otherwise lie beside the new one as if they belonged to
-        it. Only files inside the set's folders, never an input of this run."""
+        """The files of the set this run replaces that it does not write again: those its record
+        (of this command) lists, when the run was told to replace (``--overwrite``) and does
+        replace that set (they share an output). Only a file as the record found it (its size and
+        time unchanged: not one another command or the user wrote since), inside the set's folders,
+        never an input of this run or one of its outputs."""
         rec = self._former_record() or read_record(self.record)
-        if rec is None or rec.get("command") != self.command:
+        if not self.overwrite or rec is None or rec.get("command") != self.command:
             return []
         new = {self._rel(p) for p in self.paths}
+        listed = set((rec.get("outputs") or {}).values())
+        made = rec.get("output_identity") or {}
+        if not listed & new:
+            return []  # another set under the same record's name: not this one's to clear
         keep = {os.path.realpath(p) for p in [*self.inputs, self.record]}
         out = []
-        for rel in sorted(set((rec.get("outputs") or {}).values()) - new):
+        for rel in sorted(listed - new):
             rel_path = Path(str(rel))
             path = self._root / rel_path
             if rel_path.is_absolute() or ".." in rel_path.parts or os.path.realpath(path) in keep:
                 continue
-            if path.is_file() and not path.is_symlink():
-                out.append(path)
+            if not path.is_file() or path.is_symlink() or any(_same_file(path, p) for p in self.paths):
+                continue
+            try:
+                if made.get(rel) != file_identity(path):
+                    continue
+            except OSError:
+                continue
+            out.append(path)
         return out
 
     def _clear_stale_staging(self) -> None:
@@ -303,5 +333,6 @@ class OutputSet:
             "input_identity": {p: file_identity(p) for p in self.inputs}, "settings_key": self.key,
             "settings": self.settings, "outputs": dict(zip(rels, rels)),
             "output_keys": keys if status == "done" else {}, "pending_keys": {} if status == "done" else keys,
+            "output_identity": {rel: file_identity(p) for rel, p in zip(rels, self.paths)} if status == "done" else {},
             "lfring_version": __version__,
         }, indent=2, default=json_default) + "\n")

@@ -223,6 +223,44 @@ def test_a_set_replaced_with_overwrite_leaves_none_of_its_files_behind(tmp_path,
     assert (out / "notes.txt").read_text() == "mine\n"
 
 
+def test_only_a_set_that_is_replaced_loses_its_files_and_only_those_as_it_made_them(tmp_path, capsys):
+    """The files of a set's record go only with --overwrite, when the new run shares outputs
+    with that set, and only as the record found them: a stack whose record name a single image
+    shares (x.png's stack and x_stack.png) lost all its frames to a run without --overwrite, and
+    a frame replaced since by another command went too."""
+    from lfring.cli.main import main
+
+    sa = ["refocus", str(SCENE), "--method", "shift-and-add"]
+    assert main([*sa, "--sweep", "0.4:0.8:3", "-o", str(tmp_path / "x.png")]) == 0
+    stack = _files(tmp_path)
+    assert main([*sa, "--depth", "0.5", "-o", str(tmp_path / "x_stack.png")]) == 0
+    assert set(stack) - {"x_stack.png.lfring.json"} <= set(_files(tmp_path))  # every frame of the stack kept
+    assert "removed" not in capsys.readouterr().err
+    # A frame the user rewrote (or another command wrote) since the record: kept on --overwrite.
+    out = tmp_path / "y"
+    assert main([*sa, "--sweep", "0.4:0.8:3", "-o", str(out / "y.png")]) == 0
+    mine = out / "y_001_0.6m.png"
+    mine.write_bytes(b"mine")
+    assert main([*sa, "--sweep", "0.4:0.8:2", "-o", str(out / "y.png"), "--overwrite"]) == 0
+    assert mine.read_bytes() == b"mine" and not (out / "y_001_0.6m.png.json").exists()
+
+
+def test_outputs_are_written_where_the_folder_cannot_be_locked(tmp_path, capsys, monkeypatch):
+    """flock on a folder fails on NFS (EBADF) and without a lock daemon (ENOLCK): the command
+    goes on with the check alone, as where the system has no such locks."""
+    import errno
+
+    fcntl = pytest.importorskip("fcntl")
+    from lfring.cli.main import main
+
+    def no_lock(fd, op):
+        raise OSError(errno.ENOLCK, "No locks available")
+
+    monkeypatch.setattr(fcntl, "flock", no_lock)
+    assert main(["refocus", str(SCENE), "--depth", "0.5", "--method", "shift-and-add", "-o", str(tmp_path / "a.png")]) == 0
+    assert (tmp_path / "a.png").exists()
+
+
 def test_a_command_that_finds_its_outputs_written_by_another_while_it_worked_does_not_replace_them(
         tmp_path, capsys, monkeypatch):
     """Two commands into one output with other settings: the second to finish replaced the
