@@ -144,7 +144,8 @@ def _process(input_path, settings: BatchSettings, outputs, timings) -> tuple[dic
     known = settings.calibration is not None or (size is not None and size != (0, 0))
     cal, cal_name = _worker_calibration(settings, size) if known else (None, None)
     frame, notes = load_frame(input_path, pattern=settings.pattern, black_level=settings.black_level,
-                              white_level=settings.white_level, calibration=cal)
+                              white_level=settings.white_level, calibration=cal,
+                              only_fitting=settings.calibration is None)
     for level, message in notes:
         if level >= logging.WARNING:
             warnings.warn(message, LfringWarning, stacklevel=2)

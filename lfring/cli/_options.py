@@ -220,13 +220,14 @@ class FramePath(click.Path):
 FRAME = FramePath()
 
 
-def read_frame(raw: str, levels: RawLevels | None = None, calibration=None):
+def read_frame(raw: str, levels: RawLevels | None = None, calibration=None, *, picked: bool = False):
     """Load a raw frame: options first, then its sidecar or metadata, then the calibration's
-    pattern and levels (said at info level), then defaults (said at warning level); see
-    :func:`lfring.io.levels.load_frame`."""
+    pattern and levels (said at info level; a calibration ``picked`` for the frame's size, not
+    given, only where its levels fit the frame's counts), then defaults (said at warning level);
+    see :func:`lfring.io.levels.load_frame`."""
     from lfring.io.levels import load_frame
 
-    frame, notes = load_frame(raw, **(levels or RawLevels()).as_kwargs(), calibration=calibration)
+    frame, notes = load_frame(raw, **(levels or RawLevels()).as_kwargs(), calibration=calibration, only_fitting=picked)
     log = logging.getLogger("lfring.cli")
     for level, message in notes:
         log.log(level, "%s", message)
@@ -284,7 +285,7 @@ def load_views(raw, calib: str | None, levels: RawLevels | None = None, *, check
             return load_view_files(raw, calib, check=check)
         raw = raw[0]
     cal, name = (RingCalibration.load(calib), calib) if calib else builtin_calibration(raw)
-    frame = read_frame(raw, levels, cal)
+    frame = read_frame(raw, levels, cal, picked=not calib)
     image = demosaic(frame)
     if cal is None:  # the header did not tell the frame's size (camera RAW)
         cal, name = builtin_calibration(raw, (image.shape[1], image.shape[0]))
@@ -293,7 +294,7 @@ def load_views(raw, calib: str | None, levels: RawLevels | None = None, *, check
         require_ring_frame(image, cal, raw)
     flat_field = None
     if flat:
-        flat_image = demosaic(read_frame(flat, levels, cal))
+        flat_image = demosaic(read_frame(flat, levels, cal, picked=not calib))
         cal.check_frame(flat_image.shape, what=f"flat frame {flat}")
         if check:  # --no-check takes the flat as it is too, as its refusal offers
             require_flat_frame(flat_image, cal, flat)

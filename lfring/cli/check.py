@@ -49,7 +49,7 @@ def command(ctx, frame, calib, output, overwrite, levels):
     outputs = OutputSet([out], name=out.name, overwrite=overwrite)
     outputs.check()
     cal, cal_name = (RingCalibration.load(calib), calib) if calib else builtin_calibration(frame)
-    raw = read_frame(frame, levels, cal)
+    raw = read_frame(frame, levels, cal, picked=not calib)
     image = demosaic(raw, method="bilinear")
     size = (image.shape[1], image.shape[0])
     if cal is None:  # the header did not tell the frame's size (camera RAW)

@@ -43,7 +43,6 @@ def command(raw, outdir, layout_file, flat_file, rotate180, method, fmt, overwri
     """
     from lfring.calibration.defaults import calibration_for_frame
     from lfring.io.demosaic import demosaic
-    from lfring.io.raw import load_raw
     from lfring.io.writers import write_image, write_json
     from lfring.views import Layout, detect_layout, split_views
 
@@ -57,12 +56,12 @@ def command(raw, outdir, layout_file, flat_file, rotate180, method, fmt, overwri
         builtin = calibration_for_frame(raw)
     except LfringError:  # no built-in calibration has the frame's size: any camera's frame splits
         builtin = None
-    frame = read_frame(raw, levels, builtin[0] if builtin else None)
+    frame = read_frame(raw, levels, builtin[0] if builtin else None, picked=True)
     image = demosaic(frame, method=method)
     if layout_file:
         layout, source = Layout.load(layout_file), f"layout file {layout_file}"
     elif flat_file:
-        flat = demosaic(load_raw(flat_file, **levels.as_kwargs()), method="bilinear")
+        flat = demosaic(read_frame(flat_file, levels, builtin[0] if builtin else None, picked=True), method="bilinear")
         if flat.shape != image.shape:
             raise click.UsageError(f"--flat {flat_file} is {flat.shape[1]} x {flat.shape[0]} px but the frame {raw} is "
                                    f"{image.shape[1]} x {image.shape[0]} px; give a flat frame of the same camera and binning")

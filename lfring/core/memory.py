@@ -12,7 +12,6 @@ huge pages unless asked for, and comes zeroed, page by page as it is first writt
 from __future__ import annotations
 
 import mmap
-import os
 
 import numpy as np
 
@@ -64,8 +63,9 @@ def fresh_zeros(shape, dtype=np.float32) -> np.ndarray:
 
 def available_memory_bytes() -> int | None:
     """The memory the system can give a new allocation without swapping, in bytes: Linux's
-    ``MemAvailable`` (free memory and the caches it can drop), else the free physical pages;
-    None where the system says neither (a check that needs it cannot judge)."""
+    ``MemAvailable`` (free memory and the caches it can drop); None where the system does not
+    say it (a check that needs it cannot judge: the free pages alone leave out the caches, and
+    would refuse what fits)."""
     try:
         with open("/proc/meminfo", "rb") as f:
             for line in f:
@@ -73,7 +73,4 @@ def available_memory_bytes() -> int | None:
                     return int(line.split()[1]) * 1024
     except (OSError, ValueError, IndexError):
         pass
-    try:
-        return int(os.sysconf("SC_AVPHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
-    except (AttributeError, OSError, ValueError):
-        return None
+    return None

@@ -224,7 +224,9 @@ def estimate_depth(
                              min_views=min_views, threads=threads,
                              backend=backend, device=device, paths=paths, consistency=consistency)
     finisher = Finisher(plan.depths, calibration.depth_origin_m, arr.shape[1:3], min_views)
-    need = _check_memory(engine, len(plan.depths), arr.shape[1:3])
+    # The host holds the volumes, but for an engine whose kernels run on the torch device.
+    on_device = backend == "torch" and engine.device_frames and _runs_on_device(device, plan)
+    need = 0 if on_device else _check_memory(engine, len(plan.depths), arr.shape[1:3])
     try:
         extra = engine.run(arr, calibration, plan, settings, finisher, Progress(progress, arr.shape[1]))
     except MemoryError:
@@ -241,6 +243,12 @@ _MEMORY_REMEDY = ("give fewer num_planes, narrow zmin_m..zmax_m, or use method='
 def _memory_words(engine, n: int, shape, need: int) -> str:
     words = f"method={engine.name!r} over {n} depth hypotheses on {shape[1]} x {shape[0]} px views"
     return words + (f" (at least {need / 2 ** 30:.1f} GiB)" if need else "")
+
+
+def _runs_on_device(device, plan) -> bool:
+    from lfring.depth.engines import gpu
+
+    return gpu.engine_runs_on(resolve_device(device), plan)
 
 
 def _check_memory(engine, n: int, shape) -> int:

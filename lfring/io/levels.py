@@ -58,7 +58,7 @@ def _load(p: Path, given: dict, from_cal: dict):
         raise InvalidInputError(message) from None
 
 
-def load_frame(path, *, pattern=None, black_level=None, white_level=None, calibration=None):
+def load_frame(path, *, pattern=None, black_level=None, white_level=None, calibration=None, only_fitting=False):
     """Read a raw frame, its pattern and levels from the best source (see the module).
 
     Parameters
@@ -69,6 +69,11 @@ def load_frame(path, *, pattern=None, black_level=None, white_level=None, calibr
     calibration : RingCalibration, optional
         Its ``pattern``, ``black_level`` and ``white_level``, when recorded, stand in for
         values that neither the caller nor the frame's sidecar gives.
+    only_fitting : bool
+        The calibration's levels stand in only where they fit the frame's counts (the data's
+        type holds its white level, no count lies above it): for a calibration picked for the
+        frame (the built-in one for its size) rather than given, whose frames may have been
+        stored otherwise. Otherwise levels that do not fit are an error.
 
     Returns
     -------
@@ -90,22 +95,38 @@ def load_frame(path, *, pattern=None, black_level=None, white_level=None, calibr
             v = getattr(calibration, k, None)
             if given[k] is None and k not in from_file and v is not None:
                 from_cal[k] = v
+    unfit = {}
     try:
         frame = _load(p, given, from_cal)
     except InvalidInputError as exc:
-        if "pattern" not in from_cal or "already RGB" not in str(exc):
-            raise
-        del from_cal["pattern"]  # an RGB frame: the calibration's Bayer pattern does not apply
-        try:
+        levels = [k for k in ("black_level", "white_level") if k in from_cal]
+        if only_fitting and levels and "already RGB" not in str(exc):
+            unfit = {k: from_cal.pop(k) for k in levels}  # the levels did not fit: the frame's own or the dtype's
             frame = _load(p, given, from_cal)
-        except InvalidInputError:
-            if not from_cal:
-                raise
-            # Nor its levels, where they do not fit the frame's counts (an 8-bit RGB image, a
-            # calibration of 12-bit raw frames): the frame's own or the dtype's are taken.
-            from_cal = {}
-            frame = load_raw(p, **given)
+        elif "pattern" not in from_cal or "already RGB" not in str(exc):
+            raise
+        else:
+            del from_cal["pattern"]  # an RGB frame: the calibration's Bayer pattern does not apply
+            try:
+                frame = _load(p, given, from_cal)
+            except InvalidInputError:
+                if not from_cal:
+                    raise
+                # Nor its levels, where they do not fit the frame's counts (an 8-bit RGB image, a
+                # calibration of 12-bit raw frames): the frame's own or the dtype's are taken.
+                from_cal = {}
+                frame = load_raw(p, **given)
+    levels = [k for k in ("black_level", "white_level") if k in from_cal]
+    if only_fitting and levels:
+        data = frame.mosaic if frame.mosaic is not None else frame.image
+        if data.size and int(data.max()) > frame.white_level:  # counts above the white level: not this frame's
+            unfit = {k: from_cal.pop(k) for k in levels}
+            frame = _load(p, given, from_cal)
     notes = []
+    if unfit:
+        values = ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in unfit.items())
+        notes.append((logging.WARNING, f"{path}: the levels of the calibration picked for its size ({values}) do not fit "
+                                       "its counts: not used"))
     if from_cal:
         names = " or ".join(k.replace("_", " ") for k in from_cal)
         values = ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in from_cal.items())

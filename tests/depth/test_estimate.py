@@ -220,7 +220,15 @@ def test_running_out_of_memory_in_an_engine_is_an_error_that_says_what_to_do(twi
 
 
 def test_available_memory_is_read_from_the_system():
+    import re
+    from pathlib import Path
+
     from lfring.core.memory import available_memory_bytes
 
     free = available_memory_bytes()
-    assert free is None or 0 < free < 1 << 50
+    info = Path("/proc/meminfo").read_text() if Path("/proc/meminfo").exists() else ""
+    found = re.search(r"^MemAvailable:\s+(\d+) kB", info, re.M)
+    if found is None:
+        assert free is None  # not said: the check cannot judge, and lets the call go ahead
+    else:
+        assert abs(free - int(found.group(1)) * 1024) < 0.1 * int(found.group(1)) * 1024

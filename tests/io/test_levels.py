@@ -45,3 +45,27 @@ def test_a_calibrations_level_that_does_not_fit_the_frame_is_named_as_the_calibr
         load_frame(path, calibration=cal)
     with pytest.raises(InvalidInputError, match=r"white_level 4095(\.0)? \(from argument\)"):
         load_frame(path, pattern="RGGB", white_level=4095)
+
+
+def test_a_calibration_picked_for_the_frame_gives_only_levels_that_fit_its_counts(tmp_path):
+    # The built-in calibration picked by a frame's size records 12-bit counts (64 .. 4095): an
+    # 8-bit mosaic was refused for them, and 12-bit counts stored in the top bits of 16 were read
+    # as clipped. Levels that do not fit are left out (and said so); those that fit are taken.
+    from types import SimpleNamespace
+
+    cal = SimpleNamespace(pattern="RGGB", black_level=64.0, white_level=4095.0)
+    rng = np.random.default_rng(0)
+    eight, top = tmp_path / "eight.png", tmp_path / "top.png"
+    cv2.imwrite(str(eight), rng.integers(0, 256, (8, 8), dtype=np.uint8))
+    cv2.imwrite(str(top), (rng.integers(0, 4096, (8, 8)) << 4).astype(np.uint16))
+    for path, white in ((eight, 255.0), (top, 65535.0)):
+        frame, notes = load_frame(path, calibration=cal, only_fitting=True)
+        assert (frame.pattern, frame.black_level, frame.white_level) == ("RGGB", 0.0, white)
+        assert any("do not fit its counts: not used" in text for _, text in notes)
+    fits = tmp_path / "fits.png"
+    cv2.imwrite(str(fits), rng.integers(64, 4096, (8, 8)).astype(np.uint16))
+    frame, notes = load_frame(fits, calibration=cal, only_fitting=True)
+    assert (frame.black_level, frame.white_level) == (64.0, 4095.0)
+    assert not any("do not fit" in text for _, text in notes)
+    frame, _ = load_frame(top, calibration=cal)  # a calibration given, not picked: its levels stand
+    assert frame.white_level == 4095.0
