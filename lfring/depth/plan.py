@@ -146,6 +146,13 @@ def plan_sweep(views, calibration, zmin_m, zmax_m, num_planes, reference, taper)
             f"zmin_m {zmin:g} .. zmax_m {zmax:g} m: the views move by {motion:.2g} px across it, too little to tell "
             "any depth in it from another; widen it", zmin_m=zmin, zmax_m=zmax, planes=len(depths), motion_px=motion,
             planes_needed=None, hint=calibration.millimetres_hint(zmin, zmax))
+    need = planes_needed(motion) if num_planes is None else None
+    if need is not None and need > len(depths):
+        # The default spacing (a pixel of motion at most) over a range of a few pixels leaves no
+        # hypothesis more than a pixel from another to judge an answer by: as few more as that takes.
+        depths = depth_hypotheses(calibration, zmin_m, zmax_m, num=need)
+        step = calibration_cache(calibration, ("view motion", depths_key(depths), tuple(shape)),
+                                 lambda: view_motion_px(calibration, depths, shape))
     calibration.check_depth(np.array([zmin_m, zmax_m]))  # warns once if outside the calibrated range
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", LfringWarning)

@@ -668,3 +668,18 @@ def test_the_local_method_refuses_a_range_that_judges_no_answer_as_the_semi_glob
     assert (res.confidence > 0).mean() > 0.5
     res = estimate_depth(views, cal, zmin_m=0.3, zmax_m=1.0, num_planes=3, method="local")
     assert (res.confidence > 0).mean() > 0.5
+
+
+@pytest.mark.parametrize("method", ["sgm", "local"])
+def test_the_default_spacing_over_a_few_pixels_takes_the_planes_an_answer_needs(twin, method):
+    """Over 0.3 .. 0.35 m the views move by 1-3 px: the default spacing (a pixel apart at most)
+    gave too few hypotheses for any to lie more than a pixel from another, and the call was
+    refused asking for num_planes, which the plan can choose itself."""
+    from lfring.errors import DepthRangeError
+
+    _, cal, views, *_ = twin
+    with pytest.raises(DepthRangeError) as err:
+        estimate_depth(views, cal, zmin_m=0.3, zmax_m=0.35, num_planes=3, method=method)
+    res = estimate_depth(views, cal, zmin_m=0.3, zmax_m=0.35, method=method)
+    assert len(res.depths_m) == err.value.planes_needed
+    assert (res.confidence > 0).mean() > 0.5
