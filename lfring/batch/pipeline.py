@@ -272,7 +272,7 @@ def _process(input_path, settings: BatchSettings, outputs, timings) -> tuple[dic
 def _narrow_range(exc: DepthRangeError) -> str:
     """A depth range too narrow to estimate depth over, in the words of :class:`BatchSettings`."""
     return exc.narrow("widen it" if exc.planes_needed is None
-                      else f"widen it, give planes >= {exc.planes_needed}, or use depth_method='local'")
+                      else f"widen it or give planes >= {exc.planes_needed}")
 
 
 def _refocus_record(cal, settings: BatchSettings) -> dict:

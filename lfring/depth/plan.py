@@ -24,8 +24,8 @@ from lfring.depth.hypotheses import depth_hypotheses, view_motion_px
 from lfring.errors import DepthRangeError, LfringWarning
 
 __all__ = ["DEPTH_TAPER", "GUIDE_WHITE_PERCENTILE", "JUDGED_MIN_PLANES", "MIN_RANGE_MOTION_PX", "NUMPY_INTERPOLATION_MATCHED",
-           "DepthSettings", "Progress", "SweepPlan", "baseline_axis", "check_judged", "depths_key", "guide_image",
-           "high_percentile", "in_reference_frame", "other_reference", "planes_needed", "plan_sweep", "sweep_masks"]
+           "DepthSettings", "Progress", "SweepPlan", "baseline_axis", "depths_key", "guide_image", "high_percentile",
+           "in_reference_frame", "other_reference", "plan_sweep", "sweep_masks"]
 
 # Fraction of a view's disc radius over which its weight rises from 0 to 1 in the sweep
 # (lfring.core.viewstack.view_masks). The refocusing taper (lfring.core.viewstack.TAPER, 15 %) hides seams in an image;
@@ -103,63 +103,62 @@ def depths_key(depths_m) -> tuple:
     return tuple(np.round(np.asarray(depths_m, np.float64), 12))
 
 
-def planes_needed(motion_px: float) -> int | None:
-    """The fewest hypotheses spread over ``motion_px`` of view motion among which every one has
-    others more than a pixel away (as the sweep plan spaces them and counts its ``exclude``);
-    None where the motion is a pixel or less and no number has."""
-    if motion_px <= 1.0:
-        return None
+def _planes_needed(motion_px: float) -> int:
+    """The fewest hypotheses spread over ``motion_px`` (more than a pixel) of view motion among
+    which every one has others more than a pixel away (as the plan spaces them and counts its
+    ``exclude``)."""
     n = JUDGED_MIN_PLANES
     while n < max(JUDGED_MIN_PLANES, math.ceil((n - 1) / motion_px) + 2):
         n += 1
     return n
 
 
-def check_judged(plan: SweepPlan, method: str, alternative: str = "") -> None:
-    """Refuse (:class:`lfring.errors.DepthRangeError`) a plan whose hypotheses leave no answer
-    anything to be judged against: none lies more than a pixel of view motion from another (the
-    confidence would be 0 everywhere). ``alternative`` ends the remedy (another method, say)."""
-    if len(plan.depths) >= max(JUDGED_MIN_PLANES, plan.exclude + 2):
-        return
-    zmin_m, zmax_m = float(plan.depths[0]), float(plan.depths[-1])
-    motion = plan.step_px * (len(plan.depths) - 1)
-    needed = planes_needed(motion)  # a number: the plan refused a range of a pixel or less
-    raise DepthRangeError(
-        f"method={method!r} judges each answer against hypotheses more than one pixel of view motion away: "
-        f"{len(plan.depths)} hypotheses over {motion:.2g} px of motion ({zmin_m:g}..{zmax_m:g} m) have none; "
-        f"give num_planes >= {needed}, widen the depth range{alternative}", zmin_m=zmin_m, zmax_m=zmax_m,
-        planes=len(plan.depths), motion_px=motion, planes_needed=needed,
-        hint=plan.calibration.millimetres_hint(zmin_m, zmax_m))
+def _exclude(step_px: float) -> int:
+    """Hypotheses within a pixel of view motion of the best, at ``step_px`` apart: the second
+    minimum is looked for beyond them."""
+    return max(1, int(np.ceil(1.0 / max(step_px, 1e-6))))
 
 
 def plan_sweep(views, calibration, zmin_m, zmax_m, num_planes, reference, taper) -> SweepPlan:
-    """The :class:`SweepPlan` of views (V, h, w, C) over ``zmin_m``..``zmax_m``."""
+    """The :class:`SweepPlan` of views (V, h, w, C) over ``zmin_m``..``zmax_m``.
+
+    Every method judges an answer against the hypotheses more than a pixel of view motion from
+    it: with ``num_planes`` None the plan takes as many as that needs (the default spacing, a
+    pixel apart at most, leaves none over a range of a few pixels); a ``num_planes`` that leaves
+    none, or a range that holds no pixel of motion, is refused
+    (:class:`lfring.errors.DepthRangeError`)."""
     ref = check_reference(reference, calibration.num_views)
     depths = depth_hypotheses(calibration, zmin_m, zmax_m, num=num_planes)
     shape = views.shape[1:3]
-    key = ("view motion", depths_key(depths), tuple(shape))  # the same for every frame
-    step = calibration_cache(calibration, key, lambda: view_motion_px(calibration, depths, shape))
+
+    def motion_step(depths):  # the same for every frame
+        key = ("view motion", depths_key(depths), tuple(shape))
+        return calibration_cache(calibration, key, lambda: view_motion_px(calibration, depths, shape))
+
+    step = motion_step(depths)
     motion = step * (len(depths) - 1)  # the hypotheses are evenly spaced in view motion
-    if motion <= MIN_RANGE_MOTION_PX:  # refused before the out-of-range warning: the hint says more
-        zmin, zmax = float(depths[0]), float(depths[-1])
+    zmin, zmax = float(depths[0]), float(depths[-1])
+    # Both refused before the out-of-range warning: the hint says more.
+    if motion <= MIN_RANGE_MOTION_PX:
         raise DepthRangeError(
             f"zmin_m {zmin:g} .. zmax_m {zmax:g} m: the views move by {motion:.2g} px across it, too little to tell "
             "any depth in it from another; widen it", zmin_m=zmin, zmax_m=zmax, planes=len(depths), motion_px=motion,
             planes_needed=None, hint=calibration.millimetres_hint(zmin, zmax))
-    need = planes_needed(motion) if num_planes is None else None
-    if need is not None and need > len(depths):
-        # The default spacing (a pixel of motion at most) over a range of a few pixels leaves no
-        # hypothesis more than a pixel from another to judge an answer by: as few more as that takes.
+    if len(depths) < max(JUDGED_MIN_PLANES, _exclude(step) + 2):
+        need = _planes_needed(motion)
+        if num_planes is not None:
+            raise DepthRangeError(
+                f"each depth is judged against hypotheses more than one pixel of view motion away: {len(depths)} "
+                f"hypotheses over {motion:.2g} px of motion ({zmin:g}..{zmax:g} m) have none; give num_planes >= {need} "
+                "or widen the depth range", zmin_m=zmin, zmax_m=zmax, planes=len(depths), motion_px=motion,
+                planes_needed=need, hint=calibration.millimetres_hint(zmin, zmax))
         depths = depth_hypotheses(calibration, zmin_m, zmax_m, num=need)
-        step = calibration_cache(calibration, ("view motion", depths_key(depths), tuple(shape)),
-                                 lambda: view_motion_px(calibration, depths, shape))
+        step = motion_step(depths)
     calibration.check_depth(np.array([zmin_m, zmax_m]))  # warns once if outside the calibrated range
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", LfringWarning)
         hs = calibration.homographies(depths, reference=ref)  # (N, V, 3, 3)
-    # The second minimum is looked for more than one pixel of motion away from the best.
-    exclude = max(1, int(np.ceil(1.0 / max(step, 1e-6))))
-    return SweepPlan(depths, hs, sweep_masks(calibration, shape, taper), ref, step, exclude, taper, calibration)
+    return SweepPlan(depths, hs, sweep_masks(calibration, shape, taper), ref, step, _exclude(step), taper, calibration)
 
 
 class Progress:

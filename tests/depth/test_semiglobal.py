@@ -660,8 +660,8 @@ def test_the_local_method_refuses_a_range_that_judges_no_answer_as_the_semi_glob
     _, cal, views, *_ = twin
     with pytest.raises(InvalidInputError, match=r"num_planes must be an integer >= 3"):
         estimate_depth(views, cal, zmin_m=0.3, zmax_m=1.0, num_planes=2, method="local")
-    with pytest.raises(DepthRangeError, match=r"method='local' judges each answer .* give num_planes >= \d+, widen the "
-                                              r"depth range$") as err:
+    with pytest.raises(DepthRangeError, match=r"each depth is judged against hypotheses .* give num_planes >= \d+ or "
+                                              r"widen the depth range$") as err:
         estimate_depth(views, cal, zmin_m=0.3, zmax_m=0.35, num_planes=3, method="local")
     need = err.value.planes_needed
     res = estimate_depth(views, cal, zmin_m=0.3, zmax_m=0.35, num_planes=need, method="local")

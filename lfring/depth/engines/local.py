@@ -6,7 +6,6 @@ from __future__ import annotations
 
 from lfring.depth.costs.lcn import LCN_AGGREGATE_PX
 from lfring.depth.engines.base import DepthEngine
-from lfring.depth.plan import check_judged
 from lfring.depth.sweep import run_sweep
 
 __all__ = ["LOCAL", "run_local"]
@@ -14,7 +13,6 @@ __all__ = ["LOCAL", "run_local"]
 
 def run_local(views, calibration, plan, settings, finisher, progress) -> dict:
     """The running minimum of the sweep straight into the finisher."""
-    check_judged(plan, "local")
     run_sweep(views, calibration, plan, settings, on_strip=finisher, on_rows=progress.rows(0.0, 1.0))
     progress.done()
     return {}

@@ -25,7 +25,7 @@ from lfring.depth.costs.lcn_halves import take_halves, view_halves
 from lfring.depth.engines.base import DepthEngine
 from lfring.depth.engines.fused import fused_index
 from lfring.depth.engines.gpu import run_semiglobal_gpu
-from lfring.depth.plan import JUDGED_MIN_PLANES, baseline_axis, check_judged, guide_image, other_reference
+from lfring.depth.plan import JUDGED_MIN_PLANES, baseline_axis, guide_image, other_reference
 from lfring.depth.refine import fill_from_farther_side, refine_index
 from lfring.depth.sgm import P1_SCALE, P2_SCALE, cost_scale, select, sgm_aggregate, sgm_aggregate_torch
 from lfring.depth.sweep import run_sweep
@@ -40,7 +40,7 @@ SGM_AGGREGATE_PX = 5
 # The box of the cost the sub-hypothesis parabola is fitted to after the optimisation.
 SUBPIXEL_BOX_PX = 15
 # The semi-global method judges each answer against the hypotheses more than one step of view
-# motion away (its confidence), as every method does: it needs at least this many.
+# motion away (its confidence), as every method does (the sweep plan's rule).
 SGM_MIN_PLANES = JUDGED_MIN_PLANES
 # Two reference frames agree when their hypotheses differ by at most this many times the
 # smallest distinguishable step (one pixel of view motion).
@@ -54,7 +54,6 @@ def run_semiglobal(views, calibration, plan, settings, finisher, progress, *, fu
     confidence, the returned fields the hole-filled map, the paths and whether the check ran.
     With ``fused`` the cost volume and its optimisation take the 16-bit passes of
     :mod:`lfring.depth.engines.fused` wherever they apply; without, the float32 reference."""
-    check_judged(plan, "sgm", ", or use method='local'")
     check = views.shape[0] == 2 if settings.consistency is None else bool(settings.consistency)
     if settings.backend == "torch" and fused:  # the GPU engine; None where its kernels cannot run on the device
         out = run_semiglobal_gpu(views, calibration, plan, settings, finisher, progress, consistency=check,
