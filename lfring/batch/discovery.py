@@ -12,7 +12,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-
 from lfring.batch.record import RECORD_SUFFIX
 from lfring.batch.settings import BatchSettings
 from lfring.errors import InvalidInputError

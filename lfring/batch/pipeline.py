@@ -140,18 +140,17 @@ def _process(input_path, settings: BatchSettings, outputs, timings) -> tuple[dic
     t = time.perf_counter()
     # The calibration first where the file's header tells the frame's size: its pattern and
     # levels stand in for those the frame lacks, as they do for the settings' calibration.
-    size = frame_size(input_path) if settings.calibration is None else None
-    known = settings.calibration is not None or (size is not None and size != (0, 0))
-    cal, cal_name = _worker_calibration(settings, size) if known else (None, None)
+    picked = settings.calibration is None
+    size = frame_size(input_path) if picked else None  # (0, 0): float samples, the frame's own error says so
+    cal, cal_name = _worker_calibration(settings, size) if not picked or size not in (None, (0, 0)) else (None, None)
     frame, notes = load_frame(input_path, pattern=settings.pattern, black_level=settings.black_level,
-                              white_level=settings.white_level, calibration=cal,
-                              only_fitting=settings.calibration is None)
+                              white_level=settings.white_level, calibration=cal, only_fitting=picked)
     for level, message in notes:
         if level >= logging.WARNING:
             warnings.warn(message, LfringWarning, stacklevel=2)
+    if cal is None:  # the header did not tell the frame's size (camera RAW)
+        cal, cal_name = _worker_calibration(settings, frame.shape[::-1])
     image = demosaic(frame)
-    if cal is None:
-        cal, cal_name = _worker_calibration(settings, (image.shape[1], image.shape[0]))
     cal.check_frame(image.shape, what=f"frame {input_path}")
     if settings.check_frames:
         from lfring.check import check_frame

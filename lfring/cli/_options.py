@@ -252,21 +252,23 @@ def flat_option(fn):
                              "Default: the calibration's flat field, when it carries one.")(fn)
 
 
-def builtin_calibration(raw: str, size_wh=None):
-    """(calibration, name) of the built-in calibration for the frame ``raw`` (logged), picked by
-    its size: ``size_wh`` (width, height) once decoded, else its file's header, which tells it
-    before the pixels are read, so that the calibration's pattern and levels stand in for those
-    the frame lacks; (None, None) where the header does not tell it. Raises where no built-in
-    calibration has that size."""
+def read_calibrated_frame(raw: str, calib: str | None, levels: RawLevels | None = None):
+    """(frame, calibration, name): the raw frame ``raw`` (:func:`read_frame`) and --calib's
+    calibration, else the built-in one for the frame's size (logged). The size comes from the
+    file's header where it tells it, so that the built-in calibration's pattern and levels stand
+    in for those the frame lacks (where they fit its counts); else (camera RAW) from the frame."""
+    from lfring.calibration import RingCalibration
     from lfring.calibration.defaults import calibration_for_frame, default_calibration
 
-    found = default_calibration(tuple(size_wh)) if size_wh is not None else calibration_for_frame(raw)
-    if found is None:
-        return None, None
-    cal, name = found
+    if calib:
+        cal = RingCalibration.load(calib)
+        return read_frame(raw, levels, cal), cal, calib
+    found = calibration_for_frame(raw)
+    frame = read_frame(raw, levels, found[0] if found else None, picked=True)
+    cal, name = found or default_calibration(frame.shape[::-1])
     logging.getLogger("lfring.cli").info("no --calib given: using the built-in calibration '%s' (%s, %d x %d px frames)",
                                          name, "measured" if cal.source == "planes" else "from the optics", *cal.raw_size)
-    return cal, name
+    return frame, cal, name
 
 
 def load_views(raw, calib: str | None, levels: RawLevels | None = None, *, check: bool = True, flat: str | None = None):
@@ -276,7 +278,6 @@ def load_views(raw, calib: str | None, levels: RawLevels | None = None, *, check
     Unless ``check`` is False, refuse a frame that does not look like a ring frame for the
     calibration, and a flat frame that does not look like one (:func:`lfring.check.check_frame`).
     Several paths are separate view images instead (see :func:`load_view_files`)."""
-    from lfring.calibration import RingCalibration
     from lfring.io.demosaic import demosaic
     from lfring.views import flat_field_from_frame, split_views
 
@@ -284,11 +285,8 @@ def load_views(raw, calib: str | None, levels: RawLevels | None = None, *, check
         if len(raw) > 1:
             return load_view_files(raw, calib, check=check)
         raw = raw[0]
-    cal, name = (RingCalibration.load(calib), calib) if calib else builtin_calibration(raw)
-    frame = read_frame(raw, levels, cal, picked=not calib)
+    frame, cal, name = read_calibrated_frame(raw, calib, levels)
     image = demosaic(frame)
-    if cal is None:  # the header did not tell the frame's size (camera RAW)
-        cal, name = builtin_calibration(raw, (image.shape[1], image.shape[0]))
     cal.check_frame(image.shape, what=f"frame {raw}")
     if check:
         require_ring_frame(image, cal, raw)

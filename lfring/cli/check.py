@@ -10,7 +10,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from lfring.cli._options import FRAME, builtin_calibration, raw_options, read_frame
+from lfring.cli._options import FRAME, raw_options, read_calibrated_frame
 from lfring.cli.outputs import OutputSet
 
 log = logging.getLogger("lfring.cli.check")
@@ -37,7 +37,6 @@ def command(ctx, frame, calib, output, overwrite, levels):
     how well the four views agree at the best of a few depths. Writes an overlay PNG of the
     layout on the frame. Exit code 0: a ring frame; 1: not one; 2: bad input.
     """
-    from lfring.calibration import RingCalibration
     from lfring.check import (CLIPPED_REFUSE, CLIPPED_WARN, FLAT_TEXTURE, PROCESS_ANYWAY, OverExposureWarning, check_frame,
                               draw_layout)
     from lfring.io.demosaic import demosaic
@@ -48,12 +47,9 @@ def command(ctx, frame, calib, output, overwrite, levels):
         raise click.BadParameter(f"the overlay must end in .png, got {out.name!r}", param_hint="-o")
     outputs = OutputSet([out], name=out.name, overwrite=overwrite)
     outputs.check()
-    cal, cal_name = (RingCalibration.load(calib), calib) if calib else builtin_calibration(frame)
-    raw = read_frame(frame, levels, cal, picked=not calib)
+    raw, cal, cal_name = read_calibrated_frame(frame, calib, levels)
     image = demosaic(raw, method="bilinear")
     size = (image.shape[1], image.shape[0])
-    if cal is None:  # the header did not tell the frame's size (camera RAW)
-        cal, cal_name = builtin_calibration(frame, size)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", OverExposureWarning)  # said on the verdict line
         res = check_frame(image, cal, measure_fit=True)

@@ -20,6 +20,7 @@ from lfring.errors import InvalidInputError
 __all__ = ["LEVEL_KEYS", "LOW_PEAK_FRACTION", "load_frame"]
 
 LEVEL_KEYS = ("pattern", "black_level", "white_level")
+_LEVELS = LEVEL_KEYS[1:]  # the black and white levels
 
 LOW_PEAK_FRACTION = 1 / 16
 """A frame whose brightest count is below this fraction of its white level gets a warning: its
@@ -99,7 +100,7 @@ def load_frame(path, *, pattern=None, black_level=None, white_level=None, calibr
     try:
         frame = _load(p, given, from_cal)
     except InvalidInputError as exc:
-        levels = [k for k in ("black_level", "white_level") if k in from_cal]
+        levels = [k for k in _LEVELS if k in from_cal]
         if only_fitting and levels and "already RGB" not in str(exc):
             unfit = {k: from_cal.pop(k) for k in levels}  # the levels did not fit: the frame's own or the dtype's
             frame = _load(p, given, from_cal)
@@ -116,12 +117,12 @@ def load_frame(path, *, pattern=None, black_level=None, white_level=None, calibr
                 # calibration of 12-bit raw frames): the frame's own or the dtype's are taken.
                 from_cal = {}
                 frame = load_raw(p, **given)
-    levels = [k for k in ("black_level", "white_level") if k in from_cal]
-    if only_fitting and levels:
-        data = frame.mosaic if frame.mosaic is not None else frame.image
-        if data.size and int(data.max()) > frame.white_level:  # counts above the white level: not this frame's
-            unfit = {k: from_cal.pop(k) for k in levels}
-            frame = _load(p, given, from_cal)
+    data = frame.mosaic if frame.mosaic is not None else frame.image
+    peak = int(data.max()) if data.size else 0
+    levels = [k for k in _LEVELS if k in from_cal]
+    if only_fitting and levels and peak > frame.white_level:  # counts above the white level: not this frame's
+        unfit = {k: from_cal.pop(k) for k in levels}
+        frame = _load(p, given, from_cal)  # the same counts, its own levels
     notes = []
     if unfit:
         values = ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in unfit.items())
@@ -132,15 +133,13 @@ def load_frame(path, *, pattern=None, black_level=None, white_level=None, calibr
         values = ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in from_cal.items())
         notes.append((logging.INFO, f"{path}: no {names} of its own; using the calibration's ({values})"))
     if not camera_raw:
-        assumed = [k for k in ("black_level", "white_level") if given[k] is None and k not in from_file and k not in from_cal]
+        assumed = [k for k in _LEVELS if given[k] is None and k not in from_file and k not in from_cal]
         if assumed and (frame.mosaic is not None or frame.bit_depth > 8):
             what = {"black_level": f"black {frame.black_level:g}", "white_level": f"white {frame.white_level:g}"}
             notes.append((logging.WARNING,
                           f"{path}: levels assumed ({', '.join(what[k] for k in assumed)}): no sidecar, option or "
                           f"calibration gives them; pass {' and '.join(_OPTION[k] for k in assumed)} (or write them in "
                           f"{sidecar_path(p).name}) if the result looks too dark or too bright"))
-    data = frame.mosaic if frame.mosaic is not None else frame.image
-    peak = int(data.max()) if data.size else 0
     if peak == 0 and data.size:
         notes.append((logging.WARNING, f"{path}: every count is 0: the frame holds no light"))
     elif given["white_level"] is None and peak < LOW_PEAK_FRACTION * frame.white_level:
