@@ -1031,13 +1031,12 @@ def depth_to_render(depth, calibration, reference, shape) -> tuple[np.ndarray, f
 
 
 def _depth_map(arr, calibration, depth, zmin_m, zmax_m, reference) -> tuple[np.ndarray, float]:
-    """The depth map of the views in the reference frame, given or estimated, and the views'
-    worth from which its depths count as measured (:func:`depth_to_render`)."""
+    """The depth map of the views in the reference frame, given or estimated (over ``zmin_m``..
+    ``zmax_m``), and the views' worth from which its depths count as measured
+    (:func:`depth_to_render`)."""
     if depth is None:
         zmin_m, zmax_m = estimation_range(calibration, zmin_m, zmax_m, reference=reference)
         depth = estimate_depth(arr, calibration, zmin_m=zmin_m, zmax_m=zmax_m, reference=reference)
-    elif zmin_m is not None or zmax_m is not None:
-        raise InvalidInputError("zmin_m/zmax_m set the range of the depth estimation: give them or a depth map, not both")
     return depth_to_render(depth, calibration, reference, arr.shape[1:3])
 
 
@@ -1053,9 +1052,9 @@ def depth_of_field(views, calibration, *, depth=None, zmin_m=None, zmax_m=None, 
     rendered on smooth surfaces (:data:`FILL_SMOOTH_PX`)."""
     arr = check_views(views)
     ref = check_reference(reference, calibration.num_views)
+    if depth is not None and (zmin_m is not None or zmax_m is not None):
+        raise InvalidInputError("zmin_m/zmax_m set the range of the depth estimation: give them or a depth map, not both")
     if isinstance(depth, DepthOfField):
-        if zmin_m is not None or zmax_m is not None:
-            raise InvalidInputError("zmin_m/zmax_m set the range of the depth estimation: give them or a depth map, not both")
         depth.check_made_from(arr, calibration, ref)
         return depth
     dm, measured_views = _depth_map(arr, calibration, depth, zmin_m, zmax_m, ref)
