@@ -26,27 +26,27 @@ depth map in the reference frame, :class:`DepthOfField` renders that:
    what shift-and-add gives.
 5. **Blur without layers to see.** Each pixel's signed circle-of-confusion radius
    ``rho = aperture * R * (x - x_f)``, with ``x = 1/(Z - z0)``, ``x_f`` the focus depth's and R
-   from :func:`aperture_radius_px`, lies between two rungs of a ladder of radii (0, 1 px, 0.5 px
-   apart up to 3 px, 1 px apart up to :data:`LINEAR_UNTIL_PX`, then growing by
-   :data:`GEOMETRIC_STEP`). The pixel is shared between those two rungs, with weights that give
-   the mixture of their blurs the second moment of its own disc (``rho^2 / 2``): the blur grows
-   continuously with the depth, and no pixel is quantised to a rung. Every rung is one layer of
-   premultiplied colour and coverage, blurred by its disc (on a grid reduced while the disc
-   there stays at least :data:`COARSE_DISC_PX`), and the layers are composited far to near: a
-   layer covers ("over") what lies at least two rungs behind it, but adds to the rung just
-   behind, because the two rungs around one pixel's radius are one surface, which does not hide
-   itself; across a depth step of two rungs or more the nearer surface hides the farther one.
-   The result is divided by the accumulated coverage, and where a nearer surface's soft edge
-   leaves part of the aperture uncovered, the background of step 3, blurred by its own radius,
-   fills it: through a near object's blurred edge the lens sees the background continue, not a
-   hole, and what lies behind never covers a nearer object's sharp pixels.
+   from :func:`aperture_radius_px`, lies between two rungs of a ladder of radii
+   (:mod:`lfring.focus.layers`). The pixel is shared between those two rungs, with weights that
+   give the mixture of their blurs the second moment of its own disc (``rho^2 / 2``): the blur
+   grows continuously with the depth, and no pixel is quantised to a rung. Every rung is one
+   layer of premultiplied colour and coverage, blurred by its disc (on a reduced grid where the
+   disc is large), and the layers are composited far to near: a layer covers ("over") what lies
+   at least two rungs behind it, but adds to the rung just behind, because the two rungs around
+   one pixel's radius are one surface, which does not hide itself; across a depth step of two
+   rungs or more the nearer surface hides the farther one. The result is divided by the
+   accumulated coverage, and where a nearer surface's soft edge leaves part of the aperture
+   uncovered, the background of step 3, blurred by its own radius, fills it: through a near
+   object's blurred edge the lens sees the background continue, not a hole, and what lies behind
+   never covers a nearer object's sharp pixels.
 
 The physics: view k's sampling shift at depth Z is (for the ring's translation model) affine in
 x = 1/(Z - z0); a virtual viewpoint at aperture position u (the views sitting at their own
 positions, u = 1) sees a point at depth Z moved by u (t_k(Z) - t_k(Z_f)) relative to the focus
 plane, so a lens whose aperture is the disc through the views blurs it over a disc of radius
 ``R |x - x_f|`` px, R the views' mean distance (in px per unit x) from their centre. The
-per-pixel passes are compiled (:mod:`lfring.focus.depth_aware_kernels`).
+layers are :mod:`lfring.focus.layers`; the per-pixel passes are compiled
+(:mod:`lfring.focus.depth_aware_kernels`).
 """
 
 from __future__ import annotations
@@ -57,7 +57,6 @@ import cv2
 import numpy as np
 
 from lfring.errors import InvalidInputError
-from lfring.core.memory import fresh_zeros
 from lfring.core.geometry import apply_homography, check_reference, to_reference
 from lfring.core.viewstack import WEIGHT_FLOOR, cached_view_masks, check_views
 from lfring.core.validate import check_number
@@ -66,11 +65,12 @@ from lfring.depth.estimate import estimate_depth
 from lfring.depth.hypotheses import view_motion_px
 from lfring.depth.selection import DepthResult
 from lfring.focus.base import RefocusMethod
+from lfring.focus.layers import NO_IMAGE, Grid, composite, ladder, sum_layers
 
 __all__ = [
-    "AGREE_TOL", "BACK_EDGE_PX", "BACK_STEP_PX", "COARSE_DISC_PX", "DEPTH_TOL_PX", "GEOMETRIC_STEP", "LINEAR_UNTIL_PX",
+    "AGREE_TOL", "BACK_EDGE_PX", "BACK_STEP_PX", "DEPTH_TOL_PX",
     "MIN_DEPTH_VIEWS", "MIN_ESTIMATED_VIEWS", "OCCLUSION_PX", "SHARP_PX", "SHARP_RAMP_PX", "SHARP_RESAMPLED_PX2", "SPREAD_TOL", "VISIBLE_VIEWS", "DepthOfField", "DEPTH_AWARE",
-    "DERIVED_RANGE_MAX_MOTION", "FAR_MOTION_PX", "FEATHER_FLOOR", "FEATHER_PX", "FILL_SMOOTH_PX", "FILL_WINDOW_PX", "aperture_from_f_number", "aperture_radius_px", "coc_radius_px", "depth_of_field", "depth_to_render", "disc_kernel", "known_depths",
+    "DERIVED_RANGE_MAX_MOTION", "FAR_MOTION_PX", "FEATHER_FLOOR", "FEATHER_PX", "FILL_SMOOTH_PX", "FILL_WINDOW_PX", "aperture_from_f_number", "aperture_radius_px", "coc_radius_px", "depth_of_field", "depth_to_render", "known_depths",
     "estimation_range", "prepare_depth_aware", "resolve_aperture",
 ]
 
@@ -89,17 +89,6 @@ SPREAD_TOL = 1.0
 # a view); short of that they count in proportion: a view that only grazes the pixel with its
 # disc's rim (where its values are darkened) does not outvote a whole view that is called hidden.
 VISIBLE_VIEWS = 0.5
-# The ladder of blur radii of the layers: 0 and 1 px, then 0.5 px apart up to 3 px, 1 px apart up
-# to LINEAR_UNTIL_PX, then each GEOMETRIC_STEP times the last. Every pixel is shared between the
-# two rungs around its own radius, so the spacing sets how closely a mixture of two discs stands
-# for the disc between them, not where the blur changes.
-LINEAR_UNTIL_PX = 6.0
-GEOMETRIC_STEP = 1.2
-# A rung's layer is blurred on a grid reduced by a power of two f (area averaging down, bicubic
-# up), as far as its disc there stays at least COARSE_DISC_PX: a blurred layer holds no detail
-# finer than its disc. The area averaging itself spreads a pixel by f^2 / 12 per axis, a disc of
-# radius r by r^2 / 4: the disc there is shrunk to radius sqrt(r^2 - f^2 / 3) / f.
-COARSE_DISC_PX = 3.0
 # A view is occluded at a reference pixel when the depth map puts a surface nearer by more than
 # this many pixels of view motion onto the same view pixel.
 OCCLUSION_PX = 1.0
@@ -226,51 +215,6 @@ def aperture_from_f_number(f_number: float, device) -> float:
     cams = view_cameras(device)
     radius = float(np.linalg.norm(cams.centres_m - cams.centres_m.mean(axis=0), axis=1).mean())
     return device.main_focal_length_m / (2.0 * float(f_number)) / radius
-
-
-_DISCS: dict = {}
-
-
-def disc_kernel(radius_px: float) -> np.ndarray:
-    """(2n+1, 2n+1) float32 disc of ``radius_px``, each tap the fraction of its pixel inside the
-    disc (8 x 8 samples), normalised to sum 1."""
-    key = round(float(radius_px), 3)
-    kern = _DISCS.get(key)
-    if kern is None:
-        n = int(math.ceil(key - 0.5)) if key > 0.5 else 0
-        sub = (np.arange(8) + 0.5) / 8 - 0.5
-        grid = np.arange(-n, n + 1)
-        xs = (grid[:, None] + sub[None, :]).ravel()
-        inside = (xs[:, None] ** 2 + xs[None, :] ** 2) <= key * key
-        cover = inside.reshape(2 * n + 1, 8, 2 * n + 1, 8).mean(axis=(1, 3))
-        if cover.sum() == 0:
-            cover[n, n] = 1.0
-        kern = _DISCS.setdefault(key, (cover / cover.sum()).astype(np.float32))
-    return kern
-
-
-def _blur_moment(radius_px: float, factor: int = 1) -> float:
-    """Mean squared distance (px^2) over which a rung of ``radius_px`` spreads a pixel: its disc
-    kernel's at full resolution; on a grid reduced ``factor`` times, a disc's r^2 / 2 and a
-    pixel's 1 / 6 (the reduction and the disc there are sized to it)."""
-    if radius_px < 0.5:
-        return 0.0
-    if factor == 1:
-        kern = disc_kernel(radius_px)
-        n = kern.shape[0] // 2
-        yy, xx = np.mgrid[-n:n + 1, -n:n + 1]
-        return float((kern * (xx * xx + yy * yy)).sum())
-    return radius_px * radius_px / 2.0 + 1.0 / 6.0
-
-
-def _ladder(max_px: float) -> np.ndarray:
-    """Unsigned layer radii from 0 to at least ``max_px``: 0, 1, 1.5, 2, 2.5, 3, 4, 5, ...,
-    LINEAR_UNTIL_PX, then geometric."""
-    r = [0.0, 1.0]
-    while r[-1] < max_px:
-        last = r[-1]
-        r.append(last * GEOMETRIC_STEP if last >= LINEAR_UNTIL_PX else last + (0.5 if last < 3.0 else 1.0))
-    return np.array(r)
 
 
 def _fill_from_around(planes: list, known: np.ndarray) -> list:
@@ -624,7 +568,7 @@ class DepthOfField:
         h, w, c = self.colour.shape
         xf = 1.0 / (focus_m - self.calibration.depth_origin_m)
         motion = float(self.radius_px)
-        sharp = _EMPTY3
+        sharp = NO_IMAGE
         if shift_and_add is not None:
             sharp = np.ascontiguousarray(np.asarray(shift_and_add, dtype=np.float32).reshape(self.colour.shape))
         # The largest blur radius, from the depth map's ends: the ladder reaches it.
@@ -639,16 +583,17 @@ class DepthOfField:
             if rows.size:
                 window = (rows[0], rows[-1] + 1, cols[0], cols[-1] + 1)
                 rmax = max(rmax, aperture * motion * max(abs(xb_range[0] - xf), abs(xb_range[1] - xf)))
-        grid = _Grid(_ladder(rmax), (h, w), c, (xf, motion, aperture), self._scratch)
-        acc = _composite(grid.layers(kern, self.x, self.agree, self._cover, self.colour, sharp), grid, kern)
-        by, bx, summed = 0, 0, _EMPTY3
+        grid = Grid(ladder(rmax), (h, w), c, (xf, motion, aperture), self._scratch,
+                    (SHARP_PX, SHARP_RAMP_PX, SHARP_RESAMPLED_PX2))
+        acc = composite(grid.layers(kern, self.x, self.agree, self._cover, self.colour, sharp), grid, kern)
+        by, bx, summed = 0, 0, NO_IMAGE
         if window is not None:
             # The background's cover in the window: 1 near the edge, 0 elsewhere (the passes read
             # only the window; outside it the kept scratch holds what an earlier render left).
             cover_b = grid.buffer("back cover", (h, w))
             box = (slice(window[0], window[1]), slice(window[2], window[3]))
             np.less_equal(dist_under[box], np.float32(reach), out=cover_b[box], casting="unsafe")
-            by, bx, summed = _sum_layers(grid.layers(kern, x_b, self.agree, cover_b, colour_b, _EMPTY3, window, "back"),
+            by, bx, summed = sum_layers(grid.layers(kern, x_b, self.agree, cover_b, colour_b, NO_IMAGE, window, "back"),
                                          (h, w), c)
         out = np.empty((h, w, c), np.float32)
         kern.finish(acc, summed, by, bx, np.float32(WEIGHT_FLOOR), out)
@@ -667,215 +612,6 @@ def _views_sample(arr: np.ndarray) -> tuple[int, str]:
 
 _SAMPLE_STEP_PX = 7
 """Rows and columns between the pixels whose values identify a renderer's views."""
-
-_EMPTY3 = np.zeros((0, 0, 0), np.float32)
-_EMPTY2 = np.zeros((0, 0), np.float32)
-
-
-def _grid_factor(radius_px: float) -> int:
-    """How many times a rung's grid is reduced (a power of two): as long as its disc stays at
-    least :data:`COARSE_DISC_PX` there."""
-    f = 1
-    while radius_px / (2 * f) >= COARSE_DISC_PX:
-        f *= 2
-    return f
-
-
-def _resize(cells: np.ndarray, size) -> np.ndarray:
-    """``cells`` (rows, cols[, n]) resized bicubically to ``size`` (width, height), any ``n``."""
-    if cells.ndim == 2 or cells.shape[2] <= 4:
-        out = cv2.resize(cells, size, interpolation=cv2.INTER_CUBIC)
-        return out if out.ndim == cells.ndim else out[..., None]
-    return np.stack([cv2.resize(np.ascontiguousarray(cells[..., i]), size, interpolation=cv2.INTER_CUBIC)
-                     for i in range(cells.shape[2])], axis=2)
-
-
-class _Layer:
-    """One rung's premultiplied colour and coverage (rows, cols, C + 1) on its grid (reduced
-    ``f`` times; full-resolution origin ``y0``, ``x0``), blurred by the rung's disc."""
-
-    __slots__ = ("_full", "cells", "f", "k", "x0", "y0")
-
-    def __init__(self, k, f, y0, x0, cells):
-        self.k, self.f, self.y0, self.x0, self.cells = k, f, y0, x0, cells
-        self._full = None
-
-    @property
-    def extent(self):
-        """(y0, y1, x0, x1) in full-resolution pixels (may reach past the frame)."""
-        return self.y0, self.y0 + self.cells.shape[0] * self.f, self.x0, self.x0 + self.cells.shape[1] * self.f
-
-    def full(self) -> np.ndarray:
-        """The cells at full resolution over :attr:`extent`."""
-        if self._full is None:
-            _, y1, _, x1 = self.extent
-            self._full = self.cells if self.f == 1 else _resize(self.cells, (x1 - self.x0, y1 - self.y0))
-        return self._full
-
-
-class _Grid:
-    """The ladder of one render: each rung's radius, grid factor and blur, and the passes that
-    share every pixel between two rungs (:mod:`lfring.focus.depth_aware_kernels`)."""
-
-    def __init__(self, radii, shape, channels, params, scratch):
-        self.radii = radii
-        self.scratch = scratch
-        self.n = len(radii) - 1
-        self.factors = np.array([_grid_factor(r) for r in radii], np.int64)
-        self.moments = np.array([_blur_moment(r, f) for r, f in zip(radii, self.factors)])
-        top = int(self.factors.max())
-        self.stripe = top * max(1, 16 // top)
-        self.shape, self.channels, self.params = shape, channels, params
-
-    def buffer(self, name: str, shape, fill=None) -> np.ndarray:
-        """A float32 array of ``shape`` from the renderer's scratch memory (kept between renders:
-        fresh memory costs a page fault per page on first write), filled with ``fill`` unless
-        None. Fresh scratch is :func:`lfring.core.memory.fresh_zeros` (fast to touch, and
-        zeros already: a fill with 0 is then left out)."""
-        size = int(np.prod(shape))
-        mem = self.scratch.get(name)
-        fresh = mem is None or mem.size < size
-        if fresh:
-            mem = self.scratch[name] = fresh_zeros(max(size, 1))
-        out = mem[:size].reshape(shape)
-        if fill is not None and not (fresh and fill == 0.0):
-            out.fill(fill)
-        return out
-
-    def layers(self, kern, x, agree, cover, colour, sharp, window=None, name="front") -> list:
-        """The blurred layers (far to near) of the pixels of ``colour`` where ``cover`` > 0
-        (all within ``window``, (row0, row1, col0, col1), when given)."""
-        h, w = self.shape
-        c1 = self.channels + 1
-        n = self.n
-        xf, motion, aperture = self.params
-        q = self.buffer(name + " rungs", (h, w))
-        s = self.buffer(name + " shares", (h, w))
-        stripes = (h + self.stripe - 1) // self.stripe
-        boxes = np.empty((stripes, 2 * n + 1, 4), np.int64)
-        boxes[..., 0::2] = np.iinfo(np.int64).max
-        boxes[..., 1::2] = -1
-        window = np.array((0, h, 0, w) if window is None else window, np.int64)
-        kern.rungs(x, agree, cover, sharp, window, xf, motion, aperture, SHARP_PX, SHARP_RAMP_PX, SHARP_RESAMPLED_PX2,
-                   self.moments, self.stripe, q, s, boxes)
-        lo = boxes[..., 0::2].min(axis=0)
-        hi = boxes[..., 1::2].max(axis=0)
-        shift = np.zeros(2 * n + 1, np.int64)
-        y0 = np.zeros(2 * n + 1, np.int64)
-        x0 = np.zeros(2 * n + 1, np.int64)
-        rows = np.zeros(2 * n + 1, np.int64)
-        cols = np.zeros(2 * n + 1, np.int64)
-        offset = np.zeros(2 * n + 1, np.int64)
-        used = []
-        total = 0
-        for k in range(2 * n + 1):
-            if hi[k, 0] < 0:
-                continue
-            radius = float(self.radii[abs(k - n)])
-            f = int(self.factors[abs(k - n)])
-            pad = int(math.ceil(radius)) + 1
-            if f == 1:
-                ya, yb = max(0, lo[k, 0] - pad), min(h, hi[k, 0] + pad + 1)
-                xa, xb = max(0, lo[k, 1] - pad), min(w, hi[k, 1] + pad + 1)
-            else:  # cells of f x f pixels, from a multiple of f
-                ya, yb = max(0, (lo[k, 0] - pad) // f * f), -(-(hi[k, 0] + pad + 1) // f) * f
-                xa, xb = max(0, (lo[k, 1] - pad) // f * f), -(-(hi[k, 1] + pad + 1) // f) * f
-            shift[k], y0[k], x0[k] = f.bit_length() - 1, ya, xa
-            rows[k], cols[k] = (yb - ya) // f, (xb - xa) // f
-            offset[k] = total
-            total += c1 * rows[k] * cols[k]
-            used.append(k)
-        buf = self.buffer(name + " layers", (total,))
-        for k in used:  # the scatter writes the full-resolution boxes whole
-            if shift[k] > 0:
-                buf[offset[k]:offset[k] + c1 * rows[k] * cols[k]] = 0.0
-        kern.scatter(colour, sharp, s, cover, q, window, n, shift, y0, x0, rows, cols, offset, self.stripe, buf)
-        blurred = self.buffer(name + " blurred", (total,))
-        out = []
-        for k in used:
-            cut = slice(offset[k], offset[k] + c1 * rows[k] * cols[k])
-            radius = float(self.radii[abs(k - n)])
-            f = 1 << int(shift[k])
-            disc = radius if f == 1 else math.sqrt(max(radius * radius - f * f / 3.0, 0.0)) / f
-            cells = buf[cut].reshape(rows[k], cols[k], c1)
-            if disc >= 0.5:
-                kernel = disc_kernel(disc)
-                reach = kernel.shape[0] // 2
-                cells, src = blurred[cut].reshape(cells.shape), cells
-                kern.disc_blur(src, np.ascontiguousarray(kernel[reach:, reach:]), cells)
-            out.append(_Layer(k, f, int(y0[k]), int(x0[k]), cells))
-        return out
-
-
-def _composite(layers: list, grid: _Grid, kern) -> np.ndarray:
-    """(h, w, C + 1): ``layers`` composited far to near. A layer covers ("over") what lies
-    behind it, except the layer of the rung just behind: the two rungs around a pixel's radius
-    are one surface, which does not hide itself. Consecutive layers on one reduced grid are
-    composited there first, as one group (the composite of a group is a premultiplied layer
-    too, with the group's transmission)."""
-    h, w = grid.shape
-    c = grid.channels
-    acc = grid.buffer("composite", (h, w, c + 1), 0.0)
-    prev = None
-    i = 0
-    while i < len(layers):
-        j = i
-        while j < len(layers) and layers[j].f == layers[i].f:
-            j += 1
-        group = layers[i:j]
-        f = group[0].f
-        if f == 1:
-            for lay in group:
-                behind, py, px = _EMPTY3, 0, 0
-                if prev is not None and lay.k == prev.k + 1:
-                    behind, py, px = prev.full(), prev.y0, prev.x0
-                kern.over(acc, lay.y0, lay.x0, lay.cells, behind, py, px, _EMPTY2, _EMPTY2, False)
-                prev = lay
-        else:
-            uy0 = min(lay.y0 for lay in group)
-            uy1 = max(lay.extent[1] for lay in group)
-            ux0 = min(lay.x0 for lay in group)
-            ux1 = max(lay.extent[3] for lay in group)
-            rows, cols = (uy1 - uy0) // f, (ux1 - ux0) // f
-            g = np.zeros((rows, cols, c + 1), np.float32)
-            trans = np.ones((rows, cols), np.float32)
-            adjacent = prev is not None and group[0].k == prev.k + 1
-            skip = np.zeros((rows, cols), np.float32) if adjacent else _EMPTY2
-            last = None
-            for n_in, lay in enumerate(group):
-                behind, py, px = _EMPTY3, 0, 0
-                if last is not None and lay.k == last.k + 1:
-                    behind, py, px = last.cells, (last.y0 - uy0) // f, (last.x0 - ux0) // f
-                kern.over(g, (lay.y0 - uy0) // f, (lay.x0 - ux0) // f, lay.cells, behind, py, px, trans, skip, n_in == 0)
-                last = lay
-            # Onto the full-resolution composite: acc = group + transmission * acc (+ the skip term).
-            size = (ux1 - ux0, uy1 - uy0)
-            behind, py, px = (prev.full(), prev.y0, prev.x0) if adjacent else (_EMPTY3, 0, 0)
-            # A group of one layer composited over zeros is that layer: its full-resolution cells
-            # (kept for the next layer, which has it behind) are the group's.
-            full = group[0].full() if len(group) == 1 else _resize(g, size)
-            kern.merge(acc, uy0, ux0, full, _resize(trans, size), _resize(skip, size) if adjacent else _EMPTY2,
-                       behind, py, px)
-            prev = group[-1]
-        i = j
-    return acc
-
-
-def _sum_layers(layers: list, shape, c: int) -> tuple:
-    """(y0, x0, cells): the layers summed over the frame's part they reach (the background: it
-    only fills what the surfaces leave uncovered, so it needs no order)."""
-    h, w = shape
-    y0 = min(lay.y0 for lay in layers)
-    x0 = min(lay.x0 for lay in layers)
-    y1 = min(h, max(lay.extent[1] for lay in layers))
-    x1 = min(w, max(lay.extent[3] for lay in layers))
-    out = np.zeros((y1 - y0, x1 - x0, c + 1), np.float32)
-    for lay in layers:
-        cells = lay.full()
-        ey0, ey1, ex0, ex1 = lay.extent
-        ey1, ex1 = min(ey1, y1), min(ex1, x1)
-        out[ey0 - y0:ey1 - y0, ex0 - x0:ex1 - x0] += cells[:ey1 - ey0, :ex1 - ex0]
-    return y0, x0, out
 
 
 def resolve_aperture(calibration, aperture=None, f_number=None, ring_device=None) -> float:

@@ -467,7 +467,7 @@ def test_disc_blur_is_the_disc_kernel_convolved_zero_outside(radius_px, shape):
     """As ``cv2.filter2D`` with the disc and zeros outside, to float32 rounding: every reach the
     renderer compiles apart (1 to 6) and one past them, RGB's cells and others, layers narrower
     or shorter than the disc."""
-    from lfring.focus.depth_aware import disc_kernel
+    from lfring.focus.layers import disc_kernel
 
     rng = np.random.default_rng(int(radius_px * 10) + shape[0])
     cells = rng.random(shape).astype(np.float32)
