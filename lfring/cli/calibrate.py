@@ -21,6 +21,11 @@ MAX_RESIDUAL_PX = 0.5
 """Residual (px) above which a calibration is refused unless --force: the views of a planar
 target at its depth align to a small fraction of a pixel (the twin's to about 0.01 px); a frame
 that is not one (a scene with depth, a part) leaves residuals of a pixel or more."""
+DEPTH_LABEL_TOL = 0.15
+"""Relative difference between a plane's given depth and the depth at which the --device's
+optics put views as far apart as the frame shows them, above which the calibration warns: the
+optics are a design, not the built camera, so only a depth measured from the wrong point or
+given for another frame is that far off."""
 
 
 def _floaty(text: str) -> bool:
@@ -70,8 +75,9 @@ def command(frames, depths, output, flat, layout_file, depth_origin, device_name
     depths whose order contradicts the ring (views of nearer planes lie farther apart), the same
     frame given for two depths, and a plane that the --device's optics (or the built-in
     calibration for the frames' size) put too far to tell from infinity, as lfring inspect does:
-    most often millimetres given as metres. The
-    calibration records the device and the frames' Bayer pattern and levels: later commands
+    most often millimetres given as metres. With --device, warns of a plane whose views the
+    optics put at a depth well away from the one given (a distance measured from the wrong
+    point, or given for another frame). The calibration records the device and the frames' Bayer pattern and levels: later commands
     read frames without a sidecar with them.
     """
     from lfring.calibration import calibrate
@@ -133,6 +139,8 @@ def command(frames, depths, output, flat, layout_file, depth_origin, device_name
     ref, ref_name = _camera_model(cal, device)
     _refuse_too_far(cal, dict(zip(zs, frames)), ref, ref_name)
     _warn_far(dict(zip(zs, frames)), ref)
+    if device is not None:
+        _warn_depths_off(cal, dict(zip(zs, frames)), ref, ref_name)
     click.echo(f"z0 = {cal.depth_origin_m:.6f} m ({cal.provenance.get('depth_origin')}); valid depth range "
                f"{cal.valid_depth_range_m[0]:g} to {cal.valid_depth_range_m[1]:g} m; reference view {cal.model.reference}")
     click.echo(f"{'plane [m]':>10} " + " ".join(f"{'view ' + str(k) + ' px':>10}" for k in range(cal.num_views))
@@ -229,6 +237,40 @@ def _warn_far(frames_by_depth: dict, ref) -> None:
     if ref is not None and far / 1000.0 > min(frames_by_depth) and ref.millimetres_hint(far):
         log.warning("the farthest plane is given as %g m (%s): fine for a target that far; if %g was millimetres, "
                     "give %g", far, frames_by_depth[far], far, far / 1000.0)
+
+
+def _warn_depths_off(cal, frames_by_depth: dict, ref, what: str) -> None:
+    """Warn of planes whose given depth the camera model ``ref`` (in words ``what``) contradicts:
+    its views lie as far apart as the frame's at a depth more than :data:`DEPTH_LABEL_TOL` off.
+    Two planes fit exactly whatever their depths, so only the optics can tell a depth measured
+    from the wrong point, or given for another frame."""
+    from lfring.calibration.overlap import disparity_spread_px
+    from lfring.core.geometry import check_reference, to_reference
+
+    if ref is None:
+        return
+
+    def seen_spread(c, z):  # how far apart the views of a plane at z lie, by calibration c
+        return disparity_spread_px(to_reference(c.model(z), check_reference("center", c.num_views)), c.layout.view_shape)
+
+    z0 = ref.depth_origin_m
+    # The model's spread over inverse depths from 10 km to 5 mm in front of its depth origin:
+    # it falls monotonically as the plane recedes.
+    xs = np.linspace(1e-4, 1.0 / 0.005, 2001)
+    spread = np.array([seen_spread(ref, z0 + 1.0 / x) for x in xs])
+    if not np.all(np.diff(spread) > 0):
+        return  # not a ring whose views part as planes near: no depth to read off
+    off = []
+    for z, frame in sorted(frames_by_depth.items()):
+        seen = seen_spread(cal, z)
+        if not spread[0] < seen < spread[-1]:
+            continue
+        implied = z0 + 1.0 / float(np.interp(seen, spread, xs))
+        if abs(implied - z) > DEPTH_LABEL_TOL * z:
+            off.append(f"the plane given as {z:g} m ({frame}) shows its views as far apart as a plane at {implied:.3g} m")
+    if off:
+        log.warning("by %s, %s: check that each depth is measured from the main lens and given in the order of the "
+                    "frames (the calibration takes the depths as given)", what, "; ".join(off))
 
 
 def _echo_distortion(cal) -> None:

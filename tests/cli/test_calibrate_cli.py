@@ -174,3 +174,21 @@ def test_grid_calib_errors_name_the_options(tmp_path, capsys, extra, message):
     assert message in err and not out.exists()
     python_names = ("disparity_scale_px_m", "disparity_offset_px", "depth_origin_m", "grid_positions")
     assert not any(name in err for name in python_names)
+
+
+def test_calibrate_warns_of_a_depth_the_optics_contradict(files, tmp_path, capsys):
+    """The frame of the plane at 1.0 m given as 0.8 m (its distance measured from the wrong
+    point): two planes fit whatever their depths, but by the device's optics its views lie as
+    far apart as a plane's at 1.0 m. Written, with a warning that names the plane, the frame and
+    the depth the optics read; the right depths draw no such warning."""
+    import re
+
+    out = tmp_path / "cal.json"
+    assert main(_calibrate_args(files, out, "--depths", "0.3", "0.8")) == 0 and out.exists()
+    err = capsys.readouterr().err
+    found = re.search(r"the plane given as 0\.8 m \((.*?)\) shows its views as far apart as a plane at ([0-9.]+) m", err)
+    assert found, err
+    assert found.group(1).endswith("t1.0.png") and float(found.group(2)) == pytest.approx(1.0, rel=0.02)
+    assert "given as 0.3 m" not in err
+    assert main(_calibrate_args(files, out, "--depths", "0.3", "1.0", "--overwrite")) == 0
+    assert "shows its views as far apart" not in capsys.readouterr().err
