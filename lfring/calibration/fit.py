@@ -14,9 +14,15 @@ from lfring.core.lens import remap_views, undistortion_maps
 from lfring.errors import EstimationError, InvalidInputError
 from lfring.views import Layout, detect_layout, flat_field_from_frame, split_views
 
-__all__ = ["calibrate", "check_disparity_sign", "load_image"]
+__all__ = ["calibrate", "check_disparity_sign", "check_fitted_origin", "load_image"]
 
 log = logging.getLogger("lfring.calibration")
+
+DEPTH_ORIGIN_TOL = 0.1
+"""A z0 fitted to three or more planes that lies farther than this fraction of the nearest
+plane's depth from the device's entrance pupil s (z0 = s for the ring), or behind the main lens,
+draws a warning: three planes fit the model exactly whatever their depths, so a mislabelled
+depth shows only as an impossible z0."""
 
 
 def load_image(frame, *, pattern=None, black_level=None, white_level=None, method: str = "edge-aware") -> tuple[np.ndarray, str]:
@@ -205,7 +211,24 @@ def calibrate(
                               white_level=_common(raws, "white_level", white_level))
     if carry_flat:
         cal = dataclasses.replace(cal, flat_field=flat_field_from_frame(flat_img, cal))
+    if how == "fitted":
+        check_fitted_origin(cal.depth_origin_m, min(measured), device)
     return cal
+
+
+def check_fitted_origin(z0: float, nearest_m: float, device) -> None:
+    """Warn (log) of a z0 fitted to planes as the nearest at ``nearest_m`` that the ring cannot
+    have: negative, or with ``device`` (a :class:`lfring.optics.RingDevice`, or None) farther
+    from its entrance pupil than :data:`DEPTH_ORIGIN_TOL` times ``nearest_m``."""
+    why = None
+    if z0 < 0.0:
+        why = "negative, where the ring cannot have it (its viewpoints lie in front of the main lens: z0 = s > 0)"
+    elif device is not None and abs(z0 - device.entrance_pupil_m) > DEPTH_ORIGIN_TOL * nearest_m:
+        why = f"{abs(z0 - device.entrance_pupil_m) * 1e3:.0f} mm from where the optics of device '{device.name}' put it " \
+              f"({device.entrance_pupil_m:.4f} m)"
+    if why:
+        log.warning("z0 fitted to the planes is %.4f m, %s: a plane's depth is likely wrong (each measured from the "
+                    "main lens, in the order of the frames?); the planes fit the model whatever their depths", z0, why)
 
 
 def _lens_distortion(views, measured, layout, masks, flat_views, reference):

@@ -60,12 +60,34 @@ def test_z0_aware_fit_beats_z0_zero(twin, pair_calibration):
         assert naive[z] > 0.15 and aware[z] < naive[z] / 5
 
 
-def test_three_planes_recover_z0(twin):
+def test_three_planes_recover_z0(twin, caplog):
     noise, targets, flat, layout, dev = twin
-    cal = calibrate(targets, flat=flat, layout=layout)
+    cal = calibrate(targets, flat=flat, layout=layout, device=dev)
     assert abs(cal.depth_origin_m - dev.entrance_pupil_m) < 1e-3
     assert cal.provenance["depth_origin"] == "fitted"
     assert all(p.leave_one_out_px.max() < 0.05 for p in cal.planes)
+    assert "z0 fitted" not in caplog.text
+
+
+def test_a_mislabelled_plane_shows_as_an_impossible_z0(twin, caplog):
+    """The plane at 0.5 m given as 0.45 m: three planes still fit the model to a fraction of a
+    pixel, with z0 about 0.13 m where the device's optics put it at 0.028 m: a warning names
+    both. A z0 fitted negative (0.5 m given as 0.6 m gives -0.49 m) is warned of without a device."""
+    from lfring.calibration.fit import check_fitted_origin
+
+    noise, targets, flat, layout, dev = twin
+    cal = calibrate({0.3: targets[0.3], 0.45: targets[0.5], 1.0: targets[1.0]}, flat=flat, layout=layout, device=dev)
+    assert cal.depth_origin_m > dev.entrance_pupil_m + 0.05
+    assert all(p.leave_one_out_px.max() < 0.05 for p in cal.planes)  # the fit alone cannot tell
+    assert f"z0 fitted to the planes is {cal.depth_origin_m:.4f} m" in caplog.text
+    assert f"from where the optics of device '{dev.name}' put it" in caplog.text
+    caplog.clear()
+    check_fitted_origin(-0.49, 0.3, None)
+    assert "negative" in caplog.text
+    caplog.clear()
+    check_fitted_origin(dev.entrance_pupil_m + 0.02, 0.3, dev)  # within 10 % of 0.3 m
+    check_fitted_origin(0.05, 0.3, None)
+    assert caplog.text == ""
 
 
 def test_bad_inputs(prototype):
