@@ -177,6 +177,10 @@ class OutputSet:
         rec = read_record(self.record) if former is None else former
         if rec is not None and rec.get("command") != self.command:
             rec = None  # another command's record: its files are not ours
+        changed = self._changed_since(rec, existing)
+        if changed is not None and not self.overwrite:
+            raise InvalidInputError(f"{changed} exists and was written since {self.command} made it with this record (by "
+                                    "another command or by hand); pass --overwrite to replace it, or -o to write elsewhere")
         decision = decide_resume(planned, dict.fromkeys(planned, self.key), rec, identity, existing,
                                  record_exists=self.record.exists() or former is not None, overwrite=self.overwrite,
                                  maker=self.command)
@@ -199,6 +203,22 @@ class OutputSet:
                                     "before it changed; pass --overwrite to replace it")
         raise InvalidInputError(f"{first} exists and was made by {self.command} with other settings; pass --overwrite to "
                                 "replace it, or -o to write elsewhere")
+
+    def _changed_since(self, rec: dict | None, existing: set) -> Path | None:
+        """The first output that the record ``rec`` says this set made but that is no longer as
+        the record found it (another command, or the user, wrote it since), or None. A record's
+        claim is then stale: the file is not this set's to replace without ``--overwrite``."""
+        made = (rec or {}).get("output_identity") or {}
+        for p in self.paths:
+            rel = self._rel(p)
+            if rel in existing and rel in made:
+                try:
+                    now = file_identity(p)
+                except OSError:
+                    continue
+                if made[rel] != now:
+                    return p
+        return None
 
     def _former_record(self) -> dict | None:
         """The record of this set under its former name (see ``formerly``), or None."""

@@ -353,3 +353,28 @@ def test_every_command_s_output_options_are_known_as_outputs():
                 assert p.name in OUTPUT_OPTIONS, (name, p.name)
                 seen.add(p.name)
     assert seen == set(OUTPUT_OPTIONS)
+
+
+def test_a_file_another_command_wrote_since_is_not_replaced_by_the_record_that_made_it_first(tmp_path, capsys):
+    """A stack, then a single image written over its first frame with --overwrite: the stack's
+    rerun without --overwrite trusted its own record, which still listed the frame, and replaced
+    the single image (whose record then described a file it no longer was). The rerun is refused
+    now, naming the file, and the single image and its record stay as they were."""
+    from lfring.cli.main import main
+
+    sa = ["refocus", str(SCENE), "--method", "shift-and-add"]
+    stack = [*sa, "--sweep", "0.3:1.0:3", "-o", str(tmp_path / "s.png")]
+    assert main(stack) == 0, capsys.readouterr().err
+    frame = tmp_path / "s_000_0.3m.png"
+    assert main([*sa, "--depth", "0.3", "--interpolation", "cubic", "-o", str(frame), "--overwrite"]) == 0
+    single = frame.read_bytes()
+    capsys.readouterr()
+    assert main(stack) == 2
+    err = capsys.readouterr().err
+    assert f"{frame} exists and was written since lfring refocus made it" in err and "--overwrite" in err
+    assert frame.read_bytes() == single
+    assert json.loads((tmp_path / "s_000_0.3m.png.lfring.json").read_text())["settings"]["interpolation"] == "cubic"
+    assert main([*sa, "--depth", "0.3", "--interpolation", "cubic", "-o", str(frame)]) == 0  # its own rerun
+    assert frame.read_bytes() == single
+    assert main([*stack, "--overwrite"]) == 0  # asked to: the stack takes the frame back
+    assert frame.read_bytes() != single
