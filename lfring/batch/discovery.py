@@ -17,7 +17,7 @@ from lfring.batch.settings import BatchSettings
 from lfring.errors import InvalidInputError
 from lfring.io.readers import frame_size
 
-__all__ = ["TRUTH_SUFFIX", "BatchJob", "find_inputs", "frame_size", "plan_jobs", "scan_inputs"]
+__all__ = ["TRUTH_SUFFIX", "WRONG_SIZE", "BatchJob", "find_inputs", "frame_size", "plan_jobs", "scan_inputs"]
 
 log = logging.getLogger("lfring.batch")
 
@@ -53,6 +53,8 @@ def find_inputs(inputs: Sequence[str], *, outdir: str | Path | None = None, excl
 TRUTH_SUFFIX = "_truth"
 """Folders whose name ends so hold a frame's ground truth (the synthetic twin writes them): never
 frames."""
+WRONG_SIZE = "a size no calibration fits"
+"""How a folder's PNG/TIFF of a size no calibration of the run reads is listed among the files left out."""
 
 
 def scan_inputs(inputs: Sequence[str], *, outdir: str | Path | None = None, exclude: Sequence[str] = (),
@@ -122,7 +124,7 @@ def _expand_inputs(inputs, *, outdir, exclude, skipped, sizes) -> list[BatchJob]
                 f"{arg} lies in the output folder {outdir}: a batch never reads its output folder (a rerun would take "
                 "its outputs for frames); give another output folder")
         if p.is_dir():
-            n0 = len(found)
+            n0, n_skipped = len(found), len(skipped)
             for root, dirs, files in os.walk(p):
                 for d in sorted(dirs):
                     if d.endswith(TRUTH_SUFFIX) and not d.startswith("."):
@@ -143,11 +145,16 @@ def _expand_inputs(inputs, *, outdir, exclude, skipped, sizes) -> list[BatchJob]
                             skipped.append((str(f), "float samples (a map, not raw counts)"))
                             continue
                         if size is not None and size not in sizes:
-                            skipped.append((str(f), f"{size[0]} x {size[1]} px, a size no calibration fits"))
+                            skipped.append((str(f), f"{size[0]} x {size[1]} px, {WRONG_SIZE}"))
                             continue
                     found.append((f, rel))
             if len(found) == n0:
-                log.warning("%s: no frames found (suffixes %s)", arg, ", ".join(sorted(suffixes)))
+                sized = sum(1 for _, why in skipped[n_skipped:] if why.endswith(WRONG_SIZE))
+                if sized:
+                    log.warning("%s: no frames of a size a calibration fits (%s); %d left out for their size",
+                                arg, _sizes_words(sizes), sized)
+                else:
+                    log.warning("%s: no frames found (suffixes %s)", arg, ", ".join(sorted(suffixes)))
         elif p.is_file():
             if not excluded(p.name, p):
                 found.append((p, p.name))
@@ -178,8 +185,21 @@ def _expand_inputs(inputs, *, outdir, exclude, skipped, sizes) -> list[BatchJob]
             log.info("%s is the same file as %s: processed once", f, seen[res][0])
     jobs = [job for _, job in seen.values()]
     if not jobs:
-        raise InvalidInputError(f"no frames found in {', '.join(map(str, inputs))}")
+        sized = [(f, why) for f, why in skipped if why.endswith(WRONG_SIZE)]
+        more = ""
+        if sized:
+            first = f"{sized[0][0]} ({sized[0][1].split(',')[0]})"
+            several = len(sizes) > 1
+            more = (f": {len(sized)} file{'s' * (len(sized) > 1)} left out for a size no calibration fits, as {first}; "
+                    f"the calibration{'s' * several} of this run read{'' if several else 's'} frames of "
+                    f"{_sizes_words(sizes)}")
+        raise InvalidInputError(f"no frames found in {', '.join(map(str, inputs))}{more}")
     return jobs
+
+
+def _sizes_words(sizes) -> str:
+    """The frame sizes a run reads, in words."""
+    return " or ".join(f"{w} x {h} px" for w, h in sorted(sizes or ()))
 
 
 def plan_jobs(jobs: Sequence[BatchJob], settings: BatchSettings, outdir: str | Path) -> dict[str, dict[str, str]]:

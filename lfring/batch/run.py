@@ -15,7 +15,7 @@ from concurrent.futures import FIRST_COMPLETED
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from lfring.batch.discovery import BatchJob, frame_size, plan_jobs, scan_inputs
+from lfring.batch.discovery import WRONG_SIZE, BatchJob, frame_size, plan_jobs, scan_inputs
 from lfring.batch.executors import (
     EXECUTORS,
     DaskExecutor,
@@ -94,7 +94,11 @@ class BatchReport:
         """
         n = len(self.done) + len(self.skipped) + len(self.failed) + len(self.left_out)
         rate = f", {self.frames_per_s:.2f} frames/s" if self.done else ""
-        left = f"; {len(self.not_frames)} files that are not frames left out" if self.not_frames else ""
+        sized = sum(1 for _, why in self.not_frames if why.endswith(WRONG_SIZE))
+        others = len(self.not_frames) - sized
+        parts = [f"{sized} frame{'s' * (sized > 1)} of a size no calibration fits"] * bool(sized) + \
+                [f"{others} file{'s' * (others > 1)} that {'are' if others > 1 else 'is'} not {'frames' if others > 1 else 'a frame'}"] * bool(others)
+        left = f"; {' and '.join(parts)} left out" if parts else ""
         flats = ""
         if self.left_out:
             flats = f"; {len(self.left_out)} left out ({', '.join(sorted({why.split(' (')[0] for _, why in self.left_out}))})"

@@ -68,6 +68,31 @@ def test_scan_inputs_leaves_out_what_is_not_a_frame(tmp_path):
     assert [Path(j.input).name for j in scan_inputs([str(root / "small.png")], frame_sizes={(10, 8)})[0]] == ["small.png"]
 
 
+def test_a_folder_of_frames_of_another_size_says_so(tmp_path, caplog):
+    """A folder whose frames are all of a size the run's calibration does not read: the run
+    said 'no frames found (suffixes ...)', as if the files were not images, and -v listed
+    nothing. The error names the size, a frame and the sizes the run reads; the summary counts
+    such frames apart from files that are not frames."""
+    from lfring.batch import BatchReport, scan_inputs
+    from lfring.errors import InvalidInputError
+
+    root = tmp_path / "in"
+    root.mkdir()
+    cv2.imwrite(str(root / "scene.png"), np.zeros((4, 6), np.uint16))
+    (root / "scene.png.json").write_text("{}")
+    with pytest.raises(InvalidInputError) as info:
+        scan_inputs([str(root)], frame_sizes={(10, 8)})
+    assert str(info.value) == (f"no frames found in {root}: 1 file left out for a size no calibration fits, as "
+                               f"{root / 'scene.png'} (6 x 4 px); the calibration of this run reads frames of 10 x 8 px")
+    assert "no frames of a size a calibration fits (10 x 8 px); 1 left out for their size" in caplog.text
+    with pytest.raises(InvalidInputError, match="calibrations of this run read frames of 10 x 8 px or 12 x 9 px"):
+        scan_inputs([str(root)], frame_sizes={(12, 9), (10, 8)})
+    cv2.imwrite(str(root / "good.png"), np.zeros((8, 10), np.uint16))
+    jobs, skipped = scan_inputs([str(root)], frame_sizes={(10, 8)})
+    report = BatchReport(str(tmp_path / "out"), not_frames=skipped)
+    assert report.summary().endswith("; 1 frame of a size no calibration fits and 1 file that is not a frame left out")
+
+
 def test_inputs_in_the_output_folder_links_and_exclude_paths(tmp_path, caplog, monkeypatch):
     """An input inside the output folder is refused as such (not 'no frames found'); a link
     beside its target is one job, the target's; --exclude takes a path as given, and a pattern
