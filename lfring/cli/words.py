@@ -28,7 +28,8 @@ API_TO_CLI: tuple[tuple[str, str], ...] = (
     (r"\boverwrite=True\b", "--overwrite"),
     (r" \(None: the default spacing\)", " (leave --planes out for the default spacing)"),
     (r" or None\b", ""),  # an option left out is the API's None
-    (r"\b(aperture|reference|workers|threads) must be\b", r"--\1 must be"),
+    (r"\b(aperture|reference|workers|threads|planes) must be\b", r"--\1 must be"),
+    (r"\bas aperture or as\b", "as --aperture or as"),
     # Parameters and their options.
     (r"\bzmin_m\b", "--zmin"),
     (r"\bzmax_m\b", "--zmax"),
@@ -63,6 +64,10 @@ def cli_words(message: str) -> str:
     'give --planes >= 5, or use --depth-method local'
     >>> cli_words("num_planes must be an integer >= 3 or None, got 2")
     '--planes must be an integer >= 3, got 2'
+    >>> cli_words("planes must be an integer >= 3 (a depth is judged against the others), got 2")
+    '--planes must be an integer >= 3 (a depth is judged against the others), got 2'
+    >>> cli_words("give the depth of field as aperture or as f_number, not both")
+    'give the depth of field as --aperture or as --f-number, not both'
     """
     for pattern, replacement in _RULES:
         message = pattern.sub(replacement, message)

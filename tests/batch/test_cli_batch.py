@@ -50,6 +50,7 @@ def test_cli_batch_names_failures_and_exits_1(frames, folder, tmp_path, capsys):
         (["--refocus", "0.5", "--workers", "0"], "workers"),
         (["--refocus", "abc"], "comma-separated"),
         (["--refocus", "0.5", "--reference", "7"], "reference"),
+        (["--depth", "--planes", "2"], "--planes must be an integer >= 3"),
     ],
 )
 def test_cli_usage_errors_exit_2(frames, tmp_path, capsys, args, text):

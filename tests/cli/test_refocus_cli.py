@@ -71,6 +71,7 @@ def test_the_stack_and_the_all_in_focus_image_share_one_renderer(tmp_path, monke
         (["--depth", "0.5", "--depths", "0.3,0.6"], "exactly one of"),
         (["--depth", "0.5", "--reference", "north"], "reference"),
         (["--depth", "0.5", "-o", "x.jpg"], ".png, .tif"),
+        (["--depth", "0.5", "--aperture", "1", "--f-number", "2"], "as --aperture or as --f-number, not both"),
     ],
 )
 def test_refocus_errors(tmp_path, capsys, args, text):
