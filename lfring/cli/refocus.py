@@ -89,7 +89,7 @@ def _depths(depth, depths, sweep) -> list[float]:
 @click.option("--reference", default="center", show_default=True, metavar="center|INDEX", help="Frame of the result.")
 @click.option("-o", "--output", type=click.Path(dir_okay=False), default=None, metavar="FILE",
               help="Output image (.png/.tif); for stacks the numbered frames and the stack files take its name. "
-                   "Default: RAW's name with _refocus_<depth>m in the current folder.")
+                   "Default: RAW's name with _refocus_<depth>m (a stack: _stack) in the current folder.")
 @click.option("--interpolation", type=click.Choice(["cubic", "linear"]), default=DEFAULT_INTERPOLATION, show_default=True,
               help="Resampling of the views: bicubic keeps more detail, bilinear is faster.")
 @click.option("--method", type=click.Choice(["depth-aware", "shift-and-add"]), default="depth-aware", show_default=True,
@@ -140,10 +140,12 @@ def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolat
     zs = _depths(depth, depths, sweep)
     bits = int(bit_depth)
     stem, raw = Path(raw[0]).stem, raw[0] if len(raw) == 1 else list(raw)  # several: separate view images
+    mark = "_stack" if len(zs) > 1 else ""  # a stack's files and record carry it in their names
     if output is None:
         # The method is in the default name: its images differ, and neither replaces the other's.
         how = "" if method == "depth-aware" else f"_{method}"
-        base = Path(f"{stem}_refocus_{zs[0]:g}m{how}.png" if len(zs) == 1 else f"{stem}_stack{how}.png")
+        base = Path(f"{stem}_refocus_{zs[0]:g}m{how}.png" if len(zs) == 1 else f"{stem}{mark}{how}.png")
+        mark = ""  # already in the name
     else:
         base = Path(output)
     if base.suffix.lower() not in (".png", ".tif", ".tiff"):
@@ -154,12 +156,12 @@ def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolat
         outs = [base.with_name(f"{base.stem}_{i:03d}_{z:.4g}m{base.suffix}") for i, z in enumerate(zs)]
     extra = []
     if len(zs) > 1:
-        extra = [base.with_name(base.stem + "_stack.tif"), base.with_name(base.stem + "_stack.gif")]
+        extra = [base.with_name(base.stem + mark + ".tif"), base.with_name(base.stem + mark + ".gif")]
     aif_path = base.with_name(base.stem + "_all_in_focus" + base.suffix) if aif else None
     sidecars = [Path(str(p) + ".json") for p in outs + ([aif_path] if aif else [])]
     all_outputs = [*outs, *extra, *sidecars, *([aif_path] if aif else [])]
     # The record is named after the output's whole name: a.png and a.tif are two sets.
-    set_stem = base.stem + ("_stack" if len(zs) > 1 else "")
+    set_stem = base.stem + mark
     outputs = OutputSet(all_outputs, name=set_stem + base.suffix, formerly=set_stem, overwrite=overwrite)
     outputs.check()
     if method != "depth-aware" and any(v is not None for v in (aperture, f_number, zmin, zmax)):

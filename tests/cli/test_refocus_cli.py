@@ -159,3 +159,14 @@ def test_view_images_out_of_order_or_from_two_frames_are_refused(tmp_path, capsy
     assert "do not agree as the views of one frame in this order (ZNCC 0.0" in err and "--no-check" in err
     assert not (tmp_path / "no.png").exists()
     assert main([*run[:1], *swapped, *run[1:], "-o", str(tmp_path / "no.png"), "--no-check"]) == 0
+
+
+def test_a_stack_s_default_names_say_stack_once(tmp_path, capsys, monkeypatch):
+    """Without -o a stack's files were named scene_stack_stack.tif (and .gif, and its record):
+    the default name carries _stack, and the stack's files added it again."""
+    monkeypatch.chdir(tmp_path)
+    assert main(["refocus", str(SCENE), "--depths", "0.3,0.5", "--method", "shift-and-add"]) == 0, capsys.readouterr().err
+    stem = "scene_stack_shift-and-add"
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([
+        f"{stem}_000_0.3m.png", f"{stem}_000_0.3m.png.json", f"{stem}_001_0.5m.png", f"{stem}_001_0.5m.png.json",
+        f"{stem}.tif", f"{stem}.gif", f"{stem}.png.lfring.json"])
