@@ -159,8 +159,9 @@ def command(ctx, raw, plane, tolerance, outdir, calib, roi, reference_depth, min
                                                              "tolerance_m": tolerance}, **inspection_overlays(res))
     for i, d in enumerate(res.defects, 1):
         x, y, w, h = d.bbox_px
-        log.info("defect %d: %s %+.1f mm at x=%d y=%d (%d x %d px), %d px, confidence %.2f", i, d.kind, d.deviation_m * 1e3,
-                 x, y, w, h, d.area_px, d.mean_confidence)
+        log.info("defect %d: %s %s%+.1f mm at x=%d y=%d (%d x %d px), %d px, confidence %.2f%s", i, d.kind,
+                 "at least " if d.beyond_band else "", d.deviation_m * 1e3, x, y, w, h, d.area_px, d.mean_confidence,
+                 " (it reaches beyond the depth band searched: widen --zmin/--zmax to measure it)" if d.beyond_band else "")
     checked = f"checked {res.coverage:.0%} of the part"
     if res.verdict == "pass":
         verdict = f"pass ({checked})"

@@ -92,7 +92,7 @@ def annotate(result: InspectionResult, *, tint: float = 0.35, scale: int = 1) ->
         x, y, bw, bh = (v * scale for v in d.bbox_px)
         colour = _BUMP_RGB if d.kind == "bump" else _DENT_RGB
         cv2.rectangle(out, (x, y), (x + bw - 1, y + bh - 1), colour, thick)
-        label = f"{i} {d.kind} {d.deviation_m * 1e3:+.1f} mm"
+        label = f"{i} {d.kind} {'>' if d.beyond_band else ''}{d.deviation_m * 1e3:+.1f} mm"
         _text(out, label, _label_origin(label, (x, y, bw, bh), font, thick, banner_box, (w, h)), font, colour, thick)
     for text, org in banner:
         _text(out, text, org, font * 1.2, banner_rgb, thick)

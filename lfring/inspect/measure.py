@@ -48,7 +48,7 @@ from lfring.inspect.records import Defect, InspectionResult
 
 __all__ = [
     "DARK_LEVEL", "MARGIN_PX", "MIN_CONFIDENCE_TWO_VIEWS", "MIN_COVERAGE", "MIN_PART_FRACTION", "MIN_TEXTURED_FRACTION",
-    "PART_OPENING_PX", "PHOTO_MIN_CONTRAST", "STEP_PX", "VERDICTS", "default_depth_band", "inspect_frame",
+    "PART_OPENING_PX", "PHOTO_MIN_CONTRAST", "BAND_END_REACH_PX", "MIN_TOLERANCE_PX", "STEP_PX", "VERDICTS", "default_depth_band", "inspect_frame",
     "photo_consistency",
 ]
 
@@ -58,6 +58,13 @@ STEP_PX = 0.25
 #: the sweep's confidence compares the best cost with the best one at least 1 px away, which
 #: needs hypotheses on both sides of every depth of interest.
 MARGIN_PX = 1.5
+#: A defect whose region, grown by this many pixels, holds pixels at its side's end of the band
+#: reaches beyond it: the depths there are the band's end, not the surface's.
+BAND_END_REACH_PX = 3
+#: A tolerance below this many pixels of view motion at the plane draws a warning: the twin's flat
+#: targets, judged on their own plane, raise false defects from about 0.1-0.2 px (their depth noise
+#: at the views' rims), and pass from about 0.4 px.
+MIN_TOLERANCE_PX = 0.25
 
 
 # -- validation -----------------------------------------------------------------------------------
@@ -371,6 +378,11 @@ def _plan_band(calibration, chk: _Checked, zmin_m, zmax_m, num_planes) -> tuple[
         raise InvalidInputError(f"zmin_m ({zlo:g} m) must lie beyond the calibration's depth origin z0 = {z0:.4g} m")
     if num_planes is None:
         num_planes = len(depth_hypotheses(calibration, zlo, zhi, max_step_px=STEP_PX))
+    tol_px = tol * _motion_per_inv(calibration, far) / (far - z0) ** 2
+    if tol_px < MIN_TOLERANCE_PX:
+        warnings.warn(f"tolerance_m {tol:g} m is {tol_px:.2g} px of view motion at {far:g} m, below {MIN_TOLERANCE_PX} px: "
+                      "depth noise of that size (most at the views' rims) may be taken for defects; a tolerance of "
+                      f"{tol * MIN_TOLERANCE_PX / tol_px:.2g} m or more is safer there", LfringWarning, stacklevel=4)
     return zlo, zhi, int(num_planes)
 
 
@@ -422,13 +434,28 @@ def _checked_pixels(depth, num_views, in_roi, target, *, min_confidence: float):
     return dev, in_band, in_band & confident & whole & in_roi & np.isfinite(dev)
 
 
+def _band_ends(depth) -> dict[float, np.ndarray]:
+    """Per side (+1 nearer than the target, as a bump; -1 farther, a dent) the pixels whose depth
+    the sweep put at that end of its band: their surface lies there or beyond."""
+    n = len(depth.depths_m)
+    idx = depth.hypothesis_index
+    with np.errstate(invalid="ignore"):
+        first, last = np.isfinite(depth.depth_m) & (idx <= 1.0), np.isfinite(depth.depth_m) & (idx >= n - 2.0)
+    near_first = depth.depths_m[0] < depth.depths_m[-1]
+    return {1.0: first if near_first else last, -1.0: last if near_first else first}
+
+
 def _find_defects(dev, reliable, confidence, *, tol, min_area_px, opening_px, percentile,
-                  footprint_mm) -> tuple[list, np.ndarray]:
-    """Deviation step of :func:`inspect_frame`: the defects (largest deviation first) and their pixels."""
+                  footprint_mm, band_ends) -> tuple[list, np.ndarray]:
+    """Deviation step of :func:`inspect_frame`: the defects (largest deviation first) and their
+    pixels. A defect whose region (its holes filled, grown by :data:`BAND_END_REACH_PX`) holds at
+    least ``min_area_px`` pixels at its side's end of the band (:func:`_band_ends`) reaches
+    beyond the band: its deviation is a lower bound."""
     smooth = cv2.medianBlur(np.where(reliable, dev, 0.0).astype(np.float32), 5)
     deviating = np.zeros(dev.shape, bool)
     defects = []
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * opening_px + 1,) * 2) if opening_px else None
+    reach = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * BAND_END_REACH_PX + 1,) * 2)
     for sign in (1.0, -1.0):
         m = (reliable & (sign * smooth > tol)).astype(np.uint8)
         if kernel is not None:
@@ -440,6 +467,8 @@ def _find_defects(dev, reliable, confidence, *, tol, min_area_px, opening_px, pe
                 continue
             comp = labels == j
             deviating |= comp
+            around = cv2.dilate(_fill_holes(comp).astype(np.uint8), reach).astype(bool)
+            beyond = int((around & band_ends[sign]).sum()) >= min_area_px
             px = comp & reliable
             vals = dev[px] if px.any() else smooth[comp]
             d = float(np.percentile(np.abs(vals), percentile))
@@ -451,6 +480,7 @@ def _find_defects(dev, reliable, confidence, *, tol, min_area_px, opening_px, pe
                 deviation_m=sign * d,
                 kind="bump" if sign > 0 else "dent",
                 mean_confidence=float(confidence[comp].mean()),
+                beyond_band=beyond,
             ))
     defects.sort(key=lambda dd: -abs(dd.deviation_m))
     return defects, deviating
@@ -674,7 +704,7 @@ def inspect_frame(
                                              min_confidence=min_confidence)
     defects, deviating = _find_defects(dev, reliable, depth.confidence, tol=chk.tolerance_m,
                                        min_area_px=min_area_px, opening_px=opening_px, percentile=percentile,
-                                       footprint_mm=footprint_mm)
+                                       footprint_mm=footprint_mm, band_ends=_band_ends(depth))
 
     # Coverage and verdict step.
     part = _find_part(plane_mask, reliable, chk.box, min_area_px=int(min_area_px))

@@ -39,6 +39,9 @@ class Defect:
     kind : {'bump', 'dent'}
     mean_confidence : float
         Mean sweep confidence of the region's pixels, in [0, 1].
+    beyond_band : bool
+        The region holds depths beyond the band searched, on its side: its deviation there was
+        not measured, so ``deviation_m`` is a lower bound (a wider band measures it).
     """
 
     bbox_px: tuple[int, int, int, int]
@@ -48,6 +51,7 @@ class Defect:
     deviation_m: float
     kind: str
     mean_confidence: float
+    beyond_band: bool = False
 
     def to_dict(self) -> dict:
         """The defect as written in the inspection's JSON report.
@@ -56,8 +60,9 @@ class Defect:
         -------
         dict
             ``kind``, ``bbox_px`` (x, y, w, h), ``centroid_px``, ``area_px``, ``area_mm2`` (None
-            without a pixel footprint), ``max_deviation_mm`` (+ towards the camera) and
-            ``mean_confidence``, rounded for reading.
+            without a pixel footprint), ``max_deviation_mm`` (+ towards the camera; at least
+            that much where ``beyond_band``), ``beyond_band`` and ``mean_confidence``, rounded
+            for reading.
         """
         x, y, w, h = self.bbox_px
         return {
@@ -67,6 +72,7 @@ class Defect:
             "area_px": self.area_px,
             "area_mm2": None if self.area_mm2 is None else round(self.area_mm2, 3),
             "max_deviation_mm": round(self.deviation_m * 1e3, 3),
+            "beyond_band": self.beyond_band,
             "mean_confidence": round(self.mean_confidence, 4),
         }
 

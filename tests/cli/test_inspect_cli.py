@@ -136,12 +136,15 @@ def _photo(tmp_path):
         (DATA / "scene.png", "0.3", "too few confident pixels"),  # a cup at 0.3 m, not a part
     ],
 )
+@pytest.mark.filterwarnings("always::lfring.errors.LfringWarning")
 def test_cannot_judge_exits_3_with_the_reason(tmp_path, capsys, frame, plane, reason):
     frame = {"cap": _lens_cap, "photo": _photo}[frame](tmp_path) if isinstance(frame, str) else frame
     out = tmp_path / "report"
     assert _run(frame, "--plane", plane, "--tolerance", "0.008", "-o", out) == 3
     cap = capsys.readouterr()
     assert f"cannot judge ({reason}" in cap.out and "Traceback" not in cap.out + cap.err
+    # 8 mm is 0.11 px of view motion at 0.5 m: warned of, in the options' words.
+    assert ("--tolerance 0.008 m is 0.11 px of view motion at 0.5 m" in cap.err) == (plane == "0.5")
     stem = Path(frame).stem
     rep = json.loads((out / f"{stem}_inspect.json").read_text())
     assert rep["verdict"] == "cannot_judge" and rep["passed"] is False and rep["reason"].startswith(reason)

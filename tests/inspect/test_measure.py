@@ -49,7 +49,7 @@ def test_every_planted_defect_is_found(parts, name):
         d = hits[0]
         assert np.sign(d.deviation_m) == np.sign(dev) and d.kind == ("bump" if dev > 0 else "dent")
         assert abs(d.deviation_m - dev) < 0.003, (d.deviation_m, dev)  # within 3 mm of the truth
-        assert 0.8 < d.mean_confidence <= 1.0
+        assert 0.8 < d.mean_confidence <= 1.0 and not d.beyond_band
         # The box lies inside the truth's footprint (> tol/2) give or take the depth's smoothing.
         x, y, w, h = d.bbox_px
         assert box[0] - 4 <= x and x + w <= box[0] + box[2] + 4 and box[1] - 4 <= y and y + h <= box[1] + box[3] + 4
@@ -177,7 +177,8 @@ def test_band_reaching_infinity_says_why(prototype):
 def test_plane_outside_calibrated_range_warns(parts):
     r, cal, views, *_ = parts["good"]
     lo, hi = cal.valid_depth_range_m
-    with pytest.warns(LfringWarning, match="outside the calibrated range"):
+    with pytest.warns(LfringWarning, match="outside the calibrated range"), \
+            pytest.warns(LfringWarning, match="0.11 px of view motion at 1.2 m"):
         inspect_frame(views, cal, plane_m=hi + 0.2, tolerance_m=0.05, min_area_px=400)
 
 
@@ -207,7 +208,8 @@ def test_defective_part_fails_with_its_coverage(parts):
 
 def test_wrong_plane_cannot_be_judged(parts):
     r, cal, views, truth, _ = parts["two"]
-    res = inspect_frame(views, cal, plane_m=0.5, tolerance_m=TOL)
+    with pytest.warns(LfringWarning, match="px of view motion at 0.5 m"):
+        res = inspect_frame(views, cal, plane_m=0.5, tolerance_m=TOL)
     assert res.verdict == "cannot_judge" and not res.passed
     assert res.reason.startswith("no surface found at the working plane")
     # Only specks of the belt 10 cm nearer (in the band at 0.5 m, where a pixel of disparity is
@@ -258,3 +260,30 @@ def test_min_coverage_decides_between_pass_and_cannot_judge(parts):
     assert not inner.part[:200].any() and inner.part[250:450, 250:450].all()
     with pytest.raises(InvalidInputError, match=r"min_coverage must be a number in \[0, 1\], got 1.5"):
         inspect_frame(views, cal, plane_m=PLANE, tolerance_m=TOL, min_coverage=1.5)
+
+
+def test_a_defect_beyond_the_band_is_a_lower_bound(prototype):
+    """A 120 mm bump, 30 mm across, on a part at 0.3 m: the default band reaches about 55 mm
+    nearer, so the bump's top was out of band and the defect read +44 mm, as if measured. It is
+    found and marked beyond the band (its deviation a lower bound); a band that holds it measures it."""
+    cal = default_calibration((2456, 1842))[0]
+    r = render(prototype, part_scene(defect_heights_m=(0.12,), defect_size_m=0.03, depth_m=PLANE, seed=2), binning=2,
+               noise="realistic", seed=2)
+    frame = RawFrame(mosaic=r.raw, pattern="RGGB", black_level=r.black_level, white_level=r.white_level, bit_depth=12)
+    views = split_views(demosaic(frame), cal.layout)
+    res = inspect_frame(views, cal, plane_m=PLANE, tolerance_m=TOL, device=r.device)
+    assert res.verdict == "fail" and len(res.defects) == 1
+    d = res.defects[0]
+    assert d.kind == "bump" and d.beyond_band and 0.02 < d.deviation_m < 0.08
+    assert d.to_dict()["beyond_band"] is True
+    wide = inspect_frame(views, cal, plane_m=PLANE, tolerance_m=TOL, device=r.device, zmin_m=0.16)
+    assert len(wide.defects) == 1 and not wide.defects[0].beyond_band
+    assert abs(wide.defects[0].deviation_m - 0.12) < 0.015
+
+
+def test_a_tolerance_below_the_depth_noise_is_warned_of(parts):
+    """A flat target on its own plane at 0.5 m judged to 8 mm (0.11 px of view motion) failed
+    with 21 false defects at the views' rims, without a word; 8 mm at 0.3 m is 0.34 px."""
+    r, cal, views, truth, res = parts["good"]
+    with pytest.warns(LfringWarning, match=r"tolerance_m 0.002 m is 0.084 px of view motion at 0.3 m, below 0.25 px"):
+        inspect_frame(views, cal, plane_m=PLANE, tolerance_m=0.002)

@@ -19,7 +19,8 @@ def test_report_and_annotation(parts, tmp_path):
     back = json.loads(text)
     assert back["passed"] is False and back["verdict"] == "fail" and back["num_defects"] == 2
     d0 = back["defects"][0]
-    assert set(d0) == {"id", "kind", "bbox_px", "centroid_px", "area_px", "area_mm2", "max_deviation_mm", "mean_confidence"}
+    assert set(d0) == {"id", "kind", "bbox_px", "centroid_px", "area_px", "area_mm2", "max_deviation_mm", "beyond_band",
+                      "mean_confidence"}
     assert set(d0["bbox_px"]) == {"x", "y", "w", "h"}
     assert abs(d0["max_deviation_mm"]) > TOL * 1e3
     assert back["settings"]["tolerance_m"] == TOL and back["input"]["raw"] == "part.png"
