@@ -57,6 +57,7 @@ def calibrate(
     device=None,
     distortion: bool = True,
     carry_flat: bool = False,
+    rotate180: bool = False,
 ) -> RingCalibration:
     """Calibrate refocusing in metric depth from frames of a textured planar target.
 
@@ -95,6 +96,10 @@ def calibrate(
     carry_flat : bool
         Keep the flat frame's field (each view's vignetting) in the calibration, so that the
         views split with it are flat-fielded (needs ``flat``).
+    rotate180 : bool
+        The camera writes its frames rotated by 180 degrees: the detected layout undoes that
+        (recorded in the calibration, so every frame split with it is turned upright). A given
+        ``layout`` records its own rotation.
 
     Returns
     -------
@@ -159,8 +164,10 @@ def calibrate(
         img, name = (flat_img, flat_name) if flat_img is not None else images[min(images)]
         if flat_img is None:
             log.warning("no flat frame or layout given: detecting the layout on the nearest target (less precise)")
-        layout = detect_layout(img, kind="flat" if flat_img is not None else "auto",
+        layout = detect_layout(img, kind="flat" if flat_img is not None else "auto", rotate180=rotate180,
                                name=f"{'flat frame' if flat_img is not None else 'target frame'} {name}")
+    elif rotate180 and not layout.rotate180:
+        raise InvalidInputError("rotate180 goes with a flat frame or detection: a layout records its own rotation")
     elif (layout.raw_width_px, layout.raw_height_px) != (shape[1], shape[0]):
         raise InvalidInputError(f"the layout is for {layout.raw_width_px} x {layout.raw_height_px} px frames, the targets are {shape[1]} x {shape[0]} px")
     masks = layout.masks()

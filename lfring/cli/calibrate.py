@@ -21,11 +21,11 @@ MAX_RESIDUAL_PX = 0.5
 """Residual (px) above which a calibration is refused unless --force: the views of a planar
 target at its depth align to a small fraction of a pixel (the twin's to about 0.01 px); a frame
 that is not one (a scene with depth, a part) leaves residuals of a pixel or more."""
-DEPTH_LABEL_TOL = 0.15
-"""Relative difference between a plane's given depth and the depth at which the --device's
-optics put views as far apart as the frame shows them, above which the calibration warns: the
-optics are a design, not the built camera, so only a depth measured from the wrong point or
-given for another frame is that far off."""
+DEPTH_LABEL_TOL = 0.1
+"""Relative difference between how far the views move from one plane to the next and how far
+the --device's optics move them between the depths given, above which the calibration warns:
+the optics are a design, not the built camera, so only a depth measured from the wrong point
+or given for another frame is that far off."""
 
 
 def _floaty(text: str) -> bool:
@@ -45,6 +45,9 @@ def _floaty(text: str) -> bool:
 @click.option("--flat", type=click.Path(dir_okay=False), default=None, metavar="FILE",
               help="Flat (white) frame: layout detection and flat-fielding.")
 @click.option("--layout", "layout_file", type=click.Path(dir_okay=False), default=None, metavar="FILE", help="Layout JSON to use.")
+@click.option("--rotate180", is_flag=True,
+              help="The camera writes its frames rotated by 180 degrees (with --flat or detection; a --layout records its "
+                   "own rotation): the calibration turns every frame split with it upright.")
 @click.option("--depth-origin", default="auto", show_default=True, metavar="auto|optics|M",
               help="z0 of H(Z) = A + B/(Z - z0) [m]: 'auto' fits it with 3+ planes and with 2 takes the --device's "
                    "entrance pupil s (0 without --device); 'optics' always takes s; or a number.")
@@ -62,8 +65,8 @@ def _floaty(text: str) -> bool:
               "(frames that do not look like a planar target at their depth).")
 @click.option("--overwrite", is_flag=True, help="Replace an existing output file.")
 @raw_options
-def command(frames, depths, output, flat, layout_file, depth_origin, device_name, method, rank1, no_distortion, carry_flat,
-            force, overwrite, levels):
+def command(frames, depths, output, flat, layout_file, rotate180, depth_origin, device_name, method, rank1, no_distortion,
+            carry_flat, force, overwrite, levels):
     """Calibrate refocusing in metric depth from FRAMES of a textured planar target.
 
     Example: lfring calibrate near.png far.png --depths 0.3 1.0 --flat white.png -o calib/mycam.json
@@ -115,6 +118,8 @@ def command(frames, depths, output, flat, layout_file, depth_origin, device_name
     check_calibration_output(output)
     if flat and layout_file:
         raise click.UsageError("give --flat or --layout, not both")
+    if layout_file and rotate180:
+        raise click.UsageError("--rotate180 goes with --flat or detection; a layout file records its own rotation")
     if carry_flat and not flat:
         raise click.UsageError("--carry-flat needs --flat FILE")
     device = get_device(device_name) if device_name else None
@@ -135,7 +140,8 @@ def command(frames, depths, output, flat, layout_file, depth_origin, device_name
     outputs.check()
     layout = Layout.load(layout_file) if layout_file else None
     cal = calibrate(dict(zip(zs, frames)), flat=flat, layout=layout, depth_origin_m=z0, method=method, rank1=rank1,
-                    device=device, distortion=not no_distortion, carry_flat=carry_flat, **levels.as_kwargs())
+                    device=device, distortion=not no_distortion, carry_flat=carry_flat, rotate180=rotate180,
+                    **levels.as_kwargs())
     ref, ref_name = _camera_model(cal, device)
     _refuse_too_far(cal, dict(zip(zs, frames)), ref, ref_name)
     _warn_far(dict(zip(zs, frames)), ref)
@@ -240,34 +246,23 @@ def _warn_far(frames_by_depth: dict, ref) -> None:
 
 
 def _warn_depths_off(cal, frames_by_depth: dict, ref, what: str) -> None:
-    """Warn of planes whose given depth the camera model ``ref`` (in words ``what``) contradicts:
-    its views lie as far apart as the frame's at a depth more than :data:`DEPTH_LABEL_TOL` off.
-    Two planes fit exactly whatever their depths, so only the optics can tell a depth measured
-    from the wrong point, or given for another frame."""
-    from lfring.calibration.overlap import disparity_spread_px
-    from lfring.core.geometry import check_reference, to_reference
+    """Warn of consecutive planes between which the views move otherwise than the camera model
+    ``ref`` (in words ``what``) says they move between the depths given, by more than
+    :data:`DEPTH_LABEL_TOL`. Two planes fit exactly whatever their depths, so only the optics
+    can tell a depth measured from the wrong point, or given for another frame. The motion
+    between two planes does not depend on where the views were cut (their layout)."""
+    from lfring.depth.hypotheses import view_motion_px
 
     if ref is None:
         return
-
-    def seen_spread(c, z):  # how far apart the views of a plane at z lie, by calibration c
-        return disparity_spread_px(to_reference(c.model(z), check_reference("center", c.num_views)), c.layout.view_shape)
-
-    z0 = ref.depth_origin_m
-    # The model's spread over inverse depths from 10 km to 5 mm in front of its depth origin:
-    # it falls monotonically as the plane recedes.
-    xs = np.linspace(1e-4, 1.0 / 0.005, 2001)
-    spread = np.array([seen_spread(ref, z0 + 1.0 / x) for x in xs])
-    if not np.all(np.diff(spread) > 0):
-        return  # not a ring whose views part as planes near: no depth to read off
     off = []
-    for z, frame in sorted(frames_by_depth.items()):
-        seen = seen_spread(cal, z)
-        if not spread[0] < seen < spread[-1]:
-            continue
-        implied = z0 + 1.0 / float(np.interp(seen, spread, xs))
-        if abs(implied - z) > DEPTH_LABEL_TOL * z:
-            off.append(f"the plane given as {z:g} m ({frame}) shows its views as far apart as a plane at {implied:.3g} m")
+    zs = sorted(frames_by_depth)
+    for za, zb in zip(zs, zs[1:]):
+        seen = view_motion_px(cal, [za, zb], cal.layout.view_shape)
+        said = view_motion_px(ref, [za, zb], ref.layout.view_shape)
+        if said > 0 and abs(seen / said - 1.0) > DEPTH_LABEL_TOL:
+            off.append(f"between the planes given as {za:g} m and {zb:g} m ({frames_by_depth[za]}, {frames_by_depth[zb]}) "
+                       f"the views move {seen:.1f} px, where those depths move them {said:.1f} px")
     if off:
         log.warning("by %s, %s: check that each depth is measured from the main lens and given in the order of the "
                     "frames (the calibration takes the depths as given)", what, "; ".join(off))

@@ -177,18 +177,46 @@ def test_grid_calib_errors_name_the_options(tmp_path, capsys, extra, message):
 
 
 def test_calibrate_warns_of_a_depth_the_optics_contradict(files, tmp_path, capsys):
-    """The frame of the plane at 1.0 m given as 0.8 m (its distance measured from the wrong
-    point): two planes fit whatever their depths, but by the device's optics its views lie as
-    far apart as a plane's at 1.0 m. Written, with a warning that names the plane, the frame and
-    the depth the optics read; the right depths draw no such warning."""
+    """The frame of the plane at 1.0 m given as 0.7 m (its distance measured from the wrong
+    point): two planes fit whatever their depths, but by the device's optics the views move
+    less between 0.3 and 0.7 m than the frames show them moving. Written, with a warning that
+    names the planes, the frames and both motions; the right depths draw no such warning (nor
+    at another binning, whose layout the optics cut otherwise: the motion between two planes
+    does not depend on it)."""
     import re
 
+    from lfring.depth.hypotheses import view_motion_px
+
     out = tmp_path / "cal.json"
-    assert main(_calibrate_args(files, out, "--depths", "0.3", "0.8")) == 0 and out.exists()
+    assert main(_calibrate_args(files, out, "--depths", "0.3", "1.0")) == 0
+    assert "the views move" not in capsys.readouterr().err
+    true_px = view_motion_px(RingCalibration.load(out), [0.3, 1.0], RingCalibration.load(out).layout.view_shape)
+    assert main(_calibrate_args(files, out, "--depths", "0.3", "0.7", "--overwrite")) == 0 and out.exists()
     err = capsys.readouterr().err
-    found = re.search(r"the plane given as 0\.8 m \((.*?)\) shows its views as far apart as a plane at ([0-9.]+) m", err)
+    found = re.search(r"between the planes given as 0\.3 m and 0\.7 m \((.*?), (.*?)\) the views move ([0-9.]+) px, "
+                      r"where those depths move them ([0-9.]+) px", err)
     assert found, err
-    assert found.group(1).endswith("t1.0.png") and float(found.group(2)) == pytest.approx(1.0, rel=0.02)
-    assert "given as 0.3 m" not in err
-    assert main(_calibrate_args(files, out, "--depths", "0.3", "1.0", "--overwrite")) == 0
-    assert "shows its views as far apart" not in capsys.readouterr().err
+    assert found.group(1).endswith("t0.3.png") and found.group(2).endswith("t1.0.png")
+    seen, said = float(found.group(3)), float(found.group(4))
+    assert seen == pytest.approx(true_px, abs=0.06) and seen / said > 1.15
+
+
+def test_calibrate_a_camera_that_writes_its_frames_rotated(prototype, tmp_path, capsys):
+    """A camera that writes its frames turned 180 degrees: calibrate had no --rotate180, and a
+    --layout that records the rotation ruled out --flat. With --rotate180 the layout detected on
+    the flat records it, and the planes fit as the upright camera's do."""
+    for name, scene in (("t0.3", target_scene(prototype, 0.3)), ("t1.0", target_scene(prototype, 1.0)),
+                        ("flat", flat_scene(prototype))):
+        write_render(render(prototype, scene, binning=4, noise="low", rotate180=True), tmp_path / f"{name}.png")
+    out = tmp_path / "cal.json"
+    args = ["calibrate", str(tmp_path / "t0.3.png"), str(tmp_path / "t1.0.png"), "--depths", "0.3", "1.0",
+            "--flat", str(tmp_path / "flat.png"), "--device", "prototype", "-o", str(out)]
+    assert main([*args, "--rotate180"]) == 0, capsys.readouterr().err
+    cal = RingCalibration.load(out)
+    assert cal.layout.rotate180 and max(p.residual_px.max() for p in cal.planes) < 1e-9
+    assert max(max(d["alignment_residual_px"]) for d in cal.provenance["planes"]) < 0.05
+    assert "the views move" not in capsys.readouterr().err
+    cal.layout.save(tmp_path / "layout.json")
+    assert main(["calibrate", *args[1:6], "--layout", str(tmp_path / "layout.json"), "--rotate180", "-o",
+                 str(tmp_path / "b.json")]) == 2
+    assert "--rotate180 goes with --flat or detection" in capsys.readouterr().err
