@@ -515,8 +515,10 @@ def _find_part(plane_mask, reliable, box, *, min_area_px: int) -> np.ndarray:
     return out
 
 
-def _judge(views, *, in_roi, seen, textured, part, reliable, num_defects, min_coverage) -> tuple[str, float, str | None, dict]:
-    """Coverage and verdict step of :func:`inspect_frame`: (verdict, coverage, reason, statistics)."""
+def _judge(views, *, in_roi, seen, textured, part, reliable, num_defects, min_coverage,
+           beyond_band) -> tuple[str, float, str | None, dict]:
+    """Coverage and verdict step of :func:`inspect_frame`: (verdict, coverage, reason, statistics).
+    ``beyond_band``: the pixels whose depth the sweep put at an end of its band."""
     lum = views[:, ::4, ::4].mean(axis=-1)
     bright = float(np.percentile(lum, 99)) if lum.size else 0.0
     region = max(int(in_roi.sum()), 1)
@@ -544,9 +546,13 @@ def _judge(views, *, in_roi, seen, textured, part, reliable, num_defects, min_co
     if num_defects:
         return "fail", coverage, None, stats
     if coverage < min_coverage:
+        far_off = stats["beyond_band_fraction"] = float((beyond_band & seen & in_roi).sum() / max(seen_px, 1))
+        why = ("the rest is untextured, occluded, seen by too few views or beyond the depth band" if far_off < 0.5 else
+               f"{far_off:.0%} of {where} lies beyond the depth band searched around the plane: is the part at the "
+               "working plane (its distance, the calibration), or does it leave it by more than the band (zmin_m, zmax_m)?")
         return "cannot_judge", coverage, (
             f"too few confident pixels: checked {coverage:.1%} of the part, at least {min_coverage:.0%} needed "
-            "(min_coverage); the rest is untextured, occluded, seen by too few views or beyond the depth band"), stats
+            f"(min_coverage); {why}"), stats
     return "pass", coverage, None, stats
 
 
@@ -700,17 +706,18 @@ def inspect_frame(
     # Deviation step.
     shape = chk.views.shape[1:3]
     in_roi = _roi_mask(chk.box, shape)
+    ends = _band_ends(depth)
     dev, in_band, reliable = _checked_pixels(depth, num_views, in_roi, _target(chk.plane_m, chk.target),
                                              min_confidence=min_confidence)
     defects, deviating = _find_defects(dev, reliable, depth.confidence, tol=chk.tolerance_m,
                                        min_area_px=min_area_px, opening_px=opening_px, percentile=percentile,
-                                       footprint_mm=footprint_mm, band_ends=_band_ends(depth))
+                                       footprint_mm=footprint_mm, band_ends=ends)
 
     # Coverage and verdict step.
     part = _find_part(plane_mask, reliable, chk.box, min_area_px=int(min_area_px))
     verdict, coverage, reason, judged = _judge(
         chk.views, in_roi=in_roi, seen=num_views >= 2, textured=contrast >= PHOTO_MIN_CONTRAST, part=part, reliable=reliable,
-        num_defects=len(defects), min_coverage=chk.min_coverage)
+        num_defects=len(defects), min_coverage=chk.min_coverage, beyond_band=ends[1.0] | ends[-1.0])
     if verdict == "cannot_judge" and defects:  # no part they could belong to
         defects, deviating = [], np.zeros(shape, bool)
 

@@ -287,3 +287,17 @@ def test_a_tolerance_below_the_depth_noise_is_warned_of(parts):
     r, cal, views, truth, res = parts["good"]
     with pytest.warns(LfringWarning, match=r"tolerance_m 0.002 m is 0.084 px of view motion at 0.3 m, below 0.25 px"):
         inspect_frame(views, cal, plane_m=PLANE, tolerance_m=0.002)
+
+
+def test_a_part_off_the_plane_is_said_to_lie_beyond_the_band(parts):
+    """A good part at 0.3 m checked at 0.4 m: 'too few confident pixels ... the rest is
+    untextured, occluded, ...' sent the operator to the texture and the lighting, though the
+    frame is textured and the part lies 10 cm off the plane. The reason now says how much lies
+    beyond the band searched and asks whether the part is at the plane."""
+    r, cal, views, truth, _ = parts["good"]
+    with pytest.warns(LfringWarning, match="px of view motion at 0.4 m"):
+        res = inspect_frame(views, cal, plane_m=0.4, tolerance_m=TOL)
+    assert res.verdict == "cannot_judge" and res.reason.startswith("too few confident pixels")
+    assert res.stats["textured_fraction"] > 0.9 and res.stats["beyond_band_fraction"] > 0.5
+    assert f"{res.stats['beyond_band_fraction']:.0%} of the frame lies beyond the depth band" in res.reason
+    assert "is the part at the working plane" in res.reason
