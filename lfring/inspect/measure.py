@@ -58,9 +58,10 @@ STEP_PX = 0.25
 #: the sweep's confidence compares the best cost with the best one at least 1 px away, which
 #: needs hypotheses on both sides of every depth of interest.
 MARGIN_PX = 1.5
-#: A defect whose region, grown by this many pixels, holds pixels at its side's end of the band
-#: reaches beyond it: the depths there are the band's end, not the surface's.
-BAND_END_REACH_PX = 3
+#: A defect whose region (its holes filled), grown by this many pixels, holds pixels at its side's
+#: end of the band reaches beyond it: the depths there are the band's end, not the surface's. One
+#: pixel: a far surface beside a part's edge (the belt) must not mark a dent at that edge.
+BAND_END_REACH_PX = 1
 #: A tolerance below this many pixels of view motion at the plane draws a warning: the twin's flat
 #: targets, judged on their own plane, raise false defects from about 0.1-0.2 px (their depth noise
 #: at the views' rims), and pass from about 0.4 px.
