@@ -283,6 +283,11 @@ def load_views(raw, calib: str | None, levels: RawLevels | None = None, *, check
 
     if not isinstance(raw, str):
         if len(raw) > 1:
+            given = [o for o, v in (("--pattern", levels and levels.pattern), ("--black-level", levels and levels.black_level),
+                                    ("--white-level", levels and levels.white_level), ("--flat", flat)) if v is not None]
+            if given:
+                raise click.UsageError(f"{', '.join(given)} apply to one raw frame: separate view images are read as RGB "
+                                       "images, or as raw mosaics with the pattern and levels of their sidecars (IMAGE.json)")
             return load_view_files(raw, calib, check=check)
         raw = raw[0]
     frame, cal, name = read_calibrated_frame(raw, calib, levels)
@@ -304,10 +309,12 @@ def load_view_files(paths, calib: str | None, *, check: bool = True):
     """Separate view images (a stereo pair, a camera array) in the view order of --calib, a
     calibration of as many views (``lfring grid-calib`` writes one). Unless ``check`` is False,
     the views of a ring calibration must agree as a ring frame's do (:func:`lfring.check.check_frame`):
-    views in another order, or from different frames, do not."""
+    views in another order, or from different frames, do not. The views are taken as cut from
+    the frame (as ``lfring split`` writes them) and corrected as a frame's split views are: the
+    calibration's lens distortion undone and its flat field divided out, where it carries them."""
     from lfring.calibration import RingCalibration
     from lfring.check import AGREEMENT_THRESHOLD, check_frame
-    from lfring.views import read_views
+    from lfring.views import correct_views, read_views
 
     if not calib:
         raise click.UsageError(f"{len(paths)} images given: separate views need --calib FILE, a calibration of "
@@ -324,7 +331,13 @@ def load_view_files(paths, calib: str | None, *, check: bool = True):
                 f"the view images {' '.join(map(str, paths))} do not agree as the views of one frame in this order (ZNCC "
                 f"{res.agreement:.2f} at best, a ring frame's views score above {AGREEMENT_THRESHOLD:g}): give the views "
                 "of one frame in the calibration's view order, or pass --no-check to process them anyway")
-    return views, cal, calib
+    corrected = correct_views(views, cal)
+    if corrected is not views:
+        done = [w for w, on in (("lens distortion undone", cal.distortion is not None),
+                                ("flat field divided out", cal.flat_field is not None)) if on]
+        logging.getLogger("lfring.cli").info("view images taken as cut from the frame: the calibration's %s",
+                                             " and ".join(done))
+    return corrected, cal, calib
 
 
 def require_ring_frame(image, cal, raw) -> None:
