@@ -23,6 +23,7 @@ from lfring.calibration.overlap import nearest_renderable_depth_m
 from lfring.core.validate import check_int
 from lfring.errors import InvalidInputError, LfringWarning
 from lfring.core.filters import luminance
+from lfring.core.protocols import check_calibration
 
 __all__ = ["AGREEMENT_THRESHOLD", "CHECK_DOWNSAMPLE", "CLIPPED_REFUSE", "CLIPPED_WARN", "FLAT_TEXTURE", "MIN_DISC_CONTRAST",
            "PROCESS_ANYWAY", "FrameCheck", "OverExposureWarning", "check_frame", "draw_layout"]
@@ -279,6 +280,7 @@ def check_frame(frame, calibration, *, threshold: float = AGREEMENT_THRESHOLD, d
     depth (no nearer than where the views stop overlapping) to twice its farthest, about
     ``downsample`` pixels of view motion apart: 7 depths for the built-in calibration.
     """
+    check_calibration(calibration)
     from lfring.depth.hypotheses import depth_hypotheses
     from lfring.views import correct_views, split_views
 

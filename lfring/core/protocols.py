@@ -9,6 +9,7 @@ attribute names one by one.
 
 from __future__ import annotations
 
+import os
 from typing import Protocol, runtime_checkable
 
 from lfring.errors import InvalidInputError
@@ -55,5 +56,6 @@ def check_calibration(calibration, name: str = "calibration"):
     lfring.errors.InvalidInputError: calibration must be a RingCalibration, got NoneType
     """
     if not isinstance(calibration, Calibration):
-        raise InvalidInputError(f"{name} must be a RingCalibration, got {type(calibration).__name__}")
+        hint = " (a name or a file: load it with RingCalibration.load)" if isinstance(calibration, (str, os.PathLike)) else ""
+        raise InvalidInputError(f"{name} must be a RingCalibration, got {type(calibration).__name__}{hint}")
     return calibration

@@ -66,6 +66,7 @@ from lfring.depth.hypotheses import view_motion_px
 from lfring.depth.selection import DepthResult
 from lfring.focus.base import RefocusMethod
 from lfring.focus.layers import NO_IMAGE, Grid, composite, ladder, sum_layers
+from lfring.core.protocols import check_calibration
 
 __all__ = [
     "AGREE_TOL", "BACK_EDGE_PX", "BACK_STEP_PX", "DEPTH_TOL_PX",
@@ -318,6 +319,7 @@ class DepthOfField:
     """
 
     def __init__(self, views, calibration, depth_map_m, *, reference="center", measured_views: float = MIN_DEPTH_VIEWS):
+        check_calibration(calibration)
         arr = check_views(views)
         self.measured_views = check_number(measured_views, "measured_views", minimum=0.0, maximum=float(arr.shape[0]))
         h, w = arr.shape[1:3]
@@ -786,6 +788,7 @@ def depth_of_field(views, calibration, *, depth=None, zmin_m=None, zmax_m=None, 
     wherever :data:`MIN_ESTIMATED_VIEWS` views' worth see them, a bare map's wherever
     :data:`MIN_DEPTH_VIEWS` do; where estimation was not confident, its hole-filled depth is
     rendered on smooth surfaces (:data:`FILL_SMOOTH_PX`)."""
+    check_calibration(calibration)
     arr = check_views(views)
     ref = check_reference(reference, calibration.num_views)
     if depth is not None and (zmin_m is not None or zmax_m is not None):

@@ -26,6 +26,7 @@ from lfring.errors import InvalidInputError, LfringWarning
 from lfring.focus.depth_aware import MIN_DEPTH_VIEWS, DepthOfField, depth_to_render, estimation_range, known_depths
 from lfring.focus.methods import METHODS
 from lfring.focus.shift_and_add import Refocuser, refocus_torch
+from lfring.core.protocols import check_calibration
 
 __all__ = ["all_in_focus", "focal_stack", "refocus"]
 
@@ -125,6 +126,7 @@ def refocus(views, calibration, depth_m: float, *, reference="center", interpola
     >>> at_book.shape, bool(sharpness(at_book[book]) > 3 * sharpness(at_cup[book]))
     ((705, 705, 3), True)
     """
+    check_calibration(calibration)
     m = _method(method, backend, dict(aperture=aperture, f_number=f_number, ring_device=ring_device, depth=depth,
                                       zmin_m=zmin_m, zmax_m=zmax_m))
     if backend == "torch":
@@ -161,6 +163,7 @@ def focal_stack(views, calibration, depths_m, *, reference="center", interpolati
     >>> stack.shape, int(np.argmax([cv2.Laplacian(s[book].mean(axis=2), cv2.CV_32F).var() for s in stack]))
     ((3, 705, 705, 3), 1)
     """
+    check_calibration(calibration)
     m = _method(method, "numpy", dict(aperture=aperture, f_number=f_number, ring_device=ring_device, depth=depth,
                                       zmin_m=zmin_m, zmax_m=zmax_m))
     z = np.atleast_1d(np.asarray(depths_m, dtype=np.float64))
@@ -242,6 +245,7 @@ def all_in_focus(views, calibration, depths_m=None, *, depth_map_m=None, referen
     >>> round(float(np.nanmedian(depth_m[book])), 1), round(float(np.nanmedian(depth_m[cup])), 1)
     (0.5, 0.3)
     """
+    check_calibration(calibration)
     arr = check_views(views)
     h, w = arr.shape[1:3]
     measured_views = MIN_DEPTH_VIEWS

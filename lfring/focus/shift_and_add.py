@@ -22,6 +22,7 @@ from lfring.core.viewstack import WEIGHT_FLOOR, cached_view_masks, check_views, 
 from lfring.core.warping import DEFAULT_INTERPOLATION, interpolation_flag, translation_of, warp_image
 from lfring.errors import InvalidInputError
 from lfring.focus.base import RefocusMethod
+from lfring.core.protocols import check_calibration
 
 __all__ = ["SHIFT_AND_ADD", "Refocuser", "refocus_torch"]
 
@@ -78,6 +79,7 @@ class Refocuser:
 
     def __init__(self, calibration, depth_m: float, *, reference="center", view_shape=None, interpolation: str = DEFAULT_INTERPOLATION,
                  threads: int | None = None):
+        check_calibration(calibration)
         if np.ndim(depth_m) != 0:
             raise InvalidInputError("Refocuser takes one depth; use focal_stack for several")
         check_threads(threads)

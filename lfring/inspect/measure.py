@@ -45,6 +45,7 @@ from lfring.core.viewstack import TAPER, WEIGHT_FLOOR, check_views
 from lfring.core.filters import normalised_luminance
 from lfring.core.warping import warp_views
 from lfring.inspect.records import Defect, InspectionResult
+from lfring.core.protocols import check_calibration
 
 __all__ = [
     "DARK_LEVEL", "MARGIN_PX", "MIN_CONFIDENCE_TWO_VIEWS", "MIN_COVERAGE", "MIN_PART_FRACTION", "MIN_TEXTURED_FRACTION",
@@ -692,6 +693,7 @@ def inspect_frame(
     >>> lfring.inspect_frame(views_of("data/synthetic/part_good.png"), cal, plane_m=0.3, tolerance_m=0.008).verdict
     'pass'
     """
+    check_calibration(calibration)
     chk = _check_inputs(views, calibration, plane_m=plane_m, tolerance_m=tolerance_m, roi=roi,
                         reference_depth_m=reference_depth_m, reference=reference, min_area_px=min_area_px,
                         min_confidence=min_confidence, percentile=percentile, opening_px=opening_px,

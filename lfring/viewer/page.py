@@ -15,6 +15,7 @@ from lfring.core.validate import check_choice, check_fraction, check_int, check_
 from lfring.core.viewstack import check_views
 from lfring.depth import SGM_MIN_PLANES
 from lfring.errors import InvalidInputError
+from lfring.core.protocols import check_calibration
 
 #: Image formats of the focal stack and the all-in-focus image: (cv2 suffix, MIME type, quality flag).
 IMAGE_FORMATS = {
@@ -238,6 +239,7 @@ def viewer_html(views, calibration, *, zmin_m=None, zmax_m=None, num_planes=None
     str
         The HTML page; it loads nothing from the network (its Content-Security-Policy forbids it).
     """
+    check_calibration(calibration)
     from lfring.io.writers import json_default
 
     data = viewer_data(views, calibration, zmin_m=zmin_m, zmax_m=zmax_m, num_planes=num_planes, reference=reference,
