@@ -125,8 +125,8 @@ class FrameCheck:
         below :data:`MIN_DISC_CONTRAST`), ``'flat_field'`` (a flat (white) frame of the camera:
         discs without texture, see :data:`FLAT_TEXTURE`; told only of a whole frame, whose
         discs are seen), ``'over_exposed'`` (at least :data:`CLIPPED_REFUSE` of the discs
-        clipped, or a flat field with at least :data:`CLIPPED_WARN`: told before the others,
-        which clipping misleads) or ``'views_disagree'``; ``''`` when ``ok``.
+        clipped, or a flat field with at least :data:`CLIPPED_WARN` that shows discs: told before
+        the others, which clipping misleads) or ``'views_disagree'``; ``''`` when ``ok``.
     texture : float
         The least, over the views, RMS of the high-passed luminance over the mean luminance
         inside the discs (near 0 for a flat field); NaN for a frame without light.
@@ -349,7 +349,10 @@ def check_frame(frame, calibration, *, threshold: float = AGREEMENT_THRESHOLD, d
     exposure_fix = "reduce the exposure, or check the white level the frame is read with"
     warning = ""
     flat_like = np.isfinite(texture) and texture < FLAT_TEXTURE and np.isfinite(contrast)  # discs seen, without texture
-    if clipped >= CLIPPED_REFUSE or (flat_like and clipped >= CLIPPED_WARN):
+    no_discs = bool(np.isfinite(contrast) and contrast < MIN_DISC_CONTRAST)
+    # No discs outranks a clipped part: a photograph with a clipped sky is not a ring frame, and
+    # the exposure is not what to change.
+    if clipped >= CLIPPED_REFUSE or (flat_like and clipped >= CLIPPED_WARN and not no_discs):
         reason = "over_exposed"
         if clipped >= CLIPPED_REFUSE:
             message = f"over-exposed: {exposure_lost} (refused from {CLIPPED_REFUSE:.0%}); {exposure_fix}; {how}"
@@ -357,7 +360,7 @@ def check_frame(frame, calibration, *, threshold: float = AGREEMENT_THRESHOLD, d
             message = (f"over-exposed: {clipped_share} (over-exposed from {CLIPPED_WARN:.0%}) and the rest of them has "
                        "no texture either: an over-exposed flat (white) frame, of no use as a flat, or a scene washed "
                        f"out by the exposure; {exposure_fix}")
-    elif np.isfinite(contrast) and contrast < MIN_DISC_CONTRAST:
+    elif no_discs:
         reason = "no_discs"
         dark_too = " (or too dark to show them)" if dark > 0.9 else ""
         message = (f"no discs of light{dark_too}: the frame is as bright between the views' discs as inside them (disc "
@@ -376,7 +379,7 @@ def check_frame(frame, calibration, *, threshold: float = AGREEMENT_THRESHOLD, d
     else:
         reason = ""
         message = f"the views agree (ZNCC {agreement:.2f} at {best_z:.3g} m, threshold {threshold:g}): a ring frame for this calibration"
-    if reason != "over_exposed" and clipped >= CLIPPED_WARN:
+    if reason not in ("over_exposed", "no_discs") and clipped >= CLIPPED_WARN:
         warning = f"over-exposed: {exposure_lost} (over-exposed from {CLIPPED_WARN:.0%}); {exposure_fix}"
         if message.endswith("; " + how):
             message = f"{message[:-len(how) - 2]}; and {warning}; {how}"

@@ -99,6 +99,24 @@ def test_a_gradient_has_no_discs_and_is_refused(cal, kind):
     assert not res.ok and res.reason == "no_discs" and "no discs" in res.message and "--no-check" in res.message
 
 
+def test_a_photograph_with_a_clipped_sky_has_no_discs_rather_than_too_much_light(cal):
+    """A textured photograph whose top fifth is clipped (a sky): it was refused as 'an
+    over-exposed flat (white) frame ... reduce the exposure', which sends the user to the
+    exposure of a frame that is not a ring frame at all. No discs comes first, and no exposure
+    warning rides along."""
+    from lfring.io.raw import RawFrame
+
+    rng = np.random.default_rng(3)
+    x = cv2.GaussianBlur(rng.random((1842, 2456)).astype(np.float32), (0, 0), 1)
+    x = (x - x.min()) / (x.max() - x.min()) * 0.8 + 0.05
+    x[:400] = 1.0
+    frame = RawFrame(mosaic=(x * 4095).astype(np.uint16), pattern="RGGB", black_level=0.0, white_level=4095.0, bit_depth=12)
+    res = check_frame(frame, cal)
+    assert res.clipped_fraction >= 0.05 and abs(res.disc_contrast) < 0.05
+    assert not res.ok and res.reason == "no_discs" and res.message.startswith("no discs of light")
+    assert res.warning == "" and "exposure" not in res.message
+
+
 @pytest.mark.parametrize("kind", ["horizontal"])
 def test_cli_check_and_refocus_refuse_a_gradient(tmp_path, kind):
     """What the user did: a gradient PNG of the sensor's size through `lfring check` (exit 1) and
