@@ -307,6 +307,11 @@ def load_scene(path: str | Path) -> Scene:
         raise FileFormatError(f"{p}: not a valid TOML scene ({exc})") from None
     src = str(p)
     _keys(data, {"name", "background", "plane", "part"}, "the file", src)
+    for key in ("plane", "part"):
+        if not isinstance(data.get(key, []), list) or not all(isinstance(t, dict) for t in data.get(key, [])):
+            raise FileFormatError(f"{src}: {key} must be an array of tables, each [[{key}]] with its keys, got "
+                                  f"{data[key]!r}")
+    background = data.get("background", (0.0, 0.0, 0.0))
     surfaces = []
     try:
         for i, t in enumerate(data.get("plane", [])):
@@ -318,7 +323,8 @@ def load_scene(path: str | Path) -> Scene:
             t["texture"] = Texture(**_keys(t.get("texture", {}), _TEXTURE_KEYS, f"part {i} texture", src))
             t["bumps"] = tuple(Bump(**_keys(b, _BUMP_KEYS, f"part {i} bump {j}", src)) for j, b in enumerate(t.pop("bump", [])))
             surfaces.append(HeightField(**t))
-        return Scene(tuple(surfaces), background=tuple(data.get("background", (0.0, 0.0, 0.0))), name=data.get("name", p.stem))
+        return Scene(tuple(surfaces), background=tuple(background) if isinstance(background, list) else background,
+                     name=data.get("name", p.stem))
     except TypeError as exc:
         raise FileFormatError(f"{src}: {exc}") from None
     except InvalidInputError as exc:

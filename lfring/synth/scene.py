@@ -247,8 +247,11 @@ class Scene:
             if not isinstance(s, (Plane, HeightField)):
                 raise InvalidInputError(f"scene surfaces must be Plane or HeightField records, got {type(s).__name__}")
         object.__setattr__(self, "surfaces", surfaces)
-        bg = np.asarray(self.background, dtype=np.float64)
-        if bg.shape != (3,) or np.any(bg < 0) or np.any(bg > 1):
+        try:
+            bg = np.asarray(self.background, dtype=np.float64)
+        except (TypeError, ValueError):  # words, or a mix of numbers and words
+            bg = np.full(0, np.nan)
+        if bg.shape != (3,) or not np.all((bg >= 0) & (bg <= 1)):
             raise InvalidInputError(f"scene background must be an RGB triple in [0, 1], got {self.background!r}")
         object.__setattr__(self, "background", tuple(float(v) for v in bg))
 

@@ -200,3 +200,23 @@ def test_curved_bumps_validate_and_load_from_toml(tmp_path):
                  "[[part.bump]]\ncenter_m = [0.02, 0.02]\nsize_m = [0.01, 0.04]\nheight_m = 0.003\nshape = 'cylinder'\n")
     scene = load_scene(f)
     assert scene.surfaces[0].roll_deg == 30.0 and scene.surfaces[1].curved
+
+
+@pytest.mark.parametrize("text, message", [
+    ('background = "grey"\n[[plane]]\ndepth_m = 0.4\nsize_m = [0.2, 0.2]\n',
+     "scene background must be an RGB triple in [0, 1], got 'grey'"),
+    ('background = [2.0, -1, "x"]\n[[plane]]\ndepth_m = 0.4\nsize_m = [0.2, 0.2]\n',
+     "scene background must be an RGB triple in [0, 1], got (2.0, -1, 'x')"),
+    ("plane = 3\n", "plane must be an array of tables, each [[plane]] with its keys, got 3"),
+    ("part = [1, 2]\n", "part must be an array of tables, each [[part]] with its keys, got [1, 2]"),
+])
+def test_a_scene_file_s_bad_values_are_named(tmp_path, text, message):
+    """A word for the background crashed with ValueError ('could not convert string to float');
+    a plane that is not a table with TypeError ('int' object is not iterable)."""
+    from lfring.errors import FileFormatError
+
+    f = tmp_path / "s.toml"
+    f.write_text(text)
+    with pytest.raises(FileFormatError) as info:
+        load_scene(f)
+    assert str(info.value) == f"{f}: {message}"
