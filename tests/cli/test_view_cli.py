@@ -75,3 +75,21 @@ def test_view_reads_frames_as_every_command_does(tmp_path):
     forced = subprocess.run([*cmd, "--no-check"], capture_output=True, text=True, timeout=300)
     assert forced.returncode == 0, forced.stderr
     assert (tmp_path / "p.html").exists()
+
+
+def test_view_s_method_and_aperture_are_options_its_page_and_record_carry(tmp_path, capsys):
+    """The viewer's focal stack was always depth-aware at aperture 1, and its record said
+    neither: --method, --aperture and --f-number choose them, as lfring refocus's do."""
+    out = tmp_path / "a.html"
+    assert main(["view", str(SCENE), "--planes", "4", "--aperture", "2", "-o", str(out)]) == 0
+    d = _data(out)
+    assert d["metadata"]["refocus_method"] == "depth-aware" and d["metadata"]["aperture"] == 2.0
+    settings = json.loads((tmp_path / "a.html.lfring.json").read_text())["settings"]
+    assert settings["method"] == "depth-aware" and settings["aperture"] == 2.0
+    sa = tmp_path / "b.html"
+    assert main(["view", str(SCENE), "--planes", "4", "--method", "shift-and-add", "-o", str(sa)]) == 0
+    assert _data(sa)["metadata"]["refocus_method"] == "shift-and-add"
+    assert json.loads((tmp_path / "b.html.lfring.json").read_text())["settings"]["method"] == "shift-and-add"
+    capsys.readouterr()
+    assert main(["view", str(SCENE), "--method", "shift-and-add", "--f-number", "2.8", "-o", str(tmp_path / "c.html")]) == 2
+    assert "--aperture and --f-number are for --method depth-aware" in capsys.readouterr().err
