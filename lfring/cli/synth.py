@@ -113,7 +113,8 @@ def _parse_defects(text: str) -> tuple[float, ...]:
 @click.option("--exposure", type=float, default=0.8, show_default=True,
               help="Fraction of full scale reached by a white, unvignetted surface.")
 @click.option("--rotate180", is_flag=True, help="Write the frame rotated by 180 degrees, as the paper's camera does.")
-@click.option("--seed", type=int, default=0, show_default=True, help="Seed of textures, defect placement and noise.")
+@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the noise, and of the textures of 'target' and 'part' and the placement of "
+                   "the part's defects ('scene' and 'hard' are fixed scenes; a 'file' scene's textures carry their own seeds).")
 @click.option("--format", "fmt", type=click.Choice(["png", "tiff"]), default="png", show_default=True,
               help="Raw frame file format.")
 @click.option("--conventional-focus", "conventional_focus", type=float, multiple=True, metavar="M",

@@ -34,6 +34,7 @@ API_TO_CLI: tuple[tuple[str, str], ...] = (
     (r"\bzmin_m\b", "--zmin"),
     (r"\bzmax_m\b", "--zmax"),
     (r"\bnum_planes\b", "--planes"),
+    (r"\bbinning factor\b", "--binning"),
     (r"\btolerance_m\b", "--tolerance"),
     (r"\bplane_m\b", "--plane"),
     (r"\bmin_confidence\b", "--min-confidence"),

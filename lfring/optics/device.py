@@ -318,6 +318,17 @@ class RingDevice:
         check_int(factor, "binning factor", minimum=1, error=DeviceError)
         if factor == 1:
             return self
+
+        def fits(f: int) -> bool:  # whole 2 x 2 blocks cover the sensor to within its size tolerance
+            return all(n - (n // f) // 2 * 2 * f <= SENSOR_SIZE_TOLERANCE * n and n // f >= 2
+                       for n in (self.sensor_width_px, self.sensor_height_px))
+
+        if not fits(factor):
+            top = max(f for f in range(1, factor) if fits(f))
+            raise DeviceError(f"binning factor {factor} is too coarse for the {self.sensor_width_px} x "
+                              f"{self.sensor_height_px} px sensor of device '{self.name}': its binned pixels, in whole "
+                              f"2 x 2 blocks, would leave more than {SENSOR_SIZE_TOLERANCE:.0%} of it uncovered (the "
+                              f"largest factor below it that fits: {top})")
         return dataclasses.replace(
             self,
             sensor_width_px=(self.sensor_width_px // factor) // 2 * 2,

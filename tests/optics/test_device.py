@@ -38,6 +38,21 @@ def test_binned(prototype):
         prototype.binned(0)
 
 
+def test_a_binning_too_coarse_for_the_sensor_is_named_as_such(prototype, capsys):
+    """Binning 64 left 56 rows of whole 2 x 2 blocks, 2.7 % short of the 3684-row sensor, and was
+    refused as a device whose 'sensor_height_m' disagrees with its pixels: the device was
+    blamed for the binning. The binning is named now, with the largest one below it that fits."""
+    from lfring.cli.main import main
+
+    assert prototype.binned(61).sensor_height_px == 60
+    with pytest.raises(DeviceError) as info:
+        prototype.binned(64)
+    assert str(info.value).startswith("binning factor 64 is too coarse for the 4912 x 3684 px sensor of device 'prototype'")
+    assert str(info.value).endswith("(the largest factor below it that fits: 61)")
+    assert main(["synth", "target", "--depth", "0.5", "--binning", "64", "-o", "unused/"]) == 2
+    assert "--binning 64 is too coarse" in capsys.readouterr().err
+
+
 def _write(tmp_path, text, name="d.toml"):
     p = tmp_path / name
     p.write_text(text)
