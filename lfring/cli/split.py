@@ -97,7 +97,7 @@ def command(raw, outdir, layout_file, flat_file, rotate180, method, fmt, overwri
             "pattern": frame.pattern,
             "black_level": frame.black_level,
             "white_level": frame.white_level,
-            "demosaic": method,
+            "demosaic": method if frame.pattern else None,  # an RGB frame is not demosaiced
         })
     log.info("%s: %d views of %d x %d px (%s) -> %s", raw, layout.num_views, layout.view_shape[1], layout.view_shape[0], source, out)
 

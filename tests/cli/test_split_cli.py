@@ -26,6 +26,13 @@ def test_split_with_flat_and_layout(frames, tmp_path, capsys):
     assert main(["split", str(d / "scene.png"), "--flat", str(d / "flat.png"), "-o", str(tmp_path / "a")]) == 0
     side = json.loads((tmp_path / "a" / "scene_views.json").read_text())
     assert side["views"] == [f"scene_view{k}.png" for k in range(4)] and side["pattern"] == "GBRG"
+    assert side["demosaic"] == "edge-aware"
+    # An RGB frame is not demosaiced: its sidecar says so, whatever --method was given.
+    rgb, layout = tmp_path / "rgb.png", d / "scene_truth" / "layout.json"
+    full = cv2.imread(str(d / "scene.png"), cv2.IMREAD_UNCHANGED)
+    cv2.imwrite(str(rgb), cv2.merge([full, full, full]))
+    assert main(["split", str(rgb), "--layout", str(layout), "--method", "vng", "-o", str(tmp_path / "r")]) == 0
+    assert json.loads((tmp_path / "r" / "rgb_views.json").read_text())["demosaic"] is None
     v0 = cv2.imread(str(tmp_path / "a" / "scene_view0.png"), cv2.IMREAD_UNCHANGED)
     assert v0.dtype == np.uint16 and v0.shape[2] == 3
     # With the ground-truth layout the views match the twin's views (noise and demosaicing aside).
