@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 
 from lfring.calibration.overlap import nearest_renderable_depth_m
-from lfring.core.validate import check_int
+from lfring.core.validate import check_int, check_number
 from lfring.errors import InvalidInputError, LfringWarning
 from lfring.core.filters import luminance
 from lfring.core.protocols import check_calibration
@@ -285,6 +285,7 @@ def check_frame(frame, calibration, *, threshold: float = AGREEMENT_THRESHOLD, d
     from lfring.views import correct_views, split_views
 
     downsample = check_int(downsample, "downsample", minimum=1)
+    threshold = check_number(threshold, "threshold", minimum=-1.0, maximum=1.0, what="a ZNCC")
     image, views, info = _image_of(frame)
     layout = calibration.layout
     if image is not None:

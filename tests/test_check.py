@@ -273,3 +273,11 @@ def test_cli_check_names_the_sidecar_for_counts_above_its_bit_depth(tmp_path, ca
     assert main(["check", str(path), "--white-level", "65520", "--black-level", "1024"]) == 0
     out = capsys.readouterr().out
     assert "Bayer RGGB, 16 bits" in out and "black 1024 white 65520" in out and "verdict      ring frame:" in out
+
+
+def test_a_threshold_no_zncc_reaches_is_refused(cal):
+    """threshold=2 was taken, and every frame then failed with 'a ring frame scores above 2'."""
+    views = np.full((4, *cal.layout.view_shape, 3), 0.5, np.float32)
+    for bad in (2.0, -1.5, float("nan")):
+        with pytest.raises(InvalidInputError, match="threshold must be a ZNCC >= -1 and <= 1"):
+            check_frame(views, cal, threshold=bad)

@@ -145,8 +145,12 @@ def check_renderable(calibration, depths_m, *, reference="center", name: str = "
     """Refuse depths nearer than where the views still overlap in the reference frame (a
     refocused image there is black or ghosted), naming the nearest depth that works; ``name``
     starts the refusal (the parameter that gave the depth, such as ``zmin_m``)."""
+    zs = np.atleast_1d(np.asarray(depths_m, dtype=np.float64))
+    if not np.all(zs > 0):  # NaN included
+        raise InvalidInputError(f"{name} must be a positive distance in metres from the main lens, got "
+                                f"{float(zs[~(zs > 0)][0]):g}")
     nearest = nearest_renderable_depth_m(calibration, reference=reference)
-    bad = [float(z) for z in np.atleast_1d(np.asarray(depths_m, dtype=np.float64)) if z < nearest]
+    bad = [float(z) for z in zs if z < nearest]
     if bad:
         raise InvalidInputError(
             f"{name} {bad[0]:g} m cannot be rendered: the views no longer overlap in the reference frame there "

@@ -139,7 +139,10 @@ class RingCalibration:
                                     "(None, not inf, for no farthest depth)")
         lo, hi = float(rng[0]), None if rng[1] is None else float(rng[1])
         object.__setattr__(self, "valid_depth_range_m", (lo, hi))
-        if not (lo > self.model.depth_origin_m and (hi is None or hi >= lo)):
+        if hi is not None and hi < lo:
+            raise InvalidInputError(f"valid depth range {self.valid_depth_range_m} must be (nearest, farthest): its "
+                                    "farthest depth is the nearer")
+        if not lo > self.model.depth_origin_m:
             raise InvalidInputError(f"valid depth range {self.valid_depth_range_m} must lie beyond z0 = {self.model.depth_origin_m}")
         object.__setattr__(self, "planes", tuple(self.planes))
 

@@ -185,7 +185,8 @@ def test_views_that_do_not_match_the_calibration_are_refused():
     ({"valid_depth_range_m": (1.0,)}, "valid_depth_range_m must be"),
     ({"valid_depth_range_m": 5}, "valid_depth_range_m must be"),
     ({"valid_depth_range_m": ("a", "b")}, "valid_depth_range_m must be"),
-    ({"valid_depth_range_m": (5.0, 1.0)}, "must lie beyond"),
+    ({"valid_depth_range_m": (5.0, 1.0)}, r"must be \(nearest, farthest\): its farthest depth is the nearer"),
+    ({"valid_depth_range_m": (-1.0, 1.0)}, "must lie beyond z0"),
 ])
 def test_bad_grids_are_refused(bad, match):
     kw = {"view_shape": (8, 8), "grid_positions": [(0, 0), (1, 0)], "disparity_scale_px_m": 1.0, **bad}

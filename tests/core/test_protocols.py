@@ -39,3 +39,19 @@ def test_every_stage_that_takes_a_calibration_refuses_what_is_not_one():
             with pytest.raises(InvalidInputError, match="calibration must be a RingCalibration, got") as info:
                 call(bad)
             assert ("RingCalibration.load" in str(info.value)) == isinstance(bad, str)
+
+
+def test_a_depth_that_is_not_positive_is_refused_as_such():
+    """refocus at -1 m said the views no longer overlap there and offered the nearest depth that
+    works: the depth is not a distance in front of the lens at all."""
+    import numpy as np
+
+    import lfring
+
+    cal, _ = default_calibration((2456, 1842))
+    views = np.full((4, *cal.layout.view_shape, 3), 0.5, np.float32)
+    for z in (-1.0, 0.0, float("nan")):
+        with pytest.raises(InvalidInputError, match=f"depth must be a positive distance in metres from the main lens, got {z:g}"):
+            lfring.refocus(views, cal, z)
+    with pytest.raises(InvalidInputError, match="must be a positive"):
+        lfring.focal_stack(views, cal, [0.5, -0.2])
