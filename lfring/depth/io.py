@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from lfring.core.validate import check_number, check_view_index
-from lfring.errors import FileFormatError, InvalidInputError, LfringFileNotFoundError
+from lfring.errors import DeviceError, FileFormatError, InvalidInputError, LfringFileNotFoundError
 from lfring.io.atomic import atomic_write_bytes
 from lfring.io.writers import write_float_tiff
 from lfring.optics.device import RingDevice
@@ -314,12 +314,16 @@ def device_for(calibration, device=None) -> RingDevice:
 
     dev = device if isinstance(device, RingDevice) else load_device(device or calibration.device or "prototype")
     size = tuple(calibration.raw_size)
+    native = dev
     scale = dev.sensor_width_px // size[0] if size[0] else 0
     if scale > 1:
-        dev = dev.binned(scale)
+        try:
+            dev = dev.binned(scale)
+        except DeviceError:  # too coarse a binning for the sensor: no match either
+            pass
     if (dev.sensor_width_px, dev.sensor_height_px) != size:
-        raise InvalidInputError(f"the device {dev.name!r} has a {dev.sensor_width_px} x {dev.sensor_height_px} px sensor, "
-                                f"which no binning turns into the calibration's {size[0]} x {size[1]} px frames; "
+        raise InvalidInputError(f"the device {native.name!r} has a {native.sensor_width_px} x {native.sensor_height_px} px "
+                                f"sensor, which no binning turns into the calibration's {size[0]} x {size[1]} px frames; "
                                 "pass device= the optics of the camera")
     return dev
 

@@ -300,3 +300,17 @@ def test_ply_bad_input(tmp_path):
         read_ply(bad)
     with pytest.raises(LfringFileNotFoundError):
         read_ply(tmp_path / "missing.ply")
+
+
+def test_a_calibration_no_binning_of_the_device_fits_names_the_sensor_as_it_is():
+    """A stereo pair's calibration (800 x 600 px frames) asked for the prototype's optics: the
+    refusal gave the sensor as '818 x 614 px', the size the binning it tried made of it."""
+    from lfring.calibration import RingCalibration
+    from lfring.depth.io import device_for
+    from lfring.errors import InvalidInputError
+
+    for width in (800, 400, 60):  # the last one too coarse a binning even to try
+        cal = RingCalibration.from_grid((600, width), [(0, 0), (1, 0)], disparity_scale_px_m=100.0)
+        with pytest.raises(InvalidInputError, match=r"the device 'prototype' has a 4912 x 3684 px sensor, which no "
+                                                    rf"binning turns into the calibration's {2 * width} x 600 px frames"):
+            device_for(cal)
