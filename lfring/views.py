@@ -91,6 +91,8 @@ class Layout:
             if len(circles) != len(rects) or any(len(c) != 3 or not c[2] > 0 for c in circles):
                 raise InvalidInputError("layout circles must be one (cx, cy, r>0) per view")
             object.__setattr__(self, "circles", circles)
+        if not isinstance(self.rotate180, (bool, np.bool_)):  # bool("false") is True
+            raise InvalidInputError(f"layout rotate180 must be true or false, got {self.rotate180!r}")
         object.__setattr__(self, "rotate180", bool(self.rotate180))
 
     @property

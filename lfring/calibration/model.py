@@ -15,7 +15,7 @@ from lfring.core.validate import check_view_index, is_number
 from lfring.errors import EstimationError, InvalidInputError
 from lfring.core.geometry import homography_rms_px, normalize_homographies
 
-__all__ = ["VariableHomography", "PlaneFit", "check_depth_origin", "fit_variable_homography"]
+__all__ = ["MAX_CONDITION", "VariableHomography", "PlaneFit", "check_depth_origin", "fit_variable_homography"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -26,6 +26,10 @@ class PlaneFit:
     depth_m: float
     residual_px: np.ndarray
     leave_one_out_px: np.ndarray | None
+
+
+MAX_CONDITION = 1e12
+"""A view's A (its map at infinite depth) with a condition number from this one is singular."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -44,6 +48,10 @@ class VariableHomography:
             raise InvalidInputError(f"A and B must both be (V, 3, 3), got {a.shape} and {b.shape}")
         if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b)) and np.isfinite(self.depth_origin_m)):
             raise InvalidInputError("A, B and depth_origin_m must be finite")
+        singular = [k for k in range(len(a)) if not np.linalg.cond(a[k]) < MAX_CONDITION]
+        if singular:  # H at infinity: a homography must map the plane onto the plane
+            raise InvalidInputError(f"A of view {singular[0]} is singular (condition number "
+                                    f"{np.linalg.cond(a[singular[0]]):.3g}): it is no homography")
         object.__setattr__(self, "A", a)
         object.__setattr__(self, "B", b)
 

@@ -523,6 +523,10 @@ class FlatField:
         if r.ndim != 3 or min(r.shape) < 1 or not np.all(np.isfinite(r)):
             raise InvalidInputError(f"a flat field's response must be finite (V, h, w) values, got shape {r.shape}")
         r = np.clip(r, 0.0, 1.0)
+        dark = [k for k in range(r.shape[0]) if not r[k].max() > 0.0]
+        if dark:  # dividing by it would saturate the view: no flat frame's light reached it
+            raise InvalidInputError(f"a flat field's response must be positive where its view sees light; view {dark[0]}'s "
+                                    "is nowhere above 0")
         r.setflags(write=False)
         object.__setattr__(self, "response", r)
 

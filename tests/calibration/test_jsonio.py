@@ -83,6 +83,8 @@ def _edit(tmp_path, cal, fn):
         (lambda d: d["layout"].update(rects_xywh_px=[[0, 0, 10, 10]] * 3), "4 views but the layout 3|layout"),
         (lambda d: d.update(bayer_pattern="RGBG"), "bayer_pattern"),
         (lambda d: d.update(valid_depth_range_m=[0.01, 1.0]), "valid depth range"),
+        # bool("false") is True: every frame would have been turned 180 degrees.
+        (lambda d: d["layout"].update(rotate180="false"), "layout rotate180 must be true or false, got 'false'"),
     ],
 )
 def test_hand_edited_calibration_files(tmp_path, twin, edit, match):
@@ -137,6 +139,9 @@ def test_methods_delegate_to_the_functions(tmp_path, twin):
     (lambda d: d.update(valid_depth_range_m=[0.3]), r"\[min, max or null\]"),
     (lambda d: d.update(planes=[{"depth_m": 0.3}]), r"'planes'\[0\] must have depth_m and residual_px"),
     (lambda d: d.update(source="camera"), "calibration source must be one of planes, optics, grid"),
+    # A singular map at infinity crashed refocus and depth later with LinAlgError.
+    (lambda d: d["A"].__setitem__(2, [[1, 0, 0], [1, 0, 0], [0, 0, 1]]), "A of view 2 is singular"),
+    (lambda d: d["A"].__setitem__(1, [[0, 0, 0]] * 3), "A of view 1 is singular"),
 ])
 def test_bad_values_are_refused_by_name(twin, edit, match):
     data = calibration_to_dict(RingCalibration.from_optics(twin[0]))

@@ -162,3 +162,15 @@ def test_flat_field_grid_is_restored_by_scipys_bicubic_spline(shape, step):
     want = np.stack([RectBivariateSpline(ys, xs, g, kx=k, ky=k)(np.arange(h), np.arange(w)) for g in grid])
     # The response is kept in [0, 1], as float32.
     np.testing.assert_allclose(back.response, np.clip(want, 0.0, 1.0), rtol=0, atol=1e-6)
+
+
+@pytest.mark.parametrize("value", [0.0, -0.5])
+def test_a_flat_field_that_no_light_reached_is_refused(value):
+    """A calibration's flat field of zeros (or negative values, clipped to zeros) was taken: every
+    view divided by it saturated (31 % of the refocused image clipped), while a NaN was refused."""
+    r = np.full((2, 20, 30), 0.8, np.float32)
+    r[1] = value
+    with pytest.raises(InvalidInputError, match="view 1's is nowhere above 0"):
+        FlatField(r)
+    r[1, 5, 5] = 0.2  # light somewhere: a real, if odd, flat field
+    assert FlatField(r).response[1, 5, 5] == pytest.approx(0.2)
