@@ -23,6 +23,7 @@ from pathlib import Path
 from lfring.core.signals import held_signals
 from lfring.errors import InvalidInputError
 from lfring.io.atomic import atomic_write_bytes
+from lfring.io.raw import sidecar_path
 from lfring.io.readers import RECORD_KEY
 from lfring.io.writers import json_default
 
@@ -37,10 +38,12 @@ __all__ = [
     "append_manifest",
     "decide_resume",
     "file_identity",
+    "input_identity",
     "is_batch_manifest",
     "outdir_lock",
     "read_manifest",
     "read_record",
+    "same_input",
 ]
 
 log = logging.getLogger("lfring.batch")
@@ -56,9 +59,32 @@ lack them is not a batch's manifest, and is neither appended to nor replaced una
 
 
 def file_identity(path: str) -> dict:
-    """An input's size and modification time: a record made from another identity is stale."""
+    """A file's size and modification time: a record made from another identity is stale."""
     st = os.stat(path)
     return {"size_bytes": st.st_size, "mtime_ns": st.st_mtime_ns}
+
+
+def input_identity(path: str) -> dict:
+    """An input's :func:`file_identity`, with its sidecar's under ``sidecar`` (None without one):
+    the sidecar gives the pattern and levels a frame is read with, so a changed sidecar is a
+    changed input."""
+    out = file_identity(path)
+    side = sidecar_path(path)
+    out["sidecar"] = file_identity(side) if side.is_file() else None
+    return out
+
+
+def same_input(recorded, now) -> bool:
+    """Whether an input's identity ``now`` (:func:`input_identity`, or a dict of them by path) is
+    the one a record holds. A record written before sidecars were counted (no ``sidecar`` key)
+    is judged on the file alone."""
+    if not (isinstance(recorded, dict) and isinstance(now, dict)):
+        return recorded == now
+    if "size_bytes" not in now:  # identities by path
+        return set(recorded) == set(now) and all(same_input(recorded[k], now[k]) for k in now)
+    if "sidecar" not in recorded:
+        return recorded == {k: v for k, v in now.items() if k != "sidecar"}
+    return recorded == now
 
 
 def read_record(path: Path) -> dict | None:
@@ -272,10 +298,10 @@ def decide_resume(planned: dict[str, str], planned_keys: dict[str, str], record:
         # A record from before per-output keys: its outputs were made with one settings key.
         same = {k: planned_keys[k] for k in ours if k in planned_keys}
         done_keys, pending_keys = (same, {}) if record.get("status") == "done" else ({}, same)
-    if record.get("input_identity") != identity:
+    if not same_input(record.get("input_identity"), identity):
         if present:
-            return ResumeDecision("refuse", reason=f"outputs exist ({present[0]}...) and the input changed since; "
-                                                   "pass overwrite=True to replace them")
+            return ResumeDecision("refuse", reason=f"outputs exist ({present[0]}...) and the input changed since (the "
+                                                   "frame or its sidecar); pass overwrite=True to replace them")
         return ResumeDecision("run", kinds)
     todo = tuple(k for k in kinds if not (matches(done_keys.get(k), k) and ours.get(k) == planned[k]
                                           and planned[k] in existing))

@@ -32,10 +32,11 @@ from lfring.batch.record import (
     OutputWriter,
     append_manifest,
     decide_resume,
-    file_identity,
+    input_identity,
     is_batch_manifest,
     outdir_lock,
     read_record,
+    same_input,
 )
 from lfring.batch.settings import BatchSettings
 from lfring.core.signals import deliver_lost_stops, held_signals
@@ -141,8 +142,11 @@ class _Run:
         # that failed or was left out go apart, as the files it was to write.
         planned = list(self.planned(job).values())
         wrote = planned if status == "done" else []
+        record = job.stem + RECORD_SUFFIX
+        if status == "left_out" and not (self.out / record).exists():
+            record = None  # a frame left out gets no record: the line names none
         e = {"run": self.run_id, "input": job.input, "status": status, "outputs": wrote,
-             "record": job.stem + RECORD_SUFFIX, "settings_key": self.settings.key(), **kw}
+             "record": record, "settings_key": self.settings.key(), **kw}
         if status in ("failed", "left_out") and planned:
             e["planned_outputs"] = planned
         append_manifest(self.out / MANIFEST, e)
@@ -229,7 +233,7 @@ def _decide_jobs(run: _Run, jobs: Sequence[BatchJob], overwrite: bool) -> list[B
         rec_path = run.out / (job.stem + RECORD_SUFFIX)
         rec = read_record(rec_path)
         try:
-            ident = run.identity[job.input] = file_identity(job.input)
+            ident = run.identity[job.input] = input_identity(job.input)
         except OSError as exc:
             run.fail(job, f"cannot read the input: {exc.strerror or exc}")
             continue
@@ -249,7 +253,7 @@ def _decide_jobs(run: _Run, jobs: Sequence[BatchJob], overwrite: bool) -> list[B
         run.todo_kinds[job.input] = d.kinds
         if rec is not None:
             run.previous[job.input] = rec
-        if rec is not None and rec.get("input_identity") == ident:
+        if rec is not None and same_input(rec.get("input_identity"), ident):
             # Earlier runs' outputs that are still valid and still there stay in the record.
             made = rec.get("outputs") or {}
             keep = {k: v for k, v in (rec.get("output_keys") or {}).items()

@@ -28,7 +28,8 @@ from pathlib import Path
 
 import click
 
-from lfring.batch.record import RECORD_SUFFIX, RECORD_VERSION, decide_resume, file_identity, read_record
+from lfring.batch.record import (RECORD_SUFFIX, RECORD_VERSION, decide_resume, file_identity, input_identity, read_record,
+                                 same_input)
 from lfring.core.signals import deliver_lost_stops, held_signals
 from lfring.errors import InvalidInputError
 from lfring.io.atomic import atomic_write_text
@@ -172,7 +173,7 @@ class OutputSet:
         self._clear_stale_staging()
         planned = {self._rel(p): self._rel(p) for p in self.paths}
         existing = {rel for rel in planned if (self._root / rel).exists()}
-        identity = {p: file_identity(p) for p in self.inputs}
+        identity = {p: input_identity(p) for p in self.inputs}
         former = self._former_record()
         rec = read_record(self.record) if former is None else former
         if rec is not None and rec.get("command") != self.command:
@@ -197,10 +198,10 @@ class OutputSet:
                                     f"({', '.join(sorted(made_from)) or 'none'}; this run reads "
                                     f"{', '.join(sorted(identity)) or 'none'}); pass --overwrite to replace it, or -o to "
                                     "write elsewhere")
-        if made_from != identity:
-            changed = sorted(f for f in identity if made_from.get(f) != identity[f])
+        if not same_input(made_from, identity):
+            changed = sorted(f for f in identity if not same_input(made_from.get(f), identity[f]))
             raise InvalidInputError(f"{first} exists and was made by {self.command} from {', '.join(changed)} as it was "
-                                    "before it changed; pass --overwrite to replace it")
+                                    "before it (or its sidecar) changed; pass --overwrite to replace it")
         raise InvalidInputError(f"{first} exists and was made by {self.command} with other settings; pass --overwrite to "
                                 "replace it, or -o to write elsewhere")
 
@@ -350,7 +351,7 @@ class OutputSet:
         keys = dict.fromkeys(rels, self.key)
         atomic_write_text(self.record, json.dumps({
             RECORD_KEY: RECORD_VERSION, "command": self.command, "status": status, "input": self.inputs,
-            "input_identity": {p: file_identity(p) for p in self.inputs}, "settings_key": self.key,
+            "input_identity": {p: input_identity(p) for p in self.inputs}, "settings_key": self.key,
             "settings": self.settings, "outputs": dict(zip(rels, rels)),
             "output_keys": keys if status == "done" else {}, "pending_keys": {} if status == "done" else keys,
             "output_identity": {rel: file_identity(p) for rel, p in zip(rels, self.paths)} if status == "done" else {},

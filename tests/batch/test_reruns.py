@@ -99,7 +99,41 @@ def test_a_left_out_flat_field_lists_no_outputs(tmp_path):
     (entry,) = read_manifest(out / "manifest.jsonl")
     assert entry["status"] == "left_out" and entry["outputs"] == []
     assert entry["planned_outputs"] == ["flat_refocus_0.5m.png"]
+    assert entry["record"] is None  # it named flat.lfring.json, which no run writes
     assert sorted(p.name for p in out.iterdir()) == ["manifest.jsonl"]
+
+
+def test_a_changed_sidecar_is_a_changed_input(frames, tmp_path, capsys):
+    """A frame's sidecar edited (its Bayer pattern) after a run: the rerun said 'skipped
+    (already done)' and kept the image read with the old pattern. The sidecar is part of the
+    input: the rerun refuses, saying so, and --overwrite redoes the frame. A record written
+    before sidecars were counted is judged on the frame alone (its rerun skips: it cannot tell)."""
+    d, cal_path, _ = frames
+    root = tmp_path / "in"
+    copy_frame(d / "scene.png", root / "a.png")
+    out = tmp_path / "out"
+    settings = BatchSettings(refocus_m=(0.5,), refocus_method="shift-and-add", calibration=load_calibration(cal_path))
+    assert run_batch([str(root)], out, settings, workers=1).exit_code == 0
+    record = out / "a.lfring.json"
+    assert json.loads(record.read_text())["input_identity"]["sidecar"] is not None
+    before = (out / "a_refocus_0.5m.png").read_bytes()
+    # As an earlier lfring wrote it: no sidecar in the identity.
+    kept = record.read_text()
+    rec = json.loads(kept)
+    del rec["input_identity"]["sidecar"]
+    record.write_text(json.dumps(rec))
+    assert run_batch([str(root)], out, settings, workers=1).skipped == [str(root / "a.png")]
+    record.write_text(kept)
+    side = root / "a.png.json"
+    meta = json.loads(side.read_text())
+    meta["pattern"] = {"RGGB": "BGGR"}.get(meta["pattern"], "RGGB")
+    side.write_text(json.dumps(meta))
+    rep = run_batch([str(root)], out, settings, workers=1)
+    assert rep.skipped == [] and rep.failed == [str(root / "a.png")]
+    assert "the input changed since (the frame or its sidecar)" in rep.errors[str(root / "a.png")]
+    assert (out / "a_refocus_0.5m.png").read_bytes() == before
+    rep = run_batch([str(root)], out, settings, workers=1, overwrite=True)
+    assert rep.done == [str(root / "a.png")] and (out / "a_refocus_0.5m.png").read_bytes() != before
 
 
 # -- 1. a manifest.jsonl the batch did not write --------------------------------------------------
