@@ -346,7 +346,9 @@ def _execute(run: _Run, todo: list[BatchJob], *, workers: int, executor: str, sc
 
         def submit(job: BatchJob) -> None:
             run.record(job, "pending")
-            pending[pool.submit(process_frame, job.input, run.settings, run.planned(job))] = job
+            # A cluster's workers resolve a relative path in their own working folder.
+            path = os.path.abspath(job.input) if executor == "dask" else job.input
+            pending[pool.submit(process_frame, path, run.settings, run.planned(job))] = job
 
         while queue or pending:
             while queue and len(pending) < window:

@@ -37,6 +37,22 @@ def test_dask_cluster_on_loopback_matches_local(frames, tmp_path):
         assert (tmp_path / "dask" / f"d{i}_refocus_0.5m.png").read_bytes() == a
 
 
+def test_dask_workers_find_inputs_given_by_relative_paths(frames, tmp_path, monkeypatch):
+    """A cluster's workers run in their own working folder: an input given as in/scene.png failed
+    there with 'no such file', though the same path named it on the same file system."""
+    import distributed
+
+    d, cal_path = frames
+    copy_frame(d / "scene.png", tmp_path / "in" / "a.png")
+    settings = BatchSettings(refocus_m=(0.5,), refocus_method="shift-and-add", calibration=load_calibration(cal_path))
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                  dashboard_address=":0") as cluster:
+        monkeypatch.chdir(tmp_path)  # the workers started elsewhere
+        rep = run_batch(["in"], "out", settings, executor="dask", scheduler=cluster.scheduler_address)
+    assert rep.failed == [] and rep.done == [os.path.join("in", "a.png")], rep.errors
+    assert (tmp_path / "out" / "a_refocus_0.5m.png").exists()
+
+
 def test_dask_missing_says_how_to_install(frames, tmp_path, monkeypatch):
     d, cal_path = frames
     monkeypatch.setitem(sys.modules, "distributed", None)
