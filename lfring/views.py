@@ -23,7 +23,7 @@ import numpy as np
 
 from lfring.core.lens import FlatField, remap_views, undistortion_maps
 from lfring.core.protocols import Calibration
-from lfring.core.validate import check_choice, check_int, is_integer
+from lfring.core.validate import check_bool, check_choice, check_int, is_integer
 from lfring.core.viewstack import calibration_cache
 from lfring.errors import EstimationError, FileFormatError, InvalidInputError
 from lfring.io.readers import LAYOUT_KEY
@@ -91,9 +91,7 @@ class Layout:
             if len(circles) != len(rects) or any(len(c) != 3 or not c[2] > 0 for c in circles):
                 raise InvalidInputError("layout circles must be one (cx, cy, r>0) per view")
             object.__setattr__(self, "circles", circles)
-        if not isinstance(self.rotate180, (bool, np.bool_)):  # bool("false") is True
-            raise InvalidInputError(f"layout rotate180 must be true or false, got {self.rotate180!r}")
-        object.__setattr__(self, "rotate180", bool(self.rotate180))
+        object.__setattr__(self, "rotate180", check_bool(self.rotate180, "layout rotate180"))  # bool("false") is True
 
     @property
     def num_views(self) -> int:

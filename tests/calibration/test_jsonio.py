@@ -84,7 +84,7 @@ def _edit(tmp_path, cal, fn):
         (lambda d: d.update(bayer_pattern="RGBG"), "bayer_pattern"),
         (lambda d: d.update(valid_depth_range_m=[0.01, 1.0]), "valid depth range"),
         # bool("false") is True: every frame would have been turned 180 degrees.
-        (lambda d: d["layout"].update(rotate180="false"), "layout rotate180 must be true or false, got 'false'"),
+        (lambda d: d["layout"].update(rotate180="false"), "layout rotate180 must be True or False, got 'false'"),
     ],
 )
 def test_hand_edited_calibration_files(tmp_path, twin, edit, match):
