@@ -127,6 +127,11 @@ def _motion_per_inv(calibration, depth_m: float) -> float:
     return move / abs(1.0 / (z1 - z0) - 1.0 / (z2 - z0))
 
 
+def _tolerance_inv(z0: float, depth_m: float, tolerance_m: float) -> float:
+    """A tolerance at ``depth_m`` in disparity: the change of 1/(Z - z0) it makes there."""
+    return abs(1.0 / (depth_m - z0) - 1.0 / (depth_m + tolerance_m - z0))
+
+
 def default_depth_band(calibration, near_m: float, far_m: float, tolerance_m: float) -> tuple[float, float]:
     """The depths a sweep searches to judge surfaces between ``near_m`` and ``far_m``.
 
@@ -142,7 +147,7 @@ def default_depth_band(calibration, near_m: float, far_m: float, tolerance_m: fl
     z0 = calibration.depth_origin_m
     k = _motion_per_inv(calibration, 0.5 * (near_m + far_m))
     inv_near, inv_far = 1.0 / (near_m - z0), 1.0 / (far_m - z0)
-    tol_inv = abs(1.0 / (near_m - z0) - 1.0 / (near_m + tolerance_m - z0))
+    tol_inv = _tolerance_inv(z0, near_m, tolerance_m)
     reach = max(4.0 * tol_inv, 1.0 / k) + MARGIN_PX / k
     inv_lo = inv_far - reach
     if inv_lo <= 0 and inv_far - (1.0 + MARGIN_PX) / k > 0:  # the tolerance's reach alone passes infinity
@@ -380,7 +385,7 @@ def _plan_band(calibration, chk: _Checked, zmin_m, zmax_m, num_planes) -> tuple[
         raise InvalidInputError(f"zmin_m ({zlo:g} m) must lie beyond the calibration's depth origin z0 = {z0:.4g} m")
     if num_planes is None:
         num_planes = len(depth_hypotheses(calibration, zlo, zhi, max_step_px=STEP_PX))
-    tol_px = tol * _motion_per_inv(calibration, far) / (far - z0) ** 2
+    tol_px = _motion_per_inv(calibration, far) * _tolerance_inv(z0, far, tol)
     if tol_px < MIN_TOLERANCE_PX:
         warnings.warn(f"tolerance_m {tol:g} m is {tol_px:.2g} px of view motion at {far:g} m, below {MIN_TOLERANCE_PX} px: "
                       "depth noise of that size (most at the views' rims) may be taken for defects; a tolerance of "
@@ -418,13 +423,11 @@ def _measure(chk: _Checked, calibration, zmin_m: float, zmax_m: float, num_plane
     return depth, refocused, consistency, contrast, num_views
 
 
-def _checked_pixels(depth, num_views, in_roi, target, *, min_confidence: float):
-    """The deviation from the target (NaN out of band), the in-band pixels, and the reliable
-    (checked) ones, as :func:`inspect_frame`'s Notes define them."""
-    n = len(depth.depths_m)
-    idx = depth.hypothesis_index
-    with np.errstate(invalid="ignore"):
-        in_band = np.isfinite(depth.depth_m) & (idx > 1.0) & (idx < n - 2.0)
+def _checked_pixels(depth, ends, num_views, in_roi, target, *, min_confidence: float):
+    """The deviation from the target (NaN out of band), the in-band pixels (a depth, at neither
+    of the band's ``ends``: :func:`_band_ends`), and the reliable (checked) ones, as
+    :func:`inspect_frame`'s Notes define them."""
+    in_band = np.isfinite(depth.depth_m) & ~(ends[1.0] | ends[-1.0])
     dev = (target - depth.depth_m).astype(np.float32)
     dev[~in_band] = np.nan
     confident = np.where(num_views >= 3, depth.confidence >= min_confidence,
@@ -710,7 +713,7 @@ def inspect_frame(
     shape = chk.views.shape[1:3]
     in_roi = _roi_mask(chk.box, shape)
     ends = _band_ends(depth)
-    dev, in_band, reliable = _checked_pixels(depth, num_views, in_roi, _target(chk.plane_m, chk.target),
+    dev, in_band, reliable = _checked_pixels(depth, ends, num_views, in_roi, _target(chk.plane_m, chk.target),
                                              min_confidence=min_confidence)
     defects, deviating = _find_defects(dev, reliable, depth.confidence, tol=chk.tolerance_m,
                                        min_area_px=min_area_px, opening_px=opening_px, percentile=percentile,
@@ -720,7 +723,7 @@ def inspect_frame(
     part = _find_part(plane_mask, reliable, chk.box, min_area_px=int(min_area_px))
     verdict, coverage, reason, judged = _judge(
         chk.views, in_roi=in_roi, seen=num_views >= 2, textured=contrast >= PHOTO_MIN_CONTRAST, part=part, reliable=reliable,
-        num_defects=len(defects), min_coverage=chk.min_coverage, beyond_band=ends[1.0] | ends[-1.0])
+        num_defects=len(defects), min_coverage=chk.min_coverage, beyond_band=np.isfinite(depth.depth_m) & ~in_band)
     if verdict == "cannot_judge" and defects:  # no part they could belong to
         defects, deviating = [], np.zeros(shape, bool)
 
