@@ -97,8 +97,11 @@ class BatchReport:
         rate = f", {self.frames_per_s:.2f} frames/s" if self.done else ""
         sized = sum(1 for _, why in self.not_frames if why.endswith(WRONG_SIZE))
         others = len(self.not_frames) - sized
-        parts = [f"{sized} frame{'s' * (sized > 1)} of a size no calibration fits"] * bool(sized) + \
-                [f"{others} file{'s' * (others > 1)} that {'are' if others > 1 else 'is'} not {'frames' if others > 1 else 'a frame'}"] * bool(others)
+        parts = []
+        if sized:
+            parts.append(f"{sized} frame{'s' * (sized > 1)} of a size no calibration fits")
+        if others:
+            parts.append(f"{others} files that are not frames" if others > 1 else "1 file that is not a frame")
         left = f"; {' and '.join(parts)} left out" if parts else ""
         flats = ""
         if self.left_out:

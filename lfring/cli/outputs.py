@@ -86,6 +86,15 @@ def _same_file(a: Path, b: Path) -> bool:
         return False
 
 
+def _as_recorded(made: dict, rel: str, path: Path) -> bool:
+    """Whether the file at ``path`` is as a record's ``output_identity`` (``made``) found it
+    under ``rel``: not written since by another command or by hand."""
+    try:
+        return rel in made and made[rel] == file_identity(path)
+    except OSError:
+        return False
+
+
 def record_path(folder: str | Path, name: str) -> Path:
     """Where the record of the output set ``name`` lies in ``folder``."""
     return Path(folder) / f"{name}{RECORD_SUFFIX}"
@@ -212,13 +221,8 @@ class OutputSet:
         made = (rec or {}).get("output_identity") or {}
         for p in self.paths:
             rel = self._rel(p)
-            if rel in existing and rel in made:
-                try:
-                    now = file_identity(p)
-                except OSError:
-                    continue
-                if made[rel] != now:
-                    return p
+            if rel in existing and rel in made and not _as_recorded(made, rel, p):
+                return p
         return None
 
     def _former_record(self) -> dict | None:
@@ -253,12 +257,8 @@ class OutputSet:
                 continue
             if not path.is_file() or path.is_symlink() or any(_same_file(path, p) for p in self.paths):
                 continue
-            try:
-                if made.get(rel) != file_identity(path):
-                    continue
-            except OSError:
-                continue
-            out.append(path)
+            if _as_recorded(made, rel, path):
+                out.append(path)
         return out
 
     def _clear_stale_staging(self) -> None:
