@@ -280,10 +280,10 @@ def check_frame(frame, calibration, *, threshold: float = AGREEMENT_THRESHOLD, d
     depth (no nearer than where the views stop overlapping) to twice its farthest, about
     ``downsample`` pixels of view motion apart: 7 depths for the built-in calibration.
     """
-    check_calibration(calibration)
     from lfring.depth.hypotheses import depth_hypotheses
     from lfring.views import correct_views, split_views
 
+    check_calibration(calibration)
     downsample = check_int(downsample, "downsample", minimum=1)
     threshold = check_number(threshold, "threshold", minimum=-1.0, maximum=1.0, what="a ZNCC")
     image, views, info = _image_of(frame)

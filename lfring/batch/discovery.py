@@ -100,6 +100,7 @@ def _expand_inputs(inputs, *, outdir, exclude, skipped, sizes) -> list[BatchJob]
     out_res = Path(outdir).resolve() if outdir is not None else None
     suffixes = _frame_suffixes()
     found: list[tuple[Path, str]] = []
+    wrong_size: list[tuple[str, tuple[int, int]]] = []  # (path, size) of the folder files left out for their size
 
     patterns = {pat: os.path.normpath(pat) for pat in exclude}
     matched: set[str] = set()
@@ -124,7 +125,7 @@ def _expand_inputs(inputs, *, outdir, exclude, skipped, sizes) -> list[BatchJob]
                 f"{arg} lies in the output folder {outdir}: a batch never reads its output folder (a rerun would take "
                 "its outputs for frames); give another output folder")
         if p.is_dir():
-            n0, n_skipped = len(found), len(skipped)
+            n0, n_sized = len(found), len(wrong_size)
             for root, dirs, files in os.walk(p):
                 for d in sorted(dirs):
                     if d.endswith(TRUTH_SUFFIX) and not d.startswith("."):
@@ -146,13 +147,13 @@ def _expand_inputs(inputs, *, outdir, exclude, skipped, sizes) -> list[BatchJob]
                             continue
                         if size is not None and size not in sizes:
                             skipped.append((str(f), f"{size[0]} x {size[1]} px, {WRONG_SIZE}"))
+                            wrong_size.append((str(f), size))
                             continue
                     found.append((f, rel))
             if len(found) == n0:
-                sized = sum(1 for _, why in skipped[n_skipped:] if why.endswith(WRONG_SIZE))
-                if sized:
+                if len(wrong_size) > n_sized:
                     log.warning("%s: no frames of a size a calibration fits (%s); %d left out for their size",
-                                arg, _sizes_words(sizes), sized)
+                                arg, _sizes_words(sizes), len(wrong_size) - n_sized)
                 else:
                     log.warning("%s: no frames found (suffixes %s)", arg, ", ".join(sorted(suffixes)))
         elif p.is_file():
@@ -185,12 +186,10 @@ def _expand_inputs(inputs, *, outdir, exclude, skipped, sizes) -> list[BatchJob]
             log.info("%s is the same file as %s: processed once", f, seen[res][0])
     jobs = [job for _, job in seen.values()]
     if not jobs:
-        sized = [(f, why) for f, why in skipped if why.endswith(WRONG_SIZE)]
         more = ""
-        if sized:
-            first = f"{sized[0][0]} ({sized[0][1].split(',')[0]})"
-            several = len(sizes) > 1
-            more = (f": {len(sized)} file{'s' * (len(sized) > 1)} left out for a size no calibration fits, as {first}; "
+        if wrong_size:
+            (path, (w, h)), n, several = wrong_size[0], len(wrong_size), len(sizes) > 1
+            more = (f": {n} file{'s' * (n > 1)} left out for a size no calibration fits, as {path} ({w} x {h} px); "
                     f"the calibration{'s' * several} of this run read{'' if several else 's'} frames of "
                     f"{_sizes_words(sizes)}")
         raise InvalidInputError(f"no frames found in {', '.join(map(str, inputs))}{more}")
