@@ -15,16 +15,21 @@ import numpy as np
 
 from lfring.errors import InvalidInputError
 
-__all__ = ["TAPER", "WEIGHT_FLOOR", "cached_view_masks", "calibration_cache", "check_views", "inverse_weight", "view_masks"]
+__all__ = ["COUNTS_MEDIAN", "TAPER", "WEIGHT_FLOOR", "cached_view_masks", "calibration_cache", "check_views", "inverse_weight", "view_masks"]
 
 # A reference pixel whose summed view weight is below this is seen by no view: it gets 0 (images)
 # or NaN (depth), and divisions by a weight never divide by less.
 WEIGHT_FLOOR = 1e-3
+# Views whose values are mostly above this are counts (0..255, 0..65535) passed as float32, not
+# images in [0, 1]: a flat-field-corrected view exceeds 1 only towards its rims. Judged on a
+# strided sample of COUNTS_SAMPLE_PX x COUNTS_SAMPLE_PX pixels a view (a cheap look, every frame).
+COUNTS_MEDIAN = 1.5
+COUNTS_SAMPLE_PX = 64
 # Fraction of a valid disc's radius over which a view's weight rises from 0 to 1 (view_masks).
 TAPER = 0.15
 
 
-def check_views(views, *, min_views: int = 1) -> np.ndarray:
+def check_views(views, *, min_views: int = 1, images: bool = True) -> np.ndarray:
     """A view stack as a (V, h, w, C) float32 array, or a clear error.
 
     Parameters
@@ -33,6 +38,10 @@ def check_views(views, *, min_views: int = 1) -> np.ndarray:
         ``(V, h, w)`` is taken as one channel.
     min_views : int
         Fewest views the caller can work with.
+    images : bool
+        The views are images in [0, 1]: counts passed as float32 (most values above
+        :data:`COUNTS_MEDIAN`) are refused. False for other per-view maps (a high-pass, a
+        weight).
 
     Returns
     -------
@@ -55,6 +64,15 @@ def check_views(views, *, min_views: int = 1) -> np.ndarray:
         raise InvalidInputError(f"views must hold at least {min_views} view(s) of 2 x 2 px, got shape {arr.shape}")
     if arr.shape[-1] > 4:
         raise InvalidInputError(f"views may have 1 to 4 channels, got {arr.shape[-1]}")
+    if images:
+        sy, sx = (max(1, n // COUNTS_SAMPLE_PX) for n in arr.shape[1:3])
+        sample = arr[:, ::sy, ::sx]
+        above = np.count_nonzero(sample > COUNTS_MEDIAN)
+        if above * 2 > sample.size:
+            raise InvalidInputError(
+                f"views must be float32 in [0, 1], but {above / sample.size:.0%} of the values sampled are above "
+                f"{COUNTS_MEDIAN:g} (largest {float(np.nanmax(sample)):g}): raw counts? Divide by the white level "
+                "(255 for 8-bit images), or read frames with lfring.load_raw and lfring.split_views")
     return arr
 
 

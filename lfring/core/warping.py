@@ -67,7 +67,7 @@ def warp_views(views, H_ref_from_view, *, masks=None, out_shape=None, interpolat
     >>> weights[1, 0].tolist()
     [0.0, 1.0, 1.0, 1.0, 1.0]
     """
-    arr = check_views(views)
+    arr = check_views(views, images=False)
     hs = np.asarray(H_ref_from_view, dtype=np.float64)
     if hs.shape != (arr.shape[0], 3, 3):
         raise InvalidInputError(f"need one 3 x 3 homography per view, got {hs.shape} for {arr.shape[0]} views")

@@ -8,6 +8,7 @@ import pytest
 
 from lfring.calibration.defaults import default_calibration
 from lfring.core.viewstack import (
+    COUNTS_MEDIAN,
     TAPER,
     WEIGHT_FLOOR,
     cached_view_masks,
@@ -27,6 +28,30 @@ def test_check_views_shapes_and_refusals():
                        (np.zeros((1, 5, 6), np.float32), "at least 2"), (np.zeros((2, 5, 6, 5), np.float32), "1 to 4 channels")):
         with pytest.raises(InvalidInputError, match=match):
             check_views(bad, min_views=2)
+
+
+def test_counts_passed_as_float32_are_refused_and_bright_images_are_not():
+    rng = np.random.default_rng(0)
+    image = rng.random((4, 300, 200, 3), dtype=np.float32)
+    assert check_views(image) is image
+    # A flat-field-corrected frame: brighter than 1 towards the rims, most of it below.
+    bright = image.copy()
+    bright[:, :, :90] *= 1.6
+    assert check_views(bright) is bright
+    for counts in (image * 255, image * 65535, np.full((4, 30, 20), 128.0, np.float32)):
+        with pytest.raises(InvalidInputError, match=r"\[0, 1\].*raw counts\? Divide by the white level"):
+            check_views(counts)
+    # A map that is not an image passes when said so (a high-pass, a weight).
+    assert check_views(image * 255, images=False).shape == image.shape
+    # Refusals reach the processing functions: refocusing and depth.
+    import lfring
+
+    cal = lfring.RingCalibration.load("twin_binned2")
+    views = np.full((4, *cal.layout.view_shape, 3), 2 * COUNTS_MEDIAN, np.float32)
+    with pytest.raises(InvalidInputError, match="raw counts"):
+        lfring.refocus(views, cal, 0.5)
+    with pytest.raises(InvalidInputError, match="raw counts"):
+        lfring.estimate_depth(views, cal, zmin_m=0.3, zmax_m=1.0)
 
 
 def test_masks_are_one_inside_the_disc_zero_outside_and_taper_over_the_rim():
