@@ -40,6 +40,7 @@ __all__ = [
     "file_identity",
     "input_identity",
     "is_batch_manifest",
+    "made_with",
     "outdir_lock",
     "read_manifest",
     "read_record",
@@ -85,6 +86,32 @@ def same_input(recorded, now) -> bool:
     if "sidecar" not in recorded:
         return recorded == {k: v for k, v in now.items() if k != "sidecar"}
     return recorded == now
+
+
+def made_with(record: dict, kind_or_run: str, *, run: bool = True) -> dict | None:
+    """The settings of the run ``kind_or_run`` as a frame's ``record`` holds them (its own run's,
+    or an earlier one's that made an output it keeps), or, with ``run=False``, those that made
+    the output of that kind; None when the record does not tell. A record of a version before
+    outputs named their runs gives its own settings for every output.
+
+    Examples
+    --------
+    >>> from lfring.batch.record import made_with
+    >>> rec = {"run": "r2", "settings": {"aperture": 2.0}, "output_runs": {"a": "r1", "b": "r2"},
+    ...        "earlier_settings": {"r1": {"aperture": 1.0}}}
+    >>> made_with(rec, "a", run=False), made_with(rec, "b", run=False), made_with(rec, "r3")
+    ({'aperture': 1.0}, {'aperture': 2.0}, None)
+    """
+    if not run:
+        runs = record.get("output_runs")
+        if not isinstance(runs, dict) or kind_or_run not in runs:
+            return record.get("settings") if isinstance(record.get("settings"), dict) else None
+        kind_or_run = runs[kind_or_run]
+    if kind_or_run == record.get("run"):
+        found = record.get("settings")
+    else:
+        found = (record.get("earlier_settings") or {}).get(kind_or_run)
+    return found if isinstance(found, dict) else None
 
 
 def read_record(path: Path) -> dict | None:

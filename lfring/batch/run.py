@@ -34,6 +34,7 @@ from lfring.batch.record import (
     decide_resume,
     input_identity,
     is_batch_manifest,
+    made_with,
     outdir_lock,
     read_record,
     same_input,
@@ -123,7 +124,8 @@ class _Run:
     on_result: Callable[[dict], None] | None
     identity: dict = field(default_factory=dict)
     todo_kinds: dict = field(default_factory=dict)  # input -> kinds computed this run
-    carried: dict = field(default_factory=dict)  # input -> (outputs, output_keys) of earlier runs still valid
+    carried: dict = field(default_factory=dict)  # input -> (outputs, output_keys, output_runs) of earlier runs still valid
+    carried_settings: dict = field(default_factory=dict)  # input -> {run id: settings} of the runs that made them
     previous: dict = field(default_factory=dict)  # input -> its record as it stood before this run
     calibrations: dict = field(default_factory=dict)  # input -> the frame's calibration, when it can be told
     _keys: dict = field(default_factory=dict)  # id of a calibration -> output keys
@@ -161,7 +163,10 @@ class _Run:
         # 'outputs' lists the frame's files that exist (earlier runs' still valid, and this
         # run's once written); the files a pending or failed run was to write are listed apart,
         # so that a rerun knows them as its own.
-        outputs, keys = self.carried.get(job.input, ({}, {}))
+        # 'settings' are this run's; an output an earlier run made names that run in
+        # 'output_runs', and that run's settings are in 'earlier_settings' (outputs of records
+        # written before that are left out of both: which run made them is not known).
+        outputs, keys, runs = self.carried.get(job.input, ({}, {}, {}))
         planned = self.planned(job)
         planned_keys = self.keys(job)
         new = {k: planned_keys[k] for k in planned}
@@ -172,6 +177,8 @@ class _Run:
             "settings": self.settings.describe(), "outputs": {**outputs, **planned} if done else dict(outputs),
             "planned_outputs": {} if done else planned,
             "output_keys": {**keys, **new} if done else keys,
+            "output_runs": {**runs, **dict.fromkeys(planned, self.run_id)} if done else dict(runs),
+            "earlier_settings": self.carried_settings.get(job.input, {}),
             "pending_keys": {} if done else new, "lfring_version": _version(), **extra})
 
     def fail(self, job: BatchJob, error: str, record_it: bool = False, **kw) -> None:
@@ -261,7 +268,11 @@ def _decide_jobs(run: _Run, jobs: Sequence[BatchJob], overwrite: bool) -> list[B
             made = rec.get("outputs") or {}
             keep = {k: v for k, v in (rec.get("output_keys") or {}).items()
                     if k not in d.kinds and k in made and (run.out / made[k]).exists()}
-            run.carried[job.input] = ({k: made[k] for k in keep}, keep)
+            runs = {k: r for k, r in (rec.get("output_runs") or {}).items() if k in keep and isinstance(r, str)}
+            known = {r: made_with(rec, r) for r in set(runs.values())}
+            runs = {k: r for k, r in runs.items() if known[r] is not None}
+            run.carried[job.input] = ({k: made[k] for k in keep}, keep, runs)
+            run.carried_settings[job.input] = {r: known[r] for r in set(runs.values())}
         todo.append(job)
     return todo
 

@@ -8,6 +8,7 @@ import json
 import math
 from dataclasses import dataclass, fields
 
+from lfring.batch.record import made_with
 from lfring.core.validate import check_choice, check_fraction, check_int, check_number
 from lfring.core.warping import DEFAULT_INTERPOLATION, INTERPOLATIONS
 from lfring.depth import ENGINES
@@ -369,11 +370,13 @@ class BatchSettings:
         (the refocusing method) is named instead. The calibration's content is named only when
         its name is the same.
 
-        Empty when the record cannot tell: its settings are those of a later run than the one
-        that made the output, or what differs is no setting (an earlier lfring's default depth
+        The settings that made the output are the record's own, or those of the earlier run it
+        names for the output (:func:`lfring.batch.record.made_with`). Empty when the record
+        cannot tell: a record from before outputs named their runs, whose settings are those
+        of a later run than the one that made the output, or what differs is no setting (an earlier lfring's default depth
         cost, say); the caller then says so in general words.
         """
-        earlier = record.get("settings")
+        earlier = made_with(record, kind, run=False)
         made = (record.get("output_keys") or {}).get(kind) or (record.get("pending_keys") or {}).get(kind)
         if not isinstance(earlier, dict) or not made:
             return []

@@ -292,3 +292,32 @@ def test_a_refusal_after_shift_and_add_names_the_method(tmp_path, capsys):
     assert "made with other settings: the refocusing method (shift-and-add then, depth-aware now). Give" in err
     assert not any(w in err for w in ("default then", "--zmin", "--zmax", "depth method", "depth cost"))
     assert not (tmp_path / "out" / "scene_refocus_0.7m.png").exists()
+
+
+def test_a_record_names_the_run_and_settings_that_made_each_output(tmp_path, capsys):
+    """A rerun that adds an image with other settings keeps the earlier image: the record's
+    'settings' are the later run's, so it names the run that made each output and keeps that
+    run's settings; a refusal over the earlier image explains it by them."""
+    from pathlib import Path
+
+    frame = str(Path(__file__).resolve().parents[2] / "data" / "synthetic" / "scene.png")
+    out = tmp_path / "out"
+    base = ["batch", frame, "-o", str(out), "--workers", "1", "--no-progress"]
+    assert main([*base, "--refocus", "0.5", "--method", "shift-and-add"]) == 0
+    first = json.loads((out / "scene.lfring.json").read_text())["run"]
+    assert main([*base, "--refocus", "0.7", "--aperture", "2"]) == 0
+    rec = json.loads((out / "scene.lfring.json").read_text())
+    assert rec["settings"]["refocus_method"] == "depth-aware" and rec["settings"]["aperture"] == 2.0
+    assert rec["output_runs"] == {"refocus_0.5m": first, "refocus_0.7m": rec["run"]} and rec["run"] != first
+    earlier = rec["earlier_settings"][first]
+    assert earlier["refocus_method"] == "shift-and-add" and earlier["refocus_m"] == [0.5]
+    capsys.readouterr()
+    # Asked again with the later run's settings, the earlier image is refused by what made it.
+    assert main([*base, "--refocus", "0.5", "--aperture", "2"]) == 1
+    err = " ".join(capsys.readouterr().err.split())
+    assert "the refocusing method (shift-and-add then, depth-aware now)" in err
+    # A third run that adds an image keeps both earlier attributions.
+    assert main([*base, "--refocus", "0.7,0.9", "--aperture", "2"]) == 0
+    again = json.loads((out / "scene.lfring.json").read_text())
+    assert again["output_runs"] == {**rec["output_runs"], "refocus_0.9m": again["run"]}
+    assert again["earlier_settings"] == {first: earlier, rec["run"]: rec["settings"]}
