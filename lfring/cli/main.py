@@ -153,7 +153,7 @@ class CliError(click.ClickException):
 @click.group(cls=_LfringGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="lfring")
 @click.option("-v", "--verbose", count=True, help="More log output (-vv for debug).")
-@click.option("-q", "--quiet", is_flag=True, help="Only warnings and errors.")
+@click.option("-q", "--quiet", is_flag=True, help="Log only warnings and errors (results, such as the paths written and a batch's summary, still go to stdout).")
 def cli(verbose: int, quiet: bool) -> None:
     """lfring: light fields from a four mini-lens ring camera.
 
