@@ -33,8 +33,9 @@ from lfring.batch.record import (RECORD_SUFFIX, RECORD_VERSION, decide_resume, f
 from lfring.core.signals import deliver_lost_stops, held_signals
 from lfring.errors import InvalidInputError
 from lfring.io.atomic import atomic_write_text
+from lfring.io.raw import sidecar_path
 from lfring.io.readers import RECORD_KEY
-from lfring.io.writers import check_writable, json_default
+from lfring.io.writers import IMAGE_SUFFIXES, check_writable, json_default
 
 __all__ = ["OUTPUT_OPTIONS", "STAGING_PREFIX", "OutputSet", "record_path"]
 
@@ -155,6 +156,10 @@ class OutputSet:
         ours = {os.path.realpath(p) for p in [*self.paths, self.record]}
         inputs = _input_files({k: v for k, v in ctx.params.items() if k not in OUTPUT_OPTIONS})
         self._clashes = [f for f in inputs if os.path.realpath(f) in ours]
+        # A frame's sidecar (its pattern and levels) is part of the input, there or not: written
+        # over, or written where there was none, it would change how the frame is read.
+        self._clashes += [f"{sidecar_path(f)} (the sidecar of {f})" for f in inputs
+                          if Path(f).suffix.lower() in IMAGE_SUFFIXES and os.path.realpath(sidecar_path(f)) in ours]
         named = [p.opts[0] for p in ctx.command.params if p.name in OUTPUT_OPTIONS and ctx.params.get(p.name)]
         self._output_option = named[0] if named else "the output"
         self.inputs = [f for f in inputs if os.path.realpath(f) not in ours]

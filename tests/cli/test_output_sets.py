@@ -323,6 +323,24 @@ def test_an_output_that_is_an_input_is_refused(tmp_path, capsys):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.png"]
 
 
+def test_an_output_over_an_input_s_sidecar_is_refused(tmp_path, capsys):
+    """-o naming a frame's sidecar (its pattern and levels: part of the input) is refused, even
+    with --overwrite, whether the sidecar is there or not; the frame reads as before."""
+    from lfring.cli.main import main
+
+    for name in ("target_0.3m.png", "target_1m.png"):
+        shutil.copy(SCENE.parent / name, tmp_path / name)
+    shutil.copy(SCENE.parent / "target_1m.png.json", tmp_path / "target_1m.png.json")
+    before = (tmp_path / "target_1m.png.json").read_bytes()
+    frames = [str(tmp_path / "target_0.3m.png"), str(tmp_path / "target_1m.png"), "--depths", "0.3", "1.0"]
+    for out in ("target_1m.png.json", "target_0.3m.png.json"):
+        assert main(["calibrate", *frames, "-o", str(tmp_path / out), "--overwrite"]) == 2
+        err = " ".join(capsys.readouterr().err.split())
+        assert f"{tmp_path / out} (the sidecar of {tmp_path / out[:-5]}) is an input of this command" in err
+    assert (tmp_path / "target_1m.png.json").read_bytes() == before
+    assert not (tmp_path / "target_0.3m.png.json").exists()
+
+
 def test_a_rerun_from_other_input_files_says_so(tmp_path, capsys):
     """Outputs made from one file and asked again from another name both files, not a change."""
     from lfring.cli.main import main
