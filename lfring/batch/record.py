@@ -36,6 +36,7 @@ __all__ = [
     "OutputWriter",
     "ResumeDecision",
     "append_manifest",
+    "as_recorded",
     "decide_resume",
     "file_identity",
     "input_identity",
@@ -63,6 +64,15 @@ def file_identity(path: str) -> dict:
     """A file's size and modification time: a record made from another identity is stale."""
     st = os.stat(path)
     return {"size_bytes": st.st_size, "mtime_ns": st.st_mtime_ns}
+
+
+def as_recorded(made: dict, rel: str, path: str | Path) -> bool:
+    """Whether the file at ``path`` is as a record's ``output_identity`` (``made``) found it
+    under ``rel``: not written since by another command or by hand."""
+    try:
+        return rel in made and made[rel] == file_identity(path)
+    except OSError:
+        return False
 
 
 def input_identity(path: str) -> dict:

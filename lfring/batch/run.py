@@ -8,6 +8,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
+import secrets
 import shutil
 import time
 from collections.abc import Callable, Sequence
@@ -31,7 +32,9 @@ from lfring.batch.record import (
     RECORD_VERSION,
     OutputWriter,
     append_manifest,
+    as_recorded,
     decide_resume,
+    file_identity,
     input_identity,
     is_batch_manifest,
     made_with,
@@ -178,8 +181,18 @@ class _Run:
             "planned_outputs": {} if done else planned,
             "output_keys": {**keys, **new} if done else keys,
             "output_runs": {**runs, **dict.fromkeys(planned, self.run_id)} if done else dict(runs),
+            "output_identity": self._identities({**outputs, **planned} if done else outputs),
             "earlier_settings": self.carried_settings.get(job.input, {}),
             "pending_keys": {} if done else new, "lfring_version": _version(), **extra})
+
+    def _identities(self, outputs: dict) -> dict:
+        """{relative path: file identity} of the outputs listed that exist: a rerun then tells
+        a file written since by hand from the one this tool wrote."""
+        out = {}
+        for rel in outputs.values():
+            with contextlib.suppress(OSError):
+                out[rel] = file_identity(str(self.out / rel))
+        return out
 
     def fail(self, job: BatchJob, error: str, record_it: bool = False, **kw) -> None:
         self.report.failed.append(job.input)
@@ -232,6 +245,18 @@ def _frame_calibration(settings: BatchSettings, path: str, builtin: dict):
     return builtin[size]
 
 
+def _changed_since(out: Path, rec: dict, outs: dict, existing: set) -> str | None:
+    """The first output asked for that the frame's record ``rec`` says a run made, but that is
+    no longer as the record found it (written since by another command or by hand), or None
+    (records of versions that kept no ``output_identity`` cannot tell)."""
+    made = rec.get("output_identity") or {}
+    listed = rec.get("outputs") or {}
+    for kind, rel in outs.items():
+        if rel in existing and listed.get(kind) == rel and rel in made and not as_recorded(made, rel, out / rel):
+            return rel
+    return None
+
+
 def _decide_jobs(run: _Run, jobs: Sequence[BatchJob], overwrite: bool) -> list[BatchJob]:
     """Apply :func:`decide_resume` to every frame: skipped and refused frames are reported, the
     rest returned with the outputs each must compute in ``run.todo_kinds``."""
@@ -249,6 +274,11 @@ def _decide_jobs(run: _Run, jobs: Sequence[BatchJob], overwrite: bool) -> list[B
             continue
         cal = run.calibrations[job.input] = _frame_calibration(run.settings, job.input, builtin)
         existing = {rel for rel in outs.values() if (run.out / rel).exists()}
+        changed = None if overwrite or rec is None else _changed_since(run.out, rec, outs, existing)
+        if changed is not None:
+            run.fail(job, f"{changed} exists and was written since lfring batch made it (by another command or by hand); "
+                          "pass --overwrite to replace it, or -o to write elsewhere")
+            continue
         d = decide_resume(outs, run.keys(job), rec, ident, existing, record_exists=rec_path.exists(), overwrite=overwrite,
                           settings_key=run.settings.legacy_key() or "", alias_keys=alias_keys,
                           explain=lambda kind, record, cal=cal: run.settings.differences(kind, record, cal))
@@ -493,7 +523,8 @@ def run_batch(
     out.mkdir(parents=True, exist_ok=True)
     report = BatchReport(str(out), manifest=str(out / MANIFEST), not_frames=not_frames)
     t0 = time.perf_counter()
-    run_id = time.strftime("%Y%m%dT%H%M%S") + f"-{os.getpid()}"
+    # Unique among runs: two runs of one process may start within a second.
+    run_id = time.strftime("%Y%m%dT%H%M%S") + f"-{os.getpid()}-{secrets.token_hex(3)}"
     with outdir_lock(out):
         writer = OutputWriter(out)
         # Temporary files left by a killed run are never outputs; clear them.

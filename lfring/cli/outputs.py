@@ -28,7 +28,7 @@ from pathlib import Path
 
 import click
 
-from lfring.batch.record import (RECORD_SUFFIX, RECORD_VERSION, decide_resume, file_identity, input_identity, read_record,
+from lfring.batch.record import (RECORD_SUFFIX, RECORD_VERSION, as_recorded, decide_resume, file_identity, input_identity, read_record,
                                  same_input)
 from lfring.core.signals import deliver_lost_stops, held_signals
 from lfring.errors import InvalidInputError
@@ -83,15 +83,6 @@ def _same_file(a: Path, b: Path) -> bool:
     """Whether two paths name one file (a case-insensitive file system's two spellings, links)."""
     try:
         return os.path.samefile(a, b)
-    except OSError:
-        return False
-
-
-def _as_recorded(made: dict, rel: str, path: Path) -> bool:
-    """Whether the file at ``path`` is as a record's ``output_identity`` (``made``) found it
-    under ``rel``: not written since by another command or by hand."""
-    try:
-        return rel in made and made[rel] == file_identity(path)
     except OSError:
         return False
 
@@ -226,7 +217,7 @@ class OutputSet:
         made = (rec or {}).get("output_identity") or {}
         for p in self.paths:
             rel = self._rel(p)
-            if rel in existing and rel in made and not _as_recorded(made, rel, p):
+            if rel in existing and rel in made and not as_recorded(made, rel, p):
                 return p
         return None
 
@@ -262,7 +253,7 @@ class OutputSet:
                 continue
             if not path.is_file() or path.is_symlink() or any(_same_file(path, p) for p in self.paths):
                 continue
-            if _as_recorded(made, rel, path):
+            if as_recorded(made, rel, path):
                 out.append(path)
         return out
 

@@ -321,3 +321,25 @@ def test_a_record_names_the_run_and_settings_that_made_each_output(tmp_path, cap
     again = json.loads((out / "scene.lfring.json").read_text())
     assert again["output_runs"] == {**rec["output_runs"], "refocus_0.9m": again["run"]}
     assert again["earlier_settings"] == {first: earlier, rec["run"]: rec["settings"]}
+
+
+def test_an_output_written_since_by_hand_is_not_taken_as_done(tmp_path, capsys):
+    """A rerun meets an output that was changed after the batch wrote it: the frame is refused
+    (not skipped as done, not overwritten), until --overwrite redoes it."""
+    from pathlib import Path
+
+    frame = str(Path(__file__).resolve().parents[2] / "data" / "synthetic" / "scene.png")
+    out = tmp_path / "out"
+    base = ["batch", frame, "-o", str(out), "--refocus", "0.5", "--method", "shift-and-add", "--workers", "1",
+            "--no-progress"]
+    assert main(base) == 0
+    image = out / "scene_refocus_0.5m.png"
+    good = image.read_bytes()
+    assert main(base) == 0 and "1 skipped" in capsys.readouterr().out  # untouched: done
+    image.write_bytes(b"edited")
+    assert main(base) == 1
+    err = " ".join(capsys.readouterr().err.split())
+    assert "scene_refocus_0.5m.png exists and was written since lfring batch made it" in err and "--overwrite" in err
+    assert image.read_bytes() == b"edited"
+    assert main([*base, "--overwrite"]) == 0
+    assert image.read_bytes() == good
