@@ -140,6 +140,9 @@ def _expand_inputs(inputs, *, outdir, exclude, skipped, sizes) -> list[BatchJob]
                         if f.suffix.lower() == ".json":
                             skipped.append((str(f), "a sidecar or record (JSON)"))
                         continue
+                    if f.exists() and not f.is_file():  # a named pipe would wait for a writer
+                        skipped.append((str(f), "not a regular file"))
+                        continue
                     if sizes is not None:
                         size = frame_size(f)
                         if size == (0, 0):
@@ -159,6 +162,8 @@ def _expand_inputs(inputs, *, outdir, exclude, skipped, sizes) -> list[BatchJob]
         elif p.is_file():
             if not excluded(p.name, p):
                 found.append((p, p.name))
+        elif p.exists():
+            raise InvalidInputError(f"{arg}: not a regular file (a named pipe or a device); give frame files or folders")
         elif glob.has_magic(arg):
             matches = sorted(glob.glob(arg, recursive=True))
             files = [Path(m) for m in matches if Path(m).is_file()]

@@ -110,7 +110,7 @@ class BatchReport:
         flats = ""
         if self.left_out:
             flats = f"; {len(self.left_out)} left out ({', '.join(sorted({why.split(' (')[0] for _, why in self.left_out}))})"
-        return (f"{n} frames: {len(self.done)} done, {len(self.skipped)} skipped (already done), "
+        return (f"{n} frame{'s' * (n != 1)}: {len(self.done)} done, {len(self.skipped)} skipped (already done), "
                 f"{len(self.failed)} failed in {self.elapsed_s:.1f} s{rate}{flats}; outputs in {self.outdir}{left}")
 
 

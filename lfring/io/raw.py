@@ -335,7 +335,7 @@ def load_raw(
     if not p.exists():
         raise LfringFileNotFoundError(f"{p}: no such file")
     if not p.is_file():
-        raise FileFormatError(f"{p}: not a regular file (a directory?); expected a raw frame file")
+        raise FileFormatError(f"{p}: not a regular file (a folder, a named pipe or a device); expected a raw frame file")
     if p.stat().st_size == 0:
         raise FileFormatError(f"{p}: the file is empty (0 bytes); expected a raw frame file")
     overrides = {

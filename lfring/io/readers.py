@@ -45,9 +45,11 @@ def frame_size(path: str | Path) -> tuple[int, int] | None:
     """(width, height) of a PNG or TIFF frame read from its header (no pixels); (0, 0) where the
     file holds float samples (a map, not raw counts); None where the header does not tell it
     cheaply (camera RAW, a DNG under a TIFF name, unreadable files: the frame's own error says why
-    when it is read)."""
+    when it is read). Only regular files are opened: a named pipe would wait for a writer."""
     p = Path(path)
     suffix = p.suffix.lower()
+    if not p.is_file():
+        return None
     try:
         if suffix == ".png":
             with open(p, "rb") as f:

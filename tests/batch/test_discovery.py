@@ -68,6 +68,29 @@ def test_scan_inputs_leaves_out_what_is_not_a_frame(tmp_path):
     assert [Path(j.input).name for j in scan_inputs([str(root / "small.png")], frame_sizes={(10, 8)})[0]] == ["small.png"]
 
 
+@pytest.mark.skipif(not hasattr(__import__("os"), "mkfifo"), reason="needs named pipes")
+def test_a_named_pipe_is_not_opened(tmp_path):
+    """A named pipe (or a device) under a frame's name would block the first read until a writer
+    came: in a folder it is left out, named on its own it is refused, and load_raw refuses it."""
+    import os
+
+    import lfring
+    from lfring.batch import scan_inputs
+    from lfring.errors import FileFormatError
+
+    root = tmp_path / "in"
+    root.mkdir()
+    cv2.imwrite(str(root / "a.png"), np.zeros((8, 10), np.uint16))
+    os.mkfifo(root / "pipe.png")
+    jobs, skipped = scan_inputs([str(root)], frame_sizes={(10, 8)})
+    assert [Path(j.input).name for j in jobs] == ["a.png"]
+    assert (str(root / "pipe.png"), "not a regular file") in skipped
+    with pytest.raises(InvalidInputError, match="pipe.png: not a regular file"):
+        scan_inputs([str(root / "pipe.png")], frame_sizes={(10, 8)})
+    with pytest.raises(FileFormatError, match="not a regular file"):
+        lfring.load_raw(root / "pipe.png")
+
+
 def test_a_folder_of_frames_of_another_size_says_so(tmp_path, caplog):
     """A folder whose frames are all of a size the run's calibration does not read: the run
     said 'no frames found (suffixes ...)', as if the files were not images, and -v listed
