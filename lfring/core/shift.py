@@ -10,6 +10,7 @@ import numpy as np
 
 from lfring.core.threads import run_threads
 from lfring.core.viewstack import inverse_weight
+from lfring.errors import InvalidInputError
 
 __all__ = ["STRIP_BYTES", "ShiftEngine"]
 
@@ -232,7 +233,8 @@ class ShiftEngine:
     def run(self, views: np.ndarray, out: np.ndarray, *, masks=None, inv=None, inv_rows=None, threads: int = 1):
         """Accumulate the shifted views (V, h, w[, C]) into ``out`` (h, w[, C]) and normalise it
         by ``inv`` ((h, w) map) or, for an all-valid plan, ``inv_rows`` (the inverse row of every
-        band of :meth:`inv_bands`, shaped (w[, C])), if given. A plan with masks multiplies
+        band of :meth:`inv_bands`, shaped (w[, C])), if given. Views holding NaN or infinite
+        values raise :class:`lfring.errors.InvalidInputError`. A plan with masks multiplies
         every view by its mask first. Single-channel masks and ``inv`` are spread over the
         channels strip by strip, in the cache: memory traffic, not arithmetic, bounds this."""
         h, w = self.view_shape
@@ -277,6 +279,11 @@ class ShiftEngine:
                 elif inv_rows is not None:
                     for sl, i in bands:
                         np.multiply(out[sl], inv_rows[i], out=out[sl])
+                if not np.isfinite(acc.sum()):  # the strip is in the cache: a NaN or an infinity is caught here cheaply
+                    finite[0] = False
 
+        finite = [True]
         run_threads([lambda c=c: work(c) for c in chunks], threads)
+        if not finite[0]:
+            raise InvalidInputError("views contain NaN or infinite values")
         return out

@@ -182,6 +182,8 @@ class Refocuser:
                 warp_image(s_k, self.H[k], (w, h), dst=tmp, interpolation=self._flag)
                 cv2.add(acc, tmp, dst=acc)
         cv2.multiply(acc, inv, dst=acc)
+        if not np.isfinite(acc.sum()):
+            raise InvalidInputError("views contain NaN or infinite values")
         if self._flag != cv2.INTER_LINEAR:
             np.clip(acc, 0.0, None, out=acc)  # bicubic overshoots below zero at dark edges
         return acc[..., None] if c == 1 else acc

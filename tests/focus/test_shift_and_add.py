@@ -175,3 +175,23 @@ def test_threads_work_in_a_forked_child():
 
 def _refocus_in_child(cal, views):
     return Refocuser(cal, 0.6, reference=0, threads=2)(views)
+
+
+@pytest.mark.parametrize("circles", [None, DISCS], ids=["valid-everywhere", "discs"])
+@pytest.mark.parametrize("projective", [False, True], ids=["shift-path", "general-warp"])
+def test_views_with_nan_or_infinity_are_refused(circles, projective):
+    """As depth estimation refuses them: a NaN or an infinity would spread over the output."""
+    from lfring.errors import InvalidInputError
+
+    warp = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [1e-5, 0.0, 1.0]]) if projective else None
+    cal = _calibration(SHIFTS, circles=circles, warp=warp)
+    r = Refocuser(cal, 0.5, reference=0)
+    assert r.shift_path != projective
+    for bad in (np.nan, np.inf, -np.inf):
+        views = _views(3)
+        views[1, H_PX // 2, W_PX // 2, 0] = bad
+        with pytest.raises(InvalidInputError, match="NaN or infinite"):
+            r(views)
+        with pytest.raises(InvalidInputError, match="NaN or infinite"):
+            refocus(views, cal, 0.5, reference=0)
+    assert np.isfinite(r(_views(3))).all()
