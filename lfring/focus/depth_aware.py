@@ -52,11 +52,12 @@ layers are :mod:`lfring.focus.layers`; the per-pixel passes are compiled
 from __future__ import annotations
 
 import math
+import warnings
 
 import cv2
 import numpy as np
 
-from lfring.errors import InvalidInputError
+from lfring.errors import InvalidInputError, LfringWarning
 from lfring.core.geometry import apply_homography, check_reference, to_reference
 from lfring.core.viewstack import WEIGHT_FLOOR, cached_view_masks, check_views
 from lfring.core.validate import check_number
@@ -343,6 +344,7 @@ class DepthOfField:
         self._back = self._background(sources, masks, nearest)
         self._cover = self.seen.astype(np.float32)
         self._scratch: dict = {}
+        self._vmax = float(arr.max())  # every image rendered is a weighted average of the views
         self._x_range = (float(self.x[self.seen].min()), float(self.x[self.seen].max())) if self.seen.any() else (1.0, 1.0)
 
     def all_in_focus(self) -> tuple[np.ndarray, np.ndarray]:
@@ -586,7 +588,7 @@ class DepthOfField:
                 window = (rows[0], rows[-1] + 1, cols[0], cols[-1] + 1)
                 rmax = max(rmax, aperture * motion * max(abs(xb_range[0] - xf), abs(xb_range[1] - xf)))
         grid = Grid(ladder(rmax), (h, w), c, (xf, motion, aperture), self._scratch,
-                    (SHARP_PX, SHARP_RAMP_PX, SHARP_RESAMPLED_PX2))
+                    (SHARP_PX, SHARP_RAMP_PX, SHARP_RESAMPLED_PX2), self._vmax)
         acc = composite(grid.layers(kern, self.x, self.agree, self._cover, self.colour, sharp), grid, kern)
         by, bx, summed = 0, 0, NO_IMAGE
         if window is not None:
@@ -762,9 +764,21 @@ def depth_to_render(depth, calibration, reference, shape) -> tuple[np.ndarray, f
         if depth.reference != reference:
             raise InvalidInputError(f"the depth map is in the frame of reference {depth.reference!r}, the refocusing in {reference!r}")
         depth = _estimated_depth(depth, calibration, reference)
-    dm = np.asarray(depth, dtype=np.float64)
+    try:
+        dm = np.asarray(depth, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InvalidInputError(f"the depth map must be (h, w) metres (NaN where unknown), got {type(depth).__name__}") from None
     if dm.shape != tuple(shape):
         raise InvalidInputError(f"the depth map must be (h, w) = ({shape[0]}, {shape[1]}) metres like the views, got shape {dm.shape}")
+    if not estimated:
+        # NaN says unknown; 0 says it too for many depth sensors, but it may be a mistake: say so.
+        z0 = calibration.depth_origin_m
+        odd = ~np.isnan(dm) & ~(np.isfinite(dm) & (dm > z0))
+        if odd.any():
+            warnings.warn(LfringWarning(
+                f"{int(odd.sum())} pixels of the depth map ({odd.mean():.1%}) are not depths beyond the depth origin "
+                f"z0 = {z0:.4g} m (0, negative, nearer or infinite; e.g. {float(dm[odd][0]):g}): taken as unknown, "
+                "as NaN is, and rendered at the nearest known depth"), stacklevel=3)
     return dm, MIN_ESTIMATED_VIEWS if estimated else MIN_DEPTH_VIEWS
 
 

@@ -26,7 +26,10 @@ GEOMETRIC_STEP = 1.2
 # A rung's layer is blurred on a grid reduced by a power of two f (area averaging down, bicubic
 # up), as far as its disc there stays at least COARSE_DISC_PX: a blurred layer holds no detail
 # finer than its disc. The area averaging itself spreads a pixel by f^2 / 12 per axis, a disc of
-# radius r by r^2 / 4: the disc there is shrunk to radius sqrt(r^2 - f^2 / 3) / f.
+# radius r by r^2 / 4: the disc there is shrunk to radius sqrt(r^2 - f^2 / 3) / f. Bicubic's
+# negative lobes overshoot where a layer's coverage falls steeply, and where little covers a pixel
+# (the frame's corners) the colour divided by it left the views' range: the resized cells are
+# clamped to what premultiplied colour and coverage can be (see _resize).
 COARSE_DISC_PX = 3.0
 
 
@@ -89,23 +92,37 @@ def grid_factor(radius_px: float) -> int:
     return f
 
 
-def _resize(cells: np.ndarray, size) -> np.ndarray:
-    """``cells`` (rows, cols[, n]) resized bicubically to ``size`` (width, height), any ``n``."""
+def _resize(cells: np.ndarray, size, vmax: float) -> np.ndarray:
+    """``cells`` (rows, cols[, n]) resized bicubically to ``size`` (width, height), any ``n``,
+    and clamped to what they can hold: a map (a transmission, a coverage) to [0, 1]; cells of
+    premultiplied colour and coverage (the last value) to a coverage of at least 0 and colours
+    in [0, coverage * ``vmax``], ``vmax`` the largest colour of what was blurred (clipping the
+    coverage at 1 as well moved the image further from the same layers blurred at full
+    resolution)."""
     if cells.ndim == 2 or cells.shape[2] <= 4:
         out = cv2.resize(cells, size, interpolation=cv2.INTER_CUBIC)
-        return out if out.ndim == cells.ndim else out[..., None]
-    return np.stack([cv2.resize(np.ascontiguousarray(cells[..., i]), size, interpolation=cv2.INTER_CUBIC)
-                     for i in range(cells.shape[2])], axis=2)
+        out = out if out.ndim == cells.ndim else out[..., None]
+    else:
+        out = np.stack([cv2.resize(np.ascontiguousarray(cells[..., i]), size, interpolation=cv2.INTER_CUBIC)
+                        for i in range(cells.shape[2])], axis=2)
+    if out.ndim == 2:
+        return np.clip(out, 0.0, 1.0, out=out)
+    cover = np.maximum(out[..., -1:], 0.0, out=out[..., -1:])
+    colour = out[..., :-1]
+    np.maximum(colour, 0.0, out=colour)
+    np.minimum(colour, cover * np.float32(vmax), out=colour)
+    return out
 
 
 class Layer:
     """One rung's premultiplied colour and coverage (rows, cols, C + 1) on its grid (reduced
-    ``f`` times; full-resolution origin ``y0``, ``x0``), blurred by the rung's disc."""
+    ``f`` times; full-resolution origin ``y0``, ``x0``), blurred by the rung's disc; ``vmax``
+    the largest colour blurred."""
 
-    __slots__ = ("_full", "cells", "f", "k", "x0", "y0")
+    __slots__ = ("_full", "cells", "f", "k", "vmax", "x0", "y0")
 
-    def __init__(self, k, f, y0, x0, cells):
-        self.k, self.f, self.y0, self.x0, self.cells = k, f, y0, x0, cells
+    def __init__(self, k, f, y0, x0, cells, vmax):
+        self.k, self.f, self.y0, self.x0, self.cells, self.vmax = k, f, y0, x0, cells, vmax
         self._full = None
 
     @property
@@ -117,7 +134,7 @@ class Layer:
         """The cells at full resolution over :attr:`extent`."""
         if self._full is None:
             _, y1, _, x1 = self.extent
-            self._full = self.cells if self.f == 1 else _resize(self.cells, (x1 - self.x0, y1 - self.y0))
+            self._full = self.cells if self.f == 1 else _resize(self.cells, (x1 - self.x0, y1 - self.y0), self.vmax)
         return self._full
 
 
@@ -128,10 +145,12 @@ class Grid:
     ``params`` is (x_f, R, aperture): the focus's inverse depth, the view motion per unit of it
     and the aperture; ``sharp_rule`` (in-focus px, ramp px, the shift-and-add image's own second
     moment, px^2) the renderer's share of the shift-and-add image; ``scratch`` the renderer's
-    kept memory (a dict)."""
+    kept memory (a dict); ``vmax`` the largest colour of the views (layers resized up are
+    clamped by it)."""
 
-    def __init__(self, radii, shape, channels, params, scratch, sharp_rule):
+    def __init__(self, radii, shape, channels, params, scratch, sharp_rule, vmax: float = 1.0):
         self.radii = radii
+        self.vmax = float(vmax)
         self.scratch = scratch
         self.n = len(radii) - 1
         self.factors = np.array([grid_factor(r) for r in radii], np.int64)
@@ -217,7 +236,7 @@ class Grid:
                 reach = kernel.shape[0] // 2
                 cells, src = blurred[cut].reshape(cells.shape), cells
                 kern.disc_blur(src, np.ascontiguousarray(kernel[reach:, reach:]), cells)
-            out.append(Layer(k, f, int(y0[k]), int(x0[k]), cells))
+            out.append(Layer(k, f, int(y0[k]), int(x0[k]), cells, self.vmax))
         return out
 
 
@@ -267,8 +286,8 @@ def composite(layers: list, grid: Grid, kern) -> np.ndarray:
             behind, py, px = (prev.full(), prev.y0, prev.x0) if adjacent else (NO_IMAGE, 0, 0)
             # A group of one layer composited over zeros is that layer: its full-resolution cells
             # (kept for the next layer, which has it behind) are the group's.
-            full = group[0].full() if len(group) == 1 else _resize(g, size)
-            kern.merge(acc, uy0, ux0, full, _resize(trans, size), _resize(skip, size) if adjacent else NO_MAP,
+            full = group[0].full() if len(group) == 1 else _resize(g, size, grid.vmax)
+            kern.merge(acc, uy0, ux0, full, _resize(trans, size, 1.0), _resize(skip, size, 1.0) if adjacent else NO_MAP,
                        behind, py, px)
             prev = group[-1]
         i = j

@@ -3,6 +3,7 @@ planes, a near one partly covering a far one, rendered as four views by shifting
 occlusion; the exact depth map is given."""
 
 import math
+from pathlib import Path
 
 import cv2
 import numba
@@ -14,11 +15,12 @@ from lfring.core.threads import numba_threads
 from lfring.focus.depth_aware import (MIN_DEPTH_VIEWS, MIN_ESTIMATED_VIEWS, DepthOfField, aperture_from_f_number,
                                       aperture_radius_px, coc_radius_px)
 from lfring.depth import DepthResult
-from lfring.errors import InvalidInputError
+from lfring.errors import InvalidInputError, LfringWarning
 from lfring.focus import Refocuser, all_in_focus, depth_of_field, focal_stack, refocus, resolve_aperture
 from lfring.optics import load_device
 from lfring.views import Layout
 
+SCENE = Path(__file__).resolve().parents[2] / "data" / "synthetic" / "scene.png"
 N = 96  # view side
 FAR_M, NEAR_M = 2.0, 0.5  # x = 1/Z: 0.5 and 2 (z0 = 0)
 GAIN = 4.0  # view motion per unit x along each axis: shifts of 2 px (far) and 8 px (near)
@@ -556,6 +558,18 @@ def test_unknown_depths_are_continued_from_the_nearest_known_ones():
         all_in_focus(views, cal, [NEAR_M, FAR_M], depth_map_m=np.full(depth.shape, np.nan))
     with pytest.raises(InvalidInputError, match=r"must be \(h, w\) = \(96, 96\) metres like the views, got shape \(4, 4\)"):
         all_in_focus(views, cal, [NEAR_M, FAR_M], depth_map_m=np.ones((4, 4)))
+    # Zeros (many depth sensors' "no reading"), negatives, depths nearer than z0 and infinities
+    # are no depths either: rendered as NaN is, and said.
+    nan_out = refocus(views, cal, FAR_M, method="depth-aware", depth=unknown, aperture=0.0)
+    for bad in (0.0, -0.5, np.inf, -np.inf):
+        odd = depth.astype(np.float64)
+        odd[hole] = bad
+        with pytest.warns(LfringWarning, match=r"256 pixels of the depth map \(2.8%\) are not depths beyond the depth "
+                                               r"origin z0 = 0 m .*taken as unknown, as NaN is"):
+            out = refocus(views, cal, FAR_M, method="depth-aware", depth=odd, aperture=0.0)
+        np.testing.assert_array_equal(out, nan_out)
+    with pytest.raises(InvalidInputError, match=r"the depth map must be \(h, w\) metres"):
+        refocus(views, cal, FAR_M, method="depth-aware", depth="far")
 
 
 def test_a_renderer_given_as_the_depth_map_is_used_as_it_is(renderers_made):
@@ -638,3 +652,20 @@ def test_the_depth_range_of_a_calibration_without_an_upper_bound():
     for bad in ({"zmin_m": -1.0}, {"zmax_m": float("nan")}, {"zmax_m": "far"}):
         with pytest.raises(InvalidInputError, match="must be a distance in metres"):
             estimation_range(pair, **bad)
+
+
+def test_never_brighter_or_darker_than_the_views_however_wide_the_blur():
+    """A blur is a weighted average: at any aperture (wide ones blur on reduced grids, whose
+    reconstruction must not overshoot where little covers a pixel, at the frame's corners) the
+    image stays within the views' values."""
+    import lfring
+
+    cal = lfring.RingCalibration.load("twin_binned2")
+    views = lfring.split_views(lfring.demosaic(lfring.load_raw(SCENE)), cal)
+    lo, hi = float(views.min()), float(views.max())
+    far = np.full(cal.layout.view_shape, 1.0, np.float32)
+    dof = depth_of_field(views, cal, depth=far)
+    sharp = refocus(views, cal, 0.5)
+    for aperture in (1.0, 3.0, 6.0, 8.0):
+        out = dof.render(0.5, aperture, sharp)
+        assert lo - 1e-6 <= float(out.min()) and float(out.max()) <= hi + 1e-6, (aperture, out.min(), out.max(), hi)
