@@ -35,9 +35,10 @@ from dataclasses import dataclass, replace
 import cv2
 import numpy as np
 
-from lfring.errors import InvalidInputError, LfringWarning
+from lfring.errors import InvalidInputError, LfringError, LfringWarning
 from lfring.depth.costs.lcn import LCN_AGGREGATE_PX
 from lfring.depth.plan import sweep_masks
+from lfring.depth.selection import DepthResult
 from lfring.depth.hypotheses import check_depth_range, depth_hypotheses, view_motion_px
 from lfring.core.geometry import check_reference
 from lfring.core.validate import check_fraction, check_int, check_number, is_integer
@@ -328,6 +329,11 @@ def _check_inputs(views, calibration, *, plane_m, tolerance_m, roi, reference_de
             f"{calibration.layout.view_shape[1]} x {calibration.layout.view_shape[0]} px views"
         )
     box = _check_roi(roi, shape)
+    if isinstance(reference_depth_m, DepthResult):  # a golden part's estimate: its measured depths
+        if reference_depth_m.reference != ref:
+            raise InvalidInputError(f"reference_depth_m is a depth map in the frame of reference "
+                                    f"{reference_depth_m.reference!r}, the inspection in {ref!r}")
+        reference_depth_m = reference_depth_m.depth_m
     target = None if reference_depth_m is None else _check_reference_depth(reference_depth_m, shape, z0)
     return _Checked(arr, plane, tol, ref, box, target, threshold, coverage)
 
@@ -602,9 +608,9 @@ def inspect_frame(
     roi : (x, y, w, h) ints, optional
         Region of interest in pixels of the reference frame; only it can raise alarms, and
         the part is looked for inside it.
-    reference_depth_m : (h, w) float, optional
+    reference_depth_m : (h, w) float or DepthResult, optional
         Expected depth of every reference pixel in metres (a golden part's depth map, NaN
-        where unknown) instead of the plane. The plane still sets the refocused image and
+        where unknown; of a :class:`lfring.DepthResult`, its ``depth_m``) instead of the plane. The plane still sets the refocused image and
         the highlighted working plane.
     reference : 'center' or int
         Frame of every map and of the defects' boxes.
@@ -631,7 +637,9 @@ def inspect_frame(
     consistency_threshold : float
         Pixels whose :func:`photo_consistency` at the plane is below it form ``plane_mask``.
     device : RingDevice, optional
-        The optics (binned to the frame), for defect areas in mm^2.
+        The optics (binned to the frame), for defect areas in mm^2; by default the device the
+        calibration names, binned to its frames (areas in pixels only when it names none, or
+        one that does not fit them).
     backend : {'numpy', 'torch'}
         Of the plane sweep (:func:`lfring.estimate_depth`).
 
@@ -703,6 +711,13 @@ def inspect_frame(
                         consistency_threshold=consistency_threshold, min_coverage=min_coverage)
     chk = _target_near_plane(calibration, chk, zmin_m, zmax_m)
     zlo, zhi, num_planes = _plan_band(calibration, chk, zmin_m, zmax_m, num_planes)
+    if device is None and calibration.device:
+        from lfring.depth.io import device_for
+
+        try:
+            device = device_for(calibration)
+        except LfringError:  # an unknown device, or one of another sensor: areas in pixels
+            device = None
     footprint_mm = _footprint_mm(device, calibration, chk.plane_m)  # checks the device before the work
 
     depth, refocused, consistency, contrast, num_views = _measure(chk, calibration, zlo, zhi, num_planes, backend)

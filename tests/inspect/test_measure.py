@@ -88,6 +88,16 @@ def test_roi_and_reference_depth(parts):
     known = np.where(res.reliable, res.depth.depth_m, np.nan).astype(np.float32)  # NaN where unknown
     golden = inspect_frame(views, cal, plane_m=PLANE, tolerance_m=TOL, reference_depth_m=known)
     assert golden.passed and golden.settings["reference_depth"] is True
+    # The golden part's DepthResult itself: its measured depths; in another frame, refused.
+    with pytest.warns(LfringWarning, match="tolerance_m"):  # the map reaches the belt, where 8 mm is little motion
+        golden = inspect_frame(views, cal, plane_m=PLANE, tolerance_m=TOL, reference_depth_m=res.depth)
+    assert golden.passed and golden.settings["reference_depth"] is True
+    with pytest.raises(InvalidInputError, match="in the frame of reference 'center', the inspection in 0"):
+        inspect_frame(views, cal, plane_m=PLANE, tolerance_m=TOL, reference_depth_m=res.depth, reference=0)
+    # Without device=, areas come from the device the calibration names (binned to its frames).
+    assert cal.device == "prototype" and only.defects[0].area_mm2 is not None
+    explicit = inspect_frame(views, cal, plane_m=PLANE, tolerance_m=TOL, roi=inside, device=r.device)
+    assert only.defects[0].area_mm2 == pytest.approx(explicit.defects[0].area_mm2)
 
 
 @pytest.mark.parametrize(
