@@ -24,7 +24,7 @@ import numpy as np
 from lfring.core.lens import FlatField, remap_views, undistortion_maps
 from lfring.core.protocols import Calibration
 from lfring.core.validate import check_bool, check_choice, check_int, is_integer
-from lfring.core.viewstack import calibration_cache
+from lfring.core.viewstack import calibration_cache, check_unit_range
 from lfring.errors import EstimationError, FileFormatError, InvalidInputError
 from lfring.io.readers import LAYOUT_KEY
 
@@ -269,6 +269,7 @@ def _cut(image, layout: Layout) -> np.ndarray:
             f"image is {arr.shape[1]} x {arr.shape[0]} px but the layout is for "
             f"{layout.raw_width_px} x {layout.raw_height_px} px frames"
         )
+    check_unit_range(arr, "the image")
     if layout.rotate180:
         arr = arr[::-1, ::-1]
     h, w = layout.view_shape

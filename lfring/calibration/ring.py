@@ -162,13 +162,22 @@ class RingCalibration:
         """(width, height) of the raw frames this calibration belongs to."""
         return self.layout.raw_width_px, self.layout.raw_height_px
 
-    def check_depth(self, depth_m, *, stacklevel: int = 3) -> np.ndarray:
-        """Validate depths (finite, beyond z0) and warn for those outside the valid range."""
-        z = np.asarray(depth_m, dtype=np.float64)
-        if not np.all(np.isfinite(z)) or np.any(z <= 0):
-            raise InvalidInputError(f"depth must be a positive, finite number of metres, got {depth_m!r}")
-        if np.any(z <= self.depth_origin_m):
-            raise InvalidInputError(f"depth {float(np.min(z))} m is not beyond the calibration's depth origin {self.depth_origin_m:.4g} m")
+    def check_depth(self, depth_m, *, stacklevel: int = 3, name: str = "depth_m") -> np.ndarray:
+        """Validate depths (numbers, finite, beyond z0) and warn for those outside the valid
+        range; ``name`` is how the messages name them (an entry of a list by its index)."""
+        raw = np.asarray(depth_m)
+        if raw.dtype.kind not in "iuf":
+            raise InvalidInputError(f"{name} must be {'a number' if raw.ndim == 0 else 'numbers'} of metres, got {depth_m!r}")
+        z = raw.astype(np.float64)
+        flat = np.atleast_1d(z).ravel()
+        bad = np.flatnonzero(~np.isfinite(flat) | (flat <= 0))
+        where = lambda i: name if z.ndim == 0 else f"{name}[{i}]"  # noqa: E731
+        if bad.size:
+            raise InvalidInputError(f"{where(bad[0])} must be a positive, finite number of metres, got {flat[bad[0]]:g}")
+        near = np.flatnonzero(flat <= self.depth_origin_m)
+        if near.size:
+            raise InvalidInputError(f"{where(near[0])} ({flat[near[0]]:g} m) is not beyond the calibration's depth origin "
+                                    f"{self.depth_origin_m:.4g} m")
         lo, hi = self.valid_depth_range_m
         outside = (z < lo) | (z > hi if hi is not None else False)
         if np.any(outside):

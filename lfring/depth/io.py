@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from lfring.core.validate import check_number, check_view_index
+from lfring.core.viewstack import check_unit_range
 from lfring.errors import DeviceError, FileFormatError, InvalidInputError, LfringFileNotFoundError
 from lfring.io.atomic import atomic_write_bytes
 from lfring.io.writers import write_float_tiff
@@ -140,7 +141,7 @@ def _colour_table(cmap: str) -> np.ndarray:
 
 def _shown(z: np.ndarray, confidence, min_confidence) -> np.ndarray:
     """Pixels with a finite depth and, when given, confidence >= min_confidence."""
-    check_number(min_confidence, "min_confidence")
+    check_number(min_confidence, "min_confidence", minimum=0.0, maximum=1.0, hint=" (confidence lies in [0, 1])")
     shown = np.isfinite(z)
     if confidence is not None:
         c = _float_map(confidence, "confidence")
@@ -287,7 +288,9 @@ def _colour_bytes(colors, shape_hw) -> np.ndarray:
     if c.dtype == np.uint8:
         return c
     if np.issubdtype(c.dtype, np.floating):
-        # Processing images are float in [0, 1]; PLY stores 8 bits. Out-of-range values clip.
+        # Processing images are float in [0, 1]; PLY stores 8 bits. Out-of-range values clip,
+        # but counts given as floats (0..255) would all be white.
+        check_unit_range(c, "colors")
         return np.rint(np.clip(np.nan_to_num(c, nan=0.0), 0.0, 1.0) * 255.0).astype(np.uint8)
     raise InvalidInputError(f"colors must be uint8 or float in [0, 1], got dtype {c.dtype}")
 

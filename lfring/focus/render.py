@@ -60,9 +60,11 @@ def refocus(views, calibration, depth_m: float, *, reference="center", interpola
         From :func:`lfring.split_views` with the calibration's layout.
     calibration : RingCalibration
     depth_m : float
-        Must be positive and beyond the calibration's depth origin; outside its valid range it
+        Metres, finite, beyond the calibration's depth origin; outside its valid range it
         warns (:class:`lfring.LfringWarning`). Nearer than where every view still covers part
-        of the reference frame (``calibration.overlap_depth_range``) it is refused.
+        of the reference frame (``calibration.overlap_depth_range``) it is refused. For focus
+        at infinity (the command line's ``--depth inf``) give a depth far enough that the
+        model has reached its limit, ``lfring.calibration.overlap.INFINITE_DEPTH_M``.
     reference : 'center' or int
         Frame of the result: the virtual central view (default) or a view index.
     interpolation : {'linear', 'cubic'}
@@ -166,11 +168,10 @@ def focal_stack(views, calibration, depths_m, *, reference="center", interpolati
     check_calibration(calibration)
     m = _method(method, "numpy", dict(aperture=aperture, f_number=f_number, ring_device=ring_device, depth=depth,
                                       zmin_m=zmin_m, zmax_m=zmax_m))
-    z = np.atleast_1d(np.asarray(depths_m, dtype=np.float64))
+    z = np.atleast_1d(calibration.check_depth(depths_m, name="depths_m"))  # validates and warns once for the stack
     if z.ndim != 1 or z.size == 0:
         raise InvalidInputError(f"depths_m must be a non-empty list of depths, got {depths_m!r}")
     arr = check_views(views)
-    calibration.check_depth(z)  # validates and warns once for the whole stack
     check_renderable(calibration, z, reference=reference)
     finish = None
     if m.prepare is not None:
@@ -270,8 +271,7 @@ def all_in_focus(views, calibration, depths_m=None, *, depth_map_m=None, referen
             raise InvalidInputError("give depths_m: the calibration has no upper depth bound, and none follows from "
                                     "it (see lfring.focus.depth_aware.estimation_range)") from None
         depths_m = depth_hypotheses(calibration, lo, hi)
-    z = np.atleast_1d(np.asarray(depths_m, dtype=np.float64))
-    calibration.check_depth(z)
+    z = np.atleast_1d(calibration.check_depth(depths_m, name="depths_m"))
     masks = cached_view_masks(calibration, (h, w))
     if depth_map_m is not None:
         target = np.where(known, dm, z[0])

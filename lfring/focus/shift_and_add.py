@@ -17,7 +17,7 @@ from lfring.core.backend import kernels_run_on, require_torch, resolve_device
 from lfring.core.transfer import (check_frames, count_levels, device_masks, download, frames_dtype, inverse_maps, is_tensor,
                                   normalised, to_device)
 from lfring.core.shift import ShiftEngine
-from lfring.core.validate import check_threads
+from lfring.core.validate import check_threads, is_number
 from lfring.core.viewstack import WEIGHT_FLOOR, cached_view_masks, check_views, inverse_weight
 from lfring.core.warping import DEFAULT_INTERPOLATION, interpolation_flag, translation_of, warp_image
 from lfring.errors import InvalidInputError
@@ -82,6 +82,8 @@ class Refocuser:
         check_calibration(calibration)
         if np.ndim(depth_m) != 0:
             raise InvalidInputError("Refocuser takes one depth; use focal_stack for several")
+        if not is_number(depth_m):
+            raise InvalidInputError(f"depth_m must be a number of metres, got {depth_m!r}")
         check_threads(threads)
         self.depth_m = float(depth_m)
         self.reference = reference

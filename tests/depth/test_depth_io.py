@@ -242,6 +242,11 @@ def test_points_bad_input(plane_render):
         depth_to_points(np.full_like(z, 0.01), r.device, r.layout, 0)
     with pytest.raises(InvalidInputError, match="colors"):
         depth_to_points(z, r.device, r.layout, 0, colors=np.zeros(z.shape + (3,), np.int32))
+    with pytest.raises(InvalidInputError, match=r"colors must be float in \[0, 1\].*raw counts"):
+        depth_to_points(z, r.device, r.layout, 0, colors=np.full(z.shape + (3,), 128.0, np.float32))
+    for bad in (2.0, -0.1):  # confidence lies in [0, 1]: such a threshold keeps every point or none
+        with pytest.raises(InvalidInputError, match=r"min_confidence must be a number >= 0 and <= 1"):
+            depth_to_points(z, r.device, r.layout, 0, confidence=np.ones_like(z), min_confidence=bad)
 
 
 # -- PLY ----------------------------------------------------------------------------------------

@@ -191,3 +191,21 @@ def test_depths_where_the_views_no_longer_overlap_are_refused():
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", LfringWarning)
         assert refocus(views, cal, nearest * 1.01).shape == views.shape[1:]
+
+
+def test_depths_that_are_not_numbers_of_metres_are_refused_by_name_and_entry():
+    cal = RingCalibration.load("twin_binned2")
+    views = np.full((4, *cal.layout.view_shape, 3), 0.5, np.float32)
+    for depth, match in (("0.5", r"depth_m must be a number of metres, got '0.5'"),
+                         (True, r"depth_m must be a number of metres, got True")):
+        with pytest.raises(InvalidInputError, match=match):
+            refocus(views, cal, depth)
+    for depths, match in (([0.5, float("nan")], r"depths_m\[1\] must be a positive, finite number of metres, got nan"),
+                          (["0.5"], r"depths_m must be numbers of metres, got \['0.5'\]"),
+                          ([0.5, 0.01], r"depths_m\[1\] \(0.01 m\) is not beyond the calibration's depth origin"),
+                          ([], "depths_m must be a non-empty list of depths")):
+        with pytest.raises(InvalidInputError, match=match):
+            focal_stack(views, cal, depths)
+    # Counts given as float32 are refused where the frame is cut, as where views are used.
+    with pytest.raises(InvalidInputError, match=r"the image must be float in \[0, 1\].*raw counts\?"):
+        split_views(np.full((*cal.layout.raw_shape, 3), 200.0, np.float32), cal.layout)
