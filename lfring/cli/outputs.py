@@ -112,6 +112,22 @@ def _input_files(params: dict) -> list[str]:
     return out
 
 
+def _canonical(value, files: set, output: bool):
+    """A parameter's value with the files it names (inputs in ``files``; any path when it is an
+    ``output`` option's) as their real paths."""
+    if isinstance(value, (tuple, list)):
+        return [_canonical(v, files, output) for v in value]
+    if isinstance(value, (str, Path)) and str(value):
+        real = os.path.realpath(value)
+        if output or real in files:
+            return real
+    return value
+
+
+def _settings_key(command: str, params: dict) -> str:
+    return hashlib.sha256(json.dumps({"command": command, **params}, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
 class OutputSet:
     """The outputs of one command run, written as a set.
 
@@ -155,8 +171,13 @@ class OutputSet:
         self._output_option = named[0] if named else "the output"
         self.inputs = [f for f in inputs if os.path.realpath(f) not in ours]
         self.settings = params
-        self.key = hashlib.sha256(json.dumps({"command": self.command, **params}, sort_keys=True,
-                                             default=str).encode()).hexdigest()[:16]
+        # The key names files by what they are, not by how this run spelled them (scene.png,
+        # ./scene.png, its absolute path); the key as earlier versions computed it, from the
+        # paths as typed, still stands for their outputs.
+        files = {os.path.realpath(f) for f in inputs}
+        canonical = {k: _canonical(v, files, k in OUTPUT_OPTIONS) for k, v in params.items()}
+        self.key = _settings_key(self.command, canonical)
+        self._typed_key = _settings_key(self.command, params)
         self._root = Path(os.path.commonpath([str(p.parent.absolute()) for p in [*self.paths, self.record]]))
 
     def _rel(self, p: Path) -> str:
@@ -178,18 +199,20 @@ class OutputSet:
         self._clear_stale_staging()
         planned = {self._rel(p): self._rel(p) for p in self.paths}
         existing = {rel for rel in planned if (self._root / rel).exists()}
-        identity = {p: input_identity(p) for p in self.inputs}
+        identity = {os.path.realpath(p): input_identity(p) for p in self.inputs}
         former = self._former_record()
         rec = read_record(self.record) if former is None else former
         if rec is not None and rec.get("command") != self.command:
             rec = None  # another command's record: its files are not ours
+        if rec is not None and isinstance(rec.get("input_identity"), dict):  # earlier records keyed paths as typed
+            rec = {**rec, "input_identity": {os.path.realpath(k): v for k, v in rec["input_identity"].items()}}
         changed = self._changed_since(rec, existing)
         if changed is not None and not self.overwrite:
             raise InvalidInputError(f"{changed} exists and was written since {self.command} made it with this record (by "
                                     "another command or by hand); pass --overwrite to replace it, or -o to write elsewhere")
         decision = decide_resume(planned, dict.fromkeys(planned, self.key), rec, identity, existing,
                                  record_exists=self.record.exists() or former is not None, overwrite=self.overwrite,
-                                 maker=self.command)
+                                 maker=self.command, alias_keys=dict.fromkeys(planned, self._typed_key))
         if decision.action != "refuse":
             return
         first = next((p for p in self.paths if self._rel(p) in existing), self.record)
@@ -347,7 +370,7 @@ class OutputSet:
         keys = dict.fromkeys(rels, self.key)
         atomic_write_text(self.record, json.dumps({
             RECORD_KEY: RECORD_VERSION, "command": self.command, "status": status, "input": self.inputs,
-            "input_identity": {p: input_identity(p) for p in self.inputs}, "settings_key": self.key,
+            "input_identity": {os.path.realpath(p): input_identity(p) for p in self.inputs}, "settings_key": self.key,
             "settings": self.settings, "outputs": dict(zip(rels, rels)),
             "output_keys": keys if status == "done" else {}, "pending_keys": {} if status == "done" else keys,
             "output_identity": {rel: file_identity(p) for rel, p in zip(rels, self.paths)} if status == "done" else {},

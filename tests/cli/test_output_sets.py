@@ -356,6 +356,29 @@ def test_a_rerun_from_other_input_files_says_so(tmp_path, capsys):
     assert main(["refocus", str(SCENE), "--depth", "0.5", "--method", "shift-and-add", "-o", out]) == 0
 
 
+def test_a_rerun_that_spells_the_same_files_otherwise_is_the_same_run(tmp_path, capsys, monkeypatch):
+    """scene.png, ./scene.png and the absolute path (from another folder) name one file, and
+    -o out.png and -o ./out.png one output: a rerun is a rerun, not another input."""
+    from lfring.cli.main import main
+
+    shutil.copy(SCENE, tmp_path / "scene.png")
+    shutil.copy(str(SCENE) + ".json", tmp_path / "scene.png.json")
+    run = ["--depth", "0.5", "--method", "shift-and-add"]
+    monkeypatch.chdir(tmp_path)
+    assert main(["refocus", "scene.png", *run, "-o", "out.png"]) == 0
+    made = (tmp_path / "out.png").stat().st_mtime_ns
+    assert main(["refocus", "./scene.png", *run, "-o", "./out.png"]) == 0, capsys.readouterr().err
+    (tmp_path / "sub").mkdir()
+    monkeypatch.chdir(tmp_path / "sub")
+    assert main(["refocus", str(tmp_path / "scene.png"), *run, "-o", "../out.png"]) == 0, capsys.readouterr().err
+    assert (tmp_path / "out.png").exists() and made > 0
+    # Another file is still another input.
+    shutil.copy(SCENE, tmp_path / "other.png")
+    shutil.copy(str(SCENE) + ".json", tmp_path / "other.png.json")
+    assert main(["refocus", str(tmp_path / "other.png"), *run, "-o", "../out.png"]) == 2
+    assert "from other input files" in capsys.readouterr().err
+
+
 def test_every_command_s_output_options_are_known_as_outputs():
     """The rule that tells outputs from inputs knows every command's -o and --plot parameter."""
     import click
