@@ -32,8 +32,8 @@ def test_view_order_and_erect_image(prototype):
 
 
 def test_split_views_axes_and_rotation():
-    # 6 x 10 frame (h, w), two views of 3 x 4 (h, w): values encode (row, col).
-    frame = np.arange(60, dtype=np.float32).reshape(6, 10)
+    # 6 x 10 frame (h, w), two views of 3 x 4 (h, w): values (in [0, 1], as images are) encode (row, col).
+    frame = np.arange(60, dtype=np.float32).reshape(6, 10) / np.float32(64)
     lay = Layout(raw_width_px=10, raw_height_px=6, rects=((0, 0, 4, 3), (5, 2, 4, 3)))
     v = split_views(frame, lay)
     assert v.shape == (2, 3, 4, 1) and v.dtype == np.float32

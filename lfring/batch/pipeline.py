@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lfring.batch.settings import BatchSettings, all_in_focus_from_depth_map
+from lfring.batch.settings import BatchSettings, all_in_focus_from_depth_map, depth_label
 from lfring.core.signals import interrupt_behind
 from lfring.errors import DepthRangeError, InvalidInputError, LfringError, LfringWarning
 from lfring.io.readers import frame_size
@@ -169,7 +169,7 @@ def _process(input_path, settings: BatchSettings, outputs, timings) -> tuple[dic
 
     from lfring.focus import METHODS
 
-    refocus = [z for z in settings.refocus_m if f"refocus_{z:g}m" in outputs]
+    refocus = [z for z in settings.refocus_m if f"refocus_{depth_label(z)}m" in outputs]
     method = METHODS[settings.refocus_method]
     needs_depth = "depth" in method.options  # a method that renders from the frame's depth map
     depth_res = None
@@ -219,7 +219,7 @@ def _process(input_path, settings: BatchSettings, outputs, timings) -> tuple[dic
         finish = _finisher(views, cal, settings, renderer if reuse else depth_res, info["aperture"], timings)
     for z in refocus:
         sharp = _refocuser(cal, cal_name, z, settings, views.shape[1:3])(views)
-        arrays[f"refocus_{z:g}m"] = sharp if finish is None else finish(sharp, z)
+        arrays[f"refocus_{depth_label(z)}m"] = sharp if finish is None else finish(sharp, z)
     timings["refocus"] = time.perf_counter() - t
 
     if "all_in_focus" in outputs:

@@ -47,6 +47,7 @@ from lfring.core.signals import deliver_lost_stops, held_signals
 from lfring.core.validate import check_choice, check_int
 from lfring.errors import InvalidInputError, LfringError
 from lfring.io.readers import RECORD_KEY
+from lfring.io.writers import check_output_folder
 
 __all__ = ["BatchReport", "run_batch"]
 
@@ -516,7 +517,7 @@ def run_batch(
     >>> files
     ['manifest.jsonl', 'scene.lfring.json', 'scene_refocus_0.5m.png']
     """
-    out = Path(outdir)
+    out = check_output_folder(outdir)
     workers = _check_run_args(executor, scheduler, workers, settings, out)
     jobs, not_frames = scan_inputs(inputs, outdir=out, exclude=exclude, frame_sizes=_frame_sizes(settings))
     plan = plan_jobs(jobs, settings, out)

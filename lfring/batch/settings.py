@@ -19,7 +19,7 @@ from lfring.focus.methods import METHODS
 from lfring.io.writers import json_default
 from lfring.optics.paraxial import check_f_number
 
-__all__ = ["BatchSettings", "all_in_focus_from_depth_map", "refocus_depth_problem"]
+__all__ = ["BatchSettings", "all_in_focus_from_depth_map", "depth_label", "refocus_depth_problem"]
 
 _COMMON_FIELDS = ("calibration_name", "calibration_sha256", "reference", "bit_depth", "encoding", "pattern", "black_level",
                   "white_level")
@@ -54,7 +54,7 @@ one: in words, or by the parameter name that the command line turns into its opt
 depth method's default) and is never named."""
 
 
-def _depth_label(z: float) -> str:
+def depth_label(z: float) -> str:
     """A refocus depth as its output's kind and file name give it (``refocus_0.5m``): to six
     significant digits, so depths that agree to those make one image."""
     return f"{z:g}"
@@ -78,7 +78,7 @@ def refocus_depth_problem(depths) -> str | None:
             return "the batch cannot refocus at infinity (inf); give a finite depth in metres (lfring refocus --depth inf can)"
         if not z > 0:
             return f"depths must be positive distances in metres, got {z:g}"
-    names = [_depth_label(z) for z in zs]
+    names = [depth_label(z) for z in zs]
     twice = sorted({n for n in names if names.count(n) > 1}, key=float)
     if not twice:
         return None
@@ -148,7 +148,7 @@ def _output_parts(d: dict, zrange: dict, *, explained: bool = False) -> dict[str
     zs = [float(z) for z in d["refocus_m"]]
     if explained:
         refocus_part["refocus_method"] = stack["refocus_method"] = method
-    parts = {f"refocus_{_depth_label(z)}m": {**common, "refocus_m": z, **refocus_part} for z in zs}
+    parts = {f"refocus_{depth_label(z)}m": {**common, "refocus_m": z, **refocus_part} for z in zs}
     if d.get("all_in_focus"):
         # From a depth map, the batch's own or the one depth-aware refocusing renders from: the
         # same map, so one key whichever made it.
@@ -314,7 +314,7 @@ class BatchSettings:
 
     def outputs(self, stem: str) -> dict[str, str]:
         """Kind -> output path relative to OUTDIR, for a frame whose relative stem is ``stem``."""
-        out = {f"refocus_{_depth_label(z)}m": f"{stem}_refocus_{_depth_label(z)}m.png" for z in self.refocus_m}
+        out = {f"refocus_{depth_label(z)}m": f"{stem}_refocus_{depth_label(z)}m.png" for z in self.refocus_m}
         if self.all_in_focus:
             out["all_in_focus"] = f"{stem}_all_in_focus.png"
         if self.depth:

@@ -203,7 +203,7 @@ def calibrate(
         if device is not None:
             z0, how = device.entrance_pupil_m, f"optics of device '{device.name}'"
         else:
-            z0, how = 0.0, "0 (no device given)"
+            z0, how = 0.0, "assumed: no device given"
             log.warning("two planes and no device: assuming z0 = 0; give the device (or a third plane) for z0 = s")
     elif z0 is None:
         how = "fitted"

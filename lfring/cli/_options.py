@@ -162,22 +162,28 @@ def _parse_black(ctx, param, text):
     return values[0] if len(values) == 1 else tuple(values)
 
 
-def raw_options(fn):
+def raw_options(fn=None, *, calibration: bool = True):
     """Adds --pattern, --black-level and --white-level to a command that reads raw frames; the
-    command receives them as one ``levels`` argument (a :class:`RawLevels`)."""
+    command receives them as one ``levels`` argument (a :class:`RawLevels`). ``calibration``:
+    the command reads a calibration, whose recorded levels they override too (its help says
+    so); ``@raw_options(calibration=False)`` for one that reads none."""
     from lfring.io.bayer import PATTERNS
+
+    if fn is None:
+        return functools.partial(raw_options, calibration=calibration)
 
     @functools.wraps(fn)
     def wrapper(*args, pattern=None, black_level=None, white_level=None, **kwargs):
         return fn(*args, levels=RawLevels(pattern, black_level, white_level), **kwargs)
 
+    over = "overrides a sidecar or the calibration's" if calibration else "overrides a sidecar"
     opts = [
         click.option("--pattern", type=click.Choice(PATTERNS, case_sensitive=False), default=None,
-                     help="Bayer pattern of the frames (overrides a sidecar or the calibration's)."),
+                     help=f"Bayer pattern of the frames ({over})."),
         click.option("--black-level", callback=_parse_black, default=None, metavar="COUNTS",
-                     help="Black level in counts, one number or four in CFA order (overrides a sidecar or the calibration's)."),
+                     help=f"Black level in counts, one number or four in CFA order ({over})."),
         click.option("--white-level", type=float, default=None, metavar="COUNTS",
-                     help="White (saturation) level in counts (overrides a sidecar or the calibration's)."),
+                     help=f"White (saturation) level in counts ({over})."),
     ]
     for opt in reversed(opts):
         wrapper = opt(wrapper)

@@ -64,7 +64,7 @@ def _floaty(text: str) -> bool:
 @click.option("--force", is_flag=True, help=f"Write the calibration even when a residual exceeds {MAX_RESIDUAL_PX} px "
               "(frames that do not look like a planar target at their depth).")
 @click.option("--overwrite", is_flag=True, help="Replace an existing output file.")
-@raw_options
+@raw_options(calibration=False)
 def command(frames, depths, output, flat, layout_file, rotate180, depth_origin, device_name, method, rank1, no_distortion,
             carry_flat, force, overwrite, levels):
     """Calibrate refocusing in metric depth from FRAMES of a textured planar target.

@@ -76,8 +76,8 @@ def _read_depth(path: str):
 @click.option("--min-coverage", type=float, default=MIN_COVERAGE, show_default=True, metavar="FRACTION",
               help="Smallest fraction of the part checked with confident depth for a pass, in [0, 1]; below it the "
                    "exit code is 3.")
-@click.option("--zmin", type=float, default=None, metavar="M", help="Nearest depth searched (default: a band around the plane).")
-@click.option("--zmax", type=float, default=None, metavar="M", help="Farthest depth searched.")
+@click.option("--zmin", type=float, default=None, metavar="M", help="Nearest depth searched [m] (default: a band around the plane, as far as the tolerance needs).")
+@click.option("--zmax", type=float, default=None, metavar="M", help="Farthest depth searched [m] (default: the band's far end).")
 @click.option("--reference", default="center", show_default=True, metavar="center|0..3", help="Frame of the maps and boxes.")
 @click.option("--backend", type=click.Choice(["numpy", "torch"]), default="numpy", show_default=True, help="Plane-sweep backend.")
 @click.option("--device-file", "device_name", default=None, metavar="NAME|FILE",

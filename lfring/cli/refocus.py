@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 from pathlib import Path
 
 import click
@@ -123,12 +124,14 @@ def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolat
     written as numbered images, a multi-page TIFF (depths in its metadata) and an animated GIF
     (each frame captioned with its depth); the depth map is estimated once for the stack.
     Every output gets a JSON sidecar (OUTPUT.json) naming the calibration used; its depth_m is
-    in metres, or the string "inf" for --depth inf (JSON has no infinity). Depths nearer
+    in metres, or the string "inf" for --depth inf (JSON has no infinity). The outputs' record
+    (NAME.lfring.json beside them) says what made them, so a rerun knows them. Depths nearer
     than where the views overlap are refused (the error names the nearest that works); frames
     that are not ring frames for the calibration are refused unless --no-check.
     """
     import warnings
 
+    from lfring.batch.settings import depth_label
     from lfring.calibration.overlap import INFINITE_DEPTH_M, check_renderable
     from lfring.errors import LfringWarning
     from lfring.core.geometry import check_reference
@@ -144,16 +147,19 @@ def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolat
     if output is None:
         # The method is in the default name: its images differ, and neither replaces the other's.
         how = "" if method == "depth-aware" else f"_{method}"
-        base = Path(f"{stem}_refocus_{zs[0]:g}m{how}.png" if len(zs) == 1 else f"{stem}{mark}{how}.png")
+        base = Path(f"{stem}_refocus_{depth_label(zs[0])}m{how}.png" if len(zs) == 1 else f"{stem}{mark}{how}.png")
         mark = ""  # already in the name
     else:
         base = Path(output)
+    if output is not None and (str(output).endswith(("/", os.sep)) or base.is_dir()):
+        raise click.BadParameter(f"-o names the image file to write (.png, .tif or .tiff), got the folder {output!r}; "
+                                 f"e.g. -o {base / f'{stem}_refocus.png'}", param_hint="-o")
     if base.suffix.lower() not in (".png", ".tif", ".tiff"):
-        raise click.BadParameter(f"output must end in .png, .tif or .tiff, got {base.name!r}", param_hint="-o")
+        raise click.BadParameter(f"output must end in .png, .tif or .tiff, got {str(output or base)!r}", param_hint="-o")
     if len(zs) == 1:
         outs = [base]
     else:
-        outs = [base.with_name(f"{base.stem}_{i:03d}_{z:.4g}m{base.suffix}") for i, z in enumerate(zs)]
+        outs = [base.with_name(f"{base.stem}_{i:03d}_{depth_label(z)}m{base.suffix}") for i, z in enumerate(zs)]
     extra = []
     if len(zs) > 1:
         extra = [base.with_name(base.stem + mark + ".tif"), base.with_name(base.stem + mark + ".gif")]
@@ -209,7 +215,7 @@ def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolat
         for p, z, img in zip(outs, zs, images):
             write_image(stage(p), encode(img, bits, encoding))
             write_json(stage(str(p) + ".json"), {**meta, "depth_m": z if math.isfinite(z) else "inf"})
-            log.info("made %s (%.4g m)", p, z)
+            log.info("made %s (%s m)", p, depth_label(z))
             if len(zs) > 1:
                 stack.append(img)
             bar.update(1)

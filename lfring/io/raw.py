@@ -666,10 +666,11 @@ def _read_tiff(p: Path) -> tuple[np.ndarray, dict[str, Any]] | None:
     except NotImplementedError as exc:  # e.g. a compression or bit depth that needs imagecodecs
         raise FileFormatError(f"{p}: tifffile cannot decode this TIFF ({exc})") from exc
     except Exception as exc:  # tifffile raises many types (TiffFileError, struct.error, ...)
-        raise FileFormatError(
-            f"{p}: not a readable TIFF file ({type(exc).__name__}: {exc}); it is corrupt or "
-            "truncated"
-        ) from exc
+        with open(p, "rb") as f:
+            head = f.read(4)
+        what = ("it does not begin as a TIFF does (another kind of file under a .tif name?)"
+                if head[:2] not in (b"II", b"MM") else "it is corrupt or truncated")
+        raise FileFormatError(f"{p}: not a readable TIFF file: {what}") from exc
 
     if axes.startswith("S") and arr.ndim == 3:  # planar configuration 'separate'
         arr = np.moveaxis(arr, 0, -1)

@@ -15,11 +15,27 @@ from lfring.errors import FileFormatError, InvalidInputError
 from lfring.io.atomic import atomic_path, atomic_write_bytes, atomic_write_text
 
 __all__ = [
-    "IMAGE_SUFFIXES", "check_writable", "encode_file", "encode_float_tiff", "encode_image", "write_float_tiff", "write_gif",
+    "IMAGE_SUFFIXES", "check_output_folder", "check_writable", "encode_file", "encode_float_tiff", "encode_image", "write_float_tiff", "write_gif",
     "write_image", "write_json", "write_tiff_stack",
 ]
 
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff")
+
+
+def check_output_folder(folder: str | Path) -> Path:
+    """``folder`` as a Path, if it is a folder or can be made one (its first existing ancestor is
+    a writable folder), else a clear error naming what is in the way."""
+    folder = Path(folder)
+    if folder.exists() and not folder.is_dir():
+        raise InvalidInputError(f"cannot write into {folder}: it is a file, not a folder")
+    parent = folder
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
+    if not parent.is_dir():
+        raise InvalidInputError(f"cannot make the folder {folder}: {parent} is a file, not a folder")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise InvalidInputError(f"cannot write into {folder}: the folder {parent} is not writable")
+    return folder
 
 
 def check_writable(paths, *, overwrite: bool) -> None:

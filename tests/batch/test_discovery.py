@@ -138,3 +138,14 @@ def test_inputs_in_the_output_folder_links_and_exclude_paths(tmp_path, caplog, m
             kept = find_inputs([arg], exclude=[pattern, "nothing*.png"])
             assert [Path(j.input).name for j in kept] == ["a.png"], pattern
             assert "'nothing*.png' matched no input file" in caplog.text and repr(pattern) not in caplog.text
+
+
+def test_an_output_folder_under_a_file_is_refused_in_words(tmp_path):
+    from lfring.batch import BatchSettings, run_batch
+
+    (tmp_path / "a.json").write_text("{}")
+    frame = Path(__file__).resolve().parents[2] / "data" / "synthetic" / "scene.png"
+    with pytest.raises(InvalidInputError, match=r"cannot make the folder .*a\.json/x: .*a\.json is a file, not a folder"):
+        run_batch([str(frame)], tmp_path / "a.json" / "x", BatchSettings(refocus_m=(0.5,)))
+    with pytest.raises(InvalidInputError, match=r"cannot write into .*a\.json: it is a file, not a folder"):
+        run_batch([str(frame)], tmp_path / "a.json", BatchSettings(refocus_m=(0.5,)))

@@ -192,3 +192,17 @@ def test_a_stack_s_default_names_say_stack_once(tmp_path, capsys, monkeypatch):
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted([
         f"{stem}_000_0.3m.png", f"{stem}_000_0.3m.png.json", f"{stem}_001_0.5m.png", f"{stem}_001_0.5m.png.json",
         f"{stem}.tif", f"{stem}.gif", f"{stem}.png.lfring.json"])
+
+
+def test_stack_names_keep_the_depths_apart_and_a_folder_for_o_is_named(tmp_path, capsys, monkeypatch):
+    """Two depths that round alike to four digits were both named 0.5m; -o given as a folder
+    was reported as the name 'rdir' without its slash."""
+    monkeypatch.chdir(tmp_path)
+    assert main(["refocus", str(SCENE), "--depths", "0.5,0.50001", "--method", "shift-and-add", "-o", "s.png"]) == 0
+    names = {p.name for p in tmp_path.iterdir()}
+    assert {"s_000_0.5m.png", "s_001_0.50001m.png"} <= names, names
+    capsys.readouterr()
+    assert main(["refocus", str(SCENE), "--depth", "0.5", "-o", "rdir/"]) == 2
+    err = " ".join(capsys.readouterr().err.split())
+    assert "-o names the image file to write (.png, .tif or .tiff), got the folder 'rdir/'; e.g. -o rdir/scene_refocus.png" in err
+    assert not (tmp_path / "rdir").exists()

@@ -594,6 +594,15 @@ def test_truncated_or_random_tiff(tmp_path, keep):
     _assert_names_file(info, path)
     if keep == "half":
         assert "truncated" in str(info.value)
+    assert "Error" not in str(info.value)  # says what is wrong, not which exception the reader raised
+
+
+def test_another_kind_of_file_under_a_tiff_name_is_said_to_be_one(tmp_path):
+    path = tmp_path / "t.tif"
+    path.write_text("hello, not an image")
+    with pytest.raises(FileFormatError, match=r"t\.tif: not a readable TIFF file: it does not begin as a TIFF does") as info:
+        load_raw(path, pattern="RGGB")
+    assert "Error" not in str(info.value)
 
 
 def test_sidecar_that_is_not_json(tmp_path):
