@@ -89,7 +89,7 @@ def _from_dict(cls, data, *, source_name: str = "calibration") -> RingCalibratio
 
 def _save(self, path: str | Path) -> Path:
     """Write the calibration as JSON (atomically: a reader never sees half a file) to ``path``,
-    whose folder must exist; returns the file written. See :func:`save_calibration`."""
+    making its folder if missing; returns the file written. See :func:`save_calibration`."""
     return save_calibration(self, path)
 
 

@@ -274,7 +274,7 @@ def save_calibration(calibration: RingCalibration, path: str | Path) -> Path:
     ----------
     calibration : RingCalibration
     path : str or Path
-        The file to write; its folder must exist.
+        The file to write; missing folders on its path are made.
 
     Returns
     -------

@@ -176,7 +176,7 @@ def estimate_depth(
     >>> import numpy as np
     >>> import lfring
     >>> cal = lfring.RingCalibration.load("twin_binned2")
-    >>> views = lfring.split_views(lfring.demosaic(lfring.load_raw("data/synthetic/scene.png")), cal.layout)
+    >>> views = lfring.split_views(lfring.demosaic(lfring.load_raw("data/synthetic/scene.png")), cal)
     >>> result = lfring.estimate_depth(views, cal, zmin_m=0.3, zmax_m=1.0, method="local")
     >>> result.depth_m.shape, result.depth_m.dtype
     ((705, 705), dtype('float32'))

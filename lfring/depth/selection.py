@@ -91,7 +91,7 @@ class DepthResult:
         >>> import numpy as np
         >>> import lfring
         >>> cal = lfring.RingCalibration.load("twin_binned2")
-        >>> views = lfring.split_views(lfring.demosaic(lfring.load_raw("data/synthetic/scene.png")), cal.layout)
+        >>> views = lfring.split_views(lfring.demosaic(lfring.load_raw("data/synthetic/scene.png")), cal)
         >>> depth = lfring.estimate_depth(views, cal, zmin_m=0.3, zmax_m=1.0, method="local")
         >>> points, colors = depth.to_points(cal, colors=views.mean(axis=0), min_confidence=0.5)
         >>> points.shape[1], colors.dtype.name, bool(0.25 < np.median(points[:, 2]) < 1.05)

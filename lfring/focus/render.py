@@ -82,7 +82,8 @@ def refocus(views, calibration, depth_m: float, *, reference="center", interpola
     method : str
         One of :data:`lfring.focus.methods.METHODS`. 'shift-and-add' averages the views aligned at ``depth_m``: objects elsewhere appear as V
         displaced copies. 'depth-aware' renders what a lens whose aperture spans the views
-        would record (numpy backend): in focus as shift-and-add, elsewhere a disc of blur of the
+        would record (numpy backend): in focus as shift-and-add where the views agree (their
+        robust mean where one sees an occluder), elsewhere a disc of blur of the
         circle-of-confusion radius, occlusion-correct (:mod:`lfring.focus.depth_aware`).
     aperture : float, optional
         'depth-aware': the lens's aperture radius in units of the views' distance from their
@@ -121,7 +122,7 @@ def refocus(views, calibration, depth_m: float, *, reference="center", interpola
 
     >>> import cv2, lfring
     >>> cal = lfring.RingCalibration.load("twin_binned2")
-    >>> views = lfring.split_views(lfring.demosaic(lfring.load_raw("data/synthetic/scene.png")), cal.layout)
+    >>> views = lfring.split_views(lfring.demosaic(lfring.load_raw("data/synthetic/scene.png")), cal)
     >>> sharpness = lambda img: cv2.Laplacian(img.mean(axis=2), cv2.CV_32F).var()
     >>> book = (slice(250, 450), slice(420, 600))  # rows, columns of the book in the centre frame
     >>> at_book, at_cup = lfring.refocus(views, cal, 0.5), lfring.refocus(views, cal, 0.3)
@@ -159,7 +160,7 @@ def focal_stack(views, calibration, depths_m, *, reference="center", interpolati
     --------
     >>> import cv2, numpy as np, lfring
     >>> cal = lfring.RingCalibration.load("twin_binned2")
-    >>> views = lfring.split_views(lfring.demosaic(lfring.load_raw("data/synthetic/scene.png")), cal.layout)
+    >>> views = lfring.split_views(lfring.demosaic(lfring.load_raw("data/synthetic/scene.png")), cal)
     >>> stack = lfring.focal_stack(views, cal, [0.3, 0.5, 1.0])
     >>> book = (slice(250, 450), slice(420, 600))
     >>> stack.shape, int(np.argmax([cv2.Laplacian(s[book].mean(axis=2), cv2.CV_32F).var() for s in stack]))
@@ -240,7 +241,7 @@ def all_in_focus(views, calibration, depths_m=None, *, depth_map_m=None, referen
 
     >>> import numpy as np, lfring
     >>> cal = lfring.RingCalibration.load("twin_binned2")
-    >>> views = lfring.split_views(lfring.demosaic(lfring.load_raw("data/synthetic/scene.png")), cal.layout)
+    >>> views = lfring.split_views(lfring.demosaic(lfring.load_raw("data/synthetic/scene.png")), cal)
     >>> image, depth_m = lfring.all_in_focus(views, cal)
     >>> book, cup = (slice(250, 450), slice(420, 600)), (slice(150, 350), slice(80, 280))
     >>> round(float(np.nanmedian(depth_m[book])), 1), round(float(np.nanmedian(depth_m[cup])), 1)

@@ -49,7 +49,8 @@ class Refocuser:
         Distance from the main lens, metres.
     reference : 'center' or int
     view_shape : (h, w), optional
-        Size of the views (the calibration's layout's by default).
+        Size of the views: the calibration's layout's (the default); any other is refused,
+        since the calibration's valid discs are made for its layout.
     interpolation : {'linear', 'cubic'}
         Bilinear is fastest; bicubic keeps more detail and its smoothing depends less on the
         sub-pixel phase of each view's shift.

@@ -695,7 +695,7 @@ def inspect_frame(
     >>> import lfring
     >>> cal = lfring.RingCalibration.load("twin_binned2")
     >>> def views_of(path):
-    ...     return lfring.split_views(lfring.demosaic(lfring.load_raw(path)), cal.layout)
+    ...     return lfring.split_views(lfring.demosaic(lfring.load_raw(path)), cal)
     >>> result = lfring.inspect_frame(views_of("data/synthetic/part_defects.png"), cal, plane_m=0.3, tolerance_m=0.008)
     >>> result.verdict, result.coverage > 0.9
     ('fail', True)
