@@ -323,6 +323,15 @@ def load_view_files(paths, calib: str | None, *, check: bool = True):
     from lfring.views import correct_views, read_views
 
     if not calib:
+        from lfring.calibration import builtin_calibrations
+        from lfring.io.readers import frame_size
+
+        frames = {tuple(size) for size in builtin_calibrations().values()}
+        if all(frame_size(p) in frames for p in paths):  # whole ring frames, as an unquoted pattern gives them
+            command = click.get_current_context().info_name
+            how = BATCH_COMMANDS.get(command)
+            raise click.UsageError(f"{len(paths)} ring frames given (whole frames of a built-in calibration's size): lfring "
+                                   f"{command} takes one frame" + (f"; for many, lfring batch FILES... {how}" if how else ""))
         raise click.UsageError(f"{len(paths)} images given: separate views need --calib FILE, a calibration of "
                                f"{len(paths)} views in their order (lfring grid-calib writes one for a stereo pair or a grid)")
     cal = RingCalibration.load(calib)
