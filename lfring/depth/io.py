@@ -16,7 +16,7 @@ from lfring.core.validate import check_number, check_view_index
 from lfring.core.viewstack import check_unit_range
 from lfring.errors import DeviceError, FileFormatError, InvalidInputError, LfringFileNotFoundError
 from lfring.io.atomic import atomic_write_bytes
-from lfring.io.writers import write_float_tiff
+from lfring.io.writers import encode_image, write_float_tiff
 from lfring.optics.device import RingDevice
 from lfring.optics.paraxial import pixel_to_sensor
 from lfring.optics.views import view_cameras
@@ -288,10 +288,10 @@ def _colour_bytes(colors, shape_hw) -> np.ndarray:
     if c.dtype == np.uint8:
         return c
     if np.issubdtype(c.dtype, np.floating):
-        # Processing images are float in [0, 1]; PLY stores 8 bits. Out-of-range values clip,
-        # but counts given as floats (0..255) would all be white.
+        # Processing images are linear float in [0, 1]; PLY stores 8-bit display values, as
+        # lfring's PNGs do. Out-of-range values clip, but counts given as floats would all be white.
         check_unit_range(c, "colors")
-        return np.rint(np.clip(np.nan_to_num(c, nan=0.0), 0.0, 1.0) * 255.0).astype(np.uint8)
+        return encode_image(np.nan_to_num(c, nan=0.0), 8, "srgb")
     raise InvalidInputError(f"colors must be uint8 or float in [0, 1], got dtype {c.dtype}")
 
 
@@ -354,7 +354,9 @@ def depth_to_points(
     view : int or 'center'
         The reference frame of the map: a view index, or the virtual central view.
     colors : (h, w, 3) ndarray, optional
-        uint8, or float in [0, 1] (clipped, then rounded to 8 bits).
+        uint8 (taken as display values), or a float image in [0, 1] (linear light, as lfring's
+        images are: clipped and sRGB-encoded to 8 bits, the display values point-cloud viewers
+        show).
     confidence : (h, w) ndarray, floating, optional
         Keep only pixels with ``confidence >= min_confidence``.
     min_confidence : float

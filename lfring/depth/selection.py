@@ -73,7 +73,8 @@ class DepthResult:
         calibration : RingCalibration
             The calibration the map was estimated with.
         colors : (h, w, 3) ndarray, optional
-            uint8, or float in [0, 1]: e.g. the views' mean for the 'center' reference.
+            uint8, or float in [0, 1] (linear; sRGB-encoded as the PLY's colours): e.g. the
+            views' mean for the 'center' reference.
         min_confidence : float
             Keep only pixels at least this confident.
         device : RingDevice or str, optional

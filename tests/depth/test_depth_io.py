@@ -224,8 +224,11 @@ def test_points_colours_and_confidence(plane_render):
     h, w = depth.shape
     assert len(points) == h * w - 1 - w == len(colors)
     assert colors.dtype == np.uint8
-    np.testing.assert_array_equal(colors[0], np.rint(np.clip(r.views_sharp[1][0, 1], 0, 1) * 255).astype(np.uint8))
-    np.testing.assert_array_equal(colors[w - 1], np.rint(np.clip(r.views_sharp[1][2, 0], 0, 1) * 255).astype(np.uint8))
+    # Linear light as lfring's images hold it, sRGB-encoded as lfring's PNGs and point-cloud viewers take it.
+    srgb = lambda v: np.rint(255 * np.where(v <= 0.0031308, 12.92 * v, 1.055 * np.clip(v, 0, 1) ** (1 / 2.4) - 0.055))  # noqa: E731
+    np.testing.assert_array_equal(colors[0], srgb(np.clip(r.views_sharp[1][0, 1], 0, 1)).astype(np.uint8))
+    np.testing.assert_array_equal(colors[w - 1], srgb(np.clip(r.views_sharp[1][2, 0], 0, 1)).astype(np.uint8))
+    assert colors.mean() > 1.2 * np.clip(r.views_sharp[1], 0, 1).mean() * 255  # brighter than linear bytes
 
 
 def test_points_bad_input(plane_render):
