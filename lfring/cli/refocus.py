@@ -231,12 +231,13 @@ def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolat
                 chosen_over = "depth map"
             else:  # each pixel at the depth where the views agree best
                 img, chosen = all_in_focus(views, cal, render_zs if len(zs) > 1 else None, reference=ref)
-                chosen_over = zs if len(zs) > 1 else "calibrated range"
+                chosen_over = [z if math.isfinite(z) else "inf" for z in zs] if len(zs) > 1 else "calibrated range"
             write_image(stage(aif_path), encode(img, bits, encoding))
             # The all-in-focus image is the depth-aware renderer's at aperture 0, whatever --method.
             write_json(stage(str(aif_path) + ".json"), {
                 **meta, "method": "depth-aware", "aperture": 0.0, "all_in_focus_depths_m": chosen_over,
-                "chosen_depth_range_m": [float(np.nanmin(chosen)), float(np.nanmax(chosen))]})
+                "chosen_depth_range_m": [z if z < INFINITE_DEPTH_M else "inf"
+                                         for z in (float(np.nanmin(chosen)), float(np.nanmax(chosen)))]})
     log.info("wrote %s", ", ".join(map(str, all_outputs)) if len(all_outputs) <= 4 else
              f"{len(all_outputs)} files in {base.parent}")
     for p in outs:

@@ -57,6 +57,7 @@ import warnings
 import cv2
 import numpy as np
 
+from lfring.calibration.overlap import INFINITE_DEPTH_M
 from lfring.errors import InvalidInputError, LfringWarning
 from lfring.core.geometry import apply_homography, check_reference, to_reference
 from lfring.core.viewstack import WEIGHT_FLOOR, cached_view_masks, check_views
@@ -142,6 +143,14 @@ FILL_WINDOW_PX = 21
 # the feathering is normalised by the continued pixels' share, floored at FEATHER_FLOOR.
 FEATHER_PX = 8.0
 FEATHER_FLOOR = 1e-3
+
+
+def _depth_at(x: np.ndarray, z0: float) -> np.ndarray:
+    """Depths (metres) of the inverse depths ``x`` = 1 / (Z - z0); 0 (infinity, as a focus at
+    --depth inf and float32 rounding of a far depth give it) is the model's limit, at the depth
+    that stands for it (:data:`lfring.calibration.overlap.INFINITE_DEPTH_M`)."""
+    x = np.asarray(x, dtype=np.float64)
+    return np.where(x > 1.0 / INFINITE_DEPTH_M, z0 + 1.0 / np.maximum(x, 1.0 / INFINITE_DEPTH_M), INFINITE_DEPTH_M)
 
 
 def _inverse_depth(depth_m, z0: float):
@@ -387,7 +396,7 @@ class DepthOfField:
         lo, hi = float(x.min()), float(x.max())
         if hi - lo < 1e-9:
             hi = lo + 1e-6
-        ends = to_reference(cal.model(z0 + 1.0 / np.array([lo, hi])), self.reference)  # (2, V, 3, 3)
+        ends = to_reference(cal.model(_depth_at(np.array([lo, hi]), z0)), self.reference)  # (2, V, 3, 3)
         shifts = translations(ends, (h, w))
         x = np.ascontiguousarray(x, dtype=np.float32)
         if at is not None:
@@ -410,7 +419,7 @@ class DepthOfField:
         motion = max(np.abs(apply_homography(inv_ends[0, k], corners) - apply_homography(inv_ends[1, k], corners)).max()
                      for k in range(k_views))
         knots = np.linspace(lo, hi, max(2, int(math.ceil(motion / KNOT_STEP_PX)) + 1))
-        inv = np.ascontiguousarray(np.linalg.inv(to_reference(cal.model(z0 + 1.0 / knots), self.reference))[:, :k_views])
+        inv = np.ascontiguousarray(np.linalg.inv(to_reference(cal.model(_depth_at(knots, z0)), self.reference))[:, :k_views])
         if at is None:
             kern.knot_maps(x, knots, inv, map_x, map_y)
         else:

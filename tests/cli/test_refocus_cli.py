@@ -215,3 +215,15 @@ def test_whole_frames_given_as_many_images_are_pointed_to_batch(capsys):
     err = " ".join(capsys.readouterr().err.split())
     assert "2 ring frames given (whole frames of a built-in calibration's size): lfring refocus takes one frame; for " \
            "many, lfring batch FILES... --refocus Z" in err
+
+
+@pytest.mark.filterwarnings("always::lfring.errors.LfringWarning")
+def test_a_stack_reaching_infinity_makes_its_all_in_focus_image(tmp_path, capsys):
+    """--depths Z,inf with --all-in-focus failed after the stack was made: the all-in-focus
+    image's depths reached the model's limit as an inverse depth of 0."""
+    out = tmp_path / "s.png"
+    assert main(["refocus", str(SCENE), "--depths", "0.5,inf", "--method", "shift-and-add", "--all-in-focus",
+                 "-o", str(out)]) == 0, capsys.readouterr().err
+    meta = json.loads((tmp_path / "s_all_in_focus.png.json").read_text(), parse_constant=lambda c: pytest.fail(c))
+    assert meta["all_in_focus_depths_m"] == [0.5, "inf"] and meta["chosen_depth_range_m"][1] == "inf"
+    assert cv2.imread(str(tmp_path / "s_all_in_focus.png")).mean() > 20
