@@ -5,6 +5,7 @@ true depth map and with the estimated one.
     python benchmarks/bench_refocus_quality.py --no-speed        # quality only
     python benchmarks/bench_refocus_quality.py --no-quality      # speed only
     python benchmarks/bench_refocus_quality.py --cases lytro,slant --no-speed
+    python benchmarks/bench_refocus_quality.py --cases slant-wide,ramp-wide --no-speed   # blurs on reduced grids
     python benchmarks/bench_refocus_quality.py --no-speed --estimate-as result   # as lfring refocus gives it
     (from a worktree elsewhere: --lytro /path/to/shared/data/lytro_gen1/IMG_0001)
 
@@ -47,6 +48,9 @@ b) The synthetic twin, every view rendered from the prototype's optics (Bayer fr
    Their views are rendered without their own mini-lens defocus (--view-defocus on renders
    it): the truth is an ideal lens, and the views' own blur (their pupils focused at the
    design distance) would otherwise bound both methods alike.
+   - 'slant-wide' and 'ramp-wide': the slant and the ramp through a lens three times as wide
+     (aperture 3 and its truth at aperture_scale 3, blur radii to about 14 px): the renderer's
+     wide blurs, made on reduced grids from 6 px, which no other case reaches.
 
 Speed (``--speed``, default on): 4 x 1060 x 1060 RGB float32 views (bench_refocus.py's
 prototype calibration, square views) with a given depth map: one-shot shift-and-add at a new
@@ -89,8 +93,11 @@ DENSE_DISPARITIES = np.arange(0.3, 1.0001, 0.02)  # the plane sweep of the dense
 IN_FOCUS_PX, OUT_OF_FOCUS_PX = 0.5, 1.5
 BORDER_PX = 12  # frame border left out of every metric (shifted views do not cover it)
 MIN_VIEWS = 1.0  # and pixels that less than one view's worth sees (the corners outside the twin's view discs)
-CASES = ("lytro", "three-depth", "hard", "slant", "sphere", "ramp", "statue")
+CASES = ("lytro", "three-depth", "hard", "slant", "sphere", "ramp", "statue", "slant-wide", "ramp-wide")
 CONTINUOUS = ("slant", "sphere", "ramp", "statue")
+# Continuous scenes through a lens three times as wide as the views span (blur radii to about
+# 14 px): the renderer's wide blurs, on reduced grids from 6 px, which the other cases never reach.
+WIDE = {"slant-wide": ("slant", 3.0), "ramp-wide": ("ramp", 3.0)}
 
 
 def position(row, col):
@@ -324,6 +331,8 @@ def twin_cases(scene_name: str, *, seed: int = 5, view_defocus: bool | None = No
     from lfring.synth.presets import hard_scene, three_depth_scene
     from lfring.views import split_views
 
+    label = scene_name
+    scene_name, aperture = WIDE.get(label, (label, 1.0))
     binning = 2 if scene_name in CONTINUOUS else 4
     if view_defocus is None:
         view_defocus = scene_name not in CONTINUOUS
@@ -343,18 +352,20 @@ def twin_cases(scene_name: str, *, seed: int = 5, view_defocus: bool | None = No
     true = central_depth(scene, dev, binning)
     true = np.where(np.isfinite(true), true, np.nanmax(true)).astype(np.float32)
     exposure = r.settings.exposure
-    rad = coc_radius_px(cal, true, TWIN_FOCUS_M[scene_name][0])
-    print(f"twin {scene_name}: 4 views of {views.shape[2]} x {views.shape[1]} px (binning {binning}), true depth "
+    rad = coc_radius_px(cal, true, TWIN_FOCUS_M[scene_name][0], aperture=aperture)
+    print(f"twin {label}: 4 views of {views.shape[2]} x {views.shape[1]} px (binning {binning}), true depth "
           f"{np.nanmin(true):.3f} .. {np.nanmax(true):.3f} m, blur radius up to {np.max(rad):.1f} px at "
           f"{TWIN_FOCUS_M[scene_name][0]} m; views {'with' if view_defocus else 'without'} their own defocus; "
-          f"truth at aperture_scale 1 = aperture 1; estimated depth given as {'its DepthResult' if as_result else 'a filled array'}")
+          f"truth at aperture_scale {aperture:g} = aperture {aperture:g}; estimated depth given as "
+          f"{'its DepthResult' if as_result else 'a filled array'}")
     rows = []
     for z in TWIN_FOCUS_M[scene_name]:
-        truth = exposure * _cached(cache, f"truth_{scene_name}_{z:g}m",
-                                   lambda z=z: render_conventional(scene, dev, z, aperture_scale=1.0, binning=binning))
+        wide = "" if aperture == 1.0 else f"_a{aperture:g}"
+        truth = exposure * _cached(cache, f"truth_{scene_name}_{z:g}m{wide}",
+                                   lambda z=z: render_conventional(scene, dev, z, aperture_scale=aperture, binning=binning))
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", LfringWarning)
-            rows += compare(f"twin {scene_name}", views, cal, {"true": true, "estimated": est}, truth, z, 1.0)
+            rows += compare(f"twin {label}", views, cal, {"true": true, "estimated": est}, truth, z, aperture)
     return rows
 
 
@@ -473,6 +484,9 @@ def main() -> None:
         new = [c for c in cases if c in CONTINUOUS]
         if new:
             print_quality([r for c in new for r in twin_cases(c, **twin)], "twin, continuous depth")
+        wide = [c for c in cases if c in WIDE]
+        if wide:
+            print_quality([r for c in wide for r in twin_cases(c, **twin)], "twin, continuous depth, wide aperture")
     if not args.no_speed:
         speed(args.runs)
 
