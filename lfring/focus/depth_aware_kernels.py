@@ -30,7 +30,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-__all__ = ["BLUR_TASK_ROWS", "add_seen", "disc_blur", "finish", "knot_maps", "knot_maps_at", "merge", "occluded", "over",
+__all__ = ["BLUR_TASK_ROWS", "add_seen", "clamp_cells", "disc_blur", "finish", "knot_maps", "knot_maps_at", "merge", "occluded", "over",
            "robust_mean", "rungs", "scatter", "shift_maps", "shift_maps_at", "splat_max"]
 
 _JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
@@ -550,6 +550,30 @@ def finish(acc, back, by, bx, floor, out):
                 _divided_filled(a_s, br, o_s, jb - ja, 4, floor)
             else:
                 _divided_filled(a_s, br, o_s, jb - ja, c1, floor)
+
+
+@njit(parallel=True, **_JIT)
+def clamp_cells(cells, vmax):
+    """Clamp ``cells`` (rows, cols, C + 1: premultiplied colour and coverage, C-contiguous) in
+    place to what they can hold: the coverage at least 0, each colour in [0, coverage *
+    ``vmax``]; a map (rows, cols, 1) to [0, 1] when ``vmax`` is negative."""
+    rows, cols, c1 = cells.shape
+    flat = cells.reshape(rows, cols * c1)
+    zero = np.float32(0.0)
+    top = np.float32(vmax)
+    for y in prange(rows):
+        r = flat[y]
+        if vmax < 0.0:
+            for e in range(cols * c1):
+                r[e] = min(max(r[e], zero), np.float32(1.0))
+            continue
+        for j in range(cols):
+            a = max(r[np.uintp(j * c1 + c1 - 1)], zero)
+            r[np.uintp(j * c1 + c1 - 1)] = a
+            cap = a * top
+            for ch in range(c1 - 1):
+                e = np.uintp(j * c1 + ch)
+                r[e] = min(max(r[e], zero), cap)
 
 
 # Rows of a disc blur per parallel task (they share the task's scratch rows).

@@ -105,12 +105,10 @@ def _resize(cells: np.ndarray, size, vmax: float) -> np.ndarray:
     else:
         out = np.stack([cv2.resize(np.ascontiguousarray(cells[..., i]), size, interpolation=cv2.INTER_CUBIC)
                         for i in range(cells.shape[2])], axis=2)
-    if out.ndim == 2:
-        return np.clip(out, 0.0, 1.0, out=out)
-    cover = np.maximum(out[..., -1:], 0.0, out=out[..., -1:])
-    colour = out[..., :-1]
-    np.maximum(colour, 0.0, out=colour)
-    np.minimum(colour, cover * np.float32(vmax), out=colour)
+    from lfring.focus.depth_aware_kernels import clamp_cells
+
+    out = np.ascontiguousarray(out)
+    clamp_cells(out[..., None] if out.ndim == 2 else out, -1.0 if out.ndim == 2 else float(vmax))
     return out
 
 
