@@ -3,6 +3,7 @@ resampler of refocusing and of the depth sweep when every homography is a transl
 
 from __future__ import annotations
 
+import math
 import threading
 
 import cv2
@@ -279,7 +280,9 @@ class ShiftEngine:
                 elif inv_rows is not None:
                     for sl, i in bands:
                         np.multiply(out[sl], inv_rows[i], out=out[sl])
-                if not np.isfinite(acc.sum()):  # the strip is in the cache: a NaN or an infinity is caught here cheaply
+                # The strip is in the cache: a NaN or an infinity is caught here cheaply (OpenCV's
+                # sum, which lets the other thread run meanwhile).
+                if not math.isfinite(sum(cv2.sumElems(acc))):
                     finite[0] = False
 
         finite = [True]

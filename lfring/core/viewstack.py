@@ -24,7 +24,7 @@ WEIGHT_FLOOR = 1e-3
 # images in [0, 1]: a flat-field-corrected view exceeds 1 only towards its rims. Judged on a
 # strided sample of COUNTS_SAMPLE_PX x COUNTS_SAMPLE_PX pixels a view (a cheap look, every frame).
 COUNTS_MEDIAN = 1.5
-COUNTS_SAMPLE_PX = 64
+COUNTS_SAMPLE_PX = 32
 # Fraction of a valid disc's radius over which a view's weight rises from 0 to 1 (view_masks).
 TAPER = 0.15
 
