@@ -14,10 +14,11 @@ import numpy as np
 from lfring.core.validate import check_fraction, check_int
 from lfring.inspect.records import InspectionResult
 
-__all__ = ["annotate"]
+__all__ = ["BUMP_RGB", "DENT_RGB", "annotate"]
 
-_BUMP_RGB = (255, 40, 40)
-_DENT_RGB = (40, 140, 255)
+# Defect boxes: bumps red, dents blue (the annotated image and the viewer's boxes alike).
+BUMP_RGB = (255, 40, 40)
+DENT_RGB = (40, 140, 255)
 _PLANE_RGB = (40, 220, 60)
 _ROI_RGB = (255, 220, 0)
 _UNCHECKED_RGB = (255, 0, 255)
@@ -80,7 +81,7 @@ def annotate(result: InspectionResult, *, tint: float = 0.35, scale: int = 1) ->
     if result.verdict == "pass":
         verdict, banner_rgb = "PASS", _PLANE_RGB
     elif result.verdict == "fail":
-        verdict, banner_rgb = f"FAIL: {len(result.defects)} defect(s)", _BUMP_RGB
+        verdict, banner_rgb = f"FAIL: {len(result.defects)} defect(s)", BUMP_RGB
     else:
         verdict, banner_rgb = f"CANNOT JUDGE: {(result.reason or '').split(':')[0]}", _JUDGE_RGB
     line = int(22 * font / 0.4)
@@ -90,7 +91,7 @@ def annotate(result: InspectionResult, *, tint: float = 0.35, scale: int = 1) ->
     banner_box = _union([_text_box(t, org, font * 1.2, thick) for t, org in banner])
     for i, d in enumerate(result.defects, 1):
         x, y, bw, bh = (v * scale for v in d.bbox_px)
-        colour = _BUMP_RGB if d.kind == "bump" else _DENT_RGB
+        colour = BUMP_RGB if d.kind == "bump" else DENT_RGB
         cv2.rectangle(out, (x, y), (x + bw - 1, y + bh - 1), colour, thick)
         label = f"{i} {d.kind} {'>' if d.beyond_band else ''}{d.deviation_m * 1e3:+.1f} mm"
         _text(out, label, _label_origin(label, (x, y, bw, bh), font, thick, banner_box, (w, h)), font, colour, thick)

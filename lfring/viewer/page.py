@@ -5,6 +5,7 @@ from __future__ import annotations
 import base64
 import html
 import json
+import re
 from importlib import resources
 from pathlib import Path
 
@@ -48,18 +49,27 @@ def _encode(image_u8: np.ndarray, suffix: str, params=()) -> bytes:
     return buf.tobytes()
 
 
+BOX_COLOUR = "#ff2d2d"
+"""A box's colour where none is given."""
+
+
 def _check_boxes(boxes) -> list[dict]:
-    """(x, y, w, h) or (x, y, w, h, label) in reference pixels -> JSON-ready dicts."""
+    """(x, y, w, h), (x, y, w, h, label) or (x, y, w, h, label, colour) in reference pixels,
+    ``colour`` '#rrggbb' -> JSON-ready dicts."""
     out = []
     for i, b in enumerate(boxes or ()):
         if isinstance(b, dict):
-            b = (b["x"], b["y"], b["w"], b["h"], b.get("label", ""))
-        if len(b) not in (4, 5) or not all(is_number(v) and np.isfinite(v) for v in b[:4]):
-            raise InvalidInputError(f"boxes[{i}] must be (x, y, w, h) or (x, y, w, h, label) in pixels, got {b!r}")
+            b = (b["x"], b["y"], b["w"], b["h"], b.get("label", ""), b.get("colour", BOX_COLOUR))
+        if len(b) not in (4, 5, 6) or not all(is_number(v) and np.isfinite(v) for v in b[:4]):
+            raise InvalidInputError(f"boxes[{i}] must be (x, y, w, h), (x, y, w, h, label) or (x, y, w, h, label, "
+                                    f"colour) in pixels, got {b!r}")
         x, y, w, h = (float(v) for v in b[:4])
         if w <= 0 or h <= 0:
             raise InvalidInputError(f"boxes[{i}] must have a positive width and height, got {b!r}")
-        out.append({"x": x, "y": y, "w": w, "h": h, "label": str(b[4]) if len(b) == 5 else ""})
+        colour = str(b[5]) if len(b) == 6 else BOX_COLOUR
+        if not re.fullmatch(r"#[0-9a-fA-F]{6}", colour):
+            raise InvalidInputError(f"boxes[{i}]'s colour must be '#rrggbb', got {colour!r}")
+        out.append({"x": x, "y": y, "w": w, "h": h, "label": str(b[4]) if len(b) >= 5 else "", "colour": colour})
     return out
 
 
@@ -211,8 +221,9 @@ def viewer_html(views, calibration, *, zmin_m=None, zmax_m=None, num_planes=None
     min_confidence : float
         Pixels below this confidence are shaded by the low-confidence toggle and skipped when a
         click looks for the depth to focus at.
-    boxes : sequence of (x, y, w, h) or (x, y, w, h, label), optional
-        Rectangles in reference pixels drawn over the image (inspection defects, say).
+    boxes : sequence of (x, y, w, h), (x, y, w, h, label) or (x, y, w, h, label, colour), optional
+        Rectangles in reference pixels drawn over the image (inspection defects, say), in
+        ``colour`` ('#rrggbb'; red by default).
     unchecked_mask : (h, w) bool, optional
         Area drawn as an overlay (the area an inspection could not check, say).
     image_format : {'jpeg', 'webp'}
@@ -260,7 +271,11 @@ def inspection_overlays(result) -> dict:
     --------
     ``write_viewer("part_viewer.html", views, calibration, **inspection_overlays(result))``
     """
-    boxes = [(*d.bbox_px, f"{i} {d.kind} {d.deviation_m * 1e3:+.1f} mm") for i, d in enumerate(result.defects, 1)]
+    from lfring.inspect.draw import BUMP_RGB, DENT_RGB
+
+    hexed = {kind: "#%02x%02x%02x" % rgb for kind, rgb in (("bump", BUMP_RGB), ("dent", DENT_RGB))}
+    boxes = [(*d.bbox_px, f"{i} {d.kind} {d.deviation_m * 1e3:+.1f} mm", hexed.get(d.kind, BOX_COLOUR))
+             for i, d in enumerate(result.defects, 1)]
     zs = np.asarray(result.depth.depths_m, dtype=np.float64)
     return {"boxes": boxes, "unchecked_mask": np.asarray(result.part, dtype=bool) & ~np.asarray(result.reliable, dtype=bool), "depth": result.depth,
             "zmin_m": float(zs.min()), "zmax_m": float(zs.max()), "focus_m": float(result.settings["plane_m"])}

@@ -129,13 +129,14 @@ def test_overlays_and_bad_options(scene):
     text = viewer_html(views, cal, num_planes=3, boxes=[(5, 6, 20, 10, "bump 1.2 mm"), {"x": 1, "y": 2, "w": 3, "h": 4}],
                        unchecked_mask=mask, image_format="webp")
     d = json.loads(re.search(r'type="application/json">(.*?)</script>', text, re.S).group(1))
-    assert d["boxes"][0] == {"x": 5.0, "y": 6.0, "w": 20.0, "h": 10.0, "label": "bump 1.2 mm"}
+    assert d["boxes"][0] == {"x": 5.0, "y": 6.0, "w": 20.0, "h": 10.0, "label": "bump 1.2 mm", "colour": "#ff2d2d"}
     assert d["boxes"][1]["label"] == ""
     png = base64.b64decode(d["unchecked"].split(",", 1)[1])
     rgba = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_UNCHANGED)
     assert np.array_equal(rgba[..., 3] > 0, mask)
     assert d["frames"][0].startswith("data:image/webp;base64,")
-    bad = [dict(num_planes=1), dict(num_planes=2), dict(boxes=[(0, 0, -1, 2)]), dict(unchecked_mask=mask[:5]),
+    bad = [dict(num_planes=1), dict(num_planes=2), dict(boxes=[(0, 0, -1, 2)]), dict(boxes=[(0, 0, 1, 2, "x", "red")]),
+           dict(unchecked_mask=mask[:5]),
            dict(image_format="gif"),
            dict(quality=0), dict(min_confidence=2.0), dict(focus_m=5.0), dict(num_planes=3, depth=object())]
     for kw in bad:
@@ -346,6 +347,9 @@ def test_inspect_viewer_shows_the_defects_and_the_unchecked_area(tmp_path, brows
         b = defect["bbox_px"]
         assert (box["x"], box["y"], box["w"], box["h"]) == (b["x"], b["y"], b["w"], b["h"])
         assert box["label"].startswith(f"{defect['id']} {defect['kind']}")
+        # Coloured as the annotated image draws them: bumps red, dents blue.
+        assert box["colour"] == {"bump": "#ff2828", "dent": "#288cff"}[defect["kind"]]
+    assert {b["colour"] for b in d["boxes"]} == {"#ff2828", "#288cff"}
     # The unchecked area is the part the inspection could not judge: 1 - its coverage of the part.
     png = base64.b64decode(d["unchecked"].split(",", 1)[1])
     alpha = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_UNCHANGED)[..., 3]
