@@ -77,11 +77,14 @@ def command(raw, zmin, zmax, outdir, calib, planes, reference, cost, aggregation
     RAW is one raw frame, or several images: separate views in the view order of --calib (a
     stereo pair or a grid of views; lfring grid-calib writes such a calibration).
 
-    Writes DIR/<name>_depth.tiff (float32 metres, NaN where unknown), _depth.pfm,
-    _confidence.tiff (0..1), _depth_preview.png (colour bar in metres), _points.ply (metric
-    camera coordinates) and _depth.json (settings, hypotheses, calibration used); with the
-    default --method sgm also _depth_filled.tiff (the unknown pixels filled from their image
-    region: an estimate, not a measurement). The files appear together, or none of them.
+    Writes DIR/<name>_depth.tiff (float32 metres; NaN where too few views see a pixel, and for
+    a pair where the left-right check fails: how far each depth can be trusted is the
+    confidence's to say), _depth.pfm, _confidence.tiff (0..1), _depth_preview.png (colour bar in
+    metres; pixels under --min-confidence black), _points.ply (metric camera coordinates, the
+    pixels at --min-confidence or more, sRGB colours) and _depth.json (settings, hypotheses,
+    calibration used); with the default --method sgm also _depth_filled.tiff (the unconfident
+    pixels filled from confident ones of their image region: an estimate, not a measurement;
+    NaN where too few views see a pixel). The files appear together, or none of them.
     """
     from lfring.core.geometry import check_reference
     from lfring.depth import estimate_depth
@@ -165,12 +168,14 @@ def command(raw, zmin, zmax, outdir, calib, planes, reference, cost, aggregation
             pts, cols = res.to_points(cal, colors=np.clip(rgb, 0, 1), min_confidence=min_confidence, device=dev)
             write_ply(stage(paths["points.ply"]), pts, cols)
             n_points = len(pts)
+        known = np.isfinite(res.depth_m)
         write_json(stage(paths["depth.json"]), {
             "input": raw, "calibration": cal_name, "reference": ref, "zmin_m": zmin, "zmax_m": zmax,
             "hypotheses_m": res.depths_m, "step_px": res.step_px, "cost": res.cost, "aggregation": aggregation,
             "method": method, "paths": res.paths, "consistency": res.consistency, "rim_taper": rim_taper,
             "backend": backend, "units": "depth in metres from the main lens; NaN where unknown", "points": n_points,
-            "confidence_median": float(np.median(res.confidence)),
+            # Over the pixels with a depth: those no view pair sees have confidence 0 and no depth.
+            "confidence_median": float(np.median(res.confidence[known])) if known.any() else None,
         })
     log.info("%s: %d hypotheses %.2f px apart; depth %.3f-%.3f m; %d points", given, len(res.depths_m), res.step_px,
              float(np.nanmin(res.depth_m)), float(np.nanmax(res.depth_m)), n_points)

@@ -27,6 +27,9 @@ def test_depth_cli_outputs(tmp_path, capsys):
     assert 0.29 < np.median(pts[:, 2]) < 1.0
     assert (out / "scene_depth_preview.png").read_bytes()[:4] == b"\x89PNG"
     assert (side["cost"], side["method"], side["rim_taper"]) == ("lcn-halves", "sgm", 0.05)
+    # The median confidence of the pixels with a depth (the unseen rim, confidence 0, left out).
+    assert side["confidence_median"] == pytest.approx(float(np.median(conf[np.isfinite(depth)])))
+    assert side["confidence_median"] > float(np.median(conf))
     # The same command again replaces its own files; other settings do not without --overwrite.
     assert main(["depth", str(SCENE), "--zmin", "0.3", "--zmax", "1.0", "-o", str(out), "--paths", "8"]) == 2
     assert "exists" in capsys.readouterr().err
