@@ -123,8 +123,9 @@ def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolat
     --method shift-and-add averages the views instead. A focal stack (--depths or --sweep) is
     written as numbered images, a multi-page TIFF (depths in its metadata) and an animated GIF
     (each frame captioned with its depth); the depth map is estimated once for the stack.
-    Every output gets a JSON sidecar (OUTPUT.json) naming the calibration used; its depth_m is
-    in metres, or the string "inf" for --depth inf (JSON has no infinity). The outputs' record
+    Every image gets a JSON sidecar (IMAGE.json) naming the calibration used; its depth_m is
+    in metres, or the string "inf" for --depth inf (JSON has no infinity); a stack's TIFF keeps
+    its depths, encoding, bit depth and method in its metadata instead. The outputs' record
     (NAME.lfring.json beside them) says what made them, so a rerun knows them. Depths nearer
     than where the views overlap are refused (the error names the nearest that works); frames
     that are not ring frames for the calibration are refused unless --no-check.
@@ -221,7 +222,8 @@ def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolat
             bar.update(1)
         if len(zs) > 1:
             write_tiff_stack(stage(extra[0]), np.stack([encode(s, bits, encoding) for s in stack]),
-                             metadata={"depths_m": [z if math.isfinite(z) else "inf" for z in zs]})
+                             metadata={"depths_m": [z if math.isfinite(z) else "inf" for z in zs], "encoding": encoding,
+                                       "bit_depth": bits, "method": method})
             labels = [f"{z:.4g} m" if math.isfinite(z) else "inf" for z in zs]
             write_gif(stage(extra[1]), np.stack([caption(encode(s, 8, "srgb"), t) for s, t in zip(stack, labels)]),
                       frame_ms=250)

@@ -122,6 +122,9 @@ def test_sweep_metadata_holds_the_depths_as_written(tmp_path):
 
     with tifffile.TiffFile(out.parent / "s_stack.tif") as tif:
         assert "0.4499999" not in tif.pages[0].description and "0.45" in tif.pages[0].description
+        meta = json.loads(tif.pages[0].description)
+        # How the pages are encoded (a linear stack reads otherwise than an sRGB one) and made.
+        assert (meta["encoding"], meta["bit_depth"], meta["method"]) == ("srgb", 8, "shift-and-add")
     assert "0.4499999" not in "".join(p.name for p in out.parent.iterdir())
 
 
