@@ -224,13 +224,19 @@ def calibrate(
 
 
 def check_fitted_origin(z0: float, nearest_m: float, device) -> None:
-    """Warn (log) of a z0 fitted to planes as the nearest at ``nearest_m`` that the ring cannot
-    have: negative, or with ``device`` (a :class:`lfring.optics.RingDevice`, or None) farther
-    from its entrance pupil than :data:`DEPTH_ORIGIN_TOL` times ``nearest_m``."""
-    why = None
+    """Refuse a z0 fitted to planes that the ring cannot have, negative (its viewpoints lie in
+    front of the main lens: z0 = s > 0), and warn (log) of one that ``device`` (a
+    :class:`lfring.optics.RingDevice`, or None) puts farther from its entrance pupil than
+    :data:`DEPTH_ORIGIN_TOL` times ``nearest_m``, the nearest plane's depth. Either way the
+    planes fit the model whatever their depths: a plane's depth is likely wrong."""
     if z0 < 0.0:
-        why = "negative, where the ring cannot have it (its viewpoints lie in front of the main lens: z0 = s > 0)"
-    elif device is not None and abs(z0 - device.entrance_pupil_m) > DEPTH_ORIGIN_TOL * nearest_m:
+        raise InvalidInputError(
+            f"z0 fitted to the planes is {z0:.4f} m, negative, where the ring cannot have it (its viewpoints lie in front "
+            "of the main lens: z0 = s > 0): a plane's depth is likely wrong (each measured from the main lens, in the "
+            "order of the frames?); check the depths, or give depth_origin_m (on the command line --depth-origin M, or "
+            "--depth-origin optics with --device)")
+    why = None
+    if device is not None and abs(z0 - device.entrance_pupil_m) > DEPTH_ORIGIN_TOL * nearest_m:
         why = f"{abs(z0 - device.entrance_pupil_m) * 1e3:.0f} mm from where the optics of device '{device.name}' put it " \
               f"({device.entrance_pupil_m:.4f} m)"
     if why:

@@ -72,7 +72,7 @@ def test_three_planes_recover_z0(twin, caplog):
 def test_a_mislabelled_plane_shows_as_an_impossible_z0(twin, caplog):
     """The plane at 0.5 m given as 0.45 m: three planes still fit the model to a fraction of a
     pixel, with z0 about 0.13 m where the device's optics put it at 0.028 m: a warning names
-    both. A z0 fitted negative (0.5 m given as 0.6 m gives -0.49 m) is warned of without a device."""
+    both. A z0 fitted negative (0.5 m given as 0.6 m gives -0.49 m) is refused, device or not."""
     from lfring.calibration.fit import check_fitted_origin
 
     noise, targets, flat, layout, dev = twin
@@ -82,8 +82,11 @@ def test_a_mislabelled_plane_shows_as_an_impossible_z0(twin, caplog):
     assert f"z0 fitted to the planes is {cal.depth_origin_m:.4f} m" in caplog.text
     assert f"from where the optics of device '{dev.name}' put it" in caplog.text
     caplog.clear()
-    check_fitted_origin(-0.49, 0.3, None)
-    assert "negative" in caplog.text
+    for device in (None, dev):
+        with pytest.raises(InvalidInputError, match=r"z0 fitted to the planes is -0.4900 m, negative.*--depth-origin"):
+            check_fitted_origin(-0.49, 0.3, device)
+    with pytest.raises(InvalidInputError, match="negative"):
+        calibrate({0.3: targets[0.3], 0.6: targets[0.5], 1.0: targets[1.0]}, flat=flat, layout=layout)
     caplog.clear()
     check_fitted_origin(dev.entrance_pupil_m + 0.02, 0.3, dev)  # within 10 % of 0.3 m
     check_fitted_origin(0.05, 0.3, None)
