@@ -11,7 +11,7 @@ import numpy as np
 from lfring.calibration.build import calibration_from_plane_homographies
 from lfring.calibration.ring import RingCalibration
 from lfring.core.lens import remap_views, undistortion_maps
-from lfring.errors import EstimationError, InvalidInputError
+from lfring.errors import EstimationError, InvalidInputError, LfringError
 from lfring.views import Layout, detect_layout, flat_field_from_frame, split_views
 
 __all__ = ["calibrate", "check_disparity_sign", "check_fitted_origin", "load_image"]
@@ -20,9 +20,13 @@ log = logging.getLogger("lfring.calibration")
 
 DEPTH_ORIGIN_TOL = 0.1
 """A z0 fitted to three or more planes that lies farther than this fraction of the nearest
-plane's depth from the device's entrance pupil s (z0 = s for the ring), or behind the main lens,
-draws a warning: three planes fit the model exactly whatever their depths, so a mislabelled
-depth shows only as an impossible z0."""
+plane's depth from the device's entrance pupil s (z0 = s for the ring) draws a warning (one
+behind the main lens is refused): three planes fit the model exactly whatever their depths, so a
+mislabelled depth shows only as an impossible z0."""
+# Largest distance (px) between where the flat frame and the nearest target show a view's disc
+# before the flat is said to come from another setup (the ring or the zoom moved between them):
+# detection on a target is good to about a pixel; the views are cut where the flat shows them.
+FLAT_LAYOUT_TOL_PX = 4.0
 
 
 def load_image(frame, *, pattern=None, black_level=None, white_level=None, method: str = "edge-aware") -> tuple[np.ndarray, str]:
@@ -166,6 +170,8 @@ def calibrate(
             log.warning("no flat frame or layout given: detecting the layout on the nearest target (less precise)")
         layout = detect_layout(img, kind="flat" if flat_img is not None else "auto", rotate180=rotate180,
                                name=f"{'flat frame' if flat_img is not None else 'target frame'} {name}")
+        if flat_img is not None:
+            _check_flat_layout(layout, images[min(images)], rotate180)
     elif rotate180 and not layout.rotate180:
         raise InvalidInputError("rotate180 goes with a flat frame or detection: a layout records its own rotation")
     elif (layout.raw_width_px, layout.raw_height_px) != (shape[1], shape[0]):
@@ -221,6 +227,29 @@ def calibrate(
     if how == "fitted":
         check_fitted_origin(cal.depth_origin_m, min(measured), device)
     return cal
+
+
+def _disc_centres(layout) -> np.ndarray:
+    """(V, 2) absolute centres of the layout's discs in the (rotation-undone) raw frame."""
+    return np.array([(x + c[0], y + c[1]) for (x, y, _, _), c in zip(layout.rects, layout.circles)])
+
+
+def _check_flat_layout(layout, target, rotate180: bool) -> None:
+    """Warn when the nearest ``target`` (image, name) shows the views' discs elsewhere than the
+    flat frame's ``layout`` does: a flat of another setup cuts every view off its disc."""
+    image, name = target
+    try:
+        seen = detect_layout(image, kind="scene", rotate180=rotate180, name=f"target frame {name}")
+    except LfringError:  # no discs found on the target: its own checks say more
+        return
+    if seen.num_views != layout.num_views or seen.circles is None or layout.circles is None:
+        return
+    off = np.hypot(*(_disc_centres(seen) - _disc_centres(layout)).T)
+    if off.max() > FLAT_LAYOUT_TOL_PX:
+        k = int(np.argmax(off))
+        log.warning("the flat frame shows view %d's disc %.1f px from where the target %s shows it (at most %g px "
+                    "expected): a flat of another setup (did the ring or the zoom move between them?); the views are "
+                    "cut where the flat shows them", k, off[k], name, FLAT_LAYOUT_TOL_PX)
 
 
 def check_fitted_origin(z0: float, nearest_m: float, device) -> None:

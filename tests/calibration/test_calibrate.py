@@ -1,6 +1,7 @@
 """lfring.calibrate end to end on the twin: targets at 0.3 and 1.0 m, held-out planes at 0.5
 and 2.0 m (issue: 0.05 px noise-free, 0.15 px with realistic noise, z0 within 1 mm)."""
 
+import numpy as np
 import pytest
 
 from lfring.calibration import calibrate
@@ -110,3 +111,25 @@ def test_bad_inputs(prototype):
                           binning=2, noise="realistic"))
     with pytest.raises(EstimationError, match="textur"):
         calibrate({0.3: targets[0.3], 0.6: blank}, layout=layout, flat=flat)
+
+
+def test_a_flat_of_another_setup_is_warned_of(caplog):
+    """A flat taken after the ring or the zoom moved shows the discs elsewhere than the targets
+    do: the calibration would cut every view off its disc, so it says so; the setup's own flat
+    raises nothing."""
+    import logging
+    from pathlib import Path
+
+    import lfring
+
+    data = Path(__file__).resolve().parents[2] / "data" / "synthetic"
+    targets = {0.3: str(data / "target_0.3m.png"), 1.0: str(data / "target_1m.png")}
+    flat = lfring.load_raw(data / "flat.png")
+    moved = RawFrame(mosaic=np.roll(flat.mosaic, (12, 20), axis=(0, 1)), pattern=flat.pattern, black_level=flat.black_level,
+                     white_level=flat.white_level, bit_depth=flat.bit_depth)
+    dev = lfring.optics.load_device("prototype")
+    with caplog.at_level(logging.WARNING, logger="lfring.calibration"):
+        calibrate(targets, flat=str(data / "flat.png"), device=dev)
+        assert "a flat of another setup" not in caplog.text
+        calibrate(targets, flat=moved, device=dev)
+    assert "the flat frame shows view" in caplog.text and "a flat of another setup" in caplog.text
