@@ -172,7 +172,8 @@ def command(frames, depths, output, flat, layout_file, rotate180, depth_origin, 
             f"{output} is not written; pass --force to write it anyway")
     _echo_distortion(cal)  # a verdict on a calibration that is kept: not before a refusal of it
     if worst > WARN_PX:
-        log.warning("largest residual %.3f px exceeds %.1f px: check the target's texture, focus and the depths", worst, WARN_PX)
+        log.warning("largest residual %.3f px exceeds %.1f px: check the target's texture, focus and the depths%s", worst,
+                    WARN_PX, ", or leave out --no-distortion: the lenses may distort the views" if no_distortion else "")
     with outputs.writing() as stage:
         cal.save(stage(output))
     log.info("wrote %s", output)
