@@ -47,6 +47,16 @@ def random_views(side: int):
     return views, cal
 
 
+def refocus_speed_scene(side: int = 1060):
+    """The refocusing speed scene: :func:`random_views` and a given depth map, a near block
+    (0.3 m) over a slanted far plane (0.5 .. 1.0 m)."""
+    views, cal = random_views(side)
+    yy, xx = np.mgrid[0:side, 0:side]
+    depth = 0.5 + 0.5 * xx / side
+    depth[side // 4:side // 2, side // 4:side // 2] = 0.3
+    return views, cal, depth
+
+
 def machine_line() -> str:
     return (f"machine: {platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}, "
             f"OpenCV {cv2.__version__}, load {os.getloadavg()[0]:.2f}")

@@ -397,21 +397,10 @@ def print_quality(rows, title):
 
 
 def speed(runs: int):
-    from lfring.optics import load_device
-    from lfring.views import layout_from_circles
+    from _common import refocus_speed_scene
 
-    dev = load_device("prototype")
-    w, h = dev.sensor_width_px, dev.sensor_height_px
-    cx, cy, side = 1228.0, 921.0, 1060
-    circles = [(cx + dx, cy + dy, side / 2) for dy in (0, h / 2) for dx in (0, w / 2)]
-    disc = layout_from_circles(circles, w, h)
-    cal = RingCalibration.from_optics(dev, layout=type(disc)(w, h, disc.rects, False, None))
-    rng = np.random.default_rng(0)
-    views = cv2.GaussianBlur(rng.random((4 * side, side, 3), dtype=np.float32), (0, 0), 1.5).reshape(4, side, side, 3)
-    # A given depth map: a near block over a slanted far plane, 0.3 .. 1.0 m.
-    yy, xx = np.mgrid[0:side, 0:side]
-    depth = 0.5 + 0.5 * xx / side
-    depth[side // 4:side // 2, side // 4:side // 2] = 0.3
+    side = 1060
+    views, cal, depth = refocus_speed_scene(side)  # a given depth map: a near block over a slanted far plane
     new_depth = (0.45 + 1e-5 * i for i in itertools.count())
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", LfringWarning)

@@ -16,33 +16,20 @@ import sys
 import time
 import warnings
 
-import cv2
-import numpy as np
+from _common import refocus_speed_scene
 
 import lfring.focus.depth_aware_kernels as kernels
 import lfring.focus.layers as layers
-from lfring import RingCalibration, refocus
+from lfring import refocus
 from lfring.errors import LfringWarning
 from lfring.focus.depth_aware import depth_of_field
-from lfring.optics import load_device
-from lfring.views import layout_from_circles
 
 PASSES = ("rungs", "scatter", "disc_blur", "over", "merge", "finish")
 
 
 def main() -> None:
     renders = int(sys.argv[1]) if len(sys.argv) > 1 else 21
-    dev = load_device("prototype")
-    w, h = dev.sensor_width_px, dev.sensor_height_px
-    cx, cy, side = 1228.0, 921.0, 1060
-    circles = [(cx + dx, cy + dy, side / 2) for dy in (0, h / 2) for dx in (0, w / 2)]
-    disc = layout_from_circles(circles, w, h)
-    cal = RingCalibration.from_optics(dev, layout=type(disc)(w, h, disc.rects, False, None))
-    rng = np.random.default_rng(0)
-    views = cv2.GaussianBlur(rng.random((4 * side, side, 3), dtype=np.float32), (0, 0), 1.5).reshape(4, side, side, 3)
-    yy, xx = np.mgrid[0:side, 0:side]
-    depth = 0.5 + 0.5 * xx / side
-    depth[side // 4:side // 2, side // 4:side // 2] = 0.3
+    views, cal, depth = refocus_speed_scene()
     focus = (0.45 + 1e-5 * i for i in itertools.count())
     warnings.simplefilter("ignore", LfringWarning)
     dof = depth_of_field(views, cal, depth=depth)

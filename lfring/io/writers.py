@@ -28,14 +28,23 @@ def check_output_folder(folder: str | Path) -> Path:
     folder = Path(folder)
     if folder.exists() and not folder.is_dir():
         raise InvalidInputError(f"cannot write into {folder}: it is a file, not a folder")
-    parent = folder
+    why = _unwritable_below(folder)
+    if why:
+        raise InvalidInputError(f"cannot {'write into' if folder.exists() else 'make the folder'} {folder}: {why}")
+    return folder
+
+
+def _unwritable_below(path: Path) -> str:
+    """Why nothing can be written at ``path`` (its nearest existing ancestor, ``path`` itself if
+    it exists, is a file or a folder that is not writable), or ''."""
+    parent = path
     while not parent.exists() and parent != parent.parent:
         parent = parent.parent
     if not parent.is_dir():
-        raise InvalidInputError(f"cannot make the folder {folder}: {parent} is a file, not a folder")
+        return f"{parent} is a file, not a folder"
     if not os.access(parent, os.W_OK | os.X_OK):
-        raise InvalidInputError(f"cannot write into {folder}: the folder {parent} is not writable")
-    return folder
+        return f"the folder {parent} is not writable"
+    return ""
 
 
 def check_writable(paths, *, overwrite: bool) -> None:
@@ -51,13 +60,9 @@ def check_writable(paths, *, overwrite: bool) -> None:
     for p in paths:
         if p.is_dir():
             raise InvalidInputError(f"cannot write {p}: it is a folder")
-        parent = p.parent
-        while not parent.exists() and parent != parent.parent:
-            parent = parent.parent
-        if not parent.is_dir():
-            raise InvalidInputError(f"cannot write {p}: {parent} is a file, not a folder")
-        if not os.access(parent, os.W_OK | os.X_OK):
-            raise InvalidInputError(f"cannot write {p}: the folder {parent} is not writable")
+        why = _unwritable_below(p.parent)
+        if why:
+            raise InvalidInputError(f"cannot write {p}: {why}")
     existing = [str(p) for p in paths if p.exists()]
     if existing and not overwrite:
         more = f" (and {len(existing) - 1} more)" if len(existing) > 1 else ""
