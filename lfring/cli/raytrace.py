@@ -134,8 +134,14 @@ def command(ctx, object_size_m, distance_m, output, num_points, rays_per_point, 
     if worst_spread is None:
         log.warning("no ray reaches the sensor through a mini-lens; try more --rays or --rays-per-lens")
     else:
-        log.info("largest convergence spread %.3f um, largest |mean hit - paraxial| %.3f um",
-                 worst_spread * 1e6, worst_error * 1e6)
+        lost = int((~some).sum())
+        log.info("largest convergence spread %.3f um, largest |mean hit - paraxial| %.3f um%s",
+                 worst_spread * 1e6, worst_error * 1e6,
+                 f" (over the {int(some.sum())} of {some.size} source-lens bundles that reach the sensor)" if lost else "")
+        if lost:
+            log.warning("%d of %d source-lens bundles reach no sensor pixel (%d rays missed the ring, %d were stopped by "
+                        "the main lens): the agreement above says nothing of them", lost, some.size, fates["missed_ring"],
+                        fates["stopped_main"])
 
     from lfring.optics.figures import raytrace_figure, save_figure
 
@@ -155,6 +161,7 @@ def command(ctx, object_size_m, distance_m, output, num_points, rays_per_point, 
         "rays_per_point": rays_per_point,
         "rays_per_lens": rays_per_lens,
         "rays": fates,
+        "bundles_reaching_sensor": [int(some.sum()), int(some.size)],  # the spread and error are over these
         "max_spread_m": worst_spread,
         "max_height_error_m": worst_error,
         "design_problems": list(numbers.problems),

@@ -52,6 +52,19 @@ def test_writes_png_and_sidecar(tmp_path, capsys):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["rays.json", "rays.png", "rays.png.lfring.json"]
 
 
+def test_bundles_that_reach_no_sensor_are_counted_beside_the_agreement(tmp_path, capsys):
+    """An object 2 cm from the lens: most bundles miss the ring or stop at the main lens. The
+    spread and the error of the few that arrive are no verdict on the rest, and say so."""
+    out = tmp_path / "near.png"
+    assert main(["raytrace", "--object-size", "0.1", "--distance", "0.02", "-o", str(out), *FAST]) == 0
+    info = json.loads((tmp_path / "near.json").read_text())
+    arrived, total = info["bundles_reaching_sensor"]
+    assert 0 < arrived < total
+    err = " ".join(capsys.readouterr().err.split())
+    assert f"{total - arrived} of {total} source-lens bundles reach no sensor pixel" in err
+    assert f"(over the {arrived} of {total} source-lens bundles that reach the sensor)" in err
+
+
 def test_refuses_to_overwrite(tmp_path, capsys):
     out = tmp_path / "rays.png"
     out.write_bytes(b"keep me")
