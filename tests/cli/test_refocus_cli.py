@@ -211,9 +211,10 @@ def test_stack_names_keep_the_depths_apart_and_a_folder_for_o_is_named(tmp_path,
     assert not (tmp_path / "rdir").exists()
 
 
-def test_whole_frames_given_as_many_images_are_pointed_to_batch(capsys):
+def test_whole_frames_given_as_many_images_are_pointed_to_batch(tmp_path, capsys, monkeypatch):
     """An unquoted pattern hands refocus every frame it matches: they are frames, not a view
     set that lacks --calib."""
+    monkeypatch.chdir(tmp_path)  # the default output name lands in the working folder
     assert main(["refocus", str(SCENE), str(SCENE.parent / "hard.png"), "--depth", "0.5"]) == 2
     err = " ".join(capsys.readouterr().err.split())
     assert "2 ring frames given (whole frames of a built-in calibration's size): lfring refocus takes one frame; for " \
