@@ -199,8 +199,9 @@ def refocus_torch(frames, calibration, depth_m: float, *, reference="center", de
     NumPy input gives NumPy output (float32); a torch tensor gives a tensor on ``device`` (by
     default its own). Views are float32 in [0, 1] or raw counts (uint8, uint16): counts travel to
     the device as integers and become ``(count - black) / (white - black)`` there, ``levels`` =
-    (black, white), by default (0, the dtype's largest count). NumPy input travels through pinned
-    memory, and the result comes back in one copy.
+    (black, white), by default (0, the dtype's largest count); float views holding NaN or
+    infinite values are refused. NumPy input travels through pinned memory, and the result comes
+    back in one copy.
 
     On a CUDA device, bilinear refocusing is one Triton kernel
     (:mod:`lfring.focus.shift_and_add_kernels`): every output pixel reads its views' taps, in
@@ -227,6 +228,10 @@ def refocus_torch(frames, calibration, depth_m: float, *, reference="center", de
             out = _refocus_kernel(raw.contiguous(), masks, hs, offset, scale)
         else:
             out = _refocus_kornia(torch, normalised(raw, offset, scale), masks, hs, interpolation)
+        # As the NumPy path: a NaN or an infinity in float views would spread over the output
+        # (counts cannot hold one). The check waits for the device, once a call.
+        if raw.is_floating_point() and not bool(torch.isfinite(out).all()):
+            raise InvalidInputError("views contain NaN or infinite values")
     if single:
         out = out[0]
     return out if tensor_in else download(out)

@@ -46,6 +46,11 @@ def test_backend_errors(twin, device):
         refocus(views.astype(np.float64), cal, 0.5, backend="torch", device=device)
     with pytest.raises(InvalidInputError, match="linear"):
         refocus(views, cal, 0.5, backend="torch", device=device, interpolation="cubic")
+    for bad in (np.nan, np.inf):  # refused as on the NumPy backend
+        spoilt = views.copy()
+        spoilt[1, 40, 40, 0] = bad
+        with pytest.raises(InvalidInputError, match="NaN or infinite"):
+            refocus(spoilt, cal, 0.5, backend="torch", device=device)
 
 
 def test_the_refocus_kernel_matches_numpy(twin, device):
