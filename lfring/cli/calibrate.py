@@ -143,6 +143,10 @@ def command(frames, depths, output, flat, layout_file, rotate180, depth_origin, 
                     device=device, distortion=not no_distortion, carry_flat=carry_flat, rotate180=rotate180,
                     **levels.as_kwargs())
     ref, ref_name = _camera_model(cal, device)
+    if device is None and z0 is None and len(zs) == 2 and ref is not None and getattr(ref, "device", None):
+        # z0 was assumed 0: a built-in calibration of these frames knows a device that would give it.
+        log.warning("%s names the device '%s': if these frames are that camera's, --device %s gives z0 from its "
+                    "optics instead of 0", ref_name, ref.device, ref.device)
     _refuse_too_far(cal, dict(zip(zs, frames)), ref, ref_name)
     _warn_far(dict(zip(zs, frames)), ref)
     if device is not None:

@@ -220,3 +220,20 @@ def test_calibrate_a_camera_that_writes_its_frames_rotated(prototype, tmp_path, 
     assert main(["calibrate", *args[1:6], "--layout", str(tmp_path / "layout.json"), "--rotate180", "-o",
                  str(tmp_path / "b.json")]) == 2
     assert "--rotate180 goes with --flat or detection" in capsys.readouterr().err
+
+
+def test_two_planes_without_a_device_name_the_built_in_calibration_s(tmp_path, capsys):
+    """Without --device two planes take z0 = 0; the built-in calibration of these frames names a
+    device whose optics would give it, and the warning says which (with --device, no word)."""
+    from pathlib import Path
+
+    data = Path(__file__).resolve().parents[2] / "data" / "synthetic"
+    args = ["calibrate", str(data / "target_0.3m.png"), str(data / "target_1m.png"), "--depths", "0.3", "1.0", "--flat",
+            str(data / "flat.png")]
+    assert main([*args, "-o", str(tmp_path / "plain.json")]) == 0
+    err = " ".join(capsys.readouterr().err.split())
+    assert "the built-in calibration 'twin_binned2' names the device 'prototype': if these frames are that camera's, " \
+           "--device prototype gives z0 from its optics instead of 0" in err
+    assert RingCalibration.load(tmp_path / "plain.json").depth_origin_m == 0.0
+    assert main([*args, "--device", "prototype", "-o", str(tmp_path / "optics.json")]) == 0
+    assert "names the device" not in capsys.readouterr().err
