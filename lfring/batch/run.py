@@ -128,8 +128,9 @@ class _Run:
     on_result: Callable[[dict], None] | None
     identity: dict = field(default_factory=dict)
     todo_kinds: dict = field(default_factory=dict)  # input -> kinds computed this run
-    carried: dict = field(default_factory=dict)  # input -> (outputs, output_keys, output_runs) of earlier runs still valid
-    carried_settings: dict = field(default_factory=dict)  # input -> {run id: settings} of the runs that made them
+    # input -> what the record keeps of earlier runs' outputs that are still valid: their outputs,
+    # output_keys, output_identity and output_runs, and the settings of those runs by run id
+    carried: dict = field(default_factory=dict)
     previous: dict = field(default_factory=dict)  # input -> its record as it stood before this run
     calibrations: dict = field(default_factory=dict)  # input -> the frame's calibration, when it can be told
     _keys: dict = field(default_factory=dict)  # id of a calibration -> output keys
@@ -170,11 +171,13 @@ class _Run:
         # 'settings' are this run's; an output an earlier run made names that run in
         # 'output_runs', and that run's settings are in 'earlier_settings' (outputs of records
         # written before that are left out of both: which run made them is not known).
-        outputs, keys, runs = self.carried.get(job.input, ({}, {}, {}))
+        outputs, keys, identities, runs, earlier = self.carried.get(job.input, ({}, {}, {}, {}, {}))
         planned = self.planned(job)
         planned_keys = self.keys(job)
         new = {k: planned_keys[k] for k in planned}
         done = status == "done"
+        if done:  # this run's files as it wrote them; the earlier ones as their records found them
+            identities = {**identities, **self._identities(planned)}
         self.writer.write_json(job.stem + RECORD_SUFFIX, {
             RECORD_KEY: RECORD_VERSION, "status": status, "run": self.run_id, "input": job.input,
             "input_identity": self.identity[job.input], "settings_key": self.settings.key(),
@@ -182,8 +185,8 @@ class _Run:
             "planned_outputs": {} if done else planned,
             "output_keys": {**keys, **new} if done else keys,
             "output_runs": {**runs, **dict.fromkeys(planned, self.run_id)} if done else dict(runs),
-            "output_identity": self._identities({**outputs, **planned} if done else outputs),
-            "earlier_settings": self.carried_settings.get(job.input, {}),
+            "output_identity": identities,
+            "earlier_settings": earlier,
             "pending_keys": {} if done else new, "lfring_version": _version(), **extra})
 
     def _identities(self, outputs: dict) -> dict:
@@ -299,11 +302,12 @@ def _decide_jobs(run: _Run, jobs: Sequence[BatchJob], overwrite: bool) -> list[B
             made = rec.get("outputs") or {}
             keep = {k: v for k, v in (rec.get("output_keys") or {}).items()
                     if k not in d.kinds and k in made and (run.out / made[k]).exists()}
+            kept = {k: made[k] for k in keep}
+            identities = {rel: v for rel, v in (rec.get("output_identity") or {}).items() if rel in kept.values()}
             runs = {k: r for k, r in (rec.get("output_runs") or {}).items() if k in keep and isinstance(r, str)}
             known = {r: made_with(rec, r) for r in set(runs.values())}
             runs = {k: r for k, r in runs.items() if known[r] is not None}
-            run.carried[job.input] = ({k: made[k] for k in keep}, keep, runs)
-            run.carried_settings[job.input] = {r: known[r] for r in set(runs.values())}
+            run.carried[job.input] = (kept, keep, identities, runs, {r: known[r] for r in set(runs.values())})
         todo.append(job)
     return todo
 

@@ -343,3 +343,10 @@ def test_an_output_written_since_by_hand_is_not_taken_as_done(tmp_path, capsys):
     assert image.read_bytes() == b"edited"
     assert main([*base, "--overwrite"]) == 0
     assert image.read_bytes() == good
+    # An output kept by a rerun that did not make it keeps the identity its own run recorded: a
+    # rerun in between does not take a file edited meanwhile for the one the batch wrote.
+    image.write_bytes(b"edited again")
+    other = [a if a != "0.5" else "0.7" for a in base]
+    assert main(other) == 0
+    assert main(base) == 1
+    assert "scene_refocus_0.5m.png exists and was written since lfring batch made it" in " ".join(capsys.readouterr().err.split())
