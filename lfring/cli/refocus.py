@@ -31,6 +31,14 @@ from lfring.core.warping import DEFAULT_INTERPOLATION
 log = logging.getLogger("lfring.cli.refocus")
 
 
+def json_depth(z: float):
+    """A depth as the outputs' JSON gives it: metres, or "inf" (JSON has no infinity) for
+    infinity and for the depth that stands for it in rendering."""
+    from lfring.calibration.overlap import INFINITE_DEPTH_M
+
+    return z if z < INFINITE_DEPTH_M else "inf"
+
+
 def encode(image: np.ndarray, bit_depth: int, encoding: str) -> np.ndarray:
     """Linear [0, 1] float -> uint8/uint16, sRGB-encoded or linear (see lfring.io.writers.encode_image)."""
     from lfring.io.writers import encode_image
@@ -215,14 +223,14 @@ def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolat
                       for zr in render_zs)
         for p, z, img in zip(outs, zs, images):
             write_image(stage(p), encode(img, bits, encoding))
-            write_json(stage(str(p) + ".json"), {**meta, "depth_m": z if math.isfinite(z) else "inf"})
+            write_json(stage(str(p) + ".json"), {**meta, "depth_m": json_depth(z)})
             log.info("made %s (%s m)", p, depth_label(z))
             if len(zs) > 1:
                 stack.append(img)
             bar.update(1)
         if len(zs) > 1:
             write_tiff_stack(stage(extra[0]), np.stack([encode(s, bits, encoding) for s in stack]),
-                             metadata={"depths_m": [z if math.isfinite(z) else "inf" for z in zs], "encoding": encoding,
+                             metadata={"depths_m": [json_depth(z) for z in zs], "encoding": encoding,
                                        "bit_depth": bits, "method": method})
             labels = [f"{z:.4g} m" if math.isfinite(z) else "inf" for z in zs]
             write_gif(stage(extra[1]), np.stack([caption(encode(s, 8, "srgb"), t) for s, t in zip(stack, labels)]),
@@ -233,13 +241,12 @@ def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolat
                 chosen_over = "depth map"
             else:  # each pixel at the depth where the views agree best
                 img, chosen = all_in_focus(views, cal, render_zs if len(zs) > 1 else None, reference=ref)
-                chosen_over = [z if math.isfinite(z) else "inf" for z in zs] if len(zs) > 1 else "calibrated range"
+                chosen_over = [json_depth(z) for z in zs] if len(zs) > 1 else "calibrated range"
             write_image(stage(aif_path), encode(img, bits, encoding))
             # The all-in-focus image is the depth-aware renderer's at aperture 0, whatever --method.
             write_json(stage(str(aif_path) + ".json"), {
                 **meta, "method": "depth-aware", "aperture": 0.0, "all_in_focus_depths_m": chosen_over,
-                "chosen_depth_range_m": [z if z < INFINITE_DEPTH_M else "inf"
-                                         for z in (float(np.nanmin(chosen)), float(np.nanmax(chosen)))]})
+                "chosen_depth_range_m": [json_depth(float(np.nanmin(chosen))), json_depth(float(np.nanmax(chosen)))]})
     log.info("wrote %s", ", ".join(map(str, all_outputs)) if len(all_outputs) <= 4 else
              f"{len(all_outputs)} files in {base.parent}")
     for p in outs:
