@@ -149,8 +149,7 @@ def _depth_at(x: np.ndarray, z0: float) -> np.ndarray:
     """Depths (metres) of the inverse depths ``x`` = 1 / (Z - z0); 0 (infinity, as a focus at
     --depth inf and float32 rounding of a far depth give it) is the model's limit, at the depth
     that stands for it (:data:`lfring.calibration.overlap.INFINITE_DEPTH_M`)."""
-    x = np.asarray(x, dtype=np.float64)
-    return np.where(x > 1.0 / INFINITE_DEPTH_M, z0 + 1.0 / np.maximum(x, 1.0 / INFINITE_DEPTH_M), INFINITE_DEPTH_M)
+    return z0 + 1.0 / np.maximum(np.asarray(x, dtype=np.float64), 1.0 / INFINITE_DEPTH_M)
 
 
 def _inverse_depth(depth_m, z0: float):
@@ -782,7 +781,7 @@ def depth_to_render(depth, calibration, reference, shape) -> tuple[np.ndarray, f
     if not estimated:
         # NaN says unknown; 0 says it too for many depth sensors, but it may be a mistake: say so.
         z0 = calibration.depth_origin_m
-        odd = ~np.isnan(dm) & ~(np.isfinite(dm) & (dm > z0))
+        odd = ~np.isnan(dm) & ~known_depths(dm, calibration, allow_none=True)
         if odd.any():
             warnings.warn(LfringWarning(
                 f"{int(odd.sum())} pixels of the depth map ({odd.mean():.1%}) are not depths beyond the depth origin "
