@@ -3,14 +3,13 @@ resampler of refocusing and of the depth sweep when every homography is a transl
 
 from __future__ import annotations
 
-import math
 import threading
 
 import cv2
 import numpy as np
 
 from lfring.core.threads import run_threads
-from lfring.core.viewstack import inverse_weight
+from lfring.core.viewstack import all_finite, inverse_weight
 from lfring.errors import InvalidInputError
 
 __all__ = ["STRIP_BYTES", "ShiftEngine"]
@@ -280,9 +279,7 @@ class ShiftEngine:
                 elif inv_rows is not None:
                     for sl, i in bands:
                         np.multiply(out[sl], inv_rows[i], out=out[sl])
-                # The strip is in the cache: a NaN or an infinity is caught here cheaply (OpenCV's
-                # sum, which lets the other thread run meanwhile).
-                if not math.isfinite(sum(cv2.sumElems(acc))):
+                if not all_finite(acc):  # the strip is in the cache: caught here cheaply
                     finite[0] = False
 
         finite = [True]

@@ -9,13 +9,15 @@ the one :data:`WEIGHT_FLOOR` (:func:`inverse_weight`).
 
 from __future__ import annotations
 
+import math
 import weakref
 
+import cv2
 import numpy as np
 
 from lfring.errors import InvalidInputError
 
-__all__ = ["COUNTS_MEDIAN", "TAPER", "WEIGHT_FLOOR", "cached_view_masks", "calibration_cache", "check_unit_range", "check_views", "inverse_weight", "view_masks"]
+__all__ = ["COUNTS_MEDIAN", "TAPER", "WEIGHT_FLOOR", "all_finite", "cached_view_masks", "calibration_cache", "check_unit_range", "check_views", "inverse_weight", "view_masks"]
 
 # A reference pixel whose summed view weight is below this is seen by no view: it gets 0 (images)
 # or NaN (depth), and divisions by a weight never divide by less.
@@ -70,13 +72,13 @@ def check_views(views, *, min_views: int = 1, images: bool = True) -> np.ndarray
 
 
 def check_unit_range(images: np.ndarray, what: str) -> None:
-    """Refuse float ``images`` (..., h, w[, C]) whose values are mostly above
+    """Refuse float ``images`` ((h, w) or (..., h, w, C)) whose values are mostly above
     :data:`COUNTS_MEDIAN`: counts (0..255, 0..65535), not images in [0, 1]. Judged on a strided
     sample, so it costs nothing per frame; ``what`` names them in the message."""
     arr = np.asarray(images)
     if arr.ndim < 2 or not np.issubdtype(arr.dtype, np.floating):
         return
-    rows, cols = (0, 1) if arr.ndim == 2 else ((-3, -2) if arr.ndim >= 4 or arr.shape[-1] <= 4 else (-2, -1))
+    rows, cols = (-2, -1) if arr.ndim == 2 else (-3, -2)
     sy, sx = (max(1, arr.shape[a] // COUNTS_SAMPLE_PX) for a in (rows, cols))
     index = [slice(None)] * arr.ndim
     index[rows], index[cols] = slice(None, None, sy), slice(None, None, sx)
@@ -87,6 +89,12 @@ def check_unit_range(images: np.ndarray, what: str) -> None:
             f"{what} must be float in [0, 1], but {above / sample.size:.0%} of the values sampled are above "
             f"{COUNTS_MEDIAN:g} (largest {float(np.nanmax(sample)):g}): raw counts? Divide by the white level "
             "(255 for 8-bit images), or read frames with lfring.load_raw and lfring.demosaic")
+
+
+def all_finite(image: np.ndarray) -> bool:
+    """Whether an image (up to 4 channels) holds no NaN and no infinity: OpenCV's sum, one pass
+    that lets other threads run meanwhile."""
+    return math.isfinite(sum(cv2.sumElems(image)))
 
 
 def view_masks(calibration, view_shape, *, taper: float = TAPER) -> np.ndarray:

@@ -18,7 +18,7 @@ from lfring.core.transfer import (check_frames, count_levels, device_masks, down
                                   normalised, to_device)
 from lfring.core.shift import ShiftEngine
 from lfring.core.validate import check_threads, is_number
-from lfring.core.viewstack import WEIGHT_FLOOR, cached_view_masks, check_views, inverse_weight
+from lfring.core.viewstack import WEIGHT_FLOOR, all_finite, cached_view_masks, check_views, inverse_weight
 from lfring.core.warping import DEFAULT_INTERPOLATION, interpolation_flag, translation_of, warp_image
 from lfring.errors import InvalidInputError
 from lfring.focus.base import RefocusMethod
@@ -185,7 +185,7 @@ class Refocuser:
                 warp_image(s_k, self.H[k], (w, h), dst=tmp, interpolation=self._flag)
                 cv2.add(acc, tmp, dst=acc)
         cv2.multiply(acc, inv, dst=acc)
-        if not np.isfinite(acc.sum()):
+        if not all_finite(acc):
             raise InvalidInputError("views contain NaN or infinite values")
         if self._flag != cv2.INTER_LINEAR:
             np.clip(acc, 0.0, None, out=acc)  # bicubic overshoots below zero at dark edges
