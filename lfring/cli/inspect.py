@@ -107,6 +107,7 @@ def command(ctx, raw, plane, tolerance, outdir, calib, roi, reference_depth, min
     from lfring.core.geometry import check_reference
     from lfring.inspect import annotate, inspect_frame, report
     from lfring.io.writers import write_image, write_json
+    from lfring.depth.io import device_for
     from lfring.optics.device import load_device
 
     # A frame that is not a ring frame for the calibration cannot be judged (exit 3 with the
@@ -121,20 +122,15 @@ def command(ctx, raw, plane, tolerance, outdir, calib, roi, reference_depth, min
     outputs = OutputSet([png, js, *([html] if viewer else [])], name=f"{stem}_inspect", overwrite=overwrite)
     outputs.check()
     target = _read_depth(reference_depth) if reference_depth else None
-    # The optics give areas in mm^2: the calibration's device, else the prototype, binned to
-    # the frame's size when that matches; without a match areas are left in pixels.
+    # The optics give areas in mm^2: --device-file's (a name or file that does not load is an
+    # error), else the calibration's, else the prototype, binned to the frames (device_for);
+    # without a match areas are left in pixels.
+    named = load_device(device_name) if device_name else None
     dev = None
     try:
-        dev = load_device(device_name or cal.device or "prototype")
-        scale = dev.sensor_width_px // cal.raw_size[0]
-        dev = dev.binned(scale) if scale > 1 else dev
-        if (dev.sensor_width_px, dev.sensor_height_px) != tuple(cal.raw_size):
-            log.warning("no device description matches %d x %d px frames: defect areas in px only", *cal.raw_size)
-            dev = None
-    except LfringError:
-        if device_name:
-            raise
-        log.warning("the calibration's device %r is unknown: defect areas in px only", cal.device)
+        dev = device_for(cal, named)
+    except LfringError as exc:
+        log.warning("defect areas in px only: %s", exc)  # the log speaks the options' words (device= as --device-file)
     res = inspect_frame(views, cal, plane_m=plane, tolerance_m=tolerance, roi=roi, reference_depth_m=target,
                         reference=ref, min_area_px=min_area, min_confidence=min_confidence,
                         min_coverage=min_coverage, zmin_m=zmin, zmax_m=zmax,
