@@ -4,14 +4,16 @@ the manifest, the one writer into OUTDIR, the folder's lock and the resume decis
 A frame's record ``<name>.lfring.json`` is written ``pending`` before its outputs and ``done``
 after them; its ``outputs`` are the frame's files that exist (the files a pending or failed run
 was to write are its ``planned_outputs``). :func:`decide_resume` reads it, with the input's
-identity (size and modification time), to skip what is done, compute only what is missing and
-refuse files this tool did not make. The single-frame commands keep a record of the same form per output set
+identity (size and modification time, and a digest of its content that is read only when the
+time differs: a folder copied without its times is still the same frames), to skip what is
+done, compute only what is missing and refuse files this tool did not make. The single-frame commands keep a record of the same form per output set
 (:mod:`lfring.cli.outputs`).
 """
 
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import json
 import logging
 import os
@@ -35,8 +37,10 @@ __all__ = [
     "TMP_DIR",
     "OutputWriter",
     "ResumeDecision",
+    "DIGEST_KEY",
     "append_manifest",
     "as_recorded",
+    "content_digest",
     "decide_resume",
     "file_identity",
     "input_identity",
@@ -60,42 +64,92 @@ MANIFEST_ENTRY_KEYS = ("run", "input", "status")
 lack them is not a batch's manifest, and is neither appended to nor replaced unasked."""
 
 
-def file_identity(path: str) -> dict:
-    """A file's size and modification time: a record made from another identity is stale."""
+# A file's identity in a record holds its content's digest under this key (BLAKE2b, 128 bits, hex).
+DIGEST_KEY = "blake2b"
+_CHUNK = 1 << 20
+# Digests read in this process, by (real path, size, modification time): a run that checks a
+# frame and then records it reads it once.
+_DIGESTS: dict = {}
+
+
+def content_digest(path: str | Path) -> str:
+    """The BLAKE2b (128-bit) digest of the file at ``path``, hex."""
     st = os.stat(path)
-    return {"size_bytes": st.st_size, "mtime_ns": st.st_mtime_ns}
+    key = (os.path.realpath(path), st.st_size, st.st_mtime_ns)
+    found = _DIGESTS.get(key)
+    if found is None:
+        h = hashlib.blake2b(digest_size=16)
+        with open(path, "rb") as f:
+            for chunk in iter(lambda: f.read(_CHUNK), b""):
+                h.update(chunk)
+        found = _DIGESTS[key] = h.hexdigest()
+    return found
+
+
+def file_identity(path: str | Path, *, digest: bool = False) -> dict:
+    """A file's size and modification time, with ``digest`` its content's
+    (:func:`content_digest`, under :data:`DIGEST_KEY`): a record made from another identity is
+    stale. Records keep the digest; a check reads it only when the time differs."""
+    st = os.stat(path)
+    out = {"size_bytes": st.st_size, "mtime_ns": st.st_mtime_ns}
+    if digest:
+        out[DIGEST_KEY] = content_digest(path)
+    return out
+
+
+def _same_file(recorded, now: dict, path) -> bool:
+    """Whether the file ``now`` (:func:`file_identity` without digest, at ``path``) is the one
+    ``recorded``: the same size and time, or the same size and, where the record keeps a digest
+    and the file can be read, the same content (a copy that did not keep the times)."""
+    if not isinstance(recorded, dict):
+        return False
+    if all(recorded.get(k) == v for k, v in now.items() if k != DIGEST_KEY):
+        return True
+    if path is None or DIGEST_KEY not in recorded or recorded.get("size_bytes") != now.get("size_bytes"):
+        return False
+    try:
+        return content_digest(path) == recorded[DIGEST_KEY]
+    except OSError:
+        return False
 
 
 def as_recorded(made: dict, rel: str, path: str | Path) -> bool:
     """Whether the file at ``path`` is as a record's ``output_identity`` (``made``) found it
     under ``rel``: not written since by another command or by hand."""
     try:
-        return rel in made and made[rel] == file_identity(path)
+        return rel in made and _same_file(made[rel], file_identity(path), path)
     except OSError:
         return False
 
 
-def input_identity(path: str) -> dict:
+def input_identity(path: str, *, digest: bool = False) -> dict:
     """An input's :func:`file_identity`, with its sidecar's under ``sidecar`` (None without one):
     the sidecar gives the pattern and levels a frame is read with, so a changed sidecar is a
-    changed input."""
-    out = file_identity(path)
+    changed input. ``digest``: with the contents' digests, as records keep them."""
+    out = file_identity(path, digest=digest)
     side = sidecar_path(path)
-    out["sidecar"] = file_identity(side) if side.is_file() else None
+    out["sidecar"] = file_identity(side, digest=digest) if side.is_file() else None
     return out
 
 
-def same_input(recorded, now) -> bool:
-    """Whether an input's identity ``now`` (:func:`input_identity`, or a dict of them by path) is
-    the one a record holds. A record written before sidecars were counted (no ``sidecar`` key)
-    is judged on the file alone."""
+def same_input(recorded, now, path: str | None = None) -> bool:
+    """Whether an input's identity ``now`` (:func:`input_identity` of the file at ``path``, or a
+    dict of them by path) is the one a record holds. Where only the times differ, the digests
+    the record keeps are compared with the files' (with ``path``; the keys of a dict by path are
+    the paths). A record written before sidecars were counted (no ``sidecar`` key) is judged on
+    the file alone."""
     if not (isinstance(recorded, dict) and isinstance(now, dict)):
         return recorded == now
     if "size_bytes" not in now:  # identities by path
-        return set(recorded) == set(now) and all(same_input(recorded[k], now[k]) for k in now)
+        return set(recorded) == set(now) and all(same_input(recorded[k], now[k], k) for k in now)
+    if not _same_file(recorded, {k: v for k, v in now.items() if k != "sidecar"}, path):
+        return False
     if "sidecar" not in recorded:
-        return recorded == {k: v for k, v in now.items() if k != "sidecar"}
-    return recorded == now
+        return True
+    side, was = now.get("sidecar"), recorded["sidecar"]
+    if side is None or was is None:
+        return side is None and was is None
+    return _same_file(was, side, None if path is None else sidecar_path(path))
 
 
 def made_with(record: dict, kind_or_run: str, *, run: bool = True) -> dict | None:
@@ -266,7 +320,7 @@ class ResumeDecision:
 def decide_resume(planned: dict[str, str], planned_keys: dict[str, str], record: dict | None, identity: dict,
                   existing: frozenset | set, *, record_exists: bool, overwrite: bool, settings_key: str = "",
                   maker: str = "lfring batch", alias_keys: dict[str, str] | None = None,
-                  explain: Callable[[str, dict], list[str]] | None = None) -> ResumeDecision:
+                  explain: Callable[[str, dict], list[str]] | None = None, input_path: str | None = None) -> ResumeDecision:
     """Decide, without touching any file, what a run does with one frame.
 
     Parameters
@@ -295,6 +349,8 @@ def decide_resume(planned: dict[str, str], planned_keys: dict[str, str], record:
     explain : callable, optional
         ``explain(kind, record)``: what differs between the settings that made the output
         ``kind`` and this run's (:meth:`BatchSettings.differences`), for the reason of a refusal.
+    input_path : str, optional
+        The input's path, for :func:`same_input` to compare contents where only the times differ.
 
     Returns
     -------
@@ -335,7 +391,7 @@ def decide_resume(planned: dict[str, str], planned_keys: dict[str, str], record:
         # A record from before per-output keys: its outputs were made with one settings key.
         same = {k: planned_keys[k] for k in ours if k in planned_keys}
         done_keys, pending_keys = (same, {}) if record.get("status") == "done" else ({}, same)
-    if not same_input(record.get("input_identity"), identity):
+    if not same_input(record.get("input_identity"), identity, input_path):
         if present:
             return ResumeDecision("refuse", reason=f"outputs exist ({present[0]}...) and the input changed since (the "
                                                    "frame or its sidecar); pass overwrite=True to replace them")

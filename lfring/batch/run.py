@@ -27,6 +27,7 @@ from lfring.batch.executors import (
 )
 from lfring.batch.pipeline import FrameResult, process_frame
 from lfring.batch.record import (
+    DIGEST_KEY,
     MANIFEST,
     RECORD_SUFFIX,
     RECORD_VERSION,
@@ -180,7 +181,7 @@ class _Run:
             identities = {**identities, **self._identities(planned)}
         self.writer.write_json(job.stem + RECORD_SUFFIX, {
             RECORD_KEY: RECORD_VERSION, "status": status, "run": self.run_id, "input": job.input,
-            "input_identity": self.identity[job.input], "settings_key": self.settings.key(),
+            "input_identity": self._input_identity(job.input), "settings_key": self.settings.key(),
             "settings": self.settings.describe(), "outputs": {**outputs, **planned} if done else dict(outputs),
             "planned_outputs": {} if done else planned,
             "output_keys": {**keys, **new} if done else keys,
@@ -189,13 +190,22 @@ class _Run:
             "earlier_settings": earlier,
             "pending_keys": {} if done else new, "lfring_version": _version(), **extra})
 
+    def _input_identity(self, path: str) -> dict:
+        """The input's identity as records keep it, its digests too (read once a run)."""
+        ident = self.identity[path]
+        if DIGEST_KEY not in ident:
+            with contextlib.suppress(OSError):
+                ident = self.identity[path] = input_identity(path, digest=True)
+        return ident
+
     def _identities(self, outputs: dict) -> dict:
-        """{relative path: file identity} of the outputs listed that exist: a rerun then tells
-        a file written since by hand from the one this tool wrote."""
+        """{relative path: file identity} of the outputs listed that exist, with their digests: a
+        rerun then tells a file written since by hand from the one this tool wrote (and a copy
+        that did not keep the times from either)."""
         out = {}
         for rel in outputs.values():
             with contextlib.suppress(OSError):
-                out[rel] = file_identity(str(self.out / rel))
+                out[rel] = file_identity(str(self.out / rel), digest=True)
         return out
 
     def fail(self, job: BatchJob, error: str, record_it: bool = False, **kw) -> None:
@@ -285,7 +295,8 @@ def _decide_jobs(run: _Run, jobs: Sequence[BatchJob], overwrite: bool) -> list[B
             continue
         d = decide_resume(outs, run.keys(job), rec, ident, existing, record_exists=rec_path.exists(), overwrite=overwrite,
                           settings_key=run.settings.legacy_key() or "", alias_keys=alias_keys,
-                          explain=lambda kind, record, cal=cal: run.settings.differences(kind, record, cal))
+                          explain=lambda kind, record, cal=cal: run.settings.differences(kind, record, cal),
+                          input_path=job.input)
         if d.action == "refuse":
             run.fail(job, d.reason)
             continue
@@ -297,7 +308,7 @@ def _decide_jobs(run: _Run, jobs: Sequence[BatchJob], overwrite: bool) -> list[B
         run.todo_kinds[job.input] = d.kinds
         if rec is not None:
             run.previous[job.input] = rec
-        if rec is not None and same_input(rec.get("input_identity"), ident):
+        if rec is not None and same_input(rec.get("input_identity"), ident, job.input):
             # Earlier runs' outputs that are still valid and still there stay in the record.
             made = rec.get("outputs") or {}
             keep = {k: v for k, v in (rec.get("output_keys") or {}).items()

@@ -370,9 +370,11 @@ class OutputSet:
         keys = dict.fromkeys(rels, self.key)
         atomic_write_text(self.record, json.dumps({
             RECORD_KEY: RECORD_VERSION, "command": self.command, "status": status, "input": self.inputs,
-            "input_identity": {os.path.realpath(p): input_identity(p) for p in self.inputs}, "settings_key": self.key,
+            "input_identity": {os.path.realpath(p): input_identity(p, digest=True) for p in self.inputs},
+            "settings_key": self.key,
             "settings": self.settings, "outputs": dict(zip(rels, rels)),
             "output_keys": keys if status == "done" else {}, "pending_keys": {} if status == "done" else keys,
-            "output_identity": {rel: file_identity(p) for rel, p in zip(rels, self.paths)} if status == "done" else {},
+            "output_identity": ({rel: file_identity(p, digest=True) for rel, p in zip(rels, self.paths)}
+                                if status == "done" else {}),
             "lfring_version": __version__,
         }, indent=2, default=json_default) + "\n")

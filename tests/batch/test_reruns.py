@@ -350,3 +350,52 @@ def test_an_output_written_since_by_hand_is_not_taken_as_done(tmp_path, capsys):
     assert main(other) == 0
     assert main(base) == 1
     assert "scene_refocus_0.5m.png exists and was written since lfring batch made it" in " ".join(capsys.readouterr().err.split())
+
+
+def test_a_copy_that_lost_its_times_is_the_same_input_and_the_same_outputs(tmp_path, capsys):
+    """Inputs and outputs whose modification times changed but whose contents did not (a folder
+    copied without keeping the times, a frame touched): the rerun skips the frame as done, where
+    it refused it as a changed input. A change of content of the same size is still a change,
+    of the input and of an output alike."""
+    import os
+    from pathlib import Path
+
+    data = Path(__file__).resolve().parents[2] / "data" / "synthetic"
+    root = tmp_path / "in"
+    copy_frame(data / "scene.png", root / "scene.png")
+    out = tmp_path / "out"
+    base = ["batch", str(root), "-o", str(out), "--refocus", "0.5", "--method", "shift-and-add", "--workers", "1",
+            "--no-progress"]
+    assert main(base) == 0
+    rec = json.loads((out / "scene.lfring.json").read_text())
+    assert len(rec["input_identity"]["blake2b"]) == 32 and len(rec["input_identity"]["sidecar"]["blake2b"]) == 32
+    assert all(len(v["blake2b"]) == 32 for v in rec["output_identity"].values())
+    capsys.readouterr()
+
+    def touch(path):
+        st = path.stat()
+        os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))
+
+    for path in (root / "scene.png", root / "scene.png.json", out / "scene_refocus_0.5m.png"):
+        touch(path)
+    assert main(base) == 0
+    assert "1 skipped" in capsys.readouterr().out
+    # The same size, another content: the input changed.
+    frame = root / "scene.png"
+    raw = bytearray(frame.read_bytes())
+    raw[-20] ^= 0xFF
+    kept = frame.read_bytes()
+    frame.write_bytes(bytes(raw))
+    assert main(base) == 1
+    assert "the input changed since" in " ".join(capsys.readouterr().err.split())
+    frame.write_bytes(kept)
+    touch(frame)
+    assert main(base) == 0
+    capsys.readouterr()
+    # An output of the same size edited by hand is not the batch's.
+    image = out / "scene_refocus_0.5m.png"
+    edited = bytearray(image.read_bytes())
+    edited[-20] ^= 0xFF
+    image.write_bytes(bytes(edited))
+    assert main(base) == 1
+    assert "written since lfring batch made it" in " ".join(capsys.readouterr().err.split())

@@ -419,3 +419,24 @@ def test_a_file_another_command_wrote_since_is_not_replaced_by_the_record_that_m
     assert frame.read_bytes() == single
     assert main([*stack, "--overwrite"]) == 0  # asked to: the stack takes the frame back
     assert frame.read_bytes() != single
+
+
+def test_a_rerun_on_a_copy_that_lost_its_times_is_the_same_run(tmp_path, capsys, monkeypatch):
+    """A frame and its output whose times changed but whose contents did not are the same
+    input and this command's output; a frame of the same size with another content is not."""
+    from lfring.cli.main import main
+
+    monkeypatch.chdir(tmp_path)
+    shutil.copy(SCENE, tmp_path / "scene.png")
+    shutil.copy(str(SCENE) + ".json", tmp_path / "scene.png.json")
+    run = ["refocus", "scene.png", "--depth", "0.5", "--method", "shift-and-add", "-o", "out.png"]
+    assert main(run) == 0
+    for name in ("scene.png", "scene.png.json", "out.png"):
+        st = (tmp_path / name).stat()
+        os.utime(tmp_path / name, ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))
+    assert main(run) == 0, capsys.readouterr().err
+    raw = bytearray((tmp_path / "scene.png").read_bytes())
+    raw[-20] ^= 0xFF
+    (tmp_path / "scene.png").write_bytes(bytes(raw))
+    assert main(run) == 2
+    assert "as it was before it (or its sidecar) changed" in capsys.readouterr().err
