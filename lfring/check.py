@@ -445,7 +445,9 @@ def _fit_px(lum: np.ndarray, calibration, depth_m: float) -> tuple[float, float]
 
 def draw_layout(image: np.ndarray, layout) -> np.ndarray:
     """The frame (float (H, W[, C]) linear light) as 8-bit sRGB with the layout drawn on it:
-    each view's rectangle in yellow, its valid disc in green, its index in the corner.
+    each view's rectangle in yellow, its valid disc in green, its index in the corner. A layout
+    that turns the frame by 180 degrees (``rotate180``) is drawn on the frame turned, as it cuts
+    the views (its rectangles and view numbers are in that frame).
 
     Returns
     -------
@@ -458,6 +460,8 @@ def draw_layout(image: np.ndarray, layout) -> np.ndarray:
         img = img[..., None]
     if img.shape[2] == 1:
         img = np.repeat(img, 3, axis=2)
+    if layout.rotate180:
+        img = img[::-1, ::-1]
     out = np.ascontiguousarray(encode_image(img[..., :3], 8, "srgb"))
     thick = max(1, round(min(out.shape[:2]) / 400))
     for k, (x, y, w, h) in enumerate(layout.rects):

@@ -281,3 +281,21 @@ def test_a_threshold_no_zncc_reaches_is_refused(cal):
     for bad in (2.0, -1.5, float("nan")):
         with pytest.raises(InvalidInputError, match="threshold must be a ZNCC >= -1 and <= 1"):
             check_frame(views, cal, threshold=bad)
+
+
+def test_draw_layout_of_a_turned_layout_draws_on_the_turned_frame(cal):
+    """A layout that turns the frame by 180 degrees has its rectangles in the turned frame: the
+    overlay is drawn there (it drew them on the frame as read, off the discs of light), so each
+    rectangle holds the pixels its view is cut from."""
+    import dataclasses
+
+    from lfring.views import split_views
+
+    turned = dataclasses.replace(cal.layout, rotate180=True)
+    frame = np.zeros((1842, 2456, 3), np.float32)
+    x, y, w, h = turned.rects[0]
+    frame[-1 - (y + h // 2), -1 - (x + w // 2)] = 1.0  # the centre of view 0 as the frame is read
+    assert split_views(frame, turned)[0][h // 2, w // 2].max() == 1.0
+    out = draw_layout(frame, turned)
+    assert tuple(out[y + h // 2, x + w // 2]) == (255, 255, 255)
+    assert tuple(out[y, x + 5]) == (255, 220, 0)

@@ -82,6 +82,7 @@ def command(ctx, frame, calib, output, overwrite, levels):
         write_image(stage(out), draw_layout(image, cal.layout))
     for line in lines:
         click.echo(line)
-    click.echo(f"overlay      {out}")
+    click.echo(f"overlay      {out}" + (" (the frame turned 180 degrees, as the calibration cuts it)"
+                                        if cal.layout.rotate180 else ""))
     if not res.ok:
         ctx.exit(1)
