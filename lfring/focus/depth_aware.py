@@ -52,6 +52,7 @@ layers are :mod:`lfring.focus.layers`; the per-pixel passes are compiled
 from __future__ import annotations
 
 import math
+import threading
 import warnings
 
 import cv2
@@ -324,7 +325,8 @@ class DepthOfField:
     See the module's description. Memory: the views remapped once (V full-size images) while
     the colour is made; then, kept between renders, a few full-size buffers and the layers
     twice, as scattered and as blurred (each pixel in two of them, blurred layers on reduced
-    grids).
+    grids). Renders share that memory, so one renderer used from several threads renders one
+    image at a time (each render's passes use every core already).
     """
 
     def __init__(self, views, calibration, depth_map_m, *, reference="center", measured_views: float = MIN_DEPTH_VIEWS):
@@ -352,6 +354,7 @@ class DepthOfField:
         self._back = self._background(sources, masks, nearest)
         self._cover = self.seen.astype(np.float32)
         self._scratch: dict = {}
+        self._rendering = threading.Lock()
         self._vmax = float(arr.max())  # every image rendered is a weighted average of the views
         self._x_range = (float(self.x[self.seen].min()), float(self.x[self.seen].max())) if self.seen.any() else (1.0, 1.0)
 
@@ -574,11 +577,27 @@ class DepthOfField:
 
         ``shift_and_add`` is the views refocused at ``focus_m`` (:func:`lfring.refocus`): used
         where it is in focus. Without it, the all-in-focus colour is used everywhere."""
+        z0 = self.calibration.depth_origin_m
+        focus_m = check_number(focus_m, "focus_m", above=z0, finite=False, what="a depth in metres",
+                               hint=" (beyond the calibration's depth origin; inf: focused at infinity)")
+        aperture = check_number(aperture, "aperture", minimum=0.0)
+        with self._rendering:
+            return self._render(1.0 / (focus_m - z0), aperture, shift_and_add)
+
+    def __getstate__(self) -> dict:
+        state = dict(self.__dict__)
+        state["_scratch"] = {}
+        del state["_rendering"]
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self._rendering = threading.Lock()
+
+    def _render(self, xf: float, aperture: float, shift_and_add) -> np.ndarray:
         from lfring.focus import depth_aware_kernels as kern
 
-        aperture = check_number(aperture, "aperture", minimum=0.0)
         h, w, c = self.colour.shape
-        xf = 1.0 / (focus_m - self.calibration.depth_origin_m)
         motion = float(self.radius_px)
         sharp = NO_IMAGE
         if shift_and_add is not None:

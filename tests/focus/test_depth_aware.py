@@ -390,6 +390,31 @@ def test_a_renderer_reused_renders_what_a_fresh_one_does():
         assert np.array_equal(reused.render(focus_m, aperture), fresh.render(focus_m, aperture)), (focus_m, aperture)
 
 
+def test_one_renderer_used_from_several_threads_renders_what_it_renders_alone():
+    """Renders share the renderer's kept memory: from a thread pool they came out mixed (parts
+    of one focus's layers in another's image). They render one at a time now, each image as
+    a serial render gives it; a pickled renderer renders the same images too."""
+    import pickle
+    from concurrent.futures import ThreadPoolExecutor
+
+    cal = _calibration()
+    views, depth, _ = _slanted_plane(samples=8)
+    depth[20:50, 50:70] = NEAR_M
+    dof = depth_of_field(views, cal, depth=depth)
+    foci = [(1.0 / 1.5, 0.5), (1.0, 2.5), (FAR_M, 3.0), (NEAR_M, 1.0)] * 3
+    alone = {f: dof.render(*f) for f in set(foci)}
+    with ThreadPoolExecutor(4) as pool:
+        together = list(pool.map(lambda f: dof.render(*f), foci))
+    for f, image in zip(foci, together):
+        assert np.array_equal(image, alone[f]), f
+    copy = pickle.loads(pickle.dumps(dof))
+    assert np.array_equal(copy.render(1.0, 2.5), alone[(1.0, 2.5)])
+    for bad in (float("nan"), -0.5, cal.depth_origin_m, "1.0", None):
+        with pytest.raises(InvalidInputError, match="focus_m must be a depth in metres"):
+            dof.render(bad, 1.0)
+    assert np.isfinite(dof.render(float("inf"), 1.0)).all()
+
+
 def test_the_blur_changes_continuously_with_the_focus_and_the_depth():
     """A small change of the focus depth, or of the depth map, changes the image a little: no
     pixel jumps from one layer to another."""
