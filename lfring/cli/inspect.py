@@ -159,6 +159,9 @@ def command(ctx, raw, plane, tolerance, outdir, calib, roi, reference_depth, min
                  "at least " if d.beyond_band else "", d.deviation_m * 1e3, x, y, w, h, d.area_px, d.mean_confidence,
                  " (it reaches beyond the depth band searched: widen --zmin/--zmax to measure it)" if d.beyond_band else "")
     checked = f"checked {res.coverage:.0%} of the part"
+    beyond = res.stats.get("beyond_sight_fraction") or 0.0
+    if res.verdict != "cannot_judge" and beyond >= 0.005:
+        checked += f"; it may run on beyond what two views see, over {beyond:.0%} more, unchecked"
     if res.verdict == "pass":
         verdict = f"pass ({checked})"
     elif res.verdict == "fail":

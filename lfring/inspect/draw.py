@@ -63,7 +63,7 @@ def annotate(result: InspectionResult, *, tint: float = 0.35, scale: int = 1) ->
     m = result.plane_mask
     img[m] = (1 - tint) * img[m] + tint * np.array(_PLANE_RGB, np.float32)
     out = np.rint(img).astype(np.uint8)
-    unchecked = (result.part & ~result.reliable).astype(np.uint8)
+    unchecked = result.unchecked.astype(np.uint8)
     if scale > 1:
         out = cv2.resize(out, None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)
         unchecked = cv2.resize(unchecked, None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)
@@ -84,10 +84,13 @@ def annotate(result: InspectionResult, *, tint: float = 0.35, scale: int = 1) ->
         verdict, banner_rgb = f"FAIL: {len(result.defects)} defect(s)", BUMP_RGB
     else:
         verdict, banner_rgb = f"CANNOT JUDGE: {(result.reason or '').split(':')[0]}", _JUDGE_RGB
+    beyond = 100 * float(result.stats.get("beyond_sight_fraction") or 0.0)
     line = int(22 * font / 0.4)
-    banner = [(text, (8, (i + 1) * line + 4 * i)) for i, text in enumerate((
-        verdict, f"checked {result.coverage * 100:.0f} % of the part (unchecked: hatched)",
-        f"plane {s['plane_m']:.3f} m  tolerance {s['tolerance_m'] * 1e3:.1f} mm"))]
+    texts = [verdict, f"checked {result.coverage * 100:.0f} % of the part (unchecked: hatched)"]
+    if beyond >= 0.5 and result.verdict != "cannot_judge":
+        texts.append(f"it may run on beyond two views' sight: +{beyond:.0f} % (hatched)")
+    texts.append(f"plane {s['plane_m']:.3f} m  tolerance {s['tolerance_m'] * 1e3:.1f} mm")
+    banner = [(text, (8, (i + 1) * line + 4 * i)) for i, text in enumerate(texts)]
     banner_box = _union([_text_box(t, org, font * 1.2, thick) for t, org in banner])
     for i, d in enumerate(result.defects, 1):
         x, y, bw, bh = (v * scale for v in d.bbox_px)

@@ -50,7 +50,7 @@ from lfring.core.protocols import check_calibration
 
 __all__ = [
     "DARK_LEVEL", "MARGIN_PX", "MIN_CONFIDENCE_TWO_VIEWS", "MIN_COVERAGE", "MIN_PART_FRACTION", "MIN_TEXTURED_FRACTION",
-    "PART_OPENING_PX", "PHOTO_MIN_CONTRAST", "BAND_END_REACH_PX", "MIN_TOLERANCE_PX", "STEP_PX", "VERDICTS", "default_depth_band", "inspect_frame",
+    "PART_OPENING_PX", "PART_RIM_PX", "PHOTO_MIN_CONTRAST", "BAND_END_REACH_PX", "MIN_TOLERANCE_PX", "STEP_PX", "VERDICTS", "default_depth_band", "inspect_frame",
     "photo_consistency",
 ]
 
@@ -284,6 +284,11 @@ MIN_TEXTURED_FRACTION = 0.02
 MIN_PART_FRACTION = 0.02
 #: Radius of the opening that removes specks from the part's evidence before its holes are filled.
 PART_OPENING_PX = 3
+#: Within this many pixels of the rim of what two views see, the evidence that finds the part
+#: fades (the sweep's window and the views' taper reach past the rim; benchmarks/RESULTS.md,
+#: "Inspection: the part beyond the views' common sight"): the part is continued across that
+#: band from farther in, and on into what one view alone sees.
+PART_RIM_PX = 16
 
 #: The verdicts of :func:`inspect_frame`, in :attr:`InspectionResult.verdict`.
 VERDICTS = ("pass", "fail", "cannot_judge")
@@ -526,6 +531,22 @@ def _find_part(plane_mask, reliable, box, *, min_area_px: int) -> np.ndarray:
     return out
 
 
+def _part_beyond_sight(part, num_views, in_roi) -> np.ndarray:
+    """Where the part may run on beyond what two views see: the pixels of the region of interest
+    near the rim of what two views see, and beyond it those that one view alone sees, whose
+    nearest pixel :data:`PART_RIM_PX` or more inside that rim is part (and that are not part
+    already). No depth is measured beyond the rim and little evidence is left near it: whether
+    the part covers them is not known, and nothing there was checked."""
+    seen = (num_views >= 2).astype(np.uint8)
+    inner = cv2.distanceTransform(seen, cv2.DIST_L2, 5) >= PART_RIM_PX
+    rim = (num_views >= 1) & ~inner & in_roi & ~part
+    if not (rim.any() and inner.any() and part.any()):
+        return np.zeros_like(part)
+    # Labels number the inner pixels in row-major order, as a boolean index lists them.
+    _, labels = cv2.distanceTransformWithLabels((~inner).view(np.uint8), cv2.DIST_L2, 5, labelType=cv2.DIST_LABEL_PIXEL)
+    return rim & part[inner][labels - 1]
+
+
 def _judge(views, *, in_roi, seen, textured, part, reliable, num_defects, min_coverage,
            beyond_band) -> tuple[str, float, str | None, dict]:
     """Coverage and verdict step of :func:`inspect_frame`: (verdict, coverage, reason, statistics).
@@ -680,7 +701,10 @@ def inspect_frame(
 
     Holes are filled inside the frame (or the ROI): untextured patches, deep dents or holes
     beyond the band inside the part count as part and as unchecked. Pixels seen by fewer than
-    two views carry no evidence and are never part of P. The verdict, in order: the frame is
+    two views carry no evidence and are never part of P. Where P reaches the rim of what two
+    views see, it may run on beyond: the result's ``beyond_sight`` marks the pixels near that
+    rim and beyond it (one view alone seeing them) that P would continue into, unchecked, and
+    ``stats['beyond_sight_fraction']`` their area over P's; the verdict is P's. The verdict, in order: the frame is
     too dark (99th percentile of the views' luminance below :data:`DARK_LEVEL`), too flat
     (textured pixels on less than :data:`MIN_TEXTURED_FRACTION` of the pixels two views see)
     or ``|P|`` is below :data:`MIN_PART_FRACTION` of the region: ``'cannot_judge'`` with coverage
@@ -736,6 +760,7 @@ def inspect_frame(
 
     # Coverage and verdict step.
     part = _find_part(plane_mask, reliable, chk.box, min_area_px=int(min_area_px))
+    beyond_sight = _part_beyond_sight(part, num_views, in_roi)
     verdict, coverage, reason, judged = _judge(
         chk.views, in_roi=in_roi, seen=num_views >= 2, textured=contrast >= PHOTO_MIN_CONTRAST, part=part, reliable=reliable,
         num_defects=len(defects), min_coverage=chk.min_coverage, beyond_band=np.isfinite(depth.depth_m) & ~in_band)
@@ -757,11 +782,12 @@ def inspect_frame(
         "out_of_band_fraction": float((~in_band & in_roi).sum() / roi_px),
         "median_abs_deviation_m": float(np.median(np.abs(dev[reliable]))) if reliable.any() else None,
         **judged,
+        "beyond_sight_fraction": float(beyond_sight.sum() / max(int(part.sum()), 1)),
     }
     return InspectionResult(
         verdict=verdict, coverage=coverage, reason=reason, defects=tuple(defects), plane_mask=plane_mask,
         consistency=consistency, deviation_m=dev, reliable=reliable, deviating=deviating, part=part, depth=depth,
-        refocused=refocused, settings=settings, stats=stats,
+        refocused=refocused, settings=settings, stats=stats, beyond_sight=beyond_sight,
     )
 
 

@@ -113,6 +113,9 @@ class InspectionResult:
     part : (h, w) bool
         The inspected region: the part, found as :func:`~lfring.inspect.inspect_frame`'s Notes
         say; the coverage is the fraction of it that is ``reliable``.
+    beyond_sight : (h, w) bool or None
+        Where the part may run on beyond what two views see (near that rim, or seen by one view
+        alone): not part of ``part``, and unchecked.
     depth : DepthResult
         The plane sweep over the band.
     refocused : (h, w, C) float32
@@ -122,8 +125,8 @@ class InspectionResult:
     stats : dict
         Fractions of reliable, on-plane and out-of-band pixels inside the region of interest,
         the median absolute deviation of the reliable ones in metres, the coverage, the part's
-        fraction of the region, the textured fraction and the views' 99th percentile of
-        luminance.
+        fraction of the region, the textured fraction, the views' 99th percentile of
+        luminance and ``beyond_sight``'s area over the part's.
     """
 
     verdict: str
@@ -140,8 +143,16 @@ class InspectionResult:
     refocused: np.ndarray
     settings: dict = field(default_factory=dict)
     stats: dict = field(default_factory=dict)
+    beyond_sight: np.ndarray | None = None
 
     __repr__ = record_repr
+
+    @property
+    def unchecked(self) -> np.ndarray:
+        """(h, w) bool: what was not checked of the part (``part`` less ``reliable``) and where it
+        may run on beyond two views' sight (``beyond_sight``): what the drawings hatch."""
+        out = np.asarray(self.part, dtype=bool) & ~np.asarray(self.reliable, dtype=bool)
+        return out if self.beyond_sight is None else out | np.asarray(self.beyond_sight, dtype=bool)
 
     @property
     def passed(self) -> bool:

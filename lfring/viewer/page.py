@@ -277,7 +277,7 @@ def inspection_overlays(result) -> dict:
     boxes = [(*d.bbox_px, f"{i} {d.kind} {d.deviation_m * 1e3:+.1f} mm", hexed.get(d.kind, BOX_COLOUR))
              for i, d in enumerate(result.defects, 1)]
     zs = np.asarray(result.depth.depths_m, dtype=np.float64)
-    return {"boxes": boxes, "unchecked_mask": np.asarray(result.part, dtype=bool) & ~np.asarray(result.reliable, dtype=bool), "depth": result.depth,
+    return {"boxes": boxes, "unchecked_mask": result.unchecked, "depth": result.depth,
             "zmin_m": float(zs.min()), "zmax_m": float(zs.max()), "focus_m": float(result.settings["plane_m"])}
 
 

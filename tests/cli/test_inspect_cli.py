@@ -34,7 +34,10 @@ def test_good_part_passes_and_defects_fail(tmp_path, capsys):
     assert rep["passed"] is True and rep["verdict"] == "pass" and rep["defects"] == [] and rep["reason"] is None
     assert 0.8 <= rep["coverage"] <= 1 and rep["settings"]["min_coverage"] == 0.8
     assert (out / "part_good_inspect.png").read_bytes()[:4] == b"\x89PNG"
-    assert f"pass (checked {rep['coverage']:.0%} of the part)" in capsys.readouterr().out
+    beyond = rep["stats"]["beyond_sight_fraction"]
+    assert 0.1 < beyond < 0.4  # the plate runs on beyond what two views see, at the frame's corners
+    assert (f"pass (checked {rep['coverage']:.0%} of the part; it may run on beyond what two views see, over "
+            f"{beyond:.0%} more, unchecked)") in capsys.readouterr().out
 
     assert _run(BAD, "--plane", "0.3", "--tolerance", "0.008", "-o", out) == 1
     rep = json.loads((out / "part_defects_inspect.json").read_text())

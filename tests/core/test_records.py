@@ -50,7 +50,7 @@ def test_inspection_result_repr_nests_the_depth_and_defects():
     assert "plane_mask=array(shape=(705, 705), dtype=bool)" in text
     assert "depth=DepthResult(depth_m=array(shape=(705, 705), dtype=float32)" in text
     assert "refocused=array(shape=(705, 705, 3), dtype=float32)" in text
-    assert text.endswith("settings={'plane_m': 0.3}, stats={'coverage': 0.98})")
+    assert text.endswith("settings={'plane_m': 0.3}, stats={'coverage': 0.98}, beyond_sight=None)")
     assert len(text) < 1500
 
 

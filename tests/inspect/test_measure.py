@@ -311,3 +311,30 @@ def test_a_part_off_the_plane_is_said_to_lie_beyond_the_band(parts):
     assert res.stats["textured_fraction"] > 0.9 and res.stats["beyond_band_fraction"] > 0.5
     assert f"{res.stats['beyond_band_fraction']:.0%} of the frame lies beyond the depth band" in res.reason
     assert "is the part at the working plane" in res.reason
+
+
+def test_a_part_beyond_the_views_common_sight_is_told_and_hatched(prototype):
+    """A part larger than what two views see, a 15 mm bump in its corner where one view alone
+    sees it: the inspection cannot check it, and said 'pass (checked 97 % of the part)' with the
+    corners neither part nor hatched. The part's possible continuation beyond that rim is now
+    given (``beyond_sight``, its share in the stats) and hatched; it holds the bump."""
+    from lfring.inspect.draw import annotate
+    from lfring.synth import Bump, HeightField, Plane, Scene, Texture
+
+    bump = Bump(center_m=(0.008, 0.008), size_m=(0.012, 0.012), height_m=0.015, shape="dome")
+    part = HeightField(PLANE, (0.08, 0.08), Texture("image", name="gravel"), bumps=(bump,), name="part")
+    belt = Plane(0.4, (0.5, 0.5), Texture("speckle", feature_m=0.003, seed=1,
+                                          colors=((0.02, 0.02, 0.03), (0.25, 0.25, 0.3))), name="belt")
+    r = render(prototype, Scene((part, belt)), binning=2, noise="realistic", seed=4)
+    frame = RawFrame(mosaic=r.raw, pattern="RGGB", black_level=r.black_level, white_level=r.white_level, bit_depth=12)
+    cal = default_calibration((2456, 1842))[0]
+    res = inspect_frame(split_views(demosaic(frame), cal.layout), cal, plane_m=PLANE, tolerance_m=TOL, device=r.device)
+    truth = truth_deviation(r, cal, PLANE)
+    raised = np.nan_to_num(truth) > TOL  # the bump, as the views' truth maps it
+    assert raised.sum() > 100 and not (res.reliable & raised).any()  # never checked
+    assert res.beyond_sight[raised].mean() > 0.9 and not (res.beyond_sight & res.part).any()
+    assert res.unchecked[raised].all()
+    share = res.beyond_sight.sum() / res.part.sum()
+    assert res.stats["beyond_sight_fraction"] == pytest.approx(share) and 0.1 < share < 0.4
+    image = annotate(res)
+    assert image.shape[:2] == res.part.shape
