@@ -17,9 +17,10 @@ from lfring.errors import (
     InvalidInputError,
     LfringError,
     LfringFileNotFoundError,
+    LfringWarning,
 )
 from lfring.calibration import RingCalibration, calibrate
-from lfring.check import FrameCheck, check_frame
+from lfring.check import FrameCheck, OverExposureWarning, check_frame
 from lfring.depth import DepthResult, estimate_depth
 from lfring.io.demosaic import demosaic
 from lfring.inspect import Defect, InspectionResult, inspect_frame
@@ -43,6 +44,8 @@ __all__ = [
     "Layout",
     "LfringError",
     "LfringFileNotFoundError",
+    "LfringWarning",
+    "OverExposureWarning",
     "RawFrame",
     "Refocuser",
     "RingCalibration",

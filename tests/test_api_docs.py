@@ -99,3 +99,16 @@ def test_entry_points_have_an_examples_section_on_the_bundled_frames(dotted):
     found = doctest.DocTestFinder().find(obj, dotted.rsplit(".", 1)[1])
     assert found and found[0].examples
     assert Path(found[0].filename).resolve().is_relative_to(PACKAGE)
+
+
+def test_the_warnings_docstrings_name_are_at_the_top_level():
+    """refocus's docstring names lfring.LfringWarning: a filter written from it must work."""
+    import warnings
+
+    import lfring
+
+    assert issubclass(lfring.OverExposureWarning, lfring.LfringWarning)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", lfring.LfringWarning)
+        with pytest.raises(lfring.LfringWarning):
+            warnings.warn("x", lfring.OverExposureWarning)
