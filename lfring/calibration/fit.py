@@ -90,8 +90,9 @@ def calibrate(
         asked of the result).
     rank1 : bool
         Constrain each B_k to rank 1.
-    device : RingDevice, optional
-        The camera's description, for z0 = s with two planes.
+    device : RingDevice, str or path, optional
+        The camera's description (a built-in name or a device file too), for z0 = s with two
+        planes.
     distortion : bool
         Estimate each view's lens distortion jointly with the homographies
         (:func:`lfring.calibration.distortion.estimate_distortion`) and keep it when it matters:
@@ -137,6 +138,10 @@ def calibrate(
 
     if carry_flat and flat is None:
         raise InvalidInputError("carry_flat needs the flat frame (flat=...)")
+    if device is not None:
+        from lfring.optics.device import load_device
+
+        device = load_device(device)
     if not isinstance(frames_by_depth, dict) or len(frames_by_depth) < 2:
         raise InvalidInputError("calibrate needs frames of the target at two or more distinct depths, as {depth_m: frame}")
     depths = [float(d) for d in frames_by_depth]

@@ -657,10 +657,11 @@ def inspect_frame(
         removes isolated noisy pixels and fills pinholes; 0 turns it off.
     consistency_threshold : float
         Pixels whose :func:`photo_consistency` at the plane is below it form ``plane_mask``.
-    device : RingDevice, optional
-        The optics (binned to the frame), for defect areas in mm^2; by default the device the
-        calibration names, binned to its frames (areas in pixels only when it names none, or
-        one that does not fit them).
+    device : RingDevice, str or path, optional
+        The optics (binned to the frame), for defect areas in mm^2; a built-in name or a device
+        file is binned to the calibration's frames. By default the device the calibration names,
+        binned to its frames (areas in pixels only when it names none, or one that does not fit
+        them).
     backend : {'numpy', 'torch'}
         Of the plane sweep (:func:`lfring.estimate_depth`).
 
@@ -735,13 +736,16 @@ def inspect_frame(
                         consistency_threshold=consistency_threshold, min_coverage=min_coverage)
     chk = _target_near_plane(calibration, chk, zmin_m, zmax_m)
     zlo, zhi, num_planes = _plan_band(calibration, chk, zmin_m, zmax_m, num_planes)
-    if device is None and calibration.device:
-        from lfring.depth.io import device_for
+    from lfring.depth.io import device_for
+    from lfring.optics import RingDevice
 
+    if device is None and calibration.device:
         try:
             device = device_for(calibration)
         except LfringError:  # an unknown device, or one of another sensor: areas in pixels
             device = None
+    elif device is not None and not isinstance(device, RingDevice):
+        device = device_for(calibration, device)
     footprint_mm = _footprint_mm(device, calibration, chk.plane_m)  # checks the device before the work
 
     depth, refocused, consistency, contrast, num_views = _measure(chk, calibration, zlo, zhi, num_planes, backend)

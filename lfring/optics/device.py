@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import sys
 from dataclasses import dataclass, fields
 from pathlib import Path
@@ -18,7 +19,7 @@ import numpy as np
 
 from lfring._resources import calib_dir
 from lfring.core.validate import check_int, check_number, is_number
-from lfring.errors import DeviceError, LfringFileNotFoundError
+from lfring.errors import DeviceError, InvalidInputError, LfringFileNotFoundError
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -405,15 +406,16 @@ def builtin_devices() -> list[str]:
     return sorted(p.name[: -len(".toml")] for p in root.iterdir() if p.name.endswith(".toml"))
 
 
-def load_device(name_or_path: str | Path) -> RingDevice:
+def load_device(name_or_path: str | Path | RingDevice) -> RingDevice:
     """Load a device by built-in name (``"prototype"``) or from a TOML or JSON file.
 
     Parameters
     ----------
-    name_or_path : str or path-like
+    name_or_path : str, path-like or RingDevice
         A name from :func:`builtin_devices`, or the path of a ``.toml`` / ``.json`` file whose
         keys are the fields of :class:`RingDevice` (an optional top-level ``[device]`` table is
-        accepted).
+        accepted); a RingDevice is returned as it is (so that functions taking a device take
+        any of the three).
 
     Returns
     -------
@@ -426,6 +428,11 @@ def load_device(name_or_path: str | Path) -> RingDevice:
     >>> round(dev.main_focal_length_m * 1e3, 3)
     16.0
     """
+    if isinstance(name_or_path, RingDevice):
+        return name_or_path
+    if not isinstance(name_or_path, (str, os.PathLike)):
+        raise InvalidInputError(f"a device is a RingDevice, a built-in name ({', '.join(builtin_devices())}) or the path "
+                                f"of a .toml/.json device file, got {type(name_or_path).__name__}")
     text_name = str(name_or_path)
     path = Path(text_name)
     if path.suffix.lower() not in (".toml", ".json") and path.parent == Path("."):

@@ -65,6 +65,11 @@ def test_three_planes_recover_z0(twin, caplog):
     noise, targets, flat, layout, dev = twin
     cal = calibrate(targets, flat=flat, layout=layout, device=dev)
     assert abs(cal.depth_origin_m - dev.entrance_pupil_m) < 1e-3
+    # The device by name, as to_points takes it (it raised AttributeError on a str).
+    two = {z: targets[z] for z in (0.3, 1.0)}
+    assert calibrate(two, flat=flat, layout=layout, device="prototype").depth_origin_m == dev.entrance_pupil_m
+    with pytest.raises(InvalidInputError, match="a device is a RingDevice"):
+        calibrate(two, flat=flat, layout=layout, device=2)
     assert cal.provenance["depth_origin"] == "fitted"
     assert all(p.leave_one_out_px.max() < 0.05 for p in cal.planes)
     assert "z0 fitted" not in caplog.text

@@ -7,7 +7,7 @@ import pytest
 
 from inspect_parts import DATA, PLANE, TOL, overlap, truth_deviation, views_of
 from lfring.calibration.defaults import default_calibration
-from lfring.errors import InvalidInputError, LfringWarning
+from lfring.errors import InvalidInputError, LfringError, LfringWarning
 from lfring.inspect import Defect, InspectionResult, default_depth_band, inspect_frame
 from lfring.io.demosaic import demosaic
 from lfring.io.raw import RawFrame
@@ -338,3 +338,19 @@ def test_a_part_beyond_the_views_common_sight_is_told_and_hatched(prototype):
     assert res.stats["beyond_sight_fraction"] == pytest.approx(share) and 0.1 < share < 0.4
     image = annotate(res)
     assert image.shape[:2] == res.part.shape
+
+
+def test_a_device_by_name_is_binned_to_the_frames(parts):
+    """device='prototype' (as to_points takes it) raised AttributeError on a str; it is the
+    built-in device binned to the calibration's frames, and anything else is refused clearly."""
+    from lfring.depth.io import device_for
+
+    r, cal, views, truth, res = parts["two"]
+    named = inspect_frame(views, cal, plane_m=PLANE, tolerance_m=TOL, device="prototype")
+    given = inspect_frame(views, cal, plane_m=PLANE, tolerance_m=TOL, device=device_for(cal, "prototype"))
+    assert [d.area_mm2 for d in named.defects] == [d.area_mm2 for d in given.defects]
+    assert named.defects and all(d.area_mm2 > 0 for d in named.defects)
+    with pytest.raises(InvalidInputError, match="a device is a RingDevice, a built-in name"):
+        inspect_frame(views, cal, plane_m=PLANE, tolerance_m=TOL, device=3)
+    with pytest.raises(LfringError, match="no built-in device named 'nope'"):
+        inspect_frame(views, cal, plane_m=PLANE, tolerance_m=TOL, device="nope")
