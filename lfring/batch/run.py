@@ -369,6 +369,14 @@ def _finish(run: _Run, job: BatchJob, res: FrameResult) -> None:
     if not res.ok:
         run.fail(job, res.error, record_it=True, timings_s=res.timings_s, worker=res.worker)
         return
+    try:
+        unchanged = same_input(run.identity[job.input], input_identity(job.input), job.input)
+    except OSError:
+        unchanged = False
+    if not unchanged:  # the outputs may be of a file still being written, or of the one before
+        run.fail(job, "the frame (or its sidecar) changed or went while it was processed: its outputs are not written; "
+                      "a rerun processes it as it is then", record_it=True, timings_s=res.timings_s, worker=res.worker)
+        return
     t_w = time.perf_counter()
     deliver_lost_stops()  # a Ctrl-C that came where it could not stop the batch: this frame stays pending
     try:

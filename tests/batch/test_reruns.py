@@ -399,3 +399,36 @@ def test_a_copy_that_lost_its_times_is_the_same_input_and_the_same_outputs(tmp_p
     image.write_bytes(bytes(edited))
     assert main(base) == 1
     assert "written since lfring batch made it" in " ".join(capsys.readouterr().err.split())
+
+
+def test_a_frame_that_changes_while_it_is_processed_is_not_recorded_as_done(tmp_path, monkeypatch, capsys):
+    """A frame still being written when the batch planned it (or replaced meanwhile) was
+    processed as read, then recorded with the identity it had when planned: every later run
+    refused it as changed. Its outputs are not written now and the frame fails, saying why; the
+    rerun processes it as it is then."""
+    from pathlib import Path
+
+    import lfring.batch.run as batch_run
+
+    data = Path(__file__).resolve().parents[2] / "data" / "synthetic"
+    root = tmp_path / "in"
+    copy_frame(data / "scene.png", root / "a.png")
+    whole = (root / "a.png").read_bytes()
+    (root / "a.png").write_bytes(whole[: len(whole) // 2])  # still being written when planned
+    real = batch_run.process_frame
+
+    def finished_meanwhile(path, *args, **kwargs):
+        Path(path).write_bytes(whole)
+        return real(path, *args, **kwargs)
+
+    monkeypatch.setattr(batch_run, "process_frame", finished_meanwhile)
+    out = tmp_path / "out"
+    settings = BatchSettings(refocus_m=(0.5,), refocus_method="shift-and-add")
+    rep = run_batch([str(root)], out, settings, workers=1)
+    assert rep.failed == [str(root / "a.png")] and "changed or went while it was processed" in rep.errors[str(root / "a.png")]
+    assert not (out / "a_refocus_0.5m.png").exists()
+    assert json.loads((out / "a.lfring.json").read_text())["status"] == "failed"
+    monkeypatch.setattr(batch_run, "process_frame", real)
+    rep = run_batch([str(root)], out, settings, workers=1)
+    assert rep.done == [str(root / "a.png")] and (out / "a_refocus_0.5m.png").exists()
+    assert run_batch([str(root)], out, settings, workers=1).skipped == [str(root / "a.png")]
