@@ -13,6 +13,7 @@ import shutil
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import FIRST_COMPLETED
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -418,6 +419,17 @@ def _execute(run: _Run, todo: list[BatchJob], *, workers: int, executor: str, sc
             path = os.path.abspath(job.input) if executor == "dask" else job.input
             pending[pool.submit(process_frame, path, run.settings, run.planned(job))] = job
 
+        def renew(requeue: list) -> None:
+            """A fresh local pool for the frames of a broken one (a worker died: every frame the
+            pool held is lost with it), ``requeue`` first."""
+            nonlocal pool, waiter
+            pool.shutdown(wait=False, cancel_futures=True)
+            requeue = [*requeue, *pending.values()]
+            pending.clear()
+            queue[:0] = requeue
+            if queue:
+                pool, waiter = local_executor(min(workers, len(queue)))
+
         while queue or pending:
             while queue and len(pending) < window:
                 job = queue.pop(0)
@@ -425,6 +437,8 @@ def _execute(run: _Run, todo: list[BatchJob], *, workers: int, executor: str, sc
                     submit(job)
                 except OSError as exc:
                     run.fail(job, f"cannot write its record: {exc}")
+                except BrokenProcessPool:  # a worker died since the last results were taken
+                    renew([job])
             if not pending:
                 continue
             done_set, _ = waiter(list(pending), return_when=FIRST_COMPLETED)
@@ -434,18 +448,18 @@ def _execute(run: _Run, todo: list[BatchJob], *, workers: int, executor: str, sc
                     with held_signals():  # taking the result takes the future's lock
                         res: FrameResult = fut.result()
                 except Exception as exc:  # noqa: BLE001 - a worker died (crash, killed): retry once elsewhere
-                    if job.input not in retried and executor == "local" and not isinstance(pool, InProcess):
+                    lost = executor == "local" and not isinstance(pool, InProcess)
+                    if lost and job.input not in retried:
                         retried.add(job.input)
                         log.warning("%s: worker lost (%s); retrying once", job.input, type(exc).__name__)
-                        pool.shutdown(wait=False, cancel_futures=True)
-                        requeue = [job, *pending.values()]
-                        pending.clear()
-                        pool, waiter = local_executor(min(workers, len(requeue) + len(queue)))
-                        queue[:0] = requeue
+                        renew([job])
                         break
                     run.fail(job, f"the worker processing it was lost: {type(exc).__name__}: {exc}", record_it=True)
                     if bar is not None:
                         bar.update(1)
+                    if lost:  # lost twice: the others go on in a fresh pool
+                        renew([])
+                        break
                     continue
                 _finish(run, job, res)
                 if bar is not None:

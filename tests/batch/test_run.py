@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from batch_frames import (
     CORRUPT,
+    copy_frame,
     N_FRAMES,
     digest,
     expected_refocus,
@@ -80,3 +81,57 @@ def test_progress_bar_shows_rate_and_eta(frames, tmp_path, capsys):
     assert rep.exit_code == 0
     err = capsys.readouterr().err
     assert "lfring batch" in err and "2/2" in err and "frame/s" in err and "<00:00" in err
+
+
+def test_workers_lost_again_and_again_fail_their_frames_and_the_rest_go_on(tmp_path, monkeypatch):
+    """Workers killed over and over (the OOM killer): a frame whose worker is lost twice fails,
+    and the pool it broke is made anew for the others; a submission to a pool that broke
+    meanwhile is made again. It ended in a BrokenProcessPool traceback, frames without a
+    record or a manifest line."""
+    from concurrent.futures import Future, wait
+    from concurrent.futures.process import BrokenProcessPool
+    from pathlib import Path
+
+    import lfring.batch.run as batch_run
+
+    data = Path(__file__).resolve().parents[2] / "data" / "synthetic"
+    root = tmp_path / "in"
+    for name in ("a", "b", "c", "doomed"):
+        copy_frame(data / "scene.png", root / f"{name}.png")
+    pools = []
+
+    class Killed:
+        """A pool in this process whose worker dies on 'doomed' (always) and on 'b' (once):
+        that future and every later submission then fail, as a ProcessPoolExecutor's do."""
+
+        def __init__(self):
+            self.broken = False
+            pools.append(self)
+
+        def submit(self, fn, path, *args):
+            if self.broken:
+                raise BrokenProcessPool("a child process terminated abruptly")
+            fut = Future()
+            if Path(path).stem == "doomed" or (Path(path).stem == "b" and len(pools) == 1):
+                self.broken = True
+                fut.set_exception(BrokenProcessPool("a child process terminated abruptly"))
+            else:
+                fut.set_result(fn(path, *args))
+            return fut
+
+        def shutdown(self, wait=True, cancel_futures=False):
+            pass
+
+        def terminate(self):
+            pass
+
+    monkeypatch.setattr(batch_run, "local_executor", lambda workers: (Killed(), wait))
+    out = tmp_path / "out"
+    rep = run_batch([str(root)], out, BatchSettings(refocus_m=(0.5,), refocus_method="shift-and-add"), workers=2)
+    assert sorted(Path(p).stem for p in rep.done) == ["a", "b", "c"]
+    assert [Path(p).stem for p in rep.failed] == ["doomed"]
+    assert "the worker processing it was lost" in rep.errors[str(root / "doomed.png")]
+    entries = {Path(e["input"]).stem: e["status"] for e in read_manifest(out / "manifest.jsonl")}
+    assert entries == {"a": "done", "b": "done", "c": "done", "doomed": "failed"}
+    assert json.loads((out / "doomed.lfring.json").read_text())["status"] == "failed"
+    assert len(pools) >= 3
