@@ -392,6 +392,12 @@ def decide_resume(planned: dict[str, str], planned_keys: dict[str, str], record:
         same = {k: planned_keys[k] for k in ours if k in planned_keys}
         done_keys, pending_keys = (same, {}) if record.get("status") == "done" else ({}, same)
     if not same_input(record.get("input_identity"), identity, input_path):
+        made_from = record.get("input")
+        if (present and input_path is not None and isinstance(made_from, str)
+                and os.path.realpath(made_from) != os.path.realpath(input_path)):
+            return ResumeDecision("refuse", reason=f"outputs exist ({present[0]}...), made from another frame ({made_from}) "
+                                                   "of the same name; pass overwrite=True to replace them, or write "
+                                                   "elsewhere")
         if present:
             return ResumeDecision("refuse", reason=f"outputs exist ({present[0]}...) and the input changed since (the "
                                                    "frame or its sidecar); pass overwrite=True to replace them")

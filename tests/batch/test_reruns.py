@@ -432,3 +432,21 @@ def test_a_frame_that_changes_while_it_is_processed_is_not_recorded_as_done(tmp_
     rep = run_batch([str(root)], out, settings, workers=1)
     assert rep.done == [str(root / "a.png")] and (out / "a_refocus_0.5m.png").exists()
     assert run_batch([str(root)], out, settings, workers=1).skipped == [str(root / "a.png")]
+
+
+def test_a_frame_of_the_same_name_from_another_folder_is_named_as_such(tmp_path, capsys):
+    """Two folders' a.png into one output folder: the second was refused as 'the input changed
+    since'; it is another frame, and the refusal names the one that made the outputs."""
+    from pathlib import Path
+
+    data = Path(__file__).resolve().parents[2] / "data" / "synthetic"
+    copy_frame(data / "scene.png", tmp_path / "d1" / "a.png")
+    copy_frame(data / "part_good.png", tmp_path / "d2" / "a.png")
+    out = tmp_path / "out"
+    base = ["-o", str(out), "--refocus", "0.5", "--method", "shift-and-add", "--workers", "1", "--no-progress"]
+    assert main(["batch", str(tmp_path / "d1"), *base]) == 0
+    capsys.readouterr()
+    assert main(["batch", str(tmp_path / "d2"), *base]) == 1
+    err = " ".join(capsys.readouterr().err.split())
+    assert f"made from another frame ({tmp_path / 'd1' / 'a.png'}) of the same name" in err and "--overwrite" in err
+    assert "changed since" not in err
