@@ -17,7 +17,7 @@ import numpy as np
 
 from lfring.errors import InvalidInputError
 
-__all__ = ["COUNTS_MEDIAN", "TAPER", "WEIGHT_FLOOR", "all_finite", "cached_view_masks", "calibration_cache", "check_unit_range", "check_views", "inverse_weight", "view_masks"]
+__all__ = ["COUNTS_MEDIAN", "TAPER", "WEIGHT_FLOOR", "all_finite", "cached_view_masks", "calibration_cache", "check_unit_range", "check_views", "inverse_weight", "unit_range_sample", "view_masks"]
 
 # A reference pixel whose summed view weight is below this is seen by no view: it gets 0 (images)
 # or NaN (depth), and divisions by a weight never divide by less.
@@ -71,6 +71,17 @@ def check_views(views, *, min_views: int = 1, images: bool = True) -> np.ndarray
     return arr
 
 
+def unit_range_sample(images):
+    """The strided sample of ``images`` ((h, w) or (..., h, w, C)) that :func:`check_unit_range`
+    judges, about :data:`COUNTS_SAMPLE_PX` pixels a side; any array that slices as NumPy's do
+    (a torch tensor too: sample it on its device, then judge the sample on the host)."""
+    rows, cols = (-2, -1) if images.ndim == 2 else (-3, -2)
+    sy, sx = (max(1, images.shape[a] // COUNTS_SAMPLE_PX) for a in (rows, cols))
+    index = [slice(None)] * images.ndim
+    index[rows], index[cols] = slice(None, None, sy), slice(None, None, sx)
+    return images[tuple(index)]
+
+
 def check_unit_range(images: np.ndarray, what: str) -> None:
     """Refuse float ``images`` ((h, w) or (..., h, w, C)) whose values are mostly above
     :data:`COUNTS_MEDIAN`: counts (0..255, 0..65535), not images in [0, 1]. Judged on a strided
@@ -78,11 +89,7 @@ def check_unit_range(images: np.ndarray, what: str) -> None:
     arr = np.asarray(images)
     if arr.ndim < 2 or not np.issubdtype(arr.dtype, np.floating):
         return
-    rows, cols = (-2, -1) if arr.ndim == 2 else (-3, -2)
-    sy, sx = (max(1, arr.shape[a] // COUNTS_SAMPLE_PX) for a in (rows, cols))
-    index = [slice(None)] * arr.ndim
-    index[rows], index[cols] = slice(None, None, sy), slice(None, None, sx)
-    sample = arr[tuple(index)]
+    sample = unit_range_sample(arr)
     above = np.count_nonzero(sample > COUNTS_MEDIAN)
     if above * 2 > sample.size:
         raise InvalidInputError(

@@ -27,6 +27,7 @@ from lfring.focus.depth_aware import MIN_DEPTH_VIEWS, DepthOfField, depth_to_ren
 from lfring.focus.methods import METHODS
 from lfring.focus.shift_and_add import Refocuser, refocus_torch
 from lfring.core.protocols import check_calibration
+from lfring.core.validate import check_odd_px
 
 __all__ = ["all_in_focus", "focal_stack", "refocus"]
 
@@ -211,7 +212,7 @@ def all_in_focus(views, calibration, depths_m=None, *, depth_map_m=None, referen
         or too few views see it, the nearest measured depth is continued
         (:func:`lfring.focus.depth_aware.depth_to_render`).
     window_px : int
-        Side of the box over which the photo-consistency is averaged.
+        Side of the box over which the photo-consistency is averaged (odd, a centred box).
 
     Returns
     -------
@@ -249,6 +250,7 @@ def all_in_focus(views, calibration, depths_m=None, *, depth_map_m=None, referen
     """
     check_calibration(calibration)
     arr = check_views(views)
+    window_px = check_odd_px(window_px, "window_px")
     h, w = arr.shape[1:3]
     measured_views = MIN_DEPTH_VIEWS
     if isinstance(depth_map_m, DepthOfField):

@@ -18,7 +18,8 @@ from lfring.core.transfer import (check_frames, count_levels, device_masks, down
                                   normalised, to_device)
 from lfring.core.shift import ShiftEngine
 from lfring.core.validate import check_threads, is_number
-from lfring.core.viewstack import WEIGHT_FLOOR, all_finite, cached_view_masks, check_views, inverse_weight
+from lfring.core.viewstack import (WEIGHT_FLOOR, all_finite, cached_view_masks, check_unit_range, check_views,
+                                   inverse_weight, unit_range_sample)
 from lfring.core.warping import DEFAULT_INTERPOLATION, interpolation_flag, translation_of, warp_image
 from lfring.errors import InvalidInputError
 from lfring.focus.base import RefocusMethod
@@ -221,6 +222,8 @@ def refocus_torch(frames, calibration, depth_m: float, *, reference="center", de
     hs = calibration.homographies(depth_m, reference=reference)
     if hs.shape[0] != v:
         raise InvalidInputError(f"the calibration has {hs.shape[0]} views, the frames {v}")
+    sample = unit_range_sample(frames.reshape(shape))  # counts given as floats, judged as NumPy's are
+    check_unit_range(sample.detach().cpu().numpy() if tensor_in else sample, "views")
     raw = (frames if tensor_in else to_device(frames, dev)).to(dev).reshape(shape)
     masks = device_masks(calibration, (h, w), dev)
     with torch.no_grad():

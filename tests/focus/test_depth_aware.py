@@ -244,6 +244,9 @@ def test_bad_inputs(textured):
     for bad in (-0.5, 4.5, float("nan")):
         with pytest.raises(InvalidInputError, match="measured_views"):
             DepthOfField(views, cal, depth, measured_views=bad)
+    for bad in (0, -3, 4, 7.0, "7"):  # cv2.error from the box filter, or an even box taken
+        with pytest.raises(InvalidInputError, match="window_px must be an odd positive integer"):
+            all_in_focus(views, cal, window_px=bad)
 
 
 def test_cli_depth_aware_stack_is_labelled(tmp_path, capsys):

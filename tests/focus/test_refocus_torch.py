@@ -51,6 +51,10 @@ def test_backend_errors(twin, device):
         spoilt[1, 40, 40, 0] = bad
         with pytest.raises(InvalidInputError, match="NaN or infinite"):
             refocus(spoilt, cal, 0.5, backend="torch", device=device)
+    counts = (views * 255).astype(np.float32)  # 8-bit counts as floats: refused as on the NumPy backend
+    for given in (counts, torch.from_numpy(counts), counts[None]):
+        with pytest.raises(InvalidInputError, match=r"views must be float in \[0, 1\].*raw counts"):
+            refocus(given, cal, 0.5, backend="torch", device=device)
 
 
 def test_the_refocus_kernel_matches_numpy(twin, device):
