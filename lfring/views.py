@@ -253,23 +253,29 @@ def split_views(image: np.ndarray, layout, *, flat=None) -> np.ndarray:
     return out if flat is None else flat.apply(out)
 
 
-def _cut(image, layout: Layout) -> np.ndarray:
+def _cut(image, layout: Layout, what: str = "image") -> np.ndarray:
+    from lfring.io.raw import RawFrame
+
+    if isinstance(image, RawFrame):
+        raise InvalidInputError(f"split_views takes the {what} demosaicked, lfring.demosaic(frame): a RawFrame holds "
+                                "raw counts")
     arr = np.asarray(image)
     if arr.ndim == 2:
         arr = arr[..., None]
     if arr.ndim != 3:
-        raise InvalidInputError(f"split_views expects an (H, W) or (H, W, C) image, got shape {np.shape(image)}")
+        raise InvalidInputError(f"split_views expects the {what} as an (H, W) or (H, W, C) array, got shape "
+                                f"{np.shape(image)}")
     if not np.issubdtype(arr.dtype, np.floating):
         raise InvalidInputError(
-            f"split_views expects a floating image in [0, 1], got {arr.dtype}; normalise raw counts with "
+            f"split_views expects the {what} floating in [0, 1], got {arr.dtype}; normalise raw counts with "
             "lfring.demosaic (explicit black and white levels) first"
         )
     if arr.shape[:2] != layout.raw_shape:
         raise InvalidInputError(
-            f"image is {arr.shape[1]} x {arr.shape[0]} px but the layout is for "
+            f"the {what} is {arr.shape[1]} x {arr.shape[0]} px but the layout is for "
             f"{layout.raw_width_px} x {layout.raw_height_px} px frames"
         )
-    check_unit_range(arr, "the image")
+    check_unit_range(arr, f"the {what}")
     if layout.rotate180:
         arr = arr[::-1, ::-1]
     h, w = layout.view_shape
@@ -322,13 +328,13 @@ def flat_field_from_frame(image, layout) -> FlatField:
     ``layout`` (a Layout, or a calibration whose distortion is then undone, as the frames it
     will correct are), its luminance relative to its brightest level."""
     if isinstance(layout, Calibration):
-        views = _cut(image, layout.layout)
+        views = _cut(image, layout.layout, "flat frame")
         if layout.distortion is not None:
             shape = views.shape[1:3]
             mx, my = undistortion_maps(layout.distortion, shape)
             views = remap_views(views, mx, my)
     else:
-        views = _cut(image, layout)
+        views = _cut(image, layout, "flat frame")
     return FlatField.from_views(views)
 
 

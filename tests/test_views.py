@@ -205,3 +205,12 @@ def test_splitting_with_a_calibration_corrects_the_views(prototype):
     assert np.array_equal(split_views(flat, cal.layout, flat=flat), fielded)
     with pytest.raises(InvalidInputError, match="Layout or a RingCalibration"):
         split_views(flat, "twin_binned2")
+    # Each message names what is wrong: a RawFrame not demosaicked, the flat frame (not the image).
+    from lfring.io.raw import RawFrame
+
+    raw = RawFrame(mosaic=np.zeros(r.image.shape[:2], np.uint16), pattern="RGGB", black_level=0, white_level=4095,
+                   bit_depth=12)
+    with pytest.raises(InvalidInputError, match=r"lfring.demosaic\(frame\): a RawFrame holds raw counts"):
+        split_views(raw, cal)
+    with pytest.raises(InvalidInputError, match="the flat frame is .* px but the layout is for"):
+        split_views(r.image, cal, flat=flat[:-2])
