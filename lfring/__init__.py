@@ -20,7 +20,7 @@ from lfring.errors import (
     LfringWarning,
 )
 from lfring.calibration import RingCalibration, calibrate
-from lfring.check import FrameCheck, OverExposureWarning, check_frame
+from lfring.check import FrameCheck, OverExposureWarning, UnderExposureWarning, check_frame
 from lfring.depth import DepthResult, estimate_depth
 from lfring.io.demosaic import demosaic
 from lfring.inspect import Defect, InspectionResult, inspect_frame
@@ -46,6 +46,7 @@ __all__ = [
     "LfringFileNotFoundError",
     "LfringWarning",
     "OverExposureWarning",
+    "UnderExposureWarning",
     "RawFrame",
     "Refocuser",
     "RingCalibration",

@@ -25,8 +25,8 @@ from lfring.errors import InvalidInputError, LfringWarning
 from lfring.core.filters import luminance
 from lfring.core.protocols import check_calibration
 
-__all__ = ["AGREEMENT_THRESHOLD", "CHECK_DOWNSAMPLE", "CLIPPED_REFUSE", "CLIPPED_WARN", "FLAT_TEXTURE", "MIN_DISC_CONTRAST",
-           "PROCESS_ANYWAY", "FrameCheck", "OverExposureWarning", "check_frame", "draw_layout"]
+__all__ = ["AGREEMENT_THRESHOLD", "CHECK_DOWNSAMPLE", "CLIPPED_REFUSE", "CLIPPED_WARN", "DIM_LEVEL", "FLAT_TEXTURE", "MIN_DISC_CONTRAST",
+           "PROCESS_ANYWAY", "ExposureWarning", "FrameCheck", "OverExposureWarning", "UnderExposureWarning", "check_frame", "draw_layout"]
 
 AGREEMENT_THRESHOLD = 0.3
 """Smallest view agreement (the least, over the pairs of views, ZNCC of their high-passed
@@ -64,6 +64,12 @@ CLIPPED_LEVEL = 0.99
 """Brightness (linear luminance, white level 1) from which a pixel counts as clipped."""
 
 DARK_LEVEL = 0.01
+
+DIM_LEVEL = 0.1
+"""99th percentile of the luminance inside the views' discs (white level 1) below which a frame
+passes with an under-exposure warning (:class:`UnderExposureWarning`): depth from views that dim
+reads farther than the scene by a few % (the noise, not the scene, decides between hypotheses
+near the best; benchmarks/RESULTS.md, "Depth from dim frames")."""
 
 CLIPPED_WARN = 0.05
 """Share of the views' discs clipped (:attr:`FrameCheck.clipped_fraction`) from which a frame is
@@ -169,9 +175,18 @@ class FrameCheck:
         return self.reason == "flat_field"
 
 
-class OverExposureWarning(LfringWarning):
+class ExposureWarning(LfringWarning):
+    """:func:`check_frame` passed a frame whose exposure costs its results (the subclasses say how)."""
+
+
+class OverExposureWarning(ExposureWarning):
     """:func:`check_frame` passed a frame with at least :data:`CLIPPED_WARN` of its discs clipped:
     the frame is processed, but its clipped areas are lost to refocusing and depth."""
+
+
+class UnderExposureWarning(ExposureWarning):
+    """:func:`check_frame` passed a frame whose discs' brightest pixels stay below
+    :data:`DIM_LEVEL` of the white level: the frame is processed, but its noise biases depth."""
 
 
 def _image_of(frame):
@@ -301,6 +316,7 @@ def check_frame(frame, calibration, *, threshold: float = AGREEMENT_THRESHOLD, d
         lum = luminance(np.ascontiguousarray(views, dtype=np.float32))
     inside = layout.masks()
     n_in = int(np.count_nonzero(inside))
+    lum_rec, inside_rec = lum, inside  # the luminance as recorded, for the exposure
     clipped = np.count_nonzero((lum >= CLIPPED_LEVEL) & inside) / n_in if n_in else float("nan")
     dark = np.count_nonzero((lum <= DARK_LEVEL) & inside) / n_in if n_in else float("nan")
     contrast = float("nan")
@@ -387,8 +403,16 @@ def check_frame(frame, calibration, *, threshold: float = AGREEMENT_THRESHOLD, d
         else:
             message = f"{message}; but {warning}"
     ok = not reason
+    sample = lum_rec[:, ::4, ::4][inside_rec[:, ::4, ::4]]
+    bright = float(np.percentile(sample, 99)) if sample.size else float("nan")
+    dim = ok and not warning and bright < DIM_LEVEL
+    if dim:
+        warning = (f"under-exposed: the brightest pixels of the views' discs (99th percentile) reach {bright:.1%} of the "
+                   f"white level (under-exposed below {DIM_LEVEL:.0%}): depth from views this noisy reads too far by a "
+                   "few %; expose longer, or check the white level the frame is read with")
+        message = f"{message}; but {warning}"
     if ok and warning:
-        warnings.warn(warning, OverExposureWarning, stacklevel=2)
+        warnings.warn(warning, UnderExposureWarning if dim else OverExposureWarning, stacklevel=2)
     fit, fit_z = _fit_px(lum, calibration, best_z) if measure_fit and ok else (float("nan"), float("nan"))
     return FrameCheck(ok=ok, agreement=agreement, best_depth_m=best_z, agreement_by_depth=by_depth,
                       threshold=threshold, size_px=size, clipped_fraction=clipped, dark_fraction=dark, disc_contrast=contrast,

@@ -299,3 +299,27 @@ def test_draw_layout_of_a_turned_layout_draws_on_the_turned_frame(cal):
     out = draw_layout(frame, turned)
     assert tuple(out[y + h // 2, x + w // 2]) == (255, 255, 255)
     assert tuple(out[y, x + 5]) == (255, 220, 0)
+
+
+@pytest.mark.parametrize("exposure, dim", [(1.0, False), (0.05, True)])
+def test_a_dim_frame_passes_with_an_under_exposure_warning(prototype, exposure, dim):
+    """A target at 0.7 m exposed at 5 %: its depth read 0.725 m with confidence 0.82 and not a
+    word. The check passes it and says it is under-exposed (its discs' 99th percentile under
+    DIM_LEVEL), as a warning that the CLI gives with the frame's name."""
+    import warnings
+
+    from lfring.check import DIM_LEVEL, UnderExposureWarning
+    from lfring.io.raw import RawFrame
+    from lfring.synth import render
+    from lfring.synth.presets import target_scene
+
+    r = render(prototype, target_scene(prototype, 0.7, seed=2), binning=2, noise="realistic", seed=2, exposure=exposure)
+    frame = RawFrame(mosaic=r.raw, pattern="RGGB", black_level=r.black_level, white_level=r.white_level, bit_depth=12)
+    cal = default_calibration((2456, 1842))[0]
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        res = check_frame(demosaic(frame), cal)
+    said = [w for w in seen if issubclass(w.category, UnderExposureWarning)]
+    assert res.ok and bool(said) == dim and (res.warning.startswith("under-exposed") if dim else res.warning == "")
+    if dim:
+        assert f"(under-exposed below {DIM_LEVEL:.0%})" in str(said[0].message) and "reads too far" in res.message

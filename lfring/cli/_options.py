@@ -360,10 +360,10 @@ def require_ring_frame(image, cal, raw) -> None:
     frame's do for ``cal``."""
     import warnings
 
-    from lfring.check import OverExposureWarning, check_frame
+    from lfring.check import ExposureWarning, check_frame
 
     with warnings.catch_warnings():  # said below with the frame's name
-        warnings.simplefilter("ignore", OverExposureWarning)
+        warnings.simplefilter("ignore", ExposureWarning)
         res = check_frame(image, cal)
     logging.getLogger("lfring.cli").debug("%s: %s", raw, res.message)
     if not res.ok:

@@ -37,7 +37,7 @@ def command(ctx, frame, calib, output, overwrite, levels):
     how well the four views agree at the best of a few depths. Writes an overlay PNG of the
     layout on the frame. Exit code 0: a ring frame; 1: not one; 2: bad input.
     """
-    from lfring.check import (CLIPPED_REFUSE, CLIPPED_WARN, FLAT_TEXTURE, PROCESS_ANYWAY, OverExposureWarning, check_frame,
+    from lfring.check import (CLIPPED_REFUSE, CLIPPED_WARN, DIM_LEVEL, FLAT_TEXTURE, PROCESS_ANYWAY, ExposureWarning, check_frame,
                               draw_layout)
     from lfring.io.demosaic import demosaic
     from lfring.io.writers import write_image
@@ -51,7 +51,7 @@ def command(ctx, frame, calib, output, overwrite, levels):
     image = demosaic(raw, method="bilinear")
     size = (image.shape[1], image.shape[0])
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore", OverExposureWarning)  # said on the verdict line
+        warnings.simplefilter("ignore", ExposureWarning)  # said on the verdict line
         res = check_frame(image, cal, measure_fit=True)
     tried = list(res.agreement_by_depth)
     black = raw.black_level if not isinstance(raw.black_level, tuple) else ",".join(f"{b:g}" for b in raw.black_level)
@@ -61,7 +61,8 @@ def command(ctx, frame, calib, output, overwrite, levels):
         f"levels       black {black:g} white {raw.white_level:g} counts" if not isinstance(black, str)
         else f"levels       black {black} white {raw.white_level:g} counts",
         f"exposure     {res.clipped_fraction:.2%} clipped, {res.dark_fraction:.2%} dark (inside the views' discs; "
-        f"over-exposed from {CLIPPED_WARN:.0%} clipped, refused from {CLIPPED_REFUSE:.0%})",
+        f"over-exposed from {CLIPPED_WARN:.0%} clipped, refused from {CLIPPED_REFUSE:.0%}; under-exposed where their "
+        f"brightest pixels, the 99th percentile, stay below {DIM_LEVEL:.0%} of the white level)",
         f"calibration  {cal_name} ({cal.raw_size[0]} x {cal.raw_size[1]} px, {cal.num_views} views)",
         f"layout fit   disc contrast {res.disc_contrast:.2f} (1: dark between the discs, 0: light everywhere)",
         f"agreement    {res.agreement:.2f} at {res.best_depth_m:.3g} m, the best of {len(tried)} depths tried from "
@@ -75,7 +76,7 @@ def command(ctx, frame, calib, output, overwrite, levels):
         else "fit          not measured (not a ring frame to process)",
         # This is the check the user was sent to: what to do is to look, or to skip it.
         f"verdict      {_VERDICTS.get(res.reason, 'NOT a ring frame for this calibration')}"
-        f"{', over-exposed' if res.ok and res.warning else ''}: "
+        f"{(', ' + res.warning.split(':')[0]) if res.ok and res.warning else ''}: "
         f"{res.message.replace('; ' + PROCESS_ANYWAY, '; pass --no-check to the processing commands to use it anyway')}",
     ]
     with outputs.writing() as stage:
