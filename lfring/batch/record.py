@@ -13,6 +13,7 @@ done, compute only what is missing and refuse files this tool did not make. The 
 from __future__ import annotations
 
 import contextlib
+import errno
 import hashlib
 import json
 import logging
@@ -246,11 +247,27 @@ def outdir_lock(outdir: Path) -> Iterator[None]:
 
 
 def append_manifest(path: Path, entry: dict) -> None:
-    """Append ``entry`` to the manifest at ``path`` as one JSON line."""
+    """Append ``entry`` to the manifest at ``path`` as one JSON line. A line cut short by a full
+    disk is taken back (an OSError naming the file says why); one an earlier run left without
+    its end is ended first, so that this line stays a line of its own."""
     line = (json.dumps(entry, default=json_default, allow_nan=False) + "\n").encode("utf-8")
-    fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+    fd = os.open(path, os.O_RDWR | os.O_APPEND | os.O_CREAT, 0o644)
     try:
-        os.write(fd, line)  # one write with O_APPEND: whole lines, even with a reader tailing it
+        size = os.fstat(fd).st_size
+        if size and os.pread(fd, 1, size - 1) != b"\n":
+            line = b"\n" + line
+        try:
+            written = os.write(fd, line)  # one write with O_APPEND: whole lines, even with a reader tailing it
+        except OSError as exc:
+            written, error = 0, exc
+        else:
+            error = None
+        if written != len(line):
+            with contextlib.suppress(OSError):
+                os.ftruncate(fd, size)
+            err = error.errno if error is not None else errno.ENOSPC
+            why = error.strerror if error is not None else "the disk is full"
+            raise OSError(err, f"cannot append to {path}: {why}")
     finally:
         os.close(fd)
 

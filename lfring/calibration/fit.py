@@ -188,7 +188,11 @@ def calibrate(
     views = {d: split_views(images[d][0], layout) for d in sorted(images)}
     measured, diag = {}, []
     for d in sorted(images):
-        est = estimate_plane_homographies(views[d], reference=reference, masks=masks, method=method, flat_views=flat_views)
+        try:
+            est = estimate_plane_homographies(views[d], reference=reference, masks=masks, method=method,
+                                              flat_views=flat_views)
+        except LfringError as exc:  # named by the frame: which of them is over-exposed, or textureless?
+            raise type(exc)(f"target frame {images[d][1]} ({d:g} m): {exc}") from None
         measured[d] = est.H_ref_from_view
         diag.append({"depth_m": d, "file": images[d][1], "alignment_residual_px": est.residual_px.tolist(),
                      "correlation": est.correlation.tolist()})

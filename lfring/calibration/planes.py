@@ -339,10 +339,10 @@ def _prepare(views, masks, flat_views, reference):
             vals = flat[k][valid[k]]
             bright = float(np.percentile(vals, 95)) if vals.size else 0.0
             if not bright > _DARK_LEVEL:
-                raise InvalidInputError(f"flat_views: view {k} of the flat is black; is it a flat (white) frame?")
+                raise InvalidInputError(f"view {k} of the flat frame is black; is it a flat (white) frame?")
             if bright >= _CLIP_LEVEL:
                 raise InvalidInputError(
-                    f"flat_views: view {k} of the flat is clipped at full scale; take the flat with a shorter exposure"
+                    f"view {k} of the flat frame is clipped at full scale; take the flat with a shorter exposure"
                 )
             ok = flat[k] > FLAT_FLOOR * bright
             valid[k] &= ok

@@ -169,3 +169,33 @@ def test_resume_reads_records_from_before_output_keys():
     old = {"outputs": P5, "settings_key": "s1", "input_identity": SAME, "status": "done"}
     assert _decide(P5, K5, old, ["a_refocus_0.5m.png"], settings_key="s1").action == "skip"
     assert _decide(P5, K5, old, ["a_refocus_0.5m.png"], settings_key="s2").action == "refuse"
+
+
+def test_a_manifest_line_cut_short_by_a_full_disk_is_taken_back_and_named(tmp_path):
+    """A full disk (here a file-size limit) cut a manifest line short and the error named no
+    file; the next run's first line was glued onto the cut one, and a reader lost both. The
+    cut line is taken back, the error names the manifest, and a line an earlier run left
+    without its end no longer swallows the next one."""
+    import subprocess
+    import sys
+
+    from lfring.batch.record import append_manifest, read_manifest
+
+    path = tmp_path / "manifest.jsonl"
+    append_manifest(path, {"run": "r1", "input": "a.png", "status": "done"})
+    before = path.read_bytes()
+    child = ("import resource, sys\n"
+             "from pathlib import Path\n"
+             "from lfring.batch.record import append_manifest\n"
+             f"resource.setrlimit(resource.RLIMIT_FSIZE, ({len(before) + 10}, resource.RLIM_INFINITY))\n"
+             "try:\n"
+             f"    append_manifest(Path({str(path)!r}), {{'run': 'r2', 'input': 'b.png', 'status': 'done'}})\n"
+             "except OSError as exc:\n"
+             "    print(exc)\n")
+    out = subprocess.run([sys.executable, "-c", child], capture_output=True, text=True, timeout=120)
+    assert f"cannot append to {path}" in out.stdout, out.stderr
+    assert path.read_bytes() == before
+    with open(path, "ab") as f:  # a run killed in the middle of a line
+        f.write(b'{"run": "x", "inp')
+    append_manifest(path, {"run": "r3", "input": "c.png", "status": "done"})
+    assert [e["input"] for e in read_manifest(path)] == ["a.png", "c.png"]

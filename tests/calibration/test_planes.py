@@ -207,7 +207,7 @@ def test_invalid_inputs_are_refused(twin):
         (dict(views=views, masks=masks[:, :-1]), "masks must have shape"),
         (dict(views=views, masks=masks.astype(np.uint8)), "boolean"),
         (dict(views=views, flat_views=twin["flat"][:, :-1]), "flat_views"),
-        (dict(views=views, flat_views=np.ones_like(twin["flat"])), "flat is clipped"),
+        (dict(views=views, flat_views=np.ones_like(twin["flat"])), "flat frame is clipped"),
         (dict(views=views, reference=4), "reference"),
         (dict(views=views, reference="center"), "reference"),
         (dict(views=views, method="orb"), "ecc, sift"),
