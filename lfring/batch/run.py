@@ -391,8 +391,8 @@ def _finish(run: _Run, job: BatchJob, res: FrameResult) -> None:
     res.timings_s["write"] = time.perf_counter() - t_w
     run.report.done.append(job.input)
     run.entry(job, "done", timings_s=res.timings_s, worker=res.worker, info=res.info)
-    for w in res.info.get("warnings", []):
-        log.warning("%s: %s", job.input, w)
+    for w in res.info.get("warnings", []):  # a reader's notes name the frame already
+        log.warning("%s", w if w.startswith(f"{job.input}: ") else f"{job.input}: {w}")
 
 
 def _execute(run: _Run, todo: list[BatchJob], *, workers: int, executor: str, scheduler, progress) -> None:

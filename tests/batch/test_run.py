@@ -135,3 +135,31 @@ def test_workers_lost_again_and_again_fail_their_frames_and_the_rest_go_on(tmp_p
     assert entries == {"a": "done", "b": "done", "c": "done", "doomed": "failed"}
     assert json.loads((out / "doomed.lfring.json").read_text())["status"] == "failed"
     assert len(pools) >= 3
+
+
+def test_a_reader_s_note_names_the_frame_once(tmp_path, monkeypatch, caplog):
+    """The reader's notes start with the frame's path; the batch put it before them again
+    ('late/sb.png: late/sb.png: levels assumed ...'). A note that does not name it gets it."""
+    import logging
+    from pathlib import Path
+
+    import lfring.batch.run as batch_run
+
+    data = Path(__file__).resolve().parents[2] / "data" / "synthetic"
+    root = tmp_path / "in"
+    copy_frame(data / "scene.png", root / "sb.png")
+    real = batch_run.process_frame
+
+    def noted(path, *args, **kwargs):
+        res = real(path, *args, **kwargs)
+        res.info.setdefault("warnings", []).extend([f"{path}: levels assumed (black 0)", "a note of its own"])
+        return res
+
+    monkeypatch.setattr(batch_run, "process_frame", noted)
+    with caplog.at_level(logging.WARNING, logger="lfring.batch"):
+        rep = run_batch([str(root)], tmp_path / "out", BatchSettings(refocus_m=(0.5,), refocus_method="shift-and-add"),
+                        workers=1)
+    frame = str(root / "sb.png")
+    assert rep.done == [frame]
+    assert f"{frame}: levels assumed (black 0)" in caplog.text and f"{frame}: {frame}:" not in caplog.text
+    assert f"{frame}: a note of its own" in caplog.text
