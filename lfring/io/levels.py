@@ -15,9 +15,11 @@ import logging
 import re
 from pathlib import Path
 
+import numpy as np
+
 from lfring.errors import InvalidInputError
 
-__all__ = ["LEVEL_KEYS", "LOW_PEAK_FRACTION", "load_frame"]
+__all__ = ["BELOW_BLACK_FRACTION", "LEVEL_KEYS", "LOW_PEAK_FRACTION", "load_frame"]
 
 LEVEL_KEYS = ("pattern", "black_level", "white_level")
 _LEVELS = LEVEL_KEYS[1:]  # the black and white levels
@@ -26,6 +28,11 @@ LOW_PEAK_FRACTION = 1 / 16
 """A frame whose brightest count is below this fraction of its white level gets a warning: its
 data likely have fewer bits than its container (10-bit counts in a 16-bit PNG reach 1/64 of
 full scale)."""
+
+BELOW_BLACK_FRACTION = 0.75
+"""A calibration's black level under which more than this share of a frame's counts lie does not
+fit the frame (another camera, or another bit depth): a frame's noise spreads its darkest counts
+around its own black level, so even a frame with the lens cap on has about half of them below."""
 
 _OPTION = {"pattern": "--pattern", "black_level": "--black-level", "white_level": "--white-level"}
 
@@ -120,10 +127,19 @@ def load_frame(path, *, pattern=None, black_level=None, white_level=None, calibr
     data = frame.mosaic if frame.mosaic is not None else frame.image
     peak = int(data.max()) if data.size else 0
     levels = [k for k in _LEVELS if k in from_cal]
-    if only_fitting and levels and peak > frame.white_level:  # counts above the white level: not this frame's
+    below = 0.0
+    if "black_level" in from_cal and data.size:
+        black = min(np.atleast_1d(np.asarray(frame.black_level, dtype=np.float64)))
+        below = float(np.count_nonzero(data[::4, ::4] < black)) / data[::4, ::4].size
+    if only_fitting and levels and (peak > frame.white_level or below > BELOW_BLACK_FRACTION):  # not this frame's
         unfit = {k: from_cal.pop(k) for k in levels}
         frame = _load(p, given, from_cal)  # the same counts, its own levels
     notes = []
+    if not only_fitting and below > BELOW_BLACK_FRACTION:
+        notes.append((logging.WARNING, f"{path}: {below:.0%} of its counts lie below the calibration's black level "
+                                       f"{frame.black_level}: its levels do not fit this frame (another camera or bit "
+                                       "depth?); pass --black-level and --white-level for it (or write them in "
+                                       f"{sidecar_path(p).name})"))
     if unfit:
         values = ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in unfit.items())
         notes.append((logging.WARNING, f"{path}: the levels of the calibration picked for its size ({values}) do not fit "

@@ -69,3 +69,28 @@ def test_a_calibration_picked_for_the_frame_gives_only_levels_that_fit_its_count
     assert not any("do not fit" in text for _, text in notes)
     frame, _ = load_frame(top, calibration=cal)  # a calibration given, not picked: its levels stand
     assert frame.white_level == 4095.0
+
+
+def test_a_black_level_above_most_counts_does_not_fit(tmp_path):
+    """A calibration of frames with black level 1024 given for 12-bit frames whose black is 64:
+    80 % of their counts lie below it, and the image came out crushed with only a hint about the
+    white level. Given, its levels stand and a warning says they do not fit; picked for the
+    frame's size, they are left out. A frame with the lens cap on (about half its counts below
+    its own black level, by its noise) fits."""
+    from types import SimpleNamespace
+
+    rng = np.random.default_rng(1)
+    cal = SimpleNamespace(pattern="RGGB", black_level=1024.0, white_level=65535.0)
+    counts = np.where(rng.random((64, 64)) < 0.8, rng.integers(40, 900, (64, 64)), rng.integers(1100, 4095, (64, 64)))
+    path = tmp_path / "other.png"
+    cv2.imwrite(str(path), counts.astype(np.uint16))
+    frame, notes = load_frame(path, calibration=cal)
+    assert frame.black_level == 1024.0
+    assert any(level == 30 and "of its counts lie below the calibration's black level 1024" in text and "--black-level" in text
+               for level, text in notes)
+    frame, notes = load_frame(path, calibration=cal, only_fitting=True)
+    assert frame.black_level == 0.0 and any("do not fit its counts: not used" in text for _, text in notes)
+    cap = tmp_path / "cap.png"
+    cv2.imwrite(str(cap), np.clip(np.rint(rng.normal(1024, 3, (64, 64))), 0, 65535).astype(np.uint16))
+    frame, notes = load_frame(cap, calibration=cal)
+    assert frame.black_level == 1024.0 and not any("lie below" in text for _, text in notes)
