@@ -140,6 +140,17 @@ def load_frame(path, *, pattern=None, black_level=None, white_level=None, calibr
                                        f"{frame.black_level}: its levels do not fit this frame (another camera or bit "
                                        "depth?); pass --black-level and --white-level for it (or write them in "
                                        f"{sidecar_path(p).name})"))
+    if camera_raw and calibration is not None:
+        # The RAW's own metadata wins; a calibration made from frames read otherwise is another
+        # camera's (or the file is not what its name says).
+        differ = [(k, getattr(frame, k), getattr(calibration, k, None)) for k in LEVEL_KEYS if given[k] is None]
+        differ = [(k, mine, theirs) for k, mine, theirs in differ
+                  if theirs is not None and mine is not None and np.any(np.asarray(mine) != np.asarray(theirs))]
+        if differ:
+            said = ", ".join(f"{k.replace('_', ' ')} {mine} (the calibration's: {theirs})" for k, mine, theirs in differ)
+            notes.append((logging.WARNING, f"{path}: its camera metadata give {said}: the calibration was made from "
+                                           "frames read otherwise, another camera's or another format's; check the "
+                                           "calibration, or pass the frame's pattern and levels"))
     if unfit:
         values = ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in unfit.items())
         notes.append((logging.WARNING, f"{path}: the levels of the calibration picked for its size ({values}) do not fit "

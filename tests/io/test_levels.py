@@ -94,3 +94,25 @@ def test_a_black_level_above_most_counts_does_not_fit(tmp_path):
     cv2.imwrite(str(cap), np.clip(np.rint(rng.normal(1024, 3, (64, 64))), 0, 65535).astype(np.uint16))
     frame, notes = load_frame(cap, calibration=cal)
     assert frame.black_level == 1024.0 and not any("lie below" in text for _, text in notes)
+
+
+def test_a_camera_raw_that_contradicts_the_calibration_is_warned_of(tmp_path):
+    """A camera RAW is read with its own metadata (LibRaw's), the calibration's pattern and
+    levels never standing in; where they differ from the calibration's (a TIFF of BGGR counts
+    with black 1024 renamed .cr2: LibRaw guessed RGGB and black 0, and the image came out
+    with its colours swapped) a warning names both. A RAW that agrees raises none."""
+    from types import SimpleNamespace
+
+    import tifffile
+
+    rng = np.random.default_rng(0)
+    path = tmp_path / "frame.cr2"
+    tifffile.imwrite(path, rng.integers(1024, 4096, (64, 96)).astype(np.uint16))
+    other = SimpleNamespace(pattern="BGGR", black_level=1024.0, white_level=65535.0)
+    frame, notes = load_frame(path, calibration=other)
+    assert (frame.pattern, frame.black_level) == ("RGGB", 0.0)  # the RAW's own
+    said = [text for level, text in notes if "its camera metadata give" in text]
+    assert said and "pattern RGGB (the calibration's: BGGR)" in said[0] and "black level 0.0 (the calibration's: 1024.0)" in said[0]
+    same = SimpleNamespace(pattern=frame.pattern, black_level=frame.black_level, white_level=frame.white_level)
+    _, notes = load_frame(path, calibration=same)
+    assert not any("its camera metadata give" in text for _, text in notes)
