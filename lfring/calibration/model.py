@@ -52,6 +52,11 @@ class VariableHomography:
         if singular:  # H at infinity: a homography must map the plane onto the plane
             raise InvalidInputError(f"A of view {singular[0]} is singular (condition number "
                                     f"{np.linalg.cond(a[singular[0]]):.3g}): it is no homography")
+        # Own read-only copies: what is derived from a calibration is cached while it lives, so an
+        # edit in place would leave those caches stale (make a new calibration instead).
+        a, b = a.copy(), b.copy()
+        a.setflags(write=False)
+        b.setflags(write=False)
         object.__setattr__(self, "A", a)
         object.__setattr__(self, "B", b)
 

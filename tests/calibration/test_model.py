@@ -72,3 +72,23 @@ def test_fit_with_measurement_noise(twin):
 def test_fit_errors(planes, kwargs, match):
     with pytest.raises(InvalidInputError, match=match):
         fit_variable_homography(planes, shape_hw=(100, 100), **kwargs)
+
+
+def test_a_calibration_s_model_cannot_be_edited_in_place():
+    """A calibration is immutable, and what is derived from it is cached while it lives: an edit
+    of model.B in place changed homographies() but not depth estimated with the same object
+    (0.4 where a fresh calibration with the edited values gave 0.4365). The arrays are
+    read-only copies, so an edit in place raises and a new calibration is the way."""
+    import lfring
+
+    cal = lfring.RingCalibration.load("twin_binned2")
+    for arr in (cal.model.A, cal.model.B):
+        assert not arr.flags.writeable
+        with pytest.raises(ValueError, match="read-only"):
+            arr[...] *= 1.1
+    given = np.stack([np.eye(3)] * 2)
+    from lfring.calibration.model import VariableHomography
+
+    model = VariableHomography(given, np.zeros((2, 3, 3)), 0.0, 0)
+    given[0, 0, 0] = 5.0  # the caller's array stays the caller's
+    assert model.A[0, 0, 0] == 1.0
