@@ -13,9 +13,9 @@ import numpy as np
 
 from lfring.core.validate import check_view_index, is_number
 from lfring.errors import EstimationError, InvalidInputError
-from lfring.core.geometry import homography_rms_px, normalize_homographies
+from lfring.core.geometry import apply_homography, homography_rms_px, normalize_homographies
 
-__all__ = ["MAX_CONDITION", "VariableHomography", "PlaneFit", "check_depth_origin", "fit_variable_homography"]
+__all__ = ["MAX_CONDITION", "VariableHomography", "PlaneFit", "check_depth_origin", "fit_variable_homography", "view_motion_px"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -221,3 +221,14 @@ def fit_variable_homography(
     if not np.all(np.isfinite(residual)):
         raise EstimationError("the variable-homography fit produced non-finite residuals")
     return model, planes
+
+
+def view_motion_px(calibration, depths_m, view_shape) -> float:
+    """Largest distance any view pixel moves in the reference frame between consecutive depths
+    of ``depths_m`` (its corners bound it: the maps are affine, or nearly so)."""
+    h, w = view_shape
+    corners = np.array([[0, 0], [w - 1, 0], [0, h - 1], [w - 1, h - 1]], dtype=np.float64)
+    hs = calibration.model(np.asarray(depths_m, dtype=np.float64))
+    steps = [np.abs(apply_homography(hs[i, k], corners) - apply_homography(hs[i + 1, k], corners)).max()
+             for i in range(len(hs) - 1) for k in range(hs.shape[1])]
+    return float(max(steps)) if steps else 0.0

@@ -256,7 +256,7 @@ def _warn_depths_off(cal, frames_by_depth: dict, ref, what: str) -> None:
     :data:`DEPTH_LABEL_TOL`. Two planes fit exactly whatever their depths, so only the optics
     can tell a depth measured from the wrong point, or given for another frame. The motion
     between two planes does not depend on where the views were cut (their layout)."""
-    from lfring.depth.hypotheses import view_motion_px
+    from lfring.calibration.model import view_motion_px
 
     if ref is None:
         return

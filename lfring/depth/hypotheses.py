@@ -11,20 +11,9 @@ import numpy as np
 
 from lfring.core.validate import check_int, check_number
 from lfring.errors import InvalidInputError
-from lfring.core.geometry import apply_homography
+from lfring.calibration.model import view_motion_px
 
-__all__ = ["check_depth_range", "depth_hypotheses", "view_motion_px"]
-
-
-def view_motion_px(calibration, depths_m, view_shape) -> float:
-    """Largest distance any view pixel moves in the reference frame between consecutive depths
-    of ``depths_m`` (its corners bound it: the maps are affine, or nearly so)."""
-    h, w = view_shape
-    corners = np.array([[0, 0], [w - 1, 0], [0, h - 1], [w - 1, h - 1]], dtype=np.float64)
-    hs = calibration.model(np.asarray(depths_m, dtype=np.float64))
-    steps = [np.abs(apply_homography(hs[i, k], corners) - apply_homography(hs[i + 1, k], corners)).max()
-             for i in range(len(hs) - 1) for k in range(hs.shape[1])]
-    return float(max(steps)) if steps else 0.0
+__all__ = ["check_depth_range", "depth_hypotheses"]
 
 
 def check_depth_range(zmin_m, zmax_m) -> tuple[float, float]:

@@ -315,20 +315,11 @@ def device_for(calibration, device=None) -> RingDevice:
     """
     from lfring.optics.device import load_device
 
-    dev = device if isinstance(device, RingDevice) else load_device(device or calibration.device or "prototype")
-    size = tuple(calibration.raw_size)
-    native = dev
-    scale = dev.sensor_width_px // size[0] if size[0] else 0
-    if scale > 1:
-        try:
-            dev = dev.binned(scale)
-        except DeviceError:  # too coarse a binning for the sensor: no match either
-            pass
-    if (dev.sensor_width_px, dev.sensor_height_px) != size:
-        raise InvalidInputError(f"the device {native.name!r} has a {native.sensor_width_px} x {native.sensor_height_px} px "
-                                f"sensor, which no binning turns into the calibration's {size[0]} x {size[1]} px frames; "
-                                "pass device= the optics of the camera")
-    return dev
+    dev = load_device(device or calibration.device or "prototype")
+    try:
+        return dev.for_frames(tuple(calibration.raw_size), whose="the calibration's ")
+    except DeviceError as exc:
+        raise InvalidInputError(f"{exc}; pass device= the optics of the camera") from None
 
 
 def depth_to_points(

@@ -20,7 +20,8 @@ from lfring.core.geometry import check_reference
 from lfring.core.threads import run_threads
 from lfring.core.viewstack import WEIGHT_FLOOR, cached_view_masks, calibration_cache
 from lfring.core.warping import warp_image
-from lfring.depth.hypotheses import depth_hypotheses, view_motion_px
+from lfring.calibration.model import view_motion_px
+from lfring.depth.hypotheses import depth_hypotheses
 from lfring.errors import DepthRangeError, LfringWarning
 
 __all__ = ["DEPTH_TAPER", "GUIDE_WHITE_PERCENTILE", "JUDGED_MIN_PLANES", "MIN_RANGE_MOTION_PX", "NUMPY_INTERPOLATION_MATCHED",

@@ -65,7 +65,7 @@ from lfring.core.viewstack import WEIGHT_FLOOR, cached_view_masks, check_views
 from lfring.core.validate import check_number
 from lfring.core.warping import translations
 from lfring.depth.estimate import estimate_depth
-from lfring.depth.hypotheses import view_motion_px
+from lfring.calibration.model import view_motion_px
 from lfring.depth.selection import DepthResult
 from lfring.focus.base import RefocusMethod
 from lfring.focus.layers import NO_IMAGE, Grid, composite, ladder, sum_layers

@@ -39,7 +39,8 @@ from lfring.errors import InvalidInputError, LfringError, LfringWarning
 from lfring.depth.costs.lcn import LCN_AGGREGATE_PX
 from lfring.depth.plan import sweep_masks
 from lfring.depth.selection import DepthResult
-from lfring.depth.hypotheses import check_depth_range, depth_hypotheses, view_motion_px
+from lfring.calibration.model import view_motion_px
+from lfring.depth.hypotheses import check_depth_range, depth_hypotheses
 from lfring.core.geometry import check_reference
 from lfring.core.validate import check_fraction, check_int, check_number, is_integer
 from lfring.core.viewstack import TAPER, WEIGHT_FLOOR, check_views

@@ -7,6 +7,7 @@ mini-lenses, the sensor, the mount, and optionally the positions ``b`` (main len
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import os
@@ -336,6 +337,20 @@ class RingDevice:
             sensor_height_px=(self.sensor_height_px // factor) // 2 * 2,
             pixel_pitch_m=self.pixel_pitch_m * factor,
         )
+
+    def for_frames(self, size, *, whose: str = "") -> RingDevice:
+        """This device binned to frames of ``size`` (width, height) px: itself when its sensor is
+        that size, else the binning that makes it so. Raises DeviceError when none does (the
+        frames are another camera's); ``whose`` names the frames there ("the calibration's ")."""
+        scale = self.sensor_width_px // size[0] if size[0] else 0
+        dev = self
+        if scale > 1:
+            with contextlib.suppress(DeviceError):  # too coarse a binning for the sensor: no match either
+                dev = self.binned(scale)
+        if (dev.sensor_width_px, dev.sensor_height_px) != tuple(size):
+            raise DeviceError(f"the device {self.name!r} has a {self.sensor_width_px} x {self.sensor_height_px} px sensor, "
+                              f"which no binning turns into {whose}{size[0]} x {size[1]} px frames")
+        return dev
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict of every field (``None`` fields left out), suitable for JSON or TOML."""

@@ -185,7 +185,7 @@ def test_calibrate_warns_of_a_depth_the_optics_contradict(files, tmp_path, capsy
     does not depend on it)."""
     import re
 
-    from lfring.depth.hypotheses import view_motion_px
+    from lfring.calibration.model import view_motion_px
 
     out = tmp_path / "cal.json"
     assert main(_calibrate_args(files, out, "--depths", "0.3", "1.0")) == 0

@@ -653,7 +653,8 @@ def test_the_depth_range_of_a_calibration_without_an_upper_bound():
     over which they move by a small part of their size; a grid's (open from where its views
     stop overlapping) would hold every disparity they can show, and is refused saying what to
     give, unless its near end is given."""
-    from lfring.depth.hypotheses import depth_hypotheses, view_motion_px
+    from lfring.calibration.model import view_motion_px
+    from lfring.depth.hypotheses import depth_hypotheses
     from lfring.focus.depth_aware import DERIVED_RANGE_MAX_MOTION, FAR_MOTION_PX, estimation_range
 
     optics = RingCalibration.from_optics(load_device("prototype").binned(2))
