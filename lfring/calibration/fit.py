@@ -24,6 +24,11 @@ plane's depth from the device's entrance pupil s (z0 = s for the ring) draws a w
 behind the main lens is refused): three planes fit the model exactly whatever their depths, so a
 mislabelled depth shows only as a z0 elsewhere. On the twin's targets z0 fits within 0.4 mm of s;
 the middle plane of 0.3, 0.5 and 1.0 m given 3 mm too far moves it 8 mm, 1 cm too far 27 mm."""
+DEPTH_LABEL_TOL = 0.1
+"""Relative difference between how far the views move from one plane to the next and how far
+the device's optics move them between the depths given, above which the calibration warns:
+the optics are a design, not the built camera, so only a depth measured from the wrong point,
+given for another frame or in another unit is that far off."""
 # Largest distance (px) between where the flat frame and the targets (their mean) show a view's
 # disc before the flat is said to come from another setup (the ring or the zoom moved between
 # them); the views are cut where the flat shows them. The discs found on a target's texture lie
@@ -237,7 +242,51 @@ def calibrate(
         cal = dataclasses.replace(cal, flat_field=flat_field_from_frame(flat_img, cal))
     if how == "fitted":
         check_fitted_origin(cal.depth_origin_m, min(measured), device)
+    if device is not None:
+        warn_depths_off(cal, {d: images[d][1] for d in images}, *camera_model(cal, device))
     return cal
+
+
+def camera_model(cal, device=None) -> tuple:
+    """A model of the camera that does not rest on the depths ``cal`` was given, and its name in
+    words: ``device``'s optics at the frames' binning, else the built-in calibration for frames
+    of this size (what ``lfring inspect`` uses without a calibration); (None, '') without either."""
+    from lfring.calibration.defaults import default_calibration
+
+    if device is not None:
+        try:
+            return RingCalibration.from_optics(device.for_frames(cal.raw_size)), f"the optics of device '{device.name}'"
+        except LfringError:  # no binning of the device gives these frames
+            pass
+    try:
+        ref, name = default_calibration(cal.raw_size)
+    except LfringError:
+        return None, ""
+    return ref, f"the built-in calibration '{name}'"
+
+
+def warn_depths_off(cal, names: dict, ref, what: str) -> None:
+    """Warn (log) of consecutive planes between which the views move otherwise than the camera
+    model ``ref`` (in words ``what``, :func:`camera_model`) says they move between the depths
+    given, by more than :data:`DEPTH_LABEL_TOL`; ``names`` the planes' frames by depth. Two
+    planes fit exactly whatever their depths, so only the optics can tell a depth measured from
+    the wrong point, given for another frame or in millimetres. The motion between two planes
+    does not depend on where the views were cut (their layout)."""
+    from lfring.calibration.model import view_motion_px
+
+    if ref is None:
+        return
+    off = []
+    zs = sorted(names)
+    for za, zb in zip(zs, zs[1:]):
+        seen = view_motion_px(cal, [za, zb], cal.layout.view_shape)
+        said = view_motion_px(ref, [za, zb], ref.layout.view_shape)
+        if said > 0 and abs(seen / said - 1.0) > DEPTH_LABEL_TOL:
+            off.append(f"between the planes given as {za:g} m and {zb:g} m ({names[za]}, {names[zb]}) the views move "
+                       f"{seen:.1f} px, where those depths move them {said:.2g} px")
+    if off:
+        log.warning("by %s, %s: check that each depth is in metres, measured from the main lens and given in the order "
+                    "of the frames (the calibration takes the depths as given)", what, "; ".join(off))
 
 
 def _disc_centres(layout) -> np.ndarray:

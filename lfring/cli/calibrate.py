@@ -21,11 +21,6 @@ MAX_RESIDUAL_PX = 0.5
 """Residual (px) above which a calibration is refused unless --force: the views of a planar
 target at its depth align to a small fraction of a pixel (the twin's to about 0.01 px); a frame
 that is not one (a scene with depth, a part) leaves residuals of a pixel or more."""
-DEPTH_LABEL_TOL = 0.1
-"""Relative difference between how far the views move from one plane to the next and how far
-the --device's optics move them between the depths given, above which the calibration warns:
-the optics are a design, not the built camera, so only a depth measured from the wrong point
-or given for another frame is that far off."""
 
 
 def _floaty(text: str) -> bool:
@@ -84,6 +79,7 @@ def command(frames, depths, output, flat, layout_file, rotate180, depth_origin, 
     read frames without a sidecar with them.
     """
     from lfring.calibration import calibrate
+    from lfring.calibration.fit import camera_model
     from lfring.calibration.model import check_depth_origin
     from lfring.views import Layout
 
@@ -142,15 +138,13 @@ def command(frames, depths, output, flat, layout_file, rotate180, depth_origin, 
     cal = calibrate(dict(zip(zs, frames)), flat=flat, layout=layout, depth_origin_m=z0, method=method, rank1=rank1,
                     device=device, distortion=not no_distortion, carry_flat=carry_flat, rotate180=rotate180,
                     **levels.as_kwargs())
-    ref, ref_name = _camera_model(cal, device)
+    ref, ref_name = camera_model(cal, device)
     if device is None and z0 is None and len(zs) == 2 and ref is not None and getattr(ref, "device", None):
         # z0 was assumed 0: a built-in calibration of these frames knows a device that would give it.
         log.warning("%s names the device '%s': if these frames are that camera's, --device %s gives z0 from its "
                     "optics instead of 0", ref_name, ref.device, ref.device)
     _refuse_too_far(cal, dict(zip(zs, frames)), ref, ref_name)
     _warn_far(dict(zip(zs, frames)), ref)
-    if device is not None:
-        _warn_depths_off(cal, dict(zip(zs, frames)), ref, ref_name)
     click.echo(f"z0 = {cal.depth_origin_m:.6f} m ({cal.provenance.get('depth_origin')}); valid depth range "
                f"{cal.valid_depth_range_m[0]:g} to {cal.valid_depth_range_m[1]:g} m; reference view {cal.model.reference}")
     click.echo(f"{'plane [m]':>10} " + " ".join(f"{'view ' + str(k) + ' px':>10}" for k in range(cal.num_views))
@@ -183,27 +177,6 @@ def command(frames, depths, output, flat, layout_file, rotate180, depth_origin, 
     log.info("wrote %s", output)
 
 
-def _camera_model(cal, device):
-    """A model of the camera that does not rest on the given depths, and its name in words:
-    the --device's optics at the frames' binning, else the built-in calibration for frames of
-    this size (what ``lfring inspect`` uses without --calib); (None, '') without either."""
-    from lfring.calibration import RingCalibration
-    from lfring.calibration.defaults import default_calibration
-    from lfring.depth.io import device_for
-    from lfring.errors import LfringError
-
-    if device is not None:
-        try:
-            return RingCalibration.from_optics(device_for(cal, device)), f"the optics of device '{device.name}'"
-        except InvalidInputError:  # no binning of the device gives these frames
-            pass
-    try:
-        ref, name = default_calibration(cal.raw_size)
-    except LfringError:
-        return None, ""
-    return ref, f"the built-in calibration '{name}'"
-
-
 def _tells_from_infinity(calibration, depth_m: float) -> bool:
     """Whether ``calibration`` tells a plane at ``depth_m`` from infinity, by the rule ``lfring
     inspect`` applies to its --plane (:func:`lfring.inspect.default_depth_band` at zero
@@ -222,7 +195,7 @@ def _refuse_too_far(cal, frames_by_depth: dict, ref, what: str) -> None:
 
     The calibration fitted to the frames cannot tell on its own (its scale comes from the given
     depths). A model of the camera that does not rest on them (``ref``, in words ``what``:
-    :func:`_camera_model`) can: when
+    :func:`lfring.calibration.fit.camera_model`) can: when
     it puts even the nearest plane too far to tell from infinity while the frames show that
     plane's views moving as a near plane's do, the depths are wrong. A plane that both put too
     far is a camera too coarse for it, not a unit mistake, and is left to the residuals.
@@ -240,7 +213,7 @@ def _refuse_too_far(cal, frames_by_depth: dict, ref, what: str) -> None:
 
 
 def _warn_far(frames_by_depth: dict, ref) -> None:
-    """Warn of a farthest plane that the camera model ``ref`` (:func:`_camera_model`) puts beyond its
+    """Warn of a farthest plane that the camera model ``ref`` (:func:`lfring.calibration.fit.camera_model`) puts beyond its
     range and, read as millimetres, within it (:meth:`RingCalibration.millimetres_hint`). Two
     planes fit exactly whatever their depths, and a distant scene is a valid plane at infinity,
     so it is not refused."""
@@ -248,29 +221,6 @@ def _warn_far(frames_by_depth: dict, ref) -> None:
     if ref is not None and far / 1000.0 > min(frames_by_depth) and ref.millimetres_hint(far):
         log.warning("the farthest plane is given as %g m (%s): fine for a target that far; if %g was millimetres, "
                     "give %g", far, frames_by_depth[far], far, far / 1000.0)
-
-
-def _warn_depths_off(cal, frames_by_depth: dict, ref, what: str) -> None:
-    """Warn of consecutive planes between which the views move otherwise than the camera model
-    ``ref`` (in words ``what``) says they move between the depths given, by more than
-    :data:`DEPTH_LABEL_TOL`. Two planes fit exactly whatever their depths, so only the optics
-    can tell a depth measured from the wrong point, or given for another frame. The motion
-    between two planes does not depend on where the views were cut (their layout)."""
-    from lfring.calibration.model import view_motion_px
-
-    if ref is None:
-        return
-    off = []
-    zs = sorted(frames_by_depth)
-    for za, zb in zip(zs, zs[1:]):
-        seen = view_motion_px(cal, [za, zb], cal.layout.view_shape)
-        said = view_motion_px(ref, [za, zb], ref.layout.view_shape)
-        if said > 0 and abs(seen / said - 1.0) > DEPTH_LABEL_TOL:
-            off.append(f"between the planes given as {za:g} m and {zb:g} m ({frames_by_depth[za]}, {frames_by_depth[zb]}) "
-                       f"the views move {seen:.1f} px, where those depths move them {said:.1f} px")
-    if off:
-        log.warning("by %s, %s: check that each depth is measured from the main lens and given in the order of the "
-                    "frames (the calibration takes the depths as given)", what, "; ".join(off))
 
 
 def _echo_distortion(cal) -> None:

@@ -151,3 +151,23 @@ def test_a_flat_of_another_setup_is_warned_of(caplog, prototype):
         assert "a flat of another setup" not in caplog.text
         calibrate(targets, flat=moved, device=dev)
     assert "the flat frame shows view" in caplog.text and "a flat of another setup" in caplog.text
+
+
+def test_millimetres_given_as_metres_are_warned_of_by_the_device_s_optics(caplog):
+    """calibrate({300: ..., 1000: ...}, device=...) made a calibration in the wrong unit without a
+    word (the command line refused it, the API did not look): the views move some pixels between
+    the two planes, where the device's optics move them a hundredth of one. Said by the API, as a
+    warning naming both; the right depths raise nothing."""
+    import logging
+    from pathlib import Path
+
+    data = Path(__file__).resolve().parents[2] / "data" / "synthetic"
+    flat = str(data / "flat.png")
+    with caplog.at_level(logging.WARNING, logger="lfring.calibration"):
+        calibrate({0.3: str(data / "target_0.3m.png"), 1.0: str(data / "target_1m.png")}, flat=flat, device="prototype")
+        assert "by the optics of device" not in caplog.text
+        cal = calibrate({300: str(data / "target_0.3m.png"), 1000: str(data / "target_1m.png")}, flat=flat,
+                        device="prototype")
+    assert cal.valid_depth_range_m[0] == 300
+    assert "by the optics of device 'prototype', between the planes given as 300 m and 1000 m" in caplog.text
+    assert "each depth is in metres" in caplog.text
