@@ -210,7 +210,8 @@ def aperture_from_f_number(f_number: float, device) -> float:
     The views' centres lie at depth s (the depth origin z0), the main lens at 0; a lens aperture
     of radius A at 0 blurs a point at Z as a viewpoint disc of radius A (Z - s) / Z at s does,
     which is A to within s / Z (under 10 % beyond 10 s, 0.28 m for the prototype). The relation
-    above neglects that factor.
+    above neglects that factor. An f-number wider than the device's main lens opens (its iris,
+    ``aperture_radius_m``, else its radius) is warned of: no such lens is on the camera.
 
     Examples
     --------
@@ -223,6 +224,12 @@ def aperture_from_f_number(f_number: float, device) -> float:
     from lfring.optics.views import view_cameras
 
     f_number = check_f_number(f_number)
+    iris = device.aperture_radius_m if device.aperture_radius_m is not None else device.main_lens_radius_m
+    own = device.main_focal_length_m / (2.0 * iris)
+    if f_number < own:
+        warnings.warn(f"f/{f_number:g} is wider than the main lens of device '{device.name}' opens (f/{own:.2g}): the "
+                      "image is of a lens this camera does not have, its blur extrapolated from the views",
+                      LfringWarning, stacklevel=3)
     cams = view_cameras(device)
     radius = float(np.linalg.norm(cams.centres_m - cams.centres_m.mean(axis=0), axis=1).mean())
     return device.main_focal_length_m / (2.0 * float(f_number)) / radius

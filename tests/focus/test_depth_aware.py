@@ -638,6 +638,19 @@ def test_a_renderer_given_as_the_depth_map_is_used_as_it_is(renderers_made):
         depth_of_field(views, cal, depth=renderer, zmin_m=0.5)
 
 
+def test_an_f_number_wider_than_the_lens_is_warned_of():
+    """f/0.5 on the prototype (its main lens opens to f/1.6) was taken without a word: the image
+    is of a lens the camera does not have. Warned of; its own f-number and narrower are not."""
+    import warnings
+
+    dev = load_device("prototype")
+    with pytest.warns(LfringWarning, match=r"f/0.5 is wider than the main lens of device 'prototype' opens \(f/1.6\)"):
+        wide = aperture_from_f_number(0.5, dev)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert aperture_from_f_number(1.6, dev) < wide and aperture_from_f_number(2.8, dev) > 0
+
+
 def test_f_number_works_with_the_built_in_calibration():
     """The shipped calibration of the twin records the device it was made from, so an f-number
     can be turned into an aperture without naming the device."""
