@@ -117,7 +117,7 @@ def calibrate(
     -------
     RingCalibration
         With per-plane residuals (model vs measurement) in pixels, leave-one-out errors for
-        three or more planes, and the alignment diagnostics in ``provenance`` (with the
+        three or more planes (four or more when z0 is fitted), and the alignment diagnostics in ``provenance`` (with the
         distortion's: the views' misregistration before and after it is undone).
 
     Examples

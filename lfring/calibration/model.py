@@ -21,7 +21,8 @@ __all__ = ["MAX_CONDITION", "VariableHomography", "PlaneFit", "check_depth_origi
 @dataclass(frozen=True, eq=False)
 class PlaneFit:
     """Diagnostics of one plane: the model's RMS error against its measured homographies (px,
-    per view) and, with three or more planes, the error predicting it from the other planes."""
+    per view) and, with three or more planes, the error predicting it from the other planes
+    (None with exactly three and z0 fitted: the others cannot fit z0 without it)."""
 
     depth_m: float
     residual_px: np.ndarray
@@ -187,31 +188,20 @@ def fit_variable_homography(
     hs = normalize_homographies(hs)
     reference = check_view_index(reference, "reference", hs.shape[1])
 
-    if depth_origin_m is None:
+    fitted = depth_origin_m is None
+    if fitted:
         if len(depths) < 3:
             raise InvalidInputError("fitting the depth origin z0 needs three or more planes; give depth_origin_m for two")
-
-        def cost(z0):
-            a, b = _solve(hs, depths, z0, rank1)
-            return float(np.sqrt(np.mean(_errors(hs, depths, a, b, z0, shape_hw) ** 2)))
-
-        hi = depths[0] - 1e-3
-        lo = hi - max(1.0, 4 * (depths[-1] - depths[0]))
-        grid = np.linspace(lo, hi, 41)
-        costs = [cost(g) for g in grid]
-        i = int(np.argmin(costs))
-        from scipy.optimize import minimize_scalar  # here, not at import: it is much of every command's start-up
-
-        res = minimize_scalar(cost, bounds=(grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]), method="bounded",
-                              options={"xatol": 1e-7})
-        z0 = float(res.x)
+        z0 = _fit_origin(hs, depths, rank1, shape_hw)
     else:
         z0 = check_depth_origin(depth_origin_m, float(depths[0]))
     a, b = _solve(hs, depths, z0, rank1)
     model = VariableHomography(a, b, z0, int(reference))
     residual = _errors(hs, depths, a, b, z0, shape_hw)
     loo = None
-    if len(depths) >= 3:
+    # Each plane predicted by a model of the others (with z0 as fitted to all). Three planes and
+    # z0 fitted fit any three depths exactly, so no plane can check the others: None.
+    if len(depths) >= 3 and not (fitted and len(depths) == 3):
         loo = np.zeros_like(residual)
         for i in range(len(depths)):
             keep = np.arange(len(depths)) != i
@@ -221,6 +211,26 @@ def fit_variable_homography(
     if not np.all(np.isfinite(residual)):
         raise EstimationError("the variable-homography fit produced non-finite residuals")
     return model, planes
+
+
+def _fit_origin(hs, depths, rank1: bool, shape_hw) -> float:
+    """The z0 that minimises the RMS pixel residual of the planes ``hs`` at ``depths``: a grid over
+    the depths before the nearest plane, then a bounded 1-D search around its best."""
+
+    def cost(z0):
+        a, b = _solve(hs, depths, z0, rank1)
+        return float(np.sqrt(np.mean(_errors(hs, depths, a, b, z0, shape_hw) ** 2)))
+
+    hi = depths[0] - 1e-3
+    lo = hi - max(1.0, 4 * (depths[-1] - depths[0]))
+    grid = np.linspace(lo, hi, 41)
+    costs = [cost(g) for g in grid]
+    i = int(np.argmin(costs))
+    from scipy.optimize import minimize_scalar  # here, not at import: it is much of every command's start-up
+
+    res = minimize_scalar(cost, bounds=(grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]), method="bounded",
+                          options={"xatol": 1e-7})
+    return float(res.x)
 
 
 def view_motion_px(calibration, depths_m, view_shape) -> float:

@@ -147,6 +147,9 @@ def command(frames, depths, output, flat, layout_file, rotate180, depth_origin, 
     _warn_far(dict(zip(zs, frames)), ref)
     click.echo(f"z0 = {cal.depth_origin_m:.6f} m ({cal.provenance.get('depth_origin')}); valid depth range "
                f"{cal.valid_depth_range_m[0]:g} to {cal.valid_depth_range_m[1]:g} m; reference view {cal.model.reference}")
+    if len(zs) == 3 and cal.provenance.get("depth_origin") == "fitted":
+        click.echo("leave-one-out not measured: z0 fitted to three planes fits any three depths, so no plane can check "
+                   "the others (a fourth plane can, or --depth-origin optics with --device)")
     click.echo(f"{'plane [m]':>10} " + " ".join(f"{'view ' + str(k) + ' px':>10}" for k in range(cal.num_views))
                + (f" {'leave-one-out px':>17}" if cal.planes and cal.planes[0].leave_one_out_px is not None else ""))
     worst, worst_z = 0.0, None

@@ -42,8 +42,21 @@ def test_three_planes_recover_z0(twin):
     dev, lay = twin
     model, planes = fit_variable_homography(_exact(twin, (0.3, 0.6, 1.0)), shape_hw=lay.view_shape, depth_origin_m=None)
     assert model.depth_origin_m == pytest.approx(dev.entrance_pupil_m, abs=1e-6)
-    for p in planes:
-        assert p.residual_px.max() < 1e-6 and p.leave_one_out_px.max() < 1e-5
+    for p in planes:  # three planes and z0 fitted: any three depths fit, no plane checks the others
+        assert p.residual_px.max() < 1e-6 and p.leave_one_out_px is None
+
+
+def test_four_planes_leave_one_out_finds_a_mislabelled_plane(twin):
+    """Where leave-one-out is measured with z0 fitted (four planes and more): exact labels
+    predict every plane to 1e-5 px, a plane 1 cm off shows."""
+    dev, lay = twin
+    exact = _exact(twin, (0.3, 0.45, 0.6, 1.0))
+    _, planes = fit_variable_homography(exact, shape_hw=lay.view_shape, depth_origin_m=None)
+    assert all(p.leave_one_out_px.max() < 1e-5 for p in planes)
+    wrong = {(0.46 if z == 0.45 else z): h for z, h in exact.items()}
+    _, planes = fit_variable_homography(wrong, shape_hw=lay.view_shape, depth_origin_m=None)
+    loo = [float(p.leave_one_out_px.max()) for p in planes]
+    assert max(loo) > 0.1, loo
 
 
 def test_fit_with_measurement_noise(twin):

@@ -237,3 +237,19 @@ def test_two_planes_without_a_device_name_the_built_in_calibration_s(tmp_path, c
     assert RingCalibration.load(tmp_path / "plain.json").depth_origin_m == 0.0
     assert main([*args, "--device", "prototype", "-o", str(tmp_path / "optics.json")]) == 0
     assert "names the device" not in capsys.readouterr().err
+
+
+def test_three_planes_with_z0_fitted_print_no_leave_one_out(tmp_path, capsys):
+    """Three planes and z0 fitted fit any three depths: the leave-one-out column read 0.004 px
+    with a plane 1 cm off as with the right depths. It is not printed, and a line says why."""
+    from pathlib import Path
+
+    data = Path(__file__).resolve().parents[2] / "data" / "synthetic"
+    out = tmp_path / "cal.json"
+    args = ["calibrate", *(str(data / f"target_{z}.png") for z in ("0.3m", "0.5m", "1m")), "--depths", "0.3", "0.5",
+            "1.0", "--flat", str(data / "flat.png"), "-o", str(out)]
+    assert main(args) == 0
+    text = capsys.readouterr().out
+    assert "leave-one-out not measured: z0 fitted to three planes fits any three depths" in text
+    assert "leave-one-out px" not in text
+    assert all(p["leave_one_out_px"] is None for p in json.loads(out.read_text())["planes"])
