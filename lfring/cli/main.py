@@ -165,9 +165,10 @@ def cli(verbose: int, quiet: bool) -> None:
         handler.setFormatter(CliFormatter("lfring: %(levelname)s: %(message)s"))
     level = logging.WARNING if quiet else (logging.INFO if verbose < 2 else logging.DEBUG)
     logging.getLogger("lfring").setLevel(level)
-    # Library warnings (a depth outside the calibrated range, say) become one log line each.
+    # Library warnings (a depth outside the calibrated range, say) become one log line each, in
+    # the command line's words (its options for the API's parameters).
     warn_log = logging.getLogger("lfring.warnings")
-    warnings.showwarning = lambda message, category, *args, **kwargs: warn_log.warning("%s", message)
+    warnings.showwarning = lambda message, category, *args, **kwargs: warn_log.warning("%s", cli_words(str(message)))
 
 
 def repeated_option(command: click.Command, args: list[str]) -> str:

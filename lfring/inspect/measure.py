@@ -51,7 +51,7 @@ from lfring.core.protocols import check_calibration
 
 __all__ = [
     "DARK_LEVEL", "MARGIN_PX", "MIN_CONFIDENCE_TWO_VIEWS", "MIN_COVERAGE", "MIN_PART_FRACTION", "MIN_TEXTURED_FRACTION",
-    "PART_OPENING_PX", "PART_RIM_PX", "PHOTO_MIN_CONTRAST", "BAND_END_REACH_PX", "MIN_TOLERANCE_PX", "STEP_PX", "VERDICTS", "default_depth_band", "inspect_frame",
+    "OFF_PLANE_SHARE", "PART_OPENING_PX", "PART_RIM_PX", "PHOTO_MIN_CONTRAST", "BAND_END_REACH_PX", "MIN_TOLERANCE_PX", "STEP_PX", "VERDICTS", "default_depth_band", "inspect_frame",
     "photo_consistency",
 ]
 
@@ -285,6 +285,9 @@ MIN_TEXTURED_FRACTION = 0.02
 MIN_PART_FRACTION = 0.02
 #: Radius of the opening that removes specks from the part's evidence before its holes are filled.
 PART_OPENING_PX = 3
+#: A defect over at least this share of the part's checked area is the part off the plane (not
+#: seated, or the plane given wrong), and is said to be.
+OFF_PLANE_SHARE = 0.5
 #: Within this many pixels of the rim of what two views see, the evidence that finds the part
 #: fades (the sweep's window and the views' taper reach past the rim; benchmarks/RESULTS.md,
 #: "Inspection: the part beyond the views' common sight"): the part is continued across that
@@ -771,6 +774,12 @@ def inspect_frame(
         num_defects=len(defects), min_coverage=chk.min_coverage, beyond_band=np.isfinite(depth.depth_m) & ~in_band)
     if verdict == "cannot_judge" and defects:  # no part they could belong to
         defects, deviating = [], np.zeros(shape, bool)
+    whole = [d for d in defects if d.area_px >= OFF_PLANE_SHARE * max(int((part & reliable).sum()), 1)]
+    if whole:
+        d = whole[0]
+        warnings.warn(f"a {d.kind} of {d.deviation_m * 1e3:+.1f} mm covers {d.area_px / max(int((part & reliable).sum()), 1):.0%} "
+                      "of the part's checked area: the part itself lies off the plane (is it seated, is plane_m its "
+                      "depth?), which fails it as a whole rather than as a local defect", LfringWarning, stacklevel=2)
 
     # Report step.
     roi_px = max(int(in_roi.sum()), 1)
