@@ -20,7 +20,7 @@ from lfring.errors import (
     LfringWarning,
 )
 from lfring.calibration import RingCalibration, calibrate
-from lfring.check import FrameCheck, OverExposureWarning, UnderExposureWarning, check_frame
+from lfring.check import ExposureWarning, FrameCheck, OverExposureWarning, UnderExposureWarning, check_frame
 from lfring.depth import DepthResult, estimate_depth
 from lfring.io.demosaic import demosaic
 from lfring.inspect import Defect, InspectionResult, inspect_frame
@@ -37,6 +37,7 @@ __all__ = [
     "DesignError",
     "DeviceError",
     "EstimationError",
+    "ExposureWarning",
     "FileFormatError",
     "FrameCheck",
     "InspectionResult",

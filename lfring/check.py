@@ -288,6 +288,9 @@ def check_frame(frame, calibration, *, threshold: float = AGREEMENT_THRESHOLD, d
     -----
     OverExposureWarning
         The frame passes, but at least :data:`CLIPPED_WARN` of its discs are clipped.
+    UnderExposureWarning
+        The frame passes, but its discs' brightest pixels (99th percentile) stay below
+        :data:`DIM_LEVEL` of the white level: its noise biases depth.
 
     Notes
     -----

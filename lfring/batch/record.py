@@ -4,9 +4,10 @@ the manifest, the one writer into OUTDIR, the folder's lock and the resume decis
 A frame's record ``<name>.lfring.json`` is written ``pending`` before its outputs and ``done``
 after them; its ``outputs`` are the frame's files that exist (the files a pending or failed run
 was to write are its ``planned_outputs``). :func:`decide_resume` reads it, with the input's
-identity (size and modification time, and a digest of its content that is read only when the
-time differs: a folder copied without its times is still the same frames), to skip what is
-done, compute only what is missing and refuse files this tool did not make. The single-frame commands keep a record of the same form per output set
+identity (size and modification time, and a digest of its content, taken when the record is
+written and compared only when the time differs: a folder copied without its times is still the
+same frames), to skip what is done, compute only what is missing and refuse files this tool did
+not make. The single-frame commands keep a record of the same form per output set
 (:mod:`lfring.cli.outputs`).
 """
 
@@ -69,8 +70,9 @@ lack them is not a batch's manifest, and is neither appended to nor replaced una
 DIGEST_KEY = "blake2b"
 _CHUNK = 1 << 20
 # Digests read in this process, by (real path, size, modification time): a run that checks a
-# frame and then records it reads it once.
+# frame and then records it reads it once. The oldest go past DIGESTS_KEPT.
 _DIGESTS: dict = {}
+DIGESTS_KEPT = 4096
 
 
 def content_digest(path: str | Path) -> str:
@@ -84,6 +86,8 @@ def content_digest(path: str | Path) -> str:
             for chunk in iter(lambda: f.read(_CHUNK), b""):
                 h.update(chunk)
         found = _DIGESTS[key] = h.hexdigest()
+        while len(_DIGESTS) > DIGESTS_KEPT:
+            del _DIGESTS[next(iter(_DIGESTS))]
     return found
 
 

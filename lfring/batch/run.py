@@ -22,8 +22,10 @@ from lfring.batch.executors import (
     EXECUTORS,
     DaskExecutor,
     InProcess,
+    LocalPool,
     dask_client,
     dask_wait,
+    held_wait,
     local_executor,
 )
 from lfring.batch.pipeline import FrameResult, process_frame
@@ -196,7 +198,9 @@ class _Run:
         ident = self.identity[path]
         if DIGEST_KEY not in ident:
             with contextlib.suppress(OSError):
-                ident = self.identity[path] = input_identity(path, digest=True)
+                now = input_identity(path, digest=True)
+                if same_input(ident, now):  # as planned: else the planned identity stays, and the frame fails
+                    ident = self.identity[path] = now
         return ident
 
     def _identities(self, outputs: dict) -> dict:
@@ -375,8 +379,9 @@ def _finish(run: _Run, job: BatchJob, res: FrameResult) -> None:
     except OSError:
         unchanged = False
     if not unchanged:  # the outputs may be of a file still being written, or of the one before
-        run.fail(job, "the frame (or its sidecar) changed or went while it was processed: its outputs are not written; "
-                      "a rerun processes it as it is then", record_it=True, timings_s=res.timings_s, worker=res.worker)
+        run.fail(job, "the frame (or its sidecar) changed or went after the run planned it: its outputs are not "
+                      "written; run again once it is complete (with overwrite=True where earlier outputs of it exist)",
+                 record_it=True, timings_s=res.timings_s, worker=res.worker)
         return
     t_w = time.perf_counter()
     deliver_lost_stops()  # a Ctrl-C that came where it could not stop the batch: this frame stays pending
@@ -396,8 +401,9 @@ def _finish(run: _Run, job: BatchJob, res: FrameResult) -> None:
 
 
 def _execute(run: _Run, todo: list[BatchJob], *, workers: int, executor: str, scheduler, progress) -> None:
-    """Process the frames on the executor, a window of them at a time; a lost local worker's
-    frames are retried once on a fresh pool."""
+    """Process the frames on the executor, a window of them at a time. A lost local worker breaks
+    its pool and every frame the pool held: those frames are suspects, run again one at a time
+    in a pool of one worker, where a loss is the frame's own (it fails); then the others go on."""
     bar = _progress(todo, progress)
     cluster = client = None
     pool = None
@@ -411,7 +417,8 @@ def _execute(run: _Run, todo: list[BatchJob], *, workers: int, executor: str, sc
         window = max(2, 2 * workers)
         pending: dict = {}
         queue = list(todo)
-        retried: set[str] = set()
+        suspects: list[BatchJob] = []  # frames a broken pool held, run one at a time
+        solo = False  # the pool runs one suspect at a time
 
         def submit(job: BatchJob) -> None:
             run.record(job, "pending")
@@ -419,27 +426,36 @@ def _execute(run: _Run, todo: list[BatchJob], *, workers: int, executor: str, sc
             path = os.path.abspath(job.input) if executor == "dask" else job.input
             pending[pool.submit(process_frame, path, run.settings, run.planned(job))] = job
 
-        def renew(requeue: list) -> None:
-            """A fresh local pool for the frames of a broken one (a worker died: every frame the
-            pool held is lost with it), ``requeue`` first."""
-            nonlocal pool, waiter
+        def renew() -> None:
+            """A fresh pool of worker processes (never this process: a frame may kill it): one
+            worker while there are suspects, else as many as the queue needs."""
+            nonlocal pool, waiter, solo
             pool.shutdown(wait=False, cancel_futures=True)
-            requeue = [*requeue, *pending.values()]
-            pending.clear()
-            queue[:0] = requeue
-            if queue:
-                pool, waiter = local_executor(min(workers, len(queue)))
+            solo = bool(suspects)
+            if suspects or queue:
+                pool, waiter = LocalPool(1 if solo else min(workers, len(queue))), held_wait
 
-        while queue or pending:
-            while queue and len(pending) < window:
-                job = queue.pop(0)
+        while queue or pending or suspects:
+            source, room = (suspects, 1) if solo or suspects else (queue, window)
+            if source is suspects and not solo:
+                renew()
+            while source and len(pending) < room:
+                job = source.pop(0)
                 try:
                     submit(job)
                 except OSError as exc:
                     run.fail(job, f"cannot write its record: {exc}")
-                except BrokenProcessPool:  # a worker died since the last results were taken
-                    renew([job])
+                except BrokenProcessPool as exc:  # a worker died since the last results were taken
+                    if solo:  # a pool of one, fresh for this frame: its worker is lost to it
+                        run.fail(job, f"the worker processing it was lost: {type(exc).__name__}: {exc}", record_it=True)
+                    else:
+                        suspects[:0] = [job, *pending.values()]
+                        pending.clear()
+                    renew()
+                    break
             if not pending:
+                if solo and not suspects:
+                    renew()  # the suspects are done: the others go on
                 continue
             done_set, _ = waiter(list(pending), return_when=FIRST_COMPLETED)
             for fut in done_set:
@@ -447,18 +463,20 @@ def _execute(run: _Run, todo: list[BatchJob], *, workers: int, executor: str, sc
                 try:
                     with held_signals():  # taking the result takes the future's lock
                         res: FrameResult = fut.result()
-                except Exception as exc:  # noqa: BLE001 - a worker died (crash, killed): retry once elsewhere
-                    lost = executor == "local" and not isinstance(pool, InProcess)
-                    if lost and job.input not in retried:
-                        retried.add(job.input)
-                        log.warning("%s: worker lost (%s); retrying once", job.input, type(exc).__name__)
-                        renew([job])
+                except Exception as exc:  # noqa: BLE001 - a worker died (crash, killed)
+                    if executor == "local" and not isinstance(pool, InProcess) and not solo:
+                        held = [job, *pending.values()]
+                        log.warning("a worker was lost (%s) with %d frame(s) in its pool; running them again one at a "
+                                    "time", type(exc).__name__, len(held))
+                        suspects[:0] = held
+                        pending.clear()
+                        renew()
                         break
                     run.fail(job, f"the worker processing it was lost: {type(exc).__name__}: {exc}", record_it=True)
                     if bar is not None:
                         bar.update(1)
-                    if lost:  # lost twice: the others go on in a fresh pool
-                        renew([])
+                    if solo:  # its own loss: the pool is broken, the next suspect gets a fresh one
+                        renew()
                         break
                     continue
                 _finish(run, job, res)

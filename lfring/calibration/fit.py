@@ -22,8 +22,8 @@ DEPTH_ORIGIN_TOL = 0.02
 """A z0 fitted to three or more planes that lies farther than this fraction of the nearest
 plane's depth from the device's entrance pupil s (z0 = s for the ring) draws a warning (one
 behind the main lens is refused): three planes fit the model exactly whatever their depths, so a
-mislabelled depth shows only as a z0 elsewhere. On the twin's targets z0 fits within 0.4 mm of s;
-the middle plane of 0.3, 0.5 and 1.0 m given 3 mm too far moves it 8 mm, 1 cm too far 27 mm."""
+mislabelled depth shows only as a z0 elsewhere (benchmarks/RESULTS.md, "Calibration: a mislabelled
+plane and the flat's layout")."""
 DEPTH_LABEL_TOL = 0.1
 """Relative difference between how far the views move from one plane to the next and how far
 the device's optics move them between the depths given, above which the calibration warns:
@@ -32,7 +32,8 @@ given for another frame or in another unit is that far off."""
 # Largest distance (px) between where the flat frame and the targets (their mean) show a view's
 # disc before the flat is said to come from another setup (the ring or the zoom moved between
 # them); the views are cut where the flat shows them. The discs found on a target's texture lie
-# up to about 8 px from the flat's in the same setup (the twin's targets at 0.3 to 1.0 m).
+# some pixels from the flat's in the same setup (benchmarks/RESULTS.md, "Calibration: a
+# mislabelled plane and the flat's layout").
 FLAT_LAYOUT_TOL_PX = 10.0
 
 
@@ -197,6 +198,8 @@ def calibrate(
             est = estimate_plane_homographies(views[d], reference=reference, masks=masks, method=method,
                                               flat_views=flat_views)
         except LfringError as exc:  # named by the frame: which of them is over-exposed, or textureless?
+            if "of the flat frame" in str(exc):  # the flat's own fault, whichever target met it first
+                raise
             raise type(exc)(f"target frame {images[d][1]} ({d:g} m): {exc}") from None
         measured[d] = est.H_ref_from_view
         diag.append({"depth_m": d, "file": images[d][1], "alignment_residual_px": est.residual_px.tolist(),

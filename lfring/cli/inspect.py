@@ -13,6 +13,7 @@ from lfring.cli._options import FRAME, check_option, flat_option, load_views, ra
 from lfring.cli.outputs import OutputSet
 from lfring.cli.words import cli_words
 from lfring.inspect import MIN_COVERAGE
+from lfring.inspect.records import BEYOND_SIGHT_TOLD
 
 log = logging.getLogger("lfring.cli.inspect")
 
@@ -160,7 +161,7 @@ def command(ctx, raw, plane, tolerance, outdir, calib, roi, reference_depth, min
                  " (it reaches beyond the depth band searched: widen --zmin/--zmax to measure it)" if d.beyond_band else "")
     checked = f"checked {res.coverage:.0%} of the part"
     beyond = res.stats.get("beyond_sight_fraction") or 0.0
-    if res.verdict != "cannot_judge" and beyond >= 0.005:
+    if res.verdict != "cannot_judge" and beyond >= BEYOND_SIGHT_TOLD:
         checked += f"; it may run on beyond what two views see, over {beyond:.0%} more, unchecked"
     if res.verdict == "pass":
         verdict = f"pass ({checked})"

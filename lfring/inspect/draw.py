@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 
 from lfring.core.validate import check_fraction, check_int
-from lfring.inspect.records import InspectionResult
+from lfring.inspect.records import BEYOND_SIGHT_TOLD, InspectionResult
 
 __all__ = ["BUMP_RGB", "DENT_RGB", "annotate"]
 
@@ -84,11 +84,11 @@ def annotate(result: InspectionResult, *, tint: float = 0.35, scale: int = 1) ->
         verdict, banner_rgb = f"FAIL: {len(result.defects)} defect(s)", BUMP_RGB
     else:
         verdict, banner_rgb = f"CANNOT JUDGE: {(result.reason or '').split(':')[0]}", _JUDGE_RGB
-    beyond = 100 * float(result.stats.get("beyond_sight_fraction") or 0.0)
+    beyond = float(result.stats.get("beyond_sight_fraction") or 0.0)
     line = int(22 * font / 0.4)
     texts = [verdict, f"checked {result.coverage * 100:.0f} % of the part (unchecked: hatched)"]
-    if beyond >= 0.5 and result.verdict != "cannot_judge":
-        texts.append(f"it may run on beyond two views' sight: +{beyond:.0f} % (hatched)")
+    if beyond >= BEYOND_SIGHT_TOLD and result.verdict != "cannot_judge":
+        texts.append(f"it may run on beyond two views' sight: +{100 * beyond:.0f} % (hatched)")
     texts.append(f"plane {s['plane_m']:.3f} m  tolerance {s['tolerance_m'] * 1e3:.1f} mm")
     banner = [(text, (8, (i + 1) * line + 4 * i)) for i, text in enumerate(texts)]
     banner_box = _union([_text_box(t, org, font * 1.2, thick) for t, org in banner])

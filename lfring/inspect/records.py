@@ -15,7 +15,11 @@ import numpy as np
 
 from lfring.core.records import record_repr
 
-__all__ = ["Defect", "InspectionResult"]
+__all__ = ["BEYOND_SIGHT_TOLD", "Defect", "InspectionResult"]
+
+#: Where the part may run on beyond two views' sight over at least this share of its area
+#: (:attr:`InspectionResult.beyond_sight`), the verdict line and the drawn report say so.
+BEYOND_SIGHT_TOLD = 0.005
 
 
 @dataclass(frozen=True)

@@ -19,7 +19,7 @@ import numpy as np
 
 from lfring.errors import InvalidInputError
 
-__all__ = ["BELOW_BLACK_FRACTION", "LEVEL_KEYS", "LOW_PEAK_FRACTION", "load_frame"]
+__all__ = ["BELOW_BLACK_FRACTION", "LEVEL_KEYS", "LOW_PEAK_FRACTION", "RAW_LEVEL_TOL", "load_frame"]
 
 LEVEL_KEYS = ("pattern", "black_level", "white_level")
 _LEVELS = LEVEL_KEYS[1:]  # the black and white levels
@@ -28,6 +28,11 @@ LOW_PEAK_FRACTION = 1 / 16
 """A frame whose brightest count is below this fraction of its white level gets a warning: its
 data likely have fewer bits than its container (10-bit counts in a 16-bit PNG reach 1/64 of
 full scale)."""
+
+RAW_LEVEL_TOL = 0.01
+"""A camera RAW's black or white level that differs from the calibration's by more than this share
+of the calibration's range (white - black) is another camera's (LibRaw may measure a black level
+from each frame's masked pixels, a count or two apart from frame to frame)."""
 
 BELOW_BLACK_FRACTION = 0.75
 """A calibration's black level under which more than this share of a frame's counts lie does not
@@ -144,8 +149,17 @@ def load_frame(path, *, pattern=None, black_level=None, white_level=None, calibr
         # The RAW's own metadata wins; a calibration made from frames read otherwise is another
         # camera's (or the file is not what its name says).
         differ = [(k, getattr(frame, k), getattr(calibration, k, None)) for k in LEVEL_KEYS if given[k] is None]
+        span = float(np.max(getattr(calibration, "white_level", None) or 0.0)) - float(
+            np.min(getattr(calibration, "black_level", None) or 0.0))
+        tol = {"pattern": 0.0, "black_level": RAW_LEVEL_TOL * span, "white_level": RAW_LEVEL_TOL * span}
+
+        def apart(k, mine, theirs) -> bool:
+            if k == "pattern":
+                return mine != theirs
+            return bool(np.any(np.abs(np.asarray(mine, np.float64) - np.asarray(theirs, np.float64)) > tol[k]))
+
         differ = [(k, mine, theirs) for k, mine, theirs in differ
-                  if theirs is not None and mine is not None and np.any(np.asarray(mine) != np.asarray(theirs))]
+                  if theirs is not None and mine is not None and apart(k, mine, theirs)]
         if differ:
             said = ", ".join(f"{k.replace('_', ' ')} {mine} (the calibration's: {theirs})" for k, mine, theirs in differ)
             notes.append((logging.WARNING, f"{path}: its camera metadata give {said}: the calibration was made from "

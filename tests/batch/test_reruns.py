@@ -425,7 +425,7 @@ def test_a_frame_that_changes_while_it_is_processed_is_not_recorded_as_done(tmp_
     out = tmp_path / "out"
     settings = BatchSettings(refocus_m=(0.5,), refocus_method="shift-and-add")
     rep = run_batch([str(root)], out, settings, workers=1)
-    assert rep.failed == [str(root / "a.png")] and "changed or went while it was processed" in rep.errors[str(root / "a.png")]
+    assert rep.failed == [str(root / "a.png")] and "changed or went after the run planned it" in rep.errors[str(root / "a.png")]
     assert not (out / "a_refocus_0.5m.png").exists()
     assert json.loads((out / "a.lfring.json").read_text())["status"] == "failed"
     monkeypatch.setattr(batch_run, "process_frame", real)
@@ -450,3 +450,33 @@ def test_a_frame_of_the_same_name_from_another_folder_is_named_as_such(tmp_path,
     err = " ".join(capsys.readouterr().err.split())
     assert f"made from another frame ({tmp_path / 'd1' / 'a.png'}) of the same name" in err and "--overwrite" in err
     assert "changed since" not in err
+
+
+def test_a_frame_replaced_after_planning_is_not_recorded_under_its_new_identity(tmp_path, monkeypatch):
+    """A frame replaced between the run's plan and its submission: its identity was taken again
+    at submission, so the check before writing compared the new file with itself, and the
+    record listed the old frame's kept image under the new frame's identity. The planned
+    identity now stays, and the frame fails."""
+    from pathlib import Path
+
+    import lfring.batch.run as batch_run
+
+    data = Path(__file__).resolve().parents[2] / "data" / "synthetic"
+    root = tmp_path / "in"
+    copy_frame(data / "scene.png", root / "a.png")
+    out = tmp_path / "out"
+    assert run_batch([str(root)], out, BatchSettings(refocus_m=(0.5,), refocus_method="shift-and-add"), workers=1).done
+    real = batch_run.input_identity
+
+    def replaced_after_planning(path, *, digest=False):
+        ident = real(path, digest=digest)
+        if not digest:  # the plan's look: the frame is replaced right after it
+            Path(path).write_bytes((data / "part_good.png").read_bytes())
+        return ident
+
+    monkeypatch.setattr(batch_run, "input_identity", replaced_after_planning)
+    rep = run_batch([str(root)], out, BatchSettings(refocus_m=(0.5, 1.0), refocus_method="shift-and-add"), workers=1)
+    assert rep.failed == [str(root / "a.png")] and "changed or went after the run planned it" in rep.errors[str(root / "a.png")]
+    rec = json.loads((out / "a.lfring.json").read_text())
+    assert rec["status"] == "failed" and rec["input_identity"]["size_bytes"] == len((data / "scene.png").read_bytes())
+    assert not (out / "a_refocus_1m.png").exists()
