@@ -350,11 +350,15 @@ def test_inspect_viewer_shows_the_defects_and_the_unchecked_area(tmp_path, brows
         # Coloured as the annotated image draws them: bumps red, dents blue.
         assert box["colour"] == {"bump": "#ff2828", "dent": "#288cff"}[defect["kind"]]
     assert {b["colour"] for b in d["boxes"]} == {"#ff2828", "#288cff"}
-    # The unchecked area is the part the inspection could not judge: 1 - its coverage of the part.
+    # The unchecked area is the part the inspection could not judge (1 - its coverage of the part)
+    # and where the part may run on beyond two views' sight (its share of the part).
     png = base64.b64decode(d["unchecked"].split(",", 1)[1])
     alpha = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_UNCHANGED)[..., 3]
     part_px = report["stats"]["part_fraction"] * alpha.size
-    assert (alpha > 0).sum() == pytest.approx((1 - report["coverage"]) * part_px, abs=1e-4 * part_px + 2)  # coverage has 4 decimals
+    beyond = report["stats"]["beyond_sight_fraction"]
+    assert beyond > 0.1  # the plate reaches the frame's corners
+    assert (alpha > 0).sum() == pytest.approx((1 - report["coverage"] + beyond) * part_px,
+                                              abs=2e-4 * part_px + 2)  # the report's fractions have 4 decimals
     # The stack spans the inspection's depth band.
     assert d["depths_m"][0] == pytest.approx(report["settings"]["zmin_m"])
     assert d["depths_m"][-1] == pytest.approx(report["settings"]["zmax_m"])
