@@ -396,8 +396,9 @@ def _finish(run: _Run, job: BatchJob, res: FrameResult) -> None:
     res.timings_s["write"] = time.perf_counter() - t_w
     run.report.done.append(job.input)
     run.entry(job, "done", timings_s=res.timings_s, worker=res.worker, info=res.info)
+    named = (f"{job.input}: ", f"{os.path.abspath(job.input)}: ")  # a cluster's workers read the absolute path
     for w in res.info.get("warnings", []):  # a reader's notes name the frame already
-        log.warning("%s", w if w.startswith(f"{job.input}: ") else f"{job.input}: {w}")
+        log.warning("%s", w if w.startswith(named) else f"{job.input}: {w}")
 
 
 def _execute(run: _Run, todo: list[BatchJob], *, workers: int, executor: str, scheduler, progress) -> None:

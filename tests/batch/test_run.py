@@ -1,6 +1,7 @@
 """lfring.batch.run: a whole folder with corrupt frames, then its resume; the progress bar."""
 
 import json
+import os
 
 import cv2
 import numpy as np
@@ -167,14 +168,17 @@ def test_a_reader_s_note_names_the_frame_once(tmp_path, monkeypatch, caplog):
 
     def noted(path, *args, **kwargs):
         res = real(path, *args, **kwargs)
-        res.info.setdefault("warnings", []).extend([f"{path}: levels assumed (black 0)", "a note of its own"])
+        res.info.setdefault("warnings", []).extend([f"{path}: levels assumed (black 0)", "a note of its own",
+                                                    f"{os.path.abspath(path)}: as a cluster's worker names it"])
         return res
 
     monkeypatch.setattr(batch_run, "process_frame", noted)
+    monkeypatch.chdir(tmp_path)  # a relative input: a cluster's worker names it by its absolute path
     with caplog.at_level(logging.WARNING, logger="lfring.batch"):
-        rep = run_batch([str(root)], tmp_path / "out", BatchSettings(refocus_m=(0.5,), refocus_method="shift-and-add"),
+        rep = run_batch(["in"], tmp_path / "out", BatchSettings(refocus_m=(0.5,), refocus_method="shift-and-add"),
                         workers=1)
-    frame = str(root / "sb.png")
+    frame = os.path.join("in", "sb.png")
     assert rep.done == [frame]
     assert f"{frame}: levels assumed (black 0)" in caplog.text and f"{frame}: {frame}:" not in caplog.text
     assert f"{frame}: a note of its own" in caplog.text
+    assert f"{frame}: {os.path.abspath(frame)}:" not in caplog.text and f"{os.path.abspath(frame)}: as a cluster's" in caplog.text
