@@ -140,7 +140,7 @@ def calibrate(
     >>> float(np.abs(cal.homographies(0.5) - shipped.homographies(0.5)).max()) < 1e-3
     True
     """
-    from lfring.calibration.planes import estimate_plane_homographies
+    from lfring.calibration.planes import check_flat_views, estimate_plane_homographies
 
     if carry_flat and flat is None:
         raise InvalidInputError("carry_flat needs the flat frame (flat=...)")
@@ -192,14 +192,14 @@ def calibrate(
     masks = layout.masks()
     flat_views = split_views(flat_img, layout) if flat_img is not None else None
     views = {d: split_views(images[d][0], layout) for d in sorted(images)}
+    if flat_views is not None:
+        check_flat_views(flat_views, masks)  # the flat's faults are the flat's, not the first target's
     measured, diag = {}, []
     for d in sorted(images):
         try:
             est = estimate_plane_homographies(views[d], reference=reference, masks=masks, method=method,
                                               flat_views=flat_views)
         except LfringError as exc:  # named by the frame: which of them is over-exposed, or textureless?
-            if "of the flat frame" in str(exc):  # the flat's own fault, whichever target met it first
-                raise
             raise type(exc)(f"target frame {images[d][1]} ({d:g} m): {exc}") from None
         measured[d] = est.H_ref_from_view
         diag.append({"depth_m": d, "file": images[d][1], "alignment_residual_px": est.residual_px.tolist(),

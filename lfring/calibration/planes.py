@@ -30,6 +30,7 @@ __all__ = [
     "METHODS",
     "MODELS",
     "PlaneHomographies",
+    "check_flat_views",
     "estimate_plane_homographies",
     "local_shifts",
     "phase_correlation_translations",
@@ -328,26 +329,45 @@ def _prepare(views, masks, flat_views, reference):
                 f"{100 * _DARK_LEVEL:g}% of full scale; photograph the target with a longer exposure or more light"
             )
     if flat_views is not None:
-        f = _as_views(flat_views, "flat_views")
-        if f.shape[:3] != (num, h, w):
-            raise InvalidInputError(
-                f"flat_views must have the views' shape (V, h, w) = {(num, h, w)} (and any channel count), "
-                f"got {f.shape[:3]}; cut the flat frame with the same layout"
-            )
-        flat = f.mean(axis=3, dtype=np.float32)
+        flat, brights = _flat_luminance(flat_views, valid)
         for k in range(num):
-            vals = flat[k][valid[k]]
-            bright = float(np.percentile(vals, 95)) if vals.size else 0.0
-            if not bright > _DARK_LEVEL:
-                raise InvalidInputError(f"view {k} of the flat frame is black; is it a flat (white) frame?")
-            if bright >= _CLIP_LEVEL:
-                raise InvalidInputError(
-                    f"view {k} of the flat frame is clipped at full scale; take the flat with a shorter exposure"
-                )
-            ok = flat[k] > FLAT_FLOOR * bright
+            ok = flat[k] > FLAT_FLOOR * brights[k]
             valid[k] &= ok
             lum[k] = np.where(ok, lum[k] / np.where(ok, flat[k], 1.0), 0.0)
     return lum, valid, int(reference)
+
+
+def _flat_luminance(flat_views, valid: np.ndarray) -> tuple[np.ndarray, list]:
+    """A flat frame's views' luminance (V, h, w) float32 and each view's bright level (its 95th
+    percentile where ``valid``), refusing views that do not fit ``valid`` or are black or clipped."""
+    num, h, w = valid.shape
+    f = _as_views(flat_views, "flat_views")
+    if f.shape[:3] != (num, h, w):
+        raise InvalidInputError(
+            f"flat_views must have the views' shape (V, h, w) = {(num, h, w)} (and any channel count), "
+            f"got {f.shape[:3]}; cut the flat frame with the same layout"
+        )
+    flat = f.mean(axis=3, dtype=np.float32)
+    brights = []
+    for k in range(num):
+        vals = flat[k][valid[k]]
+        bright = float(np.percentile(vals, 95)) if vals.size else 0.0
+        if not bright > _DARK_LEVEL:
+            raise InvalidInputError(f"view {k} of the flat frame is black; is it a flat (white) frame?")
+        if bright >= _CLIP_LEVEL:
+            raise InvalidInputError(
+                f"view {k} of the flat frame is clipped at full scale; take the flat with a shorter exposure"
+            )
+        brights.append(bright)
+    return flat, brights
+
+
+def check_flat_views(flat_views, masks) -> None:
+    """Refuse a flat frame's views ((V, h, w[, C]), cut like the targets') that
+    :func:`estimate_plane_homographies` cannot divide by: another shape than ``masks`` (V, h, w)
+    bool, or a view black or clipped inside its mask. For a caller that aligns several targets
+    with one flat: the flat is then judged once, as the flat, before any target."""
+    _flat_luminance(flat_views, np.asarray(masks, dtype=bool))
 
 
 def _check_levels(levels, h: int, w: int) -> int:
