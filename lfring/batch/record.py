@@ -75,19 +75,28 @@ _DIGESTS: dict = {}
 DIGESTS_KEPT = 4096
 
 
+def _digest_key(path) -> tuple:
+    st = os.stat(path)
+    return os.path.realpath(path), st.st_size, st.st_mtime_ns
+
+
+def _keep_digest(key: tuple, digest: str) -> str:
+    _DIGESTS[key] = digest
+    while len(_DIGESTS) > DIGESTS_KEPT:
+        del _DIGESTS[next(iter(_DIGESTS))]
+    return digest
+
+
 def content_digest(path: str | Path) -> str:
     """The BLAKE2b (128-bit) digest of the file at ``path``, hex."""
-    st = os.stat(path)
-    key = (os.path.realpath(path), st.st_size, st.st_mtime_ns)
+    key = _digest_key(path)
     found = _DIGESTS.get(key)
     if found is None:
         h = hashlib.blake2b(digest_size=16)
         with open(path, "rb") as f:
             for chunk in iter(lambda: f.read(_CHUNK), b""):
                 h.update(chunk)
-        found = _DIGESTS[key] = h.hexdigest()
-        while len(_DIGESTS) > DIGESTS_KEPT:
-            del _DIGESTS[next(iter(_DIGESTS))]
+        found = _keep_digest(key, h.hexdigest())
     return found
 
 
@@ -200,12 +209,18 @@ class OutputWriter:
         self.tmp = outdir / TMP_DIR
 
     def write(self, rel: str, data: bytes) -> Path:
-        """Write ``data`` atomically to ``rel`` (relative to OUTDIR)."""
-        return atomic_write_bytes(self.outdir / rel, data, tmp_dir=self.tmp)
+        """Write ``data`` atomically to ``rel`` (relative to OUTDIR); its digest, taken from the
+        bytes in hand, is what :func:`content_digest` gives for the file (a record's identity of
+        it needs no second read)."""
+        path = atomic_write_bytes(self.outdir / rel, data, tmp_dir=self.tmp)
+        with contextlib.suppress(OSError):
+            _keep_digest(_digest_key(path), hashlib.blake2b(data, digest_size=16).hexdigest())
+        return path
 
     def write_json(self, rel: str, obj) -> Path:
         """Write ``obj`` as indented JSON, atomically, to ``rel`` (relative to OUTDIR)."""
-        return self.write(rel, (json.dumps(obj, indent=2, default=json_default) + "\n").encode("utf-8"))
+        return atomic_write_bytes(self.outdir / rel, (json.dumps(obj, indent=2, default=json_default) + "\n").encode("utf-8"),
+                                  tmp_dir=self.tmp)
 
 
 @contextlib.contextmanager
