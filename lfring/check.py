@@ -319,8 +319,9 @@ def check_frame(frame, calibration, *, threshold: float = AGREEMENT_THRESHOLD, d
         lum = luminance(np.ascontiguousarray(views, dtype=np.float32))
     inside = layout.masks()
     n_in = int(np.count_nonzero(inside))
-    lum_rec, inside_rec = lum, inside  # the luminance as recorded, for the exposure
     clipped = np.count_nonzero((lum >= CLIPPED_LEVEL) & inside) / n_in if n_in else float("nan")
+    sample = lum[:, ::4, ::4][inside[:, ::4, ::4]]  # the discs' brightest pixels, as recorded
+    bright = float(np.percentile(sample, 99)) if sample.size else float("nan")
     dark = np.count_nonzero((lum <= DARK_LEVEL) & inside) / n_in if n_in else float("nan")
     contrast = float("nan")
     if image is not None:
@@ -406,8 +407,6 @@ def check_frame(frame, calibration, *, threshold: float = AGREEMENT_THRESHOLD, d
         else:
             message = f"{message}; but {warning}"
     ok = not reason
-    sample = lum_rec[:, ::4, ::4][inside_rec[:, ::4, ::4]]
-    bright = float(np.percentile(sample, 99)) if sample.size else float("nan")
     dim = ok and not warning and bright < DIM_LEVEL
     if dim:
         warning = (f"under-exposed: the brightest pixels of the views' discs (99th percentile) reach {bright:.1%} of the "

@@ -774,10 +774,11 @@ def inspect_frame(
         num_defects=len(defects), min_coverage=chk.min_coverage, beyond_band=np.isfinite(depth.depth_m) & ~in_band)
     if verdict == "cannot_judge" and defects:  # no part they could belong to
         defects, deviating = [], np.zeros(shape, bool)
-    whole = [d for d in defects if d.area_px >= OFF_PLANE_SHARE * max(int((part & reliable).sum()), 1)]
+    checked_px = max(int((part & reliable).sum()), 1)
+    whole = [d for d in defects if d.area_px >= OFF_PLANE_SHARE * checked_px]
     if whole:
         d = whole[0]
-        warnings.warn(f"a {d.kind} of {d.deviation_m * 1e3:+.1f} mm covers {d.area_px / max(int((part & reliable).sum()), 1):.0%} "
+        warnings.warn(f"a {d.kind} of {d.deviation_m * 1e3:+.1f} mm covers {d.area_px / checked_px:.0%} "
                       "of the part's checked area: the part itself lies off the plane (is it seated, is plane_m its "
                       "depth?), which fails it as a whole rather than as a local defect", LfringWarning, stacklevel=2)
 
