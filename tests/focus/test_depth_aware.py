@@ -560,6 +560,26 @@ def test_an_estimated_depth_counts_where_fewer_views_see_it(box):
         assert error.max() < 0.02, error.max()
 
 
+def test_a_slant_without_depth_at_the_frame_edge_is_continued_along_its_slope():
+    """Where a slanted surface has no depth (the frame's edge, which fewer views see, or a map's
+    unknown band), the renderer continues the plane that the measured depths around lie on, not
+    the depth of the nearest measured pixel (here up to 0.4 of x = 1/Z off, the views 1.6 px apart):
+    the all-in-focus image there is what the exact depth gives. (Beside a depth edge no plane
+    fits and the nearest depth is continued: the next test's hole.)"""
+    cal = _calibration()
+    views, depth, _ = _slanted_plane()
+    band = (slice(None), slice(0, 20))
+    for unknown_band in (band, (slice(None), slice(N - 20, N))):
+        unknown = depth.copy()
+        unknown[unknown_band] = np.nan
+        exact, _ = all_in_focus(views, cal, depth_map_m=depth)
+        img, chosen = all_in_focus(views, cal, depth_map_m=unknown)
+        assert np.isnan(chosen[unknown_band]).all()
+        inner = (slice(8, N - 8),) + unknown_band[1:]
+        error = np.abs(img - exact)[inner]
+        assert error.max() < 0.03 and error.mean() < 0.004, (error.max(), error.mean())
+
+
 def test_unknown_depths_are_continued_from_the_nearest_known_ones():
     """An unknown depth (NaN) is not a measurement: it takes the nearest known pixel's depth,
     not a stand-in that happens to be seen by enough views (the known depths' median, here the
