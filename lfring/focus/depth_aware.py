@@ -7,9 +7,10 @@ depth map in the reference frame, :class:`DepthOfField` renders that:
 1. **The depth that was measured.** Where the depth is unknown, or fewer than
    :data:`MIN_DEPTH_VIEWS` views' worth see a pixel at its own depth (the views' disc rims, the
    frame's edge; :data:`MIN_ESTIMATED_VIEWS` for a map that depth estimation made, which says
-   itself where it measured), that depth was not measured: the nearest measured pixel's depth
-   is taken instead, unless they agree anyway, feathered where two surfaces' nearest pixels
-   meet (a step there would cut a seam across the rim).
+   itself where it measured), that depth was not measured: the nearest measured pixel's surface
+   is continued instead (its plane where one fits the measured depths around it,
+   :data:`PLANE_PX`, else its depth), unless they agree anyway, feathered where two surfaces'
+   nearest pixels meet (a step there would cut a seam across the rim).
 2. **All-in-focus colour.** Every view is sampled at every reference pixel's own depth (one
    ``cv2.remap`` per view) and the views are averaged where they agree: a view whose luminance
    is far from the views' robust mean there (it sees an occluder, or a specular highlight) is
@@ -395,8 +396,8 @@ class DepthOfField:
     views : (V, h, w, C) float32 in [0, 1]
     calibration : RingCalibration
     depth_map_m : (h, w) float
-        Depth of every reference pixel in metres (NaN where unknown: continued from the
-        nearest known depths, as a depth that too few views see).
+        Depth of every reference pixel in metres (NaN where unknown: the nearest known
+        surface continued, as at a depth that too few views see).
     reference : 'center' or int
         The frame of the depth map and of the results.
     measured_views : float
@@ -462,7 +463,7 @@ class DepthOfField:
     def all_in_focus(self) -> tuple[np.ndarray, np.ndarray]:
         """The all-in-focus image: every pixel at its own depth (aperture 0), black where no view
         sees it; and that depth, (h, w) float32 metres, NaN where the map had none (the render
-        continued the nearest measured depth there) or no view sees it. What
+        continued the nearest measured surface there) or no view sees it. What
         :func:`lfring.all_in_focus` gives for this renderer's views and depth map."""
         out = self.render(float(np.nanmedian(self.depth_m)), 0.0)  # at aperture 0 any focus renders the same
         out[~self.seen] = 0.0
@@ -552,7 +553,8 @@ class DepthOfField:
 
     def _measured(self, k_views: int, masks: np.ndarray, known: np.ndarray):
         """The depth map, continued from the nearest pixel that :attr:`measured_views` views'
-        worth see at its own depth (feathered over :data:`FEATHER_PX`) where fewer do or the
+        worth see at its own depth (along its plane, :func:`_plane_continued`; the planes
+        feathered over :data:`FEATHER_PX`) where fewer do or the
         depth is unknown (a depth one view alone sees was not measured: estimation picks such
         depths at the range's end, where the views drift off their discs), unless it continues
         that pixel's depth anyway (``known``: where the given map had a depth); and the views'
@@ -878,7 +880,7 @@ def _estimated_depth(result: DepthResult, calibration, reference) -> np.ndarray:
 
 def known_depths(depth_map_m: np.ndarray, calibration, *, allow_none: bool = False) -> np.ndarray:
     """(h, w) bool: where ``depth_map_m`` holds a depth (finite, beyond the calibration's depth
-    origin); elsewhere the renderer continues the nearest measured depth. A map that holds
+    origin); elsewhere the renderer continues the nearest measured surface. A map that holds
     none is refused, unless ``allow_none``."""
     z0 = calibration.depth_origin_m
     known = np.isfinite(depth_map_m) & (depth_map_m > z0)
@@ -914,7 +916,7 @@ def depth_to_render(depth, calibration, reference, shape) -> tuple[np.ndarray, f
             warnings.warn(LfringWarning(
                 f"{int(odd.sum())} pixels of the depth map ({odd.mean():.1%}) are not depths beyond the depth origin "
                 f"z0 = {z0:.4g} m (0, negative, nearer or infinite; e.g. {float(dm[odd][0]):g}): taken as unknown, "
-                "as NaN is, and rendered at the nearest known depth"), stacklevel=3)
+                "as NaN is, and rendered by continuing the nearest known surface"), stacklevel=3)
     return dm, MIN_ESTIMATED_VIEWS if estimated else MIN_DEPTH_VIEWS
 
 

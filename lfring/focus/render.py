@@ -209,7 +209,7 @@ def all_in_focus(views, calibration, depths_m=None, *, depth_map_m=None, referen
         used as they are): each pixel is then
         refocused at its own depth (the nearest of ``depths_m`` when they are given), as
         depth-aware refocusing renders the same map at aperture 0: where the depth is unknown,
-        or too few views see it, the nearest measured depth is continued
+        or too few views see it, the nearest measured surface is continued
         (:func:`lfring.focus.depth_aware.depth_to_render`).
     window_px : int
         Side of the box over which the photo-consistency is averaged (odd, a centred box).
@@ -302,7 +302,7 @@ def all_in_focus(views, calibration, depths_m=None, *, depth_map_m=None, referen
         chosen[better] = d
     covered = np.isfinite(chosen)
     if depth_map_m is not None:
-        chosen[~known] = np.nan  # the renderer continues the nearest measured depth there
+        chosen[~known] = np.nan  # the renderer continues the nearest measured surface there
     if not covered.any():
         return out, chosen
     out = DepthOfField(arr, calibration, chosen, reference=reference, measured_views=measured_views).render(float(z[0]), 0.0)
