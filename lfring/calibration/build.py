@@ -13,7 +13,7 @@ import dataclasses
 import numpy as np
 
 from lfring.calibration.model import VariableHomography, fit_variable_homography
-from lfring.calibration.ring import RingCalibration
+from lfring.calibration.ring import DEVICE_RECORD, RingCalibration
 from lfring.core.validate import check_number
 from lfring.errors import InvalidInputError
 from lfring.optics.device import RingDevice
@@ -71,7 +71,7 @@ def calibration_from_optics(device: RingDevice, *, layout: Layout | None = None,
         source="optics",
         device=device.name,
         provenance={"ring_distance_m": device.ring_distance_m, "sensor_distance_m": device.sensor_distance_m,
-                    "pixel_pitch_m": device.pixel_pitch_m},
+                    "pixel_pitch_m": device.pixel_pitch_m, DEVICE_RECORD: device.to_dict()},
     )
 
 

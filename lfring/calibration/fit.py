@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 
 from lfring.calibration.build import calibration_from_plane_homographies
-from lfring.calibration.ring import RingCalibration
+from lfring.calibration.ring import DEVICE_RECORD, RingCalibration
 from lfring.core.lens import remap_views, undistortion_maps
-from lfring.errors import EstimationError, InvalidInputError, LfringError
+from lfring.errors import DeviceError, EstimationError, InvalidInputError, LfringError
 from lfring.views import Layout, detect_layout, flat_field_from_frame, split_views
 
 __all__ = ["calibrate", "check_disparity_sign", "check_fitted_origin", "load_image"]
@@ -172,6 +172,12 @@ def calibrate(
             )
         _check_new_frame(img, name, float(d), images)
         images[float(d)] = (img, name)
+    if device is not None:
+        try:  # the optics give z0 and the checks of the depths: they must be those of these frames' camera
+            device.for_frames((shape[1], shape[0]), whose="the targets' ")
+        except DeviceError as exc:
+            raise InvalidInputError(f"{exc}: the device is not the camera that took them (give its device file, or no "
+                                    "device)") from None
     flat_img = None
     if flat is not None:
         flat_img, flat_name, _ = _load_frame(flat, levels)
@@ -236,7 +242,8 @@ def calibrate(
     cal = calibration_from_plane_homographies(
         measured, reference=reference, depth_origin_m=z0, layout=layout, pattern=_common(raws, "pattern", pattern),
         rank1=rank1, provenance={"method": method, "flat": None if flat is None else str(flat), "planes": diag,
-                                 "depth_origin": how, "distortion": dist_diag},
+                                 "depth_origin": how, "distortion": dist_diag,
+                                 **({} if device is None else {DEVICE_RECORD: device.to_dict()})},
     )
     cal = dataclasses.replace(cal, device=None if device is None else device.name, distortion=lens,
                               black_level=_common(raws, "black_level", black_level),

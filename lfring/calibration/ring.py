@@ -22,7 +22,11 @@ from lfring.core.validate import check_choice, check_view_index, is_integer, is_
 from lfring.errors import InvalidInputError, LfringWarning
 from lfring.views import Layout
 
-__all__ = ["SOURCES", "RingCalibration"]
+__all__ = ["DEVICE_RECORD", "SOURCES", "RingCalibration"]
+
+DEVICE_RECORD = "device_record"
+"""The key of ``provenance`` that holds the device a calibration was made with, every field
+(:meth:`lfring.optics.RingDevice.to_dict`)."""
 
 SOURCES = ("planes", "optics", "grid")
 """Where a calibration comes from: fitted to measured planes, predicted by the optics, or built
@@ -53,7 +57,8 @@ class RingCalibration:
         The planes it was fitted to, with their residuals in pixels.
     source : 'planes', 'optics' or 'grid'
     device : str or None
-        Name of the device description it came from, if any.
+        Name of the device description it came from, if any (its optics:
+        :meth:`device_optics`).
     provenance : dict
         How it was made (the device's distances, the grid, the views selected...), kept in
         its file.
@@ -208,6 +213,27 @@ class RingCalibration:
             return ""
         words = " and ".join(f"{v:g}" for v in dict.fromkeys(z))
         return f"; depths are in metres: {'was' if len(set(z)) == 1 else 'were'} {words} given in mm?"
+
+    def device_optics(self):
+        """The :class:`lfring.optics.RingDevice` the calibration was made with, as it was: the
+        record it keeps of that device (calibrations made with a device keep one,
+        :data:`DEVICE_RECORD`), else the built-in device it names; None when it names none.
+
+        A device file's optics travel with the calibration, so a later command neither needs the
+        file again nor takes a built-in device of the same name for it.
+
+        Raises
+        ------
+        LfringError
+            The record is not a device's, or the name is not a built-in device's (a calibration
+            written before the record was kept: give the device file).
+        """
+        from lfring.optics.device import RingDevice, load_device
+
+        record = self.provenance.get(DEVICE_RECORD)
+        if record is not None:
+            return RingDevice.from_dict(record, source=f"the calibration's record of device '{self.device}'")
+        return None if self.device is None else load_device(self.device)
 
     def homographies(self, depth_m, *, reference="center") -> np.ndarray:
         """``H_ref_from_view`` of every view at ``depth_m``: (V, 3, 3), or (N, V, 3, 3)."""

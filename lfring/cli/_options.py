@@ -122,6 +122,23 @@ def check_calibration_output(output) -> None:
                                  param_hint="-o")
 
 
+FILE_SUFFIXES = (".ply", ".pcd", ".xyz", ".obj", ".stl", ".tif", ".tiff", ".png", ".jpg", ".jpeg", ".pfm", ".exr",
+                 ".npy", ".npz", ".json", ".csv", ".txt", ".h5")
+"""Suffixes of files (what lfring writes, point clouds, images, arrays): an output folder that
+does not exist yet and is named like one is refused (a file name given where a folder goes)."""
+
+
+def output_folder(ctx, param, value):
+    """Click callback of an -o that names a folder: refuse a new one named like a file."""
+    if value is None:
+        return value
+    path = Path(value)
+    if not path.exists() and path.suffix.lower() in FILE_SUFFIXES:
+        raise click.BadParameter(f"-o names the folder the outputs go to, got the file name {path.name!r}; e.g. -o "
+                                 f"{path.with_suffix('')}", param_hint="-o")
+    return value
+
+
 device_option = click.option(
     "--device",
     "device_name",

@@ -6,7 +6,7 @@ import logging
 
 import click
 
-from lfring.cli._options import aperture_options, check_option, parse_depths, raw_options
+from lfring.cli._options import aperture_options, check_option, output_folder, parse_depths, raw_options
 from lfring.core.warping import DEFAULT_INTERPOLATION
 
 log = logging.getLogger("lfring.cli.batch")
@@ -27,7 +27,7 @@ def _refocus_depths(text: str) -> tuple[float, ...]:
 
 @click.command("batch")
 @click.argument("inputs", nargs=-1, required=True, metavar="INPUT...")
-@click.option("-o", "--output", "outdir", type=click.Path(file_okay=False), required=True, metavar="OUTDIR",
+@click.option("-o", "--output", "outdir", type=click.Path(file_okay=False), required=True, callback=output_folder, metavar="OUTDIR",
               help="Output folder (created; folder inputs keep their structure inside it).")
 @click.option("--calib", type=click.Path(dir_okay=False), default=None, metavar="FILE",
               help="Calibration JSON for every frame (default: the built-in one for each frame's size).")

@@ -10,7 +10,7 @@ import numpy as np
 
 from lfring.depth.costs import COSTS
 from lfring.depth.plan import DEPTH_TAPER
-from lfring.cli._options import FRAME, check_option, flat_option, load_views, note_first_compile, progress_bar, raw_options
+from lfring.cli._options import FRAME, check_option, flat_option, load_views, note_first_compile, output_folder, progress_bar, raw_options
 from lfring.cli.outputs import OutputSet
 
 log = logging.getLogger("lfring.cli.depth")
@@ -29,7 +29,7 @@ MAX_PLANES = 1000
               help="Nearest depth searched [m from the main lens] (default: the calibration's valid range).")
 @click.option("--zmax", type=float, default=None, metavar="M", help="Farthest depth searched [m] (default: the calibration's "
               "valid range; for one open to infinity, where the views stop moving).")
-@click.option("-o", "--output", "outdir", type=click.Path(file_okay=False), required=True, metavar="DIR", help="Output folder.")
+@click.option("-o", "--output", "outdir", type=click.Path(file_okay=False), required=True, callback=output_folder, metavar="DIR", help="Output folder.")
 @click.option("--calib", type=click.Path(dir_okay=False), default=None, metavar="FILE",
               help="Calibration JSON (default: the built-in one for the frame's size).")
 @click.option("--planes", type=int, default=None, metavar="N",
@@ -82,14 +82,14 @@ def command(raw, zmin, zmax, outdir, calib, planes, reference, cost, aggregation
     confidence's to say), _depth.pfm, _confidence.tiff (0..1), _depth_preview.png (colour bar in
     metres; pixels under --min-confidence black), _points.ply (metric camera coordinates, the
     pixels at --min-confidence or more, sRGB colours) and _depth.json (settings, hypotheses,
-    calibration used); with the default --method sgm also _depth_filled.tiff (the unconfident
+    calibration used, and the pinhole that turns the map into the points: points_camera); with the default --method sgm also _depth_filled.tiff (the unconfident
     pixels filled from confident ones of their image region: an estimate, not a measurement;
     NaN where too few views see a pixel). The files appear together, or none of them.
     """
     from lfring.core.geometry import check_reference
     from lfring.depth import estimate_depth
     from lfring.depth.hypotheses import depth_hypotheses
-    from lfring.depth.io import device_for, write_depth_preview, write_depth_tiff, write_pfm, write_ply
+    from lfring.depth.io import device_for, points_camera, write_depth_preview, write_depth_tiff, write_pfm, write_ply
     from lfring.core.validate import check_number
     from lfring.errors import InvalidInputError, LfringError
     from lfring.focus.depth_aware import estimation_range
@@ -145,7 +145,8 @@ def command(raw, zmin, zmax, outdir, calib, planes, reference, cost, aggregation
         log.warning("%s: the point cloud is not written (--device-file names the camera's optics)", exc)
     if dev is not None:
         if not (device_name or cal.device):
-            log.info("the calibration names no device and no --device-file was given: the point cloud uses the prototype's optics")
+            log.warning("the calibration names no device and no --device-file was given: the point cloud's X and Y use "
+                        "the prototype's optics, which may not be this camera's (--device-file names the camera's)")
         paths["points.ply"] = out / f"{stem}_points.ply"
     outputs = OutputSet(paths.values(), name=f"{stem}_depth", overwrite=overwrite)
     note_first_compile()
@@ -168,12 +169,17 @@ def command(raw, zmin, zmax, outdir, calib, planes, reference, cost, aggregation
             pts, cols = res.to_points(cal, colors=np.clip(rgb, 0, 1), min_confidence=min_confidence, device=dev)
             write_ply(stage(paths["points.ply"]), pts, cols)
             n_points = len(pts)
+            if not n_points:
+                log.warning("no pixel has a depth at --min-confidence %g or more: the point cloud is empty", min_confidence)
         known = np.isfinite(res.depth_m)
         write_json(stage(paths["depth.json"]), {
             "input": raw, "calibration": cal_name, "reference": ref, "zmin_m": zmin, "zmax_m": zmax,
             "hypotheses_m": res.depths_m, "step_px": res.step_px, "cost": res.cost, "aggregation": aggregation,
             "method": method, "paths": res.paths, "consistency": res.consistency, "rim_taper": rim_taper,
             "backend": backend, "units": "depth in metres from the main lens; NaN where unknown", "points": n_points,
+            "min_confidence": min_confidence,
+            # How the point cloud's points come from the map (None: no point cloud, no device).
+            "points_camera": None if dev is None else points_camera(dev, cal.layout, ref),
             # Over the pixels with a depth: those no view pair sees have confidence 0 and no depth.
             "confidence_median": float(np.median(res.confidence[known])) if known.any() else None,
         })

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import click
 
-from lfring.cli._options import FRAME, check_option, flat_option, load_views, raw_options
+from lfring.cli._options import FRAME, check_option, flat_option, load_views, output_folder, raw_options
 from lfring.cli.outputs import OutputSet
 from lfring.cli.words import cli_words
 from lfring.inspect import MIN_COVERAGE
@@ -64,7 +64,7 @@ def _read_depth(path: str):
 @click.argument("raw", type=FRAME)
 @click.option("--plane", type=float, required=True, metavar="M", help="Working plane [m from the main lens].")
 @click.option("--tolerance", type=float, required=True, metavar="M", help="Largest accepted deviation [m], e.g. 0.01.")
-@click.option("-o", "--output", "outdir", type=click.Path(file_okay=False), required=True, metavar="DIR", help="Output folder.")
+@click.option("-o", "--output", "outdir", type=click.Path(file_okay=False), required=True, callback=output_folder, metavar="DIR", help="Output folder.")
 @click.option("--calib", type=click.Path(dir_okay=False), default=None, metavar="FILE",
               help="Calibration JSON (default: the built-in one for the frame's size).")
 @click.option("--roi", callback=_parse_roi, default=None, metavar="X,Y,W,H",

@@ -10,7 +10,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from lfring.cli._options import FRAME, raw_options, read_frame
+from lfring.cli._options import FRAME, output_folder, raw_options, read_frame
 from lfring.cli.outputs import OutputSet
 from lfring.errors import LfringError
 
@@ -21,7 +21,7 @@ _METHODS = ("bilinear", "edge-aware", "vng", "rawpy", "kornia")
 
 @click.command("split")
 @click.argument("raw", type=FRAME)
-@click.option("-o", "--output", "outdir", type=click.Path(file_okay=False), required=True, metavar="DIR",
+@click.option("-o", "--output", "outdir", type=click.Path(file_okay=False), required=True, callback=output_folder, metavar="DIR",
               help="Output folder (created if missing).")
 @click.option("--layout", "layout_file", type=click.Path(dir_okay=False), default=None, metavar="FILE",
               help="Layout JSON (from a previous split, or a twin's truth folder).")

@@ -10,7 +10,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from lfring.cli._options import device_option, get_device
+from lfring.cli._options import device_option, get_device, output_folder
 from lfring.cli.words import cli_words
 from lfring.errors import InvalidInputError
 from lfring.io.bayer import PATTERNS
@@ -93,7 +93,7 @@ def _parse_defects(text: str) -> tuple[float, ...]:
 
 @click.command("synth")
 @click.argument("preset", type=click.Choice(["flat", "target", "scene", "part", "hard", "file"]))
-@click.option("-o", "--output", "outdir", type=click.Path(file_okay=False), required=True, metavar="DIR",
+@click.option("-o", "--output", "outdir", type=click.Path(file_okay=False), required=True, callback=output_folder, metavar="DIR",
               help="Output folder (created if missing).")
 @click.option("--depth", type=float, default=None, metavar="M", help="Target distance [m] (preset 'target').")
 @click.option("--scene", "scene_file", type=click.Path(dir_okay=False), default=None, metavar="FILE",

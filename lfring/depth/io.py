@@ -25,6 +25,7 @@ from lfring.views import Layout
 __all__ = [
     "colorize_depth",
     "depth_to_points",
+    "points_camera",
     "device_for",
     "read_pfm",
     "read_ply",
@@ -297,8 +298,9 @@ def _colour_bytes(colors, shape_hw) -> np.ndarray:
 
 def device_for(calibration, device=None) -> RingDevice:
     """The optics of the frames ``calibration`` describes: ``device`` (a RingDevice, a built-in
-    name or a device file), else the device the calibration names, else the prototype; binned
-    to the calibration's frame size when it is a binned sensor's.
+    name or a device file), else the device the calibration was made with
+    (:meth:`lfring.RingCalibration.device_optics`), else the prototype; binned to the
+    calibration's frame size when it is a binned sensor's.
 
     Raises
     ------
@@ -315,7 +317,7 @@ def device_for(calibration, device=None) -> RingDevice:
     """
     from lfring.optics.device import load_device
 
-    dev = load_device(device or calibration.device or "prototype")
+    dev = load_device(device) if device else (calibration.device_optics() or load_device("prototype"))
     try:
         return dev.for_frames(tuple(calibration.raw_size), whose="the calibration's ")
     except DeviceError as exc:
@@ -387,8 +389,8 @@ def depth_to_points(
     z = _float_map(depth_m, "depth_m")
     if z.shape != layout.view_shape:
         raise InvalidInputError(f"depth_m must have the layout's view shape (h, w) = {layout.view_shape}, got {z.shape}")
-    cams = view_cameras(device)
-    s = cams.depth_origin_m
+    cam = points_camera(device, layout, view)
+    s = cam["depth_origin_m"]
     keep = _shown(z, confidence, min_confidence)
     if np.any(z[keep] <= s):
         raise InvalidInputError(
@@ -396,17 +398,54 @@ def depth_to_points(
             f"got a minimum of {float(np.min(z[keep])):.4g} m"
         )
     rgb = None if colors is None else _colour_bytes(colors, z.shape)
+    rows, cols = np.nonzero(keep)
+    zz = z[rows, cols].astype(np.float64)
+    offset = np.stack([cols, rows], axis=-1) - np.asarray(cam["principal_point_px"])
+    xy = np.asarray(cam["centre_m"][:2]) + offset * ((zz - s) / cam["focal_px"])[:, None]
+    points = np.concatenate([xy, zz[:, None]], axis=1)
+    return points, (None if rgb is None else np.ascontiguousarray(rgb[rows, cols]))
+
+
+def points_camera(device: RingDevice, layout: Layout, view) -> dict:
+    """The pinhole through which :func:`depth_to_points` sees a depth map of ``view`` (an index
+    or 'center') cut with ``layout`` from frames of ``device`` (binned like them), in the map's
+    own pixels: JSON-ready, with the formula in words.
+
+    ``focal_px`` f / pitch; ``principal_point_px`` (column, row) in the map, pixel centres at
+    whole numbers; ``centre_m`` the projection centre (X, Y, Z), Z = ``depth_origin_m`` = s in
+    front of the main lens, from which the map's depths are not measured (they are from the main
+    lens): a pinhole back-projection that takes the map's Z as distance from the centre is off
+    laterally by s / (Z - s).
+
+    Examples
+    --------
+    >>> import lfring
+    >>> from lfring.depth.io import device_for, points_camera
+    >>> cal = lfring.RingCalibration.load("twin_binned2")
+    >>> cam = points_camera(device_for(cal), cal.layout, "center")
+    >>> round(cam["focal_px"], 1), [round(c, 1) for c in cam["principal_point_px"]], round(cam["depth_origin_m"], 4)
+    (1981.6, [352.0, 352.0], 0.028)
+    """
+    cams = view_cameras(device)
     corners = np.array([r[:2] for r in layout.rects], dtype=np.float64)
     if view == "center":
         centre, p0, corner = cams.centres_m.mean(axis=0), cams.principal_points_m.mean(axis=0), corners.mean(axis=0)
     else:
         centre, p0, corner = cams.centres_m[view], cams.principal_points_m[view], corners[view]
-    rows, cols = np.nonzero(keep)
-    p = pixel_to_sensor(device, np.stack([cols, rows], axis=-1) + corner)
-    zz = z[rows, cols].astype(np.float64)
-    xy = centre + (p - p0) * ((zz - s) / cams.focal_m)[:, None]
-    points = np.concatenate([xy, zz[:, None]], axis=1)
-    return points, (None if rgb is None else np.ascontiguousarray(rgb[rows, cols]))
+    # Raw pixel q lies at sensor position pixel_to_sensor(q); the principal point is where that is p0.
+    origin = pixel_to_sensor(device, np.zeros(2))
+    principal = (np.asarray(p0, dtype=np.float64) - origin) / device.pixel_pitch_m - corner
+    s = float(cams.depth_origin_m)
+    return {
+        "focal_px": float(cams.focal_m / device.pixel_pitch_m),
+        "principal_point_px": [float(principal[0]), float(principal[1])],
+        "centre_m": [float(centre[0]), float(centre[1]), s],
+        "depth_origin_m": s,
+        "model": "X = centre_x + (col - principal_col) (Z - s) / focal_px, Y = centre_y + (row - principal_row) "
+                 "(Z - s) / focal_px, Z the map's depth from the main lens, s = depth_origin_m; X right, Y down, "
+                 "metres; col, row the map's pixel (centres at whole numbers)",
+        "device": device.name,
+    }
 
 
 # -- PLY -----------------------------------------------------------------------------------------

@@ -66,7 +66,8 @@ class DepthResult:
     __repr__ = record_repr
 
     def to_points(self, calibration, *, colors=None, min_confidence: float = 0.0, device=None):
-        """Metric 3D points of the map's known pixels, as ``lfring depth`` writes them to PLY.
+        """Metric 3D points of the map's known pixels, as ``lfring depth`` writes them to PLY (which
+        keeps the pixels at its ``--min-confidence``, 0.5 by default; here ``min_confidence``).
 
         Parameters
         ----------

@@ -60,6 +60,7 @@ import cv2
 import numpy as np
 
 from lfring.calibration.overlap import INFINITE_DEPTH_M
+from lfring.calibration.ring import DEVICE_RECORD
 from lfring.errors import InvalidInputError, LfringWarning
 from lfring.core.geometry import apply_homography, check_reference, to_reference
 from lfring.core.viewstack import WEIGHT_FLOOR, cached_view_masks, check_views
@@ -761,8 +762,9 @@ def resolve_aperture(calibration, aperture=None, f_number=None, ring_device=None
     ``aperture`` or ``f_number`` (1.0 when neither is given).
 
     ``f_number`` needs the device: ``ring_device`` (a :class:`lfring.optics.RingDevice` with
-    its positions), or else the built-in device the calibration was made from (calibrations
-    from the optics name it), set to the positions the calibration records. See
+    its positions), or else the device the calibration was made with
+    (:meth:`lfring.RingCalibration.device_optics`: its record, or the built-in device it names
+    at the positions it records). See
     :func:`aperture_from_f_number` for the relation.
     """
     if aperture is not None and f_number is not None:
@@ -776,11 +778,10 @@ def resolve_aperture(calibration, aperture=None, f_number=None, ring_device=None
                 "f_number needs the device (its main lens's focal length and where the views sit in its aperture): "
                 "pass ring_device=, or use aperture= (1 is the aperture the views span)"
             )
-        from lfring.optics.device import load_device
-
-        ring_device = load_device(calibration.device)
+        ring_device = calibration.device_optics()
         prov = calibration.provenance
-        if prov.get("ring_distance_m") is not None and prov.get("sensor_distance_m") is not None:
+        # A built-in device named without its record, at the positions the calibration was made at.
+        if DEVICE_RECORD not in prov and prov.get("ring_distance_m") is not None and prov.get("sensor_distance_m") is not None:
             ring_device = ring_device.with_positions(prov["ring_distance_m"], prov["sensor_distance_m"])
     return aperture_from_f_number(f_number, ring_device)
 

@@ -26,7 +26,8 @@ def test_from_optics_is_the_paraxial_model(twin):
     cal = calibration_from_optics(dev)
     assert isinstance(cal, RingCalibration) and cal.source == "optics" and cal.device == dev.name
     assert cal.valid_depth_range_m[1] is None and cal.depth_origin_m < cal.valid_depth_range_m[0]
-    assert set(cal.provenance) == {"ring_distance_m", "sensor_distance_m", "pixel_pitch_m"}
+    assert set(cal.provenance) == {"ring_distance_m", "sensor_distance_m", "pixel_pitch_m", "device_record"}
+    assert cal.device_optics() == dev  # the device itself, every field
     np.testing.assert_allclose(cal.homographies(0.42, reference=0), optical_homographies(dev, lay, 0.42, reference=0), atol=1e-9)
     # A given layout is used as it is.
     assert calibration_from_optics(dev, layout=lay).layout is lay

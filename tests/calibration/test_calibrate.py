@@ -171,3 +171,36 @@ def test_millimetres_given_as_metres_are_warned_of_by_the_device_s_optics(caplog
     assert cal.valid_depth_range_m[0] == 300
     assert "by the optics of device 'prototype', between the planes given as 300 m and 1000 m" in caplog.text
     assert "each depth is in metres" in caplog.text
+
+
+def test_a_device_file_s_optics_travel_with_the_calibration(tmp_path):
+    """A calibration made with a device keeps that device's record, and later steps take its
+    optics from there: a copied device file whose main lens was changed but whose name stayed
+    'prototype' made a calibration naming 'prototype', whose point cloud then used the built-in
+    prototype's optics (40 % off laterally) and whose --f-number the built-in focal length. A
+    device that no binning fits to the frames is refused: its z0 and its checks of the depths
+    were used regardless."""
+    import dataclasses
+    from pathlib import Path
+
+    import lfring
+    from lfring.depth.io import device_for
+    from lfring.focus.depth_aware import aperture_from_f_number, resolve_aperture
+
+    data = Path(__file__).resolve().parents[2] / "data" / "synthetic"
+    targets = {0.3: str(data / "target_0.3m.png"), 1.0: str(data / "target_1m.png")}
+    built_in = lfring.optics.load_device("prototype")
+    custom = dataclasses.replace(built_in, main_focal_length_m=0.02)  # the same name, another lens
+    cal = lfring.RingCalibration.load(calibrate(targets, flat=str(data / "flat.png"), device=custom).save(tmp_path / "c.json"))
+    assert cal.device == "prototype" and cal.device_optics() == custom
+    assert device_for(cal).main_focal_length_m == 0.02 and device_for(cal).sensor_width_px == 2456  # binned to the frames
+    assert resolve_aperture(cal, f_number=2.8) == pytest.approx(aperture_from_f_number(2.8, custom))
+    assert resolve_aperture(cal, f_number=2.8) != pytest.approx(aperture_from_f_number(2.8, built_in))
+    # A calibration that names a built-in device and keeps no record (as written before) still finds it.
+    old = dataclasses.replace(cal, provenance={k: v for k, v in cal.provenance.items() if k != "device_record"})
+    assert old.device_optics() == built_in
+    other = dataclasses.replace(built_in, sensor_width_px=4000, sensor_height_px=3000, sensor_width_m=None,
+                                sensor_height_m=None)
+    with pytest.raises(InvalidInputError, match=r"has a 4000 x 3000 px sensor, which no binning turns into the "
+                                                r"targets' 2456 x 1842 px frames: the device is not the camera"):
+        calibrate(targets, flat=str(data / "flat.png"), device=other)

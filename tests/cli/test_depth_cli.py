@@ -30,6 +30,15 @@ def test_depth_cli_outputs(tmp_path, capsys):
     # The median confidence of the pixels with a depth (the unseen rim, confidence 0, left out).
     assert side["confidence_median"] == pytest.approx(float(np.median(conf[np.isfinite(depth)])))
     assert side["confidence_median"] > float(np.median(conf))
+    # The pinhole the json gives turns the map into the points (a downstream user has no other way
+    # to: the depth is from the main lens, the projection centre s in front of it).
+    cam = side["points_camera"]
+    assert side["min_confidence"] == 0.5 and cam["device"] == "prototype" and cam["focal_px"] == pytest.approx(1981.6, abs=0.1)
+    rows, cols_ = np.nonzero(np.isfinite(depth) & (conf >= 0.5))
+    z = depth[rows, cols_].astype(np.float64)
+    s = cam["depth_origin_m"]
+    xy = np.asarray(cam["centre_m"][:2]) + (np.stack([cols_, rows], axis=1) - cam["principal_point_px"]) * ((z - s) / cam["focal_px"])[:, None]
+    np.testing.assert_allclose(pts, np.column_stack([xy, z]), atol=1e-6)
     # The same command again replaces its own files; other settings do not without --overwrite.
     assert main(["depth", str(SCENE), "--zmin", "0.3", "--zmax", "1.0", "-o", str(out), "--paths", "8"]) == 2
     assert "exists" in capsys.readouterr().err
@@ -61,12 +70,37 @@ def test_depth_cli_outputs(tmp_path, capsys):
          "are in metres: were 300 and 1000 given in mm?"),
         (["--zmin", "300", "--zmax", "1000"], "were 300 and 1000 given in mm?"),
         (["--zmin", "3", "--zmax", "3.001", "--method", "local"], "too little to tell any depth"),
+        # A file's name where the output folder goes (it became a folder of that name).
+        (["--zmin", "0.3", "--zmax", "0.5", "-o", "out.ply"], "-o names the folder the outputs go to, got the file name 'out.ply'"),
     ],
 )
-def test_depth_cli_errors(tmp_path, capsys, args, text):
-    assert main(["depth", str(SCENE), *args, "-o", str(tmp_path / "o")]) == 2
+def test_depth_cli_errors(tmp_path, capsys, args, text, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert main(["depth", str(SCENE), *args, "-o", str(tmp_path / "o")][:None if "-o" not in args else -2]) == 2
     err = capsys.readouterr().err
     assert text in err and "Traceback" not in err
+    assert not (tmp_path / "out.ply").exists()
+
+
+def test_a_point_cloud_from_no_device_and_an_empty_one_are_warned_of(tmp_path, capsys):
+    """A calibration that names no device gives the point cloud the prototype's optics, which
+    may not be the camera's: said as a warning (it was an info line), and the json names the
+    device. A --min-confidence that leaves no pixel writes an empty cloud, and says so."""
+    import dataclasses
+
+    from lfring import RingCalibration
+
+    cal = RingCalibration.load("twin_binned2")
+    cal = dataclasses.replace(cal, device=None, provenance={k: v for k, v in cal.provenance.items() if k != "device_record"})
+    path = cal.save(tmp_path / "nodev.json")
+    assert main(["depth", str(SCENE), "--calib", str(path), "--zmin", "0.3", "--zmax", "1.0", "--method", "local",
+                 "--min-confidence", "1.0", "-o", str(tmp_path / "o")]) == 0
+    err = capsys.readouterr().err
+    assert "WARNING: the calibration names no device and no --device-file was given: the point cloud's X and Y use the " \
+           "prototype's optics, which may not be this camera's" in err
+    assert "WARNING: no pixel has a depth at --min-confidence 1 or more: the point cloud is empty" in err
+    side = json.loads((tmp_path / "o" / "scene_depth.json").read_text())
+    assert side["points"] == 0 and side["points_camera"]["device"] == "prototype"
 
 
 def _lfring(*args, cwd):
