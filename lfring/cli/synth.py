@@ -146,6 +146,10 @@ def command(preset, outdir, depth, scene_file, defects, defect_size, part_depth,
     from lfring.synth import RenderSettings, render
 
     device = get_device(device_name)
+    if not device.has_positions:
+        raise click.BadParameter(f"device '{device.name}' has no lens positions to render with: add its ring_distance_m "
+                                 "and sensor_distance_m (b and c; lfring design --device ... --object-size M --distance M "
+                                 "prints them for a field of view)", param_hint="--device")
     if preset == "target" and depth is None:
         raise click.UsageError("preset 'target' needs --depth M")
     if preset != "target" and depth is not None:

@@ -42,6 +42,12 @@ _OPTIONAL_LENGTHS = ("sensor_width_m", "sensor_height_m", "aperture_radius_m", "
 SENSOR_SIZE_TOLERANCE = 0.01
 #: Largest tilt of a mini-lens in its seat, degrees: "a little", where the thin-lens picture holds.
 MAX_TILT_DEG = 10.0
+#: Longest length of a device record (focal lengths, radii, distances, the sensor), metres: a
+#: camera the ring fits into is smaller; a longer one is millimetres given as metres.
+MAX_LENGTH_M = 1.0
+#: The pixel pitches a sensor (binned or not) can have, metres: outside, micrometres or
+#: millimetres were given as metres.
+PITCH_RANGE_M = (1e-7, 1e-3)
 
 
 @dataclass(frozen=True)
@@ -221,6 +227,15 @@ class RingDevice:
             _metres(key, getattr(self, key), above=0.0, allow_none=True)
         for key in ("flange_focal_distance_m", "screw_thread_m"):
             _metres(key, getattr(self, key), minimum=0.0)
+        for key in (*_LENGTH_FIELDS, *_OPTIONAL_LENGTHS, "flange_focal_distance_m", "screw_thread_m"):
+            value = getattr(self, key)
+            if key != "pixel_pitch_m" and value is not None and value > MAX_LENGTH_M:
+                raise DeviceError(f"device '{key}' is {value!r} m, longer than any such part of a camera ({MAX_LENGTH_M:g} m): "
+                                  "lengths are in metres (were millimetres given?)")
+        lo, hi = PITCH_RANGE_M
+        if not lo <= self.pixel_pitch_m <= hi:
+            raise DeviceError(f"device 'pixel_pitch_m' is {self.pixel_pitch_m!r} m, not a sensor's pixel pitch "
+                              f"({lo * 1e6:g} to {hi * 1e6:g} um): lengths are in metres (1.85 um is 1.85e-6)")
         for key in ("sensor_width_px", "sensor_height_px"):
             check_int(getattr(self, key), f"device '{key}'", minimum=2, error=DeviceError)
         for key, px in (("sensor_width_m", "sensor_width_px"), ("sensor_height_m", "sensor_height_px")):
@@ -247,6 +262,11 @@ class RingDevice:
         if (self.ring_distance_m is None) != (self.sensor_distance_m is None):
             raise DeviceError(
                 "device 'ring_distance_m' and 'sensor_distance_m' must be given together"
+            )
+        if self.sensor_distance_m is not None and self.sensor_distance_m <= self.mini_focal_length_m:
+            raise DeviceError(
+                f"device 'sensor_distance_m' ({self.sensor_distance_m!r} m) must exceed the mini-lenses' focal length "
+                f"'mini_focal_length_m' ({self.mini_focal_length_m!r} m): nearer, they image nothing on the sensor"
             )
         if self.ring_distance_m is not None and self.ring_distance_m <= self.main_focal_length_m:
             raise DeviceError(

@@ -178,3 +178,20 @@ def test_synth_refusals_name_the_option(tmp_path, capsys, args, option, words):
                         "gain must", "exposure must", "target depth must", "defect size must"):
         assert python_name not in err, err
     assert not out.exists()
+
+
+def test_a_device_without_lens_positions_is_refused_as_the_device(tmp_path, capsys):
+    """A device file without b and c cannot be rendered: refused naming --device and saying how
+    to get them (it was refused as "Invalid value for --depth", the first option to need them)."""
+    import dataclasses
+
+    from lfring.optics import load_device, save_device
+
+    dev = dataclasses.replace(load_device("prototype"), name="mine", ring_distance_m=None, sensor_distance_m=None)
+    path = save_device(dev, tmp_path / "mine.toml")
+    out = tmp_path / "out"
+    assert main(["synth", "target", "--depth", "0.5", "--device", str(path), "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "Invalid value for --device: device 'mine' has no lens positions to render with: add its ring_distance_m " \
+           "and sensor_distance_m" in err and "--depth" not in err
+    assert not out.exists()
