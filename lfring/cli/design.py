@@ -85,6 +85,13 @@ def command(object_size, distance, sweep_spec, range_spec, device_name, method, 
         near, far = parse_range(range_spec, with_count=False, param_hint="--range", metavar=_RANGE_METAVAR)
     outputs = _plot_outputs(plot, overwrite)
     device = get_device(device_name)
+    if device.has_positions:
+        log.info("the positions device '%s' is set to (b %.3f mm, c %.3f mm) are not these: design places the lenses for "
+                 "the object and distance given (lfring raytrace --use-device-positions traces the device as set)",
+                 device.name, device.ring_distance_m * 1e3, device.sensor_distance_m * 1e3)
+    if device.flange_focal_distance_m == 0.0:
+        log.warning("device '%s' gives no flange_focal_distance_m: the mount distance B below takes it as 0",
+                    device.name)
     if distance is not None:
         d = design(device, object_size_m=object_size, distance_m=distance, method=method)
         _report_design(d, device.name, as_json)

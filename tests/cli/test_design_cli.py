@@ -98,3 +98,24 @@ def test_a_plot_onto_an_input_names_plot(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "is an input of this command and would be one of its outputs (or their record): give --plot another name" in err
     assert same.read_bytes() == b"not a device"
+
+
+def test_design_says_what_it_does_not_use(tmp_path, capsys):
+    """A device set to its own positions is designed anew for the object and distance given (said,
+    with the positions it holds); a device without a flange focal distance gets a mount distance B
+    taken with 0 for it (warned: B was printed 17.5 mm short without a word)."""
+    import dataclasses
+
+    from lfring.optics import load_device, save_device
+
+    assert main(["design", "--device", "prototype", "--object-size", "0.1", "--distance", "0.3"]) == 0
+    err = capsys.readouterr().err
+    assert "the positions device 'prototype' is set to (b 37.369 mm, c 6.616 mm) are not these" in err
+    assert "flange_focal_distance_m" not in err
+    dev = dataclasses.replace(load_device("prototype"), name="bare", flange_focal_distance_m=0.0, ring_distance_m=None,
+                              sensor_distance_m=None)
+    path = save_device(dev, tmp_path / "bare.toml")
+    assert main(["design", "--device", str(path), "--object-size", "0.1", "--distance", "0.3"]) == 0
+    err = capsys.readouterr().err
+    assert "WARNING: device 'bare' gives no flange_focal_distance_m: the mount distance B below takes it as 0" in err
+    assert "are not these" not in err
