@@ -105,7 +105,7 @@ def test_refocus_sidecar_says_which_method_and_aperture(tmp_path):
     from lfring.optics import load_device
 
     side = json.loads(Path(str(out) + ".json").read_text())
-    assert side["method"] == "depth-aware" and side["f_number"] == 2.8
+    assert side["method"] == "depth-aware" and side["f_number"] == 2.8 and side["f_number_device"] == "prototype"
     assert side["aperture"] == pytest.approx(aperture_from_f_number(2.8, load_device("prototype")))
     assert main(["refocus", str(SCENE), "--depth", "0.5", "--method", "shift-and-add", "-o", str(tmp_path / "s.png")]) == 0
     side = json.loads((tmp_path / "s.png.json").read_text())
