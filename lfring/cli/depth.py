@@ -161,7 +161,8 @@ def command(raw, zmin, zmax, outdir, calib, planes, reference, cost, aggregation
         if res.depth_filled_m is not None:
             write_depth_tiff(stage(paths["depth_filled.tiff"]), res.depth_filled_m)
         write_pfm(stage(paths["depth.pfm"]), res.depth_m)
-        write_float_tiff(stage(paths["confidence.tiff"]), res.confidence)
+        write_float_tiff(stage(paths["confidence.tiff"]), res.confidence,
+                         metadata={"quantity": "depth confidence", "range": [0, 1], "no depth": 0})
         write_depth_preview(stage(paths["depth_preview.png"]), res.depth_m, confidence=res.confidence, zmin_m=zmin,
                             zmax_m=zmax, title=f"{stem}: depth (m)", min_confidence=min_confidence)
         if dev is not None:

@@ -30,7 +30,7 @@ __all__ = [
     "read_pfm",
     "read_ply",
     "depth_preview_png", "write_depth_preview",
-    "write_depth_tiff",
+    "DEPTH_TIFF_WORDS", "write_depth_tiff",
     "write_pfm",
     "write_ply",
 ]
@@ -119,8 +119,13 @@ def read_pfm(path: str | Path) -> np.ndarray:
 
 # -- TIFF ----------------------------------------------------------------------------------------
 def write_depth_tiff(path: str | Path, depth_m) -> Path:
-    """Write a depth map (metres, NaN where unknown) as a float32, zlib-compressed TIFF."""
-    return write_float_tiff(path, _float_map(depth_m, "depth_m"))
+    """Write a depth map (metres, NaN where unknown) as a float32, zlib-compressed TIFF that says
+    so in its description."""
+    return write_float_tiff(path, _float_map(depth_m, "depth_m"), metadata=DEPTH_TIFF_WORDS)
+
+
+DEPTH_TIFF_WORDS = {"quantity": "depth", "unit": "m", "from": "the main lens", "unknown": "NaN"}
+"""What a depth TIFF's description says of its values."""
 
 
 # -- colour preview ------------------------------------------------------------------------------

@@ -117,10 +117,13 @@ def write_image(path: str | Path, image: np.ndarray, *, png_compression: int = 1
     return path
 
 
-def write_float_tiff(path: str | Path, data: np.ndarray) -> Path:
-    """Write a float32 map (metres, confidence...) as a single-page TIFF."""
+def write_float_tiff(path: str | Path, data: np.ndarray, *, metadata: dict | None = None) -> Path:
+    """Write a float32 map (metres, confidence...) as a single-page TIFF; ``metadata`` (what the
+    values are, their unit) goes into its ImageDescription as JSON, beside the shape, so that
+    the file says what it holds without its sidecar."""
     with atomic_path(path) as tmp:
-        tifffile.imwrite(tmp, np.asarray(data, dtype=np.float32), photometric="minisblack", compression="zlib")
+        tifffile.imwrite(tmp, np.asarray(data, dtype=np.float32), photometric="minisblack", compression="zlib",
+                         metadata=metadata or {})
     return Path(path)
 
 

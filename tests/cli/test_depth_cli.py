@@ -18,6 +18,12 @@ def test_depth_cli_outputs(tmp_path, capsys):
     assert depth.dtype == np.float32 and depth.shape == (705, 705)
     np.testing.assert_array_equal(read_pfm(out / "scene_depth.pfm"), depth)
     conf = tifffile.imread(out / "scene_confidence.tiff")
+    # Each float map says what it holds without its json.
+    with tifffile.TiffFile(out / "scene_depth.tiff") as tif:
+        words = json.loads(tif.pages[0].description)
+    assert (words["quantity"], words["unit"], words["unknown"]) == ("depth", "m", "NaN")
+    with tifffile.TiffFile(out / "scene_confidence.tiff") as tif:
+        assert json.loads(tif.pages[0].description)["range"] == [0, 1]
     assert 0 <= conf.min() and conf.max() <= 1
     # The cup (0.3 m) fills the upper left of view 0 in the sample scene.
     assert abs(np.nanmedian(depth[200:300, 150:250]) - 0.3) < 0.005
