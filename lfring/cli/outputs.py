@@ -308,7 +308,10 @@ class OutputSet:
             Path of an output -> the path to write it to (same name, in the staging folder).
         """
         self.check()  # again: the files may have appeared while the command worked
-        self._root.mkdir(parents=True, exist_ok=True)
+        try:
+            self._root.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:  # a place where no folder can be made (/proc, a read-only mount)
+            raise type(exc)(exc.errno, f"cannot create the output folder ({exc.strerror})", str(self._root)) from None
         host = socket.gethostname().replace("-", "")[:32]
         try:
             staging = Path(tempfile.mkdtemp(prefix=f"{STAGING_PREFIX}{os.getpid()}-{host}-", dir=self._root))

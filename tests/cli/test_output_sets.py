@@ -190,6 +190,25 @@ def test_a_folder_that_cannot_be_written_is_named_by_the_output(tmp_path, capsys
     assert os.listdir(tmp_path) == []
 
 
+def test_an_output_folder_that_cannot_be_made_is_said_so(tmp_path, capsys, monkeypatch):
+    """Where the output folder cannot be made (under /proc, a read-only mount) the error says so,
+    naming it (it said "No such file or directory: /proc/out" for a folder the user asked for)."""
+    from lfring.cli.main import main
+
+    real_mkdir = Path.mkdir
+    out = tmp_path / "ro" / "out"
+
+    def mkdir(self, *args, **kwargs):
+        if self == out:
+            raise FileNotFoundError(2, "No such file or directory", str(self))
+        return real_mkdir(self, *args, **kwargs)
+
+    monkeypatch.setattr(Path, "mkdir", mkdir)
+    assert main(["split", str(SCENE), "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert f"cannot create the output folder (No such file or directory): {out}" in err
+
+
 def test_outputs_of_one_stem_and_two_formats_have_records_of_their_own(tmp_path, capsys):
     """a.png and a.tif are two output sets: each one's rerun replaces only its own files."""
     from lfring.cli.main import main
