@@ -98,7 +98,9 @@ def calibrate(
         Constrain each B_k to rank 1.
     device : RingDevice, str or path, optional
         The camera's description (a built-in name or a device file too), for z0 = s with two
-        planes.
+        planes and to check the depths given against its optics; refused when no binning of its
+        sensor gives the targets' frames. The calibration keeps its record
+        (:meth:`RingCalibration.device_optics`).
     distortion : bool
         Estimate each view's lens distortion jointly with the homographies
         (:func:`lfring.calibration.distortion.estimate_distortion`) and keep it when it matters:

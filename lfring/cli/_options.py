@@ -133,7 +133,8 @@ def output_folder(ctx, param, value):
     if value is None:
         return value
     path = Path(value)
-    if not path.exists() and path.suffix.lower() in FILE_SUFFIXES:
+    said_folder = str(value).endswith(("/", os.sep))  # out.ply/ says it is a folder
+    if not path.exists() and not said_folder and path.suffix.lower() in FILE_SUFFIXES:
         raise click.BadParameter(f"-o names the folder the outputs go to, got the file name {path.name!r}; e.g. -o "
                                  f"{path.with_suffix('')}", param_hint="-o")
     return value

@@ -310,8 +310,8 @@ def device_for(calibration, device=None) -> RingDevice:
     Raises
     ------
     InvalidInputError
-        No such device matches the calibration's frame size: pass ``device=`` the optics of the
-        camera.
+        No such device matches the calibration's frame size, or it has no lens positions: pass
+        ``device=`` the optics of the camera.
 
     Examples
     --------
@@ -323,6 +323,9 @@ def device_for(calibration, device=None) -> RingDevice:
     from lfring.optics.device import load_device
 
     dev = load_device(device) if device else (calibration.device_optics() or load_device("prototype"))
+    if not dev.has_positions:  # where the views' pinholes are follows from b and c
+        raise InvalidInputError(f"device '{dev.name}' has no lens positions (ring_distance_m, sensor_distance_m), which "
+                                "metric points need; pass device= the optics of the camera with them")
     try:
         return dev.for_frames(tuple(calibration.raw_size), whose="the calibration's ")
     except DeviceError as exc:

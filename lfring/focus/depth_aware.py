@@ -123,8 +123,8 @@ LIST_ROW_PX = 1024
 SHARP_RESAMPLED_PX2 = 0.08
 # A depth that fewer than MIN_DEPTH_VIEWS views' worth see at a pixel was not measured there
 # (depth estimation picks such depths at its range's end, where the views drift off their
-# discs): the depth of the nearest pixel that enough views see is taken instead, unless the
-# two are within DEPTH_TOL_PX of view motion.
+# discs): the surface of the nearest pixel that enough views see is continued instead (PLANE_PX),
+# unless the two are within DEPTH_TOL_PX of view motion.
 MIN_DEPTH_VIEWS = 2.0
 DEPTH_TOL_PX = 0.5
 # A depth map that depth estimation made (a DepthResult) says itself where its depth was measured
@@ -141,9 +141,10 @@ MIN_ESTIMATED_VIEWS = 1.5
 # estimate's own winner (at a depth edge the fill lies between the two surfaces).
 FILL_SMOOTH_PX = 3.0
 FILL_WINDOW_PX = 21
-# The nearest measured pixel's depth is feathered by a Gaussian of this standard deviation (px),
-# so that the depth continued into a rim changes smoothly where two surfaces' nearest pixels meet;
-# the feathering is normalised by the continued pixels' share, floored at FEATHER_FLOOR.
+# The nearest measured pixel's plane (PLANE_PX) is feathered by a Gaussian of this standard
+# deviation (px), so that the depth continued into a rim changes smoothly where two surfaces'
+# nearest pixels meet; the feathering is normalised by the continued pixels' share, floored at
+# FEATHER_FLOOR.
 FEATHER_PX = 8.0
 FEATHER_FLOOR = 1e-3
 # The depth is continued along the surface of the nearest measured pixel: the plane fitted to the
@@ -327,8 +328,6 @@ def _plane_continued(x: np.ndarray, measured: np.ndarray, labels: np.ndarray, ra
     # Gaussian-weighted sums over the blocks: smooth, and cheap at this width.
     s0, su, sv, sx, suu, suv, svv, sxu, sxv, sxx = (cv2.GaussianBlur(np.ascontiguousarray(a), (0, 0), sigma)
                                                    for a in blocks)
-    centre_u = u.reshape(wb, f).mean(axis=1)[None, :]
-    centre_v = v.reshape(hb, f).mean(axis=1)[:, None]
     some = s0 > 1e-6
     inv = np.divide(1.0, s0, out=np.zeros_like(s0), where=some)
     mu_u, mu_v, mu_x = su * inv, sv * inv, sx * inv
@@ -346,10 +345,12 @@ def _plane_continued(x: np.ndarray, measured: np.ndarray, labels: np.ndarray, ra
     misfit_px = radius_px * np.sqrt(np.maximum(cxx - gu * cxu - gv * cxv, 0.0))
     fits = np.clip(2.0 - misfit_px / PLANE_FIT_PX, 0.0, 1.0) * solvable
     gu, gv = gu * fits, gv * fits
-    plane = mu_x + gu * (centre_u - mu_u) + gv * (centre_v - mu_v)  # the plane at each block's centre
-    # Back to full resolution, each block's value at its centre (a padded frame's blocks are whole).
+    intercept = mu_x - gu * mu_u - gv * mu_v  # each block's plane at u = v = 0
+    # Back to full resolution, each block's plane at its centre and between them interpolated (a
+    # padded frame's blocks are whole); beyond the outermost centres the outermost plane holds.
+    # (The plane's value itself, interpolated, would be held constant there instead.)
     full = [cv2.resize(a.astype(np.float32), (wb * f, hb * f), interpolation=cv2.INTER_LINEAR)[:h, :w].ravel()
-            for a in (plane, gu, gv, fits)]
+            for a in (intercept, gu, gv, fits)]
     # Only the continued pixels are computed; each from its nearest measured pixel (flat index n).
     a_out = x.astype(np.float32, copy=True)
     gu_out = np.zeros((h, w), np.float32)
@@ -357,7 +358,9 @@ def _plane_continued(x: np.ndarray, measured: np.ndarray, labels: np.ndarray, ra
     at = np.flatnonzero(~measured)
     n = np.flatnonzero(measured)[labels.ravel()[at] - 1]
     xn = x.ravel()[n]
-    base = xn + full[3][n] * (full[0][n] - xn)  # the plane where it fits there, else the pixel's own depth
+    un, vn = (n % w - np.float32(0.5 * w)).astype(np.float32), (n // w - np.float32(0.5 * h)).astype(np.float32)
+    plane_n = full[0][n] + full[1][n] * un + full[2][n] * vn
+    base = xn + full[3][n] * (plane_n - xn)  # the plane where it fits there, else the pixel's own depth
     dy = (at // w - n // w).astype(np.float32)
     dx = (at % w - n % w).astype(np.float32)
     scale = np.minimum(np.float32(1.0), np.float32(PLANE_REACH * PLANE_PX) / np.maximum(np.hypot(dx, dy), np.float32(1e-6)))
@@ -567,7 +570,7 @@ class DepthOfField:
         measured = trust >= 1.0
         if measured.all() or not measured.any():
             return maps, weight
-        # The depth of the nearest measured pixel (not an average of all around, which would
+        # The surface of the nearest measured pixel (not an average of all around, which would
         # invent depths between a nearer surface and a farther one), feathered over
         # FEATHER_PX: where the nearest measured pixels of two surfaces meet, a step would cut a
         # straight seam across the rim (the views sampled at one depth on one side, at the other

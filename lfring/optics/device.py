@@ -221,21 +221,16 @@ class RingDevice:
             if len(lenses) != 4 or not all(isinstance(lens, MiniLens) for lens in lenses):
                 raise DeviceError(f"device 'lenses' must be four MiniLens records (one per view), got {self.lenses!r}")
             object.__setattr__(self, "lenses", None if all(lens.is_ideal for lens in lenses) else lenses)
+        millimetres = " (lengths are in metres: no part of a camera the ring fits is longer; were millimetres given?)"
         for key in _LENGTH_FIELDS:
-            _metres(key, getattr(self, key), above=0.0)
+            if key != "pixel_pitch_m":
+                _metres(key, getattr(self, key), above=0.0, maximum=MAX_LENGTH_M, hint=millimetres)
         for key in _OPTIONAL_LENGTHS:
-            _metres(key, getattr(self, key), above=0.0, allow_none=True)
+            _metres(key, getattr(self, key), above=0.0, maximum=MAX_LENGTH_M, allow_none=True, hint=millimetres)
         for key in ("flange_focal_distance_m", "screw_thread_m"):
-            _metres(key, getattr(self, key), minimum=0.0)
-        for key in (*_LENGTH_FIELDS, *_OPTIONAL_LENGTHS, "flange_focal_distance_m", "screw_thread_m"):
-            value = getattr(self, key)
-            if key != "pixel_pitch_m" and value is not None and value > MAX_LENGTH_M:
-                raise DeviceError(f"device '{key}' is {value!r} m, longer than any such part of a camera ({MAX_LENGTH_M:g} m): "
-                                  "lengths are in metres (were millimetres given?)")
-        lo, hi = PITCH_RANGE_M
-        if not lo <= self.pixel_pitch_m <= hi:
-            raise DeviceError(f"device 'pixel_pitch_m' is {self.pixel_pitch_m!r} m, not a sensor's pixel pitch "
-                              f"({lo * 1e6:g} to {hi * 1e6:g} um): lengths are in metres (1.85 um is 1.85e-6)")
+            _metres(key, getattr(self, key), minimum=0.0, maximum=MAX_LENGTH_M, hint=millimetres)
+        _metres("pixel_pitch_m", self.pixel_pitch_m, minimum=PITCH_RANGE_M[0], maximum=PITCH_RANGE_M[1],
+                hint=" (a sensor's pixel pitch: 1.85 um is 1.85e-06 m)")
         for key in ("sensor_width_px", "sensor_height_px"):
             check_int(getattr(self, key), f"device '{key}'", minimum=2, error=DeviceError)
         for key, px in (("sensor_width_m", "sensor_width_px"), ("sensor_height_m", "sensor_height_px")):

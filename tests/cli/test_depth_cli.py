@@ -88,6 +88,13 @@ def test_depth_cli_errors(tmp_path, capsys, args, text, monkeypatch):
     assert not (tmp_path / "out.ply").exists()
 
 
+def test_an_output_folder_named_like_a_file_is_taken_when_said_to_be_a_folder(tmp_path, monkeypatch):
+    """-o out.ply/ (the slash says: a folder) is a folder, as is an out.ply folder that exists."""
+    monkeypatch.chdir(tmp_path)
+    assert main(["depth", str(SCENE), "--zmin", "0.3", "--zmax", "1.0", "--method", "local", "-o", "out.ply/"]) == 0
+    assert (tmp_path / "out.ply" / "scene_depth.tiff").exists()
+
+
 def test_a_point_cloud_from_no_device_and_an_empty_one_are_warned_of(tmp_path, capsys):
     """A calibration that names no device gives the point cloud the prototype's optics, which
     may not be the camera's: said as a warning (it was an info line), and the json names the
@@ -197,3 +204,27 @@ def test_the_first_compile_note_names_the_modules_the_main_job_compiles(tmp_path
     compiled = res.stdout.strip().splitlines()[-1]
     assert compiled == str(sorted(REFOCUS_KERNELS))
     assert set(DEPTH_KERNELS) == {m for m in REFOCUS_KERNELS if m.startswith("lfring.depth.")}
+
+
+def test_a_recorded_device_without_lens_positions_skips_the_point_cloud(tmp_path, capsys):
+    """A calibration made with a device file that holds no lens positions (z0 given by hand)
+    keeps that record; its point cloud cannot be made (the views' pinholes follow from b and c):
+    the depth maps are written and the cloud is left out with a warning, as for a device that does
+    not load, not refused after the whole estimate."""
+    import dataclasses
+
+    from lfring import RingCalibration
+    from lfring.optics import load_device
+
+    cal = RingCalibration.load("twin_binned2")
+    dev = dataclasses.replace(load_device("prototype"), name="mine", ring_distance_m=None, sensor_distance_m=None)
+    cal = dataclasses.replace(cal, device="mine", provenance={**cal.provenance, "device_record": dev.to_dict()})
+    path = cal.save(tmp_path / "mine.json")
+    out = tmp_path / "o"
+    assert main(["depth", str(SCENE), "--calib", str(path), "--zmin", "0.3", "--zmax", "1.0", "--method", "local",
+                 "-o", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "device 'mine' has no lens positions (ring_distance_m, sensor_distance_m), which metric points need" in err
+    assert "the point cloud is not written" in err
+    assert (out / "scene_depth.tiff").exists() and not (out / "scene_points.ply").exists()
+    assert json.loads((out / "scene_depth.json").read_text())["points_camera"] is None

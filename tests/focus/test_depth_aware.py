@@ -568,16 +568,18 @@ def test_a_slant_without_depth_at_the_frame_edge_is_continued_along_its_slope():
     fits and the nearest depth is continued: the next test's hole.)"""
     cal = _calibration()
     views, depth, _ = _slanted_plane()
-    band = (slice(None), slice(0, 20))
-    for unknown_band in (band, (slice(None), slice(N - 20, N))):
+    exact, _ = all_in_focus(views, cal, depth_map_m=depth)
+    # Bands at the left and right (their nearest measured pixels inside the frame) and at the top
+    # (theirs along the row below, out to the frame's corners: the plane there is the outermost
+    # fitted one, extended, not its value held).
+    for band in ((slice(None), slice(0, 20)), (slice(None), slice(N - 20, N)), (slice(0, 20), slice(None))):
         unknown = depth.copy()
-        unknown[unknown_band] = np.nan
-        exact, _ = all_in_focus(views, cal, depth_map_m=depth)
+        unknown[band] = np.nan
         img, chosen = all_in_focus(views, cal, depth_map_m=unknown)
-        assert np.isnan(chosen[unknown_band]).all()
-        inner = (slice(8, N - 8),) + unknown_band[1:]
+        assert np.isnan(chosen[band]).all()
+        inner = tuple(slice(max(b.start or 0, 3), min(b.stop or N, N - 3)) for b in band)
         error = np.abs(img - exact)[inner]
-        assert error.max() < 0.03 and error.mean() < 0.004, (error.max(), error.mean())
+        assert error.max() < 0.01 and error.mean() < 0.002, (band, error.max(), error.mean())
 
 
 def test_unknown_depths_are_continued_from_the_nearest_known_ones():

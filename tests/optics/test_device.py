@@ -79,11 +79,12 @@ BASE = dict(
         ({"aperture_radius_m": 0.05}, "cannot exceed"),
         ({"main_focal_length_m": "16mm"}, "main_focal_length_m.*number"),
         # Millimetres or micrometres given as metres, and a sensor the mini-lenses image nothing on.
-        ({"main_focal_length_m": 16.0}, r"'main_focal_length_m' is 16.0 m, longer than any such part of a camera \(1 m\): "
-                                        r"lengths are in metres \(were millimetres given\?\)"),
-        ({"ring_distance_m": 64.1, "sensor_distance_m": 0.007}, "'ring_distance_m' is 64.1 m, longer than"),
-        ({"pixel_pitch_m": 1.85}, r"'pixel_pitch_m' is 1.85 m, not a sensor's pixel pitch \(0.1 to 1000 um\)"),
-        ({"pixel_pitch_m": 1.85e-9}, "not a sensor's pixel pitch"),
+        ({"main_focal_length_m": 16.0}, r"'main_focal_length_m' must be a number in metres > 0 and <= 1 \(finite\) "
+                                        r"\(lengths are in metres: .*were millimetres given\?\), got 16.0"),
+        ({"ring_distance_m": 64.1, "sensor_distance_m": 0.007}, "'ring_distance_m' must be a number in metres > 0 and <= 1"),
+        ({"pixel_pitch_m": 1.85}, r"'pixel_pitch_m' must be a number in metres >= 1e-07 and <= 0.001 \(finite\) \(a "
+                                  r"sensor's pixel pitch: 1.85 um is 1.85e-06 m\), got 1.85"),
+        ({"pixel_pitch_m": 1.85e-9}, "a sensor's pixel pitch"),
         ({"ring_distance_m": 0.037, "sensor_distance_m": 0.003}, r"'sensor_distance_m' \(0.003 m\) must exceed the "
                                                                  r"mini-lenses' focal length 'mini_focal_length_m' \(0.005 m\)"),
     ],
