@@ -52,6 +52,15 @@ def test_counts_passed_as_float32_are_refused_and_bright_images_are_not():
         lfring.refocus(views, cal, 0.5)
     with pytest.raises(InvalidInputError, match="raw counts"):
         lfring.estimate_depth(views, cal, zmin_m=0.3, zmax_m=1.0)
+    # A ring frame read as 0..255 floats (cv2.imread(...).astype(np.float32)) is mostly the dark
+    # between the discs: judged on the views it cuts, it is refused where it is cut (it was cut,
+    # clipped to 1 at 90 % of the views' pixels by the correction, and the depth went wrong).
+    from pathlib import Path
+
+    frame = lfring.demosaic(lfring.load_raw(Path(__file__).resolve().parents[2] / "data" / "synthetic" / "scene.png"))
+    assert np.count_nonzero(frame * 255 > COUNTS_MEDIAN) < 0.5 * frame.size  # the frame alone passed
+    with pytest.raises(InvalidInputError, match=r"the image must be float in \[0, 1\].*raw counts"):
+        lfring.split_views(frame * 255, cal)
 
 
 def test_masks_are_one_inside_the_disc_zero_outside_and_taper_over_the_rim():
