@@ -185,6 +185,8 @@ def calibrate(
         flat_img, flat_name, _ = _load_frame(flat, levels)
         if flat_img.shape[:2] != shape:
             raise InvalidInputError(f"the flat frame {flat_name} is {flat_img.shape[1]} x {flat_img.shape[0]} px, the targets {shape[1]} x {shape[0]} px")
+    if layout is not None and not isinstance(layout, Layout):
+        raise InvalidInputError(f"layout must be a lfring.views.Layout (or None: detected), got {type(layout).__name__}")
     if layout is None:
         img, name = (flat_img, flat_name) if flat_img is not None else images[min(images)]
         if flat_img is None:

@@ -38,7 +38,11 @@ def resolve_device(device):
     torch = require_torch()
     if device is None:
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    dev = torch.device(device)
+    try:
+        dev = torch.device(device)
+    except (RuntimeError, TypeError):
+        raise InvalidInputError(f"device must be a torch device ('cpu', 'cuda', 'cuda:1', a torch.device) or None, got "
+                                f"{device!r}") from None
     if dev.type == "cuda" and not torch.cuda.is_available():
         logging.getLogger("lfring.core.backend").warning("device %s asked for but CUDA is not available: using the CPU",
                                                          device)

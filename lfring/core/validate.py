@@ -23,7 +23,7 @@ from lfring.errors import InvalidInputError
 
 __all__ = [
     "check_bool", "check_callable", "check_choice", "check_fraction", "check_int", "check_number", "check_odd_px",
-    "check_threads", "check_view_index", "is_integer", "is_number",
+    "check_shape_hw", "check_threads", "check_view_index", "is_integer", "is_number",
 ]
 
 
@@ -71,6 +71,24 @@ def check_int(value, name: str, *, minimum=None, maximum=None, allow_none: bool 
         raise error(f"{name} must be {what}{' ' + bounds if bounds else ''}{' or None' if allow_none else ''}{hint}, "
                     f"got {value!r}")
     return int(value)
+
+
+def check_shape_hw(value, name: str, *, error=InvalidInputError) -> tuple[int, int]:
+    """``value`` as an image size ``(h, w)``: two integers >= 1.
+
+    Examples
+    --------
+    >>> check_shape_hw((705, 705), "view_shape")
+    (705, 705)
+    >>> check_shape_hw("705x705", "view_shape")
+    Traceback (most recent call last):
+    ...
+    lfring.errors.InvalidInputError: view_shape must be (h, w) in pixels, two integers >= 1, got '705x705'
+    """
+    if isinstance(value, (str, bytes)) or np.ndim(value) != 1 or np.size(value) != 2 or not all(
+            is_integer(n) and n >= 1 for n in value):
+        raise error(f"{name} must be (h, w) in pixels, two integers >= 1, got {value!r}")
+    return int(value[0]), int(value[1])
 
 
 def check_number(value, name: str, *, minimum=None, maximum=None, above=None, below=None, finite: bool = True,

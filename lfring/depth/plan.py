@@ -21,10 +21,10 @@ from lfring.core.threads import run_threads
 from lfring.core.viewstack import WEIGHT_FLOOR, cached_view_masks, calibration_cache
 from lfring.core.warping import warp_image
 from lfring.calibration.model import view_motion_px
-from lfring.depth.hypotheses import depth_hypotheses
-from lfring.errors import DepthRangeError, LfringWarning
+from lfring.depth.hypotheses import check_depth_range, depth_hypotheses
+from lfring.errors import DepthRangeError, InvalidInputError, LfringWarning
 
-__all__ = ["DEPTH_TAPER", "GUIDE_WHITE_PERCENTILE", "JUDGED_MIN_PLANES", "MIN_RANGE_MOTION_PX", "NUMPY_INTERPOLATION_MATCHED",
+__all__ = ["DEPTH_TAPER", "GUIDE_WHITE_PERCENTILE", "JUDGED_MIN_PLANES", "MAX_PLANES_PER_PX", "MIN_RANGE_MOTION_PX", "NUMPY_INTERPOLATION_MATCHED",
            "DepthSettings", "Progress", "SweepPlan", "baseline_axis", "depths_key", "guide_image", "high_percentile",
            "in_reference_frame", "other_reference", "plan_sweep", "sweep_masks"]
 
@@ -43,6 +43,10 @@ MIN_RANGE_MOTION_PX = 1.0
 #: Every method judges each answer against the hypotheses more than a pixel of view motion away
 #: from it (its confidence): it needs at least this many, however far apart.
 JUDGED_MIN_PLANES = 3
+#: Hypotheses closer than 1/MAX_PLANES_PER_PX px of view motion tell nothing apart that the
+#: sub-hypothesis refinement does not: a num_planes that asks for more is refused (a typo in
+#: it otherwise ran for hours or ran out of memory).
+MAX_PLANES_PER_PX = 8
 #: The guide image's white: its values' percentile that maps to 1 (a few brighter highlights clip).
 GUIDE_WHITE_PERCENTILE = 99.5
 # high_percentile's sample of the values, from which it picks the threshold above which it looks,
@@ -129,8 +133,17 @@ def plan_sweep(views, calibration, zmin_m, zmax_m, num_planes, reference, taper)
     none, or a range that holds no pixel of motion, is refused
     (:class:`lfring.errors.DepthRangeError`)."""
     ref = check_reference(reference, calibration.num_views)
-    depths = depth_hypotheses(calibration, zmin_m, zmax_m, num=num_planes)
     shape = views.shape[1:3]
+    if num_planes is not None:
+        check_depth_range(zmin_m, zmax_m)
+        span = view_motion_px(calibration, [zmin_m, zmax_m], shape) if zmin_m > calibration.depth_origin_m else 0.0
+        most = max(JUDGED_MIN_PLANES, int(math.ceil(MAX_PLANES_PER_PX * span)) + 1)
+        if span > MIN_RANGE_MOTION_PX and num_planes > most:
+            raise InvalidInputError(
+                f"num_planes {num_planes} puts the hypotheses closer than 1/{MAX_PLANES_PER_PX:g} px of view motion over "
+                f"{zmin_m:g}..{zmax_m:g} m ({span:.3g} px), where no cost tells them apart (the refinement finds the "
+                f"depths between them): give at most {most}")
+    depths = depth_hypotheses(calibration, zmin_m, zmax_m, num=num_planes)
 
     def motion_step(depths):  # the same for every frame
         key = ("view motion", depths_key(depths), tuple(shape))

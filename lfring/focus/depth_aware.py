@@ -765,7 +765,7 @@ def resolve_aperture(calibration, aperture=None, f_number=None, ring_device=None
     ``aperture`` or ``f_number`` (1.0 when neither is given).
 
     ``f_number`` needs the device: ``ring_device`` (a :class:`lfring.optics.RingDevice` with
-    its positions), or else the device the calibration was made with
+    its positions, a built-in device's name or a device file), or else the device the calibration was made with
     (:meth:`lfring.RingCalibration.device_optics`: its record, or the built-in device it names
     at the positions it records). See
     :func:`aperture_from_f_number` for the relation.
@@ -775,7 +775,11 @@ def resolve_aperture(calibration, aperture=None, f_number=None, ring_device=None
     if f_number is None:
         return check_number(1.0 if aperture is None else aperture, "aperture", minimum=0,
                             hint=" (1: the views' aperture, 0: a pinhole)")
-    if ring_device is None:
+    if ring_device is not None:
+        from lfring.optics.device import load_device
+
+        ring_device = load_device(ring_device)  # a RingDevice, a built-in name or a device file
+    else:
         if calibration.device is None:
             raise InvalidInputError(
                 "f_number needs the device (its main lens's focal length and where the views sit in its aperture): "

@@ -275,6 +275,9 @@ def all_in_focus(views, calibration, depths_m=None, *, depth_map_m=None, referen
                                     "it (see lfring.focus.depth_aware.estimation_range)") from None
         depths_m = depth_hypotheses(calibration, lo, hi)
     z = np.atleast_1d(calibration.check_depth(depths_m, name="depths_m"))
+    if z.ndim != 1 or z.size == 0:
+        raise InvalidInputError(f"depths_m must be a non-empty list of depths (or None: the calibration's range), got "
+                                f"{depths_m!r}")
     masks = cached_view_masks(calibration, (h, w))
     if depth_map_m is not None:
         target = np.where(known, dm, z[0])

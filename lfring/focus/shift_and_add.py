@@ -17,7 +17,7 @@ from lfring.core.backend import kernels_run_on, require_torch, resolve_device
 from lfring.core.transfer import (check_frames, count_levels, device_masks, download, frames_dtype, inverse_maps, is_tensor,
                                   normalised, to_device)
 from lfring.core.shift import ShiftEngine
-from lfring.core.validate import check_threads, is_number
+from lfring.core.validate import check_number, check_shape_hw, check_threads
 from lfring.core.viewstack import (WEIGHT_FLOOR, all_finite, cached_view_masks, check_unit_range, check_views,
                                    inverse_weight, unit_range_sample)
 from lfring.core.warping import DEFAULT_INTERPOLATION, interpolation_flag, translation_of, warp_image
@@ -84,14 +84,12 @@ class Refocuser:
         check_calibration(calibration)
         if np.ndim(depth_m) != 0:
             raise InvalidInputError("Refocuser takes one depth; use focal_stack for several")
-        if not is_number(depth_m):
-            raise InvalidInputError(f"depth_m must be a number of metres, got {depth_m!r}")
         check_threads(threads)
-        self.depth_m = float(depth_m)
+        self.depth_m = check_number(depth_m, "depth_m", finite=False, what="a number of metres")
         self.reference = reference
         self._flag = interpolation_flag(interpolation)
         check_renderable(calibration, self.depth_m, reference=reference)
-        self.view_shape = tuple(view_shape or calibration.layout.view_shape)
+        self.view_shape = calibration.layout.view_shape if view_shape is None else check_shape_hw(view_shape, "view_shape")
         self.threads = threads
         self.H = calibration.homographies(self.depth_m, reference=reference)
         self._calibration = calibration

@@ -148,6 +148,9 @@ def default_depth_band(calibration, near_m: float, far_m: float, tolerance_m: fl
     """
     z0 = calibration.depth_origin_m
     k = _motion_per_inv(calibration, 0.5 * (near_m + far_m))
+    if not k > 0.0:  # so far that the views do not move at all around it (in float)
+        raise InvalidInputError(f"the views do not move at all between depths around {far_m:g} m: no depth can be told "
+                                f"there{calibration.millimetres_hint(near_m, far_m)}")
     inv_near, inv_far = 1.0 / (near_m - z0), 1.0 / (far_m - z0)
     tol_inv = _tolerance_inv(z0, near_m, tolerance_m)
     reach = max(4.0 * tol_inv, 1.0 / k) + MARGIN_PX / k

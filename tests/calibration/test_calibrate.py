@@ -204,3 +204,12 @@ def test_a_device_file_s_optics_travel_with_the_calibration(tmp_path):
     with pytest.raises(InvalidInputError, match=r"has a 4000 x 3000 px sensor, which no binning turns into the "
                                                 r"targets' 2456 x 1842 px frames: the device is not the camera"):
         calibrate(targets, flat=str(data / "flat.png"), device=other)
+
+
+def test_a_layout_that_is_not_one_is_refused_by_name():
+    """calibrate(..., layout="x") ended in an AttributeError deep inside."""
+    from pathlib import Path
+
+    data = Path(__file__).resolve().parents[2] / "data" / "synthetic"
+    with pytest.raises(InvalidInputError, match=r"layout must be a lfring.views.Layout \(or None: detected\), got str"):
+        calibrate({0.3: str(data / "target_0.3m.png"), 1.0: str(data / "target_1m.png")}, layout="x")

@@ -76,6 +76,10 @@ def test_default_spacing_and_costs(twin):
         (dict(zmin_m=0.3, zmax_m=0.5, threads=0), "threads"),
         (dict(zmin_m=0.3, zmax_m=0.5, backend="cuda"), "backend"),
         (dict(zmin_m=float("nan"), zmax_m=0.5), "zmin_m"),
+        # A typo in num_planes ran for hours (10**6) or ran out of memory (10**9, 10**400).
+        (dict(zmin_m=0.3, zmax_m=0.5, num_planes=10**6), r"num_planes 1000000 puts the hypotheses closer than 1/8 px of "
+                                                          r"view motion over 0.3..0.5 m \(.* px\), .*give at most \d+"),
+        (dict(zmin_m=0.3, zmax_m=0.5, num_planes=10**400, method="local"), "give at most"),
     ],
 )
 def test_bad_inputs(twin, kwargs, match):

@@ -12,6 +12,7 @@ from lfring.io.demosaic import demosaic
 from lfring.io.raw import RawFrame
 from lfring.depth.hypotheses import depth_hypotheses
 from lfring.focus import Refocuser, all_in_focus, focal_stack, refocus
+from lfring.optics import load_device
 from lfring.synth import render
 from lfring.synth.presets import three_depth_scene
 from lfring.views import Layout, split_views
@@ -171,6 +172,18 @@ def test_bad_inputs_and_warnings(scene):
         refocus(views, cal, 0.5, interpolation="nearest")
     with pytest.raises(InvalidInputError, match="reference"):
         refocus(views, cal, 0.5, reference=7)
+    # Bare Python errors before: an OverflowError, a ValueError of int(), an all-black image.
+    with pytest.raises(InvalidInputError, match="depth_m must be a number of metres, got 1000"):
+        refocus(views, cal, 10**400)
+    with pytest.raises(InvalidInputError, match=r"view_shape must be \(h, w\) in pixels, two integers >= 1, got '705x705'"):
+        Refocuser(cal, 0.5, view_shape="705x705")
+    with pytest.raises(InvalidInputError, match=r"depths_m must be a non-empty list of depths \(or None"):
+        all_in_focus(views, cal, [])
+    # The device for --f-number by name, as inspect_frame and calibrate take it (an AttributeError).
+    flat = np.full(views.shape[1:3], 0.5)
+    np.testing.assert_array_equal(
+        refocus(views, cal, 0.5, method="depth-aware", ring_device="prototype", f_number=2.8, depth=flat),
+        refocus(views, cal, 0.5, method="depth-aware", ring_device=load_device("prototype"), f_number=2.8, depth=flat))
 
 
 def test_depths_where_the_views_no_longer_overlap_are_refused():

@@ -46,6 +46,8 @@ def test_backend_errors(twin, device):
         refocus(views.astype(np.float64), cal, 0.5, backend="torch", device=device)
     with pytest.raises(InvalidInputError, match="linear"):
         refocus(views, cal, 0.5, backend="torch", device=device, interpolation="cubic")
+    with pytest.raises(InvalidInputError, match=r"device must be a torch device .*got 'tpu'"):
+        refocus(views, cal, 0.5, backend="torch", device="tpu")  # torch's own RuntimeError before
     for bad in (np.nan, np.inf):  # refused as on the NumPy backend
         spoilt = views.copy()
         spoilt[1, 40, 40, 0] = bad

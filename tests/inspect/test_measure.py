@@ -127,6 +127,7 @@ def test_roi_and_reference_depth(parts):
         (dict(num_planes=2), "num_planes"),
         (dict(reference="left"), "reference"),
         (dict(opening_px=-1), "opening_px"),
+        (dict(num_planes=10**7), "give at most"),
     ],
 )
 def test_bad_inputs(parts, kwargs, match):
@@ -134,6 +135,14 @@ def test_bad_inputs(parts, kwargs, match):
     args = dict(plane_m=PLANE, tolerance_m=TOL) | kwargs
     with pytest.raises(InvalidInputError, match=match):
         inspect_frame(views, cal, **args)
+
+
+def test_a_plane_so_far_that_the_views_do_not_move_is_refused(parts):
+    """A plane at 1e20 m (a ZeroDivisionError before): refused as no depth can be told there."""
+    r, cal, views, *_ = parts["good"]
+    with pytest.warns(LfringWarning, match="outside the calibrated range"):
+        with pytest.raises(InvalidInputError, match=r"the views do not move at all between depths around 1e\+20 m"):
+            inspect_frame(views, cal, plane_m=1e20, tolerance_m=TOL)
 
 
 def test_bad_views_and_device(parts, prototype):
