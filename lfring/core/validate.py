@@ -174,10 +174,14 @@ def check_bool(value, name: str, *, allow_none: bool = False, hint: str = "", er
     return bool(value)
 
 
-def check_odd_px(value, name: str, *, error=InvalidInputError) -> int:
-    """A window side: an odd positive integer (a centred window)."""
+def check_odd_px(value, name: str, *, within=None, error=InvalidInputError) -> int:
+    """A window side: an odd positive integer (a centred window), no wider than the image of
+    (h, w) ``within`` when given (a wider one holds nothing more, and costs its area)."""
     if not is_integer(value) or value < 1 or value % 2 == 0:
         raise error(f"{name} must be an odd positive integer, got {value!r}")
+    if within is not None and value > 2 * max(within) + 1:
+        raise error(f"{name} must be an odd positive integer at most {2 * max(within) + 1} (twice the image's larger "
+                    f"side, {max(within)} px, and one), got {value!r}")
     return int(value)
 
 

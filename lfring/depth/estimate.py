@@ -213,6 +213,9 @@ def estimate_depth(
         raise InvalidInputError("levels are the black and white counts of integer views on the torch backend")
     arr = check_views(views)
     calibration.check_fits(arr.shape)
+    check_odd_px(window_px, "window_px", within=arr.shape[1:3])
+    if aggregate_px is not None:
+        check_odd_px(aggregate_px, "aggregate_px", within=arr.shape[1:3])
     min_views = check_int(min_views, "min_views", minimum=1, maximum=arr.shape[0], hint=f" (there are {arr.shape[0]} views)")
     threads = _thread_count(threads)
     if not _all_finite(arr, threads):

@@ -719,6 +719,12 @@ class DepthOfField:
             sharp = np.ascontiguousarray(np.asarray(shift_and_add, dtype=np.float32).reshape(self.colour.shape))
         # The largest blur radius, from the depth map's ends: the ladder reaches it.
         rmax = aperture * motion * max(abs(self._x_range[0] - xf), abs(self._x_range[1] - xf))
+        diagonal = math.hypot(h, w)
+        if rmax > diagonal:  # its layers would be larger than any memory, and show nothing
+            raise InvalidInputError(
+                f"aperture {aperture:g} blurs this depth map by up to {rmax:.0f} px at the focus "
+                f"{_depth_at(xf, self.calibration.depth_origin_m):.4g} m, more than the frame's diagonal "
+                f"({diagonal:.0f} px): give a smaller aperture (1 is the views' own)")
         window = None
         if self._back is not None:
             dist_under, x_b, colour_b, row_min, col_min, xb_range = self._back

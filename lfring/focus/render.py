@@ -27,6 +27,7 @@ from lfring.focus.depth_aware import MIN_DEPTH_VIEWS, DepthOfField, depth_to_ren
 from lfring.focus.methods import METHODS
 from lfring.focus.shift_and_add import Refocuser, refocus_torch
 from lfring.core.protocols import check_calibration
+from lfring.core.memory import available_memory_bytes
 from lfring.core.validate import check_odd_px
 
 __all__ = ["all_in_focus", "focal_stack", "refocus"]
@@ -175,6 +176,11 @@ def focal_stack(views, calibration, depths_m, *, reference="center", interpolati
         raise InvalidInputError(f"depths_m must be a non-empty list of depths, got {depths_m!r}")
     arr = check_views(views)
     check_renderable(calibration, z, reference=reference)
+    # The stack is one image per depth, kept at once (twice while np.stack joins them).
+    need, free = 2 * z.size * arr[0].nbytes, available_memory_bytes()
+    if free is not None and need > free:
+        raise InvalidInputError(f"a focal stack of {z.size} depths holds {need / 2 ** 30:.1f} GiB, more than the "
+                                f"{free / 2 ** 30:.1f} GiB free: give fewer depths_m, or refocus them a few at a time")
     finish = None
     if m.prepare is not None:
         finish = m.prepare(arr, calibration, reference, **_given(aperture=aperture, f_number=f_number,
@@ -250,7 +256,7 @@ def all_in_focus(views, calibration, depths_m=None, *, depth_map_m=None, referen
     """
     check_calibration(calibration)
     arr = check_views(views)
-    window_px = check_odd_px(window_px, "window_px")
+    window_px = check_odd_px(window_px, "window_px", within=arr.shape[1:3])
     h, w = arr.shape[1:3]
     measured_views = MIN_DEPTH_VIEWS
     if isinstance(depth_map_m, DepthOfField):

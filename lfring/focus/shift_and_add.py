@@ -17,7 +17,7 @@ from lfring.core.backend import kernels_run_on, require_torch, resolve_device
 from lfring.core.transfer import (check_frames, count_levels, device_masks, download, frames_dtype, inverse_maps, is_tensor,
                                   normalised, to_device)
 from lfring.core.shift import ShiftEngine
-from lfring.core.validate import check_number, check_shape_hw, check_threads
+from lfring.core.validate import check_shape_hw, check_threads, is_number
 from lfring.core.viewstack import (WEIGHT_FLOOR, all_finite, cached_view_masks, check_unit_range, check_views,
                                    inverse_weight, unit_range_sample)
 from lfring.core.warping import DEFAULT_INTERPOLATION, interpolation_flag, translation_of, warp_image
@@ -85,7 +85,12 @@ class Refocuser:
         if np.ndim(depth_m) != 0:
             raise InvalidInputError("Refocuser takes one depth; use focal_stack for several")
         check_threads(threads)
-        self.depth_m = check_number(depth_m, "depth_m", finite=False, what="a number of metres")
+        try:
+            self.depth_m = float(depth_m) if is_number(depth_m) else None
+        except OverflowError:  # an integer beyond a float's range
+            self.depth_m = None
+        if self.depth_m is None:
+            raise InvalidInputError(f"depth_m must be a number of metres, got {depth_m!r}")
         self.reference = reference
         self._flag = interpolation_flag(interpolation)
         check_renderable(calibration, self.depth_m, reference=reference)

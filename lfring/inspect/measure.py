@@ -325,13 +325,15 @@ def _check_inputs(views, calibration, *, plane_m, tolerance_m, roi, reference_de
     if plane <= z0:
         raise InvalidInputError(f"plane_m ({plane:g} m) must lie beyond the calibration's depth origin z0 = {z0:.4g} m")
     if tol >= plane - z0:
-        raise InvalidInputError(f"tolerance_m ({tol:g} m) must be smaller than the plane's distance ({plane:g} m): "
-                                f"tolerances are in metres (was {tol:g} given in mm?)")
+        raise InvalidInputError(f"tolerance_m ({tol:g} m) must be smaller than the plane's distance from the depth origin "
+                                f"z0 ({plane - z0:.4g} m, the plane at {plane:g} m): tolerances are in metres (was {tol:g} "
+                                "given in mm?)")
     check_int(min_area_px, "min_area_px", minimum=1)
     check_fraction(min_confidence, "min_confidence")
     coverage = check_fraction(min_coverage, "min_coverage")
     check_number(percentile, "percentile", above=0.0, maximum=100.0)
-    check_int(opening_px, "opening_px", minimum=0)
+    check_int(opening_px, "opening_px", minimum=0, maximum=max(arr.shape[1:3]),
+              hint=" (the radius of the defects' opening, px; at most the views' larger side)")
     threshold = _positive(consistency_threshold, "consistency_threshold", "a positive ratio (spread over contrast)")
     ref = check_reference(reference, calibration.num_views)
     shape = arr.shape[1:3]

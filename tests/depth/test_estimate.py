@@ -80,6 +80,8 @@ def test_default_spacing_and_costs(twin):
         (dict(zmin_m=0.3, zmax_m=0.5, num_planes=10**6), r"num_planes 1000000 puts the hypotheses closer than 1/8 px of "
                                                           r"view motion over 0.3..0.5 m \(.* px\), .*give at most \d+"),
         (dict(zmin_m=0.3, zmax_m=0.5, num_planes=10**400, method="local"), "give at most"),
+        (dict(zmin_m=0.3, zmax_m=0.5, window_px=999999), r"window_px must be an odd positive integer at most \d+ \(twice"),
+        (dict(zmin_m=0.3, zmax_m=0.5, aggregate_px=999999), r"aggregate_px must be an odd positive integer at most"),
     ],
 )
 def test_bad_inputs(twin, kwargs, match):

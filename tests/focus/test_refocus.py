@@ -179,6 +179,14 @@ def test_bad_inputs_and_warnings(scene):
         Refocuser(cal, 0.5, view_shape="705x705")
     with pytest.raises(InvalidInputError, match=r"depths_m must be a non-empty list of depths \(or None"):
         all_in_focus(views, cal, [])
+    # Sizes that ran for minutes or asked for terabytes.
+    with pytest.raises(InvalidInputError, match=r"window_px must be an odd positive integer at most"):
+        all_in_focus(views, cal, [0.5, 1.0], window_px=999999)
+    near = np.full(views.shape[1:3], 0.5)
+    near[:50] = 0.3
+    with pytest.raises(InvalidInputError, match=r"aperture 1e\+06 blurs this depth map by up to \d+ px at the focus 0.5 m, "
+                                                r"more than the frame's diagonal"):
+        refocus(views, cal, 0.5, method="depth-aware", aperture=1e6, depth=near)
     # The device for --f-number by name, as inspect_frame and calibrate take it (an AttributeError).
     flat = np.full(views.shape[1:3], 0.5)
     np.testing.assert_array_equal(
@@ -222,3 +230,16 @@ def test_depths_that_are_not_numbers_of_metres_are_refused_by_name_and_entry():
     # Counts given as float32 are refused where the frame is cut, as where views are used.
     with pytest.raises(InvalidInputError, match=r"the image must be float in \[0, 1\].*raw counts\?"):
         split_views(np.full((*cal.layout.raw_shape, 3), 200.0, np.float32), cal.layout)
+
+
+def test_a_focal_stack_larger_than_the_free_memory_is_refused(scene, monkeypatch):
+    """100 000 depths asked for terabytes and failed after 25 s with OpenCV's error; the stack's
+    size is known before any work."""
+    from lfring.focus import render
+
+    _, r, cal, views, _ = scene
+    monkeypatch.setattr(render, "available_memory_bytes", lambda: 10 * views[0].nbytes)
+    with pytest.raises(InvalidInputError, match=r"a focal stack of 6 depths holds .* GiB, more than the .* GiB free: give "
+                                                r"fewer depths_m"):
+        focal_stack(views, cal, np.linspace(0.4, 0.9, 6))
+    assert focal_stack(views, cal, [0.4, 0.6]).shape == (2, *views.shape[1:])

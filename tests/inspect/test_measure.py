@@ -128,6 +128,7 @@ def test_roi_and_reference_depth(parts):
         (dict(reference="left"), "reference"),
         (dict(opening_px=-1), "opening_px"),
         (dict(num_planes=10**7), "give at most"),
+        (dict(opening_px=5000), r"opening_px must be an integer >= 0 and <= 705"),
     ],
 )
 def test_bad_inputs(parts, kwargs, match):
