@@ -86,8 +86,10 @@ def count_levels(dtype: str, levels=None) -> tuple[float, float]:
         black, white = levels
     except (TypeError, ValueError):
         raise InvalidInputError(f"levels must be (black, white) counts, got {levels!r}") from None
-    black = check_number(black, "the black level", minimum=0.0)
-    white = check_number(white, "the white level", above=black, hint=" (above the black level)")
+    top = float(np.iinfo(dtype).max)
+    black = check_number(black, "the black level", minimum=0.0, below=top, hint=f" ({dtype} counts)")
+    white = check_number(white, "the white level", above=black, maximum=top,
+                         hint=f" (above the black level, at most {dtype}'s largest count)")
     return black, 1.0 / (white - black)
 
 
@@ -112,12 +114,14 @@ def inverse_maps(hs, device):
 
 
 def normalised(frames, offset: float, scale: float):
-    """Views of any dtype as float32 ``(value - offset) * scale`` on their device (float32 views
-    with offset 0 and scale 1 are returned as they are)."""
+    """Views of any dtype as float32 ``(value - offset) * scale`` on their device, raw counts
+    (integer views) clipped to [0, 1] as :func:`lfring.demosaic` clips them (counts below black,
+    above white); float32 views with offset 0 and scale 1 are returned as they are."""
     torch = require_torch()
     if frames.dtype == torch.float32 and offset == 0.0 and scale == 1.0:
         return frames
-    return (frames.to(torch.float32) - np.float32(offset)) * np.float32(scale)
+    out = (frames.to(torch.float32) - np.float32(offset)) * np.float32(scale)
+    return out if frames.is_floating_point() else out.clamp_(0.0, 1.0)
 
 
 def download(tensor) -> np.ndarray:

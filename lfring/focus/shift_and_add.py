@@ -244,7 +244,8 @@ def refocus_torch(frames, calibration, depth_m: float, *, reference="center", de
 
 
 def _refocus_kernel(raw, masks, hs, offset: float, scale: float):
-    """The refocus kernel over a batch (B, V, h, w, C) of any dtype on its device."""
+    """The refocus kernel over a batch (B, V, h, w, C) of any dtype on its device (raw counts
+    clipped to [0, 1] once levelled, as :func:`lfring.core.transfer.normalised` does)."""
     torch = require_torch()
     from lfring.core import triton_kernels as tk
     from lfring.focus.shift_and_add_kernels import refocus_kernel
@@ -254,7 +255,8 @@ def _refocus_kernel(raw, masks, hs, offset: float, scale: float):
     hinv = inverse_maps(hs, raw.device)
     block = min(tk.next_power_of_2(h * w), 1 << 20) if tk.INTERPRETED else 256
     tk.launch(refocus_kernel, (-(-h * w // block), b), raw, masks, hinv, out, v, h, w, c, float(offset), float(scale),
-              WEIGHT_FLOOR, CH=tk.next_power_of_2(c), BLOCK=block, num_warps=1 if tk.INTERPRETED else 4)
+              WEIGHT_FLOOR, CH=tk.next_power_of_2(c), BLOCK=block, CLIP=not raw.is_floating_point(),
+              num_warps=1 if tk.INTERPRETED else 4)
     return out
 
 

@@ -12,9 +12,9 @@ __all__ = ["refocus_kernel"]
 
 @jit
 def refocus_kernel(frames_ptr, msk_ptr, hinv_ptr, out_ptr, n_views, h, w, channels, offset, scale, floor,
-                   CH: tl.constexpr, BLOCK: tl.constexpr):
+                   CH: tl.constexpr, BLOCK: tl.constexpr, CLIP: tl.constexpr):
     """Shift-and-add of frame ``program_id(1)`` of a batch (B, V, h, w, C) (any dtype; each value
-    becomes ``(value - offset) * scale``): per reference pixel the views' values premultiplied by
+    becomes ``(value - offset) * scale``, clipped to [0, 1] with ``CLIP``, as raw counts are): per reference pixel the views' values premultiplied by
     their masks and the masks, each warped (bilinear, zero outside) by ``hinv`` (V, 9, reference
     to view), summed, and their ratio where the weight exceeds ``floor`` (else 0), into ``out``
     (B, h, w, C) float32. ``CH``: the channels rounded up to a power of two."""
@@ -40,13 +40,22 @@ def refocus_kernel(frames_ptr, msk_ptr, hinv_ptr, out_ptr, n_views, h, w, channe
         t10 = tl.load(mk + o00 + w, mask=m10, other=0.0)
         t11 = tl.load(mk + o00 + w + 1, mask=m11, other=0.0)
         c00 = (tl.load(frame + o00[:, None] * channels + ch, mask=m00[:, None] & ch_ok, other=0).to(tl.float32)
-               - offset) * scale * t00[:, None]
+               - offset) * scale
         c01 = (tl.load(frame + (o00 + 1)[:, None] * channels + ch, mask=m01[:, None] & ch_ok, other=0).to(tl.float32)
-               - offset) * scale * t01[:, None]
+               - offset) * scale
         c10 = (tl.load(frame + (o00 + w)[:, None] * channels + ch, mask=m10[:, None] & ch_ok, other=0).to(tl.float32)
-               - offset) * scale * t10[:, None]
+               - offset) * scale
         c11 = (tl.load(frame + (o00 + w + 1)[:, None] * channels + ch, mask=m11[:, None] & ch_ok,
-                       other=0).to(tl.float32) - offset) * scale * t11[:, None]
+                       other=0).to(tl.float32) - offset) * scale
+        if CLIP:
+            c00 = tl.minimum(tl.maximum(c00, 0.0), 1.0)
+            c01 = tl.minimum(tl.maximum(c01, 0.0), 1.0)
+            c10 = tl.minimum(tl.maximum(c10, 0.0), 1.0)
+            c11 = tl.minimum(tl.maximum(c11, 0.0), 1.0)
+        c00 = c00 * t00[:, None]
+        c01 = c01 * t01[:, None]
+        c10 = c10 * t10[:, None]
+        c11 = c11 * t11[:, None]
         weight += (t00 * (1.0 - fx) + t01 * fx) * (1.0 - fy) + (t10 * (1.0 - fx) + t11 * fx) * fy
         gx = fx[:, None]
         gy = fy[:, None]

@@ -46,7 +46,10 @@ def test_backend_errors(twin, device):
         refocus(views.astype(np.float64), cal, 0.5, backend="torch", device=device)
     with pytest.raises(InvalidInputError, match="linear"):
         refocus(views, cal, 0.5, backend="torch", device=device, interpolation="cubic")
-    with pytest.raises(InvalidInputError, match=r"device must be a torch device .*got 'tpu'"):
+    counts = (views * 255).astype(np.uint8)
+    with pytest.raises(InvalidInputError, match=r"the white level must be .* at most uint8's largest count\), got 1000"):
+        refocus(counts, cal, 0.5, backend="torch", device=device, levels=(0, 1000))
+    with pytest.raises(InvalidInputError, match=r"the device must be a torch device|device must be a torch device .*got 'tpu'"):
         refocus(views, cal, 0.5, backend="torch", device="tpu")  # torch's own RuntimeError before
     for bad in (np.nan, np.inf):  # refused as on the NumPy backend
         spoilt = views.copy()
@@ -69,7 +72,11 @@ def test_the_refocus_kernel_matches_numpy(twin, device):
     views, cal = twin
     levels = (16, 240)
     counts = np.stack([np.round(16 + f * 224) for f in (views, views[:, :, :, ::-1])]).astype(np.uint8)
-    floats = (counts.astype(np.float32) - 16) / 224
+    # Counts below black and above white, clipped as lfring.demosaic clips them (they reached 1.1
+    # and -0.07 before).
+    counts[:, :, 300:340, 300:340] = 255
+    counts[:, :, 360:380, 300:340] = 0
+    floats = np.clip((counts.astype(np.float32) - 16) / 224, 0.0, 1.0)
     with tk.interpreted_on_cpu():
         got = refocus(torch.from_numpy(counts).to(device), cal, 0.5, backend="torch", levels=levels)
         one = refocus(views, cal, 0.5, backend="torch", device=device)
