@@ -280,8 +280,9 @@ class RingCalibration:
         want_h, want_w = self.layout.view_shape
         if (v, h, w) != (self.num_views, want_h, want_w):
             raise InvalidInputError(
-                f"the calibration is for {self.num_views} views of {want_w} x {want_h} px but the {what} are "
-                f"{v} of {w} x {h} px; give the views cut with this calibration's layout, in its view order"
+                f"the calibration is for {self.num_views} views of {want_w} x {want_h} px, (V, h, w, C) = "
+                f"({self.num_views}, {want_h}, {want_w}, C), but the {what} are {v} of {w} x {h} px (shape "
+                f"{tuple(views_shape)}); give the views cut with this calibration's layout, in its view order"
             )
 
     def select_views(self, views) -> RingCalibration:

@@ -726,11 +726,15 @@ def _above_bit_depth(p: Path, peak: int, bit_depth: int, container: int, sidecar
     with its bit depth, else the sidecar's, else the defaults), scaled."""
     side = sidecar_path(p).name
     full_scale, scale = 2**bit_depth - 1, 2 ** (container - bit_depth)
-    levels = {**sidecar, **{k: v for k, v in (given or {}).items() if v is not None}}
+    # A sidecar's levels are of its own bit depth: they go with a bit depth given here only if it is that one.
+    own = sidecar if given is None or sidecar.get("bit_depth") in (None, bit_depth) else {}
+    levels = {**own, **{k: v for k, v in (given or {}).items() if v is not None}}
     whites, blacks = _levels(levels.get("white_level", full_scale)), _levels(levels.get("black_level", 0))
     as_json = as_text = ""  # the scaled levels, when they are numbers (a bad one is said when it is read)
-    if whites is not None and len(whites) == 1 and blacks is not None:
-        white = f"{whites[0] * (scale if whites[0] <= full_scale else 1):g}"  # one above is of the container's scale
+    white_scaled = None if whites is None or len(whites) != 1 else whites[0] * (scale if whites[0] <= full_scale else 1)
+    # Levels of another bit depth (a sidecar's, given another one here) scale to nonsense: none offered.
+    if white_scaled is not None and blacks is not None and max(blacks) * scale < white_scaled <= 2**container - 1:
+        white = f"{white_scaled:g}"  # one above full scale is of the container's scale already
         black = ",".join(f"{b * scale:g}" for b in blacks)
         as_json = f' ("white_level": {white}, "black_level": {f"[{black}]" if len(blacks) > 1 else black})'
         as_text = f" ({black} and {white} counts)"

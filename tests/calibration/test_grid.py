@@ -168,7 +168,7 @@ def test_view_counts_outside_2_to_100_are_refused(count):
 def test_views_that_do_not_match_the_calibration_are_refused():
     cal = RingCalibration.from_grid((16, 20), [(0, 0), (1, 0), (2, 0)], disparity_scale_px_m=10.0)
     views = np.zeros((4, 16, 20, 3), np.float32)
-    with pytest.raises(InvalidInputError, match="3 views of 20 x 16 px but the views are 4"):
+    with pytest.raises(InvalidInputError, match=r"3 views of 20 x 16 px, \(V, h, w, C\) = \(3, 16, 20, C\), but the views are 4 of 20 x 16 px \(shape \(4, 16, 20"):
         estimate_depth(views, cal, zmin_m=1.0, zmax_m=5.0)
     with pytest.raises(InvalidInputError, match="expected 3 views"):
         refocus(views, cal, 2.0)

@@ -406,6 +406,12 @@ def test_counts_above_a_given_bit_depth_name_the_argument(tmp_path):
     message = str(info.value)
     assert "the 12 bits come from the bit_depth argument" in message and "sidecar" not in message
     assert "pass bit_depth=16 with black_level and white_level scaled by 16 (1024 and 65520 counts)" in message
+    # A sidecar's levels are of its own bit depth (16 here), not of the one given: scaled they were
+    # offered as 16000 and 60000 (its 1000 and 60000 were 16-bit counts already). Without levels
+    # given, a 12-bit frame's own: 0 and 4095, scaled.
+    with pytest.raises(InvalidInputError) as info:
+        load_raw(path, bit_depth=12)
+    assert "scaled by 16 (0 and 65520 counts); otherwise fix bit_depth" in str(info.value)
 
 
 @pytest.mark.parametrize("value", [0, 1234])
