@@ -29,6 +29,10 @@ DEPTH_LABEL_TOL = 0.1
 the device's optics move them between the depths given, above which the calibration warns:
 the optics are a design, not the built camera, so only a depth measured from the wrong point,
 given for another frame or in another unit is that far off."""
+UNIT_RATIO = 30.0
+"""A factor between how far the views move from one plane to the next and how far the device's
+optics move them between the depths given beyond which the depths are refused: no camera departs
+from its design that far, another unit does (millimetres given as metres: about 1000)."""
 # Largest distance (px) between where the flat frame and the targets (their mean) show a view's
 # disc before the flat is said to come from another setup (the ring or the zoom moved between
 # them); the views are cut where the flat shows them. The discs found on a target's texture lie
@@ -285,12 +289,14 @@ def warn_depths_off(cal, names: dict, ref, what: str) -> None:
     given, by more than :data:`DEPTH_LABEL_TOL`; ``names`` the planes' frames by depth. Two
     planes fit exactly whatever their depths, so only the optics can tell a depth measured from
     the wrong point, given for another frame or in millimetres. The motion between two planes
-    does not depend on where the views were cut (their layout)."""
+    does not depend on where the views were cut (their layout). More than :data:`UNIT_RATIO`
+    times off is refused (:class:`InvalidInputError`): depths in another unit."""
     from lfring.calibration.model import view_motion_px
 
     if ref is None:
         return
     off = []
+    unit = False
     zs = sorted(names)
     for za, zb in zip(zs, zs[1:]):
         seen = view_motion_px(cal, [za, zb], cal.layout.view_shape)
@@ -298,6 +304,10 @@ def warn_depths_off(cal, names: dict, ref, what: str) -> None:
         if said > 0 and abs(seen / said - 1.0) > DEPTH_LABEL_TOL:
             off.append(f"between the planes given as {za:g} m and {zb:g} m ({names[za]}, {names[zb]}) the views move "
                        f"{seen:.1f} px, where those depths move them {said:.2g} px")
+            unit = unit or not 1.0 / UNIT_RATIO < seen / said < UNIT_RATIO
+    if unit:
+        raise InvalidInputError(f"by {what}, {'; '.join(off)}: more than {UNIT_RATIO:g} times off, as depths in another "
+                                f"unit are; depths are in metres from the main lens, not mm{cal.millimetres_hint(*zs)}")
     if off:
         log.warning("by %s, %s: check that each depth is in metres, measured from the main lens and given in the order "
                     "of the frames (the calibration takes the depths as given)", what, "; ".join(off))

@@ -153,11 +153,12 @@ def test_a_flat_of_another_setup_is_warned_of(caplog, prototype):
     assert "the flat frame shows view" in caplog.text and "a flat of another setup" in caplog.text
 
 
-def test_millimetres_given_as_metres_are_warned_of_by_the_device_s_optics(caplog):
+def test_millimetres_given_as_metres_are_refused_by_the_device_s_optics(caplog):
     """calibrate({300: ..., 1000: ...}, device=...) made a calibration in the wrong unit without a
-    word (the command line refused it, the API did not look): the views move some pixels between
-    the two planes, where the device's optics move them a hundredth of one. Said by the API, as a
-    warning naming both; the right depths raise nothing."""
+    word (the command line refused it, the API did not look), then only warned: the views move
+    some pixels between the two planes, where the device's optics move them a hundredth of one,
+    and the calibration shifted the views by thousands of pixels at 0.5 m. Refused, naming both;
+    the right depths raise nothing."""
     import logging
     from pathlib import Path
 
@@ -166,11 +167,10 @@ def test_millimetres_given_as_metres_are_warned_of_by_the_device_s_optics(caplog
     with caplog.at_level(logging.WARNING, logger="lfring.calibration"):
         calibrate({0.3: str(data / "target_0.3m.png"), 1.0: str(data / "target_1m.png")}, flat=flat, device="prototype")
         assert "by the optics of device" not in caplog.text
-        cal = calibrate({300: str(data / "target_0.3m.png"), 1000: str(data / "target_1m.png")}, flat=flat,
-                        device="prototype")
-    assert cal.valid_depth_range_m[0] == 300
-    assert "by the optics of device 'prototype', between the planes given as 300 m and 1000 m" in caplog.text
-    assert "each depth is in metres" in caplog.text
+        with pytest.raises(InvalidInputError, match=r"by the optics of device 'prototype', between the planes given as "
+                                                    r"300 m and 1000 m .* more than 30 times off, as depths in another unit"):
+            calibrate({300: str(data / "target_0.3m.png"), 1000: str(data / "target_1m.png")}, flat=flat,
+                      device="prototype")
 
 
 def test_a_device_file_s_optics_travel_with_the_calibration(tmp_path):
