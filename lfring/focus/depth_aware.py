@@ -923,6 +923,12 @@ def depth_to_render(depth, calibration, reference, shape) -> tuple[np.ndarray, f
     if dm.shape != tuple(shape):
         raise InvalidInputError(f"the depth map must be (h, w) = ({shape[0]}, {shape[1]}) metres like the views, got shape {dm.shape}")
     if not estimated:
+        known = known_depths(dm, calibration, allow_none=True)
+        typical = float(np.median(dm[known])) if known.any() else math.nan
+        hint = calibration.millimetres_hint(typical) if math.isfinite(typical) else ""
+        if hint:  # a depth map of millimetres renders as a scene at hundreds of metres, without a word
+            warnings.warn(LfringWarning(f"the depth map's depths lie beyond the calibration's range (median {typical:g} "
+                                        f"m){hint}"), stacklevel=3)
         # NaN says unknown; 0 says it too for many depth sensors, but it may be a mistake: say so.
         z0 = calibration.depth_origin_m
         odd = ~np.isnan(dm) & ~known_depths(dm, calibration, allow_none=True)

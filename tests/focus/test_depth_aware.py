@@ -3,6 +3,7 @@ planes, a near one partly covering a far one, rendered as four views by shifting
 occlusion; the exact depth map is given."""
 
 import math
+import warnings
 from pathlib import Path
 
 import cv2
@@ -733,3 +734,17 @@ def test_never_brighter_or_darker_than_the_views_however_wide_the_blur():
     for aperture in (1.0, 3.0, 6.0, 8.0):
         out = dof.render(0.5, aperture, sharp)
         assert lo - 1e-6 <= float(out.min()) and float(out.max()) <= hi + 1e-6, (aperture, out.min(), out.max(), hi)
+
+
+def test_a_depth_map_in_millimetres_is_warned_of():
+    """A depth map in millimetres rendered as a scene hundreds of metres away without a word
+    (all_in_focus reported depths of 500-2000 m): warned, as for a focus depth in mm."""
+    cal = _calibration()
+    far, near = _textures()
+    views, depth, _ = _scene(far, near)
+    with pytest.warns(LfringWarning, match=r"the depth map's depths lie beyond the calibration's range \(median 2000 m\); "
+                                           r"depths are in metres: was 2000 given in mm\?"):
+        refocus(views, cal, FAR_M, method="depth-aware", depth=depth * 1000.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        refocus(views, cal, FAR_M, method="depth-aware", depth=depth)
