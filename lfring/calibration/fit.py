@@ -11,6 +11,7 @@ import numpy as np
 from lfring.calibration.build import calibration_from_plane_homographies
 from lfring.calibration.ring import DEVICE_RECORD, RingCalibration
 from lfring.core.lens import remap_views, undistortion_maps
+from lfring.core.validate import check_bool, is_number
 from lfring.errors import DeviceError, EstimationError, InvalidInputError, LfringError
 from lfring.views import Layout, detect_layout, flat_field_from_frame, split_views
 
@@ -156,9 +157,12 @@ def calibrate(
         device = load_device(device)
     if not isinstance(frames_by_depth, dict) or len(frames_by_depth) < 2:
         raise InvalidInputError("calibrate needs frames of the target at two or more distinct depths, as {depth_m: frame}")
+    if not all(is_number(d) for d in frames_by_depth):  # "0.3" would be read as 0.3 here and nowhere else
+        raise InvalidInputError(f"target depths must be positive numbers of metres, got {list(frames_by_depth)}")
     depths = [float(d) for d in frames_by_depth]
     if any(not np.isfinite(d) or d <= 0 for d in depths):
         raise InvalidInputError(f"target depths must be positive numbers of metres, got {depths}")
+    rank1 = check_bool(rank1, "rank1")
     if len(set(np.round(depths, 9))) != len(depths):
         raise InvalidInputError(f"target depths must be distinct, got {depths}")
     levels = dict(pattern=pattern, black_level=black_level, white_level=white_level)

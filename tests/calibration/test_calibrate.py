@@ -213,3 +213,16 @@ def test_a_layout_that_is_not_one_is_refused_by_name():
     data = Path(__file__).resolve().parents[2] / "data" / "synthetic"
     with pytest.raises(InvalidInputError, match=r"layout must be a lfring.views.Layout \(or None: detected\), got str"):
         calibrate({0.3: str(data / "target_0.3m.png"), 1.0: str(data / "target_1m.png")}, layout="x")
+
+
+def test_depths_as_strings_and_a_rank1_that_is_not_a_bool_are_refused():
+    """calibrate took {"0.3": ...} (read as 0.3 here, a string everywhere else) and rank1="yes"
+    (truthy), where every other entry is strict about numbers and bools."""
+    from pathlib import Path
+
+    data = Path(__file__).resolve().parents[2] / "data" / "synthetic"
+    frames = {0.3: str(data / "target_0.3m.png"), 1.0: str(data / "target_1m.png")}
+    with pytest.raises(InvalidInputError, match=r"target depths must be positive numbers of metres, got \['0.3', '1.0'\]"):
+        calibrate({str(k): v for k, v in frames.items()})
+    with pytest.raises(InvalidInputError, match=r"rank1 must be True or False, got 'yes'"):
+        calibrate(frames, rank1="yes")
