@@ -337,6 +337,8 @@ def flat_field_from_frame(image, layout) -> FlatField:
             views = remap_views(views, mx, my)
     else:
         views = _cut(image, layout, "flat frame")
+    if not np.isfinite(views).all():  # a NaN spreads into every view it corrects, or reads as black
+        raise InvalidInputError("the flat frame holds NaN or infinite values where the views are")
     return FlatField.from_views(views)
 
 

@@ -214,3 +214,19 @@ def test_splitting_with_a_calibration_corrects_the_views(prototype):
         split_views(raw, cal)
     with pytest.raises(InvalidInputError, match="the flat frame is .* px but the layout is for"):
         split_views(r.image, cal, flat=flat[:-2])
+
+
+def test_a_flat_frame_with_nan_inside_the_views_is_refused_as_such():
+    """A NaN in the flat was reported as "the flat frame is black where the views are"."""
+    from pathlib import Path
+
+    import lfring
+
+    data = Path(__file__).resolve().parents[1] / "data" / "synthetic"
+    cal = lfring.RingCalibration.load("twin_binned2")
+    frame = lfring.demosaic(lfring.load_raw(data / "scene.png"))
+    flat = lfring.demosaic(lfring.load_raw(data / "flat.png"))
+    x, y, _, _ = cal.layout.rects[0]
+    flat[y + 300:y + 310, x + 300:x + 310] = np.nan
+    with pytest.raises(InvalidInputError, match="the flat frame holds NaN or infinite values where the views are"):
+        split_views(frame, cal, flat=flat)
