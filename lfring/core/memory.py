@@ -15,7 +15,7 @@ import mmap
 
 import numpy as np
 
-__all__ = ["available_memory_bytes", "fresh_zeros"]
+__all__ = ["available_memory_bytes", "fresh_zeros", "memory_words"]
 
 # Private to the process: a forked child gets its own copy on write, as with any NumPy array
 # (a shared map would let a child's writes reach the parent's arrays). Windows has no flags.
@@ -74,3 +74,14 @@ def available_memory_bytes() -> int | None:
     except (OSError, ValueError, IndexError):
         pass
     return None
+
+
+def memory_words(n_bytes: float) -> str:
+    """A size in words: GiB to one decimal from 1 GiB, whole MiB below.
+
+    >>> memory_words(2.04e9), memory_words(120e6)
+    ('1.9 GiB', '114 MiB')
+    """
+    if n_bytes >= 2**30:
+        return f"{n_bytes / 2 ** 30:.1f} GiB"
+    return f"{n_bytes / 2 ** 20:.0f} MiB"

@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 
 from lfring.core.backend import check_backend, require_torch, resolve_device
-from lfring.core.memory import available_memory_bytes
+from lfring.core.memory import available_memory_bytes, memory_words
 from lfring.core.transfer import (check_frames, count_levels, download, download_maps, frames_dtype, is_tensor,
                                   normalised, to_device)
 from lfring.core.protocols import check_calibration
@@ -245,7 +245,7 @@ _MEMORY_REMEDY = ("give fewer num_planes, narrow zmin_m..zmax_m, or use method='
 
 def _memory_words(engine, n: int, shape, need: int) -> str:
     words = f"method={engine.name!r} over {n} depth hypotheses on {shape[1]} x {shape[0]} px views"
-    return words + (f" (at least {need / 2 ** 30:.1f} GiB)" if need else "")
+    return words + (f" (at least {memory_words(need)})" if need else "")
 
 
 def _runs_on_device(device, plan) -> bool:
@@ -262,7 +262,7 @@ def _check_memory(engine, n: int, shape) -> int:
     free = available_memory_bytes() if need else None
     if free is not None and need > free:
         raise InvalidInputError(f"{_memory_words(engine, n, shape, need)} needs more memory than the "
-                                f"{free / 2 ** 30:.1f} GiB free: {_MEMORY_REMEDY}")
+                                f"{memory_words(free)} free: {_MEMORY_REMEDY}")
     return need
 
 

@@ -27,7 +27,7 @@ from lfring.focus.depth_aware import MIN_DEPTH_VIEWS, DepthOfField, depth_to_ren
 from lfring.focus.methods import METHODS
 from lfring.focus.shift_and_add import Refocuser, refocus_torch
 from lfring.core.protocols import check_calibration
-from lfring.core.memory import available_memory_bytes
+from lfring.core.memory import available_memory_bytes, memory_words
 from lfring.core.validate import check_odd_px
 
 __all__ = ["all_in_focus", "focal_stack", "refocus"]
@@ -179,8 +179,8 @@ def focal_stack(views, calibration, depths_m, *, reference="center", interpolati
     # The stack is one image per depth, kept at once (twice while np.stack joins them).
     need, free = 2 * z.size * arr[0].nbytes, available_memory_bytes()
     if free is not None and need > free:
-        raise InvalidInputError(f"a focal stack of {z.size} depths holds {need / 2 ** 30:.1f} GiB, more than the "
-                                f"{free / 2 ** 30:.1f} GiB free: give fewer depths_m, or refocus them a few at a time")
+        raise InvalidInputError(f"a focal stack of {z.size} depths holds {memory_words(need)}, more than the "
+                                f"{memory_words(free)} free: give fewer depths_m, or refocus them a few at a time")
     finish = None
     if m.prepare is not None:
         finish = m.prepare(arr, calibration, reference, **_given(aperture=aperture, f_number=f_number,

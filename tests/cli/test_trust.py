@@ -346,11 +346,14 @@ def test_missing_pattern_is_an_error_that_names_the_option(tmp_path):
 def test_depth_planes_beyond_the_free_memory_refused_in_one_line(tmp_path, capsys, monkeypatch):
     from lfring.depth import estimate
 
-    monkeypatch.setattr(estimate, "available_memory_bytes", lambda: 1 << 30)  # 1 GiB free
+    monkeypatch.setattr(estimate, "available_memory_bytes", lambda: 64 << 20)  # 64 MiB free
     out = tmp_path / "d"
+    assert main(["depth", str(SCENE), "-o", str(out), "--planes", "60"]) == 2
+    _one_error(capsys.readouterr().err, "--method sgm over 60 depth hypotheses on 705 x 705 px views (at least 114 MiB) "
+                                        "needs more memory than the 64 MiB free: give fewer --planes")
+    # A --planes beyond what the range can tell apart is refused before the memory is asked about.
     assert main(["depth", str(SCENE), "-o", str(out), "--planes", "1000"]) == 2
-    _one_error(capsys.readouterr().err, "--method sgm over 1000 depth hypotheses on 705 x 705 px views (at least 1.9 GiB) "
-                                        "needs more memory than the 1.0 GiB free: give fewer --planes")
+    _one_error(capsys.readouterr().err, "--planes 1000 puts the hypotheses closer than 1/8 px of view motion over 0.3..1 m")
     assert not out.exists() or not any(out.iterdir())
 
 

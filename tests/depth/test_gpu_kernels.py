@@ -237,7 +237,7 @@ def test_kernels_compile_for_a_gpu():
              dict(IMAGES=2, COLUMNS=True, LINES=32), 1),
             (fk.refocus_kernel, dict(frames_ptr="*u16", msk_ptr=P, hinv_ptr=P, out_ptr=P, n_views="i32", h="i32",
                                      w="i32", channels="i32", offset="fp32", scale="fp32", floor="fp32"),
-             dict(CH=4, BLOCK=256), 4),
+             dict(CH=4, BLOCK=256, CLIP=True), 4),
         ]
         cuobjdump = os.path.join(os.path.dirname(triton.__file__), "backends", "nvidia", "bin", "cuobjdump")
         for fn, signature, constants, warps in cases:
