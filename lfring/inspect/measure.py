@@ -328,7 +328,8 @@ def _check_inputs(views, calibration, *, plane_m, tolerance_m, roi, reference_de
         raise InvalidInputError(f"tolerance_m ({tol:g} m) must be smaller than the plane's distance from the depth origin "
                                 f"z0 ({plane - z0:.4g} m, the plane at {plane:g} m): tolerances are in metres (was {tol:g} "
                                 "given in mm?)")
-    check_int(min_area_px, "min_area_px", minimum=1)
+    check_int(min_area_px, "min_area_px", minimum=1, maximum=arr.shape[1] * arr.shape[2],
+              hint=f" (a defect's least area; the views hold {arr.shape[1] * arr.shape[2]} px)")
     check_fraction(min_confidence, "min_confidence")
     coverage = check_fraction(min_coverage, "min_coverage")
     check_number(percentile, "percentile", above=0.0, maximum=100.0)

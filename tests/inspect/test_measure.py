@@ -129,6 +129,8 @@ def test_roi_and_reference_depth(parts):
         (dict(opening_px=-1), "opening_px"),
         (dict(num_planes=10**7), "give at most"),
         (dict(opening_px=5000), r"opening_px must be an integer >= 0 and <= 705"),
+        # Larger than the views: it said "no surface found at the working plane".
+        (dict(min_area_px=600000), r"min_area_px must be an integer >= 1 and <= 497025 \(a defect's least area"),
     ],
 )
 def test_bad_inputs(parts, kwargs, match):
