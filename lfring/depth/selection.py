@@ -12,7 +12,12 @@ import numpy as np
 
 from lfring.core.records import record_repr
 
-__all__ = ["DepthResult", "Finisher", "RunningMinimum", "RunningMinimumTorch", "parabola", "refine"]
+__all__ = ["COST_FLOOR", "DepthResult", "Finisher", "RunningMinimum", "RunningMinimumTorch", "parabola", "refine"]
+
+COST_FLOOR = 1e-6
+"""Costs this small are float rounding, not texture (a real frame's least costs are hundreds of
+times larger, its noise alone): added to both costs of the confidence ratio, so that two rounding
+errors (on featureless views, 1e-16 against 1e-15) make no confident pixel."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -231,13 +236,15 @@ def parabola(a, b, c):
 
 def refine(best_i, c_best, c_prev, c_next, c_second, n):
     """Fractional hypothesis index (parabola, none at the range's ends) and confidence
-    ``1 - c_best / c_second`` (0 where c_second is missing or not positive), float32."""
+    ``1 - (c_best + f) / (c_second + f)``, f = :data:`COST_FLOOR` (0 where c_second is missing or
+    not positive), float32."""
     edge = (best_i <= 0) | (best_i >= n - 1)
     c_prev = np.where(edge, np.float32(np.inf), c_prev)
     idx = parabola(c_prev, c_best, c_next)
     idx += best_i
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        conf = c_best / c_second
+        floor = np.float32(COST_FLOOR)
+        conf = (c_best + floor) / (c_second + floor)
         np.subtract(np.float32(1.0), conf, out=conf)
     ok = np.isfinite(c_second) & (c_second > 0) & np.isfinite(conf)
     conf = np.where(ok, conf, np.float32(0.0))
