@@ -9,8 +9,8 @@ depth map in the reference frame, :class:`DepthOfField` renders that:
    frame's edge; :data:`MIN_ESTIMATED_VIEWS` for a map that depth estimation made, which says
    itself where it measured), that depth was not measured: the nearest measured pixel's surface
    is continued instead (its plane where one fits the measured depths around it,
-   :data:`PLANE_PX`, else its depth), unless they agree anyway, feathered where two surfaces'
-   nearest pixels meet (a step there would cut a seam across the rim).
+   :mod:`lfring.focus.continuation`, else its depth), unless they agree anyway, feathered where
+   two surfaces' nearest pixels meet (a step there would cut a seam across the rim).
 2. **All-in-focus colour.** Every view is sampled at every reference pixel's own depth (one
    ``cv2.remap`` per view) and the views are averaged where they agree: a view whose luminance
    is far from the views' robust mean there (it sees an occluder, or a specular highlight) is
@@ -70,13 +70,14 @@ from lfring.depth.estimate import estimate_depth
 from lfring.calibration.model import view_motion_px
 from lfring.depth.selection import DepthResult
 from lfring.focus.base import RefocusMethod
+from lfring.focus.continuation import plane_continued
 from lfring.focus.layers import NO_IMAGE, Grid, composite, ladder, sum_layers
 from lfring.core.protocols import check_calibration
 
 __all__ = [
     "AGREE_TOL", "BACK_EDGE_PX", "BACK_STEP_PX", "DEPTH_TOL_PX",
     "MIN_DEPTH_VIEWS", "MIN_ESTIMATED_VIEWS", "OCCLUSION_PX", "SHARP_PX", "SHARP_RAMP_PX", "SHARP_RESAMPLED_PX2", "SPREAD_TOL", "VISIBLE_VIEWS", "DepthOfField", "DEPTH_AWARE",
-    "DERIVED_RANGE_MAX_MOTION", "FAR_MOTION_PX", "FEATHER_FLOOR", "FEATHER_PX", "PLANE_FIT_PX", "PLANE_PX", "PLANE_REACH", "FILL_SMOOTH_PX", "FILL_WINDOW_PX", "aperture_from_f_number", "aperture_radius_px", "coc_radius_px", "depth_of_field", "depth_to_render", "known_depths",
+    "DERIVED_RANGE_MAX_MOTION", "FAR_MOTION_PX", "FEATHER_FLOOR", "FEATHER_PX", "FILL_SMOOTH_PX", "FILL_WINDOW_PX", "aperture_from_f_number", "aperture_radius_px", "coc_radius_px", "depth_of_field", "depth_to_render", "known_depths",
     "estimation_range", "prepare_depth_aware", "resolve_aperture",
 ]
 
@@ -123,8 +124,8 @@ LIST_ROW_PX = 1024
 SHARP_RESAMPLED_PX2 = 0.08
 # A depth that fewer than MIN_DEPTH_VIEWS views' worth see at a pixel was not measured there
 # (depth estimation picks such depths at its range's end, where the views drift off their
-# discs): the surface of the nearest pixel that enough views see is continued instead (PLANE_PX),
-# unless the two are within DEPTH_TOL_PX of view motion.
+# discs): the surface of the nearest pixel that enough views see is continued instead
+# (lfring.focus.continuation), unless the two are within DEPTH_TOL_PX of view motion.
 MIN_DEPTH_VIEWS = 2.0
 DEPTH_TOL_PX = 0.5
 # A depth map that depth estimation made (a DepthResult) says itself where its depth was measured
@@ -141,19 +142,12 @@ MIN_ESTIMATED_VIEWS = 1.5
 # estimate's own winner (at a depth edge the fill lies between the two surfaces).
 FILL_SMOOTH_PX = 3.0
 FILL_WINDOW_PX = 21
-# The nearest measured pixel's plane (PLANE_PX) is feathered by a Gaussian of this standard
-# deviation (px), so that the depth continued into a rim changes smoothly where two surfaces'
-# nearest pixels meet; the feathering is normalised by the continued pixels' share, floored at
-# FEATHER_FLOOR.
+# The nearest measured pixel's plane (lfring.focus.continuation) is feathered by a Gaussian of
+# this standard deviation (px), so that the depth continued into a rim changes smoothly where two
+# surfaces' nearest pixels meet; the feathering is normalised by the continued pixels' share,
+# floored at FEATHER_FLOOR.
 FEATHER_PX = 8.0
 FEATHER_FLOOR = 1e-3
-# The depth is continued along the surface of the nearest measured pixel: the plane fitted to the
-# measured depths in a Gaussian window of PLANE_PX (standard deviation, px) around it, where it
-# fits them to PLANE_FIT_PX of view motion (rms; none of its slope is kept from twice that), for at
-# most PLANE_REACH windows from that pixel (the continued depth is constant beyond).
-PLANE_PX = 32.0
-PLANE_FIT_PX = 0.25
-PLANE_REACH = 2.0
 
 
 def _depth_at(x: np.ndarray, z0: float) -> np.ndarray:
@@ -281,95 +275,6 @@ def _feathered(image: np.ndarray, sigma_px: float) -> np.ndarray:
     small = cv2.resize(image, (-(-w // f), -(-h // f)), interpolation=cv2.INTER_AREA)
     small = cv2.GaussianBlur(small, (0, 0), math.sqrt(max(sigma_px * sigma_px - f * f / 3.0, 0.25)) / f)
     return cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR)
-
-
-def _plane_continued(x: np.ndarray, measured: np.ndarray, labels: np.ndarray, radius_px: float):
-    """Every pixel's plane of inverse depth ``(a, gu, gv)``, each (h, w) float32, the plane
-    ``a + gu u + gv v`` in the frame's pixel coordinates centred on the frame (``u`` the column
-    less half the width, ``v`` the row less half the height): where ``measured``, the constant
-    ``x``; elsewhere the surface of the nearest measured pixel (``labels``, of
-    ``cv2.distanceTransformWithLabels`` over the pixels not measured): the plane fitted to the
-    measured depths around it (weighted least squares in a Gaussian window of :data:`PLANE_PX`)
-    through that pixel, where it fits them to :data:`PLANE_FIT_PX` of view motion (rms; the
-    slope fading out by twice that, at depth edges and on curved surfaces), else that pixel's
-    own depth; beyond :data:`PLANE_REACH` windows from it, its slope lessened so that the pixel
-    lies at what that reach gives.
-
-    A slant seen by fewer views at the frame's edge continues as a slant rather than as the
-    depth of its last measured pixel, and a window that wide averages out the estimate's own
-    error where the views drop out."""
-    h, w = x.shape
-    f = max(int(PLANE_PX // 2), 1)
-    hb, wb = -(-h // f), -(-w // f)
-    # The measured depths (0 elsewhere) and their weight, padded with unmeasured pixels to whole
-    # blocks of f x f; coordinates centred on the frame keep the moments' sums precise.
-    wt = np.zeros((hb * f, wb * f), np.float64)
-    wt[:h, :w] = measured
-    xm = np.zeros_like(wt)
-    xm[:h, :w] = np.where(measured, x, 0.0)
-    u = np.arange(wb * f, dtype=np.float64) - 0.5 * w
-    v = np.arange(hb * f, dtype=np.float64) - 0.5 * h
-    # Every block's sums of w, w u, w v, w u^2, w u v, w v^2, x, x u, x v, x^2 (x = 0 where w is):
-    # the rows' powers of v applied to each block's rows, then the columns' powers of u (matrix
-    # products over the blocks, not ten full-size products).
-    pv = np.stack([np.ones_like(v), v, v * v]).reshape(3, hb, f).transpose(1, 0, 2)  # (hb, 3, f)
-    pu = np.stack([np.ones_like(u), u, u * u]).reshape(3, wb, f).transpose(1, 2, 0)  # (wb, f, 3)
-
-    def block_sums(img, powers_v):
-        rows = np.matmul(pv[:, :powers_v], img.reshape(hb, f, wb * f))  # (hb, powers_v, wb f)
-        return np.matmul(rows.reshape(hb, powers_v, wb, f)[:, :, :, None, :], pu[None, None])[..., 0, :]  # (hb, pv, wb, 3)
-
-    bw = block_sums(wt, 3)
-    bx = block_sums(xm, 2)
-    bxx = block_sums(xm * xm, 1)
-    sigma = math.sqrt(max(PLANE_PX * PLANE_PX - f * f / 3.0, 0.25)) / f
-    blocks = (bw[:, 0, :, 0], bw[:, 0, :, 1], bw[:, 1, :, 0], bx[:, 0, :, 0], bw[:, 0, :, 2], bw[:, 1, :, 1],
-              bw[:, 2, :, 0], bx[:, 0, :, 1], bx[:, 1, :, 0], bxx[:, 0, :, 0])
-    # Gaussian-weighted sums over the blocks: smooth, and cheap at this width.
-    s0, su, sv, sx, suu, suv, svv, sxu, sxv, sxx = (cv2.GaussianBlur(np.ascontiguousarray(a), (0, 0), sigma)
-                                                   for a in blocks)
-    some = s0 > 1e-6
-    inv = np.divide(1.0, s0, out=np.zeros_like(s0), where=some)
-    mu_u, mu_v, mu_x = su * inv, sv * inv, sx * inv
-    cuu = suu * inv - mu_u * mu_u
-    cuv = suv * inv - mu_u * mu_v
-    cvv = svv * inv - mu_v * mu_v
-    cxu = sxu * inv - mu_x * mu_u
-    cxv = sxv * inv - mu_x * mu_v
-    cxx = sxx * inv - mu_x * mu_x
-    det = cuu * cvv - cuv * cuv
-    solvable = some & (det > (0.25 * PLANE_PX * PLANE_PX) ** 2)  # measured pixels spread both ways
-    det = np.where(solvable, det, 1.0)
-    gu = np.where(solvable, (cxu * cvv - cxv * cuv) / det, 0.0)
-    gv = np.where(solvable, (cxv * cuu - cxu * cuv) / det, 0.0)
-    misfit_px = radius_px * np.sqrt(np.maximum(cxx - gu * cxu - gv * cxv, 0.0))
-    fits = np.clip(2.0 - misfit_px / PLANE_FIT_PX, 0.0, 1.0) * solvable
-    gu, gv = gu * fits, gv * fits
-    intercept = mu_x - gu * mu_u - gv * mu_v  # each block's plane at u = v = 0
-    # Back to full resolution, each block's plane at its centre and between them interpolated (a
-    # padded frame's blocks are whole); beyond the outermost centres the outermost plane holds.
-    # (The plane's value itself, interpolated, would be held constant there instead.)
-    full = [cv2.resize(a.astype(np.float32), (wb * f, hb * f), interpolation=cv2.INTER_LINEAR)[:h, :w].ravel()
-            for a in (intercept, gu, gv, fits)]
-    # Only the continued pixels are computed; each from its nearest measured pixel (flat index n).
-    a_out = x.astype(np.float32, copy=True)
-    gu_out = np.zeros((h, w), np.float32)
-    gv_out = np.zeros((h, w), np.float32)
-    at = np.flatnonzero(~measured)
-    n = np.flatnonzero(measured)[labels.ravel()[at] - 1]
-    xn = x.ravel()[n]
-    un, vn = (n % w - np.float32(0.5 * w)).astype(np.float32), (n // w - np.float32(0.5 * h)).astype(np.float32)
-    plane_n = full[0][n] + full[1][n] * un + full[2][n] * vn
-    base = xn + full[3][n] * (plane_n - xn)  # the plane where it fits there, else the pixel's own depth
-    dy = (at // w - n // w).astype(np.float32)
-    dx = (at % w - n % w).astype(np.float32)
-    scale = np.minimum(np.float32(1.0), np.float32(PLANE_REACH * PLANE_PX) / np.maximum(np.hypot(dx, dy), np.float32(1e-6)))
-    su, sv = scale * full[1][n], scale * full[2][n]
-    value = np.maximum(base + su * dx + sv * dy, np.float32(1.0 / INFINITE_DEPTH_M))  # beyond infinity is infinity
-    a_out.ravel()[at] = value - su * (at % w - np.float32(0.5 * w)) - sv * (at // w - np.float32(0.5 * h))
-    gu_out.ravel()[at] = su
-    gv_out.ravel()[at] = sv
-    return a_out, gu_out, gv_out
 
 
 def _remap_masks(masks: np.ndarray, maps) -> np.ndarray:
@@ -557,8 +462,9 @@ class DepthOfField:
 
     def _measured(self, k_views: int, masks: np.ndarray, known: np.ndarray):
         """The depth map, continued from the nearest pixel that :attr:`measured_views` views'
-        worth see at its own depth (along its plane, :func:`_plane_continued`; the planes
-        feathered over :data:`FEATHER_PX`) where fewer do or the
+        worth see at its own depth (along its plane,
+        :func:`lfring.focus.continuation.plane_continued`; the planes feathered over
+        :data:`FEATHER_PX`) where fewer do or the
         depth is unknown (a depth one view alone sees was not measured: estimation picks such
         depths at the range's end, where the views drift off their discs), unless it continues
         that pixel's depth anyway (``known``: where the given map had a depth); and the views'
@@ -583,7 +489,7 @@ class DepthOfField:
         # Each continued pixel's plane (the nearest measured pixel's surface, continued along it),
         # the planes feathered and each pixel's depth read off its feathered plane: a slope is
         # continued as it is, where a feathered depth would bend towards the measured side.
-        planes = _plane_continued(self.x, measured, labels, self.radius_px)
+        planes = plane_continued(self.x, measured, labels, self.radius_px)
         share = (~measured).astype(np.float32)
         spread = np.maximum(_feathered(share, FEATHER_PX), np.float32(FEATHER_FLOOR))
         a, gu, gv = (_feathered(p * share, FEATHER_PX) / spread for p in planes)
