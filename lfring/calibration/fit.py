@@ -163,6 +163,8 @@ def calibrate(
     if any(not np.isfinite(d) or d <= 0 for d in depths):
         raise InvalidInputError(f"target depths must be positive numbers of metres, got {depths}")
     rank1 = check_bool(rank1, "rank1")
+    if layout is not None and not isinstance(layout, Layout):  # before any frame is read
+        raise InvalidInputError(f"layout must be a lfring.views.Layout (or None: detected), got {type(layout).__name__}")
     if len(set(np.round(depths, 9))) != len(depths):
         raise InvalidInputError(f"target depths must be distinct, got {depths}")
     levels = dict(pattern=pattern, black_level=black_level, white_level=white_level)
@@ -193,8 +195,6 @@ def calibrate(
         flat_img, flat_name, _ = _load_frame(flat, levels)
         if flat_img.shape[:2] != shape:
             raise InvalidInputError(f"the flat frame {flat_name} is {flat_img.shape[1]} x {flat_img.shape[0]} px, the targets {shape[1]} x {shape[0]} px")
-    if layout is not None and not isinstance(layout, Layout):
-        raise InvalidInputError(f"layout must be a lfring.views.Layout (or None: detected), got {type(layout).__name__}")
     if layout is None:
         img, name = (flat_img, flat_name) if flat_img is not None else images[min(images)]
         if flat_img is None:

@@ -22,7 +22,7 @@ import numpy as np
 from lfring.errors import InvalidInputError
 
 __all__ = [
-    "check_bool", "check_callable", "check_choice", "check_fraction", "check_int", "check_number", "check_odd_px",
+    "ANY_WINDOW_PX", "check_bool", "check_callable", "check_choice", "check_fraction", "check_int", "check_number", "check_odd_px",
     "check_shape_hw", "check_threads", "check_view_index", "is_integer", "is_number",
 ]
 
@@ -175,14 +175,20 @@ def check_bool(value, name: str, *, allow_none: bool = False, hint: str = "", er
 
 
 def check_odd_px(value, name: str, *, within=None, error=InvalidInputError) -> int:
-    """A window side: an odd positive integer (a centred window), no wider than the image of
-    (h, w) ``within`` when given (a wider one holds nothing more, and costs its area)."""
+    """A window side: an odd positive integer (a centred window); with ``within``, an image's
+    (h, w), at most :data:`ANY_WINDOW_PX` or twice its larger side and one, whichever is more (a
+    wider window holds nothing more, and costs its area)."""
     if not is_integer(value) or value < 1 or value % 2 == 0:
         raise error(f"{name} must be an odd positive integer, got {value!r}")
-    if within is not None and value > 2 * max(within) + 1:
-        raise error(f"{name} must be an odd positive integer at most {2 * max(within) + 1} (twice the image's larger "
-                    f"side, {max(within)} px, and one), got {value!r}")
+    most = None if within is None else max(ANY_WINDOW_PX, 2 * max(within) + 1)
+    if most is not None and value > most:
+        raise error(f"{name} must be an odd positive integer at most {most} (twice the image's larger side, "
+                    f"{max(within)} px, and one), got {value!r}")
     return int(value)
+
+
+ANY_WINDOW_PX = 31
+"""Windows up to this side are taken on any image, however small (the defaults among them)."""
 
 
 def check_threads(threads, *, allow_none: bool = True):

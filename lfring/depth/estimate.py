@@ -295,6 +295,9 @@ def _estimate_frames(views, calibration, engine, depth_cost, levels, progress, o
         views = np.asarray(views)
     shape, single = check_frames(views)
     b, v, h, w, c = shape
+    check_odd_px(options["window_px"], "window_px", within=(h, w))
+    if options["aggregate_px"] is not None:
+        check_odd_px(options["aggregate_px"], "aggregate_px", within=(h, w))
     offset, scale = count_levels(frames_dtype(views), levels)
     dev = resolve_device(options["device"] if options["device"] is not None or not tensor_in else views.device)
     raw = (views if tensor_in else to_device(views, dev)).to(dev).reshape(shape)

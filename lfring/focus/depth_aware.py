@@ -77,7 +77,7 @@ from lfring.core.protocols import check_calibration
 __all__ = [
     "AGREE_TOL", "BACK_EDGE_PX", "BACK_STEP_PX", "DEPTH_TOL_PX",
     "MIN_DEPTH_VIEWS", "MIN_ESTIMATED_VIEWS", "OCCLUSION_PX", "SHARP_PX", "SHARP_RAMP_PX", "SHARP_RESAMPLED_PX2", "SPREAD_TOL", "VISIBLE_VIEWS", "DepthOfField", "DEPTH_AWARE",
-    "DERIVED_RANGE_MAX_MOTION", "FAR_MOTION_PX", "FEATHER_FLOOR", "FEATHER_PX", "FILL_SMOOTH_PX", "FILL_WINDOW_PX", "aperture_from_f_number", "aperture_radius_px", "coc_radius_px", "depth_of_field", "depth_to_render", "known_depths",
+    "DERIVED_RANGE_MAX_MOTION", "FAR_MOTION_PX", "FEATHER_FLOOR", "FEATHER_PX", "MAX_BLUR_DIAGONALS", "FILL_SMOOTH_PX", "FILL_WINDOW_PX", "aperture_from_f_number", "aperture_radius_px", "coc_radius_px", "depth_of_field", "depth_to_render", "known_depths",
     "estimation_range", "prepare_depth_aware", "resolve_aperture",
 ]
 
@@ -148,6 +148,10 @@ FILL_WINDOW_PX = 21
 # floored at FEATHER_FLOOR.
 FEATHER_PX = 8.0
 FEATHER_FLOOR = 1e-3
+# A render whose largest blur radius exceeds this many frame diagonals is refused: beyond the
+# frame every pixel is the frame's mean, and the ladder's rungs (and their memory) go on growing
+# (an aperture of 1e6 asked for 110 TB).
+MAX_BLUR_DIAGONALS = 4.0
 
 
 def _depth_at(x: np.ndarray, z0: float) -> np.ndarray:
@@ -626,11 +630,11 @@ class DepthOfField:
         # The largest blur radius, from the depth map's ends: the ladder reaches it.
         rmax = aperture * motion * max(abs(self._x_range[0] - xf), abs(self._x_range[1] - xf))
         diagonal = math.hypot(h, w)
-        if rmax > diagonal:  # its layers would be larger than any memory, and show nothing
+        if rmax > MAX_BLUR_DIAGONALS * diagonal:  # its ladder of rungs grows without end, and shows only a mean
             raise InvalidInputError(
                 f"aperture {aperture:g} blurs this depth map by up to {rmax:.0f} px at the focus "
-                f"{_depth_at(xf, self.calibration.depth_origin_m):.4g} m, more than the frame's diagonal "
-                f"({diagonal:.0f} px): give a smaller aperture (1 is the views' own)")
+                f"{_depth_at(xf, self.calibration.depth_origin_m):.4g} m, more than {MAX_BLUR_DIAGONALS:g} times the "
+                f"frame's diagonal ({diagonal:.0f} px): give a smaller aperture (1 is the views' own)")
         window = None
         if self._back is not None:
             dist_under, x_b, colour_b, row_min, col_min, xb_range = self._back
@@ -831,13 +835,15 @@ def depth_to_render(depth, calibration, reference, shape) -> tuple[np.ndarray, f
     if not estimated:
         known = known_depths(dm, calibration, allow_none=True)
         typical = float(np.median(dm[known])) if known.any() else math.nan
-        hint = calibration.millimetres_hint(typical) if math.isfinite(typical) else ""
+        # Only a range with a far end tells: open to infinity, a far scene is a scene.
+        closed = calibration.valid_depth_range_m[1] is not None
+        hint = calibration.millimetres_hint(typical) if closed and math.isfinite(typical) else ""
         if hint:  # a depth map of millimetres renders as a scene at hundreds of metres, without a word
             warnings.warn(LfringWarning(f"the depth map's depths lie beyond the calibration's range (median {typical:g} "
                                         f"m){hint}"), stacklevel=3)
         # NaN says unknown; 0 says it too for many depth sensors, but it may be a mistake: say so.
         z0 = calibration.depth_origin_m
-        odd = ~np.isnan(dm) & ~known_depths(dm, calibration, allow_none=True)
+        odd = ~np.isnan(dm) & ~known
         if odd.any():
             warnings.warn(LfringWarning(
                 f"{int(odd.sum())} pixels of the depth map ({odd.mean():.1%}) are not depths beyond the depth origin "

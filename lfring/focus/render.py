@@ -179,8 +179,9 @@ def focal_stack(views, calibration, depths_m, *, reference="center", interpolati
     # The stack is one image per depth, kept at once (twice while np.stack joins them).
     need, free = 2 * z.size * arr[0].nbytes, available_memory_bytes()
     if free is not None and need > free:
-        raise InvalidInputError(f"a focal stack of {z.size} depths holds {memory_words(need)}, more than the "
-                                f"{memory_words(free)} free: give fewer depths_m, or refocus them a few at a time")
+        raise InvalidInputError(f"a focal stack of {z.size} depths needs {memory_words(need)} while it is made (its "
+                                f"images twice), more than the {memory_words(free)} free: give fewer depths_m, or "
+                                "refocus them a few at a time")
     finish = None
     if m.prepare is not None:
         finish = m.prepare(arr, calibration, reference, **_given(aperture=aperture, f_number=f_number,

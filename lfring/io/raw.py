@@ -727,7 +727,7 @@ def _above_bit_depth(p: Path, peak: int, bit_depth: int, container: int, sidecar
     side = sidecar_path(p).name
     full_scale, scale = 2**bit_depth - 1, 2 ** (container - bit_depth)
     # A sidecar's levels are of its own bit depth: they go with a bit depth given here only if it is that one.
-    own = sidecar if given is None or sidecar.get("bit_depth") in (None, bit_depth) else {}
+    own = sidecar if given is None or sidecar.get("bit_depth", container) == bit_depth else {}
     levels = {**own, **{k: v for k, v in (given or {}).items() if v is not None}}
     whites, blacks = _levels(levels.get("white_level", full_scale)), _levels(levels.get("black_level", 0))
     as_json = as_text = ""  # the scaled levels, when they are numbers (a bad one is said when it is read)

@@ -249,3 +249,19 @@ def test_featureless_views_give_no_confident_pixel():
     for method in ("local", "sgm"):
         conf = np.asarray(estimate_depth(views, cal, zmin_m=0.3, zmax_m=1.0, method=method).confidence)
         assert conf.max() < 0.05, (method, conf.max())
+
+
+def test_windows_are_bounded_by_the_views_on_both_backends_but_small_ones_always_pass():
+    """The window bound was skipped for counts on the torch path, and refused the default window
+    on views smaller than it."""
+    cal = RingCalibration.from_grid((24, 32), [(0, 0), (1, 0)], disparity_scale_px_m=20.0)
+    rng = np.random.default_rng(0)
+    views = rng.random((2, 24, 32, 1)).astype(np.float32)
+    with pytest.raises(InvalidInputError, match=r"window_px must be an odd positive integer at most 65"):
+        estimate_depth(views, cal, zmin_m=1.0, zmax_m=5.0, window_px=201, method="local")
+    pytest.importorskip("torch")
+    counts = (views * 65535).astype(np.uint16)
+    with pytest.raises(InvalidInputError, match=r"window_px must be an odd positive integer at most 65"):
+        estimate_depth(counts, cal, zmin_m=1.0, zmax_m=5.0, window_px=201, method="local", backend="torch")
+    tiny = RingCalibration.from_grid((5, 5), [(0, 0), (1, 0)], disparity_scale_px_m=2.0)
+    assert np.shape(estimate_depth(views[:, :5, :5], tiny, zmin_m=0.5, zmax_m=5.0, method="local").depth_m) == (5, 5)

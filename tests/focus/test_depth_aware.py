@@ -748,3 +748,14 @@ def test_a_depth_map_in_millimetres_is_warned_of():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         refocus(views, cal, FAR_M, method="depth-aware", depth=depth)
+
+
+def test_a_far_scene_with_an_open_calibration_is_not_taken_for_millimetres():
+    """A calibration open to infinity says nothing of a far scene's unit: a landscape at 2000 m was
+    asked whether it was given in mm."""
+    cal = RingCalibration.from_grid((N, N), [(0, 0), (1, 0), (0, 1), (1, 1)], disparity_scale_px_m=8.0)
+    assert cal.valid_depth_range_m[1] is None
+    views = np.full((4, N, N, 3), 0.5, np.float32)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        refocus(views, cal, 50.0, method="depth-aware", depth=np.full((N, N), 2000.0), aperture=0.5)

@@ -412,6 +412,11 @@ def test_counts_above_a_given_bit_depth_name_the_argument(tmp_path):
     with pytest.raises(InvalidInputError) as info:
         load_raw(path, bit_depth=12)
     assert "scaled by 16 (0 and 65520 counts); otherwise fix bit_depth" in str(info.value)
+    # A sidecar that names no bit depth holds levels of the file's own (16 bits): not scaled either.
+    path = _msb_aligned(tmp_path, {"pattern": "RGGB", "black_level": 1000, "white_level": 60000})
+    with pytest.raises(InvalidInputError) as info:
+        load_raw(path, bit_depth=12)
+    assert "scaled by 16 (0 and 65520 counts); otherwise fix bit_depth" in str(info.value)
 
 
 @pytest.mark.parametrize("value", [0, 1234])
