@@ -15,7 +15,7 @@ import mmap
 
 import numpy as np
 
-__all__ = ["available_memory_bytes", "fresh_zeros", "memory_words"]
+__all__ = ["available_memory_bytes", "check_free_memory", "fresh_zeros", "memory_words"]
 
 # Private to the process: a forked child gets its own copy on write, as with any NumPy array
 # (a shared map would let a child's writes reach the parent's arrays). Windows has no flags.
@@ -85,3 +85,15 @@ def memory_words(n_bytes: float) -> str:
     if n_bytes >= 2**30:
         return f"{n_bytes / 2 ** 30:.1f} GiB"
     return f"{n_bytes / 2 ** 20:.0f} MiB"
+
+
+def check_free_memory(need_bytes: int, what: str, remedy: str) -> None:
+    """Refuse work that needs ``need_bytes`` when the system has less free
+    (:func:`available_memory_bytes`; where it cannot say, the work goes ahead), before it starts:
+    an :class:`~lfring.errors.InvalidInputError` "``what`` needs more memory than the ... free:
+    ``remedy``"."""
+    from lfring.errors import InvalidInputError
+
+    free = available_memory_bytes() if need_bytes else None
+    if free is not None and need_bytes > free:
+        raise InvalidInputError(f"{what} needs more memory than the {memory_words(free)} free: {remedy}")

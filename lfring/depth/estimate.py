@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 
 from lfring.core.backend import check_backend, require_torch, resolve_device
-from lfring.core.memory import available_memory_bytes, memory_words
+from lfring.core.memory import check_free_memory, memory_words
 from lfring.core.transfer import (check_frames, count_levels, download, download_maps, frames_dtype, is_tensor,
                                   normalised, to_device)
 from lfring.core.protocols import check_calibration
@@ -259,10 +259,7 @@ def _check_memory(engine, n: int, shape) -> int:
     ``shape``; refused where that is more than the system has free (where it cannot say, the
     call goes ahead)."""
     need = engine.cell_bytes * n * int(shape[0]) * int(shape[1])
-    free = available_memory_bytes() if need else None
-    if free is not None and need > free:
-        raise InvalidInputError(f"{_memory_words(engine, n, shape, need)} needs more memory than the "
-                                f"{memory_words(free)} free: {_MEMORY_REMEDY}")
+    check_free_memory(need, _memory_words(engine, n, shape, need), _MEMORY_REMEDY)
     return need
 
 

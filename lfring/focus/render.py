@@ -27,7 +27,7 @@ from lfring.focus.depth_aware import MIN_DEPTH_VIEWS, DepthOfField, depth_to_ren
 from lfring.focus.methods import METHODS
 from lfring.focus.shift_and_add import Refocuser, refocus_torch
 from lfring.core.protocols import check_calibration
-from lfring.core.memory import available_memory_bytes, memory_words
+from lfring.core.memory import check_free_memory, memory_words
 from lfring.core.validate import check_odd_px
 
 __all__ = ["all_in_focus", "focal_stack", "refocus"]
@@ -177,11 +177,9 @@ def focal_stack(views, calibration, depths_m, *, reference="center", interpolati
     arr = check_views(views)
     check_renderable(calibration, z, reference=reference)
     # The stack is one image per depth, kept at once (twice while np.stack joins them).
-    need, free = 2 * z.size * arr[0].nbytes, available_memory_bytes()
-    if free is not None and need > free:
-        raise InvalidInputError(f"a focal stack of {z.size} depths needs {memory_words(need)} while it is made (its "
-                                f"images twice), more than the {memory_words(free)} free: give fewer depths_m, or "
-                                "refocus them a few at a time")
+    need = 2 * z.size * arr[0].nbytes
+    check_free_memory(need, f"a focal stack of {z.size} depths ({memory_words(need)} while it is made: its images twice)",
+                      "give fewer depths_m, or refocus them a few at a time")
     finish = None
     if m.prepare is not None:
         finish = m.prepare(arr, calibration, reference, **_given(aperture=aperture, f_number=f_number,

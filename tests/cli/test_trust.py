@@ -344,9 +344,9 @@ def test_missing_pattern_is_an_error_that_names_the_option(tmp_path):
 
 
 def test_depth_planes_beyond_the_free_memory_refused_in_one_line(tmp_path, capsys, monkeypatch):
-    from lfring.depth import estimate
+    from lfring.core import memory
 
-    monkeypatch.setattr(estimate, "available_memory_bytes", lambda: 64 << 20)  # 64 MiB free
+    monkeypatch.setattr(memory, "available_memory_bytes", lambda: 64 << 20)  # 64 MiB free
     out = tmp_path / "d"
     assert main(["depth", str(SCENE), "-o", str(out), "--planes", "60"]) == 2
     _one_error(capsys.readouterr().err, "--method sgm over 60 depth hypotheses on 705 x 705 px views (at least 114 MiB) "

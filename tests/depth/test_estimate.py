@@ -188,7 +188,7 @@ def test_a_calibration_that_is_none_is_refused(twin):
 def test_a_call_that_needs_more_memory_than_is_free_is_refused_before_it_starts(twin, monkeypatch):
     # --planes 100000 allocated 95 GB and died with a MemoryError traceback: the engines' volumes
     # grow with the hypotheses, so the call is weighed against the free memory first.
-    from lfring.depth import estimate
+    from lfring.core import memory
     from lfring.depth.engines import ENGINES
 
     r, cal, views, *_ = twin
@@ -196,19 +196,19 @@ def test_a_call_that_needs_more_memory_than_is_free_is_refused_before_it_starts(
     n = 40
     sgm = ENGINES["sgm"]
     need = sgm.cell_bytes * n * h * w
-    monkeypatch.setattr(estimate, "available_memory_bytes", lambda: need - 1)
+    monkeypatch.setattr(memory, "available_memory_bytes", lambda: need - 1)
     with pytest.raises(InvalidInputError, match=rf"method='sgm' over {n} depth hypotheses on {w} x {h} px views "
                                                 r"\(at least 76 MiB\) needs more memory than the 76 MiB free: give fewer num_planes"):
         estimate_depth(views, cal, zmin_m=0.3, zmax_m=1.0, num_planes=n)
     # Just enough is enough, the reference engine needs three times as much, 'local' streams.
-    monkeypatch.setattr(estimate, "available_memory_bytes", lambda: need)
+    monkeypatch.setattr(memory, "available_memory_bytes", lambda: need)
     assert np.isfinite(estimate_depth(views, cal, zmin_m=0.3, zmax_m=1.0, num_planes=n).depth_m).any()
     with pytest.raises(InvalidInputError, match="method='sgm-reference'"):
         estimate_depth(views, cal, zmin_m=0.3, zmax_m=1.0, num_planes=n, method="sgm-reference")
-    monkeypatch.setattr(estimate, "available_memory_bytes", lambda: 0)
+    monkeypatch.setattr(memory, "available_memory_bytes", lambda: 0)
     assert estimate_depth(views, cal, zmin_m=0.3, zmax_m=1.0, num_planes=n, method="local").depth_m.shape == (h, w)
     # Where the system cannot say, the call goes ahead.
-    monkeypatch.setattr(estimate, "available_memory_bytes", lambda: None)
+    monkeypatch.setattr(memory, "available_memory_bytes", lambda: None)
     assert estimate_depth(views, cal, zmin_m=0.3, zmax_m=1.0, num_planes=n).depth_m.shape == (h, w)
 
 

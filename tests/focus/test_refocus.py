@@ -237,11 +237,12 @@ def test_depths_that_are_not_numbers_of_metres_are_refused_by_name_and_entry():
 def test_a_focal_stack_larger_than_the_free_memory_is_refused(scene, monkeypatch):
     """100 000 depths asked for terabytes and failed after 25 s with OpenCV's error; the stack's
     size is known before any work."""
-    from lfring.focus import render
+    from lfring.core import memory
 
     _, r, cal, views, _ = scene
-    monkeypatch.setattr(render, "available_memory_bytes", lambda: 10 * views[0].nbytes)
-    with pytest.raises(InvalidInputError, match=r"a focal stack of 6 depths needs 68 MiB while it is made \(its images twice\), more than the 57 MiB free: give "
+    monkeypatch.setattr(memory, "available_memory_bytes", lambda: 10 * views[0].nbytes)
+    with pytest.raises(InvalidInputError, match=r"a focal stack of 6 depths \(68 MiB while it is made: its images twice\) "
+                                                r"needs more memory than the 57 MiB free: give "
                                                 r"fewer depths_m"):
         focal_stack(views, cal, np.linspace(0.4, 0.9, 6))
     assert focal_stack(views, cal, [0.4, 0.6]).shape == (2, *views.shape[1:])
