@@ -24,7 +24,7 @@ import numpy as np
 from lfring.core.lens import FlatField, remap_views, undistortion_maps
 from lfring.core.protocols import Calibration
 from lfring.core.validate import check_bool, check_choice, check_int, is_integer
-from lfring.core.viewstack import calibration_cache, check_unit_range
+from lfring.core.viewstack import all_finite, calibration_cache, check_unit_range
 from lfring.errors import EstimationError, FileFormatError, InvalidInputError
 from lfring.io.readers import LAYOUT_KEY
 
@@ -337,7 +337,7 @@ def flat_field_from_frame(image, layout) -> FlatField:
             views = remap_views(views, mx, my)
     else:
         views = _cut(image, layout, "flat frame")
-    if not np.isfinite(views).all():  # a NaN spreads into every view it corrects, or reads as black
+    if not all(all_finite(v) for v in views):  # a NaN spreads into every view it corrects, or reads as black
         raise InvalidInputError("the flat frame holds NaN or infinite values where the views are")
     return FlatField.from_views(views)
 

@@ -271,15 +271,13 @@ def calibrate(
 
 def camera_model(cal, device=None) -> tuple:
     """A model of the camera that does not rest on the depths ``cal`` was given, and its name in
-    words: ``device``'s optics at the frames' binning, else the built-in calibration for frames
-    of this size (what ``lfring inspect`` uses without a calibration); (None, '') without either."""
+    words: ``device``'s optics at the frames' binning (:func:`calibrate` refuses a device that no
+    binning fits to them), else the built-in calibration for frames of this size (what ``lfring
+    inspect`` uses without a calibration); (None, '') without either."""
     from lfring.calibration.defaults import default_calibration
 
     if device is not None:
-        try:
-            return RingCalibration.from_optics(device.for_frames(cal.raw_size)), f"the optics of device '{device.name}'"
-        except LfringError:  # no binning of the device gives these frames
-            pass
+        return RingCalibration.from_optics(device.for_frames(cal.raw_size)), f"the optics of device '{device.name}'"
     try:
         ref, name = default_calibration(cal.raw_size)
     except LfringError:

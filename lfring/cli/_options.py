@@ -122,19 +122,25 @@ def check_calibration_output(output) -> None:
                                  param_hint="-o")
 
 
-FILE_SUFFIXES = (".ply", ".pcd", ".xyz", ".obj", ".stl", ".tif", ".tiff", ".png", ".jpg", ".jpeg", ".pfm", ".exr",
-                 ".npy", ".npz", ".json", ".csv", ".txt", ".h5")
-"""Suffixes of files (what lfring writes, point clouds, images, arrays): an output folder that
-does not exist yet and is named like one is refused (a file name given where a folder goes)."""
+OTHER_FILE_SUFFIXES = (".ply", ".pcd", ".xyz", ".obj", ".stl", ".jpg", ".jpeg", ".pfm", ".exr", ".npy", ".npz", ".csv",
+                       ".txt", ".h5")
+"""Suffixes of files besides lfring's images, raw frames and calibrations (point clouds, other
+images, arrays): an output folder that does not exist yet and is named like any of them is
+refused (a file name given where a folder goes)."""
 
 
 def output_folder(ctx, param, value):
     """Click callback of an -o that names a folder: refuse a new one named like a file."""
     if value is None:
         return value
+    from lfring.calibration.jsonio import CALIBRATION_SUFFIX
+    from lfring.io.raw import RAW_SUFFIXES
+    from lfring.io.writers import IMAGE_SUFFIXES
+
     path = Path(value)
     said_folder = str(value).endswith(("/", os.sep))  # out.ply/ says it is a folder
-    if not path.exists() and not said_folder and path.suffix.lower() in FILE_SUFFIXES:
+    files = {*IMAGE_SUFFIXES, *RAW_SUFFIXES, CALIBRATION_SUFFIX, *OTHER_FILE_SUFFIXES}
+    if not path.exists() and not said_folder and path.suffix.lower() in files:
         raise click.BadParameter(f"-o names the folder the outputs go to, got the file name {path.name!r}; e.g. -o "
                                  f"{path.with_suffix('')}", param_hint="-o")
     return value

@@ -86,11 +86,12 @@ class Refocuser:
             raise InvalidInputError("Refocuser takes one depth; use focal_stack for several")
         check_threads(threads)
         try:
-            self.depth_m = float(depth_m) if is_number(depth_m) else None
+            depth = float(depth_m) if is_number(depth_m) else None
         except OverflowError:  # an integer beyond a float's range
-            self.depth_m = None
-        if self.depth_m is None:
+            depth = None
+        if depth is None:
             raise InvalidInputError(f"depth_m must be a number of metres, got {depth_m!r}")
+        self.depth_m = depth
         self.reference = reference
         self._flag = interpolation_flag(interpolation)
         check_renderable(calibration, self.depth_m, reference=reference)

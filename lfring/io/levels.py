@@ -135,7 +135,8 @@ def load_frame(path, *, pattern=None, black_level=None, white_level=None, calibr
     below = 0.0
     if "black_level" in from_cal and data.size:
         black = min(np.atleast_1d(np.asarray(frame.black_level, dtype=np.float64)))
-        below = float(np.count_nonzero(data[::4, ::4] < black)) / data[::4, ::4].size
+        sample = data[::4, ::4]
+        below = float(np.count_nonzero(sample < black)) / sample.size
     if only_fitting and levels and (peak > frame.white_level or below > BELOW_BLACK_FRACTION):  # not this frame's
         unfit = {k: from_cal.pop(k) for k in levels}
         frame = _load(p, given, from_cal)  # the same counts, its own levels
