@@ -92,6 +92,7 @@ class LocalPool:
         with held_signals():
             # The executor keeps its processes by pid; Python 3.14 has terminate_workers() for this.
             procs = list((getattr(self._pool, "_processes", None) or {}).values())
+            result_queue = getattr(self._pool, "_result_queue", None)  # shutdown forgets it
             self._pool.shutdown(wait=False, cancel_futures=True)
             for p in procs:
                 with contextlib.suppress(ValueError, ProcessLookupError, OSError):
@@ -103,6 +104,14 @@ class LocalPool:
                     if p.is_alive():
                         p.kill()
                         p.join(STOP_TIMEOUT_S)
+            # A worker killed while it sent a frame's outputs leaves its message cut short, and the
+            # pool's manager thread waiting for the rest. This process holds the last other end of
+            # that pipe (its workers are gone and it never writes there): closed, the wait ends
+            # at end-of-file and the thread stops. Left waiting, it would never end, and the
+            # interpreter, which joins it at exit, would never exit.
+            if result_queue is not None:
+                with contextlib.suppress(OSError):
+                    result_queue._writer.close()
             # The pool's manager thread notices the dead workers and closes its wake-up pipe; left
             # running, it races the interpreter's exit hook, which writes to that pipe (an
             # OSError traceback at exit when the pipe closes in between).
