@@ -12,6 +12,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
+import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
 from lfring.core.signals import blocked_in_children, held_signals
@@ -68,6 +69,7 @@ class LocalPool:
     def __init__(self, workers: int):
         import multiprocessing as mp
 
+        self._lost_at: float | None = None  # when a dead worker was first seen by wait
         threads = max(1, (os.cpu_count() or 1) // workers)
         # spawn, not fork: forking a process whose OpenCV thread pool is running can deadlock.
         self._pool = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"),
@@ -83,12 +85,34 @@ class LocalPool:
         """Let the workers finish their frames and stop (ProcessPoolExecutor's shutdown)."""
         self._pool.shutdown(wait=wait, cancel_futures=cancel_futures)
 
+    def wait(self, fs, return_when=FIRST_COMPLETED):
+        """:func:`held_wait` for ``fs``; a worker that died and that the pool has not noticed
+        after :data:`STOP_TIMEOUT_S` breaks the pool, as any lost worker does.
+
+        A worker lost while it sends a result (killed, or crashed) leaves the message cut short:
+        the pool's manager thread waits for the rest and never sees the loss, and the frames
+        would never finish. The pool is stopped instead (:meth:`terminate`, which ends that
+        wait), and every frame it held fails as lost."""
+        return held_wait(fs, return_when, between=self._break_if_lost)
+
+    def _break_if_lost(self) -> None:
+        procs = list((getattr(self._pool, "_processes", None) or {}).values())
+        if not any(p.exitcode is not None for p in procs):
+            self._lost_at = None
+            return
+        now = time.monotonic()
+        if self._lost_at is None:
+            self._lost_at = now
+        elif now - self._lost_at > STOP_TIMEOUT_S:
+            log.warning("a worker was lost and its pool did not notice within %g s (lost while it sent a result): "
+                        "stopping the pool", STOP_TIMEOUT_S)
+            self._lost_at = None
+            self.terminate()
+
     def terminate(self):
         """Stop now: pending frames are cancelled, running ones lost, the workers ended (SIGTERM,
         then SIGKILL after :data:`STOP_TIMEOUT_S`) and waited for. A second Ctrl-C meanwhile
         takes effect once they are gone."""
-        import time
-
         with held_signals():
             # The executor keeps its processes by pid; Python 3.14 has terminate_workers() for this.
             procs = list((getattr(self._pool, "_processes", None) or {}).values())
@@ -120,22 +144,26 @@ class LocalPool:
                 manager.join(STOP_TIMEOUT_S)
 
 
-def held_wait(fs, return_when=FIRST_COMPLETED):
+def held_wait(fs, return_when=FIRST_COMPLETED, *, between=None):
     """:func:`concurrent.futures.wait` in slices of :data:`WAIT_SLICE_S`, Ctrl-C and SIGTERM held
     within each: interrupted inside the futures' locks, a wait would leave one of them taken,
-    and the pool's manager thread (which sets the results) blocked for ever."""
+    and the pool's manager thread (which sets the results) blocked for ever. ``between``, if
+    given, is called after each slice that finished nothing."""
     while True:
         with held_signals():
             done, not_done = wait(fs, timeout=WAIT_SLICE_S, return_when=return_when)
         if done or not not_done:
             return done, not_done
+        if between is not None:
+            between()
 
 
 def local_executor(workers: int):
     """A pool of ``workers`` spawned processes (this process alone for one) and its ``wait``."""
     if workers == 1:
         return InProcess(), wait
-    return LocalPool(workers), held_wait
+    pool = LocalPool(workers)
+    return pool, pool.wait
 
 
 def dask_client(workers: int, scheduler: str | None):

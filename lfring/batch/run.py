@@ -25,7 +25,6 @@ from lfring.batch.executors import (
     LocalPool,
     dask_client,
     dask_wait,
-    held_wait,
     local_executor,
 )
 from lfring.batch.pipeline import FrameResult, process_frame
@@ -434,7 +433,8 @@ def _execute(run: _Run, todo: list[BatchJob], *, workers: int, executor: str, sc
             pool.shutdown(wait=False, cancel_futures=True)
             solo = bool(suspects)
             if suspects or queue:
-                pool, waiter = LocalPool(1 if solo else min(workers, len(queue))), held_wait
+                pool = LocalPool(1 if solo else min(workers, len(queue)))
+                waiter = pool.wait
 
         while queue or pending or suspects:
             source, room = (suspects, 1) if solo or suspects else (queue, window)

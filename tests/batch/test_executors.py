@@ -63,6 +63,7 @@ def test_dask_missing_says_how_to_install(frames, tmp_path, monkeypatch):
     assert not (tmp_path / "o" / "scene_refocus_0.5m.png").exists()
 
 
+
 _CUT_OFF_WORKER = '''
 import os, struct, sys, time
 from pathlib import Path
@@ -70,43 +71,52 @@ from pathlib import Path
 from lfring.batch.executors import LocalPool
 
 
-def cut_off(marker):
+def cut_off(marker, then):
     """In the worker: begin a result on the pool's result queue (a header for 1 MiB, 16 bytes of
-    it) and stop sending, as a worker killed while it sends a frame's outputs leaves the queue."""
+    it) and stop sending, as a worker lost while it sends a frame's outputs leaves the queue;
+    then wait to be stopped, or die."""
     result_queue = sys._getframe(1).f_locals["result_queue"]
     os.write(result_queue._writer.fileno(), struct.pack("!i", 1 << 20) + bytes(16))
     Path(marker).touch()
+    if then == "die":
+        os._exit(1)
     time.sleep(120)
 
 
 if __name__ == "__main__":
-    marker = Path(sys.argv[1])
+    marker, then = Path(sys.argv[1]), sys.argv[2]
     pool = LocalPool(1)
-    fut = pool.submit(cut_off, str(marker))
-    t0 = time.monotonic()
-    while not marker.exists() and time.monotonic() - t0 < 60:
-        time.sleep(0.01)
-    time.sleep(0.2)  # the pool's manager thread is now inside the message, waiting for the rest
-    pool.terminate()
+    fut = pool.submit(cut_off, str(marker), then)
+    if then == "die":
+        done, _ = pool.wait([fut])
+    else:
+        t0 = time.monotonic()
+        while not marker.exists() and time.monotonic() - t0 < 60:
+            time.sleep(0.01)
+        time.sleep(0.2)  # the pool's manager thread is now inside the message, waiting for the rest
+        pool.terminate()
     print(type(fut.exception(timeout=10)).__name__)
 '''
 
 
-def test_a_pool_whose_worker_was_killed_inside_a_result_ends_and_lets_the_process_exit(tmp_path):
-    """A worker killed while it sends a frame's outputs leaves its message cut short; the pool's
-    manager thread, waiting for the rest, must still end, or the process that stopped the batch
-    never exits (the interpreter joins that thread at exit)."""
+@pytest.mark.parametrize("then", ["terminate", "die"])
+def test_a_pool_whose_worker_was_lost_inside_a_result_ends_and_lets_the_process_exit(tmp_path, then):
+    """A worker lost while it sends a frame's outputs leaves its message cut short, and the pool's
+    manager thread waiting for the rest. Stopped by the batch (Ctrl-C, SIGTERM), the pool must
+    still end, or the process never exits (the interpreter joins that thread at exit); a worker
+    that died there on its own (a crash, the OOM killer) must break the pool, as any lost worker
+    does, or the batch waits for its frames for ever."""
     import subprocess
 
     script = tmp_path / "cut_off_worker.py"
     script.write_text(_CUT_OFF_WORKER)
-    proc = subprocess.Popen([sys.executable, str(script), str(tmp_path / "sending")], stdout=subprocess.PIPE,
+    proc = subprocess.Popen([sys.executable, str(script), str(tmp_path / "sending"), then], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, start_new_session=True)
     try:
         out, err = proc.communicate(timeout=60)
     except subprocess.TimeoutExpired:
         os.killpg(proc.pid, signal.SIGKILL)  # its worker too
         proc.communicate()
-        pytest.fail("the process did not exit within 60 s after terminating its pool")
+        pytest.fail(f"the process did not exit within 60 s ({then})")
     assert proc.returncode == 0, err
     assert out.split() == ["BrokenProcessPool"]

@@ -134,6 +134,9 @@ def test_a_lost_worker_s_frames_run_again_one_at_a_time_and_only_the_culprit_fai
         def terminate(self):
             pass
 
+        def wait(self, fs, return_when=None):
+            return waited(fs, return_when)
+
     def waited(fs, return_when=None):
         for pool in pools:
             pool.run()
@@ -141,7 +144,6 @@ def test_a_lost_worker_s_frames_run_again_one_at_a_time_and_only_the_culprit_fai
 
     monkeypatch.setattr(batch_run, "local_executor", lambda workers: (Killed(workers), waited))
     monkeypatch.setattr(batch_run, "LocalPool", Killed)
-    monkeypatch.setattr(batch_run, "held_wait", waited)
     out = tmp_path / "out"
     rep = run_batch([str(root)], out, BatchSettings(refocus_m=(0.5,), refocus_method="shift-and-add"), workers=2)
     assert sorted(Path(p).stem for p in rep.done) == ["a", "b", "c", "e", "f"]
