@@ -199,12 +199,40 @@ def _agreement(a, b):
 
 
 @pytest.mark.parametrize("views_of, reference", [("all", 0), ("all", "center"), ("pair", "center")])
-def test_the_16_bit_passes_match_the_float32_reference(prototype, views_of, reference):
+def test_the_16_bit_passes_match_the_float32_reference(prototype, views_of, reference, monkeypatch):
     """The default engine's fused 16-bit passes against the plain float32 reference of the same
     method ('sgm-reference'), on the twin's three-depth scene (four views, a reference view or
-    the centre; and a pair with its left-right check): the same depth nearly everywhere (a
-    quantisation step of the cost decides a few weak-texture pixels the other way)."""
+    the centre; and a pair with its left-right check).
+
+    The fused sweep's integer costs (the halves taken) are the reference's volume to half a unit
+    at every cell, and the two know the same cells. The depth after the paths, the selection and
+    the refinement is the same nearly everywhere: the paths' 16-bit sums and the reference's
+    float ones pick a few weak-texture pixels' minima the other way, and the refinement's
+    weighted median, at depth edges, turns differences of a hundredth of a hypothesis step into
+    whole bins of its histogram. At this size six hypotheses span the range, so 0.5 % of depth is
+    about 0.02 of a step: the share within it moves by a few points with any change of the
+    costs (0.96 -> 0.88 for the centre when the 'lcn' statistics stopped leaning with the rim
+    taper), the share within 2 % by a point."""
+    from lfring.depth.engines import fused_paths, fused_volume, semiglobal
+    from lfring.depth.engines.fused_common import COST_MAX, COST_ZERO, UNKNOWN
     from lfring.synth.presets import three_depth_scene
+
+    seen = {}
+
+    def spy(module, name, key, pick):
+        real = getattr(module, name)
+
+        def wrapped(*args, **kwargs):
+            seen[key] = pick(args)
+            return real(*args, **kwargs)
+
+        monkeypatch.setattr(module, name, wrapped)
+
+    # The reference's volume as its paths get it (least_over_windows), the fused one's as its
+    # paths do, and the fused sweep's unit.
+    spy(semiglobal, "least_over_windows", "reference", lambda a: a[0].copy())
+    spy(fused_paths, "horizontal_paths", "fused", lambda a: a[0].transpose(1, 0, 2).copy())
+    spy(fused_volume, "sweep_volume", "unit", lambda a: float(a[-6]))
 
     r = render(prototype, three_depth_scene(), binning=4, seed=5, noise="realistic")
     cal = RingCalibration.from_optics(r.device, layout=r.layout)
@@ -215,8 +243,17 @@ def test_the_16_bit_passes_match_the_float32_reference(prototype, views_of, refe
     ref = estimate_depth(views, cal, method="sgm-reference", **kw)
     got = estimate_depth(views, cal, **kw)
     assert got.method == "sgm" and got.consistency == (views_of == "pair")
+
+    q, volume, unit = seen["fused"], seen["reference"], seen["unit"]
+    known = q != UNKNOWN
+    assert np.array_equal(known, np.isfinite(volume))
+    inside = known & (q < COST_MAX)
+    assert inside.mean() > 0.5 * known.mean()
+    off = np.abs((q[inside].astype(np.float64) - COST_ZERO) * unit - volume[inside]) / unit
+    assert off.max() <= 0.5 + 1e-3, off.max()
+
     finite, close, near, conf = _agreement(ref, got)
-    assert finite >= 0.999 and close >= 0.95 and near >= 0.98 and conf >= 0.95, (finite, close, near, conf)
+    assert finite >= 0.999 and close >= 0.85 and near >= 0.97 and conf >= 0.95, (finite, close, near, conf)
     filled = np.isfinite(ref.depth_filled_m) & np.isfinite(got.depth_filled_m)
     rel = np.abs(got.depth_filled_m[filled] - ref.depth_filled_m[filled]) / ref.depth_filled_m[filled]
     assert np.mean(rel <= 0.02) >= 0.97

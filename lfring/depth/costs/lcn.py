@@ -10,6 +10,14 @@ S2 = sum ``w n^2`` = sum ``a^2 / w`` (:func:`weighted_square`) and C = sum ``w``
 their weighted variance ``c = (S2 - S1^2 / C) / max(C - 1, 0.5)`` (:func:`lcn_cost`). Dividing
 by the local mean makes it blind to the views' different vignetting and exposure.
 
+The local mean and variance are taken over the view's disc unweighted (its mask without the rim's
+taper, :data:`LCN_STATS_TAPER`); the taper weighs only what each view adds to the sums. Weighted
+by the taper, a window's mean near the rim leans to the side the view sees more of, so on a
+sloped luminance each view's normalised image moves by a fraction of a pixel towards its disc's
+centre, by an amount that depends on where the pixel lies in that view: where two views see a
+pixel, the best depth moved with it (benchmarks/RESULTS.md, "The 'lcn' normalisation over the
+whole disc").
+
 S2 weighs each square by ``w``, as S1 and C weigh the values, so that a view that sees a pixel
 only in part (the taper at its disc's rim, a frame edge) adds in part to every sum. Summing
 ``a^2`` instead (``w^2 n^2``) made the variance of views that agree negative wherever one
@@ -26,9 +34,9 @@ from lfring.core.filters import box_filter, luminance
 from lfring.core.threads import STRIP_PIXELS, run_threads
 from lfring.core.viewstack import WEIGHT_FLOOR, cached_view_masks
 from lfring.depth.costs.base import DepthCost, compiled_kernels
-from lfring.depth.plan import DEPTH_TAPER, sweep_masks
+from lfring.depth.plan import sweep_masks
 
-__all__ = ["LCN", "LCN_AGGREGATE_PX", "LCN_EPS", "LCN_FLOOR", "lcn_cost", "lcn_cost_torch", "lcn_slice_cost",
+__all__ = ["LCN", "LCN_AGGREGATE_PX", "LCN_EPS", "LCN_FLOOR", "LCN_STATS_TAPER", "lcn_cost", "lcn_cost_torch", "lcn_slice_cost",
            "lcn_slice_cost_torch", "lcn_sources", "weighted_square", "weighted_square_torch", "window_weights"]
 
 # The default aggregation window of the 'lcn' cost (the other costs aggregate over window_px).
@@ -37,17 +45,20 @@ LCN_AGGREGATE_PX = 15
 # fainter than 10 % of the local mean is compared unnormalised; LCN_FLOOR keeps black regions finite.
 LCN_EPS = 1e-2
 LCN_FLOOR = 1e-6
+# The rim taper of the masks over which each view's local mean and variance are taken: none (the
+# disc, its edge antialiased), whatever taper weighs the views in the cost.
+LCN_STATS_TAPER = 0.0
 
 
-def lcn_sources(views: np.ndarray, calibration, window_px: int, *, threads: int = 1, taper: float = DEPTH_TAPER) -> np.ndarray:
-    """(V, h, w) float32 locally normalised luminance of every view (masked by
-    :func:`sweep_masks` with ``taper``), to be multiplied by the mask before warping; views are
+def lcn_sources(views: np.ndarray, calibration, window_px: int, *, threads: int = 1) -> np.ndarray:
+    """(V, h, w) float32 locally normalised luminance of every view (its statistics over the view's
+    disc, :data:`LCN_STATS_TAPER`), to be multiplied by the sweep's mask before warping; views are
     shared among ``threads`` threads."""
-    masks = sweep_masks(calibration, views.shape[1:3], taper)
+    masks = sweep_masks(calibration, views.shape[1:3], LCN_STATS_TAPER)
     lum = luminance(views, threads)
     out = np.empty(lum.shape, np.float32)
 
-    weights = window_weights(calibration, views.shape[1:3], window_px, taper)
+    weights = window_weights(calibration, views.shape[1:3], window_px)
     v, h, w = lum.shape
     pad = window_px // 2
     rows = max(8, STRIP_PIXELS // (2 * max(w, 1)))  # row strips of every view, in the cache
@@ -69,12 +80,13 @@ def lcn_sources(views: np.ndarray, calibration, window_px: int, *, threads: int 
     return out
 
 
-def window_weights(calibration, view_shape, window_px: int, taper: float = DEPTH_TAPER) -> np.ndarray:
-    """(V, h, w) float32 ``1 / max(box(mask), WEIGHT_FLOOR)`` of every view's
-    :func:`sweep_masks` over ``window_px``: made once per calibration, view shape, window and taper."""
+def window_weights(calibration, view_shape, window_px: int) -> np.ndarray:
+    """(V, h, w) float32 ``1 / max(box(mask), WEIGHT_FLOOR)`` of every view's mask for the
+    normalisation's statistics (:data:`LCN_STATS_TAPER`) over ``window_px``: made once per
+    calibration, view shape and window."""
     return cached_view_masks(
         calibration, view_shape, ("window_weights", int(window_px)),
-        taper=taper, make=lambda masks: np.stack([1.0 / np.maximum(box_filter(m, window_px), WEIGHT_FLOOR) for m in masks]).astype(np.float32),
+        taper=LCN_STATS_TAPER, make=lambda masks: np.stack([1.0 / np.maximum(box_filter(m, window_px), WEIGHT_FLOOR) for m in masks]).astype(np.float32),
     )
 
 
@@ -120,7 +132,7 @@ def lcn_slice_cost_torch(torch, lum_w, wts, nview, box):
 
 
 def _sources(views, calibration, plan, window_px: int, threads: int) -> np.ndarray:
-    return lcn_sources(views, calibration, window_px, threads=threads, taper=plan.taper)
+    return lcn_sources(views, calibration, window_px, threads=threads)
 
 
 LCN = DepthCost(

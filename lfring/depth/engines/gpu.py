@@ -34,7 +34,7 @@ from lfring.core.filters import BoxTorch, normalised_luminance
 from lfring.core.transfer import device_masks, download_maps, inverse_maps, is_tensor, to_device
 from lfring.core.viewstack import WEIGHT_FLOOR, calibration_cache
 from lfring.depth.aggregation import GUIDED_EPS, GuidedTorch
-from lfring.depth.costs.lcn import LCN_EPS, LCN_FLOOR, window_weights
+from lfring.depth.costs.lcn import LCN_EPS, LCN_FLOOR, LCN_STATS_TAPER, window_weights
 from lfring.depth.costs.lcn_halves import (HALVES_GAIN, HALVES_MEDIAN_SAMPLE, HALVES_MIN_SUPPORT, halves_poor,
                                            halves_least_torch, view_halves)
 from lfring.depth.costs.lcn_occlusion import OCCLUSION_PENALTY, leavable_views, occlusion_aggregate_torch
@@ -176,7 +176,8 @@ def luminance_device(frames):
 
 def lcn_sources_device(lum, masks, weights, window_px: int):
     """:func:`lfring.depth.costs.lcn.lcn_sources` of the luminances ``lum`` (V, h, w), with the
-    views' masks and their :func:`~lfring.depth.costs.lcn.window_weights`, on their device."""
+    views' masks for the statistics (:data:`~lfring.depth.costs.lcn.LCN_STATS_TAPER`) and their
+    :func:`~lfring.depth.costs.lcn.window_weights`, on their device."""
     torch = require_torch()
     v, h, w = lum.shape
     box = BoxTorch(torch, (h, w), window_px, 1, lum.device)
@@ -458,9 +459,10 @@ def index_device(frame, lum, calibration, plan, settings, subpixel_box_px: int, 
     hinv = inverse_maps(plan.hs, dev)
     cost = settings.cost
     if cost.lcn:
-        weights = _cached(calibration, ("window_weights", (h, w), settings.window_px, float(plan.taper)), dev,
-                          lambda: window_weights(calibration, (h, w), settings.window_px, plan.taper))
-        src = lcn_sources_device(lum, masks, weights, settings.window_px).contiguous()
+        weights = _cached(calibration, ("window_weights", (h, w), settings.window_px), dev,
+                          lambda: window_weights(calibration, (h, w), settings.window_px))
+        stats_masks = device_masks(calibration, (h, w), dev, taper=LCN_STATS_TAPER)
+        src = lcn_sources_device(lum, stats_masks, weights, settings.window_px).contiguous()
     else:  # the sources as the cost's record makes them, on the host
         views = frame.cpu().numpy()
         src = to_device(cost.sources(views, calibration, plan, settings.window_px, settings.threads), dev)
