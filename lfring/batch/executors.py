@@ -13,7 +13,7 @@ import contextlib
 import logging
 import os
 import time
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, FIRST_EXCEPTION, ProcessPoolExecutor, wait
 
 from lfring.core.signals import blocked_in_children, held_signals
 from lfring.errors import InvalidInputError
@@ -104,8 +104,9 @@ class LocalPool:
         if self._lost_at is None:
             self._lost_at = now
         elif now - self._lost_at > STOP_TIMEOUT_S:
-            log.warning("a worker was lost and its pool did not notice within %g s (lost while it sent a result): "
-                        "stopping the pool", STOP_TIMEOUT_S)
+            log.warning("a worker was lost and its pool did not notice within %g s (a worker lost while it sends a "
+                        "result leaves the pool waiting for the rest): stopping the pool, its frames run again",
+                        STOP_TIMEOUT_S)
             self._lost_at = None
             self.terminate()
 
@@ -116,7 +117,9 @@ class LocalPool:
         with held_signals():
             # The executor keeps its processes by pid; Python 3.14 has terminate_workers() for this.
             procs = list((getattr(self._pool, "_processes", None) or {}).values())
-            result_queue = getattr(self._pool, "_result_queue", None)  # shutdown forgets it
+            # shutdown forgets the result queue and the manager thread: taken first.
+            result_queue = getattr(self._pool, "_result_queue", None)
+            manager = getattr(self._pool, "_executor_manager_thread", None)
             self._pool.shutdown(wait=False, cancel_futures=True)
             for p in procs:
                 with contextlib.suppress(ValueError, ProcessLookupError, OSError):
@@ -139,7 +142,6 @@ class LocalPool:
             # The pool's manager thread notices the dead workers and closes its wake-up pipe; left
             # running, it races the interpreter's exit hook, which writes to that pipe (an
             # OSError traceback at exit when the pipe closes in between).
-            manager = getattr(self._pool, "_executor_manager_thread", None)
             if manager is not None:
                 manager.join(STOP_TIMEOUT_S)
 
@@ -148,11 +150,13 @@ def held_wait(fs, return_when=FIRST_COMPLETED, *, between=None):
     """:func:`concurrent.futures.wait` in slices of :data:`WAIT_SLICE_S`, Ctrl-C and SIGTERM held
     within each: interrupted inside the futures' locks, a wait would leave one of them taken,
     and the pool's manager thread (which sets the results) blocked for ever. ``between``, if
-    given, is called after each slice that finished nothing."""
+    given, is called after each slice that did not end the wait."""
     while True:
         with held_signals():
             done, not_done = wait(fs, timeout=WAIT_SLICE_S, return_when=return_when)
-        if done or not not_done:
+            over = not not_done or (bool(done) and return_when == FIRST_COMPLETED) or (
+                return_when == FIRST_EXCEPTION and any(not f.cancelled() and f.exception() is not None for f in done))
+        if over:
             return done, not_done
         if between is not None:
             between()

@@ -87,6 +87,7 @@ if __name__ == "__main__":
     marker, then = Path(sys.argv[1]), sys.argv[2]
     pool = LocalPool(1)
     fut = pool.submit(cut_off, str(marker), then)
+    manager = pool._pool._executor_manager_thread  # the thread the interpreter joins at exit
     if then == "die":
         done, _ = pool.wait([fut])
     else:
@@ -95,7 +96,7 @@ if __name__ == "__main__":
             time.sleep(0.01)
         time.sleep(0.2)  # the pool's manager thread is now inside the message, waiting for the rest
         pool.terminate()
-    print(type(fut.exception(timeout=10)).__name__)
+    print(type(fut.exception(timeout=10)).__name__, manager.is_alive())
 '''
 
 
@@ -105,7 +106,8 @@ def test_a_pool_whose_worker_was_lost_inside_a_result_ends_and_lets_the_process_
     manager thread waiting for the rest. Stopped by the batch (Ctrl-C, SIGTERM), the pool must
     still end, or the process never exits (the interpreter joins that thread at exit); a worker
     that died there on its own (a crash, the OOM killer) must break the pool, as any lost worker
-    does, or the batch waits for its frames for ever."""
+    does, or the batch waits for its frames for ever. Either way the pool's manager thread has
+    ended when the stop returns."""
     import subprocess
 
     script = tmp_path / "cut_off_worker.py"
@@ -119,4 +121,25 @@ def test_a_pool_whose_worker_was_lost_inside_a_result_ends_and_lets_the_process_
         proc.communicate()
         pytest.fail(f"the process did not exit within 60 s ({then})")
     assert proc.returncode == 0, err
-    assert out.split() == ["BrokenProcessPool"]
+    assert out.split() == ["BrokenProcessPool", "False"]  # and the pool's thread ended with it
+
+
+@pytest.mark.parametrize("return_when", ["FIRST_COMPLETED", "ALL_COMPLETED", "FIRST_EXCEPTION"])
+def test_the_held_wait_returns_when_asked(return_when):
+    """The pool's wait in slices returns as concurrent.futures.wait does: at the first finished
+    future, when all are, or at the first exception (it returned at the first finished future
+    whatever was asked)."""
+    import concurrent.futures as cf
+    import threading
+
+    from lfring.batch.executors import WAIT_SLICE_S, held_wait
+
+    futures = [cf.Future() for _ in range(3)]
+    late = 3 * WAIT_SLICE_S
+    threading.Timer(0.01, lambda: futures[0].set_result(0)).start()
+    threading.Timer(late, lambda: futures[1].set_exception(ValueError("bad frame"))).start()
+    threading.Timer(2 * late, lambda: futures[2].set_result(2)).start()
+    done, not_done = held_wait(futures, getattr(cf, return_when))
+    want = {"FIRST_COMPLETED": 1, "FIRST_EXCEPTION": 2, "ALL_COMPLETED": 3}[return_when]
+    assert len(done) == want and len(not_done) == 3 - want
+    cf.wait(futures)

@@ -198,8 +198,9 @@ def _agreement(a, b):
             np.mean(dconf <= 0.02))
 
 
-@pytest.mark.parametrize("views_of, reference", [("all", 0), ("all", "center"), ("pair", "center")])
-def test_the_16_bit_passes_match_the_float32_reference(prototype, views_of, reference, monkeypatch):
+@pytest.mark.parametrize("views_of, reference, least_close", [("all", 0, 0.94), ("all", "center", 0.85),
+                                                                ("pair", "center", 0.96)])
+def test_the_16_bit_passes_match_the_float32_reference(prototype, views_of, reference, least_close, monkeypatch):
     """The default engine's fused 16-bit passes against the plain float32 reference of the same
     method ('sgm-reference'), on the twin's three-depth scene (four views, a reference view or
     the centre; and a pair with its left-right check).
@@ -211,8 +212,9 @@ def test_the_16_bit_passes_match_the_float32_reference(prototype, views_of, refe
     weighted median, at depth edges, turns differences of a hundredth of a hypothesis step into
     whole bins of its histogram. At this size six hypotheses span the range, so 0.5 % of depth is
     about 0.02 of a step: the share within it moves by a few points with any change of the
-    costs (0.96 -> 0.88 for the centre when the 'lcn' statistics stopped leaning with the rim
-    taper), the share within 2 % by a point."""
+    costs (0.968 -> 0.879 for the centre when the 'lcn' statistics stopped leaning with the rim
+    taper; 0.963 -> 0.953 for view 0, 0.983 -> 0.979 for the pair), the share within 2 % by a
+    point. Each case is held a point or so under what it measures (``least_close``)."""
     from lfring.depth.engines import fused_paths, fused_volume, semiglobal
     from lfring.depth.engines.fused_common import COST_MAX, COST_ZERO, UNKNOWN
     from lfring.synth.presets import three_depth_scene
@@ -253,7 +255,7 @@ def test_the_16_bit_passes_match_the_float32_reference(prototype, views_of, refe
     assert off.max() <= 0.5 + 1e-3, off.max()
 
     finite, close, near, conf = _agreement(ref, got)
-    assert finite >= 0.999 and close >= 0.85 and near >= 0.97 and conf >= 0.95, (finite, close, near, conf)
+    assert finite >= 0.999 and close >= least_close and near >= 0.97 and conf >= 0.95, (finite, close, near, conf)
     filled = np.isfinite(ref.depth_filled_m) & np.isfinite(got.depth_filled_m)
     rel = np.abs(got.depth_filled_m[filled] - ref.depth_filled_m[filled]) / ref.depth_filled_m[filled]
     assert np.mean(rel <= 0.02) >= 0.97
