@@ -169,7 +169,9 @@ class RingCalibration:
 
     def check_depth(self, depth_m, *, stacklevel: int = 3, name: str = "depth_m") -> np.ndarray:
         """Validate depths (numbers, finite, beyond z0) and warn for those outside the valid
-        range; ``name`` is how the messages name them (an entry of a list by its index)."""
+        range (asking whether they were millimetres where they would be in range as such,
+        :meth:`millimetres_hint`); ``name`` is how the messages name them (an entry of a list by
+        its index)."""
         raw = np.asarray(depth_m)
         if raw.dtype.kind not in "iuf":
             raise InvalidInputError(f"{name} must be {'a number' if raw.ndim == 0 else 'numbers'} of metres, got {depth_m!r}")
@@ -190,7 +192,7 @@ class RingCalibration:
             rng = f"{lo:g} to {hi:g} m" if hi is not None else f"beyond {lo:g} m"
             warnings.warn(
                 f"depth {', '.join(f'{v:g}' for v in bad[:3])} m is outside the calibrated range ({rng}); "
-                "the model is extrapolated", LfringWarning, stacklevel=stacklevel,
+                f"the model is extrapolated{self.millimetres_hint(*bad)}", LfringWarning, stacklevel=stacklevel,
             )
         return z
 

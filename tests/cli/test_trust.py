@@ -421,3 +421,22 @@ def test_output_into_a_pipe_that_closed_ends_quietly(tmp_path):
     err = proc.communicate(timeout=300)[1]
     assert proc.returncode == 141
     assert "error" not in err and "Traceback" not in err and "Exception ignored" not in err, err
+
+
+@pytest.mark.filterwarnings("always::lfring.errors.LfringWarning")
+def test_a_depth_given_in_millimetres_is_named_as_such_by_refocus_and_batch(tmp_path, capsys):
+    """--depth 500 (millimetres meant) refocused at 500 m, near infinity, after a warning that an
+    intended far focus gets too; the warning now asks, as depth and inspect refuse with it. A far
+    depth that is no millimetre reading (2 m) gets no such question."""
+    assert main(["refocus", str(SCENE), "--depth", "500", "--method", "shift-and-add", "-o", str(tmp_path / "a.png")]) == 0
+    assert "depth 500 m is outside the calibrated range (0.3 to 1 m); the model is extrapolated; depths are in " \
+           "metres: was 500 given in mm?" in capsys.readouterr().err
+    assert main(["refocus", str(SCENE), "--depth", "2", "--method", "shift-and-add", "-o", str(tmp_path / "b.png")]) == 0
+    err = capsys.readouterr().err
+    assert "depth 2 m is outside the calibrated range" in err and "mm?" not in err
+    frames = tmp_path / "in"
+    frames.mkdir()
+    shutil.copy(SCENE, frames / "f.png")
+    assert main(["batch", str(frames), "-o", str(tmp_path / "out"), "--refocus", "500", "--method", "shift-and-add",
+                 "--workers", "1", "--no-progress"]) == 0
+    assert "was 500 given in mm?" in capsys.readouterr().err
