@@ -14,10 +14,9 @@ from lfring.core.warping import DEFAULT_INTERPOLATION, INTERPOLATIONS
 from lfring.depth import ENGINES
 from lfring.depth.plan import JUDGED_MIN_PLANES
 from lfring.errors import InvalidInputError
-from lfring.focus.depth_aware import estimation_range
+from lfring.focus.depth_aware import check_aperture_options, estimation_range
 from lfring.focus.methods import METHODS
 from lfring.io.writers import json_default
-from lfring.optics.paraxial import check_f_number
 
 __all__ = ["BatchSettings", "all_in_focus_from_depth_map", "depth_label", "refocus_depth_problem"]
 
@@ -292,10 +291,7 @@ class BatchSettings:
         check_choice(self.depth_method, "depth_method", ENGINES)
         check_choice(self.refocus_method, "refocus_method", METHODS)
         if "aperture" in METHODS[self.refocus_method].options:
-            if self.aperture is not None and self.f_number is not None:
-                raise InvalidInputError("give the depth of field as aperture or as f_number, not both")
-            check_number(self.aperture, "aperture", minimum=0.0, allow_none=True, hint=" (1: the views' aperture, 0: a pinhole)")
-            check_f_number(self.f_number, allow_none=True)
+            check_aperture_options(self.aperture, self.f_number)
         elif self.aperture is not None or self.f_number is not None:
             owners = ", ".join(f"refocus_method={m.name!r}" for m in METHODS.values() if "aperture" in m.options)
             raise InvalidInputError(f"aperture and f_number are for {owners}")

@@ -147,7 +147,7 @@ def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolat
     from lfring.io.writers import write_gif, write_image, write_json, write_tiff_stack
     from lfring.focus import Refocuser, all_in_focus, focal_stack, resolve_aperture
     from lfring.depth.estimate import estimate_depth
-    from lfring.focus.depth_aware import depth_of_field, estimation_range
+    from lfring.focus.depth_aware import check_aperture_options, depth_of_field, estimation_range
 
     zs = _depths(depth, depths, sweep)
     bits = int(bit_depth)
@@ -178,9 +178,13 @@ def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolat
     # The record is named after the output's whole name: a.png and a.tif are two sets.
     set_stem = base.stem + mark
     outputs = OutputSet(all_outputs, name=set_stem + base.suffix, formerly=set_stem, overwrite=overwrite)
-    outputs.check()
+    # The options' own checks first: a refusal for an existing file, then for the option, made
+    # the user pass --overwrite to learn the option was wrong.
     if method != "depth-aware" and any(v is not None for v in (aperture, f_number, zmin, zmax)):
         raise click.UsageError("--aperture, --f-number, --zmin and --zmax are for --method depth-aware")
+    if method == "depth-aware":
+        check_aperture_options(aperture, f_number)
+    outputs.check()
     views, cal, cal_name = load_views(raw, calib, levels, check=not no_check, flat=flat)
     ref = check_reference(reference, cal.num_views)
     dof = {}

@@ -77,7 +77,7 @@ from lfring.core.protocols import check_calibration
 __all__ = [
     "AGREE_TOL", "BACK_EDGE_PX", "BACK_STEP_PX", "DEPTH_TOL_PX",
     "MIN_DEPTH_VIEWS", "MIN_ESTIMATED_VIEWS", "OCCLUSION_PX", "SHARP_PX", "SHARP_RAMP_PX", "SHARP_RESAMPLED_PX2", "SPREAD_TOL", "VISIBLE_VIEWS", "DepthOfField", "DEPTH_AWARE",
-    "DERIVED_RANGE_MAX_MOTION", "FAR_MOTION_PX", "FEATHER_FLOOR", "FEATHER_PX", "MAX_BLUR_DIAGONALS", "FILL_SMOOTH_PX", "FILL_WINDOW_PX", "aperture_from_f_number", "aperture_radius_px", "coc_radius_px", "depth_of_field", "depth_to_render", "known_depths",
+    "DERIVED_RANGE_MAX_MOTION", "FAR_MOTION_PX", "FEATHER_FLOOR", "FEATHER_PX", "MAX_BLUR_DIAGONALS", "FILL_SMOOTH_PX", "FILL_WINDOW_PX", "aperture_from_f_number", "aperture_radius_px", "check_aperture_options", "coc_radius_px", "depth_of_field", "depth_to_render", "known_depths",
     "estimation_range", "prepare_depth_aware", "resolve_aperture",
 ]
 
@@ -676,6 +676,17 @@ _SAMPLE_STEP_PX = 7
 """Rows and columns between the pixels whose values identify a renderer's views."""
 
 
+def check_aperture_options(aperture=None, f_number=None) -> None:
+    """The depth of field's own options, before any frame or device is read: one of them at
+    most, an ``aperture`` of at least 0 and an ``f_number`` a lens can have."""
+    from lfring.optics.paraxial import check_f_number
+
+    if aperture is not None and f_number is not None:
+        raise InvalidInputError("give the depth of field as aperture or as f_number, not both")
+    check_number(aperture, "aperture", minimum=0, allow_none=True, hint=" (1: the views' aperture, 0: a pinhole)")
+    check_f_number(f_number, allow_none=True)
+
+
 def resolve_aperture(calibration, aperture=None, f_number=None, ring_device=None) -> float:
     """The depth-aware ``aperture`` (1: the disc through the views, 0: a pinhole) from either
     ``aperture`` or ``f_number`` (1.0 when neither is given).
@@ -686,11 +697,9 @@ def resolve_aperture(calibration, aperture=None, f_number=None, ring_device=None
     at the positions it records). See
     :func:`aperture_from_f_number` for the relation.
     """
-    if aperture is not None and f_number is not None:
-        raise InvalidInputError("give the depth of field as aperture or as f_number, not both")
+    check_aperture_options(aperture, f_number)
     if f_number is None:
-        return check_number(1.0 if aperture is None else aperture, "aperture", minimum=0,
-                            hint=" (1: the views' aperture, 0: a pinhole)")
+        return 1.0 if aperture is None else float(aperture)
     if ring_device is not None:
         from lfring.optics.device import load_device
 

@@ -231,3 +231,18 @@ def test_a_stack_reaching_infinity_makes_its_all_in_focus_image(tmp_path, capsys
     meta = json.loads((tmp_path / "s_all_in_focus.png.json").read_text(), parse_constant=lambda c: pytest.fail(c))
     assert meta["all_in_focus_depths_m"] == [0.5, "inf"] and meta["chosen_depth_range_m"][1] == "inf"
     assert cv2.imread(str(tmp_path / "s_all_in_focus.png")).mean() > 20
+
+
+@pytest.mark.parametrize("args, text", [(["--aperture", "-1"], "--aperture must be a number >= 0"),
+                                        (["--f-number", "0.1"], "--f-number must be an f-number >= 0.5"),
+                                        (["--aperture", "1", "--f-number", "2"], "not both")])
+def test_a_bad_aperture_is_said_before_an_existing_output(tmp_path, capsys, args, text):
+    """Where the output exists, a bad aperture option was refused only after --overwrite was
+    passed (the refusal for the existing file came first): the option's own error comes first,
+    and the file stays."""
+    out = tmp_path / "o.png"
+    out.write_bytes(b"someone's file")
+    assert main(["refocus", str(SCENE), "--depth", "0.3", *args, "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert text in err and "exists" not in err and "Traceback" not in err
+    assert out.read_bytes() == b"someone's file"
