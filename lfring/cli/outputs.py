@@ -308,6 +308,10 @@ class OutputSet:
             Path of an output -> the path to write it to (same name, in the staging folder).
         """
         self.check()  # again: the files may have appeared while the command worked
+        # The folders this run makes for its outputs: removed again, if still empty, when it
+        # writes nothing (an error, a stop).
+        made = [d for d in (self._root, *self._root.parents) if not d.exists()]
+        committed = False
         try:
             self._root.mkdir(parents=True, exist_ok=True)
         except OSError as exc:  # a place where no folder can be made (/proc, a read-only mount)
@@ -339,9 +343,13 @@ class OutputSet:
                 raise RuntimeError(f"outputs not written: {', '.join(missing)}")  # pragma: no cover - a bug
             with _folder_lock(self._root):
                 self._commit(staged)
+            committed = True
         finally:
             with held_signals():  # a stop that comes now waits for the staged files to be gone
                 shutil.rmtree(staging, ignore_errors=True)
+                for d in made if not committed else ():
+                    with contextlib.suppress(OSError):  # not empty: something else is in it now
+                        d.rmdir()
 
     def _commit(self, staged: dict) -> None:
         """Rename the staged outputs into place and write the record, after checking again what

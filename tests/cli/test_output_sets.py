@@ -459,3 +459,25 @@ def test_a_rerun_on_a_copy_that_lost_its_times_is_the_same_run(tmp_path, capsys,
     (tmp_path / "scene.png").write_bytes(bytes(raw))
     assert main(run) == 2
     assert "as it was before it (or its sidecar) changed" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("stop", [KeyboardInterrupt, OSError])
+def test_a_command_that_writes_nothing_leaves_no_folder_it_made(tmp_path, capsys, monkeypatch, stop):
+    """Stopped (or failed) before its outputs were committed, a command removes the folders it
+    made for them (an interrupted `lfring depth -o si/` left an empty si/); a folder that was
+    there stays, and so does one that holds something else."""
+    import lfring.io.writers
+    from lfring.cli.main import main
+
+    def broken(*args, **kwargs):
+        raise stop(28, "No space left on device") if stop is OSError else stop()
+
+    monkeypatch.setattr(lfring.io.writers, "write_image", broken)
+    cmd = ["refocus", str(SCENE), "--depth", "0.5", "--method", "shift-and-add", "-o"]
+    assert main([*cmd, str(tmp_path / "new" / "sub" / "a.png")]) in (2, 130)
+    assert not (tmp_path / "new").exists()
+    (tmp_path / "kept").mkdir()
+    (tmp_path / "kept" / "other.txt").write_text("mine")
+    assert main([*cmd, str(tmp_path / "kept" / "a.png")]) in (2, 130)
+    assert _files(tmp_path / "kept") == ["other.txt"]
+    capsys.readouterr()
