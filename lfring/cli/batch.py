@@ -130,8 +130,13 @@ def command(ctx, inputs, outdir, calib, refocus_m, refocus_method, aperture, f_n
                              encoding=encoding, planes=planes, depth_method=depth_method, viewer=viewer,
                              check_frames=not no_check,
                              **levels.as_kwargs())
-    report = run_batch(list(inputs), outdir, settings, workers=workers, executor=executor, scheduler=scheduler,
-                       overwrite=overwrite, exclude=exclude, progress=progress)
+    try:
+        report = run_batch(list(inputs), outdir, settings, workers=workers, executor=executor, scheduler=scheduler,
+                           overwrite=overwrite, exclude=exclude, progress=progress)
+    except KeyboardInterrupt:  # Ctrl-C, or SIGTERM raised as one: main says which, after this line
+        click.echo(f"lfring batch: stopped; what it wrote to {outdir} is whole, and the same command again goes on "
+                   "from there", err=True)
+        raise
     # Each failure was logged once as it happened (lfring.batch); the summary counts them.
     verbose = ctx.find_root().params.get("verbose", 0)
     if report.not_frames and verbose:
