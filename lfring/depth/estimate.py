@@ -213,9 +213,7 @@ def estimate_depth(
         raise InvalidInputError("levels are the black and white counts of integer views on the torch backend")
     arr = check_views(views)
     calibration.check_fits(arr.shape)
-    check_odd_px(window_px, "window_px", within=arr.shape[1:3])
-    if aggregate_px is not None:
-        check_odd_px(aggregate_px, "aggregate_px", within=arr.shape[1:3])
+    _check_windows(window_px, aggregate_px, arr.shape[1:3])
     min_views = check_int(min_views, "min_views", minimum=1, maximum=arr.shape[0], hint=f" (there are {arr.shape[0]} views)")
     threads = _thread_count(threads)
     if not _all_finite(arr, threads):
@@ -246,6 +244,13 @@ _MEMORY_REMEDY = ("give fewer num_planes, narrow zmin_m..zmax_m, or use method='
 def _memory_words(engine, n: int, shape, need: int) -> str:
     words = f"method={engine.name!r} over {n} depth hypotheses on {shape[1]} x {shape[0]} px views"
     return words + (f" (at least {memory_words(need)})" if need else "")
+
+
+def _check_windows(window_px, aggregate_px, shape_hw) -> None:
+    """The windows against the views' size (h, w), once it is known (:func:`check_odd_px`)."""
+    check_odd_px(window_px, "window_px", within=shape_hw)
+    if aggregate_px is not None:
+        check_odd_px(aggregate_px, "aggregate_px", within=shape_hw)
 
 
 def _runs_on_device(device, plan) -> bool:
@@ -292,9 +297,7 @@ def _estimate_frames(views, calibration, engine, depth_cost, levels, progress, o
         views = np.asarray(views)
     shape, single = check_frames(views)
     b, v, h, w, c = shape
-    check_odd_px(options["window_px"], "window_px", within=(h, w))
-    if options["aggregate_px"] is not None:
-        check_odd_px(options["aggregate_px"], "aggregate_px", within=(h, w))
+    _check_windows(options["window_px"], options["aggregate_px"], (h, w))
     offset, scale = count_levels(frames_dtype(views), levels)
     dev = resolve_device(options["device"] if options["device"] is not None or not tensor_in else views.device)
     raw = (views if tensor_in else to_device(views, dev)).to(dev).reshape(shape)
