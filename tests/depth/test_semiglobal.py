@@ -568,20 +568,23 @@ def test_the_halves_pass_gives_each_poor_pixel_the_same_cost_however_its_columns
     np.testing.assert_array_equal(got[~mask], before[~mask])
 
 
-@pytest.mark.parametrize("block", [41, 9, 64])
-def test_the_selection_fits_its_parabola_to_the_known_cost_s_box_mean(block):
+@pytest.mark.parametrize("block, rad", [(41, 7), (9, 7), (64, 7), (9, 8), (41, 5), (9, 2), (41, 1)])
+def test_the_selection_fits_its_parabola_to_the_known_cost_s_box_mean(block, rad):
     """Where every hypothesis's summed paths tie (a flat eroded cost), the vertical pass's winner
-    is the hypothesis of the least box mean of the raw cost over the wider box (15 x 15, over its
-    known pixels, reflected at the image's sides) and its offset the parabola through that mean's
-    neighbours (the range's ends: the one-sided fit; unknown neighbours: the mean of the known
-    ones). Checked against NumPy on a cost with unknown pixels, in one block of columns (as wide
-    as the image, or a tile wider) and in blocks whose edges lie inside the image."""
+    is the hypothesis of the least box mean of the raw cost over the wider box (the default's 15 x
+    15, over its known pixels, reflected at the image's sides) and its offset the parabola through
+    that mean's neighbours (the range's ends: the one-sided fit; unknown neighbours: the mean of
+    the known ones). Checked against NumPy on a cost with unknown pixels, in one block of columns
+    (as wide as the image, or a tile wider) and in blocks whose edges lie inside the image; boxes
+    of every way their columns are summed (from sums over 2 and 4 columns up to
+    QUAD_WINDOW_MAX_PX wide, by a running sum beyond)."""
     from lfring.core.viewstack import WEIGHT_FLOOR
     from lfring.depth.engines import fused_paths
     from lfring.depth.engines.fused_common import UNKNOWN
 
     rng = np.random.default_rng(11)
-    h, n, w, rad = 23, 6, 41, 7
+    h, n, w = 23, 6, 41
+    assert (2 * rad + 1 <= fused_paths.QUAD_WINDOW_MAX_PX) == (rad <= 7)
     vol = rng.integers(1024, 6000, (h, n, w)).astype(np.uint16)
     vol[rng.random((h, n, w)) < 0.15] = UNKNOWN
     vol[:, :, 30:33] = UNKNOWN  # columns no hypothesis knows

@@ -38,6 +38,9 @@ SIDE_BY_SIDE_COLUMNS = 32
 # The ends of a padded path state (:func:`_chain_step`): with p1 added it stays above any jump
 # (a path's least plus a penalty, fused_common) and within int16.
 PAD = 32767 - PENALTY_MAX
+# The widest box of the selection's raw cost whose column sums are summed from sums over 2 and 4
+# columns (:func:`_raw_rows`): three sums of 4, one of 2 and one column.
+QUAD_WINDOW_MAX_PX = 15
 
 
 def tile_shape(h: int, n: int, w: int, block: int) -> tuple:
@@ -516,6 +519,7 @@ def _vertical_block(vol, eroded, total, guide, use_guide, p1, p2, edge_scale, er
     col_sum = np.zeros((n, m + 2 * raw_rad), np.int32)
     col_cnt = np.zeros((n, m + 2 * raw_rad), np.int32)
     raw = np.empty((n, m), np.float32)
+    box_scratch = np.zeros((5, m + 2 * raw_rad), np.int32)
     for direction in range(2):
         for i in range(h):
             y = i if direction == 0 else h - 1 - i
@@ -547,7 +551,8 @@ def _vertical_block(vol, eroded, total, guide, use_guide, p1, p2, edge_scale, er
                 else:
                     _raw_move(vol, reflect(y - raw_rad, h), reflect(y + raw_rad + 1, h), d, x0, m, raw_rad, col_sum[d],
                               col_cnt[d])
-            _select_row(vol, total[y, tile], cur, y, x0, x1, raw_rad, exclude, floor, col_sum, col_cnt, raw, index, conf)
+            _select_row(vol, total[y, tile], cur, y, x0, x1, raw_rad, exclude, floor, col_sum, col_cnt, box_scratch, raw,
+                        index, conf)
 
 
 @njit(**PARALLEL)
@@ -604,45 +609,95 @@ def _move_column(new, old, x, j, col_sum, col_cnt):
 
 
 @njit(**INLINE)
-def _raw_row(col_sum, col_cnt, centre, rad, area, floor, sums, counts, out):
-    """out[x] = the mean known cost of the box around x (its column sums ``col_sum``,
-    ``col_cnt``), inf where the centre is unknown: the mean over the known pixels with the share
-    of known pixels floored at ``floor``, as the seen-pixel mean of the reference. ``sums``,
-    ``counts``: int32 scratch rows of the output's length."""
-    m = out.shape[0]
-    # The running sums first (a serial chain of integer adds), then the divisions, which
-    # vectorise in a loop of their own.
-    ssum = np.int32(0)
-    csum = np.int32(0)
-    for j in range(2 * rad):
-        ssum = np.int32(ssum + col_sum[j])
-        csum = np.int32(csum + col_cnt[j])
-    for x in range(m):
-        ssum = np.int32(ssum + col_sum[x + 2 * rad])
-        csum = np.int32(csum + col_cnt[x + 2 * rad])
-        sums[x] = ssum
-        counts[x] = csum
-        ssum = np.int32(ssum - col_sum[x])
-        csum = np.int32(csum - col_cnt[x])
-    inv_area = np.float32(1.0 / area)
-    for x in range(m):
-        share = np.float32(counts[x]) * inv_area
-        share = share if share > floor else floor
-        out[x] = np.float32(sums[x]) * inv_area / share if centre[x] != UNKNOWN else np.float32(np.inf)
+def _pair_sums(src, span, dst):
+    """dst[x] = src[x] + src[x + span] wherever both lie in ``src`` (a pass that vectorises)."""
+    n_out = src.shape[0] - span
+    a = src[:n_out]
+    b = src[span:span + n_out]
+    for x in range(n_out):
+        dst[x] = np.int32(a[x] + b[x])
 
 
 @njit(**INLINE)
-def _select_row(vol, sums_row, cur, y, x0, x1, raw_rad, exclude, floor, col_sum, col_cnt, raw, index, conf):
+def _window_terms(col, width, m, two, four, zero):
+    """Five rows whose sum at x < m is col[x] + ... + col[x + width - 1] (``width`` at most
+    :data:`QUAD_WINDOW_MAX_PX`, col's length m + width - 1): up to three sums over 4 columns, one
+    over 2 and one column, ``zero`` for each that the width leaves out. ``two`` and ``four``
+    receive col's sums over 2 and 4 consecutive columns."""
+    n = col.shape[0]
+    _pair_sums(col, 1, two)
+    _pair_sums(two[:n - 1], 2, four)
+    q = width // 4
+    o2 = 4 * q
+    o1 = o2 + (2 if width & 2 else 0)
+    return (four[0:m] if q > 0 else zero[:m], four[4:4 + m] if q > 1 else zero[:m], four[8:8 + m] if q > 2 else zero[:m],
+            two[o2:o2 + m] if width & 2 else zero[:m], col[o1:o1 + m] if width & 1 else zero[:m])
+
+
+@njit(**INLINE)
+def _box_mean(total, known, centre, inv_area, floor):
+    """The mean known cost of a box (``total`` over ``known`` pixels), inf where the ``centre`` is
+    unknown: the share of known pixels floored at ``floor``, as the seen-pixel mean of the
+    reference."""
+    share = np.float32(known) * inv_area
+    share = share if share > floor else floor
+    return np.float32(total) * inv_area / share if centre != UNKNOWN else np.float32(np.inf)
+
+
+@njit(**JIT)
+def _raw_rows(col_sum, col_cnt, vol, y, x0, rad, floor, scratch, sums, counts, raw):
+    """raw[d, x] = :func:`_box_mean` of the box around column x0 + x of row ``y`` for hypothesis d
+    (its column sums ``col_sum[d]``, ``col_cnt[d]``; the centre ``vol[y, d, x0 + x]``).
+    ``sums``, ``counts``: int32 scratch rows of raw's width; ``scratch`` (5, the column sums'
+    length) int32, its last row zeros.
+
+    A box up to :data:`QUAD_WINDOW_MAX_PX` wide sums its columns from their sums over 2 and 4
+    (passes that vectorise, and one loop over the five terms and the divisions); a wider one by a
+    running sum along the row, a serial chain of integer adds that does not vectorise. Integer
+    sums: the same values either way. (One call a row: a call per hypothesis costs more than
+    the sums.)"""
+    n, m = raw.shape
+    width = 2 * rad + 1
+    inv_area = np.float32(1.0 / (width * width))
+    for d in range(n):
+        centre = vol[y, d, x0:x0 + m]
+        out = raw[d]
+        if width <= QUAD_WINDOW_MAX_PX:
+            s0, s1, s2, s3, s4 = _window_terms(col_sum[d], width, m, scratch[0], scratch[1], scratch[4])
+            c0, c1, c2, c3, c4 = _window_terms(col_cnt[d], width, m, scratch[2], scratch[3], scratch[4])
+            for x in range(m):
+                total = np.int32(s0[x] + s1[x] + s2[x] + s3[x] + s4[x])
+                known = np.int32(c0[x] + c1[x] + c2[x] + c3[x] + c4[x])
+                out[x] = _box_mean(total, known, centre[x], inv_area, floor)
+            continue
+        cs = col_sum[d]
+        cc = col_cnt[d]
+        ssum = np.int32(0)
+        csum = np.int32(0)
+        for j in range(2 * rad):
+            ssum = np.int32(ssum + cs[j])
+            csum = np.int32(csum + cc[j])
+        for x in range(m):
+            ssum = np.int32(ssum + cs[x + 2 * rad])
+            csum = np.int32(csum + cc[x + 2 * rad])
+            sums[x] = ssum
+            counts[x] = csum
+            ssum = np.int32(ssum - cs[x])
+            csum = np.int32(csum - cc[x])
+        for x in range(m):
+            out[x] = _box_mean(sums[x], counts[x], centre[x], inv_area, floor)
+
+
+@njit(**INLINE)
+def _select_row(vol, sums_row, cur, y, x0, x1, raw_rad, exclude, floor, col_sum, col_cnt, scratch, raw, index, conf):
     """Winner, offset and confidence of the pixels x0..x1 of row ``y`` from the complete sum
     (``sums_row``, (N, tile width), the other paths' sum there, + the bottom-up path ``cur``) and
     the raw cost's box mean."""
     h, n, w = vol.shape
     m = x1 - x0
-    area = (2 * raw_rad + 1) ** 2
     sums = np.empty(m, np.int32)
     counts = np.empty(m, np.int32)
-    for d in range(n):
-        _raw_row(col_sum[d], col_cnt[d], vol[y, d, x0:x1], raw_rad, area, np.float32(floor), sums, counts, raw[d])
+    _raw_rows(col_sum, col_cnt, vol, y, x0, raw_rad, np.float32(floor), scratch, sums, counts, raw)
     # The loops over the columns are branch-free selects on int32 (the winners' indices too):
     # a branch or an int64 lane keeps them from vectorising.
     big = np.int32(1 << 30)
