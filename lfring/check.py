@@ -13,6 +13,7 @@ refocus at one depth, a fraction of the time that reading and demosaicing the fr
 
 from __future__ import annotations
 
+import os
 import warnings
 from dataclasses import dataclass, field
 
@@ -42,6 +43,10 @@ turned image.)"""
 
 CHECK_DOWNSAMPLE = 4
 """Views are reduced by this factor (area averaging) before the check."""
+
+CHECK_MIN_SIDE_PX = 16
+"""The reduced views keep at least this many pixels a side (a larger ``downsample`` is refused):
+fewer hold no texture to compare."""
 
 MIN_DISC_CONTRAST = 0.5
 """Smallest disc contrast (:attr:`FrameCheck.disc_contrast`) of a frame that is taken as a ring
@@ -199,9 +204,13 @@ def _image_of(frame):
         info = {"pattern": frame.pattern, "black_level": frame.black_level, "white_level": frame.white_level,
                 "bit_depth": frame.bit_depth}
         return demosaic(frame, method="bilinear"), None, info
+    if isinstance(frame, (str, os.PathLike)):
+        raise InvalidInputError(f"check_frame takes the frame, not a path: lfring.load_raw({str(frame)!r})")
     arr = np.asarray(frame)
     if not np.issubdtype(arr.dtype, np.floating):
         raise InvalidInputError(f"check_frame takes a RawFrame, a float image (H, W[, C]) or views (V, h, w, C), got {arr.dtype}")
+    if not np.isfinite(arr).all():
+        raise InvalidInputError("check_frame: the frame contains NaN or infinite values")
     if arr.ndim == 2:
         arr = arr[..., None]
     if arr.ndim == 3:
@@ -302,19 +311,18 @@ def check_frame(frame, calibration, *, threshold: float = AGREEMENT_THRESHOLD, d
     from lfring.views import correct_views, split_views
 
     check_calibration(calibration)
-    downsample = check_int(downsample, "downsample", minimum=1)
+    layout = calibration.layout
+    downsample = check_int(downsample, "downsample", minimum=1,
+                           maximum=max(1, min(layout.view_shape) // CHECK_MIN_SIDE_PX))
     threshold = check_number(threshold, "threshold", minimum=-1.0, maximum=1.0, what="a ZNCC")
     image, views, info = _image_of(frame)
-    layout = calibration.layout
     if image is not None:
         calibration.check_frame(image.shape)
         lum_img = luminance(np.ascontiguousarray(np.atleast_3d(image), dtype=np.float32)[None])[0]
         lum = split_views(lum_img[..., None], layout)[..., 0]
         size = (int(image.shape[1]), int(image.shape[0]))
     else:
-        if views.shape[1:3] != layout.view_shape:
-            raise InvalidInputError(f"views are {views.shape[2]} x {views.shape[1]} px, the calibration's layout cuts "
-                                    f"{layout.view_shape[1]} x {layout.view_shape[0]} px views")
+        calibration.check_fits(views.shape)
         size = calibration.raw_size
         lum = luminance(np.ascontiguousarray(views, dtype=np.float32))
     inside = layout.masks()

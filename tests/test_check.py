@@ -9,7 +9,7 @@ import pytest
 
 from lfring import check_frame, demosaic, load_raw, split_views
 from lfring.calibration.defaults import default_calibration
-from lfring.check import AGREEMENT_THRESHOLD, draw_layout
+from lfring.check import AGREEMENT_THRESHOLD, CHECK_MIN_SIDE_PX, draw_layout
 from lfring.errors import InvalidInputError
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "synthetic"
@@ -323,3 +323,25 @@ def test_a_dim_frame_passes_with_an_under_exposure_warning(prototype, exposure, 
     assert res.ok and bool(said) == dim and (res.warning.startswith("under-exposed") if dim else res.warning == "")
     if dim:
         assert f"(under-exposed below {DIM_LEVEL:.0%})" in str(said[0].message) and "reads too far" in res.message
+
+
+def test_bad_frames_and_options_are_refused_by_name(cal, scene_views):
+    """A NaN in the frame was judged "no discs, an image" (in the views: a pass, with NumPy's
+    warnings), three views broke a broadcast, a downsampling past the views' size broke OpenCV's
+    resize, a path was named by its dtype: each is now refused, saying what to give."""
+    frame = demosaic(load_raw(DATA / "scene.png"))
+    frame[100, 100, 0] = np.nan
+    with pytest.raises(InvalidInputError, match="NaN or infinite"):
+        check_frame(frame, cal)
+    views = scene_views.copy()
+    views[2, 300, 300, 1] = np.inf
+    with pytest.raises(InvalidInputError, match="NaN or infinite"):
+        check_frame(views, cal)
+    with pytest.raises(InvalidInputError, match=r"the calibration is for 4 views .* the views are 3 of 705 x 705 px"):
+        check_frame(scene_views[:3], cal)
+    most = 705 // CHECK_MIN_SIDE_PX
+    with pytest.raises(InvalidInputError, match=rf"downsample must be an integer >= 1 and <= {most}, got 1000"):
+        check_frame(scene_views, cal, downsample=1000)
+    assert check_frame(scene_views, cal, downsample=most).size_px == cal.raw_size
+    with pytest.raises(InvalidInputError, match=r"not a path: lfring.load_raw\("):
+        check_frame(str(DATA / "scene.png"), cal)
