@@ -533,6 +533,10 @@ def detect_layout(
     True
     """
     check_choice(kind, "kind", DETECT_KINDS)
+    if isinstance(grid, (str, bytes)) or np.ndim(grid) != 1 or np.size(grid) != 2 or not all(
+            is_integer(n) and n >= 1 for n in grid):
+        raise InvalidInputError(f"grid must be (rows, cols) of views, two integers >= 1, got {grid!r}")
+    grid = (int(grid[0]), int(grid[1]))
     try:
         return _detect_layout(image, kind, rotate180, grid)
     except (InvalidInputError, EstimationError) as exc:
@@ -543,6 +547,14 @@ def detect_layout(
 
 def _detect_layout(image, kind: str, rotate180: bool, grid: tuple[int, int]) -> Layout:
     """:func:`detect_layout` without the name of the image in its refusals."""
+    from lfring.io.raw import RawFrame
+
+    if isinstance(image, RawFrame):
+        raise InvalidInputError("detect_layout takes the frame's image: lfring.demosaic(frame), or its Bayer mosaic "
+                                "frame.mosaic as it is")
+    if isinstance(image, (str, Path)):
+        raise InvalidInputError(f"detect_layout takes the frame's image, not a path: "
+                                f"lfring.demosaic(lfring.load_raw({str(image)!r}))")
     arr = np.asarray(image)
     if arr.ndim == 3:
         arr = arr.mean(axis=2)
@@ -602,6 +614,9 @@ def _check_discs(circles, w: int, h: int, grid: tuple[int, int]) -> None:
 
 
 _ENVELOPE_FRACTION = 80
+# A bright region at least this share of the smallest view's area is taken for a view (for the
+# count of views against the grid).
+DISC_ALIKE_AREA = 0.5
 
 
 def _envelope(fine: np.ndarray) -> np.ndarray:
@@ -631,6 +646,12 @@ def _rough_discs(coarse: np.ndarray, grid: tuple[int, int]) -> list[tuple[float,
             f"found {len(found)} bright region(s) where {n} views were expected; is this a "
             "frame of the ring camera (a flat frame shows one bright disc per view on a dark surround)?"
         )
+    # The views' discs are alike: more regions of a kept one's size than the grid holds are views
+    # the grid leaves out, not stray light.
+    alike = int(np.sum(stats[order, cv2.CC_STAT_AREA] >= DISC_ALIKE_AREA * stats[found[-1], cv2.CC_STAT_AREA]))
+    if alike > n:
+        raise EstimationError(f"found {alike} bright regions of a view's size where the grid {grid[0]} x {grid[1]} "
+                              f"holds {n} views: give the grid of the frame's views")
     blobs = []
     for i in found:
         comp = (labels == i).astype(np.uint8)

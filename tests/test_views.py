@@ -230,3 +230,24 @@ def test_a_flat_frame_with_nan_inside_the_views_is_refused_as_such():
     flat[y + 300:y + 310, x + 300:x + 310] = np.nan
     with pytest.raises(InvalidInputError, match="the flat frame holds NaN or infinite values where the views are"):
         split_views(frame, cal, flat=flat)
+
+
+def test_a_grid_that_leaves_views_out_is_refused(flats):
+    """grid=(1, 2) on a frame of four discs kept the two largest without a word; a grid that is no
+    (rows, cols) pair of counts broke on a division or an index; a RawFrame or a path was called
+    an image of the wrong shape. Each is refused, saying what to give; the right grid finds the
+    four views."""
+    from lfring.io.raw import RawFrame
+
+    r = flats[("RGGB", "realistic")]
+    with pytest.raises(EstimationError, match=r"found 4 bright regions of a view's size where the grid 1 x 2 holds 2"):
+        detect_layout(r.raw, grid=(1, 2))
+    for grid in [(0, 0), 4, (2, 2, 1), (2.5, 2), "2x2"]:
+        with pytest.raises(InvalidInputError, match="grid must be \\(rows, cols\\) of views"):
+            detect_layout(r.raw, grid=grid)
+    assert detect_layout(r.raw, grid=(2, 2)).num_views == 4
+    frame = RawFrame(mosaic=r.raw, pattern="RGGB", black_level=r.black_level, white_level=r.white_level, bit_depth=12)
+    with pytest.raises(InvalidInputError, match=r"lfring.demosaic\(frame\), or its Bayer mosaic"):
+        detect_layout(frame)
+    with pytest.raises(InvalidInputError, match=r"not a path"):
+        detect_layout("flat.png")
