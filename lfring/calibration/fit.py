@@ -264,8 +264,9 @@ def calibrate(
         cal = dataclasses.replace(cal, flat_field=flat_field_from_frame(flat_img, cal))
     if how == "fitted":
         check_fitted_origin(cal.depth_origin_m, min(measured), device)
-    if device is not None:
-        warn_depths_off(cal, {d: images[d][1] for d in images}, *camera_model(cal, device))
+    # Without a device the built-in calibration of frames this size stands in, which may be another
+    # camera's: it refuses only depths in another unit, and warns of nothing smaller.
+    warn_depths_off(cal, {d: images[d][1] for d in images}, *camera_model(cal, device), warn=device is not None)
     return cal
 
 
@@ -285,14 +286,15 @@ def camera_model(cal, device=None) -> tuple:
     return ref, f"the built-in calibration '{name}'"
 
 
-def warn_depths_off(cal, names: dict, ref, what: str) -> None:
+def warn_depths_off(cal, names: dict, ref, what: str, warn: bool = True) -> None:
     """Warn (log) of consecutive planes between which the views move otherwise than the camera
     model ``ref`` (in words ``what``, :func:`camera_model`) says they move between the depths
     given, by more than :data:`DEPTH_LABEL_TOL`; ``names`` the planes' frames by depth. Two
     planes fit exactly whatever their depths, so only the optics can tell a depth measured from
     the wrong point, given for another frame or in millimetres. The motion between two planes
     does not depend on where the views were cut (their layout). More than :data:`UNIT_RATIO`
-    times off is refused (:class:`InvalidInputError`): depths in another unit."""
+    times off is refused (:class:`InvalidInputError`): depths in another unit; less is logged
+    with ``warn``."""
     from lfring.calibration.model import view_motion_px
 
     if ref is None:
@@ -310,7 +312,7 @@ def warn_depths_off(cal, names: dict, ref, what: str) -> None:
     if unit:
         raise InvalidInputError(f"by {what}, {'; '.join(off)}: more than {UNIT_RATIO:g} times off, as depths in another "
                                 f"unit are; depths are in metres from the main lens, not mm{cal.millimetres_hint(*zs)}")
-    if off:
+    if off and warn:
         log.warning("by %s, %s: check that each depth is in metres, measured from the main lens and given in the order "
                     "of the frames (the calibration takes the depths as given)", what, "; ".join(off))
 

@@ -226,3 +226,22 @@ def test_depths_as_strings_and_a_rank1_that_is_not_a_bool_are_refused():
         calibrate({str(k): v for k, v in frames.items()})
     with pytest.raises(InvalidInputError, match=r"rank1 must be True or False, got 'yes'"):
         calibrate(frames, rank1="yes")
+
+
+def test_millimetres_given_as_metres_are_refused_without_a_device(caplog):
+    """Without a device, calibrate({300: ..., 1000: ...}) made a calibration valid from 300 to
+    1000 m (the command line refused it, the API did not look): the built-in calibration of
+    frames this size stands in for the optics, and refuses the unit; it warns of nothing smaller,
+    since it may be another camera's."""
+    import logging
+    from pathlib import Path
+
+    data = Path(__file__).resolve().parents[2] / "data" / "synthetic"
+    flat = str(data / "flat.png")
+    with pytest.raises(InvalidInputError, match=r"by the built-in calibration 'twin_binned2', between the planes given "
+                                                r"as 300 m and 1000 m .* more than 30 times off"):
+        calibrate({300: str(data / "target_0.3m.png"), 1000: str(data / "target_1m.png")}, flat=flat)
+    with caplog.at_level(logging.WARNING, logger="lfring.calibration"):
+        cal = calibrate({0.3: str(data / "target_0.3m.png"), 1.0: str(data / "target_1m.png")}, flat=flat)
+    assert cal.valid_depth_range_m == (0.3, 1.0)
+    assert "by the built-in calibration" not in caplog.text
