@@ -16,7 +16,7 @@ from lfring.calibration.model import VariableHomography, fit_variable_homography
 from lfring.calibration.ring import DEVICE_RECORD, RingCalibration
 from lfring.core.validate import check_number
 from lfring.errors import InvalidInputError
-from lfring.optics.device import RingDevice
+from lfring.optics.device import RingDevice, load_device
 from lfring.optics.views import ideal_discs_px, lens_distortions, optical_homography_model, optical_layout, view_cameras
 from lfring.views import Layout, grid_layout
 
@@ -33,8 +33,9 @@ def calibration_from_optics(device: RingDevice, *, layout: Layout | None = None,
 
     Parameters
     ----------
-    device : RingDevice
-        The device description (:func:`lfring.optics.load_device`).
+    device : RingDevice, str or path
+        The device description, or what :func:`lfring.optics.load_device` takes (a built-in
+        name, a device file).
     layout : Layout, optional
         Where the views lie on the raw frame; by default the one the optics predict.
     rotate180 : bool
@@ -56,6 +57,7 @@ def calibration_from_optics(device: RingDevice, *, layout: Layout | None = None,
     >>> cal.source, cal.num_views, cal.raw_size
     ('optics', 4, (2456, 1842))
     """
+    device = load_device(device)
     layout = layout or optical_layout(device, rotate180=rotate180)
     a, b, z0 = optical_homography_model(device, layout, reference=0)
     s = view_cameras(device).depth_origin_m

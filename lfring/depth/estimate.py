@@ -246,9 +246,17 @@ def _memory_words(engine, n: int, shape, need: int) -> str:
     return words + (f" (at least {memory_words(need)})" if need else "")
 
 
+# The narrowest normalisation window: every cost divides by a local mean (and 'lcn' by a local
+# contrast) over ``window_px``, and over one pixel that leaves every view alike.
+MIN_WINDOW_PX = 3
+
+
 def _check_windows(window_px, aggregate_px, shape_hw) -> None:
     """The windows against the views' size (h, w), once it is known (:func:`check_odd_px`)."""
     check_odd_px(window_px, "window_px", within=shape_hw)
+    if window_px < MIN_WINDOW_PX:
+        raise InvalidInputError(f"window_px must be at least {MIN_WINDOW_PX}: the costs normalise each view by its local "
+                                f"mean over the window, and over one pixel every view looks alike; got {window_px}")
     if aggregate_px is not None:
         check_odd_px(aggregate_px, "aggregate_px", within=shape_hw)
 

@@ -106,8 +106,10 @@ class DepthResult:
         >>> points.shape[1], colors.dtype.name, bool(0.25 < np.median(points[:, 2]) < 1.05)
         (3, 'uint8', True)
         """
+        from lfring.core.protocols import check_calibration
         from lfring.depth.io import depth_to_points, device_for
 
+        check_calibration(calibration)
         return depth_to_points(self.depth_m, device_for(calibration, device), calibration.layout, self.reference,
                                colors=colors, confidence=self.confidence, min_confidence=min_confidence)
 

@@ -255,6 +255,8 @@ def all_in_focus(views, calibration, depths_m=None, *, depth_map_m=None, referen
     """
     check_calibration(calibration)
     arr = check_views(views)
+    if not isinstance(depth_map_m, DepthOfField):  # a renderer says what it was made from
+        calibration.check_fits(arr.shape)
     window_px = check_odd_px(window_px, "window_px", within=arr.shape[1:3])
     h, w = arr.shape[1:3]
     measured_views = MIN_DEPTH_VIEWS

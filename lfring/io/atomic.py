@@ -9,8 +9,15 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from lfring.core.signals import held_signals
+from lfring.errors import InvalidInputError
 
-__all__ = ["atomic_path", "atomic_write_bytes", "atomic_write_text"]
+__all__ = ["atomic_path", "atomic_write_bytes", "atomic_write_text", "refuse_folder"]
+
+
+def refuse_folder(path: Path) -> None:
+    """Refuse an output path that is a folder (a file name was meant)."""
+    if path.is_dir():
+        raise InvalidInputError(f"cannot write {path}: it is a folder; give a file name")
 
 
 @contextlib.contextmanager
@@ -22,6 +29,7 @@ def atomic_path(path: str | Path, *, tmp_dir: str | Path | None = None) -> Itera
     (OpenCV, tifffile) work unchanged. On error the temporary file is removed.
     """
     path = Path(path)
+    refuse_folder(path)
     where = path.parent if tmp_dir is None else Path(tmp_dir)
     tmp_path = None
     try:

@@ -102,6 +102,8 @@ def read_json(path: str | Path, what: str, *, refusal=None):
     given, words the refusal of such a file from that saying (a reader that tells the user what
     to give instead)."""
     path = Path(path)
+    if path.is_dir():
+        raise LfringFileNotFoundError(f"{what} file not found: {path} is a folder; give the file's path")
     if not path.is_file():
         raise LfringFileNotFoundError(f"{what} file not found: {path}")
     value, why = parse_json(path.read_bytes())

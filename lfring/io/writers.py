@@ -12,7 +12,7 @@ import tifffile
 
 from lfring.core.validate import check_choice
 from lfring.errors import FileFormatError, InvalidInputError
-from lfring.io.atomic import atomic_path, atomic_write_bytes, atomic_write_text
+from lfring.io.atomic import atomic_path, atomic_write_bytes, atomic_write_text, refuse_folder
 
 __all__ = [
     "IMAGE_SUFFIXES", "check_output_folder", "check_writable", "encode_file", "encode_float_tiff", "encode_image", "write_float_tiff", "write_gif",
@@ -58,8 +58,7 @@ def check_writable(paths, *, overwrite: bool) -> None:
     """
     paths = [Path(p) for p in paths]
     for p in paths:
-        if p.is_dir():
-            raise InvalidInputError(f"cannot write {p}: it is a folder")
+        refuse_folder(p)
         why = _unwritable_below(p.parent)
         if why:
             raise InvalidInputError(f"cannot write {p}: {why}")

@@ -35,6 +35,14 @@ def test_from_optics_is_the_paraxial_model(twin):
     method = RingCalibration.from_optics(dev)
     np.testing.assert_array_equal(method.homographies(0.42), cal.homographies(0.42))
     assert (method.valid_depth_range_m, method.provenance) == (cal.valid_depth_range_m, cal.provenance)
+    # A device's name, as every other function taking a device takes it (it broke on an attribute).
+    from lfring.optics import load_device
+
+    named, given = RingCalibration.from_optics("prototype"), RingCalibration.from_optics(load_device("prototype"))
+    assert named.device == "prototype" and named.raw_size == given.raw_size == (4912, 3684)
+    np.testing.assert_array_equal(named.homographies(0.42), given.homographies(0.42))
+    with pytest.raises(InvalidInputError, match="a device is a RingDevice, a built-in name"):
+        RingCalibration.from_optics(None)
 
 
 def test_from_plane_homographies_fits_and_keeps_the_planes(twin):

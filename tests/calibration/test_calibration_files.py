@@ -116,3 +116,18 @@ def test_calib_option_refuses_a_file_that_is_no_calibration(tmp_path, monkeypatc
     assert err.startswith(f"lfring: error: {given}: {NOT_A_CALIBRATION}{says}") and err.count("\n") == 1
     assert not any(w in err for w in PYTHON_WORDS), err
     assert not Path("c1.png").exists()
+
+
+def test_a_folder_given_for_a_calibration_or_layout_file_is_named_a_folder(tmp_path):
+    """Saving to a folder raised Python's IsADirectoryError from the atomic writer; loading one
+    said the file was not found, though the path exists."""
+    from lfring.calibration import RingCalibration
+    from lfring.errors import InvalidInputError, LfringFileNotFoundError
+
+    cal = RingCalibration.load("twin_binned2")
+    for save in (cal.save, cal.layout.save):
+        with pytest.raises(InvalidInputError, match="it is a folder; give a file name"):
+            save(tmp_path)
+    with pytest.raises(LfringFileNotFoundError, match="is a folder; give the file's path"):
+        RingCalibration.load(tmp_path)
+    assert list(tmp_path.iterdir()) == []  # nothing written beside

@@ -82,6 +82,10 @@ def test_default_spacing_and_costs(twin):
         (dict(zmin_m=0.3, zmax_m=0.5, num_planes=10**400, method="local"), "give at most"),
         (dict(zmin_m=0.3, zmax_m=0.5, window_px=999999), r"window_px must be an odd positive integer at most \d+ \(twice"),
         (dict(zmin_m=0.3, zmax_m=0.5, aggregate_px=999999), r"aggregate_px must be an odd positive integer at most"),
+        # Over one pixel every cost's normalisation leaves the views alike: a map of zmin at no
+        # confidence came back, with no error.
+        (dict(zmin_m=0.3, zmax_m=0.5, window_px=1), r"window_px must be at least 3: .* over one pixel"),
+        (dict(zmin_m=0.3, zmax_m=0.5, window_px=1, method="local", cost="zncc"), r"window_px must be at least 3"),
     ],
 )
 def test_bad_inputs(twin, kwargs, match):
@@ -265,3 +269,10 @@ def test_windows_are_bounded_by_the_views_on_both_backends_but_small_ones_always
         estimate_depth(counts, cal, zmin_m=1.0, zmax_m=5.0, window_px=201, method="local", backend="torch")
     tiny = RingCalibration.from_grid((5, 5), [(0, 0), (1, 0)], disparity_scale_px_m=2.0)
     assert np.shape(estimate_depth(views[:, :5, :5], tiny, zmin_m=0.5, zmax_m=5.0, method="local").depth_m) == (5, 5)
+
+
+def test_points_without_a_calibration_are_refused(twin):
+    r, cal, views, *_ = twin
+    res = estimate_depth(views, cal, zmin_m=0.3, zmax_m=1.0, method="local")
+    with pytest.raises(InvalidInputError, match="calibration must be a RingCalibration, got NoneType"):
+        res.to_points(None)

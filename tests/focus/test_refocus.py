@@ -179,6 +179,9 @@ def test_bad_inputs_and_warnings(scene):
         Refocuser(cal, 0.5, view_shape="705x705")
     with pytest.raises(InvalidInputError, match=r"depths_m must be a non-empty list of depths \(or None"):
         all_in_focus(views, cal, [])
+    # Three views were refused as "one homography per view, got (4, 3, 3) for 3 views".
+    with pytest.raises(InvalidInputError, match=r"the calibration is for 4 views .* but the views are 3 of"):
+        all_in_focus(views[:3], cal, [0.3, 0.5])
     # Sizes that ran for minutes or asked for terabytes.
     with pytest.raises(InvalidInputError, match=r"window_px must be an odd positive integer at most"):
         all_in_focus(views, cal, [0.5, 1.0], window_px=999999)
