@@ -211,6 +211,9 @@ def estimate_depth(
             rim_taper=rim_taper, threads=threads, paths=paths, consistency=consistency))
     if levels is not None:
         raise InvalidInputError("levels are the black and white counts of integer views on the torch backend")
+    if backend == "numpy" and device is not None:
+        raise InvalidInputError(f"device={device!r} is for backend='torch'; the NumPy backend runs on this machine's "
+                                "cores")
     arr = check_views(views)
     calibration.check_fits(arr.shape)
     _check_windows(window_px, aggregate_px, arr.shape[1:3])

@@ -86,6 +86,8 @@ def test_default_spacing_and_costs(twin):
         # confidence came back, with no error.
         (dict(zmin_m=0.3, zmax_m=0.5, window_px=1), r"window_px must be at least 3: .* over one pixel"),
         (dict(zmin_m=0.3, zmax_m=0.5, window_px=1, method="local", cost="zncc"), r"window_px must be at least 3"),
+        # Ignored without a word, where levels= was refused.
+        (dict(zmin_m=0.3, zmax_m=0.5, device="cuda"), r"device='cuda' is for backend='torch'"),
     ],
 )
 def test_bad_inputs(twin, kwargs, match):
