@@ -47,7 +47,8 @@ def check_views(views, *, min_views: int = 1, images: bool = True) -> np.ndarray
 
     Returns
     -------
-    (V, h, w, C) float32 (a view of the input, not a copy)
+    (V, h, w, C) float32 (a view of the input, not a copy; a native-order copy of big-endian
+    floats)
 
     Examples
     --------
@@ -60,6 +61,8 @@ def check_views(views, *, min_views: int = 1, images: bool = True) -> np.ndarray
         arr = arr[..., None]
     if arr.ndim != 4:
         raise InvalidInputError(f"views must be (V, h, w) or (V, h, w, C), got shape {np.shape(views)}")
+    if arr.dtype.kind == "f" and not arr.dtype.isnative:  # big-endian floats: the same values, a copy
+        arr = arr.astype(arr.dtype.newbyteorder("="))
     if arr.dtype != np.float32:
         raise InvalidInputError(f"views must be float32 in [0, 1] (lfring.split_views gives that), got {arr.dtype}")
     if arr.shape[0] < min_views or min(arr.shape[1:3]) < 2:

@@ -145,6 +145,9 @@ class RawFrame:
         is_mosaic = self.mosaic is not None
         data = np.asarray(self.mosaic if is_mosaic else self.image)
         name = "mosaic" if is_mosaic else "image"
+        if data.dtype.kind == "u" and not data.dtype.isnative:  # big-endian counts (a FITS or TIFF reader's)
+            data = data.astype(data.dtype.newbyteorder("="))
+            object.__setattr__(self, name, data)
         if data.dtype not in (np.uint8, np.uint16):
             hint = " (float images are not raw counts)" if data.dtype.kind == "f" else ""
             raise InvalidInputError(

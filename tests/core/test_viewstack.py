@@ -109,3 +109,14 @@ def test_the_cache_is_per_calibration_and_goes_with_it():
 def test_inverse_weight_floors_unseen_pixels_to_zero():
     got = inverse_weight(np.array([0.0, WEIGHT_FLOOR / 2, 0.5, 4.0], np.float32))
     np.testing.assert_array_equal(got, np.array([0.0, 0.0, 2.0, 0.25], np.float32))
+
+
+def test_big_endian_views_are_taken_as_their_values():
+    """Big-endian float32 views were refused as "must be float32 ..., got >f4"."""
+    rng = np.random.default_rng(0)
+    views = rng.random((4, 6, 5, 3), dtype=np.float32)
+    got = check_views(views.astype(">f4"))
+    assert got.dtype == np.float32 and got.dtype.isnative
+    np.testing.assert_array_equal(got, views)
+    with pytest.raises(InvalidInputError, match="got float64"):  # other widths are still refused, by their width
+        check_views(views.astype(">f8"))

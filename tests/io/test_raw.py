@@ -663,3 +663,11 @@ def test_rawframe_validation(kwargs, match):
     with pytest.raises(InvalidInputError, match=match) as info:
         RawFrame(**kwargs)
     assert isinstance(info.value, (ValueError, LfringError))
+
+
+def test_big_endian_counts_are_taken_as_their_values():
+    """A big-endian uint16 mosaic was refused as "must be uint8 or uint16 raw counts, got >u2"."""
+    counts = np.random.default_rng(1).integers(0, 4096, (8, 10)).astype(np.uint16)
+    frame = RawFrame(mosaic=counts.astype(">u2"), pattern="RGGB", bit_depth=12)
+    assert frame.mosaic.dtype == np.uint16 and frame.mosaic.dtype.isnative
+    np.testing.assert_array_equal(frame.mosaic, counts)
