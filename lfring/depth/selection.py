@@ -86,8 +86,8 @@ class DepthResult:
             Keep only pixels at least this confident.
         device : RingDevice or str, optional
             The camera's optics; by default the device the calibration was made with (its
-            record, else the built-in device it names; else the prototype), binned to its frames
-            (:func:`lfring.depth.io.device_for`).
+            record, else the built-in device it names; else the prototype, with a warning),
+            binned to its frames (:func:`lfring.depth.io.device_for`).
 
         Returns
         -------
