@@ -22,7 +22,7 @@ import numpy as np
 
 from lfring.calibration.overlap import nearest_renderable_depth_m
 from lfring.core.validate import check_int, check_number
-from lfring.errors import InvalidInputError, LfringWarning
+from lfring.errors import InvalidInputError, LfringWarning, warn_caller
 from lfring.core.filters import luminance
 from lfring.core.protocols import check_calibration
 
@@ -422,7 +422,7 @@ def check_frame(frame, calibration, *, threshold: float = AGREEMENT_THRESHOLD, d
                    "few %; expose longer, or check the white level the frame is read with")
         message = f"{message}; but {warning}"
     if ok and warning:
-        warnings.warn(warning, UnderExposureWarning if dim else OverExposureWarning, stacklevel=2)
+        warn_caller(warning, UnderExposureWarning if dim else OverExposureWarning)
     fit, fit_z = _fit_px(lum, calibration, best_z) if measure_fit and ok else (float("nan"), float("nan"))
     return FrameCheck(ok=ok, agreement=agreement, best_depth_m=best_z, agreement_by_depth=by_depth,
                       threshold=threshold, size_px=size, clipped_fraction=clipped, dark_fraction=dark, disc_contrast=contrast,

@@ -7,6 +7,10 @@ files), so ``except ValueError`` keeps working in code that does not know about 
 
 from __future__ import annotations
 
+import os
+import sys
+import warnings
+
 __all__ = [
     "LfringError",
     "InvalidInputError",
@@ -17,6 +21,7 @@ __all__ = [
     "LfringFileNotFoundError",
     "EstimationError",
     "LfringWarning",
+    "warn_caller",
 ]
 
 
@@ -83,3 +88,22 @@ class EstimationError(LfringError, RuntimeError):
 
 class LfringWarning(UserWarning):
     """Something works but deserves attention (a depth outside the calibrated range, say)."""
+
+
+_PACKAGE_DIR = os.path.dirname(os.path.abspath(__file__)) + os.sep
+
+
+def warn_caller(message, category=None) -> None:
+    """``warnings.warn`` attributed to the first frame outside the lfring package: the user's own
+    call, however deep inside lfring the warning arises (a fixed ``stacklevel`` points into
+    lfring from every path but one). ``category`` defaults to :class:`LfringWarning`; a Warning
+    instance as ``message`` keeps its own class."""
+    level = 2  # the caller of this function
+    frame = sys._getframe(1)
+    while frame is not None and os.path.abspath(frame.f_code.co_filename).startswith(_PACKAGE_DIR):
+        frame = frame.f_back
+        level += 1
+    if isinstance(message, Warning):
+        warnings.warn(message, stacklevel=level)
+    else:
+        warnings.warn(message, category or LfringWarning, stacklevel=level)

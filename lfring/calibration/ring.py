@@ -10,7 +10,6 @@ make RingCalibration objects, so they import this module, and the package
 from __future__ import annotations
 
 import math
-import warnings
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -19,7 +18,7 @@ from lfring.calibration.model import PlaneFit, VariableHomography
 from lfring.core.geometry import check_reference, to_reference
 from lfring.core.lens import Distortion, FlatField
 from lfring.core.validate import check_choice, check_view_index, is_integer, is_number
-from lfring.errors import InvalidInputError, LfringWarning
+from lfring.errors import InvalidInputError, warn_caller
 from lfring.views import Layout
 
 __all__ = ["DEVICE_RECORD", "SOURCES", "RingCalibration"]
@@ -167,7 +166,7 @@ class RingCalibration:
         """(width, height) of the raw frames this calibration belongs to."""
         return self.layout.raw_width_px, self.layout.raw_height_px
 
-    def check_depth(self, depth_m, *, stacklevel: int = 3, name: str = "depth_m") -> np.ndarray:
+    def check_depth(self, depth_m, *, name: str = "depth_m") -> np.ndarray:
         """Validate depths (numbers, finite, beyond z0) and warn for those outside the valid
         range (asking whether they were millimetres where they would be in range as such,
         :meth:`millimetres_hint`); ``name`` is how the messages name them (an entry of a list by
@@ -190,9 +189,9 @@ class RingCalibration:
         if np.any(outside):
             bad = np.atleast_1d(z)[np.atleast_1d(outside)]
             rng = f"{lo:g} to {hi:g} m" if hi is not None else f"beyond {lo:g} m"
-            warnings.warn(
+            warn_caller(
                 f"depth {', '.join(f'{v:g}' for v in bad[:3])} m is outside the calibrated range ({rng}); "
-                f"the model is extrapolated{self.millimetres_hint(*bad)}", LfringWarning, stacklevel=stacklevel,
+                f"the model is extrapolated{self.millimetres_hint(*bad)}"
             )
         return z
 

@@ -38,7 +38,7 @@ class Calibration(Protocol):
     def homographies(self, depth_m, *, reference="center"):
         """(..., V, 3, 3) ``H_ref_from_view`` at each depth in metres."""
 
-    def check_depth(self, depth_m, *, stacklevel: int = 3):
+    def check_depth(self, depth_m):
         """The depths as an array, refused when not beyond z0, with a warning outside the valid range."""
 
     def check_fits(self, views_shape, *, what: str = "views") -> None:

@@ -8,14 +8,13 @@ from __future__ import annotations
 
 import io
 import re
-import warnings
 from pathlib import Path
 
 import numpy as np
 
 from lfring.core.validate import check_number, check_view_index
 from lfring.core.viewstack import check_unit_range
-from lfring.errors import DeviceError, FileFormatError, InvalidInputError, LfringFileNotFoundError, LfringWarning
+from lfring.errors import DeviceError, FileFormatError, InvalidInputError, LfringFileNotFoundError, warn_caller
 from lfring.io.atomic import atomic_write_bytes
 from lfring.io.writers import encode_image, write_float_tiff
 from lfring.optics.device import RingDevice
@@ -326,9 +325,8 @@ def device_for(calibration, device=None) -> RingDevice:
 
     dev = load_device(device) if device else calibration.device_optics()
     if dev is None:
-        warnings.warn("the calibration names no device: the points take the ring prototype's optics (pass device=, "
-                      "lfring depth --device, the optics of the camera, or calibrate with its device)", LfringWarning,
-                      stacklevel=3)
+        warn_caller("the calibration names no device: the points take the ring prototype's optics (pass device=, "
+                      "lfring depth --device, the optics of the camera, or calibrate with its device)")
         dev = load_device("prototype")
     if not dev.has_positions:  # where the views' pinholes are follows from b and c
         raise InvalidInputError(f"device '{dev.name}' has no lens positions (ring_distance_m, sensor_distance_m), which "

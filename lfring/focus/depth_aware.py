@@ -54,14 +54,13 @@ from __future__ import annotations
 
 import math
 import threading
-import warnings
 
 import cv2
 import numpy as np
 
 from lfring.calibration.overlap import INFINITE_DEPTH_M
 from lfring.calibration.ring import DEVICE_RECORD
-from lfring.errors import InvalidInputError, LfringWarning
+from lfring.errors import InvalidInputError, warn_caller
 from lfring.core.geometry import apply_homography, check_reference, to_reference
 from lfring.core.viewstack import WEIGHT_FLOOR, cached_view_masks, check_views
 from lfring.core.validate import check_number
@@ -235,9 +234,8 @@ def aperture_from_f_number(f_number: float, device) -> float:
     iris = device.aperture_radius_m if device.aperture_radius_m is not None else device.main_lens_radius_m
     own = device.main_focal_length_m / (2.0 * iris)
     if f_number < own:
-        warnings.warn(f"f/{f_number:g} is wider than the main lens of device '{device.name}' opens (f/{own:.2g}): the "
-                      "image is of a lens this camera does not have, its blur extrapolated from the views",
-                      LfringWarning, stacklevel=3)
+        warn_caller(f"f/{f_number:g} is wider than the main lens of device '{device.name}' opens (f/{own:.2g}): the "
+                    "image is of a lens this camera does not have, its blur extrapolated from the views")
     cams = view_cameras(device)
     radius = float(np.linalg.norm(cams.centres_m - cams.centres_m.mean(axis=0), axis=1).mean())
     return device.main_focal_length_m / (2.0 * float(f_number)) / radius
@@ -848,16 +846,15 @@ def depth_to_render(depth, calibration, reference, shape) -> tuple[np.ndarray, f
         closed = calibration.valid_depth_range_m[1] is not None
         hint = calibration.millimetres_hint(typical) if closed and math.isfinite(typical) else ""
         if hint:  # a depth map of millimetres renders as a scene at hundreds of metres, without a word
-            warnings.warn(LfringWarning(f"the depth map's depths lie beyond the calibration's range (median {typical:g} "
-                                        f"m){hint}"), stacklevel=3)
+            warn_caller(f"the depth map's depths lie beyond the calibration's range (median {typical:g} m){hint}")
         # NaN says unknown; 0 says it too for many depth sensors, but it may be a mistake: say so.
         z0 = calibration.depth_origin_m
         odd = ~np.isnan(dm) & ~known
         if odd.any():
-            warnings.warn(LfringWarning(
+            warn_caller(
                 f"{int(odd.sum())} pixels of the depth map ({odd.mean():.1%}) are not depths beyond the depth origin "
                 f"z0 = {z0:.4g} m (0, negative, nearer or infinite; e.g. {float(dm[odd][0]):g}): taken as unknown, "
-                "as NaN is, and rendered by continuing the nearest known surface"), stacklevel=3)
+                "as NaN is, and rendered by continuing the nearest known surface")
     return dm, MIN_ESTIMATED_VIEWS if estimated else MIN_DEPTH_VIEWS
 
 

@@ -35,7 +35,7 @@ from dataclasses import dataclass, replace
 import cv2
 import numpy as np
 
-from lfring.errors import InvalidInputError, LfringError, LfringWarning
+from lfring.errors import InvalidInputError, LfringError, LfringWarning, warn_caller
 from lfring.depth.costs.lcn import LCN_AGGREGATE_PX
 from lfring.depth.plan import sweep_masks
 from lfring.depth.selection import DepthResult
@@ -373,7 +373,7 @@ def _plan_band(calibration, chk: _Checked, zmin_m, zmax_m, num_planes) -> tuple[
     """Band-planning step of :func:`inspect_frame`: the sweep's depths (zmin_m, zmax_m, count)."""
     plane, tol, target = chk.plane_m, chk.tolerance_m, chk.target
     z0 = calibration.depth_origin_m
-    calibration.check_depth(plane, stacklevel=4)  # warns when the plane is outside the calibrated range
+    calibration.check_depth(plane)  # warns when the plane is outside the calibrated range
     if target is None:
         near = far = plane
     else:
@@ -383,7 +383,7 @@ def _plan_band(calibration, chk: _Checked, zmin_m, zmax_m, num_planes) -> tuple[
         typical = float(np.nanmedian(target))
         lo, hi = calibration.valid_depth_range_m
         if typical < lo - tol or (hi is not None and typical > hi + tol):
-            calibration.check_depth(typical, stacklevel=4)
+            calibration.check_depth(typical)
     if zmin_m is not None and zmax_m is not None:
         check_depth_range(zmin_m, zmax_m)
     try:
@@ -408,9 +408,9 @@ def _plan_band(calibration, chk: _Checked, zmin_m, zmax_m, num_planes) -> tuple[
         num_planes = len(depth_hypotheses(calibration, zlo, zhi, max_step_px=STEP_PX))
     tol_px = _motion_per_inv(calibration, far) * _tolerance_inv(z0, far, tol)
     if tol_px < MIN_TOLERANCE_PX:
-        warnings.warn(f"tolerance_m {tol:g} m is {tol_px:.2g} px of view motion at {far:g} m, below {MIN_TOLERANCE_PX} px: "
+        warn_caller(f"tolerance_m {tol:g} m is {tol_px:.2g} px of view motion at {far:g} m, below {MIN_TOLERANCE_PX} px: "
                       "depth noise of that size (most at the views' rims) may be taken for defects; a tolerance of "
-                      f"{tol * MIN_TOLERANCE_PX / tol_px:.2g} m or more is safer there", LfringWarning, stacklevel=4)
+                      f"{tol * MIN_TOLERANCE_PX / tol_px:.2g} m or more is safer there")
     return zlo, zhi, int(num_planes)
 
 
@@ -784,9 +784,9 @@ def inspect_frame(
     whole = [d for d in defects if d.area_px >= OFF_PLANE_SHARE * checked_px]
     if whole:
         d = whole[0]
-        warnings.warn(f"a {d.kind} of {d.deviation_m * 1e3:+.1f} mm covers {d.area_px / checked_px:.0%} "
+        warn_caller(f"a {d.kind} of {d.deviation_m * 1e3:+.1f} mm covers {d.area_px / checked_px:.0%} "
                       "of the part's checked area: the part itself lies off the plane (is it seated, is plane_m its "
-                      "depth?), which fails it as a whole rather than as a local defect", LfringWarning, stacklevel=2)
+                      "depth?), which fails it as a whole rather than as a local defect")
 
     # Report step.
     roi_px = max(int(in_roi.sum()), 1)
