@@ -235,7 +235,7 @@ def split_views(image: np.ndarray, layout, *, flat=None) -> np.ndarray:
 
     >>> import lfring
     >>> cal = lfring.RingCalibration.load("twin_binned2")
-    >>> views = split_views(lfring.demosaic(lfring.load_raw("data/synthetic/scene.png")), cal)
+    >>> views = lfring.split_views(lfring.demosaic(lfring.load_raw("data/synthetic/scene.png")), cal)
     >>> views.shape, views.dtype, bool(views.min() >= 0.0 and views.max() <= 1.0)
     ((4, 705, 705, 3), dtype('float32'), True)
     """
@@ -523,9 +523,10 @@ def detect_layout(
 
     >>> import numpy as np
     >>> import lfring
-    >>> layout = detect_layout(lfring.demosaic(lfring.load_raw("data/synthetic/flat.png")))
+    >>> layout = lfring.detect_layout(lfring.demosaic(lfring.load_raw("data/synthetic/flat.png")))
     >>> layout.num_views, layout.view_shape
     (4, (705, 705))
+    >>> from lfring.views import Layout
     >>> truth = Layout.load("data/synthetic/flat_truth/layout.json")
     >>> def discs(lay):  # centre x, y in raw-frame pixels and radius of every view's disc
     ...     return np.array([(x + cx, y + cy, r) for (x, y, _, _), (cx, cy, r) in zip(lay.rects, lay.circles)])

@@ -135,7 +135,7 @@ def calibrate(
     calibration ``twin_binned2`` (calib/README.md), which this reproduces:
 
     >>> import numpy as np
-    >>> from lfring.calibration.ring import RingCalibration
+    >>> from lfring import RingCalibration, calibrate
     >>> from lfring.optics import load_device
     >>> cal = calibrate({0.3: "data/synthetic/target_0.3m.png", 1.0: "data/synthetic/target_1m.png"},
     ...                 flat="data/synthetic/flat.png", device=load_device("prototype"))

@@ -81,6 +81,7 @@ class RingCalibration:
     (:func:`lfring.calibration.builtin_calibrations` lists the others):
 
     >>> import numpy as np
+    >>> from lfring import RingCalibration
     >>> cal = RingCalibration.load("twin_binned2")
     >>> cal  # doctest: +ELLIPSIS
     RingCalibration(source='planes', num_views=4, view_shape=(705, 705), depth_origin_m=0.02798, ...)
@@ -292,6 +293,7 @@ class RingCalibration:
 
         Examples
         --------
+        >>> from lfring import RingCalibration
         >>> cal = RingCalibration.from_grid((8, 8), [(0, 0), (1, 0), (0, 1)], disparity_scale_px_m=1.0)
         >>> cal.select_views([2, 0]).homographies(1.0, reference=1)[:, :2, 2]
         array([[0., 1.],
