@@ -41,6 +41,8 @@ Bayer code has no float path), so any input depth keeps its precision up to 1/65
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from lfring.core.registry import Registry
@@ -57,6 +59,8 @@ from lfring.io.raw import RawFrame
 __all__ = ["METHODS", "demosaic", "apply_levels"]
 
 _U16 = 65535.0
+# Mosaics narrower than this are mirrored out to interpolate them (see demosaic).
+SMALLEST_INTERPOLATED_PX = 4
 
 
 def apply_levels(frame: RawFrame) -> np.ndarray:
@@ -130,7 +134,14 @@ def demosaic(frame: RawFrame, *, method: str = "edge-aware") -> np.ndarray:
         )
     if frame.image is not None:
         return np.ascontiguousarray(apply_levels(frame))
-    out = METHODS[method](frame)
+    h, w = frame.mosaic.shape
+    if min(h, w) < SMALLEST_INTERPOLATED_PX:
+        # OpenCV's interpolation leaves such a mosaic black: it is mirrored about its edge pixels
+        # first (a mirror keeps every pixel's colour in the pattern) and cut back after.
+        p = SMALLEST_INTERPOLATED_PX
+        out = METHODS[method](dataclasses.replace(frame, mosaic=np.pad(frame.mosaic, p, mode="reflect")))[p:p + h, p:p + w]
+    else:
+        out = METHODS[method](frame)
     return np.ascontiguousarray(np.clip(out, 0.0, 1.0, out=out), dtype=np.float32)
 
 

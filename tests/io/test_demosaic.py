@@ -243,3 +243,18 @@ def test_rawpy_method_when_the_file_is_gone(tmp_path):
     path.unlink()
     with pytest.raises(LfringFileNotFoundError, match="gone.dng"):
         demosaic(frame, method="rawpy")
+
+
+@pytest.mark.parametrize("method", ["bilinear", "edge-aware", "vng"])
+def test_a_mosaic_of_one_cfa_block_is_interpolated(method):
+    """A 2 x 2 mosaic (one whole CFA block, accepted) came back all black: OpenCV leaves such
+    a mosaic's border unset. Mirrored out first, a uniform block stays uniform, and each colour
+    takes its own count."""
+    from lfring.io.demosaic import demosaic
+    from lfring.io.raw import RawFrame
+
+    flat = demosaic(RawFrame(mosaic=np.full((2, 2), 2000, np.uint16), pattern="RGGB", bit_depth=12), method=method)
+    np.testing.assert_allclose(flat, 2000 / 4095, atol=2e-4)
+    block = np.array([[4000, 2000], [2000, 1000]], np.uint16)  # R, G / G, B
+    rgb = demosaic(RawFrame(mosaic=block, pattern="RGGB", bit_depth=12), method=method)
+    np.testing.assert_allclose(rgb.mean(axis=(0, 1)), np.array([4000, 2000, 1000]) / 4095, atol=0.02)
