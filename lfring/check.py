@@ -266,7 +266,7 @@ def _soft_discs(layout, f: int) -> np.ndarray:
     return _discs(shrunk, f).astype(np.float32)
 
 
-def check_frame(frame, calibration, *, threshold: float = AGREEMENT_THRESHOLD, downsample: int = CHECK_DOWNSAMPLE,
+def check_frame(frame, calibration, *, threshold: float = AGREEMENT_THRESHOLD, downsample: int | None = None,
                 measure_fit: bool = False) -> FrameCheck:
     """Check that ``frame`` is a ring frame of the camera ``calibration`` describes.
 
@@ -278,8 +278,10 @@ def check_frame(frame, calibration, *, threshold: float = AGREEMENT_THRESHOLD, d
     calibration : RingCalibration
     threshold : float
         Agreement below it makes ``ok`` False (see :data:`AGREEMENT_THRESHOLD`).
-    downsample : int
-        Views are reduced by this factor first.
+    downsample : int, optional
+        Views are reduced by this factor first: by default :data:`CHECK_DOWNSAMPLE`, less for
+        views too small to keep :data:`CHECK_MIN_SIDE_PX` a side; a factor that keeps fewer is
+        refused.
     measure_fit : bool
         Also measure how well the views fit the calibration at the best depth (``fit_px``), at
         full resolution (about as long again as the check).
@@ -291,7 +293,9 @@ def check_frame(frame, calibration, *, threshold: float = AGREEMENT_THRESHOLD, d
     Raises
     ------
     InvalidInputError
-        The frame's size is not the calibration's, or the views do not have the layout's shape.
+        The frame's size is not the calibration's, the views are not as many or as large as the
+        layout cuts, the frame holds NaN or infinite values, a path was given for the frame, or
+        ``downsample`` leaves the views too small.
 
     Warns
     -----
@@ -312,8 +316,9 @@ def check_frame(frame, calibration, *, threshold: float = AGREEMENT_THRESHOLD, d
 
     check_calibration(calibration)
     layout = calibration.layout
-    downsample = check_int(downsample, "downsample", minimum=1,
-                           maximum=max(1, min(layout.view_shape) // CHECK_MIN_SIDE_PX))
+    most = max(1, min(layout.view_shape) // CHECK_MIN_SIDE_PX)
+    downsample = min(CHECK_DOWNSAMPLE, most) if downsample is None else check_int(downsample, "downsample", minimum=1,
+                                                                                 maximum=most)
     threshold = check_number(threshold, "threshold", minimum=-1.0, maximum=1.0, what="a ZNCC")
     image, views, info = _image_of(frame)
     if image is not None:

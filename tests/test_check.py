@@ -345,3 +345,18 @@ def test_bad_frames_and_options_are_refused_by_name(cal, scene_views):
     assert check_frame(scene_views, cal, downsample=most).size_px == cal.raw_size
     with pytest.raises(InvalidInputError, match=r"not a path: lfring.load_raw\("):
         check_frame(str(DATA / "scene.png"), cal)
+
+
+def test_small_views_are_checked_at_a_smaller_default_downsampling():
+    """The cap on downsample (views kept at CHECK_MIN_SIDE_PX a side) refused views under 64 px
+    at the default factor, which the user never gave: the default is the cap there."""
+    from lfring.calibration import RingCalibration
+    from lfring.check import CHECK_DOWNSAMPLE
+
+    cal = RingCalibration.from_grid((40, 40), [(0, 0), (1, 0), (0, 1), (1, 1)], disparity_scale_px_m=20.0)
+    views = np.random.default_rng(0).random((4, 40, 40, 3), dtype=np.float32)
+    assert 40 // CHECK_MIN_SIDE_PX < CHECK_DOWNSAMPLE
+    res = check_frame(views, cal)  # no refusal: checked at the factor that keeps 16 px
+    assert np.isfinite(res.agreement)
+    with pytest.raises(InvalidInputError, match="downsample must be an integer >= 1 and <= 2, got 4"):
+        check_frame(views, cal, downsample=4)

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import logging
-import warnings
 from pathlib import Path
 
 import click
@@ -92,7 +91,7 @@ def command(raw, zmin, zmax, outdir, calib, planes, reference, cost, aggregation
     from lfring.depth.hypotheses import depth_hypotheses
     from lfring.depth.io import device_for, points_camera, write_depth_preview, write_depth_tiff, write_pfm, write_ply
     from lfring.core.validate import check_number
-    from lfring.errors import InvalidInputError, LfringError, LfringWarning
+    from lfring.errors import InvalidInputError, LfringError
     from lfring.focus.depth_aware import estimation_range
     from lfring.io.writers import write_float_tiff, write_json
 
@@ -138,9 +137,7 @@ def command(raw, zmin, zmax, outdir, calib, planes, reference, cost, aggregation
     # The point cloud needs the optics: --device-file, else the calibration's device, else the
     # prototype, binned to the frame's size when that matches.
     try:
-        with warnings.catch_warnings():  # the fallback to the prototype is warned of below, in the options' words
-            warnings.simplefilter("ignore", LfringWarning)
-            dev = device_for(cal, device_name)
+        dev = device_for(cal, device_name)
     except LfringError as exc:
         if device_name:
             raise

@@ -15,7 +15,7 @@ from lfring.depth.io import (
     write_pfm,
     write_ply,
 )
-from lfring.errors import FileFormatError, InvalidInputError, LfringFileNotFoundError, LfringWarning
+from lfring.errors import FileFormatError, InvalidInputError, LfringFileNotFoundError
 from lfring.optics import paraxial
 from lfring.optics.views import view_cameras
 
@@ -320,7 +320,5 @@ def test_a_calibration_no_binning_of_the_device_fits_names_the_sensor_as_it_is()
     for width in (800, 400, 60):  # the last one too coarse a binning even to try
         cal = RingCalibration.from_grid((600, width), [(0, 0), (1, 0)], disparity_scale_px_m=100.0)
         with pytest.raises(InvalidInputError, match=r"the device 'prototype' has a 4912 x 3684 px sensor, which no "
-                                                    rf"binning turns into the calibration's {2 * width} x 600 px frames"), \
-                pytest.warns(LfringWarning, match="the calibration names no device: the points take the ring "
-                                                  "prototype's optics"):
+                                                    rf"binning turns into the calibration's {2 * width} x 600 px frames"):
             device_for(cal)
