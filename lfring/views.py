@@ -534,7 +534,7 @@ def detect_layout(
     True
     """
     check_choice(kind, "kind", DETECT_KINDS)
-    if isinstance(grid, (str, bytes)) or np.ndim(grid) != 1 or np.size(grid) != 2 or not all(
+    if isinstance(grid, (str, bytes)) or not isinstance(grid, (tuple, list, np.ndarray)) or len(grid) != 2 or not all(
             is_integer(n) and n >= 1 for n in grid):
         raise InvalidInputError(f"grid must be (rows, cols) of views, two integers >= 1, got {grid!r}")
     grid = (int(grid[0]), int(grid[1]))
@@ -615,9 +615,20 @@ def _check_discs(circles, w: int, h: int, grid: tuple[int, int]) -> None:
 
 
 _ENVELOPE_FRACTION = 80
-# A bright region at least this share of the smallest view's area is taken for a view (for the
-# count of views against the grid).
-DISC_ALIKE_AREA = 0.5
+# A bright region is taken for a view (for the count of views against the grid) when it is at
+# least this share of the smallest view's area, its box within DISC_ALIKE_ASPECT of square, and
+# it fills between DISC_ALIKE_FILL of its box (a disc fills pi / 4 of it).
+DISC_ALIKE_AREA = 0.7
+DISC_ALIKE_ASPECT = 1.25
+DISC_ALIKE_FILL = (0.65, 0.9)
+
+
+def _disc_like(stat) -> bool:
+    """Whether a connected region (its row of ``cv2.connectedComponentsWithStats``) is round and
+    filled as a view's disc is."""
+    bw, bh, area = int(stat[cv2.CC_STAT_WIDTH]), int(stat[cv2.CC_STAT_HEIGHT]), int(stat[cv2.CC_STAT_AREA])
+    fill = area / max(bw * bh, 1)
+    return max(bw, bh) <= DISC_ALIKE_ASPECT * min(bw, bh) and DISC_ALIKE_FILL[0] <= fill <= DISC_ALIKE_FILL[1]
 
 
 def _envelope(fine: np.ndarray) -> np.ndarray:
@@ -647,9 +658,10 @@ def _rough_discs(coarse: np.ndarray, grid: tuple[int, int]) -> list[tuple[float,
             f"found {len(found)} bright region(s) where {n} views were expected; is this a "
             "frame of the ring camera (a flat frame shows one bright disc per view on a dark surround)?"
         )
-    # The views' discs are alike: more regions of a kept one's size than the grid holds are views
-    # the grid leaves out, not stray light.
-    alike = int(np.sum(stats[order, cv2.CC_STAT_AREA] >= DISC_ALIKE_AREA * stats[found[-1], cv2.CC_STAT_AREA]))
+    # The views' discs are alike: more round regions of a kept one's size than the grid holds are
+    # views the grid leaves out (stray light along an edge is neither round nor filled as a disc).
+    least = stats[found[-1], cv2.CC_STAT_AREA]
+    alike = sum(1 for i in order if stats[i, cv2.CC_STAT_AREA] >= DISC_ALIKE_AREA * least and _disc_like(stats[i]))
     if alike > n:
         raise EstimationError(f"found {alike} bright regions of a view's size where the grid {grid[0]} x {grid[1]} "
                               f"holds {n} views: give the grid of the frame's views")

@@ -251,3 +251,19 @@ def test_a_grid_that_leaves_views_out_is_refused(flats):
         detect_layout(frame)
     with pytest.raises(InvalidInputError, match=r"not a path"):
         detect_layout("flat.png")
+
+
+def test_stray_light_along_an_edge_is_not_taken_for_a_view_the_grid_leaves_out():
+    """The count of views against the grid refused a flat frame with a bright band along its
+    edge (half a disc's area: "found 5 bright regions of a view's size"): only round regions
+    filled as discs count; the band changes none of the discs found."""
+    from pathlib import Path
+
+    import lfring
+
+    flat = lfring.demosaic(lfring.load_raw(Path(__file__).resolve().parents[1] / "data" / "synthetic" / "flat.png"))
+    clean = detect_layout(flat)
+    banded = flat.copy()
+    banded[:, :110] = 0.9
+    lay = detect_layout(banded)
+    np.testing.assert_allclose(_raw_circles(lay), _raw_circles(clean), atol=0.01)
