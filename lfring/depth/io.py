@@ -14,7 +14,7 @@ import numpy as np
 
 from lfring.core.validate import check_number, check_view_index
 from lfring.core.viewstack import check_unit_range
-from lfring.errors import DeviceError, FileFormatError, InvalidInputError, LfringFileNotFoundError, warn_caller
+from lfring.errors import DeviceError, FileFormatError, InvalidInputError, LfringFileNotFoundError
 from lfring.io.atomic import atomic_write_bytes
 from lfring.io.writers import encode_image, write_float_tiff
 from lfring.optics.device import RingDevice
@@ -304,9 +304,8 @@ def _colour_bytes(colors, shape_hw) -> np.ndarray:
 def device_for(calibration, device=None) -> RingDevice:
     """The optics of the frames ``calibration`` describes: ``device`` (a RingDevice, a built-in
     name or a device file), else the device the calibration was made with
-    (:meth:`lfring.RingCalibration.device_optics`), else the prototype (with a
-    :class:`lfring.errors.LfringWarning`: it may not be the camera); binned to the calibration's
-    frame size when it is a binned sensor's.
+    (:meth:`lfring.RingCalibration.device_optics`), else the prototype; binned to the
+    calibration's frame size when it is a binned sensor's.
 
     Raises
     ------
@@ -323,11 +322,7 @@ def device_for(calibration, device=None) -> RingDevice:
     """
     from lfring.optics.device import load_device
 
-    dev = load_device(device) if device else calibration.device_optics()
-    if dev is None:
-        warn_caller("the calibration names no device: the points take the ring prototype's optics (pass device=, "
-                      "lfring depth --device, the optics of the camera, or calibrate with its device)")
-        dev = load_device("prototype")
+    dev = load_device(device) if device else (calibration.device_optics() or load_device("prototype"))
     if not dev.has_positions:  # where the views' pinholes are follows from b and c
         raise InvalidInputError(f"device '{dev.name}' has no lens positions (ring_distance_m, sensor_distance_m), which "
                                 "metric points need; pass device= the optics of the camera with them")

@@ -11,6 +11,7 @@ import cv2
 import numpy as np
 
 from lfring.core.records import record_repr
+from lfring.errors import warn_caller
 
 __all__ = ["COST_FLOOR", "DepthResult", "Finisher", "RunningMinimum", "RunningMinimumTorch", "parabola", "refine"]
 
@@ -110,8 +111,12 @@ class DepthResult:
         from lfring.depth.io import depth_to_points, device_for
 
         check_calibration(calibration)
-        return depth_to_points(self.depth_m, device_for(calibration, device), calibration.layout, self.reference,
-                               colors=colors, confidence=self.confidence, min_confidence=min_confidence)
+        optics = device_for(calibration, device)
+        if device is None and calibration.device_optics() is None:
+            warn_caller("the calibration names no device: the points take the ring prototype's optics, which may not "
+                        "be the camera's (pass device=, or calibrate with the camera's device)")
+        return depth_to_points(self.depth_m, optics, calibration.layout, self.reference, colors=colors,
+                               confidence=self.confidence, min_confidence=min_confidence)
 
 
 class RunningMinimum:

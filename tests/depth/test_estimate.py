@@ -278,3 +278,23 @@ def test_points_without_a_calibration_are_refused(twin):
     res = estimate_depth(views, cal, zmin_m=0.3, zmax_m=1.0, method="local")
     with pytest.raises(InvalidInputError, match="calibration must be a RingCalibration, got NoneType"):
         res.to_points(None)
+
+
+def test_points_from_a_calibration_naming_no_device_warn_of_the_prototype_s_optics(twin):
+    """A calibration that names no device gave metric points from the ring prototype's optics
+    without a word in the API (lfring depth warned): warned, once the optics are found to fit;
+    none with the device given, or a calibration that names one."""
+    import dataclasses
+    import warnings
+
+    r, cal, views, *_ = twin
+    res = estimate_depth(views, cal, zmin_m=0.3, zmax_m=1.0, method="local")
+    bare = dataclasses.replace(cal, device=None, provenance={k: v for k, v in cal.provenance.items()
+                                                             if k != "device_record"})
+    with pytest.warns(LfringWarning, match="names no device: the points take the ring prototype's optics"):
+        points, _ = res.to_points(bare)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        np.testing.assert_array_equal(res.to_points(bare, device="prototype")[0], points)
+        if cal.device_optics() is not None:
+            res.to_points(cal)
