@@ -47,7 +47,7 @@ __all__ = [
 
 
 # -- RingCalibration's constructors and file methods: each delegates to one function ----------
-def _from_optics(cls, device: RingDevice, *, layout: Layout | None = None, rotate180: bool = False) -> RingCalibration:
+def _from_optics(cls, device: RingDevice | str, *, layout: Layout | None = None, rotate180: bool = False) -> RingCalibration:
     """The calibration the paraxial model predicts (pure translations, z0 = s): the default
     when no measured calibration is given. See :func:`calibration_from_optics`."""
     return calibration_from_optics(device, layout=layout, rotate180=rotate180)

@@ -27,7 +27,7 @@ GRID_DISPARITY_NAMES = ("disparity_scale_px_m", "disparity_offset_px", "depth_or
 parameters of :func:`calibration_from_grid`."""
 
 
-def calibration_from_optics(device: RingDevice, *, layout: Layout | None = None, rotate180: bool = False) -> RingCalibration:
+def calibration_from_optics(device: RingDevice | str, *, layout: Layout | None = None, rotate180: bool = False) -> RingCalibration:
     """The calibration the paraxial model of ``device`` predicts (pure translations, z0 = s):
     the default when no measured calibration is given.
 

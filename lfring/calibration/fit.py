@@ -105,7 +105,9 @@ def calibrate(
         The camera's description (a built-in name or a device file too), for z0 = s with two
         planes and to check the depths given against its optics; refused when no binning of its
         sensor gives the targets' frames. The calibration keeps its record
-        (:meth:`RingCalibration.device_optics`).
+        (:meth:`RingCalibration.device_optics`). Without it the built-in calibration of frames
+        this size (if any) checks the depths, refusing only those in another unit (views moving
+        :data:`UNIT_RATIO` times otherwise than the depths say).
     distortion : bool
         Estimate each view's lens distortion jointly with the homographies
         (:func:`lfring.calibration.distortion.estimate_distortion`) and keep it when it matters:

@@ -241,7 +241,11 @@ def test_millimetres_given_as_metres_are_refused_without_a_device(caplog):
     with pytest.raises(InvalidInputError, match=r"by the built-in calibration 'twin_binned2', between the planes given "
                                                 r"as 300 m and 1000 m .* more than 30 times off"):
         calibrate({300: str(data / "target_0.3m.png"), 1000: str(data / "target_1m.png")}, flat=flat)
+    # A plane given 2 m for 1 m: the device's optics warn of it, the stand-in (maybe another camera) does not.
+    off = {0.3: str(data / "target_0.3m.png"), 2.0: str(data / "target_1m.png")}
     with caplog.at_level(logging.WARNING, logger="lfring.calibration"):
-        cal = calibrate({0.3: str(data / "target_0.3m.png"), 1.0: str(data / "target_1m.png")}, flat=flat)
-    assert cal.valid_depth_range_m == (0.3, 1.0)
-    assert "by the built-in calibration" not in caplog.text
+        cal = calibrate(off, flat=flat)
+        assert cal.valid_depth_range_m == (0.3, 2.0)
+        assert "by the built-in calibration" not in caplog.text
+        calibrate(off, flat=flat, device="prototype")
+    assert "by the optics of device 'prototype', between the planes given as 0.3 m and 2 m" in caplog.text
