@@ -93,17 +93,13 @@ class LfringWarning(UserWarning):
 _PACKAGE_DIR = os.path.dirname(os.path.abspath(__file__)) + os.sep
 
 
-def warn_caller(message, category=None) -> None:
+def warn_caller(message: str, category: type[Warning] = LfringWarning) -> None:
     """``warnings.warn`` attributed to the first frame outside the lfring package: the user's own
     call, however deep inside lfring the warning arises (a fixed ``stacklevel`` points into
-    lfring from every path but one). ``category`` defaults to :class:`LfringWarning`; a Warning
-    instance as ``message`` keeps its own class."""
+    lfring from every path but one)."""
     level = 2  # the caller of this function
     frame = sys._getframe(1)
     while frame is not None and os.path.abspath(frame.f_code.co_filename).startswith(_PACKAGE_DIR):
         frame = frame.f_back
         level += 1
-    if isinstance(message, Warning):
-        warnings.warn(message, stacklevel=level)
-    else:
-        warnings.warn(message, category or LfringWarning, stacklevel=level)
+    warnings.warn(message, category, stacklevel=level)

@@ -534,8 +534,7 @@ def detect_layout(
     True
     """
     check_choice(kind, "kind", DETECT_KINDS)
-    if isinstance(grid, (str, bytes)) or not isinstance(grid, (tuple, list, np.ndarray)) or len(grid) != 2 or not all(
-            is_integer(n) and n >= 1 for n in grid):
+    if not isinstance(grid, (tuple, list, np.ndarray)) or len(grid) != 2 or not all(is_integer(n) and n >= 1 for n in grid):
         raise InvalidInputError(f"grid must be (rows, cols) of views, two integers >= 1, got {grid!r}")
     grid = (int(grid[0]), int(grid[1]))
     try:
