@@ -25,7 +25,6 @@ from lfring.core.validate import check_int, check_number
 from lfring.errors import InvalidInputError, LfringWarning, warn_caller
 from lfring.core.filters import luminance
 from lfring.core.protocols import check_calibration
-from lfring.core.viewstack import all_finite
 
 __all__ = ["AGREEMENT_THRESHOLD", "CHECK_DOWNSAMPLE", "CLIPPED_REFUSE", "CLIPPED_WARN", "DIM_LEVEL", "FLAT_TEXTURE", "MIN_DISC_CONTRAST",
            "PROCESS_ANYWAY", "ExposureWarning", "FrameCheck", "OverExposureWarning", "UnderExposureWarning", "check_frame", "draw_layout"]
@@ -210,8 +209,7 @@ def _image_of(frame):
     arr = np.asarray(frame)
     if not np.issubdtype(arr.dtype, np.floating):
         raise InvalidInputError(f"check_frame takes a RawFrame, a float image (H, W[, C]) or views (V, h, w, C), got {arr.dtype}")
-    images = arr.reshape(-1, *arr.shape[-3:]) if arr.ndim >= 3 else arr[None]
-    if not all(all_finite(im) if im.ndim == 2 or im.shape[-1] <= 4 else bool(np.isfinite(im).all()) for im in images):
+    if not np.isfinite(arr).all():
         raise InvalidInputError("check_frame: the frame contains NaN or infinite values")
     if arr.ndim == 2:
         arr = arr[..., None]
