@@ -75,6 +75,7 @@ def rungs(x, agree, cover, sharp, window, x_f, motion, aperture, sharp_px, ramp_
     A row's moments are computed first, in a loop that vectorises (RGB's compiled for exactly 3
     channels, as :func:`over`), then their rungs."""
     r0, r1, c0, c1 = window[0], window[1], window[2], window[3]
+    moments32 = moments.astype(np.float32)
     n = moments.shape[0] - 1
     w = x.shape[1]
     with_sharp = sharp.shape[0] == x.shape[0]
@@ -82,10 +83,10 @@ def rungs(x, agree, cover, sharp, window, x_f, motion, aperture, sharp_px, ramp_
     flat = sharp.reshape(sharp.size)
     n_stripes = (r1 + stripe - 1) // stripe
     for b in prange(r0 // stripe, n_stripes):
-        m_row = np.empty(c1 - c0, np.float64)
-        lo_m = np.empty(c1 - c0, np.float64)
-        hi_m = np.empty(c1 - c0, np.float64)
-        i_row = np.empty(c1 - c0, np.int64)
+        m_row = np.empty(c1 - c0, np.float32)
+        lo_m = np.empty(c1 - c0, np.float32)
+        hi_m = np.empty(c1 - c0, np.float32)
+        i_row = np.empty(c1 - c0, np.int32)
         ka = np.empty(c1 - c0, np.int64)
         kb = np.empty(c1 - c0, np.int64)
         for y in range(max(r0, b * stripe), min(r1, (b + 1) * stripe)):
@@ -109,26 +110,23 @@ def rungs(x, agree, cover, sharp, window, x_f, motion, aperture, sharp_px, ramp_
             nj = c1 - c0
             for j in range(nj):
                 i_row[j] = 1
-                lo_m[j] = moments[0]
-                hi_m[j] = moments[n]
+                lo_m[j] = moments32[0]
+                hi_m[j] = moments32[n]
             for rung in range(1, n):
-                mr = moments[rung]
+                mr = moments32[rung]
                 for j in range(nj):
                     below = mr < m_row[j]
                     i_row[j] += 1 if below else 0
                     lo_m[j] = mr if below else lo_m[j]
-            for rung in range(n - 1, 0, -1):
-                mr = moments[rung]
-                for j in range(nj):
-                    hi_m[j] = mr if mr >= m_row[j] else hi_m[j]
+                    hi_m[j] = min(hi_m[j], mr) if mr >= m_row[j] else hi_m[j]
             q_row = q[y, c0:c1]
             for j in range(nj):
                 m = m_row[j]
-                inside = (n > 0) & (m <= moments[n])
-                frac = (i_row[j] - 1) + (m - lo_m[j]) / (hi_m[j] - lo_m[j]) if inside else float(n)
-                neg = aperture * (motion * (xr[j] - x_f)) < 0.0
-                covered = not m < 0.0  # a NaN moment is covered (the top rung)
-                q_row[j] = (-frac if neg else frac) if covered else 0.0
+                inside = (n > 0) & (m <= moments32[n])
+                frac = np.float32(i_row[j] - 1) + (m - lo_m[j]) / (hi_m[j] - lo_m[j]) if inside else np.float32(n)
+                neg = aperture * (motion * (xr[j] - x_f)) < np.float32(0.0)
+                covered = not m < np.float32(0.0)  # a NaN moment is covered (the top rung)
+                q_row[j] = (-frac if neg else frac) if covered else np.float32(0.0)
                 lo = int(frac)
                 k = n - lo if neg else n + lo
                 k2 = n - lo - 1 if neg else n + lo + 1
@@ -250,6 +248,45 @@ def _full_row(buf, base, k, xa, xb, col0, vr, ka, kb, wa, wb, c1, finite):
             buf[np.uintp(base + (x - xa) * c1 + ch)] = zero + w * vr[np.uintp(j * c1 + ch)] if mine else zero
 
 
+@njit(inline="always")
+def _whole_cells(buf, rb, cx0, cx1, npx, col0, share, vr, c1):
+    """Cells cx0 .. cx1 - 1 of a reduced row at ``buf[rb:]`` (of :func:`scatter`), each of
+    ``npx`` pixels of the row's values, all finite: each pixel's share times its values added
+    in order, as :func:`_cells` adds them."""
+    for cx in range(cx0, cx1):
+        cell = np.uintp(rb + cx * c1)
+        j0 = np.uintp(cx * npx - col0)
+        for ch in range(c1):
+            acc = buf[cell + np.uintp(ch)]
+            for i in range(npx):
+                j = j0 + np.uintp(i)
+                acc += share[j] * vr[j * np.uintp(c1) + np.uintp(ch)]
+            buf[cell + np.uintp(ch)] = acc
+
+
+@njit(inline="always")
+def _cells(buf, rb, cx0, cx1, f, xa, xb, col0, share, vr, c1, finite):
+    """Cells cx0 .. cx1 - 1 of a reduced row (grid factor ``2 ** f``) at ``buf[rb:]``: each adds
+    its pixels within xa .. xb, pixel by pixel (where not every value is ``finite``, only the
+    pixels with a share)."""
+    for cx in range(cx0, cx1):
+        cell = rb + cx * c1  # unsigned below: see disc_blur
+        pa = max(xa, cx << f)
+        pb = min(xb, (cx + 1) << f)
+        for ch in range(c1):
+            acc = buf[np.uintp(cell + ch)]
+            if finite:
+                for x in range(pa, pb):
+                    j = np.uintp(x - col0)
+                    acc += share[j] * vr[np.uintp(j * c1 + ch)]
+            else:
+                for x in range(pa, pb):
+                    j = np.uintp(x - col0)
+                    if share[j] > np.float32(0.0):
+                        acc += share[j] * vr[np.uintp(j * c1 + ch)]
+            buf[np.uintp(cell + ch)] = acc
+
+
 @njit(parallel=True, **_JIT)
 def scatter(colour, sharp, s, cover, q, window, n, shift, y0, x0, rows, cols, offset, stripe, buf):
     """Add every pixel's premultiplied colour ``colour + s (sharp - colour)`` times ``cover``, and
@@ -330,22 +367,20 @@ def scatter(colour, sharp, s, cover, q, window, n, shift, y0, x0, rows, cols, of
                 for x in range(xa, xb):
                     j = np.uintp(x - col0)
                     share[j] = wa[j] * area if ka[j] == k else (wb[j] * area if kb[j] == k else np.float32(0.0))
-                for cx in range(xa >> f, ((xb - 1) >> f) + 1):
-                    cell = rb + cx * c1  # unsigned below: see disc_blur
-                    pa = max(xa, cx << f)
-                    pb = min(xb, (cx + 1) << f)
-                    for ch in range(c1):
-                        acc = buf[np.uintp(cell + ch)]
-                        if finite:
-                            for x in range(pa, pb):
-                                j = np.uintp(x - col0)
-                                acc += share[j] * vr[np.uintp(j * c1 + ch)]
-                        else:
-                            for x in range(pa, pb):
-                                j = np.uintp(x - col0)
-                                if share[j] > np.float32(0.0):
-                                    acc += share[j] * vr[np.uintp(j * c1 + ch)]
-                        buf[np.uintp(cell + ch)] = acc
+                # Cells wholly inside xa..xb of finite values add their 2 or 4 pixels in loops
+                # compiled for that count (and RGB's 4 values), which unroll; the others, and
+                # cells of wider grids, pixel by pixel.
+                ca, cb = xa >> f, ((xb - 1) >> f) + 1
+                whole_a, whole_b = cb, cb  # the whole cells: whole_a .. whole_b - 1
+                if finite and c1 == 4 and f <= 2:
+                    whole_a = min(max((xa + (1 << f) - 1) >> f, ca), cb)
+                    whole_b = max(xb >> f, whole_a)
+                    if f == 1:
+                        _whole_cells(buf, rb, whole_a, whole_b, 2, col0, share, vr, 4)
+                    else:
+                        _whole_cells(buf, rb, whole_a, whole_b, 4, col0, share, vr, 4)
+                _cells(buf, rb, ca, whole_a, f, xa, xb, col0, share, vr, c1, finite)
+                _cells(buf, rb, whole_b, cb, f, xa, xb, col0, share, vr, c1, finite)
 
 
 @njit(inline="always")
@@ -552,6 +587,18 @@ def finish(acc, back, by, bx, floor, out):
                 _divided_filled(a_s, br, o_s, jb - ja, c1, floor)
 
 
+@njit(inline="always")
+def _clamp_row(r, cols, c1, zero, top):
+    """A row of :func:`clamp_cells`' cells of ``c1`` values (RGB's compiled for exactly 4)."""
+    for j in range(cols):
+        a = max(r[np.uintp(j * c1 + c1 - 1)], zero)
+        r[np.uintp(j * c1 + c1 - 1)] = a
+        cap = a * top
+        for ch in range(c1 - 1):
+            e = np.uintp(j * c1 + ch)
+            r[e] = min(max(r[e], zero), cap)
+
+
 @njit(parallel=True, **_JIT)
 def clamp_cells(cells, vmax):
     """Clamp ``cells`` (rows, cols, C + 1: premultiplied colour and coverage, C-contiguous) in
@@ -567,13 +614,10 @@ def clamp_cells(cells, vmax):
             for e in range(cols * c1):
                 r[e] = min(max(r[e], zero), np.float32(1.0))
             continue
-        for j in range(cols):
-            a = max(r[np.uintp(j * c1 + c1 - 1)], zero)
-            r[np.uintp(j * c1 + c1 - 1)] = a
-            cap = a * top
-            for ch in range(c1 - 1):
-                e = np.uintp(j * c1 + ch)
-                r[e] = min(max(r[e], zero), cap)
+        if c1 == 4:
+            _clamp_row(r, cols, 4, zero, top)
+        else:
+            _clamp_row(r, cols, c1, zero, top)
 
 
 # Rows of a disc blur per parallel task (they share the task's scratch rows).
