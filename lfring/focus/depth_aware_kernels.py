@@ -379,8 +379,8 @@ def scatter(colour, sharp, s, cover, q, window, n, shift, y0, x0, rows, cols, of
                         _whole_cells(buf, rb, whole_a, whole_b, 2, col0, share, vr, 4)
                     else:
                         _whole_cells(buf, rb, whole_a, whole_b, 4, col0, share, vr, 4)
-                _cells(buf, rb, ca, whole_a, f, xa, xb, col0, share, vr, c1, finite)
-                _cells(buf, rb, whole_b, cb, f, xa, xb, col0, share, vr, c1, finite)
+                for e0, e1 in ((ca, whole_a), (whole_b, cb)):
+                    _cells(buf, rb, e0, e1, f, xa, xb, col0, share, vr, c1, finite)
 
 
 @njit(inline="always")
