@@ -295,6 +295,10 @@ class BatchSettings:
         elif self.aperture is not None or self.f_number is not None:
             owners = ", ".join(f"refocus_method={m.name!r}" for m in METHODS.values() if "aperture" in m.options)
             raise InvalidInputError(f"aperture and f_number are for {owners}")
+        if (self.aperture is not None or self.f_number is not None) and not (zs or self.viewer):
+            raise InvalidInputError("aperture and f_number set the depth of field of refocused images and of the viewer's "
+                                    "focal stack: give refocus_m or viewer=True (depth maps and all-in-focus images have "
+                                    "no depth of field)")
         # Every depth map (the batch's own, the one depth-aware refocusing renders from, the
         # viewer's) is estimated over depth-aware refocusing's range: a calibration that gives
         # none is refused here, before any frame is read or any file written.

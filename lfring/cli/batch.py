@@ -106,6 +106,13 @@ def command(ctx, inputs, outdir, calib, refocus_m, refocus_method, aperture, f_n
     if (zmin is not None or zmax is not None) and not (depth_map or viewer or (zs and refocus_method == "depth-aware")):
         raise click.UsageError("--zmin/--zmax go with --depth, --viewer or --refocus by --method depth-aware "
                                "(the range of their depth maps); nothing here makes a depth map")
+    if not (zs or viewer):
+        given = [flag for flag, name in (("--method", "refocus_method"), ("--aperture", "aperture"), ("--f-number", "f_number"))
+                 if ctx.get_parameter_source(name) is not click.core.ParameterSource.DEFAULT]
+        if given:
+            raise click.UsageError(f"{', '.join(given)} choose{'s' if len(given) == 1 else ''} how --refocus images and "
+                                   "the --viewer's focal stack are made; --depth and --all-in-focus have no method or "
+                                   "depth of field")
     if refocus_method != "depth-aware" and (aperture is not None or f_number is not None):
         raise click.UsageError("--aperture and --f-number are for --method depth-aware")
     if aperture is not None and f_number is not None:

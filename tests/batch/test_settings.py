@@ -189,3 +189,28 @@ def test_cli_refocus_depths_are_refused_naming_the_option(refocus, text, tmp_pat
     (line,) = [t for t in capsys.readouterr().err.splitlines() if t.startswith("Error: ")]
     assert text in line and "refocus_m" not in line and "[" not in line
     assert not out.exists()  # refused before any work
+
+
+def test_aperture_without_refocused_images_or_a_viewer_is_refused():
+    """The aperture sets the depth of field of refocused images and of the viewer's stack: given
+    for a batch that only makes depth maps or all-in-focus images it would change nothing, and
+    its record would name an f-number no output was made with."""
+    for kw in (dict(depth=True, aperture=2.0), dict(depth=True, f_number=4.0), dict(all_in_focus=True, aperture=2.0)):
+        with pytest.raises(InvalidInputError, match="aperture and f_number set the depth of field"):
+            BatchSettings(**kw)
+    BatchSettings(viewer=True, aperture=2.0)
+    BatchSettings(refocus_m=(0.5,), depth=True, f_number=4.0)
+
+
+@pytest.mark.parametrize("options, flags", [(["--depth", "--method", "shift-and-add"], "--method chooses"),
+                                            (["--depth", "--aperture", "2"], "--aperture chooses"),
+                                            (["--all-in-focus", "--method", "depth-aware", "--f-number", "4"],
+                                             "--method, --f-number choose")])
+def test_cli_method_and_aperture_without_refocused_images_or_a_viewer_are_refused(options, flags, tmp_path, capsys):
+    from lfring.cli.main import main
+
+    out = tmp_path / "out"
+    assert main(["batch", CLI_FRAME, "-o", str(out), *options]) == 2
+    (line,) = [t for t in capsys.readouterr().err.splitlines() if t.startswith("Error: ")]
+    assert flags in line and "--depth and --all-in-focus have no method or depth of field" in line
+    assert not out.exists()  # refused before any work
