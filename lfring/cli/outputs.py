@@ -178,6 +178,10 @@ class OutputSet:
         canonical = {k: _canonical(v, files, k in OUTPUT_OPTIONS) for k, v in params.items()}
         self.key = _settings_key(self.command, canonical)
         self._typed_key = _settings_key(self.command, params)
+        # What the command resolved from its settings to make the outputs (the aperture an
+        # f-number came to, ...): written in the record beside the settings as typed, and no part
+        # of the key (the settings decide it).
+        self.made_with: dict = {}
         self._root = Path(os.path.commonpath([str(p.parent.absolute()) for p in [*self.paths, self.record]]))
 
     def _rel(self, p: Path) -> str:
@@ -383,7 +387,8 @@ class OutputSet:
             RECORD_KEY: RECORD_VERSION, "command": self.command, "status": status, "input": self.inputs,
             "input_identity": {os.path.realpath(p): input_identity(p, digest=True) for p in self.inputs},
             "settings_key": self.key,
-            "settings": self.settings, "outputs": dict(zip(rels, rels)),
+            "settings": self.settings, **({"made_with": self.made_with} if self.made_with else {}),
+            "outputs": dict(zip(rels, rels)),
             "output_keys": keys if status == "done" else {}, "pending_keys": {} if status == "done" else keys,
             "output_identity": ({rel: file_identity(p, digest=True) for rel, p in zip(rels, self.paths)}
                                 if status == "done" else {}),

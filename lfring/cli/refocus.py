@@ -214,6 +214,7 @@ def command(raw, depth, depths, sweep, aif, calib, reference, output, interpolat
     meta["aperture"] = resolve_aperture(cal, aperture, f_number) if method == "depth-aware" else None
     if f_number is not None:
         meta["f_number_device"] = cal.device  # whose main lens and view positions turned it into the aperture
+    outputs.made_with = {"method": method, "aperture": meta["aperture"]}
     stack = []
     narrow = depth_range_words("widen the range, or use --method shift-and-add (it needs no depth map)")
     with outputs.writing() as stage, narrow, warnings.catch_warnings(), progress_bar(len(zs), "refocus", "depth") as bar:

@@ -49,6 +49,7 @@ def command(raw, calib, zmin, zmax, planes, reference, min_confidence, method, a
     ring frames for the calibration are refused unless --no-check.
     """
     from lfring.core.geometry import check_reference
+    from lfring.focus import resolve_aperture
     from lfring.viewer import write_viewer
 
     out = Path(output) if output is not None else Path(f"{Path(raw).stem}_viewer.html")
@@ -60,6 +61,8 @@ def command(raw, calib, zmin, zmax, planes, reference, min_confidence, method, a
     outputs.check()
     views, cal, cal_name = load_views(raw, calib, levels, check=not no_check)
     ref = check_reference(reference, cal.num_views)
+    outputs.made_with = {"method": method,
+                         "aperture": resolve_aperture(cal, aperture, f_number) if method == "depth-aware" else None}
     note_first_compile(REFOCUS_KERNELS)
     with outputs.writing() as stage, depth_range_words(
             lambda n: "widen the range" if n is None else f"give --planes {n} or more, or widen the range"):

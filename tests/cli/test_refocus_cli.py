@@ -107,9 +107,15 @@ def test_refocus_sidecar_says_which_method_and_aperture(tmp_path):
     side = json.loads(Path(str(out) + ".json").read_text())
     assert side["method"] == "depth-aware" and side["f_number"] == 2.8 and side["f_number_device"] == "prototype"
     assert side["aperture"] == pytest.approx(aperture_from_f_number(2.8, load_device("prototype")))
+    # The set's record too: its settings as typed (no aperture), and what they made.
+    record = json.loads((tmp_path / "f.png.lfring.json").read_text())
+    assert record["settings"]["aperture"] is None and record["settings"]["f_number"] == 2.8
+    assert record["made_with"] == {"method": "depth-aware", "aperture": side["aperture"]}
     assert main(["refocus", str(SCENE), "--depth", "0.5", "--method", "shift-and-add", "-o", str(tmp_path / "s.png")]) == 0
     side = json.loads((tmp_path / "s.png.json").read_text())
     assert side["method"] == "shift-and-add" and side["aperture"] is None
+    assert json.loads((tmp_path / "s.png.lfring.json").read_text())["made_with"] == {"method": "shift-and-add",
+                                                                                      "aperture": None}
 
 
 def test_sweep_metadata_holds_the_depths_as_written(tmp_path):

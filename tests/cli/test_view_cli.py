@@ -84,12 +84,21 @@ def test_view_s_method_and_aperture_are_options_its_page_and_record_carry(tmp_pa
     assert main(["view", str(SCENE), "--planes", "4", "--aperture", "2", "-o", str(out)]) == 0
     d = _data(out)
     assert d["metadata"]["refocus_method"] == "depth-aware" and d["metadata"]["aperture"] == 2.0
-    settings = json.loads((tmp_path / "a.html.lfring.json").read_text())["settings"]
-    assert settings["method"] == "depth-aware" and settings["aperture"] == 2.0
+    record = json.loads((tmp_path / "a.html.lfring.json").read_text())
+    assert record["settings"]["method"] == "depth-aware" and record["settings"]["aperture"] == 2.0
+    assert record["made_with"] == {"method": "depth-aware", "aperture": 2.0}
     sa = tmp_path / "b.html"
     assert main(["view", str(SCENE), "--planes", "4", "--method", "shift-and-add", "-o", str(sa)]) == 0
     assert _data(sa)["metadata"]["refocus_method"] == "shift-and-add"
-    assert json.loads((tmp_path / "b.html.lfring.json").read_text())["settings"]["method"] == "shift-and-add"
+    record = json.loads((tmp_path / "b.html.lfring.json").read_text())
+    assert record["settings"]["method"] == "shift-and-add" and record["made_with"] == {"method": "shift-and-add",
+                                                                                       "aperture": None}
+    # An f-number comes to an aperture through the calibration's device: the page and the record say which.
+    fn = tmp_path / "d.html"
+    assert main(["view", str(SCENE), "--planes", "4", "--f-number", "2.8", "-o", str(fn)]) == 0
+    record = json.loads((tmp_path / "d.html.lfring.json").read_text())
+    assert record["settings"]["aperture"] is None
+    assert record["made_with"]["aperture"] == pytest.approx(_data(fn)["metadata"]["aperture"]) and 0 < record["made_with"]["aperture"]
     capsys.readouterr()
     assert main(["view", str(SCENE), "--method", "shift-and-add", "--f-number", "2.8", "-o", str(tmp_path / "c.html")]) == 2
     assert "--aperture and --f-number are for --method depth-aware" in capsys.readouterr().err
