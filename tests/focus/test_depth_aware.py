@@ -346,10 +346,14 @@ def _slanted_plane(seed=7, x_focus=1.5, samples=700):
 @pytest.mark.parametrize("x_focus", [1.5, 0.8, 2.2])
 def test_a_slanted_plane_blurs_without_seams(x_focus):
     """A plane whose blur radius grows steadily across the frame, refocused with its exact depth
-    against the image through the whole aperture: close to it everywhere, with no contour where
-    the radius crosses from one layer's to the next. Layers that each take the pixels nearest
-    their radius leave dark lines there (the error's mean along an iso-depth column peaks), and
-    shift-and-add shows copies."""
+    against the image through the whole aperture: close to it everywhere (shift-and-add, with its
+    copies, is 10 dB further), and no iso-depth column's mean error stands out. The layers'
+    own seams are pinned closer by two tests below: a pixel that jumps from one layer to the
+    next as the focus moves (layers that each take the pixels nearest their radius) fails
+    test_the_blur_changes_continuously_with_the_focus_and_the_depth, and a gap in the coverage
+    where the radius crosses from one pair of rungs to the next (which the division by the
+    coverage hides on a lone surface, but which shows whatever lies behind) fails
+    test_a_continuous_surface_s_layers_cover_it_wholly."""
     cal = _calibration()
     views, depth, truth = _slanted_plane(x_focus=x_focus)
     out = refocus(views, cal, 1.0 / x_focus, method="depth-aware", depth=depth)
@@ -417,6 +421,28 @@ def test_one_renderer_used_from_several_threads_renders_what_it_renders_alone():
         with pytest.raises(InvalidInputError, match="focus_m must be a depth in metres"):
             dof.render(bad, 1.0)
     assert np.isfinite(dof.render(float("inf"), 1.0)).all()
+
+
+def test_a_continuous_surface_s_layers_cover_it_wholly():
+    """A slanted surface's pixels are each shared between the two rungs around their blur
+    radius, and the two are one surface, which does not hide itself: composited far to near, its
+    layers cover it wholly away from the frame's edge. Where the rung behind is not seen through
+    the one in front (the rule for adjacent rungs broken) every boundary between two pairs of
+    rungs lost up to a quarter of its coverage (0.75 at worst here), a seam through which
+    anything behind the surface would show."""
+    import lfring.focus.depth_aware_kernels as kern
+    from lfring.focus.layers import NO_IMAGE, Grid, composite, ladder
+
+    rng = np.random.default_rng(5)
+    x = np.broadcast_to(np.linspace(*SLANT_X, N, dtype=np.float32), (N, N)).copy()
+    ones = np.ones((N, N), np.float32)
+    x_focus, motion = 1.5, GAIN * math.sqrt(2.0)
+    rmax = motion * max(abs(v - x_focus) for v in SLANT_X)  # 5.7 px: full-resolution rungs and one reduced
+    grid = Grid(ladder(rmax), (N, N), 3, (x_focus, motion, 1.0), {}, (0.5, 1.0, 0.0), 1.0)
+    acc = composite(grid.layers(kern, x, ones, ones, rng.random((N, N, 3)).astype(np.float32), NO_IMAGE), grid, kern)
+    m = math.ceil(rmax) + 2  # beyond the blurs' reach of the frame's edge
+    coverage = acc[m:N - m, m:N - m, 3]
+    assert grid.factors.max() == 2 and np.abs(coverage - 1.0).max() < 0.04, (coverage.min(), coverage.max())
 
 
 def test_the_blur_changes_continuously_with_the_focus_and_the_depth():
