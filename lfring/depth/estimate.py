@@ -131,7 +131,11 @@ def estimate_depth(
         in 16 bits (three times, with its eroded copy, while that takes at most
         ``lfring.depth.engines.fused.ERODED_VOLUME_BYTES``), and keep those volumes with the
         calibration object for its next call of the same size when they take at most
-        ``lfring.depth.engines.fused.KEEP_VOLUMES_BYTES``.
+        ``lfring.depth.engines.fused.KEEP_VOLUMES_BYTES``. The fused passes serve the NumPy
+        backend with an 'lcn' cost of all views, box aggregation, 4 paths and views that every
+        hypothesis moves by a shift (``lfring.depth.engines.fused.fused_shifts``); other calls
+        of 'sgm' run the reference's float32 passes (and are weighed against the free memory
+        as those).
         It needs hypotheses more than one pixel of view motion apart (``InvalidInputError``
         otherwise). The result is refined by an edge-aware weighted median;
         ``DepthResult.depth_filled_m`` also fills the unconfident pixels
@@ -230,7 +234,7 @@ def estimate_depth(
     finisher = Finisher(plan.depths, calibration.depth_origin_m, arr.shape[1:3], min_views)
     # The host holds the volumes, but for an engine whose kernels run on the torch device.
     on_device = backend == "torch" and engine.device_frames and _runs_on_device(device, plan)
-    need = 0 if on_device else _check_memory(engine, len(plan.depths), arr.shape[1:3])
+    need = 0 if on_device else _check_memory(engine, calibration, plan, settings, arr.shape[1:3])
     try:
         extra = engine.run(arr, calibration, plan, settings, finisher, Progress(progress, arr.shape[1]))
     except MemoryError:
@@ -270,11 +274,12 @@ def _runs_on_device(device, plan) -> bool:
     return gpu.engine_runs_on(resolve_device(device), plan)
 
 
-def _check_memory(engine, n: int, shape) -> int:
-    """The bytes the engine's cost volumes take at least for ``n`` hypotheses on views of
+def _check_memory(engine, calibration, plan, settings, shape) -> int:
+    """The bytes the engine's cost volumes take at least for the plan's hypotheses on views of
     ``shape``; refused where that is more than the system has free (where it cannot say, the
     call goes ahead)."""
-    need = engine.cell_bytes * n * int(shape[0]) * int(shape[1])
+    n = len(plan.depths)
+    need = engine.bytes_per_cell(calibration, plan, settings, tuple(shape)) * n * int(shape[0]) * int(shape[1])
     check_free_memory(need, _memory_words(engine, n, shape, need), _MEMORY_REMEDY)
     return need
 
@@ -329,7 +334,7 @@ def _estimate_frames(views, calibration, engine, depth_cost, levels, progress, o
                              device=dev, paths=options["paths"], consistency=options["consistency"])
     on_device = engine.device_frames and gpu.engine_runs_on(dev, plan)
     if not on_device:  # the host holds the volumes
-        _check_memory(engine, len(plan.depths), (h, w))
+        _check_memory(engine, calibration, plan, settings, (h, w))
     maps, extras = [], []
     for k in range(b):
         args = (plan.depths, calibration.depth_origin_m, (h, w), min_views)

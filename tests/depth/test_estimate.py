@@ -211,6 +211,11 @@ def test_a_call_that_needs_more_memory_than_is_free_is_refused_before_it_starts(
     assert np.isfinite(estimate_depth(views, cal, zmin_m=0.3, zmax_m=1.0, num_planes=n).depth_m).any()
     with pytest.raises(InvalidInputError, match="method='sgm-reference'"):
         estimate_depth(views, cal, zmin_m=0.3, zmax_m=1.0, num_planes=n, method="sgm-reference")
+    # Where the 16-bit passes do not serve the call (8 paths, guided aggregation, a cost other
+    # than 'lcn'), 'sgm' runs the reference's float32 passes and is weighed as it is.
+    for options in (dict(paths=8), dict(aggregation="guided"), dict(cost="zncc")):
+        with pytest.raises(InvalidInputError, match="method='sgm' over .* needs more memory"):
+            estimate_depth(views, cal, zmin_m=0.3, zmax_m=1.0, num_planes=n, **options)
     monkeypatch.setattr(memory, "available_memory_bytes", lambda: 0)
     assert estimate_depth(views, cal, zmin_m=0.3, zmax_m=1.0, num_planes=n, method="local").depth_m.shape == (h, w)
     # Where the system cannot say, the call goes ahead.

@@ -37,6 +37,10 @@ class DepthEngine:
         Host memory its cost volumes take at least, per pixel and hypothesis, at its peak: a call
         that would need more than the system has free is refused before it starts. 0 where the
         memory does not grow with the hypotheses (a streamed sweep).
+    call_cell_bytes : callable, optional
+        ``call_cell_bytes(calibration, plan, settings, view_shape)`` -> its ``cell_bytes`` for
+        one call, where that depends on the call (an engine whose compact passes do not serve
+        every call); ``cell_bytes`` when not given.
     device_frames : bool
         On the torch backend, where its GPU kernels run on the device
         (:func:`lfring.core.backend.kernels_run_on`), ``run`` also takes one frame's views
@@ -52,4 +56,11 @@ class DepthEngine:
     whole_volume: bool = False
     options: frozenset = frozenset()
     cell_bytes: int = 0
+    call_cell_bytes: Callable | None = None
     device_frames: bool = False
+
+    def bytes_per_cell(self, calibration, plan, settings, view_shape) -> int:
+        """Host memory per pixel and hypothesis of one call (see ``cell_bytes``)."""
+        if self.call_cell_bytes is None:
+            return self.cell_bytes
+        return self.call_cell_bytes(calibration, plan, settings, view_shape)

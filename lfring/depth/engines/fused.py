@@ -36,7 +36,8 @@ from lfring.depth.costs.lcn_occlusion import OCCLUSION_PENALTY
 from lfring.depth.plan import depths_key, guide_image
 from lfring.depth.sgm import EDGE_SCALE, P1_SCALE, P2_SCALE
 
-__all__ = ["ERODED_VOLUME_BYTES", "KEEP_VOLUMES_BYTES", "RESAMPLE_TOL_PX", "UNITS_PER_SCALE", "fused_index", "shift_plan"]
+__all__ = ["ERODED_VOLUME_BYTES", "KEEP_VOLUMES_BYTES", "RESAMPLE_TOL_PX", "UNITS_PER_SCALE", "fused_index", "fused_shifts",
+           "shift_plan"]
 
 # Integer steps per unit of the cost's scale (the small penalty P1 is one scale unit): fine
 # enough that rounding moves no decision of the paths, coarse enough that four paths of the
@@ -176,6 +177,20 @@ def _runs_of_ones(masks):
     return lo, hi
 
 
+def fused_shifts(calibration, plan, settings, view_shape):
+    """The shift plan (:func:`shift_plan`, made once per calibration, hypotheses and view size)
+    of a call that the fused passes serve, or None where they do not: the NumPy backend, an
+    'lcn' cost of all views, box aggregation, 4 paths, and views that every hypothesis moves by
+    a shift (after a fixed resampling)."""
+    cost = settings.cost
+    if (settings.backend != "numpy" or not cost.lcn or cost.leave_one_out or settings.aggregation != "box"
+            or settings.paths != 4):
+        return None
+    h, w = view_shape
+    plan_key = ("fused_shift_plan", plan.reference, depths_key(plan.depths), (h, w))
+    return calibration_cache(calibration, plan_key, lambda: shift_plan(plan.hs, (h, w)))
+
+
 def fused_index(views, calibration, plan, settings, subpixel_box_px: int, on_stage=None):
     """Fractional hypothesis index, confidence, views seen and guide of one reference frame, as
     :func:`lfring.depth.engines.semiglobal.semiglobal_index` defines them (the parabola fitted to
@@ -183,17 +198,14 @@ def fused_index(views, calibration, plan, settings, subpixel_box_px: int, on_sta
     ``on_stage(fraction)``, when given, is called as the passes finish (for progress reports)."""
     stage = on_stage if on_stage is not None else (lambda fraction: None)
     cost = settings.cost
-    if (settings.backend != "numpy" or not cost.lcn or cost.leave_one_out or settings.aggregation != "box"
-            or settings.paths != 4):
+    h, w = views.shape[1:3]
+    planned = fused_shifts(calibration, plan, settings, (h, w))
+    if planned is None:
         return None
     from lfring.depth.engines import fused_paths, fused_volume
     from lfring.depth.engines.fused_common import PENALTY_MAX
 
-    h, w = views.shape[1:3]
     plan_key = ("fused_shift_plan", plan.reference, depths_key(plan.depths), (h, w))
-    planned = calibration_cache(calibration, plan_key, lambda: shift_plan(plan.hs, (h, w)))
-    if planned is None:
-        return None
     shifts, remaps = planned
     n, v = shifts.shape[:2]
     masks = plan.masks

@@ -23,7 +23,7 @@ from lfring.core.threads import numba_threads
 from lfring.depth.aggregation import box_mean_of_finite, least_over_windows
 from lfring.depth.costs.lcn_halves import take_halves, view_halves
 from lfring.depth.engines.base import DepthEngine
-from lfring.depth.engines.fused import fused_index
+from lfring.depth.engines.fused import fused_index, fused_shifts
 from lfring.depth.engines.gpu import run_semiglobal_gpu
 from lfring.depth.plan import JUDGED_MIN_PLANES, baseline_axis, guide_image, other_reference
 from lfring.depth.refine import fill_from_farther_side, refine_index
@@ -171,6 +171,19 @@ def semiglobal_index(views, calibration, plan, settings, report=None, start=0.0,
     return index, confidence, nviews, guide
 
 
+# Host memory per pixel and hypothesis: the fused passes' volume and paths' sums, uint16 each (more
+# kept between their passes where they fit KEEP_VOLUMES_BYTES); the float32 passes' three volumes
+# (the cost, its eroded copy, the optimised one), which 'sgm' runs where the fused passes do not
+# serve the call.
+FUSED_CELL_BYTES = 4
+FLOAT32_CELL_BYTES = 12
+
+
+def _sgm_cell_bytes(calibration, plan, settings, view_shape) -> int:
+    served = fused_shifts(calibration, plan, settings, view_shape) is not None
+    return FUSED_CELL_BYTES if served else FLOAT32_CELL_BYTES
+
+
 SEMIGLOBAL = DepthEngine(
     name="sgm",
     summary="the whole cost volume optimised semi-globally along scan lines, in 16-bit fused passes (default)",
@@ -179,7 +192,8 @@ SEMIGLOBAL = DepthEngine(
     lcn_aggregate_px=SGM_AGGREGATE_PX,
     whole_volume=True,
     options=frozenset({"paths", "consistency"}),
-    cell_bytes=4,  # the volume and the paths' sums, uint16 each (more outside the fused passes)
+    cell_bytes=FUSED_CELL_BYTES,
+    call_cell_bytes=_sgm_cell_bytes,
     device_frames=True,
 )
 
@@ -191,5 +205,5 @@ SEMIGLOBAL_REFERENCE = DepthEngine(
     lcn_aggregate_px=SGM_AGGREGATE_PX,
     whole_volume=True,
     options=frozenset({"paths", "consistency"}),
-    cell_bytes=12,  # three float32 volumes: the cost, its eroded copy, the optimised one
+    cell_bytes=FLOAT32_CELL_BYTES,
 )
