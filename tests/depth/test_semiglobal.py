@@ -387,8 +387,8 @@ def test_the_eroded_volume_kept_between_the_passes_changes_no_answer(prototype, 
 def _path_numpy(cost, p1, p2, axis, backwards, guide):
     """One scan path of plain SGM over ``cost`` (h, N, w) int64 along ``axis`` (0: rows, 2:
     columns): L = c + min(L', L'[d -+ 1] + p1, min L' + p2') - min L', the first line its cost;
-    p2' = p2 / (1 + 4 |guide step|), at least p1 (the engine's rule with an edge scale of 0.25;
-    the guide's values 0 and 1 keep it exact)."""
+    p2' = p2 / (1 + 4 |guide step|), at least p1, rounded (the engine's rule with an edge scale
+    of 0.25; the caller's guide values keep its float32 quotients away from halves)."""
     c = cost if axis == 0 else cost.transpose(2, 1, 0)  # (lines, N, along a line)
     g = guide if axis == 0 else guide.T  # (lines, along a line)
     order = range(c.shape[0] - 1, -1, -1) if backwards else range(c.shape[0])
@@ -428,7 +428,9 @@ def test_the_paths_in_16_bits_add_up_as_plain_sgm_at_the_largest_costs_and_penal
     assert (n <= fused_paths.SIDE_BY_SIDE_HYPOTHESES) == (n <= 16)  # both sides of the switch
     vol = np.where(rng.random((h, n, w)) < 0.6, COST_MAX, rng.integers(0, COST_MAX, (h, n, w))).astype(np.uint16)
     p1, p2 = PENALTY_MAX // 8, PENALTY_MAX  # across a guide step of 1 the large jump costs p2 / 5 = 800
-    guide = (rng.random((h, w)) < 0.3).astype(np.float32)
+    # Steps of 0.3, 0.35, 0.65 and 0.7 as well: quotients with fractions of 0.11 to 0.67, which
+    # the penalty rounds (a truncation would be 1 short on some).
+    guide = rng.choice(np.array([0.0, 0.3, 0.65, 1.0], np.float32), (h, w), p=(0.55, 0.15, 0.15, 0.15))
     # Tiles of 48 columns: the side-by-side chunks of 32 columns straddle their edges.
     total = np.zeros(fused_paths.tile_shape(h, n, w, 48), np.uint16)
     eroded = np.zeros_like(total) if kept else np.zeros((0, 0, 0, 0), np.uint16)
