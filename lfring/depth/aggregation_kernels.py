@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-__all__ = ["finite_box_mean", "reflect"]
+from lfring.core.compiled import COMPILED as _JIT
 
-_JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")  # numpy: no zero-division checks, so loops vectorise
+__all__ = ["finite_box_mean", "reflect"]
 
 
 @njit(inline="always")

@@ -14,11 +14,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+from lfring.core.compiled import COMPILED as SERIAL
+from lfring.core.compiled import COMPILED_PARALLEL as KERNEL
+
 __all__ = ["bin_values", "depth_maps", "fill_inputs", "filled_map", "known_pixels", "value_range", "weighted_median"]
-
-
-KERNEL = dict(parallel=True, cache=True, nogil=True, fastmath=False, error_model="numpy")
-SERIAL = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
 
 
 @njit(**KERNEL)

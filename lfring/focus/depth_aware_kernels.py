@@ -30,10 +30,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+from lfring.core.compiled import COMPILED as _JIT
+
 __all__ = ["BLUR_TASK_ROWS", "add_seen", "clamp_cells", "disc_blur", "finish", "knot_maps", "knot_maps_at", "merge", "occluded", "over",
            "robust_mean", "rungs", "scatter", "shift_maps", "shift_maps_at", "splat_max"]
-
-_JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
 
 
 @njit(inline="always")

@@ -12,10 +12,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+from lfring.core.compiled import COMPILED as _JIT
+
 __all__ = ["fold_half", "half_terms", "leave_one_out", "lcn_normalise", "pair_terms", "take_least",
            "take_where", "volume_minima"]
-
-_JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")  # numpy: no zero-division checks, so loops vectorise
 
 
 @njit(**_JIT)

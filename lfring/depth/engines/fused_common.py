@@ -10,11 +10,13 @@ state) and a sum of four paths in uint16.
 
 from __future__ import annotations
 
+from lfring.core.compiled import COMPILED
+
 __all__ = ["COST_MAX", "COST_ZERO", "FAST", "INLINE", "JIT", "PARALLEL", "PENALTY_MAX", "UNKNOWN"]
 
 # Fast maths without "no infinities": unknown costs are inf until they are quantised.
 FAST = {"nsz", "arcp", "contract", "afn"}
-JIT = dict(cache=True, nogil=True, fastmath=FAST, error_model="numpy")
+JIT = dict(COMPILED, fastmath=FAST)
 PARALLEL = dict(JIT, parallel=True)
 # Small row helpers are inlined into their callers: a call per row and hypothesis costs more than
 # the row itself on the short rows of a span or a block of columns.
@@ -33,7 +35,3 @@ PENALTY_MAX = 4000
 # slightly negative, and those values keep their place below the others. The paths' sums carry
 # it once per path, the box means once; the distinctness measures take it off.
 COST_ZERO = 1024
-
-
-
-
