@@ -10,14 +10,13 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+# NumPy's error model (every division here is guarded): the paths' loops vectorise, with the same
+# sums. The pieces the kernels share run inside their parallel loops: compiled alike, without
+# parallel.
+from lfring.core.compiled import COMPILED as _PIECE
 from lfring.core.compiled import COMPILED_PARALLEL as _JIT
 
 __all__ = ["fill_values", "horizontal", "lines", "select_index", "select_index_both"]
-
-# numpy's error model: no zero-division checks (every division here is guarded), so the loops
-# vectorise and the paths take clearly less time, with the same sums.
-# The pieces the kernels share run inside their parallel loops: compiled alike, without parallel.
-_PIECE = {k: v for k, v in _JIT.items() if k != "parallel"}
 
 
 @njit(**_JIT)
