@@ -187,8 +187,12 @@ def fused_shifts(calibration, plan, settings, view_shape):
             or settings.paths != 4):
         return None
     h, w = view_shape
-    plan_key = ("fused_shift_plan", plan.reference, depths_key(plan.depths), (h, w))
-    return calibration_cache(calibration, plan_key, lambda: shift_plan(plan.hs, (h, w)))
+    return calibration_cache(calibration, _plan_key(plan, (h, w)), lambda: shift_plan(plan.hs, (h, w)))
+
+
+def _plan_key(plan, view_shape) -> tuple:
+    """The calibration cache's key of a shift plan, and the prefix of what is made from it."""
+    return ("fused_shift_plan", plan.reference, depths_key(plan.depths), tuple(view_shape))
 
 
 def fused_index(views, calibration, plan, settings, subpixel_box_px: int, on_stage=None):
@@ -205,7 +209,7 @@ def fused_index(views, calibration, plan, settings, subpixel_box_px: int, on_sta
     from lfring.depth.engines import fused_paths, fused_volume
     from lfring.depth.engines.fused_common import PENALTY_MAX
 
-    plan_key = ("fused_shift_plan", plan.reference, depths_key(plan.depths), (h, w))
+    plan_key = _plan_key(plan, (h, w))
     shifts, remaps = planned
     n, v = shifts.shape[:2]
     masks = plan.masks
