@@ -373,7 +373,7 @@ def scatter(colour, sharp, s, cover, q, window, n, shift, y0, x0, rows, cols, of
                 ca, cb = xa >> f, ((xb - 1) >> f) + 1
                 whole_a, whole_b = cb, cb  # the whole cells: whole_a .. whole_b - 1
                 if finite and c1 == 4 and f <= 2:
-                    whole_a = min(max((xa + (1 << f) - 1) >> f, ca), cb)
+                    whole_a = min((xa + (1 << f) - 1) >> f, cb)  # xa rounded up to a cell: never below ca
                     whole_b = max(xb >> f, whole_a)
                     if f == 1:
                         _whole_cells(buf, rb, whole_a, whole_b, 2, col0, share, vr, 4)
