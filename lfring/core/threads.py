@@ -7,6 +7,7 @@ import os
 import threading
 from concurrent.futures import ThreadPoolExecutor, wait
 
+import lfring.core.compiled  # noqa: F401  (TBB's library loaded before numba starts its threads)
 from lfring.core.signals import held_signals, signals_between
 
 __all__ = ["STRIP_PIXELS", "numba_threads", "run_threads"]

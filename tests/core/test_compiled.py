@@ -8,13 +8,18 @@ import textwrap
 
 from lfring.core.compiled import TBB_LIBRARY, load_tbb
 
-# A parallel kernel in a fresh process (the layer is chosen on the first parallel call), then the
-# same kernel in a child forked after it: the box mean of finite values over 3 x 3, on a ramp.
+# In a fresh process, numba's threads started as a depth call starts them (numba picks its layer
+# then, before any kernel module is imported), then a parallel kernel, then the same kernel in a
+# child forked after it: the box mean of finite values over 3 x 3, on a ramp.
 _SCRIPT = textwrap.dedent(
     """
     import multiprocessing, sys
     import numba, numpy as np
+    from lfring.core.threads import numba_threads
     from lfring.depth.aggregation import box_mean_of_finite
+
+    with numba_threads(1):
+        pass
 
     def mean(_=None):
         c = np.arange(64 * 48, dtype=np.float32).reshape(64, 48)
