@@ -62,6 +62,16 @@ def machine_line() -> str:
             f"OpenCV {cv2.__version__}, load {os.getloadavg()[0]:.2f}")
 
 
+def numba_layer_line() -> str:
+    """numba's threading layer (it picks one on its first parallel call: print this after)."""
+    import numba
+
+    try:
+        return f"numba threading layer: {numba.threading_layer()}"
+    except ValueError:
+        return "numba threading layer: none started"
+
+
 def mirrored_hard_scene():
     """The hard scene laid out anew, for rules tuned on the hard scene: every surface's centre
     mirrored through the optical axis and moved (x -> 4 mm - 0.9 x, y -> -3 mm - 0.9 y), the

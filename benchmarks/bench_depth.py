@@ -32,7 +32,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from _common import ZMAX, ZMIN, machine_line, random_views, twin_scene
+from _common import ZMAX, ZMIN, machine_line, numba_layer_line, random_views, twin_scene
 from _timing import bench, paired
 
 from lfring.depth import estimate_depth
@@ -151,6 +151,7 @@ def big_views(side: int = 1060, planes: int = 64, runs: int = 3) -> None:
         print("\nthread scaling of the default, time(1 thread) / time(t threads): " + ", ".join(
             f"{t}: {one / times[f'estimate_depth, defaults, threads={t}']:.2f}"
             for t in sorted({1, 2, 4, 8, 16, cores}) if t <= cores))
+    print(numba_layer_line())
     print("\npeak memory of one call at 128 planes (rise of VmHWM over the resident set before it, fresh process):")
     for method in ("sgm", "sgm-reference", "local"):
         out = subprocess.run([sys.executable, __file__, "--memory", str(side), "128", method], capture_output=True, text=True,
