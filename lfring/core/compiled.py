@@ -55,8 +55,7 @@ def _tbb_path() -> str | None:
     read, so only then)."""
     import sysconfig
 
-    bases = [sysconfig.get_path("data"), sysconfig.get_path("data", sysconfig.get_preferred_scheme("user")), sys.prefix]
-    for base in dict.fromkeys(bases):
+    for base in (sysconfig.get_path("data"), sysconfig.get_path("data", sysconfig.get_preferred_scheme("user"))):
         path = os.path.join(base, "lib", TBB_LIBRARY)
         if os.path.isfile(path):
             return path

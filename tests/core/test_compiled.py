@@ -45,14 +45,20 @@ def _tbb_installed():
     return True
 
 
-def test_parallel_kernels_run_on_tbb_where_it_is_installed():
-    """pip puts TBB's library where the loader does not look; lfring loads it so numba finds it,
-    and a child forked after a parallel pass runs one too (GNU OpenMP would end it)."""
-    env = {k: v for k, v in os.environ.items() if k != "NUMBA_THREADING_LAYER"}
+def _layer_in_a_fresh_process(env):
+    """The layer _SCRIPT's process ran on, once its kernel gave the ramp's centre in the process
+    and in the forked child alike."""
     out = subprocess.run([sys.executable, "-c", _SCRIPT], capture_output=True, text=True, env=env, timeout=600)
     assert out.returncode == 0, out.stderr
     layer, first, child = out.stdout.split()
     assert float(first) == float(child) == 10 * 48 + 10  # a ramp's mean over a box is its centre
+    return layer
+
+
+def test_parallel_kernels_run_on_tbb_where_it_is_installed():
+    """pip puts TBB's library where the loader does not look; lfring loads it so numba finds it,
+    and a child forked after a parallel pass runs one too (GNU OpenMP would end it)."""
+    layer = _layer_in_a_fresh_process({k: v for k, v in os.environ.items() if k != "NUMBA_THREADING_LAYER"})
     if sys.platform.startswith("linux") and _tbb_installed():
         assert layer == "tbb"
         path = load_tbb()
@@ -63,8 +69,4 @@ def test_parallel_kernels_run_on_tbb_where_it_is_installed():
 
 def test_a_chosen_layer_is_kept():
     """NUMBA_THREADING_LAYER still chooses: lfring only makes TBB findable."""
-    env = dict(os.environ, NUMBA_THREADING_LAYER="workqueue")
-    out = subprocess.run([sys.executable, "-c", _SCRIPT], capture_output=True, text=True, env=env, timeout=600)
-    assert out.returncode == 0, out.stderr
-    layer, first, child = out.stdout.split()
-    assert layer == "workqueue" and float(first) == float(child) == 490
+    assert _layer_in_a_fresh_process(dict(os.environ, NUMBA_THREADING_LAYER="workqueue")) == "workqueue"
