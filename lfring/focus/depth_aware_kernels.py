@@ -77,6 +77,10 @@ def rungs(x, agree, cover, sharp, window, x_f, motion, aperture, sharp_px, ramp_
     r0, r1, c0, c1 = window[0], window[1], window[2], window[3]
     moments32 = moments.astype(np.float32)
     n = moments.shape[0] - 1
+    top = moments32[n]
+    nn = np.int32(n)
+    nf = np.float32(n)
+    span = np.int32(2 * n + 2)  # a pixel's key: its rung times span, plus its second rung + 1
     w = x.shape[1]
     with_sharp = sharp.shape[0] == x.shape[0]
     c = sharp.shape[2]
@@ -87,8 +91,7 @@ def rungs(x, agree, cover, sharp, window, x_f, motion, aperture, sharp_px, ramp_
         lo_m = np.empty(c1 - c0, np.float32)
         hi_m = np.empty(c1 - c0, np.float32)
         i_row = np.empty(c1 - c0, np.int32)
-        ka = np.empty(c1 - c0, np.int64)
-        kb = np.empty(c1 - c0, np.int64)
+        key = np.empty(c1 - c0, np.int32)
         for y in range(max(r0, b * stripe), min(r1, (b + 1) * stripe)):
             sr = flat[(y * w + c0) * c:(y * w + c1) * c] if with_sharp else flat[0:0]
             xr, ar, cr, s_row = x[y, c0:c1], agree[y, c0:c1], cover[y, c0:c1], s[y, c0:c1]
@@ -119,37 +122,37 @@ def rungs(x, agree, cover, sharp, window, x_f, motion, aperture, sharp_px, ramp_
                     i_row[j] += 1 if below else 0
                     lo_m[j] = mr if below else lo_m[j]
                     hi_m[j] = min(hi_m[j], mr) if mr >= m_row[j] else hi_m[j]
+            # Each pixel's rungs in two passes that vectorise: its fractional rung (kept in
+            # lo_m), then its rungs packed in one key, -1 where it is not covered.
             q_row = q[y, c0:c1]
             for j in range(nj):
                 m = m_row[j]
-                inside = (n > 0) & (m <= moments32[n])
-                frac = np.float32(i_row[j] - 1) + (m - lo_m[j]) / (hi_m[j] - lo_m[j]) if inside else np.float32(n)
+                inside = (n > 0) & (m <= top)
+                frac = np.float32(i_row[j] - 1) + (m - lo_m[j]) / (hi_m[j] - lo_m[j]) if inside else nf
                 neg = aperture * (motion * (xr[j] - x_f)) < np.float32(0.0)
                 covered = not m < np.float32(0.0)  # a NaN moment is covered (the top rung)
                 q_row[j] = (-frac if neg else frac) if covered else np.float32(0.0)
-                lo = int(frac)
-                k = n - lo if neg else n + lo
-                k2 = n - lo - 1 if neg else n + lo + 1
-                ka[j] = k if covered else -2  # -2: not covered
-                kb[j] = -1 if frac <= lo or lo >= n else k2  # -1: the pixel has one rung
-            # Neighbours mostly share their rungs: a row's run of pixels between the same rungs
-            # enters the boxes once.
-            run_k = -1
-            run_k2 = -1
-            run_x0 = 0
-            run_x1 = 0
+                lo_m[j] = frac
             for j in range(nj):
-                k = ka[j]
-                if k == -2:
+                frac = lo_m[j]
+                lo = np.int32(frac)
+                step = np.int32(-1) if q_row[j] < np.float32(0.0) else np.int32(1)
+                k = nn + step * lo
+                k2 = np.int32(-1) if (frac <= np.float32(lo)) | (lo >= nn) else k + step  # -1: one rung
+                key[j] = k * span + k2 + np.int32(1) if not m_row[j] < np.float32(0.0) else np.int32(-1)
+            # Neighbours mostly share their rungs: a row's run of pixels between the same rungs
+            # enters the boxes once (the pixels not covered make runs of their own, which enter
+            # none: a rung's box is the same whether or not its runs are cut by them).
+            run = np.int32(-1)
+            run_x0 = 0
+            for j in range(nj + 1):
+                if j < nj and key[j] == run:
                     continue
-                k2 = kb[j]
-                if k != run_k or k2 != run_k2:
-                    _box_add(boxes, b, run_k, y, run_x0, run_x1)
-                    _box_add(boxes, b, run_k2, y, run_x0, run_x1)
-                    run_k, run_k2, run_x0 = k, k2, c0 + j
-                run_x1 = c0 + j
-            _box_add(boxes, b, run_k, y, run_x0, run_x1)
-            _box_add(boxes, b, run_k2, y, run_x0, run_x1)
+                if run >= 0:
+                    _box_add(boxes, b, run // span, y, c0 + run_x0, c0 + j - 1)
+                    _box_add(boxes, b, run % span - 1, y, c0 + run_x0, c0 + j - 1)
+                if j < nj:
+                    run, run_x0 = key[j], j
 
 
 @njit(inline="always")
