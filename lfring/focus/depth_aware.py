@@ -70,7 +70,7 @@ from lfring.calibration.model import view_motion_px
 from lfring.depth.selection import DepthResult
 from lfring.focus.base import RefocusMethod
 from lfring.focus.continuation import plane_continued
-from lfring.focus.layers import NO_IMAGE, Grid, composite, ladder, sum_layers
+from lfring.focus.layers import COMPOSITE, NO_IMAGE, Grid, composite, ladder, sum_layers
 from lfring.core.protocols import check_calibration
 
 __all__ = [
@@ -656,7 +656,8 @@ class DepthOfField:
             by, bx, summed = sum_layers(grid.layers(kern, x_b, self.agree, cover_b, colour_b, NO_IMAGE, window, "back"),
                                          (h, w), c)
         out = np.empty((h, w, c), np.float32)
-        kern.finish(acc, summed, by, bx, np.float32(WEIGHT_FLOOR), out)
+        kern.finish(acc, summed, by, bx, np.float32(WEIGHT_FLOOR), out, True)
+        grid.left_zeros(COMPOSITE, acc.size)
         return out
 
 

@@ -557,11 +557,13 @@ def _divided_filled(ar, br, orow, n, c1, floor):
 
 
 @njit(parallel=True, **_JIT)
-def finish(acc, back, by, bx, floor, out):
+def finish(acc, back, by, bx, floor, out, clear):
     """``out`` (h, w, C) = the composite ``acc`` (h, w, C + 1: premultiplied colour and
     coverage) with the background ``back`` (same layout, summed, placed at (``by``, ``bx``), or
     empty) filling the coverage it lacks, divided by the coverage; 0 where the coverage is at
-    most ``floor``. Every array C-contiguous; the rows' loops as in :func:`over`."""
+    most ``floor``. Where ``clear``, each row of ``acc`` is set to zeros once read (the next
+    render's composite starts from zeros, and the row is in cache here). Every array
+    C-contiguous; the rows' loops as in :func:`over`."""
     h, w, c1 = acc.shape
     c = c1 - 1
     bh, bw = back.shape[0], back.shape[1]
@@ -588,6 +590,8 @@ def finish(acc, back, by, bx, floor, out):
                 _divided_filled(a_s, br, o_s, jb - ja, 4, floor)
             else:
                 _divided_filled(a_s, br, o_s, jb - ja, c1, floor)
+        if clear:
+            ar[:] = np.float32(0.0)
 
 
 @njit(inline="always")

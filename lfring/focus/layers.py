@@ -14,7 +14,7 @@ import numpy as np
 
 from lfring.core.memory import fresh_zeros
 
-__all__ = ["COARSE_DISC_PX", "GEOMETRIC_STEP", "LINEAR_UNTIL_PX", "NO_IMAGE", "NO_MAP", "Grid", "Layer", "blur_moment",
+__all__ = ["COARSE_DISC_PX", "COMPOSITE", "GEOMETRIC_STEP", "LINEAR_UNTIL_PX", "NO_IMAGE", "NO_MAP", "Grid", "Layer", "blur_moment",
            "composite", "disc_kernel", "grid_factor", "ladder", "sum_layers"]
 
 # The ladder of blur radii of the layers: 0 and 1 px, then 0.5 px apart up to 3 px, 1 px apart up
@@ -77,6 +77,10 @@ def ladder(max_px: float) -> np.ndarray:
         r.append(last * GEOMETRIC_STEP if last >= LINEAR_UNTIL_PX else last + (0.5 if last < 3.0 else 1.0))
     return np.array(r)
 
+
+# The scratch buffer of the composite (:func:`composite`), which a render's last pass may leave
+# all zeros for the next (:meth:`Grid.left_zeros`).
+COMPOSITE = "composite"
 
 # What the compiled passes take for "no image" and "no map".
 NO_IMAGE = np.zeros((0, 0, 0), np.float32)
@@ -162,16 +166,23 @@ class Grid:
         """A float32 array of ``shape`` from the renderer's scratch memory (kept between renders:
         fresh memory costs a page fault per page on first write), filled with ``fill`` unless
         None. Fresh scratch is :func:`lfring.core.memory.fresh_zeros` (fast to touch, and
-        zeros already: a fill with 0 is then left out)."""
+        zeros already), and scratch handed back with :meth:`left_zeros` holds zeros: a fill
+        with 0 is then left out."""
         size = int(np.prod(shape))
         mem = self.scratch.get(name)
-        fresh = mem is None or mem.size < size
-        if fresh:
+        zeros = self.scratch.pop((name, "zeros"), 0)  # handed out, it holds zeros no longer
+        if mem is None or mem.size < size:
             mem = self.scratch[name] = fresh_zeros(max(size, 1))
+            zeros = size
         out = mem[:size].reshape(shape)
-        if fill is not None and not (fresh and fill == 0.0):
+        if fill is not None and not (fill == 0.0 and zeros >= size):
             out.fill(fill)
         return out
+
+    def left_zeros(self, name: str, size: int) -> None:
+        """Records that the caller left the first ``size`` values of the scratch buffer ``name``
+        all zeros (the next :meth:`buffer` of it with a fill of 0 is then not filled)."""
+        self.scratch[(name, "zeros")] = int(size)
 
     def layers(self, kern, x, agree, cover, colour, sharp, window=None, name="front") -> list:
         """The blurred layers (far to near) of the pixels of ``colour`` where ``cover`` > 0
@@ -246,7 +257,7 @@ def composite(layers: list, grid: Grid, kern) -> np.ndarray:
     too, with the group's transmission)."""
     h, w = grid.shape
     c = grid.channels
-    acc = grid.buffer("composite", (h, w, c + 1), 0.0)
+    acc = grid.buffer(COMPOSITE, (h, w, c + 1), 0.0)
     prev = None
     i = 0
     while i < len(layers):

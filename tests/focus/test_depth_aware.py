@@ -398,6 +398,34 @@ def test_a_renderer_reused_renders_what_a_fresh_one_does():
         assert np.array_equal(reused.render(focus_m, aperture), fresh.render(focus_m, aperture)), (focus_m, aperture)
 
 
+def test_a_render_stopped_midway_leaves_the_next_one_right(monkeypatch):
+    """A render leaves its composite's memory zeros for the next, which then does not clear it;
+    one stopped after compositing began (an error, an interrupt) must not: the next render
+    clears it, and gives the same image to the bit as a fresh renderer."""
+    from lfring.focus import depth_aware_kernels as kern
+
+    cal = _calibration()
+    views, depth, _ = _slanted_plane(samples=8)
+    depth[20:50, 50:70] = NEAR_M
+    dof = depth_of_field(views, cal, depth=depth)
+    first = dof.render(FAR_M, 1.0)  # leaves the composite zeros
+    real_over = kern.over
+
+    def over_then_stop(acc, *args):
+        real_over(acc, *args)
+        if acc.shape[:2] == depth.shape:  # the full-resolution composite, not a reduced group's
+            assert acc.any()  # it holds layers when the render stops
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(kern, "over", over_then_stop)
+    with pytest.raises(KeyboardInterrupt):
+        dof.render(1.0 / 1.5, 2.5)
+    monkeypatch.setattr(kern, "over", real_over)
+    fresh = depth_of_field(views, cal, depth=depth)
+    assert np.array_equal(dof.render(NEAR_M, 1.0), fresh.render(NEAR_M, 1.0))
+    assert np.array_equal(dof.render(FAR_M, 1.0), first)
+
+
 def test_one_renderer_used_from_several_threads_renders_what_it_renders_alone():
     """Renders share the renderer's kept memory: from a thread pool they came out mixed (parts
     of one focus's layers in another's image). They render one at a time now, each image as

@@ -440,7 +440,7 @@ def test_over_and_merge_composite_as_the_array_rules(channels):
 
 
 @pytest.mark.parametrize("channels", [1, 3])
-def test_finish_divides_by_the_coverage_with_the_background_filling_it(channels):
+def test_finish_divides_by_the_coverage_with_the_background_filling_it_and_clears_it_if_asked(channels):
     rng = np.random.default_rng(5 + channels)
     h, w, c1 = 20, 30, channels + 1
     acc = rng.random((h, w, c1)).astype(np.float32)
@@ -448,9 +448,11 @@ def test_finish_divides_by_the_coverage_with_the_background_filling_it(channels)
     acc[2, :5, -1] = 0.0
     back = rng.random((8, 12, c1)).astype(np.float32)
     floor = np.float32(1e-3)
-    for placed in (back, np.zeros((0, 0, 0), np.float32)):
+    for placed, clear in ((back, False), (np.zeros((0, 0, 0), np.float32), False), (back, True)):
         out = np.full((h, w, channels), -5.0, np.float32)
-        kern.finish(acc, placed, 1, 22, floor, out)  # the background reaches past the right edge
+        mine = acc.copy()
+        kern.finish(mine, placed, 1, 22, floor, out, clear)  # the background reaches past the right edge
+        assert not mine.any() if clear else np.array_equal(mine, acc)  # cleared once read, or left
         alpha = acc[..., -1:]
         b, on = _placed((h, w), placed, 1, 22) if placed.size else (np.zeros_like(acc), np.zeros((h, w), bool))
         fill = np.where(on[..., None], np.clip(1 - alpha, 0, 1), 0)
