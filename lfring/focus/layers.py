@@ -14,7 +14,7 @@ import numpy as np
 
 from lfring.core.memory import fresh_zeros
 
-__all__ = ["COARSE_DISC_PX", "COMPOSITE", "GEOMETRIC_STEP", "LINEAR_UNTIL_PX", "NO_IMAGE", "NO_MAP", "Grid", "Layer", "blur_moment",
+__all__ = ["COARSE_DISC_PX", "COMPOSITE", "GEOMETRIC_STEP", "LINEAR_UNTIL_PX", "NO_IMAGE", "NO_MAP", "SCRATCH_GROWTH", "Grid", "Layer", "blur_moment",
            "composite", "disc_kernel", "grid_factor", "ladder", "sum_layers"]
 
 # The ladder of blur radii of the layers: 0 and 1 px, then 0.5 px apart up to 3 px, 1 px apart up
@@ -77,6 +77,11 @@ def ladder(max_px: float) -> np.ndarray:
         r.append(last * GEOMETRIC_STEP if last >= LINEAR_UNTIL_PX else last + (0.5 if last < 3.0 else 1.0))
     return np.array(r)
 
+
+# Scratch that has to grow is made this many times the size asked for: the layers' sizes change
+# with the focus, a little from one render to the next, and fresh memory costs a page fault per
+# page on its first write (more than the render's own work on it).
+SCRATCH_GROWTH = 1.25
 
 # The scratch buffer of the composite (:func:`composite`), which a render's last pass may leave
 # all zeros for the next (:meth:`Grid.left_zeros`).
@@ -172,7 +177,7 @@ class Grid:
         mem = self.scratch.get(name)
         zeros = self.scratch.pop((name, "zeros"), 0)  # handed out, it holds zeros no longer
         if mem is None or mem.size < size:
-            mem = self.scratch[name] = fresh_zeros(max(size, 1))
+            mem = self.scratch[name] = fresh_zeros(max(int(size * SCRATCH_GROWTH), 1))
             zeros = size
         out = mem[:size].reshape(shape)
         if fill is not None and not (fill == 0.0 and zeros >= size):

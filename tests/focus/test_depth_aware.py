@@ -398,6 +398,27 @@ def test_a_renderer_reused_renders_what_a_fresh_one_does():
         assert np.array_equal(reused.render(focus_m, aperture), fresh.render(focus_m, aperture)), (focus_m, aperture)
 
 
+def test_a_renderer_moved_through_nearby_foci_keeps_its_memory(monkeypatch):
+    """The layers' sizes change a little with the focus; the renderer's scratch grows with room
+    to spare (fresh memory costs a page fault per page on first write), so a slider's worth of
+    nearby foci makes almost none anew, and renders what a fresh renderer does."""
+    from lfring.focus import layers
+
+    cal = _calibration()
+    views, depth, _ = _slanted_plane(samples=8)
+    depth[20:50, 50:70] = NEAR_M
+    dof = depth_of_field(views, cal, depth=depth)
+    dof.render(NEAR_M, 1.0)
+    made = []
+    real = layers.fresh_zeros
+    monkeypatch.setattr(layers, "fresh_zeros", lambda size: made.append(size) or real(size))
+    foci = NEAR_M + (FAR_M - NEAR_M) * np.linspace(0.0, 0.3, 40)
+    for focus_m in foci:
+        img = dof.render(focus_m, 1.0)
+    assert len(made) <= 2, made
+    assert np.array_equal(img, depth_of_field(views, cal, depth=depth).render(foci[-1], 1.0))
+
+
 def test_a_render_stopped_midway_leaves_the_next_one_right(monkeypatch):
     """A render leaves its composite's memory zeros for the next, which then does not clear it;
     one stopped after compositing began (an error, an interrupt) must not: the next render
