@@ -259,7 +259,9 @@ def composite(layers: list, grid: Grid, kern) -> np.ndarray:
     behind it, except the layer of the rung just behind: the two rungs around a pixel's radius
     are one surface, which does not hide itself. Consecutive layers on one reduced grid are
     composited there first, as one group (the composite of a group is a premultiplied layer
-    too, with the group's transmission)."""
+    too, with the group's transmission). A reduced grid's group of one layer is that layer: it
+    is composited at full resolution as the others are (its full-resolution cells are kept for
+    the next layer, which has it behind)."""
     h, w = grid.shape
     c = grid.channels
     acc = grid.buffer(COMPOSITE, (h, w, c + 1), 0.0)
@@ -271,12 +273,15 @@ def composite(layers: list, grid: Grid, kern) -> np.ndarray:
             j += 1
         group = layers[i:j]
         f = group[0].f
-        if f == 1:
+        if f == 1 or len(group) == 1:
             for lay in group:
                 behind, py, px = NO_IMAGE, 0, 0
                 if prev is not None and lay.k == prev.k + 1:
                     behind, py, px = prev.full(), prev.y0, prev.x0
-                kern.over(acc, lay.y0, lay.x0, lay.cells, behind, py, px, NO_MAP, NO_MAP, False)
+                cells = lay.full()
+                if cells.shape[0] > h - lay.y0 or cells.shape[1] > w - lay.x0:  # a reduced grid's cells past the frame
+                    cells = np.ascontiguousarray(cells[:h - lay.y0, :w - lay.x0])
+                kern.over(acc, lay.y0, lay.x0, cells, behind, py, px, NO_MAP, NO_MAP, False)
                 prev = lay
         else:
             uy0 = min(lay.y0 for lay in group)
@@ -298,11 +303,8 @@ def composite(layers: list, grid: Grid, kern) -> np.ndarray:
             # Onto the full-resolution composite: acc = group + transmission * acc (+ the skip term).
             size = (ux1 - ux0, uy1 - uy0)
             behind, py, px = (prev.full(), prev.y0, prev.x0) if adjacent else (NO_IMAGE, 0, 0)
-            # A group of one layer composited over zeros is that layer: its full-resolution cells
-            # (kept for the next layer, which has it behind) are the group's.
-            full = group[0].full() if len(group) == 1 else _resize(g, size, grid.vmax)
-            kern.merge(acc, uy0, ux0, full, _resize(trans, size, 1.0), _resize(skip, size, 1.0) if adjacent else NO_MAP,
-                       behind, py, px)
+            kern.merge(acc, uy0, ux0, _resize(g, size, grid.vmax), _resize(trans, size, 1.0),
+                       _resize(skip, size, 1.0) if adjacent else NO_MAP, behind, py, px)
             prev = group[-1]
         i = j
     return acc
