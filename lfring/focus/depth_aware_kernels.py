@@ -695,18 +695,56 @@ def _disc_row(rows_of, y, rows, length, quarter, n, c1, zero, fold, cols, out):
 
 
 @njit(inline="always")
+def _first_taps(col, fold, stride, quarter, j, m):
+    """``col`` = taps 0 .. ``m`` - 1 of column ``j`` of the quarter times their folded rows, in
+    that order, in one pass (``m`` a literal, 1 to 4)."""
+    k0 = quarter[0, j]
+    if m == 1:
+        for e in range(stride):
+            col[e] = k0 * fold[np.uintp(e)]
+        return
+    k1 = quarter[1, j]
+    b1 = np.uintp(stride)
+    if m == 2:
+        for e in range(stride):
+            u = np.uintp(e)
+            col[e] = k0 * fold[u] + k1 * fold[b1 + u]
+        return
+    k2 = quarter[2, j]
+    b2 = b1 + np.uintp(stride)
+    if m == 3:
+        for e in range(stride):
+            u = np.uintp(e)
+            col[e] = (k0 * fold[u] + k1 * fold[b1 + u]) + k2 * fold[b2 + u]
+        return
+    k3 = quarter[3, j]
+    b3 = b2 + np.uintp(stride)
+    for e in range(stride):
+        u = np.uintp(e)
+        col[e] = ((k0 * fold[u] + k1 * fold[b1 + u]) + k2 * fold[b2 + u]) + k3 * fold[b3 + u]
+
+
+@njit(inline="always")
 def _disc_row_any(rows_of, y, rows, length, quarter, n, c1, zero, fold, cols, out):
-    """:func:`_disc_row` for a reach known at run time: the same sums in the same order, each
-    tap a pass over the row (in cache), which vectorises without unrolling."""
+    """:func:`_disc_row` for a reach known at run time: the same taps in the same order (to
+    float32 rounding: which products are fused into additions is the compiler's choice). Each
+    column of the quarter is a pass over the row (in cache) for its first four taps, then one
+    more per tap: loops that vectorise without unrolling over the taps (reaches past 3, which
+    have more than four, are rare here: 4 and 5 have loops of their own)."""
     pad = n * c1
     stride = length + 2 * pad
     _fold_rows(rows_of, y, rows, length, n, pad, stride, zero, fold)
     col = cols[:stride]
     for j in range(n + 1):
-        k0 = quarter[0, j]
-        for e in range(stride):
-            col[e] = k0 * fold[np.uintp(e)]
-        for i in range(1, n + 1):
+        if n >= 3:
+            _first_taps(col, fold, stride, quarter, j, 4)
+        elif n == 2:
+            _first_taps(col, fold, stride, quarter, j, 3)
+        elif n == 1:
+            _first_taps(col, fold, stride, quarter, j, 2)
+        else:
+            _first_taps(col, fold, stride, quarter, j, 1)
+        for i in range(4, n + 1):
             k = quarter[i, j]
             fi = fold[i * stride:(i + 1) * stride]
             for e in range(stride):
@@ -733,8 +771,9 @@ def disc_blur(cells, quarter, out):
     that carry most of a render's blurs, 4 and 5, run loops compiled for them, which unroll over
     the taps and keep each value's sums in registers, three columns of the quarter at a time
     (each folded value is loaded once for the three); the others (each such copy would lengthen
-    the first compile) pass over the row once per tap. Indices are unsigned: numba checks a
-    signed one for a negative value, which keeps a loop from vectorising."""
+    the first compile) pass over the row once per column for its first four taps, and once per
+    further tap. Indices are unsigned: numba checks a signed one for a negative value, which
+    keeps a loop from vectorising."""
     rows, width, c1 = cells.shape
     length = width * c1
     n = quarter.shape[0] - 1
