@@ -170,10 +170,11 @@ class Grid:
     def buffer(self, name: str, shape, fill=None) -> np.ndarray:
         """A float32 array of ``shape`` from the renderer's scratch memory (kept between renders:
         fresh memory costs a page fault per page on first write), filled with ``fill`` unless
-        None. Fresh scratch is :func:`lfring.core.memory.fresh_zeros` (fast to touch, and
-        zeros already), and scratch handed back with :meth:`left_zeros` holds zeros: a fill
-        with 0 is then left out."""
-        size = int(np.prod(shape))
+        None. Scratch that has to grow is made :data:`SCRATCH_GROWTH` times the size asked
+        for. Fresh scratch is :func:`lfring.core.memory.fresh_zeros` (fast to touch, and zeros
+        already; the pages never written cost no memory), and scratch handed back with
+        :meth:`left_zeros` holds zeros: a fill with 0 is then left out."""
+        size = math.prod(shape)
         mem = self.scratch.get(name)
         zeros = self.scratch.pop((name, "zeros"), 0)  # handed out, it holds zeros no longer
         if mem is None or mem.size < size:
