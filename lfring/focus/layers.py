@@ -14,8 +14,8 @@ import numpy as np
 
 from lfring.core.memory import fresh_zeros
 
-__all__ = ["COARSE_DISC_PX", "COMPOSITE", "GEOMETRIC_STEP", "LINEAR_UNTIL_PX", "NO_IMAGE", "NO_MAP", "SCRATCH_GROWTH", "Grid", "Layer", "blur_moment",
-           "composite", "disc_kernel", "grid_factor", "ladder", "sum_layers"]
+__all__ = ["COARSE_DISC_PX", "COMPOSITE", "GEOMETRIC_STEP", "LINEAR_UNTIL_PX", "NO_IMAGE", "NO_MAP", "SCRATCH_GROWTH",
+           "Grid", "Layer", "blur_moment", "composite", "disc_kernel", "grid_factor", "ladder", "sum_layers"]
 
 # The ladder of blur radii of the layers: 0 and 1 px, then 0.5 px apart up to 3 px, 1 px apart up
 # to LINEAR_UNTIL_PX, then each GEOMETRIC_STEP times the last. Every pixel is shared between the
@@ -280,7 +280,7 @@ def composite(layers: list, grid: Grid, kern) -> np.ndarray:
                 if prev is not None and lay.k == prev.k + 1:
                     behind, py, px = prev.full(), prev.y0, prev.x0
                 cells = lay.full()
-                if cells.shape[0] > h - lay.y0 or cells.shape[1] > w - lay.x0:  # a reduced grid's cells past the frame
+                if cells.shape[0] > h - lay.y0 or cells.shape[1] > w - lay.x0:  # a reduced grid's, past the frame
                     cells = np.ascontiguousarray(cells[:h - lay.y0, :w - lay.x0])
                 kern.over(acc, lay.y0, lay.x0, cells, behind, py, px, NO_MAP, NO_MAP, False)
                 prev = lay
