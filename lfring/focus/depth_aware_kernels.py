@@ -440,27 +440,29 @@ def over(acc, oy, ox, layer, prev, py, px, trans, skip, first):
     (placed at ``py``, ``px``; zero outside it, or empty) is the layer of the rung just behind,
     which ``layer`` does not cover. ``trans`` (``acc``'s rows and columns, or empty) is
     multiplied by ``1 - a``; ``skip`` (or empty) is set to ``a`` (``first``) or multiplied by
-    ``1 - a``. Every array C-contiguous.
+    ``1 - a``. ``oy``, ``ox`` are at least 0; cells past ``acc``'s bottom or right edge are left
+    out (a reduced grid's last cells may reach past the frame). Every array C-contiguous.
 
     The rows are flat runs of cells; colour and coverage (C + 1 = 4 values a cell) run loops
     compiled for exactly 4 values, which vectorise, other channel counts the same loops for any
     count."""
     rows, cols, c1 = layer.shape
-    w = acc.shape[1]
+    h, w = acc.shape[0], acc.shape[1]
+    n = max(0, min(cols, w - ox))  # the cells of a row inside acc
     ph, pw = prev.shape[0], prev.shape[1]
     af = acc.reshape(acc.size)
     lf = layer.reshape(layer.size)
     pf = prev.reshape(prev.size)
     with_trans = trans.shape[0] > 0
     with_skip = skip.shape[0] > 0
-    for i in prange(rows):
+    for i in prange(max(0, min(rows, h - oy))):
         y = oy + i
         a0 = (y * w + ox) * c1
-        ar = af[a0:a0 + cols * c1]
-        lr = lf[i * cols * c1:(i + 1) * cols * c1]
-        pi, ja, jb = _overlap(y, ox, cols, py, px, ph, pw)
+        ar = af[a0:a0 + n * c1]
+        lr = lf[i * cols * c1:(i * cols + n) * c1]
+        pi, ja, jb = _overlap(y, ox, n, py, px, ph, pw)
         # The cells before the layer behind, over it (one pass for both terms), and after it.
-        for s0, s1 in ((0, ja), (jb, cols)):
+        for s0, s1 in ((0, ja), (jb, n)):
             if s1 > s0:
                 a_s, l_s = ar[c1 * s0:c1 * s1], lr[c1 * s0:c1 * s1]
                 if c1 == 4:
@@ -476,12 +478,12 @@ def over(acc, oy, ox, layer, prev, py, px, trans, skip, first):
             else:
                 _keep_add_behind(ab, lb, pr, jb - ja, c1)
         if with_trans:
-            tr = trans[y, ox:ox + cols]
-            for j in range(cols):
+            tr = trans[y, ox:ox + n]
+            for j in range(n):
                 tr[j] *= np.float32(1.0) - lr[np.uintp(c1 * j + c1 - 1)]
         if with_skip:
-            sr = skip[y, ox:ox + cols]
-            for j in range(cols):
+            sr = skip[y, ox:ox + n]
+            for j in range(n):
                 a = lr[np.uintp(c1 * j + c1 - 1)]
                 sr[j] = a if first else sr[j] * (np.float32(1.0) - a)
 

@@ -279,10 +279,7 @@ def composite(layers: list, grid: Grid, kern) -> np.ndarray:
                 behind, py, px = NO_IMAGE, 0, 0
                 if prev is not None and lay.k == prev.k + 1:
                     behind, py, px = prev.full(), prev.y0, prev.x0
-                cells = lay.full()
-                if cells.shape[0] > h - lay.y0 or cells.shape[1] > w - lay.x0:  # a reduced grid's, past the frame
-                    cells = np.ascontiguousarray(cells[:h - lay.y0, :w - lay.x0])
-                kern.over(acc, lay.y0, lay.x0, cells, behind, py, px, NO_MAP, NO_MAP, False)
+                kern.over(acc, lay.y0, lay.x0, lay.full(), behind, py, px, NO_MAP, NO_MAP, False)
                 prev = lay
         else:
             uy0 = min(lay.y0 for lay in group)

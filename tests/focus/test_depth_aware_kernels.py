@@ -424,6 +424,20 @@ def test_over_and_merge_composite_as_the_array_rules(channels):
         np.testing.assert_allclose(trans, np.where(on, trans0 * (1 - a[..., 0]), trans0), rtol=0, atol=1e-7)
         want_skip = a[..., 0] if first else skip0 * (1 - a[..., 0])
         np.testing.assert_allclose(skip, np.where(on, want_skip, skip0), rtol=0, atol=1e-7)
+    # A layer reaching past the composite's bottom right corner (a reduced grid's last cells):
+    # the cells inside composited, none written past the edge (a column past it would land in
+    # the next row, a row past it in the memory after the composite, kept here to check).
+    no_map = np.zeros((0, 0), np.float32)
+    edge = rng.random((12, 25, c1)).astype(np.float32)
+    memory = np.full(h * w * c1 + 40 * 40 * c1, -9.0, np.float32)
+    acc = memory[:h * w * c1].reshape(h, w, c1)
+    acc[:] = acc0
+    kern.over(acc, h - 7, w - 10, edge, prev, py, px, no_map, no_map, False)
+    a = _placed((h, w), edge[..., -1:], h - 7, w - 10)[0]
+    lay, on = _placed((h, w), edge, h - 7, w - 10)
+    behind = _placed((h, w), prev, py, px)[0]
+    np.testing.assert_allclose(acc, np.where(on[..., None], (acc0 * (1 - a) + lay) + a * behind, acc0), rtol=0, atol=1e-6)
+    assert (memory[h * w * c1:] == -9.0).all()
     # A group reaching past the composite's top left corner, with and without the skip term.
     group = rng.random((14, 20, c1)).astype(np.float32)
     trans_g = rng.random((14, 20)).astype(np.float32)
